@@ -1,0 +1,36 @@
+# Two entry points (see README): `make demo` and `make test`. Both do all set-up
+# on a fresh Debian 12 machine: libLLVM 19 for drjit, a virtual environment, packages.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+DEMO_OUT ?= demo-out
+
+.PHONY: setup llvm demo test test-all bench clean
+
+setup: llvm $(STAMP)
+
+# drjit 1.5 crashes with Debian's libLLVM 15; install 19 unless a usable one exists.
+llvm:
+	@$(PYTHON) scripts/ensure_llvm.py
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@if [ -f /opt/wheels/torch-2.13.0+cpu-cp311-cp311-manylinux_2_28_x86_64.whl ] || [ -n "$$SHADERBALL_TORCH" ]; then \
+		$(PY) -m pip install -q 'torch==2.13.0'; fi
+	touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/shaderball scene --out $(DEMO_OUT)/scene --resolution 256
+	@echo "demo: result in $(DEMO_OUT)/scene (open $(DEMO_OUT)/scene/preview.png)"
+
+test: setup
+	$(PY) -m pytest -q -n 2 -m "not soak" tests
+
+bench: setup
+	$(VENV)/bin/shaderball bench --help >/dev/null
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT)

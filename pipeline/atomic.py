@@ -1,0 +1,53 @@
+"""Durable, atomic file writes: a temporary file in the same folder, fsync, rename.
+
+A reader (or a resumed build) sees either the old complete file or the new complete
+file, never a torn one, whatever instant the writer is killed at.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+
+
+def fsync_dir(path: str) -> None:
+    """fsync a directory so a rename inside it survives a crash."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_bytes_atomic(path: str, data: bytes) -> str:
+    """Write ``data`` to ``path`` atomically and durably; return its SHA-256 hex digest."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="-" + os.path.basename(path), dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    fsync_dir(folder)
+    return hashlib.sha256(data).hexdigest()
+
+
+def write_text_atomic(path: str, text: str) -> str:
+    return write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def sha256_file(path: str, chunk_bytes: int = 1 << 20) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(chunk_bytes), b""):
+            digest.update(block)
+    return digest.hexdigest()
