@@ -1,0 +1,174 @@
+"""One sample's Mitsuba scene and its render.
+
+The scene holds only the effects the material calls for (:class:`EffectPlan`):
+constants instead of textures for a uniform material, no normal map when it is
+flat, no diffuse lobe when ``d (1 - s)`` is zero everywhere. The specular lobe is
+never dropped: the model's Schlick term is not zero for a zero specular albedo
+(docs/materials.md), so leaving it out would change the image.
+
+Renders use Mitsuba's ``moment`` integrator around the path tracer, which gives a
+per-pixel variance in the same pass: the noise estimate recorded with each render.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from pipeline.errors import ShaderballError
+from pipeline.stats import is_bad, render_stats
+
+INTEGRATORS = ("path",)
+SUN_MODES = ("split", "sunsky")
+#: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
+#: up to this many times in all; if every attempt is bad it is kept and flagged.
+MAX_RENDER_ATTEMPTS = 3
+_SEED_STEP = 0x9E3779B9  # golden-ratio step: retry seeds far from the original
+
+
+def _fail(field: str, value, allowed: str) -> ShaderballError:
+    return ShaderballError(f"{field}: {value!r} is not allowed; allowed: {allowed}")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a sample is rendered. Field names are the spec's `render` section's."""
+
+    resolution: int = 400
+    spp: int = 150
+    max_depth: int = 8
+    integrator: str = "path"
+    variant: str = "llvm_ad_rgb"
+    sun: str = "split"
+
+    def check(self, prefix: str = "render") -> "RenderSettings":
+        def integer(name, lo, hi):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+                raise _fail(f"{prefix}.{name}", value, f"an integer in [{lo}, {hi}]")
+
+        integer("resolution", 16, 4096)
+        integer("spp", 1, 65536)
+        integer("max_depth", 1, 64)
+        if self.integrator not in INTEGRATORS:
+            raise _fail(f"{prefix}.integrator", self.integrator, ", ".join(INTEGRATORS))
+        if self.sun not in SUN_MODES:
+            raise _fail(f"{prefix}.sun", self.sun, ", ".join(SUN_MODES))
+        return self
+
+
+@dataclass(frozen=True)
+class EffectPlan:
+    """What a sample's scene simulates; recorded per sample."""
+
+    textured: bool  # bitmap textures (spatially varying) vs constant parameters
+    normal_map: bool  # Mitsuba `normalmap` wrapper vs the geometric shading frame
+    diffuse_lobe: bool  # d (1 - s) / pi is non-zero somewhere
+    specular_lobe: bool  # always True for this model (Schlick F > 0 for s = 0)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def key(self) -> tuple:
+        return tuple(asdict(self).values())
+
+
+def plan_effects(maps) -> EffectPlan:
+    """The effects ``maps`` (a materials.MaterialMaps) needs, and nothing more."""
+    from materials.mitsuba_bsdf import needed_lobes
+
+    lobes = needed_lobes(maps)
+    return EffectPlan(
+        textured=maps.uniform_values() is None,
+        normal_map=not bool(np.all(maps.normal[..., 2] == 1.0)),
+        diffuse_lobe=lobes["diffuse_lobe"],
+        specular_lobe=lobes["specular_lobe"],
+    )
+
+
+def material_bsdf(maps, effects: EffectPlan, variant: str) -> dict:
+    """The Mitsuba dict of the material, honouring ``effects``."""
+    from materials import mitsuba_bsdf
+
+    mitsuba_bsdf.register(variant)
+    bsdf = mitsuba_bsdf.bsdf_dict(
+        maps, lobes={"diffuse_lobe": effects.diffuse_lobe, "specular_lobe": effects.specular_lobe}
+    )
+    if effects.normal_map != (bsdf["type"] == "normalmap"):
+        raise AssertionError("effect plan and BSDF disagree about the normal map")
+    return bsdf
+
+
+def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: EffectPlan | None = None,
+               *, seed: int = 0) -> tuple[dict, dict, EffectPlan]:
+    """The whole Mitsuba scene dict for one sample; also the lighting record and effects."""
+    from pipeline.mitsuba_scene import sensor_dict, shape_dicts
+    from sky import emitter_dicts
+
+    effects = effects or plan_effects(maps)
+    emitters, lighting_record = emitter_dicts(light, sun=settings.sun, variant=settings.variant)
+    scene = {
+        "type": "scene",
+        "integrator": {
+            "type": "moment",
+            "nested": {"type": settings.integrator, "max_depth": int(settings.max_depth)},
+        },
+        "sensor": sensor_dict(camera, settings.resolution, settings.spp, seed=seed),
+        **shape_dicts(ball, material_bsdf(maps, effects, settings.variant)),
+        **emitters,
+    }
+    return scene, lighting_record, effects
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    image: np.ndarray  # (H, W, 3) float32, linear Rec.709
+    variance: np.ndarray  # (H, W) float32, variance of the pixel estimate (mean over RGB)
+    stats: dict  # pipeline.stats.render_stats + time, spp, seed, attempts, flagged
+    lighting: dict  # the lighting policy's record
+    effects: EffectPlan
+
+
+def derived_seed(seed: int, attempt: int) -> int:
+    return (int(seed) + attempt * _SEED_STEP) % (1 << 32)
+
+
+def render_scene(mi, scene, spp: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Render a loaded scene (moment integrator); return (image, variance of the mean)."""
+    out = np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    image = np.ascontiguousarray(out[..., 0:3])
+    m1, m2 = out[..., 3:6].astype(np.float64), out[..., 6:9].astype(np.float64)
+    variance = np.clip(m2 - m1 * m1, 0.0, None).mean(axis=-1) / spp
+    return image, variance.astype(np.float32)
+
+
+def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int,
+                  mask: np.ndarray | None = None) -> RenderResult:
+    """Render one material under one light, re-rendering bad (NaN/Inf/negative) results."""
+    from pipeline.mitsuba_env import load_mitsuba
+
+    settings.check()
+    mi = load_mitsuba(settings.variant)
+    start = time.perf_counter()
+    scene_desc, lighting, effects = scene_dict(ball, camera, maps, light, settings)
+    scene = mi.load_dict(scene_desc)
+    attempts = []
+    for attempt in range(MAX_RENDER_ATTEMPTS):
+        attempt_seed = derived_seed(seed, attempt)
+        image, variance = render_scene(mi, scene, settings.spp, attempt_seed)
+        stats = render_stats(image, variance, mask)
+        attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"],
+                         "negative": stats["negative"]})
+        if not is_bad(stats):
+            break
+    stats.update(
+        time_s=time.perf_counter() - start,
+        spp=settings.spp,
+        seed=attempts[-1]["seed"],
+        attempts=len(attempts),
+        rejected_attempts=attempts[:-1],
+        flagged=is_bad(stats),
+    )
+    return RenderResult(image=image, variance=variance, stats=stats, lighting=lighting, effects=effects)

@@ -1,0 +1,51 @@
+"""Sun and sky: directions, the lighting vector, sampling, the hard-case policy, the emitter.
+
+Importing this package does not import Mitsuba; only the emitter functions
+(:func:`emitter_dicts`, :func:`update_emitter_params`) load it, through
+``pipeline.mitsuba_env``. See docs/sky.md.
+"""
+
+from sky.directions import normalize_azimuth, sun_angles, sun_direction
+from sky.emitter import (
+    DEFAULT_SUN,
+    SKY_KEY,
+    SPLIT_SAMPLING_WEIGHTS,
+    SUN_KEY,
+    SUN_MODES,
+    emitter_dicts,
+    update_emitter_params,
+)
+from sky.lighting import ELEVATION_RANGE, SCHEMES, TURBIDITY_RANGE, Light, LightingRanges
+from sky.policy import (
+    DEFAULT_POLICY,
+    SAFE_ELEVATION_DEG,
+    LightingPolicy,
+    apply_policy,
+    elevation_floor_deg,
+)
+from sky.sampling import direction_pdf, sample_lights
+
+__all__ = [
+    "DEFAULT_POLICY",
+    "DEFAULT_SUN",
+    "ELEVATION_RANGE",
+    "SAFE_ELEVATION_DEG",
+    "SCHEMES",
+    "SKY_KEY",
+    "SPLIT_SAMPLING_WEIGHTS",
+    "SUN_KEY",
+    "SUN_MODES",
+    "TURBIDITY_RANGE",
+    "Light",
+    "LightingPolicy",
+    "LightingRanges",
+    "apply_policy",
+    "direction_pdf",
+    "elevation_floor_deg",
+    "emitter_dicts",
+    "normalize_azimuth",
+    "sample_lights",
+    "sun_angles",
+    "sun_direction",
+    "update_emitter_params",
+]
