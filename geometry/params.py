@@ -56,12 +56,16 @@ class ShaderballParams:
         inner = r - self.shell_thickness_m
         _in_range("core_radius_m", self.core_radius_m, 0.3 * r, 0.98 * inner)
         _in_range("band_width_m", self.band_width_m, 0.05 * r, 1.2 * self.core_radius_m)
-        _in_range("band_tilt_deg", self.band_tilt_deg, -60.0, 60.0)
-        _in_range("band_span_deg", self.band_span_deg, 60.0, 300.0)
         _in_range("pedestal_radius_m", self.pedestal_radius_m, 0.2 * r, 2.0 * r)
         _in_range("pedestal_height_m", self.pedestal_height_m, 0.005, 0.5 * r)
         _in_range("neck_radius_m", self.neck_radius_m, 0.05 * r, min(0.5 * r, 0.9 * self.pedestal_radius_m))
         _in_range("neck_height_m", self.neck_height_m, 0.0, 2.0 * r)
+        _in_range("band_tilt_deg", self.band_tilt_deg, -60.0, 60.0)
+        # The band must stay clear of the circle where the neck enters the shell.
+        neck = self.neck_radius_m
+        clear = math.degrees(math.acos(0.5 * self.band_width_m / r) - math.atan2(neck, math.sqrt(r * r - neck * neck)))
+        _in_range("band_tilt_deg", self.band_tilt_deg, -min(60.0, clear), min(60.0, clear))
+        _in_range("band_span_deg", self.band_span_deg, 60.0, 300.0)
         _in_range("ground_half_size_m", self.ground_half_size_m, 4.0 * r, 1.0e4)
         _in_range("segments", self.segments, 32, 1024, integer=True)
         _in_range("texture_repeats", self.texture_repeats, 1, 64, integer=True)

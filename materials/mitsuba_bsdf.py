@@ -119,7 +119,7 @@ def bsdf_dict(
     bsdf: dict = {"type": PLUGIN_NAME, **lobes}
 
     def bitmap(data: np.ndarray) -> dict:
-        array = np.ascontiguousarray(data, dtype=np.float32)
+        array = np.array(data, dtype=np.float32, order="C", copy=True)  # writeable: nanobind rejects read-only
         if array.ndim == 2:
             array = array[..., None]
         return {

@@ -9,7 +9,6 @@ from sky.directions import normalize_azimuth, sun_angles, sun_direction
 from sky.emitter import (
     DEFAULT_SUN,
     SKY_KEY,
-    SPLIT_SAMPLING_WEIGHTS,
     SUN_KEY,
     SUN_MODES,
     emitter_dicts,
@@ -32,7 +31,6 @@ __all__ = [
     "SAFE_ELEVATION_DEG",
     "SCHEMES",
     "SKY_KEY",
-    "SPLIT_SAMPLING_WEIGHTS",
     "SUN_KEY",
     "SUN_MODES",
     "TURBIDITY_RANGE",

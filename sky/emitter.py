@@ -7,7 +7,7 @@ Two ways to light a scene with the Hosek-Wilkie model (docs/sky.md, "Emitter"):
 - ``sun="split"``: a sky-only ``sunsky`` (``sun_scale = 0``) plus a delta
   ``directional`` emitter whose irradiance equals the disk's: its radiance (uniform
   over the disk in Mitsuba 3.9's default RGB model) times its solid angle.
-  Emitter selection is weighted towards the sun (``SPLIT_SAMPLING_WEIGHTS``).
+  Emitter selection is weighted per light (:func:`split_sampling_weights`).
 
 Both take the sun direction in the world frame unchanged: ``sunsky``'s local
 frame is z-up like the world's, so it needs no ``to_world``.
@@ -29,10 +29,14 @@ SUN_MODES = ("split", "sunsky")
 DEFAULT_SUN = "split"
 #: Scene entry names of the emitters.
 SKY_KEY, SUN_KEY = "sky", "sun"
-#: Emitter sampling weights of the split (sun, sky). Fixed on purpose: Mitsuba
-#: bakes the scene's emitter selection probabilities into the kernel, so weights
-#: that changed per light would recompile for every sample.
-SPLIT_SAMPLING_WEIGHTS = (3.0, 1.0)
+#: Split mode: the sun's emitter sampling weight relative to the sky's (1) is this
+#: factor times the ratio of the sun's irradiance to the sky's radiant power (both
+#: luminance; a sphere's mean irradiance is a quarter of each). More than 1
+#: because BSDF sampling with MIS already covers the sky but can never hit a delta
+#: sun. Measured in docs/sky.md (`python -m sky.sun_benchmark`).
+SPLIT_SUN_WEIGHT_FACTOR = 3.0
+#: Bounds of the sun's relative weight.
+SPLIT_SUN_WEIGHT_RANGE = (0.02, 50.0)
 #: Rec. 709 luminance weights (renders are linear Rec. 709).
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
@@ -86,6 +90,22 @@ def directional_to_world(direction: np.ndarray):
     return mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, 0.0], target=travel.tolist(), up=up)
 
 
+def split_sampling_weights(sun_irradiance, sky_power) -> tuple[float, float]:
+    """(sun, sky) emitter sampling weights of the split for one light.
+
+    Never equal: Mitsuba 3.9 takes a separate code path for equal weights, and
+    updating weights in place from equal to unequal leaves the scene sampling
+    with the old ones (measured), so equality must never occur.
+    """
+    sun = float(LUMINANCE_RGB @ np.asarray(sun_irradiance))
+    sky = float(LUMINANCE_RGB @ np.asarray(sky_power))
+    ratio = SPLIT_SUN_WEIGHT_FACTOR * sun / sky if sky > 0.0 else SPLIT_SUN_WEIGHT_RANGE[1]
+    weight = float(np.clip(ratio, *SPLIT_SUN_WEIGHT_RANGE))
+    if abs(weight - 1.0) < 1e-3:
+        weight = 1.001
+    return round(weight, 6), 1.0
+
+
 def _emitter_state(effective: Light, sun: str, policy: LightingPolicy, variant: str) -> dict:
     """Everything both the dicts and the in-place update need, measured on the probe."""
     from pipeline.mitsuba_env import load_mitsuba
@@ -97,7 +117,12 @@ def _emitter_state(effective: Light, sun: str, policy: LightingPolicy, variant: 
     if sun == "split":
         irradiance, adjusted = desaturate_to_nonnegative(raw_irradiance)
         sky_min = probe.min_radiance("sky")
-        state.update(irradiance=irradiance, adjusted=adjusted, emitter_min=np.minimum(sky_min, irradiance.min()))
+        state.update(
+            irradiance=irradiance,
+            adjusted=adjusted,
+            emitter_min=np.minimum(sky_min, irradiance.min()),
+            weights=split_sampling_weights(irradiance, probe.sky_power()),
+        )
     else:
         state.update(irradiance=raw_irradiance, adjusted=False, emitter_min=probe.min_radiance("both"))
     if policy.floor != "off" and np.any(state["emitter_min"] < 0.0):
@@ -125,7 +150,7 @@ def _record(policy_record: dict, state: dict) -> dict:
         ),
         "min_radiance_rgb": [float(x) for x in state["emitter_min"]],
         "sampling_weights": (
-            {"sun": SPLIT_SAMPLING_WEIGHTS[0], "sky": SPLIT_SAMPLING_WEIGHTS[1]} if state["sun"] == "split" else None
+            {"sun": state["weights"][0], "sky": state["weights"][1]} if state["sun"] == "split" else None
         ),
     }
     return record
@@ -153,14 +178,14 @@ def emitter_dicts(
         entries = {SKY_KEY: sunsky_dict(d, effective.turbidity)}
     else:
         sky = sunsky_dict(d, effective.turbidity, sun_scale=0.0)
-        sky["sampling_weight"] = SPLIT_SAMPLING_WEIGHTS[1]
+        sky["sampling_weight"] = state["weights"][1]
         entries = {
             SKY_KEY: sky,
             SUN_KEY: {
                 "type": "directional",
                 "to_world": directional_to_world(d),
                 "irradiance": {"type": "rgb", "value": [float(x) for x in state["irradiance"]]},
-                "sampling_weight": SPLIT_SAMPLING_WEIGHTS[0],
+                "sampling_weight": state["weights"][0],
             },
         }
     return entries, _record(policy_record, state)
@@ -209,6 +234,7 @@ def update_emitter_params(
     if sun == "split":
         params[f"{sun_key}.irradiance.value"] = mi.Color3f(*(float(c) for c in state["irradiance"]))
         params[f"{sun_key}.to_world"] = mi.AffineTransform4f(directional_to_world(d))
+        params[f"{sun_key}.sampling_weight"], params[f"{sky_key}.sampling_weight"] = state["weights"]
     if update:
         params.update()
     return _record(policy_record, state)

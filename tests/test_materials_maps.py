@@ -134,7 +134,7 @@ def test_normals_from_height_orientation_and_scale():
     ramp_right = np.tile(np.sin(2 * np.pi * u)[None, :], (size, 1))  # rises towards +u near u = 0
     n = normals_from_height(ramp_right, depth=0.01)
     # Slope at u ~ 0: d/du (0.01 sin(2 pi u)) = 0.0628 -> normal tilts towards -x.
-    np.testing.assert_allclose(n[10, 0, 0], -0.0628 / np.sqrt(1 + 0.0628**2), rtol=2e-3)
+    np.testing.assert_allclose(n[10, 0, 0], -0.0628 / np.sqrt(1 + 0.0628**2), rtol=5e-3)
     assert abs(n[10, 0, 1]) < 1e-9
     # Height rising up the picture (towards row 0) tilts the normal towards -y.
     rises_up = np.tile(np.sin(2 * np.pi * u)[::-1, None], (1, size))
@@ -166,7 +166,7 @@ def test_uniform_sampler_reproducible_and_in_range():
     assert tilt.max() <= ranges.normal_tilt_max_deg + 1e-3
     flat = np.mean(n[:, 2] == 1.0)
     assert 0.4 < flat < 0.6
-    metal = np.mean(s.min(axis=1) > 0.2)
+    metal = np.mean(s.max(axis=1) > 0.15)  # dielectrics have s <= 0.08
     assert 0.2 < metal < 0.4
     # roughness spread over its range: every tenth of [0.05, 1] is hit
     assert len(np.unique(np.floor((r - 0.05) / 0.095))) == 10
@@ -207,21 +207,28 @@ def test_svbrdf_family_valid_reproducible_tileable(family):
     assert a.tobytes() != c.tobytes()
     assert not a.is_uniform()
     assert np.all(a.diffuse + a.specular <= 1.0 + 1e-6)
-    # Tileable: the wrap-around seam is no larger a step than steps inside the map.
+    # Tileable: the wrap-around seam is a step like those inside the map (a grout line or a
+    # stone edge may fall on it, so compare with the largest interior step, with slack).
     for m in (a.diffuse, a.roughness, a.normal):
-        m = m.reshape(m.shape[0], m.shape[1], -1)
-        cols = np.abs(np.diff(m, axis=1)).mean(axis=(0, 2))
-        seam_u = np.abs(m[:, 0] - m[:, -1]).mean()
-        assert seam_u <= cols.max() + 1e-7
-        rows = np.abs(np.diff(m, axis=0)).mean(axis=(1, 2))
-        seam_v = np.abs(m[0] - m[-1]).mean()
-        assert seam_v <= rows.max() + 1e-7
+        assert _seam_ratio(m) < 1.5
+
+
+def _seam_ratio(m):
+    m = m.reshape(m.shape[0], m.shape[1], -1)
+    cols = np.abs(np.diff(m, axis=1)).mean(axis=(0, 2))
+    rows = np.abs(np.diff(m, axis=0)).mean(axis=(1, 2))
+    seam_u = np.abs(m[:, 0] - m[:, -1]).mean()
+    seam_v = np.abs(m[0] - m[-1]).mean()
+    return max(seam_u / max(cols.max(), 1e-12), seam_v / max(rows.max(), 1e-12))
 
 
 def test_a_non_tileable_map_fails_the_seam_check():
     # Guard for the test above: a ramp has a seam far above its interior steps.
-    ramp = np.tile(np.linspace(0, 1, 64)[None, :], (8, 1))
-    assert np.abs(ramp[:, 0] - ramp[:, -1]).mean() > np.abs(np.diff(ramp, axis=1)).mean(axis=0).max()
+    ramp = np.tile(np.linspace(0, 1, 64)[None, :], (64, 1))
+    assert _seam_ratio(ramp) > 10
+    rng = np.random.default_rng(0)
+    blobs = np.cumsum(np.cumsum(rng.normal(size=(64, 64)), axis=0), axis=1)  # smooth, not periodic
+    assert _seam_ratio(blobs) > 1.5
 
 
 def test_svbrdf_families_have_their_character():
@@ -233,7 +240,8 @@ def test_svbrdf_families_have_their_character():
         metal = stats("brushed_metal", seed)
         assert metal.specular.mean() > 0.2 and metal.diffuse.mean() < 0.05
         tiles = stats("tiles", seed)
-        assert np.mean(tiles.roughness < 0.45) > 0.5 and np.mean(tiles.roughness > 0.8) > 0.03  # glossy tile, grout
+        glossy = np.median(tiles.roughness)
+        assert glossy < 0.45 and np.percentile(tiles.roughness, 99) > glossy + 0.2  # glossy tiles, rough grout
         bricks = stats("bricks", seed)
         assert np.median(bricks.roughness) > 0.5
         hue_red = bricks.diffuse[..., 0].mean() > bricks.diffuse[..., 2].mean()

@@ -1,0 +1,187 @@
+"""Building one shard: the unit of work, idempotent under at-least-once execution.
+
+A shard task may run twice, even at the same time, or be killed at any instant:
+
+- every file is written atomically (temp file, fsync, rename) and its bytes are a
+  pure function of the plan, so two runs write identical files;
+- a sample's record (``<sample>.json``) is written only after its files are durable;
+  a sample whose record verifies (files present with recorded sizes and SHA-256) is
+  not rendered again;
+- the shard's marker (``COMPLETE.json``), written last, lists every record. A shard
+  with a marker is complete and is trusted by later builds (``validate`` checks it).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.atomic import write_text_atomic
+from pipeline.layout import Layout
+from pipeline.plan import MaterialPlan, SamplePlan, ShardPlan
+from pipeline.records import SCHEMA_VERSION, dumps, file_entry, file_ok, read_json
+from pipeline.spec import DatasetSpec
+
+MAP_META_KEYS = ("id", "material")
+
+
+@dataclass
+class WorkerContext:
+    """Per-process state reused across samples: geometry, camera, G-buffer, Mitsuba."""
+
+    ball: object
+    camera: object
+    gbuffer: object
+    settings: object
+    variant: str
+
+
+_CONTEXTS: dict[tuple, WorkerContext] = {}
+
+
+def worker_context(spec: DatasetSpec) -> WorkerContext:
+    from geometry import build_shaderball, default_camera
+    from pipeline.gbuffer import load_gbuffer
+    from pipeline.mitsuba_env import load_mitsuba
+    from pipeline.render import RenderSettings
+
+    r = spec.render
+    key = (r.resolution, r.spp, r.max_depth, r.integrator, r.variant, spec.lighting.sun)
+    if key not in _CONTEXTS:
+        mi = load_mitsuba(r.variant)
+        ball, camera = build_shaderball(), default_camera()
+        settings = RenderSettings(resolution=r.resolution, spp=r.spp, max_depth=r.max_depth,
+                                  integrator=r.integrator, variant=mi.variant(), sun=spec.lighting.sun)
+        _CONTEXTS[key] = WorkerContext(ball, camera, load_gbuffer(ball, camera, r.resolution),
+                                       settings.check(), mi.variant())
+    return _CONTEXTS[key]
+
+
+def sample_verified(root: str, record: dict | None, hash_check: bool = True) -> bool:
+    return bool(record) and all(file_ok(root, entry, hash_check) for entry in record.get("files", []))
+
+
+def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan) -> dict:
+    """Build ``shard`` under ``root``; return a summary. Safe to run again or concurrently."""
+    layout = Layout(root)
+    marker = read_json(layout.marker(shard.shard_id))
+    if marker and marker.get("complete"):
+        return {"shard": shard.shard_id, "rendered": 0, "skipped": shard.n_renders, "seconds": 0.0}
+    start = time.perf_counter()
+    os.makedirs(layout.shard_dir(shard.shard_id), exist_ok=True)
+    records, rendered = [], 0
+    ctx = None
+    for material in shard.materials:
+        existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
+                    for s in material.samples]
+        if all(sample_verified(root, r) for r in existing):
+            records.extend(existing)
+            continue
+        ctx = ctx or worker_context(spec)
+        new = build_material(layout, spec, ctx, material, existing)
+        rendered += sum(1 for r, old in zip(new, existing) if r is not old)
+        records.extend(new)
+    write_marker(layout, shard, records)
+    return {"shard": shard.shard_id, "rendered": rendered, "skipped": shard.n_renders - rendered,
+            "seconds": time.perf_counter() - start}
+
+
+def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
+    marker = {
+        "schema": SCHEMA_VERSION,
+        "shard": shard.shard_id,
+        "complete": True,
+        "samples": [r["id"] for r in records],
+        "records": records,
+    }
+    write_text_atomic(layout.marker(shard.shard_id), dumps(marker) + "\n")
+
+
+def build_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
+                   existing: list[dict | None]) -> list[dict]:
+    """Write a material's maps (once) and every render it lacks; return all its records."""
+    from pipeline.materialize import make_material
+
+    maps, description = make_material(material, spec)
+    maps.check()
+    material_files = write_material_files(layout, spec, ctx, material, maps, description)
+    records = []
+    for sample, old in zip(material.samples, existing):
+        if sample_verified(layout.root, old) and old.get("files", [])[1:] == material_files:
+            records.append(old)
+            continue
+        records.append(render_and_record(layout, spec, ctx, sample, maps, description, material_files))
+    return records
+
+
+def write_material_files(layout, spec, ctx, material, maps, description) -> list[dict]:
+    """The screen-space maps (and texture-space maps) of a material, stored once."""
+    from pipeline.exr import write_exr
+    from pipeline.raster import project_material
+
+    storage = spec.storage
+    half = ("diffuse", "specular", "roughness", "normal") if storage.maps_half else ()
+    meta = {"id": material.material_id, "material": description,
+            "colorspace": "linear Rec.709 (sRGB primaries, D65) for diffuse and specular"}
+    screen = project_material(maps, ctx.gbuffer)
+    layers = {name: screen[name] for name in storage.layers}
+    rel = layout.maps_rel(material.shard_id, material.material_id)
+    files = [file_entry(layout.root, rel, "maps",
+                        write_exr(layout.path(rel), layers, meta, half=half, compression=storage.compression))]
+    if storage.texture_maps:
+        rel = layout.texture_rel(material.shard_id, material.material_id)
+        texture = {"diffuse": maps.diffuse, "specular": maps.specular,
+                   "roughness": maps.roughness, "normal": maps.normal}
+        digest = write_exr(layout.path(rel), texture, meta, half=half, compression=storage.compression)
+        files.append(file_entry(layout.root, rel, "texture", digest))
+    return files
+
+
+def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, material_files) -> dict:
+    from pipeline.exr import write_exr
+    from pipeline.render import render_sample
+    from sky import Light
+
+    light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+    result = render_sample(ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed,
+                           mask=ctx.gbuffer.mask)
+    effective = Light.from_dict(result.lighting["effective"])
+    stats = {k: v for k, v in result.stats.items()}
+    stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
+    meta = {"id": sample.sample_id, "material_id": sample.material_id, "lighting": result.lighting,
+            "effects": result.effects.to_dict(), "stats": stored_stats,
+            "colorspace": "linear Rec.709 (sRGB primaries, D65)"}
+    rel = layout.render_rel(sample.shard_id, sample.sample_id)
+    digest = write_exr(layout.path(rel), {"render": result.image}, meta,
+                       compression=spec.storage.compression)
+    record = {
+        "schema": SCHEMA_VERSION,
+        "id": sample.sample_id,
+        "material_id": sample.material_id,
+        "material_index": sample.material_index,
+        "light_index": sample.light_index,
+        "shard": sample.shard_id,
+        "material": description,
+        "lighting": {
+            "elevation_deg": effective.elevation_deg,
+            "azimuth_deg": effective.azimuth_deg,
+            "turbidity": effective.turbidity,
+            "direction": [float(x) for x in effective.direction],
+            "requested": result.lighting["requested"],
+            "policy": {k: v for k, v in result.lighting.items() if k not in ("requested", "effective")},
+        },
+        "lighting_vector": [float(x) for x in effective.lighting_vector()],
+        "seeds": {"material": sample.material_seed, "light": sample.light_seed,
+                  "render": sample.render_seed, "render_used": stats["seed"]},
+        "effects": result.effects.to_dict(),
+        "render": {"resolution": ctx.settings.resolution, "spp": ctx.settings.spp,
+                   "max_depth": ctx.settings.max_depth, "integrator": ctx.settings.integrator,
+                   "variant": ctx.variant, "sun": ctx.settings.sun},
+        "stats": stats,
+        "files": [file_entry(layout.root, rel, "render", digest)] + material_files,
+    }
+    write_text_atomic(layout.path(layout.record_rel(sample.shard_id, sample.sample_id)), dumps(record) + "\n")
+    return record
