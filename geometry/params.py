@@ -63,7 +63,8 @@ class ShaderballParams:
         _in_range("band_tilt_deg", self.band_tilt_deg, -60.0, 60.0)
         # The band must stay clear of the circle where the neck enters the shell.
         neck = self.neck_radius_m
-        clear = math.degrees(math.acos(0.5 * self.band_width_m / r) - math.atan2(neck, math.sqrt(r * r - neck * neck)))
+        edge = math.acos(0.5 * self.band_width_m / r)  # band edge's angle from the band's pole
+        clear = math.degrees(edge - math.atan2(neck, math.sqrt(r * r - neck * neck)))
         _in_range("band_tilt_deg", self.band_tilt_deg, -min(60.0, clear), min(60.0, clear))
         _in_range("band_span_deg", self.band_span_deg, 60.0, 300.0)
         _in_range("ground_half_size_m", self.ground_half_size_m, 4.0 * r, 1.0e4)

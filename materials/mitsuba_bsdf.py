@@ -27,9 +27,11 @@ name               type             default  meaning
 
 Normal maps go through Mitsuba's ``normalmap`` BSDF wrapping this one, with
 the map encoded by :func:`materials.maps.encode_normal_map` in a ``bitmap``
-texture with ``raw: True``; :func:`bsdf_dict` builds the whole description
-from :class:`materials.MaterialMaps`. Its tangent frame: x along ``dp/du``,
-y = n x x, z the shading normal (verified here on a UV-mapped quad).
+texture with ``raw: True`` and the settings of :func:`normalmap_dict`;
+:func:`bsdf_dict` builds the whole description from
+:class:`materials.MaterialMaps`. The wrapper's tangent frame: x along the
+shading frame's s (= ``dp/du`` projected), y = n x s, z the shading normal
+(checked by the tests on a UV-mapped quad).
 
 Mitsuba is loaded through :func:`pipeline.mitsuba_env.load_mitsuba` inside the
 functions, never at import time.
@@ -142,7 +144,26 @@ def bsdf_dict(
     flat = bool(np.all(maps.normal[..., 2] == 1.0))
     if flat:
         return bsdf
-    return {"type": "normalmap", "normalmap": bitmap(encode_normal_map(maps.normal)), "bsdf": bsdf}
+    return normalmap_dict(bitmap(encode_normal_map(maps.normal)), bsdf)
+
+
+def normalmap_dict(normal_texture: dict, bsdf: dict) -> dict:
+    """Mitsuba's ``normalmap`` around ``bsdf``, with the settings this model is tested with.
+
+    ``use_shadowing_function`` is off: Mitsuba 3.9 multiplies by default by a
+    shadow-terminator factor (Estevez et al. 2019) of the perturbed normal and
+    ``wo``, which is not part of Deschaintre et al.'s model and breaks
+    reciprocity. ``flip_invalid_normals`` stays on (Mitsuba's default): where
+    the viewer sees the back of the shading normal (``wi.n <= 0``) Mitsuba
+    mirrors the normal's tangential part instead of returning black.
+    """
+    return {
+        "type": "normalmap",
+        "normalmap": normal_texture,
+        "bsdf": bsdf,
+        "use_shadowing_function": False,
+        "flip_invalid_normals": True,
+    }
 
 
 def _define_class(mi):

@@ -154,7 +154,8 @@ def gbuffer_key(ball: Shaderball, camera: Camera, resolution: int) -> str:
 
 
 def gbuffer_path(ball: Shaderball, camera: Camera, resolution: int, cache_dir: str | None = None) -> str:
-    return os.path.join(cache_dir or default_cache_dir(), "gbuffer", gbuffer_key(ball, camera, resolution) + ".exr")
+    key = gbuffer_key(ball, camera, resolution)
+    return os.path.join(cache_dir or default_cache_dir(), "gbuffer", key + ".exr")
 
 
 def load_gbuffer(ball: Shaderball, camera: Camera, resolution: int, cache_dir: str | None = None) -> GBuffer:

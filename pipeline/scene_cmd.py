@@ -77,7 +77,11 @@ def render_preview(ball, camera, resolution: int, spp: int = PREVIEW_SPP, seed: 
         "integrator": {"type": "path", "max_depth": 6},
         **shape_dicts(ball, material),
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},
-        "sun": {"type": "directional", "direction": (-to_light).tolist(), "irradiance": {"type": "rgb", "value": 2.2}},
+        "sun": {
+            "type": "directional",
+            "direction": (-to_light).tolist(),
+            "irradiance": {"type": "rgb", "value": 2.2},
+        },
         "sensor": sensor_dict(camera, resolution, spp, seed=seed),
     }
     return np.array(mi.render(mi.load_dict(scene), seed=seed), dtype=np.float32)
@@ -129,7 +133,8 @@ def write_scene(out_dir: str, resolution: int = 400) -> SceneSummary:
 
     t = time.perf_counter()
     render = render_preview(ball, camera, resolution)
-    preview = np.concatenate([srgb8(render), mask_panel(gbuffer.mask, seams_smooth, seams_all & ~seams_smooth)], 1)
+    panel = mask_panel(gbuffer.mask, seams_smooth, seams_all & ~seams_smooth)
+    preview = np.concatenate([srgb8(render), panel], axis=1)
     timings["preview"] = time.perf_counter() - t
 
     with open(ball.mesh_files["material"], "rb") as fh:

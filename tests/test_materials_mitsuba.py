@@ -300,7 +300,7 @@ def _normalmap_bsdf(mi, normals, params):
     """normalmap(shaderball_ct) with an N x 1 float bitmap of encoded normals (may exceed [0, 1])."""
     encoded = (np.asarray(normals, dtype=np.float32) + 1.0) * 0.5
     inner = {"type": "shaderball_ct", **params}
-    return mi.load_dict({"type": "normalmap", "normalmap": _bitmap(mi, encoded), "bsdf": inner})
+    return mi.load_dict(mitsuba_bsdf.normalmap_dict(_bitmap(mi, encoded), inner))
 
 
 def test_hard_normals_through_normalmap_wrapper(mi, dr):
@@ -323,6 +323,13 @@ def test_hard_normals_through_normalmap_wrapper(mi, dr):
         _assert_finite_non_negative(_np3(weight), label=f"normalmap sample {r} {s}")
 
 
+def _wrapper_normal(wi, normals):
+    """The normal Mitsuba's wrapper uses: flip_invalid_normals mirrors the tangential part of
+    a normal the viewer sees from behind (and the wrapper zeroes wo below the surface)."""
+    seen_from_behind = np.sum(wi * normals, axis=1) * wi[:, 2] <= 0
+    return np.where(seen_from_behind[:, None], normals * [-1, -1, 1], normals)
+
+
 def test_normalmap_wrapper_uses_the_tangent_space_normal(mi, dr):
     rng = np.random.default_rng(8)
     n = 20000
@@ -339,9 +346,10 @@ def test_normalmap_wrapper_uses_the_tangent_space_normal(mi, dr):
     si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
     si.dp_du = mi.Vector3f(1, 0, 0)
     value = _np3(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
-    ref = brdf_ref.eval_brdf(wi, wo, normals, [0.3, 0.5, 0.7], [0.2, 0.1, 0.05], 0.4)
-    # Mitsuba's wrapper also zeroes wo below the geometric surface (wo.z <= 0): same here.
+    seen_from_behind = np.sum(wi * normals, axis=1) * wi[:, 2] <= 0
+    ref = brdf_ref.eval_brdf(wi, wo, _wrapper_normal(wi, normals), [0.3, 0.5, 0.7], [0.2, 0.1, 0.05], 0.4)
     ref = np.where((wo[:, 2:3] > 0) & (wi[:, 2:3] > 0), ref, 0.0)
+    assert 0.05 < seen_from_behind.mean() < 0.5 and np.mean(ref[:, 0] > 0) > 0.3
     # Float32 normal texture and frame: agreement to 1e-3 relative plus a small floor.
     np.testing.assert_allclose(value, ref, rtol=1e-3, atol=1e-6)
 
@@ -365,9 +373,9 @@ def test_normal_map_frame_on_a_uv_mapped_quad(mi, dr):
     wi_world = np.array([0.0, 0.0, 1.0])
     for tangent_normal in ([0.5, 0.0, 0.866], [0.0, 0.5, 0.866]):
         n = np.array(tangent_normal) / np.linalg.norm(tangent_normal)
-        bsdf = mi.load_dict({"type": "normalmap", "normalmap": {"type": "rgb", "value": ((n + 1) / 2).tolist()},
-                             "bsdf": {"type": "shaderball_ct", **base}})
-        value = _np3(bsdf.eval(ctx, si, si.to_local(mi.Vector3f(*wo_world))))[0]
+        bsdf = mi.load_dict(mitsuba_bsdf.normalmap_dict(
+            {"type": "rgb", "value": ((n + 1) / 2).tolist()}, {"type": "shaderball_ct", **base}))
+        value = _np3(bsdf.eval(ctx, si, si.to_local(mi.Vector3f(*map(float, wo_world)))))[0]
         expected = brdf_ref.eval_brdf(wi_world, wo_world, n, 0.0, 1.0, 0.3)  # n read as world x, y, z
         mirrored = brdf_ref.eval_brdf(wi_world, wo_world, n * [-1, -1, 1], 0.0, 1.0, 0.3)
         assert abs(value[0] / expected[0] - 1) < 2e-3, tangent_normal
@@ -442,7 +450,8 @@ def test_bsdf_dict_uniform_and_spatially_varying(mi, dr):
     si.dp_du = mi.Vector3f(1, 0, 0)
     value = _np3(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
     ref = brdf_ref.eval_brdf(
-        wi, wo, maps.normal.reshape(-1, 3), maps.diffuse.reshape(-1, 3), maps.specular.reshape(-1, 3),
+        wi, wo, _wrapper_normal(wi, maps.normal.reshape(-1, 3)), maps.diffuse.reshape(-1, 3),
+        maps.specular.reshape(-1, 3),
         maps.roughness.ravel(),
     )
     ref = np.where((wo[:, 2:3] > 0) & (wi[:, 2:3] > 0), ref, 0.0)
