@@ -7,11 +7,13 @@ in that order, each atomically; the npz is the entry's completion mark.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import logging
 import os
 import time
+import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,7 +30,7 @@ MESH_NAMES = ("material", "neutral", "ground")
 INDEX_FILE = "shaderball.npz"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Shaderball:
     """The built shaderball. Meshes are trimesh objects with ``process=False``.
 
@@ -82,7 +84,7 @@ def build_shaderball(params: ShaderballParams | None = None, cache_dir: str | No
     if _entry_complete(folder):
         try:
             return _load(params, folder)
-        except (OSError, ValueError, KeyError) as exc:  # a damaged entry is rebuilt
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # damaged: rebuild
             log.warning("rebuilding damaged geometry cache entry %s: %s", folder, exc)
     return _build_and_store(params, folder)
 
@@ -123,7 +125,7 @@ def _build_and_store(params: ShaderballParams, folder: str) -> Shaderball:
 
 
 def _with_timings(ball: Shaderball, timings: dict[str, float]) -> Shaderball:
-    return Shaderball(**{**ball.__dict__, "timings": timings})
+    return dataclasses.replace(ball, timings=timings)
 
 
 def _merge(patches: list[Patch]):

@@ -30,7 +30,7 @@ GBUFFER_CODE_VERSION = 1
 MIN_RESOLUTION, MAX_RESOLUTION = 16, 4096
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class GBuffer:
     """Screen-space geometry at pixel centres; row 0 is the top of the picture.
 

@@ -35,6 +35,7 @@ SKY_KEY, SUN_KEY = "sky", "sun"
 #: because BSDF sampling with MIS already covers the sky but can never hit a delta
 #: sun. Measured in docs/sky.md (`python -m sky.sun_benchmark`).
 SPLIT_SUN_WEIGHT_FACTOR = 3.0
+SPLIT_SUN_WEIGHT_EXPONENT = 1.0
 #: Bounds of the sun's relative weight.
 SPLIT_SUN_WEIGHT_RANGE = (0.02, 50.0)
 #: Rec. 709 luminance weights (renders are linear Rec. 709).
@@ -99,7 +100,7 @@ def split_sampling_weights(sun_irradiance, sky_power) -> tuple[float, float]:
     """
     sun = float(LUMINANCE_RGB @ np.asarray(sun_irradiance))
     sky = float(LUMINANCE_RGB @ np.asarray(sky_power))
-    ratio = SPLIT_SUN_WEIGHT_FACTOR * sun / sky if sky > 0.0 else SPLIT_SUN_WEIGHT_RANGE[1]
+    ratio = SPLIT_SUN_WEIGHT_FACTOR * (sun / sky) ** SPLIT_SUN_WEIGHT_EXPONENT if sky > 0.0 else SPLIT_SUN_WEIGHT_RANGE[1]
     weight = float(np.clip(ratio, *SPLIT_SUN_WEIGHT_RANGE))
     if abs(weight - 1.0) < 1e-3:
         weight = 1.001

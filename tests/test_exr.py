@@ -71,3 +71,11 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     write_bytes_atomic(str(target), b"two")
     assert target.read_bytes() == b"two"
     assert os.listdir(target.parent) == ["f.bin"]
+
+
+def test_atomic_write_has_ordinary_permissions(tmp_path):
+    mask = os.umask(0o022)
+    os.umask(mask)
+    target = tmp_path / "perm.bin"
+    write_bytes_atomic(str(target), b"x")
+    assert (target.stat().st_mode & 0o777) == (0o666 & ~mask)

@@ -197,8 +197,10 @@ def test_build_is_deterministic_and_a_damaged_entry_is_rebuilt(ball, tmp_path):
         with open(path, "rb") as a, open(ball.mesh_files[name], "rb") as b:
             assert a.read() == b.read(), name
     index = os.path.join(os.path.dirname(other.mesh_files["material"]), "shaderball.npz")
+    with open(index, "rb") as fh:
+        truncated = fh.read()[:200]  # a zip header, cut short
     with open(index, "wb") as fh:
-        fh.write(b"not an npz")
+        fh.write(truncated)
     rebuilt = build_shaderball(ShaderballParams(), cache_dir=str(tmp_path))
     assert "unwrap" in rebuilt.timings
     np.testing.assert_array_equal(rebuilt.face_chart, ball.face_chart)

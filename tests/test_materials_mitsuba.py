@@ -10,10 +10,9 @@ import itertools
 import numpy as np
 import pytest
 
-from materials import MaterialMaps, UniformMaterial, sample_svbrdf
+from materials import UniformMaterial, sample_svbrdf
 from materials import brdf_ref, mitsuba_bsdf
-from materials.albedo_table import build_lut
-from tests.test_materials_brdf import HARD_COSINES, HARD_NORMALS, HARD_ROUGHNESS, hard_directions
+from materials.testing import HARD_NORMALS, HARD_ROUGHNESS, hard_directions
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -8,7 +8,7 @@ import pytest
 
 from pipeline.errors import ShaderballError
 from sky import SUN_MODES, Light, emitter_dicts, sun_angles, update_emitter_params
-from sky.emitter import LUMINANCE_RGB, desaturate_to_nonnegative
+from sky.emitter import LUMINANCE_RGB, SPLIT_SUN_WEIGHT_RANGE, desaturate_to_nonnegative, split_sampling_weights
 from sky.probe import SUN_APERTURE_DEG, SUN_SOLID_ANGLE_SR, SunskyProbe
 from sky.probe_scene import BALL_CENTER, BALL_RADIUS, pixel_rays, probe_scene_dict, render
 
@@ -30,6 +30,15 @@ def test_desaturation_keeps_luminance_and_removes_negatives():
     assert changed and np.array_equal(black, np.zeros(3))
 
 
+def test_split_sampling_weights_follow_the_sun_and_are_never_equal():
+    sky_power = np.array([0.5, 0.6, 0.7])
+    weights = [split_sampling_weights(s * np.ones(3), sky_power)[0] for s in np.linspace(0.0, 5.0, 2001)]
+    assert np.all(np.diff(weights) >= 0.0)  # more sun, more sun samples
+    assert weights[0] == SPLIT_SUN_WEIGHT_RANGE[0] and weights[-1] == SPLIT_SUN_WEIGHT_RANGE[1]
+    assert 1.0 not in weights  # equal weights take another path in Mitsuba (see the docstring)
+    assert all(split_sampling_weights(s * np.ones(3), sky_power)[1] == 1.0 for s in (0.1, 1.0))
+
+
 @pytest.mark.parametrize("sun", SUN_MODES)
 def test_emitter_dicts_structure_and_record(mi, sun):
     light = Light(30.0, 200.0, 4.0)
@@ -43,7 +52,9 @@ def test_emitter_dicts_structure_and_record(mi, sun):
     else:
         assert set(entries) == {"sky", "sun"} and sky["sun_scale"] == 0.0
         assert entries["sun"]["type"] == "directional"
-        assert entries["sun"]["sampling_weight"] > sky["sampling_weight"]  # sun-weighted
+        weights = (entries["sun"]["sampling_weight"], sky["sampling_weight"])
+        assert weights[0] != weights[1]
+        assert record["emitter"]["sampling_weights"] == {"sun": weights[0], "sky": weights[1]}
     json.dumps(record)
     assert record["emitter"]["sun"] == sun
     assert min(record["emitter"]["min_radiance_rgb"]) >= 0.0
