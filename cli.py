@@ -139,21 +139,116 @@ def _progress_printer():
                    "resumed (only missing or unverified samples are rendered); another spec is refused.")
 @click.option("--workers", type=int, default=None,
               help="Local dask worker processes, 0 to 1024 [default: one per 2 cores]. 0 runs in this "
-                   "process without dask. Ignored with --scheduler.")
+                   "process without dask.")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
-              help="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster.")
+              help="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
+                   "(its workers need DIR at the same path; docs/cluster.md).")
+@click.option("--allow-spec-change", is_flag=True,
+              help="Accept a spec that differs from DIR/spec.toml in dataset.name or dataset.version only "
+                   "(no sample depends on them); any other difference is refused.")
+@click.option("--cluster", "cluster_kind", type=click.Choice(["local", "slurm", "pbs"]), default="local",
+              show_default=True, help="Where workers run: this machine, or batch jobs via dask-jobqueue.")
+@click.option("--jobs", type=int, default=None, help="slurm/pbs: batch jobs (nodes), 1 to 10000; one worker each.")
+@click.option("--cores", type=int, default=None, help="slurm/pbs: cores per job, 1 to 1024; every render uses all.")
+@click.option("--memory", default=None, metavar="SIZE",
+              help="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
+                   "its limit is restarted and its shard runs again.")
+@click.option("--walltime", default=None, metavar="HH:MM:SS",
+              help="slurm/pbs: wall-clock limit per job; workers retire 5 min (or 5%) before it.")
+@click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
+@click.option("--account", default=None, help="slurm/pbs: account to charge.")
+@click.option("--scratch", default=None, metavar="DIR",
+              help="slurm/pbs: node-local folder for the kernel cache and dask's files "
+                   "[default: ${TMPDIR:-/tmp}, expanded on the node].")
+@click.option("--recycle-after", type=int, default=0, show_default=True, metavar="SHARDS",
+              help="Restart a worker process after this many shards (bounds Mitsuba's memory growth); 0: never.")
+@click.option("--print-job-script", is_flag=True,
+              help="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.")
 @_friendly_errors
-def build_cmd(spec, out, workers, scheduler):
-    """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md)."""
+def build_cmd(spec, out, workers, scheduler, allow_spec_change, cluster_kind, jobs, cores, memory, walltime,
+              queue, account, scratch, recycle_after, print_job_script):
+    """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
+
+    Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
+    """
     from pipeline.build import build
+    from pipeline.cluster import ClusterOptions, job_script
+
+    options = ClusterOptions(kind=cluster_kind, workers=workers, scheduler=scheduler, jobs=jobs, cores=cores,
+                             memory=memory, walltime=walltime, queue=queue, account=account, scratch=scratch,
+                             recycle_after=recycle_after).check()
+    if print_job_script:
+        if not options.is_jobqueue:
+            raise click.UsageError("--print-job-script needs --cluster slurm or --cluster pbs")
+        click.echo(job_script(options), nl=False)
+        return
 
     def started(where, dashboard):
         click.echo(f"building with {where}" + (f"; dashboard {dashboard}" if dashboard else ""), err=True)
 
-    summary = build(spec, out, workers=workers, scheduler=scheduler, progress=_progress_printer(),
-                    on_start=started)
+    summary = build(spec, out, cluster=options, allow_spec_change=allow_spec_change,
+                    progress=_progress_printer(), on_start=started)
     for line in summary.lines():
         click.echo(line)
+
+
+@main.command("validate")
+@click.argument("directory", metavar="DIR", type=click.Path())
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the report as JSON on stdout: expected/present/valid render counts and "
+                   "problems [{kind, id, path, message}] (docs/validate.md).")
+@click.option("--repair", "fix", is_flag=True,
+              help="Fix what is bad (delete extra files, regenerate or re-render bad files and records, "
+                   "rewrite the manifest), then validate again. Renders are deterministic: repaired "
+                   "files are byte-identical to the originals.")
+@click.option("--fast", is_flag=True,
+              help="Check sizes, markers and records only; read no file (no SHA-256, no decoding).")
+@click.option("--workers", type=int, default=0, show_default=True,
+              help="With --repair: local dask worker processes for re-rendering; 0 renders in this process.")
+@_friendly_errors
+def validate_cmd(directory, as_json, fix, fast, workers):
+    """Check a dataset against its manifest, its plan and itself; exit 0 if valid, 1 if not.
+
+    Every file against the manifest (exists, size, SHA-256, decodes, layers), every value
+    for sanity (finite, in range, unit normals, non-negative renders, statistics), the
+    whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
+    Progress goes to stderr.
+    """
+    import json
+    import time
+
+    from pipeline.validate import repair, validate
+
+    if fast and fix:
+        raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
+    last = {"t": 0.0}
+
+    def show(p):
+        now = time.monotonic()
+        if p.done < p.total and now - last["t"] < 1.0:
+            return
+        last["t"] = now
+        unit = "files" if p.stage == "check" else "renders"
+        click.echo(f"{p.stage}: {p.done}/{p.total} {unit}, {p.bytes_read / 1e6:.1f} MB read, "
+                   f"{_format_seconds(p.elapsed_s)}", err=True)
+
+    if fix:
+        before, report, actions = repair(directory, workers=workers, progress=show)
+    else:
+        before, report, actions = None, validate(directory, fast=fast, progress=show), []
+    if as_json:
+        out = report.to_dict()
+        if fix:
+            out["repair"] = {"before": before.to_dict(), "actions": [a.to_dict() for a in actions]}
+        click.echo(json.dumps(out, indent=2))
+    else:
+        if fix:
+            click.echo(f"before repair: {len(before.problems)} problem(s); {len(actions)} action(s)")
+            for action in actions:
+                click.echo(f"  {action.action}: {action.message}")
+        for line in report.lines():
+            click.echo(line)
+    sys.exit(0 if report.ok else 1)
 
 
 if __name__ == "__main__":

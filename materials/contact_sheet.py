@@ -1,6 +1,7 @@
 """Contact sheet of procedural SVBRDF examples: ``python -m materials.contact_sheet --out PATH``.
 
-One row per family, ``--examples`` materials per row (seeds 0, 1, ...). Each
+One row per family, ``--examples`` materials per row (example k of family f is
+drawn from ``SeedSequence([seed, f, k])``). Each
 material shows a preview rendered with the numpy reference BRDF (flat
 sample 2 x 2 tiled, so seams would show, lit by a flash-like point light near
 the camera as in Deschaintre et al.'s inputs) next to its four maps: diffuse
@@ -73,7 +74,7 @@ def material_tile(maps: MaterialMaps) -> np.ndarray:
     return np.concatenate([preview_img, block], axis=1)
 
 
-def contact_sheet(*, examples: int = 3, resolution: int = 128, seed: int = SHEET_SEED) -> np.ndarray:
+def contact_sheet(*, examples: int = 4, resolution: int = 128, seed: int = SHEET_SEED) -> np.ndarray:
     """The sheet as a uint8 (H, W, 3) array: rows are families, with a label column."""
     from PIL import Image, ImageDraw
 
@@ -101,7 +102,7 @@ def contact_sheet(*, examples: int = 3, resolution: int = 128, seed: int = SHEET
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("docs/img/materials_contact_sheet.png"))
-    parser.add_argument("--examples", type=int, default=3, help="materials per family")
+    parser.add_argument("--examples", type=int, default=4, help="materials per family")
     parser.add_argument("--resolution", type=int, default=128, help="map side in texels")
     parser.add_argument("--seed", type=int, default=SHEET_SEED)
     args = parser.parse_args(argv)

@@ -105,6 +105,7 @@ def bsdf_dict(
     filter_type: str = "bilinear",
     wrap_mode: str = "repeat",
     lobes: dict[str, bool] | None = None,
+    variant: str = VARIANT,
 ) -> dict:
     """A Mitsuba dict for ``maps`` (call :func:`register` before ``mi.load_dict``).
 
@@ -112,11 +113,12 @@ def bsdf_dict(
     textures with ``raw: True`` (the maps are already linear; roughness and the
     encoded normal are data). A non-flat normal wraps the BSDF in Mitsuba's
     ``normalmap``; a flat one (every texel (0, 0, 1)) leaves it out. ``lobes``
-    defaults to :func:`needed_lobes`.
+    defaults to :func:`needed_lobes`. ``variant`` is the Mitsuba variant the
+    dict is for (the bitmaps are built with it; it becomes the current variant).
     """
     from pipeline.mitsuba_env import load_mitsuba
 
-    mi = load_mitsuba(VARIANT)
+    mi = load_mitsuba(variant)
     lobes = needed_lobes(maps) if lobes is None else lobes
     bsdf: dict = {"type": PLUGIN_NAME, **lobes}
 

@@ -82,11 +82,6 @@ def _finish(diffuse, specular, roughness, height, depth) -> MaterialMaps:
     return maps.check()
 
 
-def _normalise(x):
-    low, high = np.min(x), np.max(x)
-    return (x - low) / (high - low) if high > low else np.zeros_like(x)
-
-
 # ---- families -----------------------------------------------------------------------------
 
 

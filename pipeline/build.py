@@ -1,26 +1,40 @@
 """`shaderball build`: a spec to a sharded EXR dataset, in parallel, resumable.
 
-The one module that knows about dask. A shard (pipeline.shard) is one task; tasks are
-idempotent, so dask's at-least-once execution (a lost worker's tasks run again) is safe.
-Worker processes are spawned, never forked (Mitsuba's LLVM JIT and fork() don't mix).
+A shard (:mod:`pipeline.shard`) is one dask task; tasks are idempotent, so dask's
+at-least-once execution (a lost worker's tasks run again, possibly while the first run
+still goes on) is safe. This module submits the tasks; :mod:`pipeline.cluster` provides
+the workers (a local cluster, a scheduler address, SLURM or PBS). Worker processes are
+spawned, never forked (Mitsuba's LLVM JIT and fork() don't mix).
+
+Resume (docs/resume.md): a build on an existing directory of the same spec trusts every
+shard with a complete marker, re-renders only samples whose record does not verify, and
+rewrites the manifest. A different spec is refused, except a change of the fields no
+sample depends on (``dataset.name``, ``dataset.version``) with ``allow_spec_change``.
 """
 
 from __future__ import annotations
 
 import os
+import socket
 import threading
 import time
+import uuid
 from dataclasses import dataclass, field
 from typing import Callable
 
 from pipeline.atomic import write_text_atomic
+from pipeline.cluster import ClusterOptions
 from pipeline.errors import ShaderballError
 from pipeline.layout import Layout
 from pipeline.plan import ShardPlan, plan_dataset, plan_summary
 from pipeline.records import dumps, read_json
-from pipeline.spec import DatasetSpec, parse_spec, parse_spec_text, spec_digest, spec_to_toml
+from pipeline.spec import DatasetSpec, parse_spec, spec_digest, spec_to_dict, spec_to_toml
 
 LAYOUT_VERSION = 1
+#: Prefix of the temporary files of pipeline.atomic (left behind by a killed write).
+TEMP_PREFIX = ".tmp-"
+#: Spec fields no sample, file or layout depends on: the only ones --allow-spec-change accepts.
+SPEC_FIELDS_FREE_TO_CHANGE = (("dataset", "name"), ("dataset", "version"))
 
 
 @dataclass
@@ -45,6 +59,10 @@ class BuildSummary:
     shards: int
     dashboard: str | None = None
     notes: list[str] = field(default_factory=list)
+    #: worker processes that ran shards in this build (0 when nothing was rendered).
+    processes: int = 0
+    #: stale temporary files of killed writes removed at the end.
+    temp_removed: int = 0
 
     def lines(self) -> list[str]:
         rate = self.rendered / self.seconds if self.seconds > 0 else 0.0
@@ -65,12 +83,39 @@ def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
     return parse_spec(spec_path), text
 
 
-def check_output_dir(out: str, spec: DatasetSpec) -> str:
-    """Refuse an output directory that holds something else; return 'new' or 'resume'."""
+def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
+    """(section, key, old value, new value) for every field that differs."""
+    a, b = spec_to_dict(old), spec_to_dict(new)
+    return [(section, key, a[section].get(key), b[section].get(key))
+            for section in a for key in a[section] if a[section].get(key) != b[section].get(key)]
+
+
+def _describe_differences(diffs, limit: int = 4) -> str:
+    shown = [f"{s}.{k} = {_short(o)} in the dataset, {_short(n)} in the spec" for s, k, o, n in diffs[:limit]]
+    more = f" and {len(diffs) - limit} more" if len(diffs) > limit else ""
+    return "; ".join(shown) + more
+
+
+def _short(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _only_temp_files(names: list[str]) -> bool:
+    return all(n.startswith(TEMP_PREFIX) for n in names)
+
+
+def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = False) -> str:
+    """Refuse an output directory that holds something else.
+
+    Return 'new' (empty, missing, or only temporary files of a build killed before it wrote
+    its spec snapshot), 'resume' (same spec) or 'respec' (a change ``allow_spec_change``
+    permits: only ``dataset.name`` / ``dataset.version``; the snapshot is then rewritten).
+    """
     layout = Layout(out)
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
-    if not os.path.isdir(out) or not os.listdir(out):
+    if not os.path.isdir(out) or _only_temp_files(os.listdir(out)):
         parent = os.path.dirname(os.path.abspath(out))
         probe = parent
         while not os.path.exists(probe):
@@ -87,14 +132,24 @@ def check_output_dir(out: str, spec: DatasetSpec) -> str:
     except ShaderballError as exc:
         raise ShaderballError(f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
                               "run `shaderball validate --repair` or choose another directory") from None
+    mode = "resume"
     if spec_digest(existing) != spec_digest(spec):
-        raise ShaderballError(
-            f"--out: {out!r} holds dataset {existing.dataset.name!r} built from a different spec "
-            f"(digest {spec_digest(existing)[:12]} vs {spec_digest(spec)[:12]}); "
-            "resume it with its own spec (DIR/spec.toml) or choose another directory")
+        diffs = spec_differences(existing, spec)
+        blocking = [d for d in diffs if (d[0], d[1]) not in SPEC_FIELDS_FREE_TO_CHANGE]
+        if blocking or not allow_spec_change:
+            free = " or ".join(f"{s}.{k}" for s, k in SPEC_FIELDS_FREE_TO_CHANGE)
+            hint = (f"--allow-spec-change accepts a change of {free} only, which no sample "
+                    "depends on" if blocking else
+                    "these fields change no sample: pass --allow-spec-change to accept them")
+            raise ShaderballError(
+                f"--out: {out!r} holds dataset {existing.dataset.name!r} built from a different spec "
+                f"(digest {spec_digest(existing)[:12]} vs {spec_digest(spec)[:12]}): "
+                f"{_describe_differences(blocking or diffs)}. Resume it with its own spec "
+                f"({layout.spec}) or build into a new directory; {hint}")
+        mode = "respec"
     if not os.access(out, os.W_OK):
         raise ShaderballError(f"--out: {out!r} is not writable")
-    return "resume"
+    return mode
 
 
 def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict:
@@ -114,15 +169,15 @@ def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict
     }
 
 
-def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan]) -> str:
+def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False) -> str:
     """Create ``out`` with the spec snapshot and description; return the Mitsuba variant."""
     from pipeline.mitsuba_env import load_mitsuba
 
-    mode = check_output_dir(out, spec)
+    mode = check_output_dir(out, spec, allow_spec_change)
     variant = load_mitsuba(spec.render.variant).variant()
     os.makedirs(out, exist_ok=True)
     layout = Layout(out)
-    if mode == "new":
+    if mode in ("new", "respec"):
         write_text_atomic(layout.spec, spec_to_toml(spec))
     write_text_atomic(layout.description, dumps(description(spec, plans, variant)) + "\n")
     return variant
@@ -158,46 +213,93 @@ def write_manifest(out: str, plans: list[ShardPlan]) -> int:
     return len(lines)
 
 
-def render_threads(workers: int) -> int:
-    return max(1, (os.cpu_count() or 1) // max(1, workers))
+def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int:
+    """Remove temporary files (of writes killed mid-way) last modified before ``older_than``.
+
+    Called once a build is complete, with the build's start time: every write of this build
+    has finished by then, so a temp file older than its start belongs to a killed writer.
+    Removing a live writer's temp file (another build writing into the same directory, a
+    task of a worker wrongly declared dead) cannot corrupt anything: its rename fails, and
+    that task runs again. Return the count removed.
+    """
+    layout = Layout(out)
+    removed = 0
+    for folder in [out] + [layout.shard_dir(s.shard_id) for s in plans]:
+        try:
+            entries = list(os.scandir(folder))
+        except FileNotFoundError:
+            continue
+        for entry in entries:
+            if not entry.name.startswith(TEMP_PREFIX):
+                continue
+            try:
+                if entry.stat(follow_symlinks=False).st_mtime < older_than:
+                    os.unlink(entry.path)
+                    removed += 1
+            except FileNotFoundError:
+                pass
+    return removed
 
 
-def _run_shard_task(out: str, spec: DatasetSpec, shard: ShardPlan, threads: int) -> dict:
-    """The dask task: one shard, with a bounded Mitsuba thread pool in this worker."""
+def _run_shard_task(out: str, spec: DatasetSpec, shard: ShardPlan, threads: int | None,
+                    recycle_after: int = 0) -> dict:
+    """The dask task: one shard, with a bounded Mitsuba thread pool in this worker.
+
+    ``threads`` None: the worker decides (``SHADERBALL_RENDER_THREADS``, else its CPU set).
+    """
+    from pipeline.cluster import after_shard, worker_render_threads
     from pipeline.mitsuba_env import load_mitsuba
     from pipeline.shard import run_shard
 
+    if not os.path.isfile(Layout(out).spec):
+        # A worker without the shared filesystem would write a dataset of its own.
+        raise ShaderballError(
+            f"worker on {socket.gethostname()}: the dataset directory {out!r} is not visible "
+            "here (no spec.toml); every worker needs it at the same path on a shared filesystem")
     load_mitsuba(spec.render.variant)
     import drjit as dr
 
+    threads = threads or worker_render_threads()
     if dr.thread_count() != threads:
         dr.set_thread_count(threads)
-    return run_shard(out, spec, shard)
+    result = dict(run_shard(out, spec, shard), pid=f"{socket.gethostname()}:{os.getpid()}")
+    after_shard(recycle_after)
+    return result
 
 
 def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
+          cluster: ClusterOptions | None = None, allow_spec_change: bool = False,
           progress: Callable[[Progress], None] | None = None,
           on_start: Callable[[str, str | None], None] | None = None) -> BuildSummary:
     """Build (or resume) the dataset of ``spec_path`` into ``out``.
 
     ``workers``: local worker processes (default: one per 2 cores); 0 runs the shards in
-    this process, without dask. ``scheduler``: address of an existing dask scheduler
-    (then ``workers`` is ignored).
+    this process, without dask. ``scheduler``: address of an existing dask scheduler.
+    ``cluster``: every option of where the workers come from (then leave ``workers`` and
+    ``scheduler`` out). ``allow_spec_change``: accept a spec that differs from the
+    directory's snapshot in ``dataset.name`` / ``dataset.version`` only.
     """
     spec, _text = read_spec_text(spec_path)
-    if workers is not None and (isinstance(workers, bool) or workers < 0 or workers > 1024):
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 0 or workers > 1024):
         raise ShaderballError(f"--workers: {workers!r} is not allowed; allowed: an integer in [0, 1024]")
+    if cluster is None:
+        cluster = ClusterOptions(workers=workers, scheduler=scheduler)
+    elif workers is not None or scheduler is not None:
+        raise TypeError("build(): pass workers and scheduler inside cluster=, not beside it")
+    cluster.check()
     plans = plan_dataset(spec)
-    variant = prepare(out, spec, plans)
+    variant = prepare(out, spec, plans, allow_spec_change)
     total = sum(s.n_renders for s in plans)
     layout = Layout(out)
     todo = [s for s in plans if not (read_json(layout.marker(s.shard_id)) or {}).get("complete")]
     already = total - sum(s.n_renders for s in todo)
     start = time.perf_counter()
+    wall_start = time.time()
     results: list[dict] = []
     dashboard = None
     if todo:
-        if workers == 0 and scheduler is None:
+        if cluster.workers == 0 and cluster.scheduler is None and not cluster.is_jobqueue:
             if on_start:
                 on_start("in-process (no dask)", None)
             threads = os.cpu_count() or 1
@@ -206,14 +308,19 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
                 _report(progress, out, plans, total, already, start)
         else:
             results, dashboard = _run_with_dask(out, spec, plans, todo, total, already, start,
-                                                workers, scheduler, progress, on_start)
+                                                cluster, progress, on_start)
     write_manifest(out, plans)
+    removed = sweep_temp_files(out, plans, older_than=wall_start)
     seconds = time.perf_counter() - start
     rendered = sum(r["rendered"] for r in results)
     _report(progress, out, plans, total, already, start)
+    processes = len({r["pid"] for r in results if r.get("rendered")})
+    notes = [f"variant {variant}"]
+    if removed:
+        notes.append(f"removed {removed} temporary file(s) left by interrupted writes")
     return BuildSummary(out=out, total=total, rendered=rendered, skipped=total - rendered,
-                        seconds=seconds, shards=len(plans), dashboard=dashboard,
-                        notes=[f"variant {variant}"])
+                        seconds=seconds, shards=len(plans), dashboard=dashboard, notes=notes,
+                        processes=processes, temp_removed=removed)
 
 
 def _report(progress, out, plans, total, already, start):
@@ -227,53 +334,43 @@ def _report(progress, out, plans, total, already, start):
     progress(Progress(done=done, total=total, elapsed_s=elapsed, rate=rate, eta_s=eta))
 
 
-def _run_with_dask(out, spec, plans, todo, total, already, start, workers, scheduler, progress, on_start):
-    import dask
-    from distributed import Client, LocalCluster, as_completed
+def _run_with_dask(out, spec, plans, todo, total, already, start, options: ClusterOptions,
+                   progress, on_start):
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
 
-    cluster = None
-    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
-                          "distributed.worker.daemon": False,
-                          "distributed.scheduler.allowed-failures": 5}):
-        if scheduler:
-            try:
-                client = Client(scheduler, timeout="20s")
-            except OSError as exc:
-                raise ShaderballError(f"--scheduler: cannot reach {scheduler!r}: {exc}") from None
-            n_workers = max(1, len(client.scheduler_info().get("workers", {})))
-            threads = None  # remote workers size their own pools
-        else:
-            n_workers = workers or max(1, (os.cpu_count() or 1) // 2)
-            cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=40)
-            client = Client(cluster)
-            threads = render_threads(n_workers)
+    from pipeline.cluster import connect
+
+    # Remote workers resolve paths in their own working directory: give them an absolute one.
+    out_abs = os.path.abspath(out)
+    token = uuid.uuid4().hex[:8]
+    with connect(options) as conn:
+        client = conn.client
+        dashboard = client.dashboard_link if _has_dashboard() else None
+        if on_start:
+            on_start(conn.where, dashboard)
+        futures = [client.submit(_run_shard_task, out_abs, spec, shard, conn.render_threads,
+                                 options.recycle_after, key=f"shard-{shard.shard_id}-{token}",
+                                 pure=False)
+                   for shard in todo]
+        stop = threading.Event()
+
+        def report_loop():
+            while not stop.wait(1.0):
+                _report(progress, out, plans, total, already, start)
+
+        reporter = threading.Thread(target=report_loop, daemon=True)
+        reporter.start()
         try:
-            dashboard = client.dashboard_link if _has_dashboard() else None
-            if on_start:
-                on_start(scheduler or f"local cluster, {n_workers} worker process(es)", dashboard)
-            spec_future = client.scatter(spec, broadcast=True)
-            futures = [client.submit(_run_shard_task, out, spec_future, shard,
-                                     threads or render_threads(1), key=f"shard-{shard.shard_id}-{os.getpid()}",
-                                     pure=False)
-                       for shard in todo]
-            stop = threading.Event()
-
-            def report_loop():
-                while not stop.wait(1.0):
-                    _report(progress, out, plans, total, already, start)
-
-            reporter = threading.Thread(target=report_loop, daemon=True)
-            reporter.start()
-            try:
-                results = [f.result() for f in as_completed(futures)]  # raises a task's error here
-            finally:
-                stop.set()
-                reporter.join()
+            results = [f.result() for f in as_completed(futures)]  # raises a task's error here
+        except KilledWorker as exc:
+            raise ShaderballError(
+                f"build: a shard's worker died too often ({exc}); see the workers' logs (memory "
+                "limit? a crash in Mitsuba?). What was rendered is kept: run the same command "
+                "again to resume") from None
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            stop.set()
+            reporter.join()
     return results, dashboard
 
 

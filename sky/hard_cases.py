@@ -1,7 +1,7 @@
 """Measure where Mitsuba's RGB ``sunsky`` goes negative, and regenerate the floor table.
 
 ``python -m sky.hard_cases`` prints the raw emitter's behaviour on the hard-case
-sweep (the table in docs/sky.md); ``python -m sky.hard_cases --table`` measures
+sweep and what the policy does there (the table in docs/sky.md); ``python -m sky.hard_cases --table`` measures
 the elevation floor per turbidity and prints the literal pasted into
 ``sky/policy.py`` (``FLOOR_TABLE``). Slow (minutes): it evaluates the emitter on
 ~26,000 directions at several thousand (elevation, turbidity) points.
@@ -75,30 +75,44 @@ def floor_table(probe: SunskyProbe, knots=np.arange(1.0, 10.01, 0.25), fine_step
     return rows, measured
 
 
-def raw_sweep(probe: SunskyProbe):
-    """What the raw emitter gives on the sweep (turbidity in [1, 10] only: it rejects the rest)."""
+def sweep_rows(probe: SunskyProbe):
+    """Per sweep point: the raw emitter at the request, and what the policy does with it."""
+    from pipeline.errors import ShaderballError
+    from sky.lighting import Light
+    from sky.policy import apply_policy
+
     rows = []
     for t in SWEEP_TURBIDITIES:
-        if not 1.0 <= t <= 10.0:
-            rows.append((t, None, "rejected by sunsky at load"))
-            continue
         for e in SWEEP_ELEVATIONS_DEG:
+            row = {"turbidity": t, "elevation_deg": e}
+            try:
+                effective, record = apply_policy(Light(e, 0.0, t))
+            except ShaderballError as exc:
+                row["outcome"] = f"rejected: {str(exc).split(' is not allowed')[0]}"
+                rows.append(row)
+                continue
             probe.set(sun_direction(e, 0.0), t)
-            sun = probe.sun_disk_radiance() if e > 0 else np.zeros(3)
-            rows.append((t, e, probe.min_radiance(), sun, probe.sky_power()))
+            row["raw_sun_rgb"] = probe.sun_disk_radiance()
+            row["raw_sky_min_rgb"] = probe.min_radiance("sky")
+            row["outcome"] = (
+                f"raised to {effective.elevation_deg:g} deg" if record["changed"] else "rendered as requested"
+            )
+            rows.append(row)
     return rows
 
 
 def _print_sweep(probe: SunskyProbe) -> None:
-    print("| turbidity | elevation | min radiance RGB (sun+sky) | sun disk RGB | sky power RGB |")
+    fmt = lambda v: "(" + ", ".join(f"{x:.3g}" for x in v) + ")"  # noqa: E731
+    print("| turbidity | elevation deg | raw sun disk RGB | raw sky min RGB | policy |")
     print("|---|---|---|---|---|")
-    for row in raw_sweep(probe):
-        if row[1] is None:
-            print(f"| {row[0]} | any | {row[2]} | | |")
+    for row in sweep_rows(probe):
+        if "raw_sun_rgb" not in row:
+            print(f"| {row['turbidity']} | {row['elevation_deg']} | | | {row['outcome']} |")
             continue
-        t, e, mn, sun, sky = row
-        fmt = lambda v: "(" + ", ".join(f"{x:.4g}" for x in v) + ")"  # noqa: E731
-        print(f"| {t} | {e} | {fmt(mn)} | {fmt(sun)} | {fmt(sky)} |")
+        print(
+            f"| {row['turbidity']} | {row['elevation_deg']} | {fmt(row['raw_sun_rgb'])} | "
+            f"{fmt(row['raw_sky_min_rgb'])} | {row['outcome']} |"
+        )
 
 
 def main(argv=None) -> int:

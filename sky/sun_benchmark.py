@@ -10,8 +10,9 @@ with two independent half-references (MSE(ref) = MSE(half1, half2) / 4). The
 "bias" rows compare the two configurations' references: the split's systematic
 difference (sharp penumbra, no visible sun disk).
 
-Time: seconds per render at a larger size (median of ``--repeats``), kernels
-already compiled.
+Time: wall-clock and process CPU seconds (all of Mitsuba's threads) per render
+at a larger size, median of ``--repeats``, kernels already compiled. On a shared
+machine the CPU time is the steadier measure of work.
 
 About two to three minutes on 2 cores with the defaults. ``--sun-weight-factor``
 and ``--sun-weight-exponent`` try other rules for the split's emitter sampling
@@ -61,12 +62,31 @@ def noise_table(mi, resolution=64, spp_levels=(16, 150), ref_spp=2048, lights=LI
                 ref_mse = np.mean((half1 - half2) ** 2) / 4.0
                 refs[config] = ref
                 for spp in spp_levels:
-                    mse = max(np.mean((_render(mi, scene, spp, 1) - ref) ** 2) - ref_mse, 0.0)
-                    rows.append((light, material, config, spp, float(np.sqrt(mse)), float(ref.mean())))
+                    raw_mse = float(np.mean((_render(mi, scene, spp, 1) - ref) ** 2))
+                    rows.append(
+                        {
+                            "light": light,
+                            "material": material,
+                            "config": config,
+                            "spp": spp,
+                            "rmse": float(np.sqrt(max(raw_mse - ref_mse, 0.0))),
+                            "raw_rmse": float(np.sqrt(raw_mse)),
+                            "ref_rmse": float(np.sqrt(ref_mse)),
+                            "mean": float(ref.mean()),
+                        }
+                    )
             names = list(configs)
             for other in names[1:]:
                 bias = float(np.sqrt(np.mean((refs[names[0]] - refs[other]) ** 2)))
-                rows.append((light, material, f"bias: {other} vs {names[0]}", None, bias, float(refs[names[0]].mean())))
+                rows.append(
+                    {
+                        "light": light,
+                        "material": material,
+                        "config": f"bias: {other} vs {names[0]}",
+                        "raw_rmse": bias,
+                        "mean": float(refs[names[0]].mean()),
+                    }
+                )
     return rows
 
 
@@ -76,12 +96,13 @@ def time_table(mi, resolution=256, spp=64, repeats=3, light=LIGHTS[1], materials
         for config in configs:
             scene = _scene(mi, light, material, config, resolution, configs)
             _render(mi, scene, 4, 0)  # compile outside the timings
-            seconds = []
+            wall, cpu = [], []
             for r in range(repeats):
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.process_time()
                 _render(mi, scene, spp, 100 + r)
-                seconds.append(time.perf_counter() - start)
-            rows.append((material, config, float(np.median(seconds))))
+                wall.append(time.perf_counter() - start)
+                cpu.append(time.process_time() - start_cpu)
+            rows.append((material, config, float(np.median(wall)), float(np.median(cpu))))
     return rows
 
 
@@ -90,16 +111,29 @@ def _light(light: Light) -> str:
 
 
 def format_noise(rows) -> str:
-    lines = ["| light (el, az, T) | material | config | spp | RMSE | RMSE / mean |", "|---|---|---|---|---|---|"]
-    for light, material, config, spp, rmse, mean in rows:
-        lines.append(f"| {_light(light)} | {material} | {config} | {spp or ''} | {rmse:.5f} | {rmse / mean:.3f} |")
+    lines = [
+        "| light (el, az, T) | material | config | spp | RMSE | RMSE / mean | raw RMSE | ref. noise |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        head = f"| {_light(r['light'])} | {r['material']} | {r['config']} |"
+        if "spp" not in r:
+            lines.append(f"{head} | | | {r['raw_rmse']:.5f} | |")
+            continue
+        lines.append(
+            f"{head} {r['spp']} | {r['rmse']:.5f} | {r['rmse'] / r['mean']:.3f} | "
+            f"{r['raw_rmse']:.5f} | {r['ref_rmse']:.5f} |"
+        )
     return "\n".join(lines)
 
 
 def format_time(rows, resolution, spp) -> str:
-    lines = [f"| material | config | seconds per {resolution}x{resolution} render at {spp} spp |", "|---|---|---|"]
-    for material, config, seconds in rows:
-        lines.append(f"| {material} | {config} | {seconds:.3f} |")
+    lines = [
+        f"| material | config | wall s per {resolution}x{resolution} render at {spp} spp | CPU s (all threads) |",
+        "|---|---|---|---|",
+    ]
+    for material, config, wall, cpu in rows:
+        lines.append(f"| {material} | {config} | {wall:.3f} | {cpu:.3f} |")
     return "\n".join(lines)
 
 

@@ -158,6 +158,13 @@ def test_sample_pdf_eval_agree(mi, dr):
     assert set(np.unique(kinds)) == {glossy, diffuse}
     np.testing.assert_array_equal(bs.sampled_component.numpy(), np.where(kinds == glossy, 0, 1))
     np.testing.assert_allclose(bs.eta.numpy(), 1.0)
+    # The lobe weight is per lane: a lane's pdf does not depend on the rest of the batch.
+    head = 100
+    si_head = dr.zeros(mi.SurfaceInteraction3f, head)
+    si_head.uv = mi.Point2f(mi.Float((np.arange(head) + 0.5) / n), mi.Float(np.full(head, 0.5)))
+    si_head.wi = _vec(mi, wi[:head])
+    pdf_head = bsdf.pdf(mi.BSDFContext(), si_head, _vec(mi, _np3(bs.wo)[:head])).numpy()
+    np.testing.assert_allclose(pdf_head, pdf[:head], rtol=1e-6)
 
 
 def _chi2_cases():
@@ -357,7 +364,8 @@ def test_normal_map_frame_on_a_uv_mapped_quad(mi, dr):
     """x of the map along +u, y up the picture: with the picture upright on the quad, world +x and +y."""
     mesh = mi.Mesh("quad", 4, 2, has_vertex_normals=False, has_vertex_texcoords=True)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32).ravel())
+    corners = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    params["vertex_positions"] = mi.Float(corners.ravel())
     # Row 0 of the picture (v = 0) at the top (+y), column 0 (u = 0) on the left (-x).
     params["vertex_texcoords"] = mi.Float(np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float32).ravel())
     params["faces"] = mi.UInt32(np.array([0, 1, 2, 0, 2, 3], np.uint32))

@@ -1,0 +1,499 @@
+"""Where a build's dask workers come from, how long they live, and what memory they use.
+
+:mod:`pipeline.build` submits one task per shard; this module gives it the client to submit
+to (with :mod:`pipeline.build`, the only code that knows about dask):
+
+- ``local`` (the default): a ``LocalCluster`` of spawned worker processes on this machine;
+- an existing scheduler (``--scheduler tcp://HOST:PORT``) with workers started by hand;
+- ``slurm`` / ``pbs``: a dask-jobqueue cluster, one batch job per node, each job one worker
+  process with one dask thread (one shard at a time) whose Mitsuba renders use every core
+  of the job.
+
+Worker memory is bounded twice: the nanny restarts a worker whose memory passes 95 % of its
+limit, and ``recycle_after`` restarts a worker process after that many shards (Mitsuba's
+memory grows slowly when it renders in a long loop; docs/cluster.md has the measurement).
+Either way the worker's unfinished shard runs again elsewhere, which is safe because shard
+tasks are idempotent (:mod:`pipeline.shard`).
+
+``python -m pipeline.cluster --memory-probe 200`` re-measures the growth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import os
+import re
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from typing import Iterator
+
+from pipeline.errors import ShaderballError
+
+KINDS = ("local", "slurm", "pbs")
+JOBQUEUE_KINDS = ("slurm", "pbs")
+#: Environment variable telling a worker how many threads its Mitsuba renders use.
+RENDER_THREADS_ENV = "SHADERBALL_RENDER_THREADS"
+#: drjit's kernel-cache location (default ``$HOME/.drjit``, shared over NFS on most clusters).
+KERNEL_CACHE_ENV = "DRJIT_CACHE_DIR"
+#: The worker's memory limit, as a share of the job's memory: the nanny restarts the worker
+#: (at 95 % of its limit) before the batch system's cgroup kills the whole job at 100 %.
+WORKER_MEMORY_SHARE = 0.9
+#: Shell expression for node-local scratch space, the default of ``--scratch``.
+DEFAULT_SCRATCH = "${TMPDIR:-/tmp}"
+#: The job id in each batch system's environment (for per-job scratch folders).
+JOB_ID_VARIABLE = {"slurm": "${SLURM_JOB_ID:-$$}", "pbs": "${PBS_JOBID:-$$}"}
+
+_WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)$")
+_SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}$")
+_SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}$")
+_MIN_WALLTIME_S = 15 * 60
+_MIN_MEMORY, _MAX_MEMORY = 256 * 2**20, 64 * 2**40
+
+
+@dataclass(frozen=True)
+class ClusterOptions:
+    """Where the workers of a build come from (the ``build`` command's cluster options).
+
+    Options of another kind of cluster left at None; :meth:`check` refuses a mix.
+    """
+
+    kind: str = "local"
+    #: local worker processes (default: one per 2 cores); 0 renders in this process.
+    workers: int | None = None
+    #: address of an existing scheduler, e.g. tcp://10.0.0.1:8786 (kind "local" only).
+    scheduler: str | None = None
+    #: batch jobs (= nodes) for slurm/pbs; each runs one worker process.
+    jobs: int | None = None
+    #: cores per job (slurm/pbs): every render of the job's worker uses them all.
+    cores: int | None = None
+    #: memory per worker process (local) or per job (slurm/pbs), e.g. "16GiB".
+    memory: str | None = None
+    #: wall-clock limit per job, HH:MM:SS (slurm/pbs).
+    walltime: str | None = None
+    queue: str | None = None
+    account: str | None = None
+    #: node-local scratch folder (shell expression) for the kernel cache and dask's spill.
+    scratch: str | None = None
+    #: restart a worker process after this many shards; 0: never.
+    recycle_after: int = 0
+
+    @property
+    def is_jobqueue(self) -> bool:
+        return self.kind in JOBQUEUE_KINDS
+
+    def check(self) -> "ClusterOptions":
+        """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
+        if self.kind not in KINDS:
+            raise ShaderballError(f"--cluster: {self.kind!r} is not allowed; allowed: {', '.join(KINDS)}")
+        _check_int("--workers", self.workers, 0, 1024)
+        _check_int("--jobs", self.jobs, 1, 10000)
+        _check_int("--cores", self.cores, 1, 1024)
+        _check_int("--recycle-after", self.recycle_after, 0, 1_000_000)
+        if self.memory is not None:
+            memory_bytes(self.memory)
+        if self.walltime is not None:
+            walltime_seconds(self.walltime)
+        for option, value in (("--queue", self.queue), ("--account", self.account)):
+            if value is not None and not _SHELL_WORD.match(value):
+                raise ShaderballError(f"{option}: {value!r} is not allowed; allowed: 1 to 128 "
+                                      "characters from A-Z a-z 0-9 _ . @ : + -")
+        if self.scratch is not None and not _SCRATCH.match(self.scratch):
+            raise ShaderballError(f"--scratch: {self.scratch!r} is not allowed; allowed: a path of "
+                                  "1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
+                                  "(shell variables such as $TMPDIR are expanded on the node)")
+        if self.scheduler is not None:
+            if self.kind != "local":
+                raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; "
+                                      "use one or the other")
+            scheduler_host_port(self.scheduler)
+        if self.is_jobqueue:
+            if self.workers is not None:
+                raise ShaderballError(f"--workers: not allowed with --cluster {self.kind}; "
+                                      "use --jobs (one worker process per job)")
+            for option, value, example in (("--cores", self.cores, "--cores 32"),
+                                           ("--memory", self.memory, "--memory 64GiB"),
+                                           ("--walltime", self.walltime, "--walltime 12:00:00")):
+                if value is None:
+                    raise ShaderballError(f"{option}: required with --cluster {self.kind}; "
+                                          f"for example: {example}")
+        else:
+            for option, value in (("--jobs", self.jobs), ("--cores", self.cores),
+                                  ("--walltime", self.walltime), ("--queue", self.queue),
+                                  ("--account", self.account), ("--scratch", self.scratch)):
+                if value is not None:
+                    raise ShaderballError(f"{option}: only with --cluster slurm or --cluster pbs")
+            if self.scheduler is not None and self.memory is not None:
+                raise ShaderballError("--memory: not allowed with --scheduler; "
+                                      "give --memory-limit to `dask worker` instead")
+        return self
+
+
+def _check_int(option: str, value, low: int, high: int) -> None:
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ShaderballError(f"{option}: {value!r} is not allowed; allowed: an integer in [{low}, {high}]")
+
+
+def memory_bytes(text: str) -> int:
+    """``--memory`` in bytes (dask's units: 16GiB, 16GB, 16000MB), checked."""
+    from dask.utils import parse_bytes
+
+    try:
+        value = parse_bytes(text)
+    except (ValueError, TypeError):
+        value = None
+    if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
+        raise ShaderballError(f"--memory: {text!r} is not allowed; allowed: an amount from 256MiB to "
+                              "64TiB with a unit, e.g. 16GiB or 64GB")
+    return int(value)
+
+
+def walltime_seconds(text: str) -> int:
+    match = _WALLTIME.match(text)
+    seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
+    if seconds is None or seconds < _MIN_WALLTIME_S:
+        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:15:00 "
+                              "to 9999:59:59")
+    return seconds
+
+
+def worker_lifetime(walltime: str) -> tuple[int, int]:
+    """(lifetime, stagger) in seconds: workers retire before the batch system kills the job.
+
+    A worker that retires hands its queued shards back; jobqueue's adaptive scaling then
+    submits a fresh job. The margin (5 minutes or 5 % of the walltime, the larger) leaves
+    the running shard time to finish or be handed back cleanly.
+    """
+    total = walltime_seconds(walltime)
+    margin = max(300, total // 20)
+    return total - margin, margin // 2
+
+
+def scheduler_host_port(address: str) -> tuple[str, int]:
+    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$", address)
+    if match is None or not 0 < int(match[2]) < 65536:
+        raise ShaderballError(f"--scheduler: {address!r} is not allowed; allowed: tcp://HOST:PORT or "
+                              "tls://HOST:PORT, e.g. tcp://10.0.0.1:8786")
+    return match[1].strip("[]"), int(match[2])
+
+
+def check_scheduler_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail fast with a clear message when nothing listens at ``address``."""
+    host, port = scheduler_host_port(address)
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise ShaderballError(f"--scheduler: cannot reach {address!r} ({exc.strerror or exc}); "
+                              "is `dask scheduler` running there?") from None
+
+
+# --------------------------------------------------------------------------- jobqueue
+
+
+def _jobqueue_job_class(kind: str):
+    """dask-jobqueue's Job class of ``kind``, changed to one dask thread per worker process."""
+    try:
+        if kind == "slurm":
+            from dask_jobqueue.slurm import SLURMJob as base
+        else:
+            from dask_jobqueue.pbs import PBSJob as base
+    except ImportError:
+        raise ShaderballError(f"--cluster {kind}: needs dask-jobqueue; install it with "
+                              "`pip install dask-jobqueue`") from None
+
+    class ShaderballJob(base):
+        # One shard at a time per worker process; its renders use all the job's cores.
+        @property
+        def worker_process_threads(self):
+            return 1
+
+        # Below the job's memory, so the nanny restarts the worker before the batch
+        # system's cgroup kills the job.
+        @property
+        def worker_process_memory(self):
+            from dask.utils import format_bytes
+
+            share = WORKER_MEMORY_SHARE * self.worker_memory / self.worker_processes
+            return format_bytes(share).replace(" ", "")
+
+    ShaderballJob.__name__ = ShaderballJob.__qualname__ = f"Shaderball{base.__name__}"
+    return ShaderballJob
+
+
+def job_script_prologue(options: ClusterOptions) -> list[str]:
+    """Shell lines run before the worker starts: threads and a node-local kernel cache."""
+    import dask
+
+    user_lines = list(dask.config.get(f"jobqueue.{options.kind}.job-script-prologue", None) or [])
+    scratch = options.scratch or DEFAULT_SCRATCH
+    job_id = JOB_ID_VARIABLE[options.kind]
+    return user_lines + [
+        f"export {RENDER_THREADS_ENV}={options.cores}",
+        # drjit writes compiled kernels to $HOME/.drjit by default: on NFS, with every node
+        # writing and sweeping it, that breaks. One cache per job on node-local disk.
+        f'export {KERNEL_CACHE_ENV}="{scratch}/shaderball-drjit-{job_id}"',
+        f'mkdir -p "${KERNEL_CACHE_ENV}"',
+    ]
+
+
+def jobqueue_kwargs(options: ClusterOptions) -> dict:
+    """Keyword arguments for a dask-jobqueue Job or Cluster of ``options``."""
+    options.check()
+    lifetime_s, stagger_s = worker_lifetime(options.walltime)
+    scratch = options.scratch or DEFAULT_SCRATCH
+    return {
+        "cores": options.cores,
+        "processes": 1,
+        "memory": options.memory,
+        "walltime": options.walltime,
+        "queue": options.queue,
+        "account": options.account,
+        "job_name": "shaderball",
+        "python": sys.executable,
+        "local_directory": f"{scratch}/shaderball-dask-{JOB_ID_VARIABLE[options.kind]}",
+        "job_script_prologue": job_script_prologue(options),
+        # No --lifetime-restart: a worker restarted inside a job about to end would be
+        # killed with it; adaptive scaling submits a new job instead.
+        "worker_extra_args": ["--lifetime", f"{lifetime_s}s", "--lifetime-stagger", f"{stagger_s}s"],
+    }
+
+
+def job_script(options: ClusterOptions, scheduler_address: str = "tcp://SCHEDULER-HOST:PORT") -> str:
+    """The batch script each job of ``options`` runs, without submitting or starting anything."""
+    job_class = _jobqueue_job_class(options.kind)
+    return job_class(scheduler=scheduler_address, name="shaderball-worker",
+                     **jobqueue_kwargs(options)).job_script()
+
+
+def jobqueue_cluster(options: ClusterOptions):
+    """A dask-jobqueue cluster (its scheduler runs in this process), kept at ``jobs`` jobs."""
+    import dask_jobqueue
+
+    base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.kind]
+    cluster_class = type(f"Shaderball{base.__name__}", (base,),
+                         {"job_cls": _jobqueue_job_class(options.kind)})
+    cluster = cluster_class(scheduler_options={"dashboard_address": ":0"}, **jobqueue_kwargs(options))
+    # adapt(), not scale(): a job that ends (walltime, preemption) is replaced.
+    jobs = options.jobs or 1
+    cluster.adapt(minimum_jobs=jobs, maximum_jobs=jobs)
+    return cluster
+
+
+# --------------------------------------------------------------------------- clients
+
+
+@dataclass
+class Connection:
+    client: object
+    #: for people: where the work runs.
+    where: str
+    #: Mitsuba threads per worker; None: each worker decides (:func:`worker_render_threads`).
+    render_threads: int | None
+
+
+def local_workers(workers: int | None) -> int:
+    return workers or max(1, (os.cpu_count() or 1) // 2)
+
+
+@contextlib.contextmanager
+def connect(options: ClusterOptions) -> Iterator[Connection]:
+    """A dask client for ``options``; closes what it started (cluster, jobs) on exit."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    options.check()
+    config = {"distributed.worker.multiprocessing-method": "spawn",  # LLVM JIT and fork() don't mix
+              "distributed.worker.daemon": False,
+              "distributed.scheduler.allowed-failures": 5}
+    with dask.config.set(config), contextlib.ExitStack() as stack:
+        if options.scheduler:
+            check_scheduler_reachable(options.scheduler)
+            try:
+                client = Client(options.scheduler, timeout="20s")
+            except OSError as exc:
+                raise ShaderballError(f"--scheduler: cannot connect to {options.scheduler!r}: {exc}") from None
+            stack.callback(client.close)
+            n = len(client.scheduler_info().get("workers", {}))
+            yield Connection(client, f"scheduler {options.scheduler} ({n} worker(s) now)", None)
+        elif options.is_jobqueue:
+            cluster = jobqueue_cluster(options)
+            stack.callback(cluster.close)
+            client = Client(cluster)
+            stack.callback(client.close)
+            yield Connection(client, f"{options.kind} cluster, {options.jobs or 1} job(s) of "
+                                     f"{options.cores} cores, {options.memory}", None)
+        else:
+            n = local_workers(options.workers)
+            memory = memory_bytes(options.memory) if options.memory else "auto"
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=40, memory_limit=memory)
+            stack.callback(cluster.close)
+            client = Client(cluster)
+            stack.callback(client.close)
+            yield Connection(client, f"local cluster, {n} worker process(es)",
+                             max(1, (os.cpu_count() or 1) // n))
+
+
+# --------------------------------------------------------------------------- in the worker
+
+
+def worker_render_threads() -> int:
+    """Mitsuba threads for a worker that was not told: the environment, else its CPUs."""
+    value = os.environ.get(RENDER_THREADS_ENV, "")
+    if value.isdigit() and int(value) > 0:
+        return int(value)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))  # the batch system's CPU set
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+_SHARDS_DONE = {"count": 0}
+
+
+def after_shard(recycle_after: int) -> None:
+    """Count a finished shard; past ``recycle_after`` ask this worker to restart itself.
+
+    The worker retires gracefully (its queued shards go elsewhere) and its nanny starts a
+    fresh process, which returns the memory Mitsuba accumulated. Outside a dask worker
+    (``--workers 0``) this does nothing.
+    """
+    _SHARDS_DONE["count"] += 1
+    if not recycle_after or _SHARDS_DONE["count"] < recycle_after:
+        return
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+    except (ImportError, ValueError):
+        return
+    _SHARDS_DONE["count"] = 0
+    worker.loop.add_callback(worker.close_gracefully, restart=True, reason="shaderball-recycle")
+
+
+# --------------------------------------------------------------------------- memory probe
+
+
+def rss_mb(pid: int | str = "self") -> float:
+    """Resident set size of a process, MiB (Linux /proc)."""
+    with open(f"/proc/{pid}/status", encoding="ascii") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    raise OSError(f"no VmRSS for process {pid}")
+
+
+@dataclass
+class MemoryProbe:
+    renders: int
+    resolution: int
+    spp: int
+    #: (renders done, RSS MiB) after each shard of one material.
+    samples: list[tuple[int, float]]
+    seconds: float
+
+    @property
+    def warm_mb(self) -> float:
+        """RSS once the first 10 % of renders (kernel compilation, caches) are done."""
+        cut = max(1, self.renders // 10)
+        return next(rss for done, rss in self.samples if done >= cut)
+
+    @property
+    def final_mb(self) -> float:
+        return self.samples[-1][1]
+
+    @property
+    def peak_mb(self) -> float:
+        return max(rss for _, rss in self.samples)
+
+    @property
+    def growth_mb_per_100(self) -> float:
+        cut = max(1, self.renders // 10)
+        done0 = next(done for done, _ in self.samples if done >= cut)
+        span = self.samples[-1][0] - done0
+        return 100.0 * (self.final_mb - self.warm_mb) / span if span > 0 else 0.0
+
+    def lines(self) -> list[str]:
+        return [
+            f"memory probe: {self.renders} renders at {self.resolution}x{self.resolution}, "
+            f"{self.spp} spp, one process, {self.seconds:.0f} s",
+            f"RSS after {max(1, self.renders // 10)} renders (warm): {self.warm_mb:.1f} MiB; "
+            f"after {self.renders}: {self.final_mb:.1f} MiB; peak {self.peak_mb:.1f} MiB",
+            f"growth after warm-up: {self.growth_mb_per_100:.2f} MiB per 100 renders",
+        ]
+
+
+def probe_spec(renders: int, resolution: int, spp: int):
+    """The smoke spec with ``renders`` renders (2 per material, one material per shard)."""
+    from pathlib import Path
+
+    from pipeline.spec import parse_spec
+
+    spec = parse_spec(Path(__file__).resolve().parents[1] / "manifests" / "smoke.toml")
+    materials = max(1, renders // 2)
+    return dataclasses.replace(
+        spec,
+        dataset=dataclasses.replace(spec.dataset, name="memory-probe", materials=materials,
+                                    lights_per_material=2, shard_size=1),
+        render=dataclasses.replace(spec.render, resolution=resolution, spp=spp))
+
+
+def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=None) -> MemoryProbe:
+    """Render ``renders`` samples in this process, one shard after another; track RSS."""
+    from pipeline.build import _run_shard_task, prepare
+    from pipeline.plan import plan_dataset
+
+    spec = probe_spec(renders, resolution, spp)
+    plans = plan_dataset(spec)
+    out = tempfile.mkdtemp(prefix="shaderball-memory-probe-")
+    samples, done, start = [], 0, time.perf_counter()
+    try:
+        prepare(out, spec, plans)
+        for shard in plans:
+            _run_shard_task(out, spec, shard, os.cpu_count() or 1)
+            done += shard.n_renders
+            samples.append((done, rss_mb()))
+            if progress:
+                progress(done, samples[-1][1])
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    return MemoryProbe(done, resolution, spp, samples, time.perf_counter() - start)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.cluster",
+                                     description="Measure a render worker's resident memory.")
+    parser.add_argument("--memory-probe", type=int, metavar="N", required=True,
+                        help="renders to run in one process (2 per material), 2 to 100000")
+    parser.add_argument("--resolution", type=int, default=64, help="pixels, 16 to 4096 (default 64)")
+    parser.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    parser.add_argument("--every", type=int, default=20, help="print RSS every N renders (default 20)")
+    args = parser.parse_args(argv)
+    try:
+        _check_int("--memory-probe", args.memory_probe, 2, 100_000)
+        _check_int("--resolution", args.resolution, 16, 4096)
+        _check_int("--spp", args.spp, 1, 65536)
+
+        def show(done, rss):
+            if done % max(1, args.every) < 2:
+                print(f"{done:6d} renders  RSS {rss:8.1f} MiB", flush=True)
+
+        result = memory_probe(args.memory_probe, args.resolution, args.spp, progress=show)
+    except ShaderballError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    for line in result.lines():
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

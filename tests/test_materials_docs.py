@@ -1,0 +1,47 @@
+"""The figures in docs/materials.md are what their generators produce now."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from materials import albedo_table, contact_sheet
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "materials.md"
+SHEET = ROOT / "docs" / "img" / "materials_contact_sheet.png"
+SHEET_ARGS = dict(examples=4, resolution=128)  # what docs/materials.md says to run
+
+
+@pytest.mark.slow  # ~5 s warm, ~9 s on a loaded 2-core machine (quadrature of 456 albedos)
+def test_albedo_tables_in_docs_are_current():
+    tables = albedo_table.markdown()
+    doc = DOC.read_text()
+    missing = [line for line in tables.splitlines() if line.strip() and line not in doc]
+    assert not missing, (
+        f"{DOC} is out of date; re-run `python -m materials.albedo_table` and paste its output. "
+        f"First missing line: {missing[0]!r}"
+    )
+
+
+def test_albedo_lut_numbers():
+    lut = albedo_table.build_lut(roughness=(0.05, 0.5, 1.0), incidence_deg=(0.0, 85.0))
+    # F = 1 smooth at normal incidence keeps everything; s = 0 is the Schlick grazing term only.
+    assert lut.a1[0, 0] == pytest.approx(1.0, abs=2e-3)
+    assert lut.a0[0, 0] < 1e-3 and lut.a0[0, 1] > 0.5
+    # total for d = 1, s = 0 exceeds 1 at grazing incidence: the model's 1 - s ignores Fresnel
+    total = lut.total(np.array([[1.0, 1.0, 1.0]]), np.array([[0.0, 0.0, 0.0]]), np.array([0.05]), 1)
+    assert total.max() > 1.5
+
+
+def test_contact_sheet_is_reproducible_and_current():
+    small = contact_sheet.contact_sheet(examples=1, resolution=32)
+    assert small.dtype == np.uint8 and small.ndim == 3
+    assert np.array_equal(small, contact_sheet.contact_sheet(examples=1, resolution=32))
+    current = contact_sheet.contact_sheet(**SHEET_ARGS)
+    stored = np.asarray(Image.open(SHEET).convert("RGB"))
+    assert np.array_equal(current, stored), (
+        f"{SHEET} is out of date; re-run `python -m materials.contact_sheet --out {SHEET.relative_to(ROOT)} "
+        "--examples 4`"
+    )
