@@ -205,8 +205,11 @@ def build_cmd(spec, out, workers, scheduler, allow_spec_change, cluster_kind, jo
               help="Check sizes, markers and records only; read no file (no SHA-256, no decoding).")
 @click.option("--workers", type=int, default=0, show_default=True,
               help="With --repair: local dask worker processes for re-rendering; 0 renders in this process.")
+@click.option("--spec", "spec_path", type=click.Path(dir_okay=False), default=None,
+              help="With --repair: restore an unreadable or edited DIR/spec.toml from this spec, "
+                   "if its digest is the one dataset.json records.")
 @_friendly_errors
-def validate_cmd(directory, as_json, fix, fast, workers):
+def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     """Check a dataset against its manifest, its plan and itself; exit 0 if valid, 1 if not.
 
     Every file against the manifest (exists, size, SHA-256, decodes, layers), every value
@@ -221,6 +224,8 @@ def validate_cmd(directory, as_json, fix, fast, workers):
 
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
+    if spec_path and not fix:
+        raise click.UsageError("--spec is used only with --repair")
     last = {"t": 0.0}
 
     def show(p):
@@ -228,12 +233,11 @@ def validate_cmd(directory, as_json, fix, fast, workers):
         if p.done < p.total and now - last["t"] < 1.0:
             return
         last["t"] = now
-        unit = "files" if p.stage == "check" else "renders"
-        click.echo(f"{p.stage}: {p.done}/{p.total} {unit}, {p.bytes_read / 1e6:.1f} MB read, "
-                   f"{_format_seconds(p.elapsed_s)}", err=True)
+        read = f"files, {p.bytes_read / 1e6:.1f} MB read" if p.stage == "check" else "renders done"
+        click.echo(f"{p.stage}: {p.done}/{p.total} {read}, {_format_seconds(p.elapsed_s)}", err=True)
 
     if fix:
-        before, report, actions = repair(directory, workers=workers, progress=show)
+        before, report, actions = repair(directory, workers=workers, progress=show, spec_path=spec_path)
     else:
         before, report, actions = None, validate(directory, fast=fast, progress=show), []
     if as_json:

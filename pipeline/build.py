@@ -288,6 +288,10 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
     elif workers is not None or scheduler is not None:
         raise TypeError("build(): pass workers and scheduler inside cluster=, not beside it")
     cluster.check()
+    if cluster.scheduler:
+        from pipeline.cluster import check_scheduler_reachable
+
+        check_scheduler_reachable(cluster.scheduler)  # before anything is written
     plans = plan_dataset(spec)
     variant = prepare(out, spec, plans, allow_spec_change)
     total = sum(s.n_renders for s in plans)

@@ -273,17 +273,21 @@ def job_script(options: ClusterOptions, scheduler_address: str = "tcp://SCHEDULE
                      **jobqueue_kwargs(options)).job_script()
 
 
-def jobqueue_cluster(options: ClusterOptions):
-    """A dask-jobqueue cluster (its scheduler runs in this process), kept at ``jobs`` jobs."""
+def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
+    """A dask-jobqueue cluster (its scheduler runs in this process), kept at ``jobs`` jobs.
+
+    ``adapt`` False: submit nothing (to inspect ``cluster.job_script()``).
+    """
+    job_class = _jobqueue_job_class(options.kind)
     import dask_jobqueue
 
     base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.kind]
-    cluster_class = type(f"Shaderball{base.__name__}", (base,),
-                         {"job_cls": _jobqueue_job_class(options.kind)})
+    cluster_class = type(f"Shaderball{base.__name__}", (base,), {"job_cls": job_class})
     cluster = cluster_class(scheduler_options={"dashboard_address": ":0"}, **jobqueue_kwargs(options))
-    # adapt(), not scale(): a job that ends (walltime, preemption) is replaced.
-    jobs = options.jobs or 1
-    cluster.adapt(minimum_jobs=jobs, maximum_jobs=jobs)
+    if adapt:
+        # adapt(), not scale(): a job that ends (walltime, preemption) is replaced.
+        jobs = options.jobs or 1
+        cluster.adapt(minimum_jobs=jobs, maximum_jobs=jobs)
     return cluster
 
 

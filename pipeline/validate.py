@@ -207,9 +207,16 @@ class _FileFacts:
     sha256: str | None = None
     error: str | None = None
     layers: dict[str, tuple[tuple[int, ...], str]] | None = None
-    meta: dict | None = None
+    meta_json: str | None = None  # the header's metadata, kept as text: ~4x smaller than dicts
     issues: list[tuple[str, str]] = field(default_factory=list)
     pixel_stats: dict | None = None
+
+    @property
+    def meta(self) -> dict | None:
+        if self.meta_json is None:
+            return None
+        meta = json.loads(self.meta_json)
+        return meta if isinstance(meta, dict) else {}
 
     @property
     def decoded(self) -> bool:
@@ -336,8 +343,18 @@ def _load_manifest(layout: Layout, problems: _Problems):
     return out
 
 
-def _load_markers(layout: Layout, shard_ids) -> dict:
-    return {sid: read_json(layout.marker(sid)) for sid in shard_ids}
+def _load_markers(layout: Layout, shard_ids, known: dict) -> dict:
+    """shard id -> marker (None when missing or torn). A marker's record equal to the one in
+    ``known`` (id -> manifest record) is replaced by that object: one copy in memory, not two
+    (a record is ~11 kB as Python objects; the paper's dataset has 50,000)."""
+    markers = {}
+    for sid in shard_ids:
+        marker = read_json(layout.marker(sid))
+        if isinstance(marker, dict) and isinstance(marker.get("records"), list):
+            marker["records"] = [known[r["id"]] if isinstance(r, dict) and r.get("id") in known
+                                 and known[r["id"]] == r else r for r in marker["records"]]
+        markers[sid] = marker
+    return markers
 
 
 def _shard_ids_on_disk(layout: Layout) -> list[str]:
@@ -478,7 +495,7 @@ def _inspect(root: str, rel: str, expect: _Expect, recorded_bytes, fast: bool) -
         facts.error = str(exc).replace("<bytes>", "").replace("EXR :", "EXR:").strip()
         return facts
     facts.layers = {name: (tuple(arr.shape), arr.dtype.name) for name, arr in image.layers.items()}
-    facts.meta = image.meta
+    facts.meta_json = json.dumps(image.meta, separators=(",", ":"))
     facts.issues = layer_issues(image.layers, expect)
     if expect.role == "render":
         if "render" in image.layers:
@@ -627,8 +644,8 @@ def _lighting_discrepancies(record: dict) -> list[str]:
 def _header_discrepancies(record: dict, render: _FileFacts | None, maps: _FileFacts | None) -> list[str]:
     """Fields of ``record`` that the files' own headers contradict, one message per field."""
     checks = []
-    if render is not None and render.meta is not None:
-        meta = render.meta
+    meta = render.meta if render is not None else None
+    if meta is not None:
         lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
         header_lighting = meta.get("lighting") or {}
         effective = header_lighting.get("effective") or {}
@@ -640,9 +657,10 @@ def _header_discrepancies(record: dict, render: _FileFacts | None, maps: _FileFa
                     {k: v for k, v in header_lighting.items() if k not in ("requested", "effective")})]
         checks += [("render", f"lighting.{key}", lighting.get(key), effective.get(key))
                    for key in ("elevation_deg", "azimuth_deg", "turbidity")]
-    if maps is not None and maps.meta is not None:
-        checks += [("maps", "material_id", record.get("material_id"), maps.meta.get("id")),
-                   ("maps", "material", record.get("material"), maps.meta.get("material"))]
+    maps_meta = maps.meta if maps is not None else None
+    if maps_meta is not None:
+        checks += [("maps", "material_id", record.get("material_id"), maps_meta.get("id")),
+                   ("maps", "material", record.get("material"), maps_meta.get("material"))]
     out = []
     for which, key, mine, theirs in checks:
         for sub in _diff_keys(mine, theirs):
@@ -676,9 +694,10 @@ def _stats_discrepancies(record: dict, render: _FileFacts) -> list[str]:
         if stats.get("flagged") is not None and bool(stats.get("flagged")) != is_bad(render.pixel_stats):
             out.append(f"stats.flagged is {stats.get('flagged')!r}, but the pixels are "
                        f"{'bad' if is_bad(render.pixel_stats) else 'clean'}")
-    if render.meta is not None and "stats" in render.meta:
+    meta = render.meta
+    if meta is not None and "stats" in meta:
         stored = {k: v for k, v in stats.items() if k not in RUN_DEPENDENT_STATS}
-        header = render.meta["stats"]
+        header = meta["stats"] if isinstance(meta["stats"], dict) else {}
         keys = sorted(k for k in set(stored) | set(header) if stored.get(k) != header.get(k))
         keys = [k for k in keys if not any(line.startswith(f"stats.{k} ") for line in out)]
         out += [f"stats.{k} is {stored.get(k)!r}, the render file's header says {header.get(k)!r}"
@@ -757,10 +776,14 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
     shard_ids = [s.shard_id for s in plans] if plans is not None else _shard_ids_on_disk(layout)
     state = _State(layout=layout, spec=spec, plans=plans, planned=planned,
                    variant=(description or {}).get("variant"), spec_ok=spec_ok,
-                   description_ok=description_ok, manifest={}, markers=_load_markers(layout, shard_ids),
+                   description_ok=description_ok, manifest={}, markers={},
                    record_files={}, facts={}, extra_files=[], allowed_dirs=set(),
                    manifest_dirty=False)
     manifest = _load_manifest(layout, problems)
+    first = {}
+    for _source, record in manifest or ():
+        first.setdefault(record["id"], record)
+    state.markers = _load_markers(layout, shard_ids, first)
     records = manifest if manifest is not None else _fallback_records(state)
     primary = _check_records_against_plan(records, state, problems, from_manifest=manifest is not None)
     files = _referenced_files(primary, state)
@@ -898,7 +921,7 @@ def _compare_copies(state: _State, primary: dict, problems: _Problems, fast: boo
     the side that is wrong (the primary side's own faults are reported by the record checks)."""
     for copy in copies:
         sid = copy.get("id")
-        if sid not in primary or primary[sid][1] == copy:
+        if sid not in primary or primary[sid][1] is copy or primary[sid][1] == copy:
             continue
         source, mine = primary[sid]
         sample = state.planned.get(sid)
@@ -924,8 +947,8 @@ def _check_record_files(state: _State, primary: dict, problems: _Problems) -> No
             state.record_files[sid] = None
             continue
         content = read_json(path)
-        state.record_files[sid] = content
         reference = _marker_record(state, sample) or (primary.get(sid) or (None, None))[1]
+        state.record_files[sid] = reference if content == reference else content  # one copy
         if reference is None or content == reference:
             continue
         if not isinstance(content, dict):
@@ -1096,8 +1119,8 @@ def _render_present(record: dict, state: _State) -> bool:
 # --------------------------------------------------------------------------- repair
 
 
-def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None
-           ) -> tuple[Report, Report, list[RepairAction]]:
+def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None,
+           spec_path: str | None = None) -> tuple[Report, Report, list[RepairAction]]:
     """Fix what :func:`validate` finds; return (report before, report after, actions).
 
     Deletes extra files; keeps every sample whose best record (the marker's, the record
@@ -1105,20 +1128,29 @@ def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] 
     the other renders and records and every bad material file; re-runs the affected shards
     through the resumable build (``workers`` as for ``shaderball build``), which regenerates
     deleted maps and re-renders only samples left without a verified record; rewrites the
-    manifest from the shard markers; validates again. A spec snapshot that is unreadable or
-    does not match dataset.json is not repaired (which side is right is unknown): the
-    actions say so and nothing is changed.
+    manifest from the shard markers; validates again.
+
+    A spec snapshot that is unreadable or does not match dataset.json's digest is restored
+    from ``spec_path`` when that spec's digest is dataset.json's (else ShaderballError);
+    without ``spec_path`` it is not repaired (which side is right is unknown): the actions
+    say so and nothing is changed.
     """
     before = validate(root, progress=progress)
     if before.ok:
         return before, before, []
-    state = before._state
+    state, actions = before._state, []
+    if (state.plans is None or not state.spec_ok) and spec_path is not None:
+        actions.append(_restore_spec(state, spec_path))
+        current = validate(root, progress=progress)
+        if current.ok:
+            return before, current, actions
+        state = current._state
     if state.plans is None or not state.spec_ok:
-        return before, before, [RepairAction(
+        return before, before, actions + [RepairAction(
             "unrepairable", SPEC_FILE,
             f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
-            "restore the spec the dataset was built from and repair again; nothing was changed")]
-    layout, actions = state.layout, []
+            "give the spec the dataset was built from (--spec) to restore it; nothing was changed")]
+    layout = state.layout
     _delete_extra_files(state, actions)
     _inspect_unlisted(state)
     chosen = {sid: _chosen(state, sample) for sid, sample in state.planned.items()}
@@ -1149,6 +1181,26 @@ def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] 
                                     f"{MANIFEST_FILE}: rewritten from the shard markers"))
     after = validate(root, progress=progress)
     return before, after, actions
+
+
+def _restore_spec(state: _State, spec_path: str) -> RepairAction:
+    """Write ``spec_path`` as the snapshot, if it is the spec dataset.json says was built."""
+    from pipeline.atomic import write_text_atomic
+    from pipeline.spec import parse_spec, spec_digest, spec_to_toml
+
+    description = read_json(state.layout.description)
+    recorded = description.get("spec_digest") if isinstance(description, dict) else None
+    if not recorded:
+        raise ShaderballError(f"--spec: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
+                              "spec_digest, so no spec can be confirmed as the one it was built from")
+    spec = parse_spec(spec_path)
+    if spec_digest(spec) != recorded:
+        raise ShaderballError(f"--spec: {spec_path!r} has digest {spec_digest(spec)[:12]}, "
+                              f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: "
+                              "not this dataset's spec")
+    write_text_atomic(state.layout.spec, spec_to_toml(spec))
+    return RepairAction("restore_spec", SPEC_FILE, f"{SPEC_FILE}: restored from {spec_path} (digest "
+                                                   f"{recorded[:12]} matches {DESCRIPTION_FILE})")
 
 
 def _remove(path: str) -> bool:

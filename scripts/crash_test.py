@@ -291,6 +291,14 @@ def ensure_reference(dest: Path, spec: Path = SMOKE_SPEC) -> float:
         return seconds
 
 
+def shared_reference(tmp_path_factory) -> tuple[Path, float]:
+    """For pytest: the smoke reference, built once per test session (shared by xdist workers)."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    dest = root / "smoke-reference"
+    return dest, ensure_reference(dest)
+
+
 def _compare_file(rel: str, path: Path, ref: Path, problems: list[str]) -> None:
     kind = file_kind(rel)
     if kind in ("exr", "spec"):
@@ -317,6 +325,10 @@ def _compare_file(rel: str, path: Path, ref: Path, problems: list[str]) -> None:
         mine, theirs = ({k: v for k, v in d.items() if k != "libraries"} for d in (mine, theirs))
     if without_timings(mine) != without_timings(theirs):
         problems.append(f"{rel}: differs from the reference (timings aside)")
+
+
+def temp_files(root: Path) -> set[str]:
+    return {rel for rel in dataset_files(root) if os.path.basename(rel).startswith(TEMP_PREFIX)}
 
 
 def check_interrupted(out: Path, reference: Path) -> int:
@@ -448,15 +460,17 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
             delay = param if param is not None else rng.uniform(0.0, ref_seconds * 1.1)
         elif mode == "dask":
             delay = param if param is not None else rng.uniform(3.0, dask_seconds)
+        temps_before = temp_files(out)
         attempt = run_attempt(spec, out, mode, work / "logs", delay_s=delay,
                               hook=param if mode == "write" else None)
         attempts.append(attempt)
         if attempt.killed:
             done_kills += 1
-            attempt.temp_files = check_interrupted(out, reference)
+            check_interrupted(out, reference)
+            attempt.temp_files = len(temp_files(out) - temps_before)
             where = f" in {attempt.note['path']} at {attempt.note['phase']}" if attempt.note else ""
             log(f"kill {done_kills:4d}: {mode} {attempt.detail}{where} after {attempt.seconds:.1f} s; "
-                f"{attempt.temp_files} temp file(s); state consistent")
+                f"{attempt.temp_files} new temp file(s); state consistent")
         elif attempt.returncode == 0:
             check_complete(out, reference)
             trials += 1

@@ -32,7 +32,7 @@ def test_desaturation_keeps_luminance_and_removes_negatives():
 
 def test_split_sampling_weights_follow_the_sun_and_are_never_equal():
     sky_power = np.array([0.5, 0.6, 0.7])
-    weights = [split_sampling_weights(s * np.ones(3), sky_power)[0] for s in np.linspace(0.0, 5.0, 2001)]
+    weights = [split_sampling_weights(s * np.ones(3), sky_power)[0] for s in np.linspace(0.0, 20.0, 4001)]
     assert np.all(np.diff(weights) >= 0.0)  # more sun, more sun samples
     assert weights[0] == SPLIT_SUN_WEIGHT_RANGE[0] and weights[-1] == SPLIT_SUN_WEIGHT_RANGE[1]
     assert 1.0 not in weights  # equal weights take another path in Mitsuba (see the docstring)

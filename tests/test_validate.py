@@ -297,12 +297,19 @@ def test_unfinished_build_falls_back_to_shards_and_repair_finishes(smoke_dataset
 
 
 @slow
-def test_edited_spec_snapshot_is_reported_and_not_repaired(dataset):
+def test_edited_spec_snapshot_is_kept_until_its_spec_is_given(dataset):
     spec = dataset / "spec.toml"
+    original = spec.read_bytes()
     spec.write_text(spec.read_text().replace("spp = 16", "spp = 17"))
     before, after, actions = repair(str(dataset))
     assert "spec_snapshot" in {p.kind for p in before.problems}
     assert [a.action for a in actions] == ["unrepairable"] and not after.ok
+    wrong = invoke(str(dataset), "--repair", "--spec", str(spec))
+    assert wrong.exit_code == 2 and "not this dataset's spec" in wrong.output
+    result = invoke(str(dataset), "--repair", "--spec", str(SMOKE), "--json")
+    assert result.exit_code == 0, result.output
+    assert [a["action"] for a in json.loads(result.stdout)["repair"]["actions"]] == ["restore_spec"]
+    assert spec.read_bytes() == original
 
 
 @slow
