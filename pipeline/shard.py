@@ -60,8 +60,38 @@ def worker_context(spec: DatasetSpec) -> WorkerContext:
     return _CONTEXTS[key]
 
 
-def sample_verified(root: str, record: dict | None, hash_check: bool = True) -> bool:
-    return bool(record) and all(file_ok(root, entry, hash_check) for entry in record.get("files", []))
+def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
+    """The identity, seeds and requested lighting of ``record`` are the plan's."""
+    try:
+        requested = record["lighting"]["requested"]
+        seeds = record["seeds"]
+        return (record["id"] == sample.sample_id and record["material_index"] == sample.material_index
+                and record["light_index"] == sample.light_index and record["shard"] == sample.shard_id
+                and seeds["material"] == sample.material_seed and seeds["light"] == sample.light_seed
+                and seeds["render"] == sample.render_seed
+                and requested["elevation_deg"] == sample.elevation_deg
+                and requested["azimuth_deg"] == sample.azimuth_deg
+                and requested["turbidity"] == sample.turbidity)
+    except (KeyError, TypeError):
+        return False
+
+
+def sample_verified(root: str, record: dict | None, sample: SamplePlan,
+                    checked: dict[str, bool] | None = None) -> bool:
+    """``record`` is the plan's and its files are present with their recorded size and SHA-256.
+
+    ``checked`` memoises file checks: a material's maps are shared by its lightings.
+    """
+    if not record or not record_matches_plan(record, sample):
+        return False
+    checked = {} if checked is None else checked
+    for entry in record.get("files", []):
+        key = dumps(entry)
+        if key not in checked:
+            checked[key] = file_ok(root, entry)
+        if not checked[key]:
+            return False
+    return True
 
 
 def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan) -> dict:
@@ -74,13 +104,16 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan) -> dict:
     os.makedirs(layout.shard_dir(shard.shard_id), exist_ok=True)
     records, rendered = [], 0
     ctx = None
+    checked: dict[str, bool] = {}
     for material in shard.materials:
         existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
                     for s in material.samples]
-        if all(sample_verified(root, r) for r in existing):
+        verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
+        if all(verified):
             records.extend(existing)
             continue
         ctx = ctx or worker_context(spec)
+        existing = [r if ok else None for r, ok in zip(existing, verified)]
         new = build_material(layout, spec, ctx, material, existing)
         rendered += sum(1 for r, old in zip(new, existing) if r is not old)
         records.extend(new)
@@ -110,7 +143,7 @@ def build_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, materi
     material_files = write_material_files(layout, spec, ctx, material, maps, description)
     records = []
     for sample, old in zip(material.samples, existing):
-        if sample_verified(layout.root, old) and old.get("files", [])[1:] == material_files:
+        if old is not None and old.get("files", [])[1:] == material_files:
             records.append(old)
             continue
         records.append(render_and_record(layout, spec, ctx, sample, maps, description, material_files))
