@@ -255,5 +255,73 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     sys.exit(0 if report.ok else 1)
 
 
+@main.command("preview")
+@click.argument("directory", metavar="DIR", type=click.Path())
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="PNG to write: one row per sample, its tone-mapped render beside its four maps, "
+                   "labelled with its id, material and lighting.")
+@click.option("--samples", default=8, show_default=True, type=int,
+              help="Rows, 1 to 200: samples spread evenly over the renders recorded so far.")
+@click.option("--tile", default=None, type=int,
+              help="Picture size in pixels, 32 to 1024 [default: the render size, scaled to 128-256].")
+@_friendly_errors
+def preview_cmd(directory, out, samples, tile):
+    """A contact sheet of a dataset (complete or partial) for people to look at."""
+    from pipeline.preview import write_preview
+
+    for line in write_preview(directory, out, samples=samples, tile=tile).lines():
+        click.echo(line)
+
+
+@main.command("info")
+@click.argument("directory", metavar="DIR", type=click.Path())
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON instead.")
+@_friendly_errors
+def info_cmd(directory, as_json):
+    """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
+    from pipeline.info import dataset_info
+
+    info = dataset_info(directory)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(info.to_dict(), sort_keys=True, indent=1))
+        return
+    for line in info.lines():
+        click.echo(line)
+
+
+@main.command("bench")
+@click.argument("spec", required=False, type=click.Path(dir_okay=False))
+@click.option("--samples", type=int, default=None,
+              help="Cut the spec to about this many renders (whole materials, all their lightings) "
+                   "[default: all of them].")
+@click.option("--resolution", type=int, default=None,
+              help="Render size in pixels, 16 to 4096 [default: the spec's; with --effects 200].")
+@click.option("--spp", type=int, default=None,
+              help="Samples per pixel, 1 to 65536 [default: the spec's; with --effects 64].")
+@click.option("--workers", type=int, default=None,
+              help="As `shaderball build --workers` (0: in this process) [default: the build's].")
+@click.option("--out", "out", type=click.Path(file_okay=False), default=None,
+              help="Keep the benchmark's dataset in this new or empty folder [default: a temporary one].")
+@click.option("--profile", is_flag=True,
+              help="Also time one loaded scene per material moved in place, and moment vs plain path.")
+@click.option("--effects", is_flag=True,
+              help="Run the effects benchmark instead: render time saved by each omitted effect.")
+@click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 3].")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the figures to this JSON file.")
+@_friendly_errors
+def bench_cmd(spec, samples, resolution, spp, workers, out, profile, effects, repeats, json_path):
+    """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
+    from pipeline.bench import run_from_args
+
+    result = run_from_args(spec, effects=effects, samples=samples, resolution=resolution, spp=spp,
+                           workers=workers, out=out, profile=profile, repeats=repeats, json_path=json_path,
+                           progress=lambda message: click.echo(message, err=True))
+    for line in result.lines():
+        click.echo(line)
+
+
 if __name__ == "__main__":
     main()

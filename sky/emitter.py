@@ -35,6 +35,7 @@ SKY_KEY, SUN_KEY = "sky", "sun"
 #: because BSDF sampling with MIS already covers the sky but can never hit a delta
 #: sun. Measured in docs/sky.md (`python -m sky.sun_benchmark`).
 SPLIT_SUN_WEIGHT_FACTOR = 3.0
+#: The ratio is raised to this power (1: proportional; 2 was tried and lost at low suns).
 SPLIT_SUN_WEIGHT_EXPONENT = 1.0
 #: Bounds of the sun's relative weight.
 SPLIT_SUN_WEIGHT_RANGE = (0.02, 50.0)
@@ -49,10 +50,11 @@ def _resolve_variant(variant: str | None) -> str:
             variant = current or "llvm_ad_rgb"
         else:
             variant = "llvm_ad_rgb"
-    if not variant.endswith("_rgb"):
+    if not (variant.endswith("_rgb") and variant.split("_")[0] in ("llvm", "cuda")):
         raise ShaderballError(
-            f"render.variant = {variant!r} is not allowed for the sky: an RGB variant is required "
-            "(the hard-case policy was measured on Mitsuba's RGB sunsky)"
+            f"render.variant = {variant!r} is not allowed for the sky: an llvm or cuda RGB variant is "
+            "required (the hard-case policy was measured on Mitsuba's RGB sunsky; the emitter is "
+            "probed with vectorised evaluations)"
         )
     return variant
 
@@ -114,7 +116,7 @@ def _emitter_state(effective: Light, sun: str, policy: LightingPolicy, variant: 
     load_mitsuba(variant)  # the probe's types belong to this variant
     probe = shared_probe(variant).set(effective.direction, effective.turbidity)
     raw_irradiance = probe.sun_disk_radiance() * SUN_SOLID_ANGLE_SR
-    state = {"sun": sun, "raw_sun_irradiance": raw_irradiance}
+    state = {"sun": sun, "variant": variant, "raw_sun_irradiance": raw_irradiance}
     if sun == "split":
         irradiance, adjusted = desaturate_to_nonnegative(raw_irradiance)
         sky_min = probe.min_radiance("sky")
@@ -140,6 +142,7 @@ def _record(policy_record: dict, state: dict) -> dict:
     record = dict(policy_record)
     record["emitter"] = {
         "sun": state["sun"],
+        "variant": state["variant"],
         "sun_irradiance_rgb": [float(x) for x in state["irradiance"]],
         "sun_irradiance_adjusted": (
             {

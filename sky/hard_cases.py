@@ -9,18 +9,23 @@ the elevation floor per turbidity and prints the literal pasted into
 The floor at turbidity T is the smallest sun elevation e such that, for every
 sun elevation in [e, 90], the sun-and-sky radiance is >= 0 in every RGB channel
 on every check direction (:func:`sky.probe.hemisphere_check_directions`, dense
-at the horizon, plus the sun's centre).
+at the horizon, plus the sun's centre). Sun elevations are scanned every 0.25
+deg up to 15 deg (then bisected), and every degree up to 90 at integer
+turbidities; tests/test_sky_policy.py samples the rest at random.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 import numpy as np
 
 from sky.directions import sun_direction
 from sky.probe import SunskyProbe
+
+log = logging.getLogger(__name__)
 
 SWEEP_ELEVATIONS_DEG = (-5.0, -1e-4, 0.0, 0.5, 1.9, 2.0, 3.0, 10.0, 45.0, 89.999, 90.0)
 SWEEP_TURBIDITIES = (0.99, 1.0, 3.0, 10.0, 10.01)
@@ -67,7 +72,7 @@ def floor_table(probe: SunskyProbe, knots=np.arange(1.0, 10.01, 0.25), fine_step
     measured = {}
     for t in fine:
         measured[float(t)] = measure_floor(probe, float(t), check_high=float(t).is_integer())
-        print(f"  T={t:5.2f}  floor={measured[float(t)]:.3f}", file=sys.stderr)
+        log.info("turbidity %.2f: floor %.3f deg", t, measured[float(t)])
     rows = []
     for a, b in zip(knots[:-1], knots[1:]):
         inside = [v for t, v in measured.items() if a - 1e-9 <= t <= b + 1e-9]
@@ -120,6 +125,7 @@ def main(argv=None) -> int:
     parser.add_argument("--table", action="store_true", help="measure the elevation floor table (slow)")
     parser.add_argument("--fine-step", type=float, default=0.05, help="turbidity step of the measurement")
     args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     probe = SunskyProbe()
     if not args.table:
         _print_sweep(probe)

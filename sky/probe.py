@@ -126,5 +126,10 @@ class SunskyProbe:
 
 @lru_cache(maxsize=None)
 def shared_probe(variant: str = "llvm_ad_rgb") -> SunskyProbe:
-    """The process's probe for ``variant`` (built on first use)."""
+    """The process's probe for ``variant`` (built on first use).
+
+    Not thread-safe: the probe's emitters are moved to each light in turn, so
+    threads of one process must not call the emitter functions concurrently
+    (the pipeline's workers are processes).
+    """
     return SunskyProbe(variant)

@@ -23,6 +23,14 @@ MATERIALS = {
 BALL_RADIUS = 1.0
 BALL_CENTER = (0.0, 0.0, 1.0)
 
+#: The tests' scene settings. Mitsuba bakes the film size, the sampler's sample
+#: count and the spp of ``mi.render`` into the kernel, so tests sharing these
+#: share compiled kernels; render with ``spp`` equal to the preset's.
+PRESETS = {
+    "side": {"view": "side", "resolution": 24, "spp": 8, "max_depth": 4},
+    "top": {"view": "top", "resolution": 48, "spp": 32, "max_depth": 4},
+}
+
 
 def sensor_dict(view: str, resolution: int, spp: int, extent: float = 4.5) -> dict:
     """``side``: perspective from the -y side (horizon in frame); ``top``: orthographic from +z.

@@ -44,6 +44,7 @@ PLAN = [
     ("write", "record:2:fsync"),
     ("write", "manifest:1:write"),       # every shard done, manifest half written
     ("write", "manifest:1:rename"),
+    ("none", None),                      # completes the first trial
     ("write", "spec:1:write"),           # a fresh trial: killed inside its first write
     ("timer", 6.0),
     ("write", "exr:5:write"),

@@ -10,7 +10,9 @@ from pipeline.errors import ShaderballError
 from sky import SUN_MODES, Light, emitter_dicts, sun_angles, update_emitter_params
 from sky.emitter import LUMINANCE_RGB, SPLIT_SUN_WEIGHT_RANGE, desaturate_to_nonnegative, split_sampling_weights
 from sky.probe import SUN_APERTURE_DEG, SUN_SOLID_ANGLE_SR, SunskyProbe
-from sky.probe_scene import BALL_CENTER, BALL_RADIUS, pixel_rays, probe_scene_dict, render
+from sky.probe_scene import BALL_CENTER, BALL_RADIUS, PRESETS, pixel_rays, probe_scene_dict, render
+
+SIDE, TOP = PRESETS["side"], PRESETS["top"]
 
 
 def _lum(img):
@@ -87,8 +89,8 @@ def test_split_and_sunsky_light_the_ground_equally(mi):
     means = {}
     for sun in SUN_MODES:
         entries, _ = emitter_dicts(Light(50.0, 20.0, 3.0), sun=sun)
-        scene = mi.load_dict(probe_scene_dict(entries, view="top", resolution=32, spp=64))
-        means[sun] = _lum(render(mi, scene, 64, 3)).mean()
+        scene = mi.load_dict(probe_scene_dict(entries, **TOP))
+        means[sun] = _lum(render(mi, scene, TOP["spp"], 3)).mean()
     assert means["split"] == pytest.approx(means["sunsky"], rel=0.02)
 
 
@@ -97,7 +99,7 @@ def _render_kernel_hashes(mi, scene):
 
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # clears
-    mi.render(scene, spp=2, seed=0)
+    mi.render(scene, spp=SIDE["spp"], seed=0)
     hashes = sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     return hashes
@@ -107,15 +109,15 @@ def _render_kernel_hashes(mi, scene):
 def test_update_in_place_matches_a_fresh_scene_without_recompiling(mi, sun):
     a, b = Light(40.0, 10.0, 2.0), Light(12.0, 250.0, 8.5)
     entries_a, _ = emitter_dicts(a, sun=sun)
-    scene = mi.load_dict(probe_scene_dict(entries_a, material="glossy", resolution=16, spp=8))
+    scene = mi.load_dict(probe_scene_dict(entries_a, material="glossy", **SIDE))
     before = _render_kernel_hashes(mi, scene)
     params = mi.traverse(scene)
     record = update_emitter_params(params, b, sun=sun)
     assert record["effective"] == b.to_dict()
     assert _render_kernel_hashes(mi, scene) == before
-    updated = render(mi, scene, 8, 5)
+    updated = render(mi, scene, SIDE["spp"], 5)
     entries_b, record_b = emitter_dicts(b, sun=sun)
-    fresh = render(mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", resolution=16, spp=8)), 8, 5)
+    fresh = render(mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", **SIDE)), SIDE["spp"], 5)
     assert np.array_equal(updated, fresh)
     assert record == record_b
 
@@ -123,7 +125,7 @@ def test_update_in_place_matches_a_fresh_scene_without_recompiling(mi, sun):
 def test_changing_sun_scale_recompiles(mi):
     """Why the sun mode is fixed per scene (and why updates refuse a mode change)."""
     entries, _ = emitter_dicts(Light(40.0, 10.0, 3.0), sun="sunsky")
-    scene = mi.load_dict(probe_scene_dict(entries, resolution=8, spp=2))
+    scene = mi.load_dict(probe_scene_dict(entries, **SIDE))
     before = _render_kernel_hashes(mi, scene)
     params = mi.traverse(scene)
     params["sky.sun_scale"] = 0.0
@@ -136,8 +138,9 @@ def test_changing_sun_scale_recompiles(mi):
 def test_unknown_sun_mode_and_variant_are_refused():
     with pytest.raises(ShaderballError, match="sky.sun"):
         emitter_dicts(Light(30.0, 0.0, 3.0), sun="disk")
-    with pytest.raises(ShaderballError, match="RGB variant"):
-        emitter_dicts(Light(30.0, 0.0, 3.0), variant="llvm_ad_spectral")
+    for variant in ("llvm_ad_spectral", "scalar_rgb"):
+        with pytest.raises(ShaderballError, match="RGB variant"):
+            emitter_dicts(Light(30.0, 0.0, 3.0), variant=variant)
 
 
 # --- placement: the highlight and the shadow fall where the direction says -------------------
@@ -146,7 +149,7 @@ def test_unknown_sun_mode_and_variant_are_refused():
 @pytest.fixture(scope="module", params=SUN_MODES)
 def top_scene(request, mi):
     entries, _ = emitter_dicts(Light(45.0, 0.0, 3.0), sun=request.param)
-    scene = mi.load_dict(probe_scene_dict(entries, view="top", resolution=48, spp=32))
+    scene = mi.load_dict(probe_scene_dict(entries, **TOP))
     origins, _ = pixel_rays(mi, scene)
     return request.param, scene, mi.traverse(scene), origins[..., 0], origins[..., 1]
 
@@ -159,7 +162,7 @@ def _angle_diff(a, b):
 def test_shadow_and_highlight_follow_the_sun(mi, top_scene, elevation, azimuth):
     sun, scene, params, x, y = top_scene
     update_emitter_params(params, Light(elevation, azimuth, 3.0), sun=sun)
-    lum = _lum(render(mi, scene, 32, 11))
+    lum = _lum(render(mi, scene, TOP["spp"], 11))
     r = np.hypot(x, y)
     # shadow: dark ground pixels, centred opposite the sun's azimuth
     ground = r > 1.1 * BALL_RADIUS
@@ -181,7 +184,7 @@ def test_shadow_moves_out_as_the_sun_sinks(mi, top_scene):
     distances = []
     for elevation in (70.0, 45.0, 30.0):
         update_emitter_params(params, Light(elevation, 90.0, 3.0), sun=sun)
-        lum = _lum(render(mi, scene, 16, 1))
+        lum = _lum(render(mi, scene, TOP["spp"], 1))
         ground = np.hypot(x, y) > 1.1
         shadow = ground & (lum < 0.5 * np.percentile(lum[ground], 90))
         distances.append(-y[shadow].mean())  # sun at +y, shadow towards -y
@@ -192,15 +195,16 @@ def test_shadow_moves_out_as_the_sun_sinks(mi, top_scene):
 def test_azimuth_0_lights_the_ball_from_the_image_right(mi, azimuth, brighter):
     """docs/conventions.md: camera on -y looking +y, image +x to the right."""
     entries, _ = emitter_dicts(Light(20.0, azimuth, 3.0))
-    scene = mi.load_dict(probe_scene_dict(entries, view="side", resolution=32, spp=16))
+    scene = mi.load_dict(probe_scene_dict(entries, **SIDE))
     origins, directions = pixel_rays(mi, scene)
     # pixels whose primary ray hits the ball
     oc = origins - np.array(BALL_CENTER)
     b = np.sum(oc * directions, axis=-1)
     c = np.sum(oc * oc, axis=-1) - BALL_RADIUS**2
     on_ball = b * b - c > 0.05
-    lum = _lum(render(mi, scene, 16, 2))
-    cols = np.arange(32)[None, :].repeat(32, 0)
-    right = lum[on_ball & (cols >= 16)].mean()
-    left = lum[on_ball & (cols < 16)].mean()
+    lum = _lum(render(mi, scene, SIDE["spp"], 2))
+    n = SIDE["resolution"]
+    cols = np.arange(n)[None, :].repeat(n, 0)
+    right = lum[on_ball & (cols >= n // 2)].mean()
+    left = lum[on_ball & (cols < n // 2)].mean()
     assert (right > 1.5 * left) if brighter == "right" else (left > 1.5 * right)

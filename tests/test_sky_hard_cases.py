@@ -13,7 +13,9 @@ import pytest
 from pipeline.errors import ShaderballError
 from sky import SUN_MODES, Light, LightingPolicy, elevation_floor_deg, emitter_dicts, update_emitter_params
 from sky.hard_cases import SWEEP_ELEVATIONS_DEG, SWEEP_TURBIDITIES
-from sky.probe_scene import MATERIALS, probe_scene_dict, render
+from sky.probe_scene import MATERIALS, PRESETS, probe_scene_dict, render
+
+SIDE = PRESETS["side"]
 
 #: Towards the camera's side (front light), so the near-mirror ball shows the sun's reflection.
 AZIMUTH_DEG = 260.0
@@ -40,7 +42,7 @@ def test_rejected_requests_name_the_field(elevation, turbidity):
 
 def _scene(mi, material, sun):
     entries, _ = emitter_dicts(Light(45.0, AZIMUTH_DEG, 3.0), sun=sun)
-    scene = mi.load_dict(probe_scene_dict(entries, material=material, view="side", resolution=24, spp=8, max_depth=4))
+    scene = mi.load_dict(probe_scene_dict(entries, material=material, **SIDE))
     return scene, mi.traverse(scene)
 
 
@@ -51,7 +53,7 @@ def test_accepted_requests_render_finite_nonnegative_and_recorded(mi, material, 
     scene, params = _scene(mi, material, sun)
     for i, (elevation, turbidity) in enumerate(ACCEPTED):
         record = update_emitter_params(params, Light(elevation, AZIMUTH_DEG, turbidity), sun=sun)
-        image = render(mi, scene, 8, 1000 + i)
+        image = render(mi, scene, SIDE["spp"], 1000 + i)
         case = (material, sun, elevation, turbidity)
         assert np.all(np.isfinite(image)), case
         assert image.min() >= 0.0, case
@@ -75,9 +77,9 @@ def test_without_the_policy_the_sweep_does_go_negative_and_black(mi):
     scene, params = _scene(mi, "near_mirror", "sunsky")
     record = update_emitter_params(params, Light(0.5, AZIMUTH_DEG, 1.0), sun="sunsky", policy=off)
     assert record["emitter"]["min_radiance_rgb"][2] < 0.0  # the sun's blue channel
-    assert render(mi, scene, 8, 1).min() < 0.0
+    assert render(mi, scene, SIDE["spp"], 1).min() < 0.0
     update_emitter_params(params, Light(0.0, AZIMUTH_DEG, 3.0), sun="sunsky", policy=off)
-    assert render(mi, scene, 8, 1).max() == 0.0
+    assert render(mi, scene, SIDE["spp"], 1).max() == 0.0
 
 
 def test_split_sun_is_desaturated_when_the_floor_is_off(mi):

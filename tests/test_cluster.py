@@ -1,0 +1,176 @@
+"""Builds on a real dask cluster on loopback: a `dask scheduler` and two `dask worker`
+processes, `shaderball build --scheduler`; a worker SIGKILLed in the middle of a shard costs
+only that shard's unfinished samples. Also worker recycling and the memory probe
+(docs/cluster.md). Every process started here is killed, with its group, even on failure.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.cluster import ClusterOptions
+from pipeline.errors import ShaderballError
+
+REPO = Path(__file__).resolve().parents[1]
+SMOKE = REPO / "manifests" / "smoke.toml"
+DASK = str(Path(sys.executable).with_name("dask"))
+
+
+def _crash_module():
+    spec = importlib.util.spec_from_file_location("crash_test", REPO / "scripts" / "crash_test.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("crash_test", module)
+    spec.loader.exec_module(module)
+    return module
+
+
+crash = _crash_module()
+
+
+@pytest.fixture(scope="session")
+def reference(tmp_path_factory) -> Path:
+    return crash.shared_reference(tmp_path_factory)[0]
+
+
+def _start(cmd: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:
+    return subprocess.Popen(cmd, cwd=REPO, stdin=subprocess.DEVNULL, stdout=open(log, "ab"),
+                            stderr=subprocess.STDOUT, start_new_session=True,
+                            env=dict(os.environ, **(env or {})))
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    """(address, [processes]): a scheduler and 2 single-thread workers on 127.0.0.1."""
+    from distributed import Client
+
+    scheduler_file = tmp_path / "scheduler.json"
+    procs = []
+    try:
+        procs.append(_start([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                             "--scheduler-file", str(scheduler_file)], tmp_path / "scheduler.log"))
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
+            assert time.monotonic() < deadline, (tmp_path / "scheduler.log").read_text()
+            assert procs[0].poll() is None, (tmp_path / "scheduler.log").read_text()
+            time.sleep(0.1)
+        address = json.loads(scheduler_file.read_text())["address"]
+        for i in range(2):
+            procs.append(_start([DASK, "worker", "--scheduler-file", str(scheduler_file), "--host", "127.0.0.1",
+                                 "--nthreads", "1", "--no-dashboard", "--memory-limit", "4GiB",
+                                 "--death-timeout", "60", "--name", f"w{i}"],
+                                tmp_path / f"worker{i}.log", env={"SHADERBALL_RENDER_THREADS": "1"}))
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=120)
+        yield address, procs
+    finally:
+        for proc in reversed(procs):
+            crash.kill_group(proc)
+
+
+def _shard_in_progress(out: Path, client) -> tuple[str, str] | None:
+    """(worker address, shard id) of a shard with a record on disk and no marker yet."""
+    for worker, keys in client.processing().items():
+        for key in keys:
+            match = re.match(r"shard-(s\d+)-", str(key))
+            if not match:
+                continue
+            folder = out / "shards" / match[1]
+            if folder.is_dir() and not (folder / "COMPLETE.json").exists() and \
+                    any(re.fullmatch(r"m\d+_l\d+\.json", n) for n in os.listdir(folder)):
+                return worker, match[1]
+    return None
+
+
+@pytest.mark.slow
+def test_build_on_a_scheduler_survives_a_worker_killed_mid_shard(tmp_path, reference, dask_cluster):
+    from distributed import Client
+
+    address, _procs = dask_cluster
+    out = tmp_path / "ds"
+    build = _start([sys.executable, "-c", "import cli; cli.main()", "build", str(SMOKE), "--out", str(out),
+                    "--scheduler", address], tmp_path / "build.log")
+    try:
+        with Client(address, timeout="30s") as client:
+            deadline = time.monotonic() + 240
+            found = None
+            while found is None:
+                assert build.poll() is None, (tmp_path / "build.log").read_text()
+                assert time.monotonic() < deadline, "no shard was seen in progress"
+                found = _shard_in_progress(out, client)
+                time.sleep(0.05)
+            worker, shard = found
+            pid = client.run(os.getpid, workers=[worker])[worker]
+            records_before = sum(1 for n in os.listdir(out / "shards" / shard) if n.endswith(".json"))
+            os.kill(pid, signal.SIGKILL)
+        assert build.wait(timeout=300) == 0, (tmp_path / "build.log").read_text()
+    finally:
+        crash.kill_group(build)
+    log = (tmp_path / "build.log").read_text()
+    rendered = int(re.search(r"rendered (\d+), already present", log)[1])
+    # The killed attempt's renders are not counted; its committed samples were not redone.
+    assert records_before >= 1 and rendered <= 16 - records_before, log
+    assert not (out / "shards" / shard / "COMPLETE.json").read_text() == ""
+    crash.check_complete(out, reference)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
+    from pipeline.build import build
+
+    out = tmp_path / "ds"
+    start = time.monotonic()
+    with pytest.raises(ShaderballError, match=r"--scheduler: cannot reach 'tcp://127.0.0.1:\d+'"):
+        build(str(SMOKE), str(out), scheduler=f"tcp://127.0.0.1:{_free_port()}")
+    assert time.monotonic() - start < 10 and not out.exists()
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1:8786", "tcp://host", "http://h:1", "tcp://h:70000"])
+def test_bad_scheduler_address_is_refused(address):
+    with pytest.raises(ShaderballError, match=r"--scheduler: .* allowed: tcp://HOST:PORT"):
+        ClusterOptions(scheduler=address).check()
+
+
+def test_a_worker_that_cannot_see_the_dataset_refuses_the_shard(tmp_path):
+    from pipeline.build import _run_shard_task
+    from pipeline.plan import plan_dataset
+    from pipeline.spec import parse_spec
+
+    spec = parse_spec(SMOKE)
+    with pytest.raises(ShaderballError, match="same path on a shared filesystem"):
+        _run_shard_task(str(tmp_path / "elsewhere"), spec, plan_dataset(spec)[0], 1)
+
+
+@pytest.mark.slow
+def test_recycled_workers_build_the_same_dataset(tmp_path, reference):
+    """--recycle-after 1: a fresh worker process after every shard; nothing lost or redone."""
+    from pipeline.build import build
+
+    out = tmp_path / "ds"
+    summary = build(str(SMOKE), str(out), cluster=ClusterOptions(workers=1, recycle_after=1))
+    assert summary.rendered == 16
+    assert summary.processes >= 2
+    crash.check_complete(out, reference)
+
+
+def test_memory_probe_reports_growth(capsys):
+    from pipeline.cluster import main
+
+    assert main(["--memory-probe", "4", "--resolution", "16", "--spp", "1", "--every", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "memory probe: 4 renders at 16x16" in out and "MiB per 100 renders" in out
