@@ -282,6 +282,8 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
         elevation = np.clip(np.degrees(np.arcsin(np.clip(z, -1.0, 1.0))), el_lo, el_hi)
     azimuth = az_lo + u[..., 1] * (az_hi - az_lo)
     turbidity = np.clip(t_lo + u[..., 2] * (t_hi - t_lo), t_lo, t_hi)
+    if spec.lighting.turbidity_per == "material":
+        turbidity = np.broadcast_to(turbidity[:, :1], turbidity.shape)
     return elevation, azimuth, turbidity
 
 

@@ -521,9 +521,10 @@ class LightingSection(_Section):
 
     elevation_deg: tuple[float, float] = _field(
         (5.0, 90.0), rule=_Pair(0.0, 90.0),
-        doc="Range of the sun's elevation above the horizon. Mitsuba's sunsky is black at "
-            "0 and its tables start at 2; low suns (< ~5) have a slightly negative blue "
-            "channel in RGB variants.",
+        doc="Range of the sun's elevation above the horizon. Mitsuba's RGB sunsky is black at "
+            "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
+            "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
+            "(2.5 to 7.0 by turbidity; docs/sky.md) are raised to it, and the move is recorded.",
         unit="degrees")
     azimuth_deg: tuple[float, float] = _field(
         (0.0, 360.0), rule=_Pair(-360.0, 360.0, max_span=360.0),
@@ -542,6 +543,11 @@ class LightingSection(_Section):
             "uniform_angles (uniform in elevation and azimuth degrees), stratified (Latin "
             "hypercube over sin(elevation), azimuth and turbidity), sobol (scrambled Sobol' "
             "points). Turbidity is uniform in every scheme.")
+    turbidity_per: str = _field(
+        "material", rule=_Choice(("material", "light")),
+        doc="material: one turbidity per material, shared by all its lightings (the paper: "
+            "'a random turbidity per material'; drawn with its first lighting); light: a "
+            "turbidity drawn for every lighting.")
     sun: str = _field(
         "split", rule=_Choice(SUN_FORMS),
         doc="Sun representation (sky.emitter): split (a sky-only sunsky plus a directional "

@@ -285,10 +285,11 @@ def test_planning_with_an_empty_inventory_is_refused(map_folder):
 @pytest.mark.parametrize("scheme", ["uniform_hemisphere", "uniform_angles", "stratified",
                                     "sobol"])
 def test_lightings_are_skys_joint_draw_per_material(scheme):
-    sky = pytest.importorskip("sky")
+    import sky
+
     spec = make_spec(materials=12, lights=5, extra=(
         f'[lighting]\nelevation_deg = [10, 80]\nazimuth_deg = [-90, 180]\n'
-        f'turbidity = [2, 7]\nscheme = "{scheme}"\n'))
+        f'turbidity = [2, 7]\nscheme = "{scheme}"\nturbidity_per = "light"\n'))
     ranges = spec.lighting.to_lighting_ranges()
     for shard in plan_dataset(spec):
         for material in shard.materials:
@@ -366,3 +367,20 @@ def test_plans_survive_dask_transport():
     again = pickle.loads(pickle.dumps(plans))
     assert again == plans
     assert all_samples(again) == all_samples(plans)
+
+
+def test_turbidity_per_material_is_the_papers_default():
+    import sky
+
+    spec = make_spec(materials=12, lights=5, extra=(
+        '[lighting]\nelevation_deg = [10, 80]\nturbidity = [2, 7]\nscheme = "stratified"\n'))
+    assert spec.lighting.turbidity_per == "material"
+    ranges = spec.lighting.to_lighting_ranges()
+    turbidities = set()
+    for shard in plan_dataset(spec):
+        for material in shard.materials:
+            lights = sky.sample_lights(seeded_rng(material.light_seed), 5, ranges)
+            assert material.turbidity == (lights[0].turbidity,) * 5
+            np.testing.assert_allclose(material.elevation_deg, [x.elevation_deg for x in lights], atol=1e-12)
+            turbidities.add(material.turbidity[0])
+    assert len(turbidities) == 12  # still random per material
