@@ -23,14 +23,17 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: setup
-	$(VENV)/bin/shaderball scene --out $(DEMO_OUT)/scene --resolution 256
-	@echo "demo: result in $(DEMO_OUT)/scene (open $(DEMO_OUT)/scene/preview.png)"
+	$(VENV)/bin/shaderball build manifests/smoke.toml --out $(DEMO_OUT)/smoke
+	$(VENV)/bin/shaderball validate $(DEMO_OUT)/smoke --fast
+	$(VENV)/bin/shaderball preview $(DEMO_OUT)/smoke --out $(DEMO_OUT)/smoke-preview.png
+	@echo
+	@echo "demo: dataset in $(DEMO_OUT)/smoke (manifest.jsonl, shards/), contact sheet $(DEMO_OUT)/smoke-preview.png"
 
 test: setup
 	$(PY) -m pytest -q -n 2 -m "not soak" tests
 
 bench: setup
-	$(VENV)/bin/shaderball bench --help >/dev/null
+	$(VENV)/bin/shaderball bench manifests/smoke.toml
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT)
