@@ -139,7 +139,7 @@ def _progress_printer():
                    "resumed (only missing or unverified samples are rendered); another spec is refused.")
 @click.option("--workers", type=int, default=None,
               help="Local dask worker processes, 0 to 1024 [default: one per 2 cores]. 0 runs in this "
-                   "process without dask.")
+                   "process without dask. Ignored with --scheduler.")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
                    "(its workers need DIR at the same path; docs/cluster.md).")
@@ -160,8 +160,9 @@ def _progress_printer():
 @click.option("--scratch", default=None, metavar="DIR",
               help="slurm/pbs: node-local folder for the kernel cache and dask's files "
                    "[default: ${TMPDIR:-/tmp}, expanded on the node].")
-@click.option("--recycle-after", type=int, default=0, show_default=True, metavar="SHARDS",
-              help="Restart a worker process after this many shards (bounds Mitsuba's memory growth); 0: never.")
+@click.option("--recycle-after", type=int, default=2000, show_default=True, metavar="RENDERS",
+              help="Restart a dask worker process once it has rendered this many samples, 0 to 10000000 "
+                   "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.")
 @click.option("--print-job-script", is_flag=True,
               help="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.")
 @_friendly_errors
@@ -297,27 +298,31 @@ def info_cmd(directory, as_json):
               help="Cut the spec to about this many renders (whole materials, all their lightings) "
                    "[default: all of them].")
 @click.option("--resolution", type=int, default=None,
-              help="Render size in pixels, 16 to 4096 [default: the spec's; with --effects 200].")
+              help="Render size in pixels, 16 to 4096 [default: the spec's; with --effects 128].")
 @click.option("--spp", type=int, default=None,
               help="Samples per pixel, 1 to 65536 [default: the spec's; with --effects 64].")
 @click.option("--workers", type=int, default=None,
               help="As `shaderball build --workers` (0: in this process) [default: the build's].")
+@click.option("--shard-size", type=int, default=None,
+              help="Materials per shard, 1 to 1000000 [default: the spec's]; with few materials use 1 so "
+                   "every worker gets a shard.")
 @click.option("--out", "out", type=click.Path(file_okay=False), default=None,
               help="Keep the benchmark's dataset in this new or empty folder [default: a temporary one].")
 @click.option("--profile", is_flag=True,
               help="Also time one loaded scene per material moved in place, and moment vs plain path.")
 @click.option("--effects", is_flag=True,
               help="Run the effects benchmark instead: render time saved by each omitted effect.")
-@click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 3].")
+@click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 5].")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the figures to this JSON file.")
 @_friendly_errors
-def bench_cmd(spec, samples, resolution, spp, workers, out, profile, effects, repeats, json_path):
+def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
     from pipeline.bench import run_from_args
 
     result = run_from_args(spec, effects=effects, samples=samples, resolution=resolution, spp=spp,
-                           workers=workers, out=out, profile=profile, repeats=repeats, json_path=json_path,
+                           workers=workers, shard_size=shard_size, out=out, profile=profile, repeats=repeats,
+                           json_path=json_path,
                            progress=lambda message: click.echo(message, err=True))
     for line in result.lines():
         click.echo(line)

@@ -2,17 +2,21 @@
 
 ``shaderball bench SPEC`` (or ``python -m pipeline.bench SPEC``)
     Builds SPEC (optionally cut to about ``--samples`` renders, at another
-    ``--resolution`` / ``--spp``) into a fresh folder, then renders the same samples with
-    bare ``mi.render`` calls: the same scene dicts (:func:`pipeline.render.scene_dict`),
-    each loaded once, kernels compiled beforehand, only the render call timed. It prints
-    the build's wall time over the sum of those render times (the overhead ratio; the
-    target is at most 1.03), samples per second of both, and where the difference goes.
-    Kernels are compiled before the build too (one spp-1 render per material, which fills
-    drjit's on-disk kernel cache), so the ratio is the steady state of a long build, not
-    the first minute of a fresh machine. ``--profile`` adds two measurements behind the
-    proposals in docs/build.md: all lightings of a material rendered from one loaded scene
-    moved in place (:func:`sky.update_emitter_params`), and the ``moment`` integrator
-    against its nested path tracer alone.
+    ``--resolution`` / ``--spp`` / ``--shard-size``) into a fresh folder, then renders the
+    same samples with bare ``mi.render`` calls: the same scene dicts
+    (:func:`pipeline.render.scene_dict`), each loaded once, one scene alive at a time,
+    kernels compiled beforehand, only the render call timed. It prints the build's wall
+    time over the sum of those render times (the overhead ratio; the target is at most
+    1.03), samples per second of both, the same ratio in CPU time (this process and its
+    reaped children: less disturbed by other load than wall time), for in-process builds
+    the build's own split between its render calls and the rest (:class:`RenderCallTimer`,
+    measured in the same run), and where the rest goes. Kernels are compiled before the
+    build (one spp-1 render per material, which fills drjit's on-disk kernel cache), so
+    the ratio is the steady state of a long build, not the first minute of a fresh
+    machine. ``--profile`` adds two measurements behind the proposals in docs/build.md:
+    all lightings of a material rendered from one loaded scene moved in place
+    (:func:`sky.update_emitter_params`), and the ``moment`` integrator against its nested
+    path tracer alone.
 
 ``shaderball bench --effects`` (or ``python -m pipeline.bench --effects``)
     Renders a few materials with each effect the build leaves out present and absent
@@ -23,7 +27,9 @@
     to show why it is kept.
 
 The helpers :func:`render_moments`, :func:`compare_renders`, :func:`bitmap_bsdf` and
-:func:`flat_normal_map_bsdf` are shared with tests/test_effects.py.
+:func:`flat_normal_map_bsdf` are shared with tests/test_effects.py;
+:func:`render_in_passes` is the reference implementation of the determinism proposal of
+docs/build.md (tests/test_build_bench.py).
 """
 
 from __future__ import annotations
@@ -81,7 +87,8 @@ class MomentRender:
     image: np.ndarray  # (H, W, 3) float32 linear RGB
     luminance: np.ndarray  # (H, W) float64, Y of the estimate
     luminance_variance: np.ndarray  # (H, W) float64, variance of the pixel estimate of Y
-    seconds: float  # the render call, numpy conversion included
+    seconds: float  # wall time of the render call, numpy conversion included
+    cpu_seconds: float  # CPU time of this process (all render threads) over the same call
 
 
 def render_moments(mi, scene, spp: int, seed: int) -> MomentRender:
@@ -89,13 +96,13 @@ def render_moments(mi, scene, spp: int, seed: int) -> MomentRender:
     names = list(scene.integrator().aov_names())
     if "nested.Y" not in names or "m2_nested.Y" not in names:
         raise ShaderballError(f"scene integrator: AOVs {names} are not the moment integrator's")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     out = np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
-    seconds = time.perf_counter() - start
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     m1 = out[..., 3 + names.index("nested.Y")].astype(np.float64)
     m2 = out[..., 3 + names.index("m2_nested.Y")].astype(np.float64)
     variance = np.clip(m2 - m1 * m1, 0.0, None) / spp
-    return MomentRender(np.ascontiguousarray(out[..., 0:3]), m1, variance, seconds)
+    return MomentRender(np.ascontiguousarray(out[..., 0:3]), m1, variance, seconds, cpu_seconds)
 
 
 def compare_renders(a: MomentRender, b: MomentRender) -> dict:
@@ -127,6 +134,34 @@ def compare_renders(a: MomentRender, b: MomentRender) -> dict:
         "z_total": z_total,
         "within_noise": z_share <= Z_FAIL_SHARE and abs(z_total) <= Z_TOTAL_LIMIT,
     }
+
+
+def power_of_two_passes(spp: int) -> list[int]:
+    """``spp`` as a sum of distinct powers of two, largest first: 150 -> [128, 16, 4, 2]."""
+    return [1 << b for b in range(int(spp).bit_length() - 1, -1, -1) if spp >> b & 1]
+
+
+def pass_seed(seed: int, k: int) -> int:
+    """The seed of pass ``k`` of a render seeded ``seed`` (32 bits; keyed by both)."""
+    return int(np.random.SeedSequence([int(seed), k]).generate_state(1, np.uint32)[0])
+
+
+def render_in_passes(mi, scene, spp: int, seed: int) -> np.ndarray:
+    """All channels of ``spp`` samples per pixel, rendered as power-of-two passes and averaged.
+
+    The reference implementation of a proposal of docs/build.md. In the llvm variant a
+    render whose spp is not a power of two is not bit-reproducible with several render
+    threads: a pixel's samples can straddle two of drjit's work blocks, whose threads add
+    into the pixel in either order (measured: 237 of 160,000 pixels differ by ~1 ulp
+    between two 400x400, 150 spp renders in one process). With power-of-two passes a
+    pixel's samples never straddle; the passes are averaged in float64, weighted by their
+    spp (exact for every channel of the moment integrator, whose channels are means too).
+    """
+    total = None
+    for k, n in enumerate(power_of_two_passes(spp)):
+        image = np.asarray(mi.render(scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
+        total = image if total is None else total + image
+    return (total / spp).astype(np.float32)
 
 
 def describe_comparison(c: dict) -> str:
@@ -200,16 +235,28 @@ class EffectCase:
     omission: str
     material: str
     applied: bool  # does the build make this omission?
-    seconds_with: float
-    seconds_without: float
+    wall_with: list[float]  # wall seconds of each timed render, with the effect
+    wall_without: list[float]
+    cpu_with: list[float]  # CPU seconds (all threads) of the same renders
+    cpu_without: list[float]
     comparison: dict
 
+    @staticmethod
+    def _saved(with_: float, without: float) -> float:
+        return 1.0 - without / with_ if with_ > 0 else 0.0
+
     @property
-    def saved_fraction(self) -> float:
-        return 1.0 - self.seconds_without / self.seconds_with if self.seconds_with > 0 else 0.0
+    def saved_wall(self) -> float:
+        """Share of the wall time saved, best of the repeats of each (least disturbed by load)."""
+        return self._saved(min(self.wall_with), min(self.wall_without))
+
+    @property
+    def saved_cpu(self) -> float:
+        """Share of the CPU time saved, medians of the repeats."""
+        return self._saved(statistics.median(self.cpu_with), statistics.median(self.cpu_without))
 
     def to_dict(self) -> dict:
-        return {**dataclasses.asdict(self), "saved_fraction": self.saved_fraction}
+        return {**dataclasses.asdict(self), "saved_wall": self.saved_wall, "saved_cpu": self.saved_cpu}
 
 
 @dataclass
@@ -223,14 +270,18 @@ class EffectsBench:
     cases: list[EffectCase] = field(default_factory=list)
 
     def lines(self) -> list[str]:
-        out = [f"effects benchmark: {self.resolution}x{self.resolution}, {self.spp} spp, "
-               f"median of {self.repeats} alternating renders each, {self.variant}, "
-               f"{self.threads} render threads; textures {self.texture_size}x{self.texture_size}",
-               f"{'omission':<36} {'material':<34} {'with':>7} {'without':>8} {'saved':>6}  images"]
+        out = [f"effects benchmark: {self.resolution}x{self.resolution}, {self.spp} spp, {self.repeats} "
+               f"alternating renders of each variant, {self.variant}, {self.threads} render threads; "
+               f"textures {self.texture_size}x{self.texture_size}",
+               "wall: best of the repeats; cpu: median CPU time of the process (all render threads)",
+               f"{'omission':<36} {'material':<32} {'wall with/without':>18} {'saved':>6} "
+               f"{'cpu with/without':>17} {'saved':>6}  images"]
         for c in self.cases:
             name = c.omission + ("" if c.applied else " [not applied]")
-            out.append(f"{name:<36} {c.material:<34} {c.seconds_with:6.3f}s {c.seconds_without:7.3f}s "
-                       f"{100 * c.saved_fraction:5.1f}%  {describe_comparison(c.comparison)}")
+            out.append(f"{name:<36} {c.material:<32} {min(c.wall_with):7.3f}/{min(c.wall_without):7.3f}s "
+                       f"{100 * c.saved_wall:5.1f}% {statistics.median(c.cpu_with):7.3f}/"
+                       f"{statistics.median(c.cpu_without):7.3f}s {100 * c.saved_cpu:5.1f}%  "
+                       f"{describe_comparison(c.comparison)}")
         return out
 
     def to_dict(self) -> dict:
@@ -285,9 +336,9 @@ def run_effects_bench(*, resolution: int | None = None, spp: int | None = None, 
     from pipeline.render import RenderSettings, scene_dict
     from sky import Light
 
-    resolution = _check_int("--resolution", resolution, 16, 4096) or 200
+    resolution = _check_int("--resolution", resolution, 16, 4096) or 128
     spp = _check_int("--spp", spp, 1, 65536) or 64
-    repeats = _check_int("--repeats", repeats, 1, 100) or 3
+    repeats = _check_int("--repeats", repeats, 1, 100) or 5
     texture_size = _check_int("--texture-size", texture_size, 1, 4096) or 256
     mi = load_mitsuba("llvm_ad_rgb")
     import drjit as dr
@@ -306,22 +357,26 @@ def run_effects_bench(*, resolution: int | None = None, spp: int | None = None, 
         scene_with, scene_without = mi.load_dict(make_with(base)), mi.load_dict(make_without(base))
         first_with = render_moments(mi, scene_with, spp, seed)  # compiles; also the compared image
         first_without = render_moments(mi, scene_without, spp, seed)
-        times_with, times_without = [], []
+        timed_with, timed_without = [], []
         for r in range(repeats):
-            times_with.append(render_moments(mi, scene_with, spp, seed + 1 + r).seconds)
-            times_without.append(render_moments(mi, scene_without, spp, seed + 1 + r).seconds)
-        bench.cases.append(EffectCase(omission, label, applied, statistics.median(times_with),
-                                      statistics.median(times_without),
-                                      compare_renders(first_with, first_without)))
+            timed_with.append(render_moments(mi, scene_with, spp, seed + 1 + r))
+            timed_without.append(render_moments(mi, scene_without, spp, seed + 1 + r))
+        bench.cases.append(EffectCase(
+            omission, label, applied, [t.seconds for t in timed_with], [t.seconds for t in timed_without],
+            [t.cpu_seconds for t in timed_with], [t.cpu_seconds for t in timed_without],
+            compare_renders(first_with, first_without)))
     return bench
 
 
 # --------------------------------------------------------------------------- build benchmark
 
 
-def derive_spec(spec, *, samples: int | None = None, resolution: int | None = None, spp: int | None = None):
+def derive_spec(spec, *, samples: int | None = None, resolution: int | None = None, spp: int | None = None,
+                shard_size: int | None = None):
     """``spec`` cut to about ``samples`` renders (whole materials) and re-sized; other fields kept."""
     dataset, render = spec.dataset, spec.render
+    if shard_size is not None:
+        dataset = dataclasses.replace(dataset, shard_size=shard_size)
     if samples is not None:
         lights = dataset.lights_per_material
         if samples < lights:
@@ -341,6 +396,7 @@ class SampleTiming:
     dict_s: float  # pipeline.render.scene_dict
     load_s: float  # mi.load_dict
     render_s: float  # mi.render + numpy conversion: the bare render
+    render_cpu_s: float  # CPU time of this process (all render threads) over the same call
     identical: bool  # the bare render equals the build's stored render, bit for bit
 
 
@@ -356,13 +412,15 @@ class BuildBench:
     threads: int
     warmup_s: float
     build_s: float
+    build_cpu_s: float  # CPU time of this process and its (reaped) children during the build
     startup_s: float  # build() call to the start of rendering (spec, plan, dask cluster)
-    build_render_sample_s: float  # sum of the records' stats.time_s (scene, load, render, stats)
+    in_build_render_s: float | None  # in-process builds: time inside render_scene during the build
     timings: list[SampleTiming] = field(default_factory=list)
     material_files_s: float = 0.0  # per material: raster projection + maps (+ texture) EXR
     render_file_s: float = 0.0  # per render: EXR encode + SHA-256 + atomic write
     reuse: dict | None = None
     moment: dict | None = None
+    compiled: dict | None = None  # kernels compiled during the timed bare renders (should be 0)
 
     @property
     def bare_s(self) -> float:
@@ -371,6 +429,15 @@ class BuildBench:
     @property
     def ratio(self) -> float:
         return self.build_s / self.bare_s if self.bare_s > 0 else math.inf
+
+    @property
+    def bare_cpu_s(self) -> float:
+        return sum(t.render_cpu_s for t in self.timings)
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Build CPU over bare-render CPU: less disturbed than wall time on a shared machine."""
+        return self.build_cpu_s / self.bare_cpu_s if self.bare_cpu_s > 0 else math.inf
 
     def lines(self) -> list[str]:
         n = self.samples
@@ -385,32 +452,40 @@ class BuildBench:
             f"bare mi.render, summed:   {self.bare_s:8.2f} s  {n / self.bare_s:7.3f} samples/s"
             f"  (mean {self.bare_s / n:.3f} s per render)",
             f"ratio build / bare:       {self.ratio:8.3f}   (target <= 1.03); "
-            f"without start-up: {(self.build_s - self.startup_s) / self.bare_s:.3f}",
+            f"without start-up: {(self.build_s - self.startup_s) / self.bare_s:.3f}; "
+            f"CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s = {self.cpu_ratio:.3f}",
+            *([f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
+               f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
+               f"{self.build_s / self.in_build_render_s:.3f}"] if self.in_build_render_s else []),
             f"bare renders bit-identical to the build's: "
             f"{sum(t.identical for t in self.timings)}/{len(self.timings)}",
             "where the rest goes, per render (measured outside the build): "
             f"scene_dict {mean([t.dict_s for t in self.timings]):.3f} s, "
             f"load_dict {mean([t.load_s for t in self.timings]):.3f} s, "
             f"render EXR+SHA-256+fsync {self.render_file_s:.3f} s; per material: raster + maps EXR "
-            f"{self.material_files_s:.3f} s; the build's render_sample summed "
-            f"{self.build_render_sample_s:.2f} s",
+            f"{self.material_files_s:.3f} s",
         ]
+        if self.compiled:
+            out.append("kernels compiled during the timed renders (0 = all warm): "
+                       + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"
+                                   for k, v in self.compiled.items()))
         if self.reuse:
             r = self.reuse
             out.append(f"profile, one loaded scene per material moved in place: {r['seconds']:.2f} s for "
-                       f"{n} renders (vs {r['fresh_seconds']:.2f} s dict+load+render each), "
+                       f"{n} renders, {r['seconds'] - r['compile_s']:.2f} s without its {r['compiled']} "
+                       f"kernel compile(s) (vs {r['fresh_seconds']:.2f} s dict+load+render each), "
                        f"{r['identical']}/{n} bit-identical to the build's")
         if self.moment:
             m = self.moment
             out.append(f"profile, moment vs plain {m['integrator']} ({m['samples']} renders): "
                        f"{m['moment_s']:.2f} s vs {m['path_s']:.2f} s "
-                       f"({100 * (m['moment_s'] / m['path_s'] - 1):+.1f}%), images "
-                       f"{'bit-identical' if m['identical'] else 'differ'}")
+                       f"({100 * (m['moment_s'] / m['path_s'] - 1):+.1f}%), RGB "
+                       f"{'bit-identical' if m['identical'] else 'not bit-identical'}")
         return out
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d.update(bare_s=self.bare_s, ratio=self.ratio)
+        d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio)
         return d
 
 
@@ -442,16 +517,61 @@ def warm_kernels(spec, plans) -> float:
     return time.perf_counter() - start
 
 
-def measure_bare(spec, plans, root: str) -> list[SampleTiming]:
-    """Time scene_dict, load_dict and the bare render of every sample; compare with the build."""
+class KernelCounter:
+    """Counts drjit kernels compiled (not found in the memory or disk cache) while active.
+
+    A kernel's hash covers the Mitsuba objects alive in the process (virtual calls are
+    traced over every registered instance), so two scenes alive at once give new kernels:
+    the measurements below keep one scene alive at a time, as a build worker does.
+    """
+
+    def __init__(self):
+        import drjit as dr
+
+        self._dr = dr
+        self.compiled = 0
+        self.compile_s = 0.0
+
+    def __enter__(self):
+        self._dr.set_flag(self._dr.JitFlag.KernelHistory, True)
+        self._dr.kernel_history()  # clears
+        return self
+
+    def __exit__(self, *exc):
+        dr = self._dr
+        for k in dr.kernel_history():
+            if k["type"] == dr.KernelType.JIT and not k.get("cache_hit"):
+                self.compiled += 1
+                self.compile_s += k.get("backend_time", 0.0) / 1000.0
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+def _stored_render(layout, sample) -> np.ndarray:
     from pipeline.exr import read_exr
+
+    return read_exr(layout.path(layout.render_rel(sample.shard_id, sample.sample_id))).layers["render"]
+
+
+def _render_seed(layout, sample) -> int:
+    from pipeline.records import read_json
+
+    record = read_json(layout.path(layout.record_rel(sample.shard_id, sample.sample_id))) or {}
+    return int(record.get("seeds", {}).get("render_used", sample.render_seed))
+
+
+def _light(sample):
+    from sky import Light
+
+    return Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+
+
+def measure_bare(spec, plans, root: str, kernels: KernelCounter) -> list[SampleTiming]:
+    """Time scene_dict, load_dict and the bare render of every sample; compare with the build."""
     from pipeline.layout import Layout
     from pipeline.materialize import make_material
     from pipeline.mitsuba_env import load_mitsuba
-    from pipeline.records import read_json
     from pipeline.render import scene_dict
     from pipeline.shard import worker_context
-    from sky import Light
 
     ctx = worker_context(spec)
     mi = load_mitsuba(spec.render.variant)
@@ -460,25 +580,24 @@ def measure_bare(spec, plans, root: str) -> list[SampleTiming]:
     for material in _materials_of(plans):
         maps, _ = make_material(material, spec)
         for s in material.samples:
-            record = read_json(layout.path(layout.record_rel(s.shard_id, s.sample_id))) or {}
-            seed = record.get("seeds", {}).get("render_used", s.render_seed)
+            seed = _render_seed(layout, s)
             t0 = time.perf_counter()
-            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, Light(s.elevation_deg, s.azimuth_deg, s.turbidity),
-                                    ctx.settings)
+            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
             t1 = time.perf_counter()
             scene = mi.load_dict(desc)
-            t2 = time.perf_counter()
-            out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
-            t3 = time.perf_counter()
-            stored = read_exr(layout.path(layout.render_rel(s.shard_id, s.sample_id))).layers["render"]
-            timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2,
-                                        bool(np.array_equal(stored, out[..., 0:3]))))
+            t2, cpu = time.perf_counter(), time.process_time()
+            with kernels:
+                out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
+            t3, cpu = time.perf_counter(), time.process_time() - cpu
+            del scene, desc  # one scene alive at a time, as in a build worker
+            timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2, cpu,
+                                        bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))))
     return timings
 
 
 def measure_storage(spec, plans, root: str) -> tuple[float, float]:
     """(per material: raster + maps files, per render: EXR + hash + atomic write), in seconds."""
-    from pipeline.exr import read_exr, write_exr
+    from pipeline.exr import write_exr
     from pipeline.layout import Layout
     from pipeline.materialize import make_material
     from pipeline.shard import worker_context, write_material_files
@@ -493,9 +612,7 @@ def measure_storage(spec, plans, root: str) -> tuple[float, float]:
             maps, description = make_material(material, spec)
             write_material_files(Layout(scratch), spec, ctx, material, maps, description)
         per_material = (time.perf_counter() - start) / len(materials)
-        samples = [s for m in materials for s in m.samples][:8]
-        images = [read_exr(layout.path(layout.render_rel(s.shard_id, s.sample_id))).layers["render"]
-                  for s in samples]
+        images = [_stored_render(layout, s) for m in materials for s in m.samples][:8]
         start = time.perf_counter()
         for i, image in enumerate(images):
             write_exr(os.path.join(scratch, f"r{i}.render.exr"), {"render": image}, {"id": str(i)},
@@ -506,16 +623,18 @@ def measure_storage(spec, plans, root: str) -> tuple[float, float]:
     return per_material, per_render
 
 
-def measure_reuse(spec, plans, root: str) -> dict:
-    """All lightings of a material from one loaded scene, moved with sky.update_emitter_params."""
-    from pipeline.exr import read_exr
+def measure_reuse(spec, plans, root: str, kernels: KernelCounter) -> dict:
+    """All lightings of a material from one loaded scene, moved with sky.update_emitter_params.
+
+    The first lighting renders the scene as loaded, the others after an in-place update:
+    the proposal of docs/build.md, timed against dict + load + render per sample.
+    """
     from pipeline.layout import Layout
     from pipeline.materialize import make_material
     from pipeline.mitsuba_env import load_mitsuba
-    from pipeline.records import read_json
     from pipeline.render import scene_dict
     from pipeline.shard import worker_context
-    from sky import Light, update_emitter_params
+    from sky import update_emitter_params
 
     ctx = worker_context(spec)
     mi = load_mitsuba(spec.render.variant)
@@ -526,77 +645,114 @@ def measure_reuse(spec, plans, root: str) -> dict:
         maps, _ = make_material(material, spec)
         scene = params = None
         for s in material.samples:
-            record = read_json(layout.path(layout.record_rel(s.shard_id, s.sample_id))) or {}
-            seed = record.get("seeds", {}).get("render_used", s.render_seed)
-            light = Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
+            seed = _render_seed(layout, s)
             t0 = time.perf_counter()
             if scene is None:
-                desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, light, ctx.settings)
+                desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
                 scene = mi.load_dict(desc)
                 params = mi.traverse(scene)
             else:
-                update_emitter_params(params, light, sun=ctx.settings.sun, variant=ctx.variant)
-            out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
+                update_emitter_params(params, _light(s), sun=ctx.settings.sun, variant=ctx.variant)
+            with kernels:
+                out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
             seconds += time.perf_counter() - t0
-            stored = read_exr(layout.path(layout.render_rel(s.shard_id, s.sample_id))).layers["render"]
-            identical += bool(np.array_equal(stored, out[..., 0:3]))
+            identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
+        del scene, params
     return {"seconds": seconds, "identical": identical}
 
 
 def measure_moment(spec, plans, count: int = 3) -> dict:
-    """The first ``count`` samples rendered by the nested integrator alone, against ``moment``."""
+    """The first ``count`` samples rendered by the nested integrator alone, against ``moment``.
+
+    Each scene is loaded, rendered once at 1 spp (compiling its kernels if needed), then
+    timed at full spp; one scene alive at a time.
+    """
     from pipeline.materialize import make_material
     from pipeline.mitsuba_env import load_mitsuba
     from pipeline.render import scene_dict
     from pipeline.shard import worker_context
-    from sky import Light
 
     ctx = worker_context(spec)
     mi = load_mitsuba(spec.render.variant)
-    moment_s = path_s = 0.0
+    totals = {"moment": 0.0, "path": 0.0}
     identical = True
-    done = 0
-    for material in _materials_of(plans):
+    samples = [(m, s) for m in _materials_of(plans) for s in m.samples][:count]
+    for material, s in samples:
         maps, _ = make_material(material, spec)
-        for s in material.samples:
-            if done >= count:
-                break
-            light = Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
-            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, light, ctx.settings)
-            moment_scene = mi.load_dict(desc)
-            plain = dict(desc, integrator=desc["integrator"]["nested"])
-            scene = mi.load_dict(plain)
-            np.asarray(mi.render(scene, spp=1, seed=0))  # compile the plain kernel
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+        images = {}
+        for name, d in (("path", dict(desc, integrator=desc["integrator"]["nested"])), ("moment", desc)):
+            scene = mi.load_dict(d)
+            np.asarray(mi.render(scene, spp=1, seed=0))
             t0 = time.perf_counter()
-            a = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed), dtype=np.float32)
-            path_s += time.perf_counter() - t0
-            t0 = time.perf_counter()
-            b = np.asarray(mi.render(moment_scene, spp=ctx.settings.spp, seed=s.render_seed), dtype=np.float32)
-            moment_s += time.perf_counter() - t0
-            identical &= bool(np.array_equal(a[..., 0:3], b[..., 0:3]))
-            done += 1
-    return {"integrator": ctx.settings.integrator, "samples": done, "moment_s": moment_s, "path_s": path_s,
-            "identical": identical}
+            images[name] = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed),
+                                      dtype=np.float32)[..., 0:3]
+            totals[name] += time.perf_counter() - t0
+            del scene
+        identical &= bool(np.array_equal(images["path"], images["moment"]))
+    return {"integrator": ctx.settings.integrator, "samples": len(samples), "moment_s": totals["moment"],
+            "path_s": totals["path"], "identical": identical}
+
+
+class RenderCallTimer:
+    """Times every ``pipeline.render.render_scene`` call made in this process while active.
+
+    For an in-process build (workers=0) this splits the build's own wall time into its
+    render calls and everything else, measured at the same moments, so the split is not
+    disturbed by other load the way two separate measurements are. (render_scene is looked
+    up in its module at each call, so wrapping the module attribute sees every call.)
+    """
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.calls = 0
+
+    def __enter__(self):
+        import pipeline.render as render
+
+        self._module, self._original = render, render.render_scene
+
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return self._original(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+                self.calls += 1
+
+        render.render_scene = timed
+        return self
+
+    def __exit__(self, *exc):
+        self._module.render_scene = self._original
+
+
+def _cpu_with_children() -> float:
+    """CPU seconds of this process and of its terminated, reaped children (dask's nannies and
+    workers are reaped when the build closes its local cluster)."""
+    import resource
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | None = None,
                     resolution: int | None = None, spp: int | None = None, workers: int | None = None,
-                    profile: bool = False, progress=None) -> BuildBench:
+                    shard_size: int | None = None, profile: bool = False, progress=None) -> BuildBench:
     """Build a spec and time the same renders bare; see the module docstring."""
     from pipeline.atomic import write_text_atomic
     from pipeline.build import build, read_spec_text
     from pipeline.mitsuba_env import load_mitsuba
     from pipeline.plan import plan_dataset
-    from pipeline.records import read_json
-    from pipeline.layout import Layout
     from pipeline.spec import spec_to_toml
 
     samples = _check_int("--samples", samples, 1, 1_000_000)
     resolution = _check_int("--resolution", resolution, 16, 4096)
     spp = _check_int("--spp", spp, 1, 65536)
     workers = _check_int("--workers", workers, 0, 1024)
+    shard_size = _check_int("--shard-size", shard_size, 1, 1_000_000)
     spec, _ = read_spec_text(spec_path)
-    spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp)
+    spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
     if out is not None and os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
         raise _fail("--out", out, "a new or empty folder (the benchmark builds from scratch)")
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-")
@@ -618,27 +774,32 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
             marks["started"] = time.perf_counter()
 
         say("building ...")
+        cpu0 = _cpu_with_children()
+        in_build = RenderCallTimer()
         t0 = time.perf_counter()
-        summary = build(derived_path, root, workers=workers, on_start=started)
+        with in_build:
+            summary = build(derived_path, root, workers=workers, on_start=started)
         build_s = time.perf_counter() - t0
-        layout = Layout(root)
-        records = [read_json(layout.path(layout.record_rel(s.shard_id, s.sample_id)))
-                   for m in _materials_of(plans) for s in m.samples]
+        build_cpu = _cpu_with_children() - cpu0
         first_start = min((marks.get("started", t0) - t0), build_s)
         say("bare renders ...")
-        timings = measure_bare(spec, plans, root)
+        kernels = KernelCounter()
+        timings = measure_bare(spec, plans, root, kernels)
         per_material, per_render = measure_storage(spec, plans, root)
         bench = BuildBench(
             spec_name=spec.dataset.name, samples=summary.total, materials=spec.dataset.materials,
             resolution=spec.render.resolution, spp=spec.render.spp,
             workers=marks.get("where", "?"), variant=mi.variant(), threads=dr.thread_count(),
-            warmup_s=warmup, build_s=build_s, startup_s=first_start,
-            build_render_sample_s=sum(r["stats"]["time_s"] for r in records if r),
+            warmup_s=warmup, build_s=build_s, build_cpu_s=build_cpu, startup_s=first_start,
+            in_build_render_s=in_build.seconds if in_build.calls else None,
             timings=timings, material_files_s=per_material, render_file_s=per_render)
+        bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
         if profile:
             say("profile: one scene per material ...")
-            bench.reuse = measure_reuse(spec, plans, root)
-            bench.reuse["fresh_seconds"] = sum(t.dict_s + t.load_s + t.render_s for t in timings)
+            reuse_kernels = KernelCounter()
+            bench.reuse = measure_reuse(spec, plans, root, reuse_kernels)
+            bench.reuse.update(fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
+                               compiled=reuse_kernels.compiled, compile_s=reuse_kernels.compile_s)
             say("profile: moment vs plain integrator ...")
             bench.moment = measure_moment(spec, plans)
         return bench
@@ -653,19 +814,20 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m pipeline.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("spec", nargs="?", help="spec file to build (not needed with --effects)")
     p.add_argument("--samples", type=int, help="cut the spec to about this many renders (whole materials)")
-    p.add_argument("--resolution", type=int, help="override render.resolution (effects: default 200)")
+    p.add_argument("--resolution", type=int, help="override render.resolution (effects: default 128)")
     p.add_argument("--spp", type=int, help="override render.spp (effects: default 64)")
     p.add_argument("--workers", type=int, help="as `shaderball build --workers` (default: the build's)")
+    p.add_argument("--shard-size", type=int, help="override dataset.shard_size (materials per shard)")
     p.add_argument("--out", help="keep the benchmark's dataset here (a new or empty folder)")
     p.add_argument("--profile", action="store_true", help="also time scene reuse and moment vs path")
     p.add_argument("--effects", action="store_true", help="run the effects benchmark instead")
-    p.add_argument("--repeats", type=int, help="effects: timed renders per variant (default 3)")
+    p.add_argument("--repeats", type=int, help="effects: timed renders per variant (default 5)")
     p.add_argument("--json", dest="json_path", help="also write the figures to this JSON file")
     return p
 
 
 def run_from_args(spec=None, *, effects=False, samples=None, resolution=None, spp=None, workers=None,
-                  out=None, profile=False, repeats=None, json_path=None, progress=None):
+                  shard_size=None, out=None, profile=False, repeats=None, json_path=None, progress=None):
     """What `shaderball bench` and `python -m pipeline.bench` do; returns the result object."""
     if effects:
         result = run_effects_bench(resolution=resolution, spp=spp, repeats=repeats, progress=progress)
@@ -674,7 +836,7 @@ def run_from_args(spec=None, *, effects=False, samples=None, resolution=None, sp
             raise ShaderballError("SPEC: missing; allowed: a spec file (e.g. manifests/smoke.toml), "
                                   "or --effects for the effects benchmark")
         result = run_build_bench(spec, out=out, samples=samples, resolution=resolution, spp=spp,
-                                 workers=workers, profile=profile, progress=progress)
+                                 workers=workers, shard_size=shard_size, profile=profile, progress=progress)
     if json_path:
         from pipeline.atomic import write_text_atomic
         from pipeline.records import dumps

@@ -14,6 +14,7 @@ sample depends on (``dataset.name``, ``dataset.version``) with ``allow_spec_chan
 
 from __future__ import annotations
 
+import hashlib
 import os
 import socket
 import threading
@@ -59,10 +60,12 @@ class BuildSummary:
     shards: int
     dashboard: str | None = None
     notes: list[str] = field(default_factory=list)
-    #: worker processes that ran shards in this build (0 when nothing was rendered).
+    #: worker processes whose shard results came back (0 when nothing was to do).
     processes: int = 0
     #: stale temporary files of killed writes removed at the end.
     temp_removed: int = 0
+    #: worker processes that restarted themselves (``--recycle-after``).
+    recycled: int = 0
 
     def lines(self) -> list[str]:
         rate = self.rendered / self.seconds if self.seconds > 0 else 0.0
@@ -152,6 +155,45 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     return mode
 
 
+def plan_digest(plans: list[ShardPlan]) -> str:
+    """SHA-256 of every planned material and lighting (ids, seeds, angles, sources)."""
+    digest = hashlib.sha256()
+    for shard in plans:
+        for material in shard.materials:
+            digest.update(dumps(material.to_dict()).encode("utf-8"))
+    return digest.hexdigest()
+
+
+def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> None:
+    """Refuse to resume ``out`` when this installation would make its samples differently.
+
+    The spec snapshot alone cannot tell: a newer shaderball may plan other seeds or angles
+    for the same spec, and other Mitsuba/drjit versions or another backend render other
+    bytes. Mixing the two in one dataset would go unnoticed, so compare with dataset.json.
+    """
+    from pipeline.mitsuba_env import library_versions
+
+    old = read_json(Layout(out).description)
+    if not isinstance(old, dict):
+        return  # a build killed before its first description: nothing rendered to compare
+    differences = []
+    if old.get("plan_digest") and old["plan_digest"] != plan_digest(plans):
+        differences.append(f"this shaderball plans other samples for the same spec (plan digest "
+                           f"{old['plan_digest'][:12]} in dataset.json, {plan_digest(plans)[:12]} now)")
+    libraries = library_versions()
+    for name in ("mitsuba", "drjit"):
+        was = (old.get("libraries") or {}).get(name)
+        if was and was != libraries.get(name):
+            differences.append(f"{name} {was} in dataset.json, {libraries.get(name)} now")
+    if old.get("variant") and old["variant"] != variant:
+        differences.append(f"Mitsuba variant {old['variant']} in dataset.json, {variant} now")
+    if differences:
+        raise ShaderballError(
+            f"--out: {out!r} was built by another installation: {'; '.join(differences)}. Resuming "
+            "would mix samples made two ways; finish it with the installation that started it, "
+            "or build into a new directory")
+
+
 def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict:
     from pipeline import __version__
     from pipeline.mitsuba_env import library_versions
@@ -161,6 +203,7 @@ def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict
         "version": spec.dataset.version,
         "layout_version": LAYOUT_VERSION,
         "spec_digest": spec_digest(spec),
+        "plan_digest": plan_digest(plans),
         "shaderball": __version__,
         "libraries": library_versions(),
         "variant": variant,
@@ -175,6 +218,8 @@ def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_chan
 
     mode = check_output_dir(out, spec, allow_spec_change)
     variant = load_mitsuba(spec.render.variant).variant()
+    if mode != "new":
+        check_same_installation(out, plans, variant)
     os.makedirs(out, exist_ok=True)
     layout = Layout(out)
     if mode in ("new", "respec"):
@@ -211,6 +256,25 @@ def write_manifest(out: str, plans: list[ShardPlan]) -> int:
         lines.extend(dumps(record) for record in marker["records"])
     write_text_atomic(layout.manifest, "".join(line + "\n" for line in lines))
     return len(lines)
+
+
+def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> int:
+    """Samples of ``shards`` whose record was written at or after ``since`` (wall clock).
+
+    Counted on disk, not from task results: under at-least-once execution a task's result
+    can be lost (its worker died or was recycled after the shard was done) and the re-run
+    reports nothing rendered.
+    """
+    layout = Layout(out)
+    count = 0
+    for shard in shards:
+        for sample in shard.samples:
+            try:
+                if os.stat(layout.path(layout.record_rel(shard.shard_id, sample.sample_id))).st_mtime >= since:
+                    count += 1
+            except FileNotFoundError:
+                pass
+    return count
 
 
 def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int:
@@ -263,7 +327,7 @@ def _run_shard_task(out: str, spec: DatasetSpec, shard: ShardPlan, threads: int 
     if dr.thread_count() != threads:
         dr.set_thread_count(threads)
     result = dict(run_shard(out, spec, shard), pid=f"{socket.gethostname()}:{os.getpid()}")
-    after_shard(recycle_after)
+    result["recycled"] = after_shard(result["rendered"], recycle_after)
     return result
 
 
@@ -301,7 +365,7 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
     start = time.perf_counter()
     wall_start = time.time()
     results: list[dict] = []
-    dashboard = None
+    dashboard, recycled = None, 0
     if todo:
         if cluster.workers == 0 and cluster.scheduler is None and not cluster.is_jobqueue:
             if on_start:
@@ -311,20 +375,22 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
                 results.append(_run_shard_task(out, spec, shard, threads))
                 _report(progress, out, plans, total, already, start)
         else:
-            results, dashboard = _run_with_dask(out, spec, plans, todo, total, already, start,
-                                                cluster, progress, on_start)
+            results, dashboard, recycled = _run_with_dask(out, spec, plans, todo, total, already,
+                                                          start, cluster, progress, on_start)
     write_manifest(out, plans)
     removed = sweep_temp_files(out, plans, older_than=wall_start)
     seconds = time.perf_counter() - start
-    rendered = sum(r["rendered"] for r in results)
+    rendered = renders_written_since(out, todo, wall_start - 1.0)  # mtime granularity
     _report(progress, out, plans, total, already, start)
-    processes = len({r["pid"] for r in results if r.get("rendered")})
+    processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]
     if removed:
         notes.append(f"removed {removed} temporary file(s) left by interrupted writes")
+    if recycled:
+        notes.append(f"{recycled} worker process restart(s) to bound memory (--recycle-after)")
     return BuildSummary(out=out, total=total, rendered=rendered, skipped=total - rendered,
                         seconds=seconds, shards=len(plans), dashboard=dashboard, notes=notes,
-                        processes=processes, temp_removed=removed)
+                        processes=processes, temp_removed=removed, recycled=recycled)
 
 
 def _report(progress, out, plans, total, already, start):
@@ -343,7 +409,7 @@ def _run_with_dask(out, spec, plans, todo, total, already, start, options: Clust
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
-    from pipeline.cluster import connect
+    from pipeline.cluster import RECYCLE_EVENT, connect
 
     # Remote workers resolve paths in their own working directory: give them an absolute one.
     out_abs = os.path.abspath(out)
@@ -367,6 +433,7 @@ def _run_with_dask(out, spec, plans, todo, total, already, start, options: Clust
         reporter.start()
         try:
             results = [f.result() for f in as_completed(futures)]  # raises a task's error here
+            recycled = len(client.get_events(RECYCLE_EVENT))
         except KilledWorker as exc:
             raise ShaderballError(
                 f"build: a shard's worker died too often ({exc}); see the workers' logs (memory "
@@ -375,7 +442,7 @@ def _run_with_dask(out, spec, plans, todo, total, already, start, options: Clust
         finally:
             stop.set()
             reporter.join()
-    return results, dashboard
+    return results, dashboard, recycled
 
 
 def _has_dashboard() -> bool:

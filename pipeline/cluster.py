@@ -10,10 +10,10 @@ to (with :mod:`pipeline.build`, the only code that knows about dask):
   of the job.
 
 Worker memory is bounded twice: the nanny restarts a worker whose memory passes 95 % of its
-limit, and ``recycle_after`` restarts a worker process after that many shards (Mitsuba's
-memory grows slowly when it renders in a long loop; docs/cluster.md has the measurement).
-Either way the worker's unfinished shard runs again elsewhere, which is safe because shard
-tasks are idempotent (:mod:`pipeline.shard`).
+limit (its unfinished shard runs again), and ``recycle_after`` restarts a worker process,
+between shards, once it has rendered that many samples (Mitsuba's memory grows slowly when
+it renders in a long loop; docs/cluster.md has the measurement). Re-running a shard is safe
+because shard tasks are idempotent (:mod:`pipeline.shard`).
 
 ``python -m pipeline.cluster --memory-probe 200`` re-measures the growth.
 """
@@ -44,6 +44,10 @@ KERNEL_CACHE_ENV = "DRJIT_CACHE_DIR"
 #: The worker's memory limit, as a share of the job's memory: the nanny restarts the worker
 #: (at 95 % of its limit) before the batch system's cgroup kills the whole job at 100 %.
 WORKER_MEMORY_SHARE = 0.9
+#: Default of ``--recycle-after``: renders per worker process before it is restarted. Measured
+#: growth is ~7 MiB per 100 renders at 400x400 (docs/cluster.md): at most ~140 MiB, for a
+#: restart (~5-10 s) every ~2.5 h of paper-size rendering.
+DEFAULT_RECYCLE_AFTER = 2000
 #: Shell expression for node-local scratch space, the default of ``--scratch``.
 DEFAULT_SCRATCH = "${TMPDIR:-/tmp}"
 #: The job id in each batch system's environment (for per-job scratch folders).
@@ -80,8 +84,8 @@ class ClusterOptions:
     account: str | None = None
     #: node-local scratch folder (shell expression) for the kernel cache and dask's spill.
     scratch: str | None = None
-    #: restart a worker process after this many shards; 0: never.
-    recycle_after: int = 0
+    #: restart a worker process once it has rendered this many samples; 0: never.
+    recycle_after: int = DEFAULT_RECYCLE_AFTER
 
     @property
     def is_jobqueue(self) -> bool:
@@ -94,7 +98,7 @@ class ClusterOptions:
         _check_int("--workers", self.workers, 0, 1024)
         _check_int("--jobs", self.jobs, 1, 10000)
         _check_int("--cores", self.cores, 1, 1024)
-        _check_int("--recycle-after", self.recycle_after, 0, 1_000_000)
+        _check_int("--recycle-after", self.recycle_after, 0, 10_000_000)
         if self.memory is not None:
             memory_bytes(self.memory)
         if self.walltime is not None:
@@ -283,7 +287,11 @@ def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
 
     base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.kind]
     cluster_class = type(f"Shaderball{base.__name__}", (base,), {"job_cls": job_class})
-    cluster = cluster_class(scheduler_options={"dashboard_address": ":0"}, **jobqueue_kwargs(options))
+    import dask
+
+    scheduler_options = {"dashboard_address": ":0",
+                         **(dask.config.get(f"jobqueue.{options.kind}.scheduler-options", None) or {})}
+    cluster = cluster_class(scheduler_options=scheduler_options, **jobqueue_kwargs(options))
     if adapt:
         # adapt(), not scale(): a job that ends (walltime, preemption) is replaced.
         jobs = options.jobs or 1
@@ -317,6 +325,12 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
     config = {"distributed.worker.multiprocessing-method": "spawn",  # LLVM JIT and fork() don't mix
               "distributed.worker.daemon": False,
               "distributed.scheduler.allowed-failures": 5}
+    if not options.scheduler and not options.is_jobqueue:
+        # A LocalCluster closes a nanny for good when its worker is absent 15 s after any
+        # earlier removal of it, as happens when restarts (recycling, memory limit) come a
+        # few seconds apart: the build then waits forever on a cluster without workers.
+        # Local nannies restart their own workers; never close them.
+        config["distributed.deploy.lost-worker-timeout"] = "3650 days"
     with dask.config.set(config), contextlib.ExitStack() as stack:
         if options.scheduler:
             check_scheduler_reachable(options.scheduler)
@@ -360,27 +374,31 @@ def worker_render_threads() -> int:
         return os.cpu_count() or 1
 
 
-_SHARDS_DONE = {"count": 0}
+_RENDERED = {"count": 0}
+#: Topic of the scheduler event a worker logs when it restarts itself (counted by the build).
+RECYCLE_EVENT = "shaderball-recycle"
 
 
-def after_shard(recycle_after: int) -> None:
-    """Count a finished shard; past ``recycle_after`` ask this worker to restart itself.
+def after_shard(rendered: int, recycle_after: int) -> bool:
+    """Count a shard's renders; at ``recycle_after`` ask this worker process to restart.
 
     The worker retires gracefully (its queued shards go elsewhere) and its nanny starts a
     fresh process, which returns the memory Mitsuba accumulated. Outside a dask worker
-    (``--workers 0``) this does nothing.
+    (``--workers 0``) this does nothing. Return whether a restart was asked for.
     """
-    _SHARDS_DONE["count"] += 1
-    if not recycle_after or _SHARDS_DONE["count"] < recycle_after:
-        return
+    _RENDERED["count"] += rendered
+    if not recycle_after or _RENDERED["count"] < recycle_after:
+        return False
     try:
         from distributed import get_worker
 
         worker = get_worker()
     except (ImportError, ValueError):
-        return
-    _SHARDS_DONE["count"] = 0
-    worker.loop.add_callback(worker.close_gracefully, restart=True, reason="shaderball-recycle")
+        return False
+    _RENDERED["count"] = 0
+    worker.log_event(RECYCLE_EVENT, {"pid": os.getpid(), "recycle_after": recycle_after})
+    worker.loop.add_callback(worker.close_gracefully, restart=True, reason=RECYCLE_EVENT)
+    return True
 
 
 # --------------------------------------------------------------------------- memory probe

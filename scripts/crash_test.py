@@ -13,7 +13,8 @@ and kills the group with SIGKILL in one of three ways:
   record, shard marker, manifest, description, spec snapshot): half the bytes written, before
   the fsync, before the rename, or after the rename but before the caller goes on. The child
   patches :mod:`pipeline.atomic` (only in its own process) and kills its group itself;
-- ``dask``: a timer kill of a build on a local dask cluster of 2 worker processes.
+- ``dask``: a build on a local dask cluster of 2 worker processes, killed a random delay
+  after its worker processes exist.
 
 After every kill the directory is checked (:func:`check_interrupted`): no process of the
 group is left, every file other than ``.tmp-*`` temporaries is whole and byte-identical to
@@ -187,8 +188,10 @@ def group_members(pgid: int) -> list[int]:
     return members
 
 
-def kill_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
-    """SIGKILL the process group of ``proc`` (a session leader) and wait until it is gone."""
+def kill_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> int:
+    """SIGKILL the process group of ``proc`` (a session leader), wait until it is gone;
+    return how many processes it had."""
+    members = len(group_members(proc.pid))
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGKILL)
     with contextlib.suppress(subprocess.TimeoutExpired):
@@ -198,6 +201,7 @@ def kill_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"processes of group {proc.pid} survived SIGKILL: {group_members(proc.pid)}")
         time.sleep(0.05)
+    return members
 
 
 @dataclasses.dataclass
@@ -209,6 +213,8 @@ class Attempt:
     seconds: float
     temp_files: int = 0
     note: dict | None = None
+    #: processes in the group when a timer or dask kill was sent (workers included).
+    group_size: int = 0
 
 
 def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float = 0.0,
@@ -221,15 +227,23 @@ def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float 
     workers = 2 if mode == "dask" else 0
     log = open(logs / "attempt.log", "ab")
     start = time.monotonic()
+    group_size = 0
     proc = subprocess.Popen(child_command(spec, out, workers, hook if mode == "write" else None),
                             cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             start_new_session=True)
     try:
+        if mode == "dask":
+            # The delay counts from the moment the worker processes exist (client, resource
+            # tracker, 2 workers), so the kill lands with workers in the tree whatever the
+            # cluster's start-up time.
+            deadline = time.monotonic() + 120
+            while proc.poll() is None and len(group_members(proc.pid)) < 4 and time.monotonic() < deadline:
+                time.sleep(0.05)
         if mode in ("timer", "dask"):
             try:
                 proc.wait(timeout=delay_s)
             except subprocess.TimeoutExpired:
-                kill_group(proc)
+                group_size = kill_group(proc)
         else:
             proc.wait(timeout=timeout_s)
     finally:
@@ -243,7 +257,7 @@ def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float 
     if note.exists():
         lines = note.read_text().splitlines()
         noted = json.loads(lines[-1]) if lines else None
-    return Attempt(mode, detail, killed, proc.returncode, seconds, note=noted)
+    return Attempt(mode, detail, killed, proc.returncode, seconds, note=noted, group_size=group_size)
 
 
 # --------------------------------------------------------------------------- reference and checks
@@ -412,29 +426,43 @@ class CampaignResult:
             "write kills by file@phase: " + (", ".join(f"{k} {n}" for k, n in sorted(self.write_kinds().items()))
                                              or "none"),
             f"kills that left a temporary file (a write cut mid-way): {mid_write}",
+            "processes in the group at dask kills: " + (", ".join(
+                str(a.group_size) for a in self.attempts if a.killed and a.mode == "dask") or "none"),
             "result: PASS: every interrupted state consistent; every completed dataset byte-identical "
             "to the reference, no sample lost or duplicated, validate ok",
         ]
 
 
-def random_plan(rng: random.Random, dask_every: int):
-    """An endless stream of (mode, parameter) choices for attempts."""
-    n = 0
-    while True:
-        n += 1
-        if dask_every and n % dask_every == 0:
-            yield "dask", None
-        elif rng.random() < 0.5:
-            yield "timer", None
-        else:
-            kind = rng.choice(KINDS)
-            nth = 1 if kind in ("manifest", "description", "spec", "marker") else rng.randint(1, 12)
-            yield "write", f"{kind}:{nth}:{rng.choice(PHASES)}"
+def expected_writes(out: Path, reference: Path) -> Counter:
+    """How many atomic writes of each kind the next build of ``out`` will at least make."""
+    have = {rel for rel in dataset_files(out) if not os.path.basename(rel).startswith(TEMP_PREFIX)}
+    missing = Counter(file_kind(rel) for rel in dataset_files(reference) if rel not in have)
+    return Counter({"exr": missing["exr"], "record": missing["record"], "marker": missing["marker"],
+                    "spec": missing["spec"], "description": 1, "manifest": 1})
+
+
+def random_choice(rng: random.Random, dask_due: bool, out: Path, reference: Path, ref_seconds: float,
+                  dask_seconds: float) -> tuple[str, object]:
+    """A kill that lands while there is still work to interrupt; a dask one when due and
+    a quarter or more of the renders are left (else the cluster never starts)."""
+    writes = expected_writes(out, reference)
+    left = writes["record"] / max(1, sum(1 for r in dataset_files(reference) if file_kind(r) == "record"))
+    if not writes["record"] and not writes["marker"] and rng.random() < 0.5:
+        return "none", None  # only the manifest is left: let half of these trials finish
+    if dask_due and left >= 0.25:
+        # Seconds after the workers exist: their start-up plus the remaining rendering.
+        return "dask", rng.uniform(0.0, dask_seconds * (0.3 + 0.7 * left))
+    if rng.random() < 0.3:
+        return "timer", rng.uniform(0.0, ref_seconds * (0.15 + left))
+    # Kinds weighted by how many writes of each are to come: EXRs most often, as in a build.
+    kinds = [k for k in KINDS if writes[k] > 0]
+    kind = rng.choices(kinds, weights=[writes[k] for k in kinds])[0]
+    return "write", f"{kind}:{rng.randint(1, writes[kind])}:{rng.choice(PHASES)}"
 
 
 def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_SPEC, seed: int = 0,
                  plan=None, dask_every: int = 0, log=print, reference_seconds: float | None = None,
-                 dask_seconds: float = 40.0) -> CampaignResult:
+                 dask_seconds: float = 12.0) -> CampaignResult:
     """Kill builds until ``kills`` kills happened; finish the last trial; check everything.
 
     ``plan``: explicit (mode, parameter) choices to use first (then random ones). Raises
@@ -443,9 +471,9 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
     rng = random.Random(seed)
     ref_seconds = reference_seconds if reference_seconds is not None else ensure_reference(reference, spec)
     choices = iter(list(plan or []))
-    randoms = random_plan(rng, dask_every)
     attempts: list[Attempt] = []
     done_kills, trials, start = 0, 0, time.monotonic()
+    since_dask = 0
     out = None
     while done_kills < kills or out is not None:
         if out is None:
@@ -454,12 +482,12 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
         if done_kills >= kills:
             mode, param = "none", None
         else:
-            mode, param = next(choices, None) or next(randoms)
-        delay = 0.0
-        if mode == "timer":
-            delay = param if param is not None else rng.uniform(0.0, ref_seconds * 1.1)
-        elif mode == "dask":
-            delay = param if param is not None else rng.uniform(3.0, dask_seconds)
+            since_dask += 1
+            mode, param = next(choices, None) or random_choice(
+                rng, bool(dask_every) and since_dask >= dask_every, out, reference, ref_seconds, dask_seconds)
+            if mode == "dask":
+                since_dask = 0
+        delay = float(param) if mode in ("timer", "dask") else 0.0
         temps_before = temp_files(out)
         attempt = run_attempt(spec, out, mode, work / "logs", delay_s=delay,
                               hook=param if mode == "write" else None)
@@ -469,13 +497,14 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
             check_interrupted(out, reference)
             attempt.temp_files = len(temp_files(out) - temps_before)
             where = f" in {attempt.note['path']} at {attempt.note['phase']}" if attempt.note else ""
-            log(f"kill {done_kills:4d}: {mode} {attempt.detail}{where} after {attempt.seconds:.1f} s; "
+            procs = f" ({attempt.group_size} processes)" if attempt.group_size else ""
+            log(f"kill {done_kills:4d}: {mode} {attempt.detail}{where}{procs} after {attempt.seconds:.1f} s; "
                 f"{attempt.temp_files} new temp file(s); state consistent")
         elif attempt.returncode == 0:
             check_complete(out, reference)
             trials += 1
-            log(f"trial {trials}: complete after {sum(1 for a in attempts if a.killed)} kills so far; "
-                "byte-identical to the reference, validate ok")
+            log(f"trial {trials}: completed by a {mode} attempt that was not killed "
+                f"({done_kills} kills so far); byte-identical to the reference, validate ok")
             out = None
         else:
             tail = (work / "logs" / "attempt.log").read_text(errors="replace")[-3000:]
@@ -492,7 +521,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kills", type=int, default=100, help="SIGKILLs to deliver (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of kill moments (default 0)")
     parser.add_argument("--dask-every", type=int, default=10,
-                        help="every Nth attempt builds on a local dask cluster (default 10; 0: never)")
+                        help="about every Nth attempt builds on a local dask cluster of 2 workers, when a "
+                             "quarter of the renders or more are left (default 10; 0: never)")
     parser.add_argument("--spec", type=Path, default=SMOKE_SPEC, help="spec to build (default: smoke)")
     parser.add_argument("--work", type=Path, default=None, help="work folder (default: a new temp folder)")
     parser.add_argument("--keep", action="store_true", help="keep the work folder")
@@ -500,6 +530,8 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= args.kills <= 100_000:
         parser.error(f"--kills: {args.kills} is not allowed; allowed: 1 to 100000")
     work = args.work or Path(tempfile.mkdtemp(prefix="shaderball-crash-"))
+    # SIGTERM/SIGINT unwind through run_attempt's cleanup, which kills the child's group.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     sys.path.insert(0, str(REPO))
     try:
         print(f"reference build of {args.spec} in {work / 'reference'} ...", flush=True)

@@ -97,9 +97,6 @@ def _assert_same_dataset(x: Path, y: Path):
 @pytest.mark.slow
 def test_building_twice_gives_byte_identical_files(builds):
     _assert_same_dataset(builds["a"], builds["b"])
-    # The timings really are the only difference: they exist and vary from run to run.
-    ma = [json.loads(line) for line in (builds["a"] / "manifest.jsonl").read_text().splitlines()]
-    assert all(r["stats"]["time_s"] > 0 for r in ma)
 
 
 @pytest.mark.slow
@@ -179,3 +176,20 @@ def test_another_spec_on_a_built_dataset_exits_2_and_changes_nothing(tmp_path, b
     assert "different spec" in result.output and str(out) in result.output
     assert _snapshot(out) == before
     assert not [p for p in os.listdir(out) if p.startswith(".tmp")]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="known: at a spp that is not a power of two (the paper's 150) a llvm "
+                   "render with several threads is not bit-reproducible; fix proposed in docs/build.md")
+def test_build_is_byte_identical_at_the_papers_150_spp(tmp_path):
+    """The determinism contract at the paper's spp. The smoke spec's 16 spp hides the problem:
+    a pixel's samples straddle drjit's work blocks only when spp does not divide the block."""
+    from pipeline.build import build
+
+    spec = _write(tmp_path / "s150.toml", _smoke_with(materials=2, spp=150))
+    for name in ("a", "b"):
+        build(str(spec), str(tmp_path / name), workers=0)
+    renders = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.render.exr"))
+    assert len(renders) == 4
+    differing = [str(r) for r in renders if (tmp_path / "a" / r).read_bytes() != (tmp_path / "b" / r).read_bytes()]
+    assert not differing, differing

@@ -32,6 +32,7 @@ PLAN = [
     ("write", "spec:1:rename"),          # only a temp file exists: the next run starts anew
     ("write", "description:1:write"),
     ("write", "exr:1:write"),            # half an EXR in a temp file
+    ("dask", 3.0),                       # 3 s after a local dask cluster's 2 workers exist
     ("write", "exr:2:fsync"),
     ("write", "record:1:renamed"),       # record durable, marker not yet
     ("write", "exr:3:rename"),           # whole EXR in a temp file, not renamed
@@ -39,16 +40,15 @@ PLAN = [
     ("write", "marker:1:write"),
     ("write", "record:1:write"),
     ("write", "marker:1:renamed"),
-    ("dask", 14.0),                      # a local dask cluster: worker processes in the tree
     ("write", "exr:2:renamed"),
     ("write", "record:2:fsync"),
     ("write", "manifest:1:write"),       # every shard done, manifest half written
     ("write", "manifest:1:rename"),
     ("none", None),                      # completes the first trial
     ("write", "spec:1:write"),           # a fresh trial: killed inside its first write
+    ("dask", 2.0),                       # all the work still to do
     ("timer", 6.0),
     ("write", "exr:5:write"),
-    ("dask", 22.0),
     ("write", "marker:1:fsync"),
 ]
 
@@ -69,7 +69,8 @@ def test_twenty_kills_lose_and_duplicate_nothing(tmp_path, reference):
     assert killed_writes >= {"exr", "record", "marker", "manifest", "description", "spec"}
     phases = {k.split("@")[1] for k in result.write_kinds()}
     assert phases == set(crash.PHASES)
-    assert result.counts()["dask"] >= 1
+    dask_kills = [a for a in result.attempts if a.killed and a.mode == "dask"]
+    assert dask_kills and max(a.group_size for a in dask_kills) >= 3  # client + 2 worker processes
     assert any(a.temp_files for a in result.attempts if a.killed)  # kills did land mid-write
 
 

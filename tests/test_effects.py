@@ -134,11 +134,11 @@ def test_zero_specular_albedo_still_needs_the_specular_lobe(mi, scene_of):
     maps = NO_SPECULAR.to_maps(1)
     plan = plan_effects(maps)
     assert plan.specular_lobe
-    with_lobe = _render(mi, scene_of(maps, plan))
-    without = _render(mi, scene_of(maps, dataclasses.replace(plan, specular_lobe=False)))
+    with_lobe = render_moments(mi, scene_of(maps, plan), 4 * SPP, SEED)
+    without = render_moments(mi, scene_of(maps, dataclasses.replace(plan, specular_lobe=False)), 4 * SPP, SEED)
     c = compare_renders(with_lobe, without)
     assert not c["within_noise"], c
-    assert c["z_total"] > 8.0, c  # the lobe adds light: the image with it is brighter
+    assert c["z_total"] > 12.0, c  # the lobe adds light: the image with it is brighter (measured +18)
     assert with_lobe.image.mean() > without.image.mean()
 
 

@@ -194,3 +194,24 @@ def test_a_late_second_run_of_a_shard_rewrites_identical_records(tmp_path, refer
     from pipeline.validate import validate
 
     assert validate(str(out)).ok
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"plan_digest": "0" * 64}, "this shaderball plans other samples for the same spec"),
+    ({"libraries": {"mitsuba": "3.0.0", "drjit": "1.5.0"}}, "mitsuba 3.0.0 in dataset.json"),
+    ({"variant": "cuda_ad_rgb"}, "Mitsuba variant cuda_ad_rgb in dataset.json"),
+])
+def test_resume_by_another_installation_is_refused(tmp_path, reference, change, message):
+    """Same spec, but samples would be made differently: resuming would mix two datasets."""
+    import json
+
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    description = json.loads((out / "dataset.json").read_text())
+    description.update(change)
+    (out / "dataset.json").write_text(json.dumps(description))
+    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
+    before = _snapshot(out)
+    with pytest.raises(ShaderballError, match=f"built by another installation: .*{message}.*new directory"):
+        build(str(SMOKE), str(out), workers=0)
+    assert _snapshot(out) == before

@@ -1,0 +1,181 @@
+"""`shaderball bench`: the spec it derives, its bad input, and small real runs of both benchmarks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+REPO = Path(__file__).resolve().parents[1]
+SMOKE = REPO / "manifests" / "smoke.toml"
+PAPER = REPO / "manifests" / "paper.toml"
+
+
+def _cli(*args):
+    from cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_derive_spec_cuts_whole_materials_and_resizes():
+    from pipeline.bench import derive_spec
+    from pipeline.spec import parse_spec
+
+    paper = parse_spec(PAPER)
+    cut = derive_spec(paper, samples=12, resolution=200, spp=32)
+    assert (cut.dataset.materials, cut.dataset.lights_per_material) == (3, 5)  # ceil(12 / 5) materials
+    assert (cut.render.resolution, cut.render.spp) == (200, 32)
+    assert cut.dataset.seed == paper.dataset.seed and cut.lighting == paper.lighting
+    few = derive_spec(paper, samples=3)
+    assert (few.dataset.materials, few.dataset.lights_per_material) == (1, 3)
+    assert derive_spec(paper) == paper
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--samples", "0"], "--samples: 0 is not allowed; allowed: an integer from 1 to 1000000"),
+    (["--spp", "0"], "--spp: 0 is not allowed"),
+    (["--resolution", "9"], "--resolution: 9 is not allowed; allowed: an integer from 16 to 4096"),
+    (["--workers", "-1"], "--workers: -1 is not allowed"),
+])
+def test_bench_bad_options_exit_2(args, message):
+    result = _cli("bench", SMOKE, *args)
+    assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_bench_needs_a_spec_or_effects(tmp_path):
+    result = _cli("bench")
+    assert result.exit_code == 2 and "SPEC: missing" in result.output
+    result = _cli("bench", tmp_path / "nope.toml")
+    assert result.exit_code == 2 and "nope.toml" in result.output
+
+
+def test_bench_refuses_a_non_empty_out(tmp_path):
+    (tmp_path / "something").write_text("x")
+    result = _cli("bench", SMOKE, "--out", tmp_path)
+    assert result.exit_code == 2 and "a new or empty folder" in result.output
+    assert [p.name for p in tmp_path.iterdir()] == ["something"]
+
+
+@pytest.mark.slow
+def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
+    from pipeline.bench import run_build_bench
+
+    bench = run_build_bench(str(SMOKE), out=str(tmp_path / "ds"), samples=4, workers=0)
+    assert bench.samples == 4 and len(bench.timings) == 4
+    assert all(t.identical for t in bench.timings)  # the bare renders are the build's samples
+    assert bench.build_s > 0 and bench.bare_s > 0 and bench.ratio == bench.build_s / bench.bare_s
+    text = "\n".join(bench.lines())
+    assert "ratio build / bare" in text and "4/4" in text
+    assert (tmp_path / "ds" / "manifest.jsonl").is_file()  # --out keeps the dataset
+
+
+@pytest.mark.slow
+def test_effects_bench_reports_every_omission(tmp_path):
+    import json
+
+    from pipeline.bench import run_from_args
+
+    bench = run_from_args(effects=True, resolution=64, spp=4, repeats=1, json_path=str(tmp_path / "e.json"))
+    cases = {c.omission: c for c in bench.cases}
+    assert set(cases) == {"textured -> constant", "normal map -> none", "both -> constant, none",
+                          "diffuse lobe -> none", "specular lobe -> none"}
+    for case in bench.cases:
+        c = case.comparison
+        if case.applied:
+            assert c["identical"] or c["rounding"], (case.omission, c)
+        else:
+            assert not c["identical"] and not c["rounding"], (case.omission, c)
+    assert cases["diffuse lobe -> none"].comparison["identical"]
+    saved = json.loads((tmp_path / "e.json").read_text())
+    assert len(saved["cases"]) == 5 and "saved_cpu" in saved["cases"][0]
+
+
+def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_place(mi):
+    """Evidence for the scene-reuse proposal of docs/build.md.
+
+    Mitsuba's sunsky normalises a dict's ``sun_direction`` in float32 when it loads, and
+    that rounding differs from the float32 vector sky.update_emitter_params writes by up
+    to an ulp for some directions (shown below), so a scene moved to light B renders a
+    few ulps away from a scene loaded for B. Applying every light in place, the first
+    one included, makes the two paths the same arithmetic: bit-identical renders.
+    """
+    import numpy as np
+
+    from geometry import build_shaderball, default_camera
+    from materials.maps import UniformMaterial
+    from pipeline.render import RenderSettings, scene_dict
+    from pipeline.spec import parse_spec
+    from pipeline.plan import plan_dataset
+    from sky import Light, emitter_dicts, update_emitter_params
+
+    lights = [Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
+              for shard in plan_dataset(parse_spec(SMOKE)) for m in shard.materials for s in m.samples]
+    # Some of the smoke spec's lights load as a different float32 direction than the update writes.
+    off_by_rounding = 0
+    for light in lights:
+        entries, _ = emitter_dicts(light)
+        loaded = np.asarray(mi.traverse(mi.load_dict({"type": "scene", **entries}))["sky.sun_direction"])
+        written = np.asarray(mi.Vector3f(*entries["sky"]["sun_direction"]))
+        off_by_rounding += not np.array_equal(loaded, written)
+    assert off_by_rounding > 0
+
+    ball, camera = build_shaderball(), default_camera()
+    settings = RenderSettings(resolution=64, spp=4, variant="llvm_ad_rgb").check()
+    maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.3).to_maps(1)
+
+    def render(scene, seed):
+        return np.asarray(mi.render(scene, spp=4, seed=seed))
+
+    def fresh_then_applied(light, seed):
+        scene = mi.load_dict(scene_dict(ball, camera, maps, light, settings)[0])
+        update_emitter_params(mi.traverse(scene), light)
+        return render(scene, seed)
+
+    chosen = lights[:6]
+    scene = mi.load_dict(scene_dict(ball, camera, maps, chosen[0], settings)[0])
+    params = mi.traverse(scene)
+    reused = []
+    for i, light in enumerate(chosen):
+        update_emitter_params(params, light)
+        reused.append(render(scene, 100 + i))
+    del scene, params
+    for i, light in enumerate(chosen):
+        assert np.array_equal(reused[i], fresh_then_applied(light, 100 + i)), i
+
+
+def test_power_of_two_passes():
+    from pipeline.bench import power_of_two_passes
+
+    assert power_of_two_passes(150) == [128, 16, 4, 2]
+    assert power_of_two_passes(16) == [16] and power_of_two_passes(1) == [1]
+    assert all(sum(power_of_two_passes(n)) == n for n in range(1, 300))
+
+
+def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts(mi):
+    """Evidence for the determinism proposal of docs/build.md: a 150 spp render in one pass
+    is not bit-reproducible with 2 render threads (a pixel's samples straddle drjit's work
+    blocks), the same samples in power-of-two passes are, whatever the thread count."""
+    import drjit as dr
+    import numpy as np
+
+    from geometry import build_shaderball, default_camera
+    from materials.maps import UniformMaterial
+    from pipeline.bench import render_in_passes
+    from pipeline.render import RenderSettings, scene_dict
+    from sky import Light
+
+    settings = RenderSettings(resolution=64, spp=150, variant="llvm_ad_rgb").check()
+    maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
+    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0),
+                                     settings)[0])
+    threads = dr.thread_count()
+    try:
+        dr.set_thread_count(2)
+        first = render_in_passes(mi, scene, 150, 5)
+        assert np.array_equal(first, render_in_passes(mi, scene, 150, 5))
+        dr.set_thread_count(1)
+        assert np.array_equal(first, render_in_passes(mi, scene, 150, 5))
+    finally:
+        dr.set_thread_count(threads)
+    assert first.shape == (64, 64, 9) and np.isfinite(first).all()
