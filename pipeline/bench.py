@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.errors import ShaderballError
+from pipeline.render import pass_seed, power_of_two_passes, render_in_passes  # noqa: F401  (re-exported)
 
 #: Z above which a pixel's difference counts as beyond noise (two-sided p ~ 6e-5 if normal).
 Z_LIMIT = 4.0
@@ -134,34 +135,6 @@ def compare_renders(a: MomentRender, b: MomentRender) -> dict:
         "z_total": z_total,
         "within_noise": z_share <= Z_FAIL_SHARE and abs(z_total) <= Z_TOTAL_LIMIT,
     }
-
-
-def power_of_two_passes(spp: int) -> list[int]:
-    """``spp`` as a sum of distinct powers of two, largest first: 150 -> [128, 16, 4, 2]."""
-    return [1 << b for b in range(int(spp).bit_length() - 1, -1, -1) if spp >> b & 1]
-
-
-def pass_seed(seed: int, k: int) -> int:
-    """The seed of pass ``k`` of a render seeded ``seed`` (32 bits; keyed by both)."""
-    return int(np.random.SeedSequence([int(seed), k]).generate_state(1, np.uint32)[0])
-
-
-def render_in_passes(mi, scene, spp: int, seed: int) -> np.ndarray:
-    """All channels of ``spp`` samples per pixel, rendered as power-of-two passes and averaged.
-
-    The reference implementation of a proposal of docs/build.md. In the llvm variant a
-    render whose spp is not a power of two is not bit-reproducible with several render
-    threads: a pixel's samples can straddle two of drjit's work blocks, whose threads add
-    into the pixel in either order (measured: 237 of 160,000 pixels differ by ~1 ulp
-    between two 400x400, 150 spp renders in one process). With power-of-two passes a
-    pixel's samples never straddle; the passes are averaged in float64, weighted by their
-    spp (exact for every channel of the moment integrator, whose channels are means too).
-    """
-    total = None
-    for k, n in enumerate(power_of_two_passes(spp)):
-        image = np.asarray(mi.render(scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
-        total = image if total is None else total + image
-    return (total / spp).astype(np.float32)
 
 
 def describe_comparison(c: dict) -> str:
@@ -587,7 +560,8 @@ def measure_bare(spec, plans, root: str, kernels: KernelCounter) -> list[SampleT
             scene = mi.load_dict(desc)
             t2, cpu = time.perf_counter(), time.process_time()
             with kernels:
-                out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
+                # The build's own arithmetic: power-of-two passes (pipeline.render.render_in_passes).
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
             t3, cpu = time.perf_counter(), time.process_time() - cpu
             del scene, desc  # one scene alive at a time, as in a build worker
             timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2, cpu,
@@ -654,7 +628,7 @@ def measure_reuse(spec, plans, root: str, kernels: KernelCounter) -> dict:
             else:
                 update_emitter_params(params, _light(s), sun=ctx.settings.sun, variant=ctx.variant)
             with kernels:
-                out = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=seed), dtype=np.float32)
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
             seconds += time.perf_counter() - t0
             identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
         del scene, params

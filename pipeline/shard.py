@@ -213,8 +213,10 @@ def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, 
         "render": {"resolution": ctx.settings.resolution, "spp": ctx.settings.spp,
                    "max_depth": ctx.settings.max_depth, "integrator": ctx.settings.integrator,
                    "variant": ctx.variant, "sun": ctx.settings.sun},
-        "stats": stored_stats,  # no run timings: a record is a pure function of the plan, so
-        # two concurrent runs of a shard (at-least-once execution) write identical copies
+        # The render's wall time (`time_s`) is the one run-dependent value of a record: it is
+        # kept out of the EXR header (files are a pure function of the plan) and ignored
+        # wherever records are compared (pipeline.records.RUN_DEPENDENT_STATS).
+        "stats": stats,
         "files": [file_entry(layout.root, rel, "render", digest)] + material_files,
     }
     write_text_atomic(layout.path(layout.record_rel(sample.shard_id, sample.sample_id)), dumps(record) + "\n")

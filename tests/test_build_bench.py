@@ -145,7 +145,7 @@ def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_
 
 
 def test_power_of_two_passes():
-    from pipeline.bench import power_of_two_passes
+    from pipeline.render import power_of_two_passes
 
     assert power_of_two_passes(150) == [128, 16, 4, 2]
     assert power_of_two_passes(16) == [16] and power_of_two_passes(1) == [1]
@@ -161,7 +161,7 @@ def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts
 
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
-    from pipeline.bench import render_in_passes
+    from pipeline.render import render_in_passes
     from pipeline.render import RenderSettings, scene_dict
     from sky import Light
 
