@@ -153,9 +153,11 @@ def test_cli_bad_option_exits_2_and_writes_nothing(tmp_path):
 
 
 FAKE_SBATCH = """#!/bin/bash
-# Stand-in for SLURM's sbatch: run the job script on this machine, detached, in its own
-# session; the job id is its process id (= its process group, for scancel).
-setsid bash "$1" > "$FAKE_SLURM_DIR/job-$$.log" 2>&1 < /dev/null &
+# Stand-in for SLURM's sbatch: copy the job script (as sbatch does: dask-jobqueue deletes its
+# file once sbatch returns), run it on this machine detached in its own session; the job id
+# is its process id (= its process group, for scancel).
+cp "$1" "$FAKE_SLURM_DIR/job-$$.sh"
+setsid bash "$FAKE_SLURM_DIR/job-$$.sh" > "$FAKE_SLURM_DIR/job-$$.log" 2>&1 < /dev/null &
 echo $! >> "$FAKE_SLURM_DIR/jobs"
 echo "Submitted batch job $!"
 """
