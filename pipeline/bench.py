@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.errors import ShaderballError
-from pipeline.render import pass_seed, power_of_two_passes, render_in_passes  # noqa: F401  (re-exported)
+from pipeline.render import render_in_passes
 
 #: Z above which a pixel's difference counts as beyond noise (two-sided p ~ 6e-5 if normal).
 Z_LIMIT = 4.0

@@ -17,7 +17,6 @@ import os
 import time
 from dataclasses import dataclass
 
-import numpy as np
 
 from pipeline.atomic import write_text_atomic
 from pipeline.layout import Layout

@@ -1,6 +1,23 @@
 """Shared fixtures. Mitsuba is loaded through pipeline.mitsuba_env so libLLVM is selected first."""
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def crash_module():
+    """scripts/crash_test.py as a module (the crash, resume and cluster tests share its helpers)."""
+    if "crash_test" in sys.modules:
+        return sys.modules["crash_test"]
+    spec = importlib.util.spec_from_file_location("crash_test", REPO / "scripts" / "crash_test.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["crash_test"] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(scope="session")
@@ -8,3 +25,9 @@ def mi():
     from pipeline.mitsuba_env import load_mitsuba
 
     return load_mitsuba("llvm_ad_rgb")
+
+
+@pytest.fixture(scope="session")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted smoke build, shared by the crash, resume and cluster tests."""
+    return crash_module().shared_reference(tmp_path_factory)[0]

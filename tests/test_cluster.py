@@ -6,7 +6,6 @@ only that shard's unfinished samples. Also worker recycling and the memory probe
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import re
@@ -27,20 +26,9 @@ SMOKE = REPO / "manifests" / "smoke.toml"
 DASK = str(Path(sys.executable).with_name("dask"))
 
 
-def _crash_module():
-    spec = importlib.util.spec_from_file_location("crash_test", REPO / "scripts" / "crash_test.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("crash_test", module)
-    spec.loader.exec_module(module)
-    return module
+from conftest import crash_module  # noqa: E402
 
-
-crash = _crash_module()
-
-
-@pytest.fixture(scope="session")
-def reference(tmp_path_factory) -> Path:
-    return crash.shared_reference(tmp_path_factory)[0]
+crash = crash_module()
 
 
 def _start(cmd: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:

@@ -7,8 +7,6 @@ completion the dataset is byte-identical to it and `validate` passes. More kills
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
@@ -16,15 +14,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _crash_module():
-    spec = importlib.util.spec_from_file_location("crash_test", REPO / "scripts" / "crash_test.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("crash_test", module)
-    spec.loader.exec_module(module)
-    return module
+from conftest import crash_module  # noqa: E402
 
-
-crash = _crash_module()
+crash = crash_module()
 
 #: Kill points chosen to cover every kind of write at every phase, in a first trial that
 #: starts in an empty directory; random kills follow until there are 20.

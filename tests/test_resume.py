@@ -5,12 +5,10 @@ or two users) give one committed copy of every sample.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,20 +24,9 @@ REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
 
 
-def _crash_module():
-    spec = importlib.util.spec_from_file_location("crash_test", REPO / "scripts" / "crash_test.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("crash_test", module)
-    spec.loader.exec_module(module)
-    return module
+from conftest import crash_module  # noqa: E402
 
-
-crash = _crash_module()
-
-
-@pytest.fixture(scope="session")
-def reference(tmp_path_factory) -> Path:
-    return crash.shared_reference(tmp_path_factory)[0]
+crash = crash_module()
 
 
 def _spec_text(**changes) -> str:

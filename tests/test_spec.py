@@ -25,7 +25,6 @@ from pipeline.spec import (
     MaterialsSection,
     RenderSection,
     SpecError,
-    StorageSection,
     parse_spec,
     parse_spec_text,
     reference_markdown,
