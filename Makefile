@@ -30,7 +30,7 @@ demo: setup
 	@echo "demo: dataset in $(DEMO_OUT)/smoke (manifest.jsonl, shards/), contact sheet $(DEMO_OUT)/smoke-preview.png"
 
 test: setup
-	$(PY) -m pytest -q -n 2 -m "not soak" tests
+	$(PY) -m pytest -q -n 2 tests
 
 bench: setup
 	$(VENV)/bin/shaderball bench manifests/smoke.toml
