@@ -1,0 +1,135 @@
+"""Try every bad input in the table of docs/bad-inputs.md; print the table (markdown).
+
+    .venv/bin/python scripts/bad_inputs.py > /tmp/table.md
+
+Each case runs the real CLI (click's CliRunner, in this process) in a fresh folder and
+records the exit code, the message, and whether any file was created or changed.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+SMOKE = (REPO / "manifests" / "smoke.toml").read_text()
+
+
+def spec_with(old: str, new: str) -> str:
+    if old not in SMOKE:
+        raise AssertionError(f"smoke.toml has no {old!r}")
+    return SMOKE.replace(old, new, 1)
+
+
+#: (what, spec text or None, CLI arguments; {spec} {out} {dir} are filled in)
+SPEC_CASES = [
+    ("dataset.seed negative", spec_with("seed = 20191117", "seed = -1")),
+    ("dataset.materials zero", spec_with("materials = 8 ", "materials = 0 ")),
+    ("dataset.svbrdf_fraction above 1", spec_with("svbrdf_fraction = 0.5", "svbrdf_fraction = 1.5")),
+    ("dataset.shard_size zero", spec_with("shard_size = 2", "shard_size = 0")),
+    ("dataset.name with spaces", spec_with('name = "smoke"', 'name = "my smoke"')),
+    ("render.resolution too small", spec_with("\nresolution = 64", "\nresolution = 8")),
+    ("render.spp zero", spec_with("spp = 16", "spp = 0")),
+    ("render.variant unknown", spec_with('variant = "auto"', 'variant = "vulkan"')),
+    ("render.max_depth too large", spec_with("max_depth = 8", "max_depth = 100")),
+    ("render.spp as a string", spec_with("spp = 16", 'spp = "16"')),
+    ("render key misspelt", spec_with("spp = 16", "sppp = 16")),
+    ("lighting.elevation_deg above 90", spec_with("elevation_deg = [5.0, 90.0]", "elevation_deg = [10.0, 95.0]")),
+    ("lighting.turbidity below 1", spec_with("turbidity = [1.0, 10.0]", "turbidity = [0.5, 3.0]")),
+    ("lighting.scheme unknown", spec_with('scheme = "stratified"', 'scheme = "random"')),
+    ("lighting.sun unknown", spec_with('sun = "split"', 'sun = "moon"')),
+    ("materials.roughness inverted", spec_with("roughness = [0.05, 1.0]", "roughness = [0.8, 0.2]")),
+    ("materials.svbrdf_folders missing", spec_with("svbrdf_folders = []", 'svbrdf_folders = ["/nonexistent/maps"]')),
+    ("storage.compression unknown", spec_with('compression = "zip"', 'compression = "lzma"')),
+    ("storage.layers unknown", spec_with('layers = ["diffuse"', 'layers = ["albedo"')),
+    ("unknown section", SMOKE + "\n[renderer]\nspp = 4\n"),
+    ("TOML syntax error", SMOKE.replace("[render]", "[render")),
+]
+
+COMMAND_CASES = [
+    ("build: spec file missing", ["build", "{dir}/nope.toml", "--out", "{out}"]),
+    ("build: --workers negative", ["build", "{smoke}", "--out", "{out}", "--workers", "-1"]),
+    ("build: --scheduler unreachable", ["build", "{smoke}", "--out", "{out}", "--scheduler", "tcp://127.0.0.1:9"]),
+    ("build: --out is a file", ["build", "{smoke}", "--out", "{file}"]),
+    ("build: --out holds other files", ["build", "{smoke}", "--out", "{foreign}"]),
+    ("build: --out holds another spec's dataset", ["build", "{smoke}", "--out", "{other_dataset}"]),
+    ("render: --elevation 95", ["render", "--elevation", "95", "--out", "{out}/x.exr"]),
+    ("render: --turbidity 11", ["render", "--turbidity", "11", "--out", "{out}/x.exr"]),
+    ("render: --diffuse out of range", ["render", "--diffuse", "1.5,0,0", "--out", "{out}/x.exr"]),
+    ("render: --normal pointing down", ["render", "--normal", "0,0,-1", "--out", "{out}/x.exr"]),
+    ("render: --out not .exr", ["render", "--out", "{out}/x.png"]),
+    ("render: --svbrdf missing", ["render", "--svbrdf", "{dir}/nope.png", "--out", "{out}/x.exr"]),
+    ("render: --spp 0", ["render", "--spp", "0", "--out", "{out}/x.exr"]),
+    ("scene: --resolution 5", ["scene", "--out", "{out}", "--resolution", "5"]),
+    ("validate: folder missing", ["validate", "{dir}/nope"]),
+    ("validate: not a dataset", ["validate", "{foreign}"]),
+    ("info: not a dataset", ["info", "{foreign}"]),
+    ("preview: not a dataset", ["preview", "{foreign}", "--out", "{out}/p.png"]),
+]
+
+
+def snapshot(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*"))}
+
+
+def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
+    from click.testing import CliRunner
+
+    from cli import main
+
+    base.mkdir(parents=True)
+    (base / "file.txt").write_text("x")
+    foreign = base / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    other = base / "other"
+    other.mkdir()
+    (other / "spec.toml").write_text(spec_with("seed = 20191117", "seed = 7"))
+    spec = base / "spec.toml"
+    if spec_text is not None:
+        spec.write_text(spec_text)
+        args = ["build", str(spec), "--out", "{out}"]
+    fill = {"dir": str(base), "out": str(base / "out"), "smoke": str(REPO / "manifests" / "smoke.toml"),
+            "file": str(base / "file.txt"), "foreign": str(foreign), "other_dataset": str(other)}
+    argv = [a.format(**fill) for a in args]
+    before = snapshot(base)
+    result = CliRunner().invoke(main, argv)
+    after = snapshot(base)
+    message = " ".join(result.output.split())
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        message = f"UNCAUGHT {type(result.exception).__name__}: {result.exception}"
+    message = message.replace(str(base), "DIR").replace(str(REPO), ".")
+    return {"argv": argv, "exit_code": result.exit_code, "message": message, "wrote": before != after}
+
+
+def all_cases():
+    yield from ((what, None, args) for what, args in COMMAND_CASES)
+    yield from ((what, text, ["build", "{spec}"]) for what, text in SPEC_CASES)
+
+
+def run_all() -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (what, text, args) in enumerate(all_cases()):
+            row = run_case(args, text, Path(tmp) / f"case{i:02d}")
+            row["what"] = what
+            rows.append(row)
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    out = ["| # | bad input | exit | wrote anything | message |", "|---|---|---|---|---|"]
+    for i, r in enumerate(rows, 1):
+        msg = re.sub(r"\s+", " ", r["message"])[:300].replace("|", "\\|")
+        out.append(f"| {i} | {r['what']} | {r['exit_code']} | {'yes' if r['wrote'] else 'no'} | {msg} |")
+    return "\n".join(out) + "\n"
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    print(table(run_all()), end="")

@@ -1,0 +1,26 @@
+"""Every bad input of docs/bad-inputs.md: non-zero exit, a message naming the input, nothing written;
+and the table in the docs is the one the script prints today."""
+
+import importlib.util
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("bad_inputs", REPO / "scripts" / "bad_inputs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_bad_input_is_refused_cleanly():
+    script = _script()
+    rows = script.run_all()
+    assert len(rows) >= 30
+    for row in rows:
+        assert row["exit_code"] == 2, row
+        assert not row["wrote"], row
+        assert "UNCAUGHT" not in row["message"] and ("error" in row["message"].lower()), row
+    page = (REPO / "docs" / "bad-inputs.md").read_text()
+    assert script.table(rows) in page, "docs/bad-inputs.md is stale: re-run scripts/bad_inputs.py"
