@@ -75,9 +75,11 @@ def project(texture: np.ndarray, gbuffer: GBuffer) -> np.ndarray:
 
 def encode_normal_texture(normal: np.ndarray) -> np.ndarray:
     """A unit tangent-space normal map (h, w, 3) as the [0, 1] texture Mitsuba's
-    ``normalmap`` BSDF takes: (n + 1) / 2 in float32. Give the renderer this array."""
-    n = np.asarray(normal, dtype=F32)
-    return _fma(n, F32(0.5), np.full(n.shape, 0.5, F32))
+    ``normalmap`` BSDF takes. The renderer's own encoding (materials.encode_normal_map),
+    so the screen-space normals are computed from the very texels the renderer reads."""
+    from materials.maps import encode_normal_map
+
+    return encode_normal_map(normal)
 
 
 def decode_normal(encoded: np.ndarray) -> np.ndarray:
