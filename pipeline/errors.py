@@ -12,3 +12,8 @@ class ShaderballError(Exception):
 
 class SetupError(ShaderballError):
     """The environment cannot run Mitsuba (no usable libLLVM, unknown variant, ...)."""
+
+
+def bad_value(field: str, value, allowed: str) -> ShaderballError:
+    """The project's one wording of a refused value: field, value, what is allowed."""
+    return ShaderballError(f"{field}: {value!r} is not allowed; allowed: {allowed}")

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import bad_value
 from pipeline.stats import is_bad, render_stats
 
 INTEGRATORS = ("path",)
@@ -27,9 +27,6 @@ SUN_MODES = ("split", "sunsky")
 MAX_RENDER_ATTEMPTS = 3
 _SEED_STEP = 0x9E3779B9  # golden-ratio step: retry seeds far from the original
 
-
-def _fail(field: str, value, allowed: str) -> ShaderballError:
-    return ShaderballError(f"{field}: {value!r} is not allowed; allowed: {allowed}")
 
 
 @dataclass(frozen=True)
@@ -47,15 +44,15 @@ class RenderSettings:
         def integer(name, lo, hi):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
-                raise _fail(f"{prefix}.{name}", value, f"an integer in [{lo}, {hi}]")
+                raise bad_value(f"{prefix}.{name}", value, f"an integer in [{lo}, {hi}]")
 
         integer("resolution", 16, 4096)
         integer("spp", 1, 65536)
         integer("max_depth", 1, 64)
         if self.integrator not in INTEGRATORS:
-            raise _fail(f"{prefix}.integrator", self.integrator, ", ".join(INTEGRATORS))
+            raise bad_value(f"{prefix}.integrator", self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
-            raise _fail(f"{prefix}.sun", self.sun, ", ".join(SUN_MODES))
+            raise bad_value(f"{prefix}.sun", self.sun, ", ".join(SUN_MODES))
         return self
 
 

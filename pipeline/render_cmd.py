@@ -12,13 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
 
 SEED_RANGE = (0, 2**32 - 1)
 
-
-def _fail(option: str, value, allowed: str) -> ShaderballError:
-    return ShaderballError(f"{option}: {value!r} is not allowed; allowed: {allowed}")
 
 
 def parse_triple(option: str, text: str, lo: float | None = 0.0, hi: float | None = 1.0) -> tuple[float, ...]:
@@ -27,31 +24,31 @@ def parse_triple(option: str, text: str, lo: float | None = 0.0, hi: float | Non
     try:
         values = tuple(float(x) for x in str(text).split(","))
     except ValueError:
-        raise _fail(option, text, allowed) from None
+        raise bad_value(option, text, allowed) from None
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise _fail(option, text, allowed)
+        raise bad_value(option, text, allowed)
     if lo is not None and not all(lo <= v <= hi for v in values):
-        raise _fail(option, text, allowed)
+        raise bad_value(option, text, allowed)
     return values
 
 
 def check_number(option: str, value, lo: float, hi: float, unit: str = "") -> float:
     if value is None or not math.isfinite(float(value)) or not lo <= float(value) <= hi:
-        raise _fail(option, value, f"a number in [{lo}, {hi}]{unit}")
+        raise bad_value(option, value, f"a number in [{lo}, {hi}]{unit}")
     return float(value)
 
 
 def check_output(option: str, path: str, suffix: str) -> str:
     if not path.lower().endswith(suffix):
-        raise _fail(option, path, f"a file name ending in {suffix}")
+        raise bad_value(option, path, f"a file name ending in {suffix}")
     folder = os.path.dirname(os.path.abspath(path))
     existing = folder
     while not os.path.exists(existing):
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing) or not os.access(existing, os.W_OK):
-        raise _fail(option, path, f"a path in a writable folder ({existing} is not writable)")
+        raise bad_value(option, path, f"a path in a writable folder ({existing} is not writable)")
     if os.path.isdir(path):
-        raise _fail(option, path, "a file, not a folder")
+        raise bad_value(option, path, "a file, not a folder")
     return path
 
 
@@ -127,14 +124,14 @@ def check_request(req: RenderRequest) -> None:
     check_number("--roughness", req.roughness, 0.0, 1.0)
     normal = parse_triple("--normal", ",".join(map(str, req.normal)), None, None)
     if normal[2] <= 0 or np.linalg.norm(normal) == 0:
-        raise _fail("--normal", ",".join(map(str, req.normal)), "a tangent-space direction X,Y,Z with Z > 0")
+        raise bad_value("--normal", ",".join(map(str, req.normal)), "a tangent-space direction X,Y,Z with Z > 0")
     if req.svbrdf is not None and not os.path.exists(req.svbrdf):
-        raise _fail("--svbrdf", req.svbrdf, "an existing PNG strip or folder of maps")
+        raise bad_value("--svbrdf", req.svbrdf, "an existing PNG strip or folder of maps")
     check_number("--elevation", req.elevation_deg, 0.0, 90.0, " degrees")
     check_number("--azimuth", req.azimuth_deg, -360.0, 720.0, " degrees")
     check_number("--turbidity", req.turbidity, 1.0, 10.0)
     if not SEED_RANGE[0] <= req.seed <= SEED_RANGE[1]:
-        raise _fail("--seed", req.seed, f"an integer in [{SEED_RANGE[0]}, {SEED_RANGE[1]}]")
+        raise bad_value("--seed", req.seed, f"an integer in [{SEED_RANGE[0]}, {SEED_RANGE[1]}]")
     try:
         RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
                        variant=req.variant, sun=req.sun).check(prefix="-")
