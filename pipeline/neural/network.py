@@ -1,0 +1,141 @@
+"""The paper's network, as the authors' released inference code defines it.
+
+A U-Net: four stride-2 encoder blocks (12 -> 64 -> 128 -> 256 -> 512 channels,
+R -> R/2 -> R/4 -> R/8 -> R/16 pixels), a light branch (an MLP from the 4-vector to one
+value per bottleneck pixel, repeated as 128 identical channels), a bottleneck conv over
+the concatenation, and four decoder blocks that each concatenate the encoder's skip at
+the lower resolution, upsample bilinearly x2, convolve, batch-normalise and ReLU; an
+output conv and a sigmoid give an RGB image in [0, 1].
+
+At the paper's 400x400 the light branch's last layer has 625 = 25 x 25 outputs and the
+network has exactly 11,752,404 parameters. At another resolution R (divisible by 16) the
+last light layer has (R/16)^2 outputs, reshaped to R/16 x R/16: the light map always
+covers the bottleneck one value per pixel, so the parameter count depends on R (e.g.
+11,595,891 at 64x64).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from pipeline.errors import bad_value
+
+#: Input channels in order: diffuse RGB, specular RGB, normal-map colour RGB, roughness x3.
+INPUT_CHANNELS = 12
+#: The lighting input: 4 values (see :func:`light_input`).
+LIGHT_CHANNELS = 4
+#: Identical copies of the light map concatenated to the encoder's output.
+LIGHT_MAP_CHANNELS = 128
+ENCODER_CHANNELS = (64, 128, 256, 512)
+#: Length of the sun direction in the network's light input (the released demo's 3).
+SUN_DIRECTION_SCALE = 3.0
+PAPER_RESOLUTION = 400
+PAPER_PARAMETERS = 11_752_404
+
+
+def check_network_resolution(resolution, field: str = "resolution") -> int:
+    """Resolutions the network accepts: multiples of 16 from 16 to 4096."""
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 16 \
+            or resolution > 4096 or resolution % 16:
+        raise bad_value(field, resolution, "an integer multiple of 16 from 16 to 4096 (the encoder halves it 4 times)")
+    return resolution
+
+
+def light_input(lighting_vector: torch.Tensor) -> torch.Tensor:
+    """The dataset's lighting vector (unit sun direction, turbidity) -> the network's input.
+
+    As the released demo: the direction scaled to length 3, turbidity raw (1 to 10).
+    Works on (..., 4) tensors; the dataset's stored ``lighting_vector`` is the only source.
+    """
+    scale = torch.tensor([SUN_DIRECTION_SCALE] * 3 + [1.0], dtype=lighting_vector.dtype,
+                         device=lighting_vector.device)
+    return lighting_vector * scale
+
+
+def _conv_bn_relu(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, kernel_size=3, stride=stride, padding=1),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+    )
+
+
+class DecoderBlock(nn.Module):
+    """concat(x, skip) at the lower resolution, bilinear x2, conv 3x3, BN, ReLU."""
+
+    def __init__(self, c_in: int, c_skip: int, c_out: int):
+        super().__init__()
+        self.conv = _conv_bn_relu(c_in + c_skip, c_out)
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([x, skip], dim=1)
+        x = F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)
+        return self.conv(x)
+
+
+class NeuralRenderer(nn.Module):
+    """12-channel maps (N, 12, R, R) in [0, 1] and light input (N, 4) -> RGB (N, 3, R, R) in [0, 1]."""
+
+    def __init__(self, resolution: int = PAPER_RESOLUTION):
+        super().__init__()
+        self.resolution = check_network_resolution(resolution)
+        self.bottleneck_size = resolution // 16
+        e1, e2, e3, e4 = ENCODER_CHANNELS
+        self.light = nn.Sequential(
+            nn.Linear(LIGHT_CHANNELS, 32), nn.Tanh(),
+            nn.Linear(32, 128), nn.Tanh(),
+            nn.Linear(128, 256), nn.Tanh(),
+            nn.Linear(256, self.bottleneck_size ** 2), nn.Tanh(),
+        )
+        self.encoder = nn.ModuleList([
+            _conv_bn_relu(INPUT_CHANNELS, e1, stride=2),
+            _conv_bn_relu(e1, e2, stride=2),
+            _conv_bn_relu(e2, e3, stride=2),
+            _conv_bn_relu(e3, e4, stride=2),
+        ])
+        self.bottleneck = _conv_bn_relu(e4 + LIGHT_MAP_CHANNELS, e4)
+        self.decoder = nn.ModuleList([
+            DecoderBlock(e4, e4, e4),
+            DecoderBlock(e4, e3, e3),
+            DecoderBlock(e3, e2, e2),
+            DecoderBlock(e2, e1, e1),
+        ])
+        self.output = nn.Conv2d(e1, 3, kernel_size=3, padding=1)
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """Xavier-uniform weights, zero biases (BatchNorm: weight 1, bias 0)."""
+        for module in self.modules():
+            if isinstance(module, (nn.Conv2d, nn.Linear)):
+                nn.init.xavier_uniform_(module.weight)
+                nn.init.zeros_(module.bias)
+            elif isinstance(module, nn.BatchNorm2d):
+                module.reset_parameters()
+
+    def light_map(self, light: torch.Tensor) -> torch.Tensor:
+        """(N, 4) network light input -> (N, 128, R/16, R/16), 128 identical channels."""
+        b = self.bottleneck_size
+        plane = self.light(light).view(-1, 1, b, b)
+        return plane.expand(-1, LIGHT_MAP_CHANNELS, b, b)
+
+    def forward(self, maps: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
+        r = self.resolution
+        if maps.dim() != 4 or maps.shape[1:] != (INPUT_CHANNELS, r, r):
+            raise bad_value("network input", tuple(maps.shape), f"(N, {INPUT_CHANNELS}, {r}, {r})")
+        if light.shape != (maps.shape[0], LIGHT_CHANNELS):
+            raise bad_value("network light input", tuple(light.shape), f"({maps.shape[0]}, {LIGHT_CHANNELS})")
+        skips = []
+        x = maps
+        for block in self.encoder:
+            x = block(x)
+            skips.append(x)
+        x = self.bottleneck(torch.cat([x, self.light_map(light)], dim=1))
+        for block, skip in zip(self.decoder, reversed(skips)):
+            x = block(x, skip)
+        return torch.sigmoid(self.output(x))
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

@@ -1,0 +1,105 @@
+"""A training run's folder: config.json, log.jsonl, checkpoint.pt, loss.png.
+
+Every file is replaced atomically (temporary file in the same folder, fsync, rename), so
+a kill at any instant leaves the previous complete file or the new one.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+
+import torch
+
+from pipeline.errors import ShaderballError
+
+CONFIG = "config.json"
+LOG = "log.jsonl"
+CHECKPOINT = "checkpoint.pt"
+LOSS_PNG = "loss.png"
+CHECKPOINT_FORMAT = "shaderball-neural-checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+def write_bytes_atomic(path: str, data: bytes) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    dir_fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def write_json(path: str, obj) -> None:
+    write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+
+
+def write_log(path: str, history: list[dict]) -> None:
+    text = "".join(json.dumps(entry, sort_keys=True) + "\n" for entry in history)
+    write_bytes_atomic(path, text.encode())
+
+
+def read_config(run_dir: str) -> dict:
+    path = os.path.join(run_dir, CONFIG)
+    if not os.path.isfile(path):
+        raise ShaderballError(f"RUN: {run_dir!r} is not a training run (no {CONFIG}); "
+                              "make one with `shaderball train DATASET --out RUN`")
+    try:
+        with open(path, encoding="utf-8") as f:
+            config = json.load(f)
+    except (OSError, ValueError) as exc:
+        raise ShaderballError(f"{path}: not readable JSON ({exc})") from exc
+    if not isinstance(config, dict) or "identity" not in config:
+        raise ShaderballError(f"{path}: not a shaderball training config (no 'identity')")
+    return config
+
+
+def save_checkpoint(run_dir: str, *, epoch: int, model_state: dict, optimizer_state: dict,
+                    history: list[dict], identity_digest: str) -> None:
+    buffer = io.BytesIO()
+    torch.save({
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "epoch": int(epoch),
+        "identity_digest": identity_digest,
+        "model": {k: v.detach().cpu() for k, v in model_state.items()},
+        "optimizer": optimizer_state,
+        "history": history,
+    }, buffer)
+    write_bytes_atomic(os.path.join(run_dir, CHECKPOINT), buffer.getvalue())
+
+
+def load_checkpoint(run_dir: str, identity_digest: str | None = None) -> dict:
+    """The run's checkpoint, or a ShaderballError naming the file when it is missing,
+    corrupt or belongs to another configuration."""
+    path = os.path.join(run_dir, CHECKPOINT)
+    if not os.path.isfile(path):
+        raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a truncated or foreign file raises any of several types
+        raise ShaderballError(f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); "
+                              "restore it, or remove it to train again from the start") from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ShaderballError(f"{path}: not a shaderball checkpoint")
+    if ckpt.get("version") != CHECKPOINT_VERSION:
+        raise ShaderballError(f"{path}: checkpoint version {ckpt.get('version')!r}; this shaderball reads "
+                              f"version {CHECKPOINT_VERSION}")
+    if identity_digest is not None and ckpt.get("identity_digest") != identity_digest:
+        raise ShaderballError(f"{path}: the checkpoint belongs to another configuration than "
+                              f"{os.path.join(run_dir, CONFIG)}")
+    return ckpt

@@ -1,0 +1,323 @@
+"""Training of the paper's network on a dataset folder: `shaderball train`.
+
+``train(config)`` opens the dataset, splits it by material, and trains with Adam,
+checkpointing every epoch into the run folder. Everything random derives from
+``config.seed``: the initial weights (``torch.manual_seed``) and each epoch's order
+(a generator seeded by (seed, epoch)), so a run killed at any instant and started again
+with the same command continues from its last checkpoint to the same weights as an
+uninterrupted run (on the same device, torch version and thread count).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Subset
+
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.neural import runfiles
+from pipeline.neural.loss import LOSSES, RenderLoss
+from pipeline.neural.metrics import psnr8
+from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
+from pipeline.neural.plot import loss_curve_png
+from pipeline.neural.splits import split_materials
+from pipeline.neural.tonemap import DEFAULT_EXPOSURE, to_srgb8
+
+DEVICES = ("auto", "cpu", "cuda")
+#: Config fields that change what a run computes: a resume must match them.
+IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
+#: Key of the per-epoch order stream beside the seed.
+ORDER_STREAM = 0x0DE5
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Options of `shaderball train`; each field's comment is its help text."""
+
+    dataset: str  # dataset folder written by `shaderball build`
+    out: str  # run folder: config.json, log.jsonl, checkpoint.pt, loss.png
+    epochs: int = 30  # epochs to reach; a resumed run continues up to this number
+    batch_size: int = 6  # samples per step (the paper's 6)
+    lr: float = 1e-2  # Adam learning rate (the paper's 1e-2), betas (0.9, 0.999)
+    loss: str = "l1+vgg"  # "l1+vgg" (the paper's) or "l1"
+    vgg_weights: str | None = None  # torchvision vgg16 state dict; default: torch hub's cache
+    vgg_sha256: str | None = None  # expected SHA-256 of the VGG weights; default: torchvision's file
+    vgg_weight: float = 1.0  # weight of the VGG relu3_3 term beside L1
+    device: str = "auto"  # auto (cuda when present), cpu or cuda
+    workers: int = 0  # DataLoader worker processes (0: load in the main process)
+    seed: int = 0  # seeds the weights, the per-epoch order and the split
+    resolution: int | None = None  # network resolution; default the dataset's; must divide it
+    test_fraction: float = 0.2  # fraction of materials held out for testing
+    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.neural.tonemap)
+    check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
+
+    def check(self) -> "TrainConfig":
+        def integer(name, lo, hi):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise bad_value(f"--{name.replace('_', '-')}", v, f"an integer from {lo} to {hi}")
+
+        def number(name, lo, hi, lo_open=False):
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+                and (v > lo if lo_open else v >= lo) and v <= hi
+            if not ok:
+                raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
+
+        integer("epochs", 1, 100_000)
+        integer("batch_size", 1, 4096)
+        integer("workers", 0, 64)
+        integer("seed", 0, 2 ** 63 - 1)
+        number("lr", 0.0, 10.0, lo_open=True)
+        number("vgg_weight", 0.0, 1e6)
+        number("exposure", 0.0, 1e6, lo_open=True)
+        if not (isinstance(self.test_fraction, (int, float)) and 0.0 <= self.test_fraction < 1.0):
+            raise bad_value("--test-fraction", self.test_fraction, "a fraction in [0, 1)")
+        if self.loss not in LOSSES:
+            raise bad_value("--loss", self.loss, " or ".join(LOSSES))
+        if self.device not in DEVICES:
+            raise bad_value("--device", self.device, ", ".join(DEVICES))
+        if self.resolution is not None:
+            check_network_resolution(self.resolution, "--resolution")
+        return self
+
+
+@dataclass
+class TrainSummary:
+    run_dir: str
+    epochs_done: int
+    resumed_from: int  # epochs already done when this call started
+    history: list[dict] = field(default_factory=list)
+    baseline_psnr: float | None = None
+    device: str = "cpu"
+    parameters: int = 0
+
+    def lines(self) -> list[str]:
+        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]
+        if self.resumed_from:
+            out.append(f"resumed after epoch {self.resumed_from}")
+        if self.history:
+            last = self.history[-1]
+            out.append(f"epoch {last['epoch']}: train loss {last['train_loss']:.4f}"
+                       + (f", held-out loss {last['test_loss']:.4f}, PSNR {last['test_psnr']:.2f} dB"
+                          if last.get("test_loss") is not None else ""))
+        if self.baseline_psnr is not None:
+            out.append(f"baseline (training-set mean image) PSNR on held-out: {self.baseline_psnr:.2f} dB")
+        return out
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise bad_value("--device", name, "auto or cpu: torch here has no CUDA device")
+    return torch.device(name)
+
+
+def digest(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def epoch_order(n: int, seed: int, epoch: int) -> list[int]:
+    """The order of the training samples in ``epoch``: a pure function of (seed, epoch)."""
+    state = np.random.SeedSequence([int(seed), ORDER_STREAM, int(epoch)]).generate_state(2, np.uint32)
+    generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+    return torch.randperm(n, generator=generator).tolist()
+
+
+@contextlib.contextmanager
+def deterministic_algorithms():
+    before = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(before)
+
+
+def make_loss(config: TrainConfig) -> tuple[RenderLoss, str | None]:
+    if config.loss == "l1":
+        return RenderLoss("l1"), None
+    from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
+
+    weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
+    return RenderLoss("l1+vgg", load_vgg16_relu3_3(weights), config.vgg_weight), weights.sha256
+
+
+def batch_to(batch: dict, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    maps = batch["maps"].to(device, non_blocking=True)
+    light = light_input(batch["light"].to(device, non_blocking=True))
+    target = batch["target"].to(device, non_blocking=True)
+    return maps, light, target
+
+
+def mean_image(dataset, workers: int, batch_size: int = 16) -> np.ndarray:
+    """The training set's mean target in [0, 1], (H, W, 3): the trivial baseline."""
+    total, count = None, 0
+    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+        s = batch["target"].double().sum(0)
+        total = s if total is None else total + s
+        count += batch["target"].shape[0]
+    return (total / count).permute(1, 2, 0).float().numpy()
+
+
+def baseline_psnr(mean_target: np.ndarray, test_set, workers: int) -> float | None:
+    if test_set is None or len(test_set) == 0:
+        return None
+    guess = to_srgb8(mean_target)
+    values = [psnr8(guess, to_srgb8(t.permute(1, 2, 0).numpy()))
+              for batch in DataLoader(test_set, batch_size=16, num_workers=workers) for t in batch["target"]]
+    return float(np.mean(values))
+
+
+@torch.no_grad()
+def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: int) -> dict:
+    """Mean loss and mean 8-bit PSNR over a split, the network in eval mode."""
+    model.eval()
+    losses, psnrs, n = 0.0, [], 0
+    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+        maps, light, target = batch_to(batch, device)
+        pred = model(maps, light)
+        losses += float(loss_fn(pred, target)) * maps.shape[0]
+        n += maps.shape[0]
+        for p, t in zip(pred.cpu(), target.cpu()):
+            psnrs.append(psnr8(to_srgb8(p.permute(1, 2, 0).numpy()), to_srgb8(t.permute(1, 2, 0).numpy())))
+    return {"loss": losses / n, "psnr": float(np.mean(psnrs))}
+
+
+def _check_run_dir(run_dir: str) -> None:
+    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+        raise bad_value("--out", run_dir, "a folder (this is a file)")
+    if os.path.isdir(run_dir) and os.listdir(run_dir) and not os.path.isfile(os.path.join(run_dir, runfiles.CONFIG)):
+        raise bad_value("--out", run_dir, f"a new or empty folder, or a run folder (with {runfiles.CONFIG}); "
+                        "this one holds other files")
+
+
+def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg_sha256, params) -> dict:
+    identity = {k: getattr(config, k) for k in IDENTITY_FIELDS}
+    identity.update(resolution=resolution, dataset=source.identity, vgg_sha256=vgg_sha256)
+    return {
+        "format": "shaderball-neural-run",
+        "version": 1,
+        "identity": identity,
+        "identity_digest": digest(identity),
+        "options": asdict(config),
+        "dataset_path": os.path.abspath(config.dataset),
+        "split": {"train": train_ids, "test": test_ids},
+        "network": {"name": "NeuralRenderer (KT et al. 2019)", "resolution": resolution, "parameters": params,
+                    "light_input": "(3 d_x, 3 d_y, 3 d_z, turbidity) from the record's lighting_vector"},
+        "tonemap": {"name": "reinhard+srgb", "exposure": config.exposure},
+        "optimizer": {"name": "Adam", "lr": config.lr, "betas": [0.9, 0.999]},
+        "torch": torch.__version__,
+    }
+
+
+def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
+    """Train (or resume) a run; ``progress(dict)`` is called after every batch.
+
+    ``source`` is the opened dataset (:func:`pipeline.neural.data.open_dataset`); by
+    default ``config.dataset`` is opened. Nothing is written before every check passed.
+    """
+    config.check()
+    _check_run_dir(config.out)
+    device = pick_device(config.device)
+    if source is None:
+        from pipeline.neural.data import open_dataset
+
+        source = open_dataset(config.dataset, resolution=config.resolution, exposure=config.exposure,
+                              check_hashes=config.check_hashes)
+    resolution = source.resolution
+    train_ids, test_ids = split_materials(source.material_ids, config.test_fraction, config.seed)
+    loss_fn, vgg_sha = make_loss(config)
+    torch.manual_seed(config.seed)
+    model = NeuralRenderer(resolution)
+    fresh = run_config(config, source, train_ids, test_ids, resolution, vgg_sha, parameter_count(model))
+
+    start_epoch, history, ckpt = 0, [], None
+    config_path = os.path.join(config.out, runfiles.CONFIG)
+    if os.path.isfile(config_path):
+        old = runfiles.read_config(config.out)
+        if old["identity_digest"] != fresh["identity_digest"]:
+            changed = sorted(k for k in set(old["identity"]) | set(fresh["identity"])
+                             if old["identity"].get(k) != fresh["identity"].get(k))
+            raise ShaderballError(f"--out: {config.out!r} is a run of another configuration (differs in: "
+                                  f"{', '.join(changed)}); use a new --out folder or the same options")
+        if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
+            ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"])
+        fresh["baseline"] = old.get("baseline")
+
+    model.to(device)
+    loss_fn.to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        start_epoch, history = ckpt["epoch"], list(ckpt["history"])
+
+    train_set = source.subset(train_ids)
+    test_set = source.subset(test_ids) if test_ids else None
+    if not fresh.get("baseline"):
+        mean_target = mean_image(train_set, config.workers)
+        fresh["baseline"] = {"kind": "training-set mean image",
+                             "test_psnr": baseline_psnr(mean_target, test_set, config.workers)}
+    os.makedirs(config.out, exist_ok=True)
+    runfiles.write_json(config_path, fresh)
+
+    with deterministic_algorithms():
+        for epoch in range(start_epoch + 1, config.epochs + 1):
+            entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress)
+            if test_set is not None:
+                held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
+                entry.update(test_loss=held_out["loss"], test_psnr=held_out["psnr"])
+            history.append(entry)
+            runfiles.save_checkpoint(config.out, epoch=epoch, model_state=model.state_dict(),
+                                     optimizer_state=optimizer.state_dict(), history=history,
+                                     identity_digest=fresh["identity_digest"])
+            runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
+            runfiles.write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
+    return TrainSummary(run_dir=config.out, epochs_done=max(start_epoch, config.epochs if history else 0),
+                        resumed_from=start_epoch, history=history,
+                        baseline_psnr=fresh["baseline"]["test_psnr"], device=str(device),
+                        parameters=parameter_count(model))
+
+
+def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress) -> dict:
+    model.train()
+    loss_fn.train()
+    order = epoch_order(len(train_set), config.seed, epoch)
+    loader = DataLoader(Subset(train_set, order), batch_size=config.batch_size, shuffle=False,
+                        num_workers=config.workers, pin_memory=device.type == "cuda")
+    batches = len(loader)
+    sums: dict[str, float] = {}
+    seen, started = 0, time.perf_counter()
+    for index, batch in enumerate(loader, start=1):
+        maps, light, target = batch_to(batch, device)
+        optimizer.zero_grad(set_to_none=True)
+        parts = loss_fn.parts(model(maps, light), target)
+        parts["total"].backward()
+        optimizer.step()
+        n = maps.shape[0]
+        seen += n
+        for key, value in parts.items():
+            sums[key] = sums.get(key, 0.0) + float(value.detach()) * n
+        if progress is not None:
+            elapsed = time.perf_counter() - started
+            rate = seen / elapsed if elapsed > 0 else 0.0
+            left = (batches - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
+            progress({"epoch": epoch, "epochs": config.epochs, "batch": index, "batches": batches,
+                      "loss": float(parts["total"].detach()), "samples_per_s": rate,
+                      "eta_s": left / rate if rate > 0 else None})
+    elapsed = time.perf_counter() - started
+    entry = {"epoch": epoch, "train_loss": sums["total"] / seen, "train_l1": sums["l1"] / seen,
+             "time_s": elapsed, "samples_per_s": seen / elapsed if elapsed > 0 else None}
+    if "vgg" in sums:
+        entry["train_vgg"] = sums["vgg"] / seen
+    return entry

@@ -1,0 +1,55 @@
+"""An in-memory stand-in for an opened dataset folder (pipeline.neural.data.open_dataset),
+so the training loop is tested in seconds without Mitsuba."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+
+class _Items(Dataset):
+    def __init__(self, items):
+        self.items = items
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        return self.items[i]
+
+
+class FakeSource:
+    """``materials`` x ``lights`` samples at ``resolution``: diffuse-shaded random maps."""
+
+    def __init__(self, materials: int = 4, lights: int = 2, resolution: int = 32, seed: int = 0):
+        self.resolution = resolution
+        self.identity = {"fake": True, "materials": materials, "lights": lights, "seed": seed}
+        self.items = []
+        rng = np.random.default_rng(seed)
+        for m in range(materials):
+            diffuse = np.broadcast_to(rng.random(3)[:, None, None], (3, resolution, resolution))
+            rough = np.full((3, resolution, resolution), rng.random())
+            normal = np.zeros((3, resolution, resolution))
+            normal[2] = 1.0
+            maps = np.concatenate([diffuse, np.zeros_like(diffuse), (normal + 1) / 2, rough]).astype(np.float32)
+            for l in range(lights):
+                el = rng.uniform(0.2, 1.4)
+                az = rng.uniform(0, 2 * np.pi)
+                d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+                light = np.array([*d, rng.uniform(1, 10)], dtype=np.float32)
+                shade = np.linspace(0.2, 1.0, resolution)[None, :, None] * d[2]
+                target = np.clip(diffuse * shade, 0, 1).astype(np.float32)
+                self.items.append({
+                    "maps": torch.from_numpy(maps.copy()),
+                    "light": torch.from_numpy(light),
+                    "target": torch.from_numpy(target),
+                    "mask": torch.ones(1, resolution, resolution),
+                    "id": f"m{m:06d}_l{l}",
+                    "material_id": f"m{m:06d}",
+                })
+        self.material_ids = sorted({it["material_id"] for it in self.items})
+
+    def subset(self, material_ids):
+        keep = set(material_ids)
+        return _Items([it for it in self.items if it["material_id"] in keep])
