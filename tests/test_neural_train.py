@@ -1,0 +1,128 @@
+"""The training loop on an in-memory dataset: loss falls, files, resume, refusals."""
+
+import json
+import os
+
+import pytest
+import torch
+from PIL import Image
+from support.neural_fakes import FakeSource
+
+from pipeline.errors import ShaderballError
+from pipeline.neural import runfiles
+from pipeline.neural.train import TrainConfig, epoch_order, train
+
+torch.set_num_threads(1)
+
+
+def _config(tmp_path, name="run", **kw):
+    base = dict(dataset="(in memory)", out=str(tmp_path / name), epochs=2, batch_size=2, lr=1e-3, loss="l1",
+                device="cpu", seed=5, test_fraction=0.25)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _weights(run_dir):
+    return runfiles.load_checkpoint(run_dir)["model"]
+
+
+@pytest.mark.slow
+def test_a_tiny_overfit_drives_the_loss_down(tmp_path):
+    source = FakeSource(materials=4, lights=3, resolution=32)
+    summary = train(_config(tmp_path, epochs=3, test_fraction=0.0, batch_size=2), source=source)
+    losses = [h["train_loss"] for h in summary.history]
+    assert len(losses) == 3
+    assert losses[2] < losses[1] < losses[0]
+    assert losses[2] < 0.6 * losses[0]
+
+
+def test_run_files_progress_and_baseline(tmp_path):
+    events = []
+    summary = train(_config(tmp_path), progress=events.append, source=FakeSource())
+    run = tmp_path / "run"
+    assert sorted(os.listdir(run)) == ["checkpoint.pt", "config.json", "log.jsonl", "loss.png"]
+    config = json.loads((run / "config.json").read_text())
+    assert config["split"] == {"train": ["m000000", "m000002", "m000003"], "test": ["m000001"]}
+    assert config["network"]["parameters"] == summary.parameters
+    assert config["baseline"]["test_psnr"] == pytest.approx(summary.baseline_psnr)
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [e["epoch"] for e in log] == [1, 2]
+    assert {"train_loss", "test_loss", "test_psnr", "samples_per_s", "time_s"} <= set(log[-1])
+    assert Image.open(run / "loss.png").size == (640, 400)
+    assert [(e["epoch"], e["batch"]) for e in events] == [(1, 1), (1, 2), (1, 3), (2, 1), (2, 2), (2, 3)]
+    assert events[-1]["eta_s"] == 0 and events[0]["samples_per_s"] > 0
+
+
+def test_epoch_order_is_a_pure_function_of_seed_and_epoch():
+    assert epoch_order(10, 1, 3) == epoch_order(10, 1, 3)
+    assert sorted(epoch_order(10, 1, 3)) == list(range(10))
+    assert epoch_order(10, 1, 3) != epoch_order(10, 1, 4)
+
+
+@pytest.mark.slow
+def test_resume_gives_the_weights_of_an_uninterrupted_run(tmp_path):
+    source = FakeSource()
+    train(_config(tmp_path, "straight", epochs=3), source=source)
+    train(_config(tmp_path, "resumed", epochs=1), source=source)
+    summary = train(_config(tmp_path, "resumed", epochs=3), source=source)
+    assert summary.resumed_from == 1
+    a, b = _weights(str(tmp_path / "straight")), _weights(str(tmp_path / "resumed"))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    log = (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()
+    assert [json.loads(line)["epoch"] for line in log] == [1, 2, 3]
+
+
+def test_a_finished_run_is_left_as_it_is(tmp_path):
+    source = FakeSource()
+    train(_config(tmp_path, epochs=1), source=source)
+    before = (tmp_path / "run" / "checkpoint.pt").read_bytes()
+    summary = train(_config(tmp_path, epochs=1), source=source)
+    assert summary.resumed_from == 1 and (tmp_path / "run" / "checkpoint.pt").read_bytes() == before
+
+
+def _snapshot(folder):
+    return {name: (folder / name).read_bytes() for name in sorted(os.listdir(folder))}
+
+
+def test_a_corrupt_checkpoint_is_refused_and_nothing_is_overwritten(tmp_path):
+    source = FakeSource()
+    train(_config(tmp_path, epochs=1), source=source)
+    ckpt = tmp_path / "run" / "checkpoint.pt"
+    ckpt.write_bytes(ckpt.read_bytes()[:1000])
+    before = _snapshot(tmp_path / "run")
+    with pytest.raises(ShaderballError, match=r"checkpoint.pt: a corrupt checkpoint"):
+        train(_config(tmp_path, epochs=2), source=source)
+    assert _snapshot(tmp_path / "run") == before
+
+
+def test_another_configuration_on_a_run_folder_is_refused(tmp_path):
+    source = FakeSource()
+    train(_config(tmp_path, epochs=1), source=source)
+    before = _snapshot(tmp_path / "run")
+    with pytest.raises(ShaderballError, match=r"another configuration \(differs in: lr\)"):
+        train(_config(tmp_path, epochs=2, lr=5e-3), source=source)
+    assert _snapshot(tmp_path / "run") == before
+
+
+def test_a_folder_with_other_files_is_refused(tmp_path):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "notes.txt").write_text("mine")
+    with pytest.raises(ShaderballError, match="--out"):
+        train(_config(tmp_path), source=FakeSource())
+    assert os.listdir(tmp_path / "run") == ["notes.txt"]
+
+
+@pytest.mark.parametrize("field,value", [("epochs", 0), ("batch_size", 0), ("lr", 0.0), ("loss", "l2"),
+                                         ("device", "tpu"), ("resolution", 50), ("test_fraction", 1.0),
+                                         ("seed", -1), ("workers", -1)])
+def test_bad_options_name_themselves(tmp_path, field, value):
+    with pytest.raises(ShaderballError, match="--" + field.replace("_", "-")):
+        train(_config(tmp_path, **{field: value}), source=FakeSource())
+    assert not (tmp_path / "run").exists()
+
+
+def test_missing_vgg_weights_refuse_before_anything_is_written(tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))
+    with pytest.raises(ShaderballError, match="--vgg-weights"):
+        train(_config(tmp_path, loss="l1+vgg"), source=FakeSource())
+    assert not (tmp_path / "run").exists()
