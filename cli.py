@@ -12,19 +12,27 @@ import sys
 
 import click
 
-from pipeline.errors import ShaderballError
+from pipeline.bench.build_bench import run_from_args
+from pipeline.check.info import dataset_info
+from pipeline.check.preview import write_preview
+from pipeline.check.validate import repair, validate
+from pipeline.errors import USER_ERRORS
+from pipeline.render.command import RenderRequest, parse_triple, render_to_files
+from pipeline.render.scene_command import write_scene
+from pipeline.run.build import build
+from pipeline.run.cluster import ClusterOptions, job_script
 
 
 def _friendly_errors(func):
-    """Turn a ShaderballError into `error: ...` on stderr and its exit code."""
+    """Turn a user error (pipeline.errors.USER_ERRORS) into `error: ...` on stderr and its exit code."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
-        except ShaderballError as exc:
+        except USER_ERRORS as exc:
             click.echo(f"error: {exc}", err=True)
-            sys.exit(exc.exit_code)
+            sys.exit(getattr(exc, "exit_code", 2))
 
     return wrapper
 
@@ -48,7 +56,6 @@ def main():
 @_friendly_errors
 def scene_cmd(out_dir: str, resolution: int):
     """Write the shaderball mesh, its G-buffer and a preview picture."""
-    from pipeline.scene_cmd import write_scene
 
     summary = write_scene(out_dir, resolution=resolution)
     for line in summary.lines():
@@ -91,7 +98,6 @@ def scene_cmd(out_dir: str, resolution: int):
 def render_cmd(diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, elevation, azimuth,
                turbidity, spp, resolution, max_depth, seed, sun, out, png):
     """Render one material on the shaderball under one sun and sky."""
-    from pipeline.render_cmd import RenderRequest, parse_triple, render_to_files
 
     request = RenderRequest(
         diffuse=parse_triple("--diffuse", diffuse), specular=parse_triple("--specular", specular),
@@ -172,8 +178,6 @@ def build_cmd(spec, out, workers, scheduler, allow_spec_change, cluster_kind, jo
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
     """
-    from pipeline.build import build
-    from pipeline.cluster import ClusterOptions, job_script
 
     options = ClusterOptions(kind=cluster_kind, workers=workers, scheduler=scheduler, jobs=jobs, cores=cores,
                              memory=memory, walltime=walltime, queue=queue, account=account, scratch=scratch,
@@ -221,7 +225,6 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     import json
     import time
 
-    from pipeline.validate import repair, validate
 
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
@@ -268,7 +271,6 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 @_friendly_errors
 def preview_cmd(directory, out, samples, tile):
     """A contact sheet of a dataset (complete or partial) for people to look at."""
-    from pipeline.preview import write_preview
 
     for line in write_preview(directory, out, samples=samples, tile=tile).lines():
         click.echo(line)
@@ -280,7 +282,6 @@ def preview_cmd(directory, out, samples, tile):
 @_friendly_errors
 def info_cmd(directory, as_json):
     """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
-    from pipeline.info import dataset_info
 
     info = dataset_info(directory)
     if as_json:
@@ -318,7 +319,6 @@ def info_cmd(directory, as_json):
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
-    from pipeline.bench import run_from_args
 
     result = run_from_args(spec, effects=effects, samples=samples, resolution=resolution, spp=spp,
                            workers=workers, shard_size=shard_size, out=out, profile=profile, repeats=repeats,

@@ -7,7 +7,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields
 
-from pipeline.errors import ShaderballError
+from geometry.errors import GeometryError
 
 #: Bump when the construction, the charts or the cache layout change: old caches then miss.
 GEOMETRY_CODE_VERSION = 3
@@ -48,8 +48,8 @@ class ShaderballParams:
     #: atlas layout; larger values shrink the texture on the ball).
     texture_repeats: int = 1
 
-    def check(self) -> "ShaderballParams":
-        """Raise ShaderballError naming the field, its value and the allowed range."""
+    def check(self) -> ShaderballParams:
+        """Raise GeometryError naming the field, its value and the allowed range."""
         _in_range("shell_radius_m", self.shell_radius_m, 0.05, 10.0)
         r = self.shell_radius_m
         _in_range("shell_thickness_m", self.shell_thickness_m, 0.005 * r, 0.3 * r)
@@ -126,6 +126,6 @@ def _in_range(name: str, value, lo: float, hi: float, *, integer: bool = False) 
         isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     )
     if not ok or not (lo <= value <= hi):
-        raise ShaderballError(
+        raise GeometryError(
             f"geometry.{name}: {value!r} is not allowed; allowed: {kind} in [{lo:g}, {hi:g}]"
         )

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.atomic import write_bytes_atomic
+from geometry.cachefile import write_cache_file
 
 
 def encode_ply(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,
@@ -35,9 +35,9 @@ def encode_ply(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | N
     return "\n".join(header).encode("ascii") + vertices.tobytes() + tris.tobytes()
 
 
-def write_ply(path: str, positions, faces, normals=None, uv=None) -> str:
-    """Write a PLY atomically; return its SHA-256."""
-    return write_bytes_atomic(path, encode_ply(positions, faces, normals, uv))
+def write_ply(path: str, positions, faces, normals=None, uv=None) -> None:
+    """Write a PLY atomically (a cache file: never torn, see geometry.cachefile)."""
+    write_cache_file(path, encode_ply(positions, faces, normals, uv))
 
 
 def read_ply(path: str) -> dict[str, np.ndarray]:

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geometry.atlas import pack_charts, seam_edges
+from geometry.cachefile import write_cache_file
 from geometry.params import ShaderballParams
 from geometry.patches import Patch, ground_patch, material_patches, neutral_patches
 from geometry.ply import read_ply, write_ply
-from pipeline.atomic import write_bytes_atomic
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +119,7 @@ def _build_and_store(params: ShaderballParams, folder: str) -> Shaderball:
     }
     buffer = io.BytesIO()
     np.savez(buffer, **index)
-    write_bytes_atomic(os.path.join(folder, INDEX_FILE), buffer.getvalue())
+    write_cache_file(os.path.join(folder, INDEX_FILE), buffer.getvalue())
     ball = _load(params, folder)
     return _with_timings(ball, {"construct": t1 - t0, "unwrap": t2 - t1})
 

@@ -4,7 +4,7 @@ A material is four texture-space maps (:class:`MaterialMaps`). Uniform
 materials come from :func:`sample_uniform`, procedural spatially varying ones
 from :func:`sample_svbrdf`, files in Deschaintre et al.'s layout from
 :func:`load_deschaintre`. The numpy reference BRDF is :mod:`materials.brdf_ref`;
-the Mitsuba plugin that renders it is :mod:`materials.mitsuba_bsdf` (the only
+the Mitsuba plugin that renders it is :mod:`pipeline.render.bsdf` (the only
 module here that loads Mitsuba, and only when called). docs/materials.md has
 the details.
 """

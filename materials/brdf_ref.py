@@ -1,6 +1,6 @@
 """Numpy reference of the material model (Deschaintre et al. 2018), vectorised.
 
-This is the model the renderer's Mitsuba plugin (:mod:`materials.mitsuba_bsdf`)
+This is the model the renderer's Mitsuba plugin (:mod:`pipeline.render.bsdf`)
 implements, written for clarity and float64, so the plugin can be checked
 against it. With ``d``, ``s`` the diffuse and specular albedo, ``r`` the
 roughness, ``n`` the normal, ``l`` = ``wo`` (towards the light) and ``v`` = ``wi``

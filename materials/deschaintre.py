@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from materials.colorspace import COLORSPACES, srgb_decode
+from materials.errors import MaterialError
 from materials.maps import MaterialMaps, decode_normal_map
-from pipeline.errors import ShaderballError
 
 log = logging.getLogger(__name__)
 
@@ -53,20 +53,20 @@ def resolve_colorspaces(colorspace: str | Mapping[str, str] = DEFAULT_COLORSPACE
     result = dict.fromkeys(COLOUR_MAPS, DEFAULT_COLORSPACE)
     if isinstance(colorspace, str):
         if colorspace not in COLORSPACES:
-            raise ShaderballError(f"colorspace: {colorspace!r} is not one of {', '.join(COLORSPACES)}")
+            raise MaterialError(f"colorspace: {colorspace!r} is not one of {', '.join(COLORSPACES)}")
         result["diffuse"] = result["specular"] = colorspace
         return result
     if not isinstance(colorspace, Mapping):
-        raise ShaderballError(f"colorspace: {colorspace!r} is not a string or a mapping of map name to colour space")
+        raise MaterialError(f"colorspace: {colorspace!r} is not a string or a mapping of map name to colour space")
     for name, space in colorspace.items():
         if name == "normal":
             if space != "raw":
-                raise ShaderballError(f"colorspace.normal: {space!r} is not allowed; normals are always 'raw'")
+                raise MaterialError(f"colorspace.normal: {space!r} is not allowed; normals are always 'raw'")
             continue
         if name not in COLOUR_MAPS:
-            raise ShaderballError(f"colorspace: map {name!r} is not one of {', '.join(COLOUR_MAPS + ('normal',))}")
+            raise MaterialError(f"colorspace: map {name!r} is not one of {', '.join(COLOUR_MAPS + ('normal',))}")
         if space not in COLORSPACES:
-            raise ShaderballError(f"colorspace.{name}: {space!r} is not one of {', '.join(COLORSPACES)}")
+            raise MaterialError(f"colorspace.{name}: {space!r} is not one of {', '.join(COLORSPACES)}")
         result[name] = space
     return result
 
@@ -79,13 +79,13 @@ def load_deschaintre(path, colorspace: str | Mapping[str, str] = DEFAULT_COLORSP
         images = {name: _read_image(file) for name, file in _find_maps(path).items()}
         sizes = {name: image.shape[:2] for name, image in images.items()}
         if len(set(sizes.values())) != 1:
-            raise ShaderballError(f"{path}: maps differ in size (height, width): {sizes}")
+            raise MaterialError(f"{path}: maps differ in size (height, width): {sizes}")
         source = str(path)
     elif path.is_file():
         images = _split_strip(path, _read_image(path))
         source = str(path)
     else:
-        raise ShaderballError(f"SVBRDF path {str(path)!r} is neither a file nor a directory")
+        raise MaterialError(f"SVBRDF path {str(path)!r} is neither a file nor a directory")
     return _to_maps(images, spaces, source)
 
 
@@ -95,12 +95,12 @@ def _find_maps(folder: Path) -> dict[str, Path]:
     for name in MAP_NAMES:
         matches = [p for p in files if _stem_matches(p.stem.lower(), name)]
         if not matches:
-            raise ShaderballError(
+            raise MaterialError(
                 f"{folder}: no {name} map; expected a file named {name}.png (or PREFIX_{name}.png, "
                 f"extensions {', '.join(IMAGE_SUFFIXES)})"
             )
         if len(matches) > 1:
-            raise ShaderballError(f"{folder}: several {name} maps: {', '.join(p.name for p in matches)}")
+            raise MaterialError(f"{folder}: several {name} maps: {', '.join(p.name for p in matches)}")
         found[name] = matches[0]
     return found
 
@@ -124,9 +124,9 @@ def _read_image(path: Path) -> np.ndarray:
             elif mode == "P":
                 array = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
             else:
-                raise ShaderballError(f"{path}: image mode {mode!r} is not supported (8/16-bit grey or RGB)")
+                raise MaterialError(f"{path}: image mode {mode!r} is not supported (8/16-bit grey or RGB)")
     except (OSError, ValueError) as exc:
-        raise ShaderballError(f"{path}: cannot read image: {exc}") from exc
+        raise MaterialError(f"{path}: cannot read image: {exc}") from exc
     if array.ndim == 2:
         array = array[..., None]
     if array.shape[-1] in (2, 4):  # drop alpha
@@ -138,7 +138,7 @@ def _split_strip(path: Path, image: np.ndarray) -> dict[str, np.ndarray]:
     height, width = image.shape[:2]
     count = len(STRIP_PANELS)
     if width % count != 0 or width == 0:
-        raise ShaderballError(
+        raise MaterialError(
             f"{path}: width {width} is not a multiple of {count}; expected {count} equal panels "
             f"({', '.join(STRIP_PANELS)}), e.g. 1440 x 288"
         )
@@ -154,7 +154,7 @@ def _rgb(name: str, image: np.ndarray, source: str) -> np.ndarray:
     if image.shape[-1] == 1:
         return np.repeat(image, 3, axis=-1)
     if image.shape[-1] != 3:
-        raise ShaderballError(f"{source}: {name} map has {image.shape[-1]} channels; expected 1 or 3")
+        raise MaterialError(f"{source}: {name} map has {image.shape[-1]} channels; expected 1 or 3")
     return image
 
 

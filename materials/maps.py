@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from materials.errors import MaterialError
 
 #: A map's unit normal may be off unit length by this much (8-bit imports are renormalised).
 NORMAL_UNIT_TOLERANCE = 1e-3
@@ -29,11 +29,11 @@ def _as_resolution(resolution) -> tuple[int, int]:
         try:
             height, width = (int(x) for x in resolution)
         except (TypeError, ValueError):
-            raise ShaderballError(
+            raise MaterialError(
                 f"resolution: {resolution!r} is not an int or a (height, width) pair"
             ) from None
     if height < 1 or width < 1:
-        raise ShaderballError(f"resolution: {resolution!r} must be positive")
+        raise MaterialError(f"resolution: {resolution!r} must be positive")
     return height, width
 
 
@@ -42,7 +42,7 @@ def _frozen_array(name: str, value, shape_tail: tuple[int, ...]) -> np.ndarray:
     expected_ndim = 2 + len(shape_tail)
     if array.ndim != expected_ndim or array.shape[2:] != shape_tail:
         want = "(H, W" + "".join(f", {n}" for n in shape_tail) + ")"
-        raise ShaderballError(f"MaterialMaps.{name}: shape {array.shape} is not {want}")
+        raise MaterialError(f"MaterialMaps.{name}: shape {array.shape} is not {want}")
     array.setflags(write=False)
     return array
 
@@ -68,16 +68,16 @@ class UniformMaterial:
         n = np.asarray(self.normal, dtype=np.float64)
         length = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
         if n.shape != (3,) or not np.isfinite(length) or length == 0.0 or n[2] <= 0.0:
-            raise ShaderballError(
+            raise MaterialError(
                 f"UniformMaterial.normal: {self.normal!r} is not a finite 3-vector with z > 0"
             )
         object.__setattr__(self, "normal", tuple(float(c) for c in n / length))
         for name in ("diffuse", "specular"):
             value = getattr(self, name)
             if len(value) != 3 or not all(np.isfinite(c) and 0.0 <= c <= 1.0 for c in value):
-                raise ShaderballError(f"UniformMaterial.{name}: {value!r} is not 3 values in [0, 1]")
+                raise MaterialError(f"UniformMaterial.{name}: {value!r} is not 3 values in [0, 1]")
         if not (np.isfinite(self.roughness) and 0.0 <= self.roughness <= 1.0):
-            raise ShaderballError(f"UniformMaterial.roughness: {self.roughness!r} is not in [0, 1]")
+            raise MaterialError(f"UniformMaterial.roughness: {self.roughness!r} is not in [0, 1]")
 
     def to_maps(self, resolution) -> MaterialMaps:
         """Replicate the values into maps of ``resolution`` (int or (H, W))."""
@@ -124,7 +124,7 @@ class MaterialMaps:
             object.__setattr__(self, name, _frozen_array(name, getattr(self, name), tail))
         shapes = {name: getattr(self, name).shape[:2] for name in ("diffuse", "specular", "roughness", "normal")}
         if len(set(shapes.values())) != 1:
-            raise ShaderballError(f"MaterialMaps: maps differ in resolution: {shapes}")
+            raise MaterialError(f"MaterialMaps: maps differ in resolution: {shapes}")
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -150,13 +150,13 @@ class MaterialMaps:
         )
 
     def check(self) -> MaterialMaps:
-        """Raise :class:`ShaderballError` naming the map, texel and value that is bad; else self."""
+        """Raise :class:`MaterialError` naming the map, texel and value that is bad; else self."""
         for name in ("diffuse", "specular", "roughness"):
             values = getattr(self, name)
             bad = ~np.isfinite(values) | (values < 0.0) | (values > 1.0)
             if bad.any():
                 index = tuple(int(i) for i in np.argwhere(bad)[0])
-                raise ShaderballError(
+                raise MaterialError(
                     f"material map {name}: value {float(values[index])!r} at {index} "
                     f"is not finite and in [0, 1]"
                 )
@@ -166,7 +166,7 @@ class MaterialMaps:
         bad = ~finite | (np.abs(length - 1.0) > NORMAL_UNIT_TOLERANCE) | (n[..., 2] <= 0.0)
         if bad.any():
             index = tuple(int(i) for i in np.argwhere(bad)[0])
-            raise ShaderballError(
+            raise MaterialError(
                 f"material map normal: value {n[index].tolist()!r} at {index} is not a unit "
                 f"vector (|n| - 1 within {NORMAL_UNIT_TOLERANCE}) with z > 0"
             )

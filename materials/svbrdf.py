@@ -32,9 +32,9 @@ from __future__ import annotations
 import numpy as np
 
 from materials.colorspace import hsv_to_rgb, srgb_decode
+from materials.errors import MaterialError
 from materials.maps import MaterialMaps, _as_resolution, normals_from_height
 from materials.noise import fbm, gradient_noise, periodic_segments, smoothstep, texel_uv, worley
-from pipeline.errors import ShaderballError
 
 SVBRDF_FAMILIES = ("stains", "tiles", "bricks", "brushed_metal", "worn_paint", "stones")
 #: Smallest map side the families are designed for (features are a few texels wide at 64).
@@ -44,12 +44,12 @@ MIN_RESOLUTION = 16
 def sample_svbrdf(rng: np.random.Generator, family: str, resolution) -> MaterialMaps:
     """One material of ``family`` at ``resolution`` (int or (H, W)), drawn from ``rng``."""
     if not isinstance(rng, np.random.Generator):
-        raise ShaderballError(f"sample_svbrdf: rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        raise MaterialError(f"sample_svbrdf: rng must be a numpy.random.Generator, got {type(rng).__name__}")
     if family not in SVBRDF_FAMILIES:
-        raise ShaderballError(f"svbrdf family: {family!r} is not one of {', '.join(SVBRDF_FAMILIES)}")
+        raise MaterialError(f"svbrdf family: {family!r} is not one of {', '.join(SVBRDF_FAMILIES)}")
     shape = _as_resolution(resolution)
     if min(shape) < MIN_RESOLUTION:
-        raise ShaderballError(f"svbrdf resolution: {resolution!r} is below the minimum {MIN_RESOLUTION}")
+        raise MaterialError(f"svbrdf resolution: {resolution!r} is below the minimum {MIN_RESOLUTION}")
     return _FAMILIES[family](rng, shape)
 
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from materials.colorspace import hsv_to_rgb, srgb_decode
+from materials.errors import MaterialError
 from materials.maps import UniformMaterial, tilt_normal
-from pipeline.errors import ShaderballError
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ class UniformRanges:
         self.check()
 
     def check(self) -> UniformRanges:
-        """Raise :class:`ShaderballError` naming the field, its value and what is allowed."""
+        """Raise :class:`MaterialError` naming the field, its value and what is allowed."""
         limits = {
             "roughness": (0.0, 1.0),
             "dielectric_specular": (0.0, 1.0),
@@ -85,7 +85,7 @@ class UniformRanges:
                 ok = isinstance(value, (int, float)) and np.isfinite(value) and low <= value <= high
                 allowed = f"a number in [{low}, {high}]"
             if not ok:
-                raise ShaderballError(f"UniformRanges.{f.name}: {value!r} is not {allowed}")
+                raise MaterialError(f"UniformRanges.{f.name}: {value!r} is not {allowed}")
         return self
 
 
@@ -101,7 +101,7 @@ def _colour(rng, value_srgb, saturation, hue=(0.0, 1.0)) -> np.ndarray:
 def sample_uniform(rng: np.random.Generator, ranges: UniformRanges = UniformRanges()) -> UniformMaterial:
     """Draw one uniform material; the same generator state gives the same material."""
     if not isinstance(rng, np.random.Generator):
-        raise ShaderballError(f"sample_uniform: rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        raise MaterialError(f"sample_uniform: rng must be a numpy.random.Generator, got {type(rng).__name__}")
     is_metal = bool(rng.uniform() < ranges.metal_probability)
     if is_metal:
         specular = _colour(rng, ranges.metal_value_srgb, ranges.metal_saturation, ranges.metal_hue)

@@ -1,4 +1,17 @@
-"""The project's own error type: the CLI maps it to a clean message and exit code 2."""
+"""The project's error types: the CLI maps every one of them to a clean message and exit code 2.
+
+The domain packages (``materials``, ``sky``, ``geometry``) import nothing of
+``pipeline``, so each raises its own ``ValueError`` subclass; :data:`USER_ERRORS` is
+the one list of every type that means "the user's input was refused". Code that
+reports a user error catches ``USER_ERRORS``, never ``ShaderballError`` alone, so a
+domain error reaches the user as the same clear message and exit code.
+"""
+
+import numbers
+
+from geometry.errors import GeometryError
+from materials.errors import MaterialError
+from sky.errors import SkyError
 
 
 class ShaderballError(Exception):
@@ -14,6 +27,25 @@ class SetupError(ShaderballError):
     """The environment cannot run Mitsuba (no usable libLLVM, unknown variant, ...)."""
 
 
+#: Every error type whose message is meant for the user (exit code 2 at the CLI).
+USER_ERRORS = (ShaderballError, MaterialError, SkyError, GeometryError)
+
+
 def bad_value(field: str, value, allowed: str) -> ShaderballError:
     """The project's one wording of a refused value: field, value, what is allowed."""
     return ShaderballError(f"{field}: {value!r} is not allowed; allowed: {allowed}")
+
+
+def check_int(field: str, value, low: int, high: int) -> int | None:
+    """``value`` as an int if it is an integer in [low, high]; None stays None; else refused."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
+        raise bad_value(field, value, f"an integer in [{low}, {high}]")
+    return int(value)
+
+
+def short_repr(value, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for messages that quote user data."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -12,7 +12,7 @@ and kills the group with SIGKILL in one of three ways:
 - ``write``: at an exact point inside the N-th atomic write of one kind of file (EXR, sample
   record, shard marker, manifest, description, spec snapshot): half the bytes written, before
   the fsync, before the rename, or after the rename but before the caller goes on. The child
-  patches :mod:`pipeline.atomic` (only in its own process) and kills its group itself;
+  patches :mod:`pipeline.store.atomic` (only in its own process) and kills its group itself;
 - ``dask``: a build on a local dask cluster of 2 worker processes, killed a random delay
   after its worker processes exist.
 
@@ -72,10 +72,10 @@ def file_kind(path: str) -> str:
 def install_write_hook(kind: str, nth: int, phase: str, note_path: str | None) -> None:
     """Kill this process group inside the ``nth`` atomic write of a ``kind`` file, at ``phase``.
 
-    Patches only :mod:`pipeline.atomic`'s view of ``os`` and its functions, before the rest
+    Patches only :mod:`pipeline.store.atomic`'s view of ``os`` and its functions, before the rest
     of the package imports them, so the real write code runs up to the kill point.
     """
-    import pipeline.atomic as atomic
+    import pipeline.store.atomic as atomic
 
     state = {"seen": 0, "armed": False, "path": None}
     real_write, real_fsync_dir = atomic.write_bytes_atomic, atomic.fsync_dir
@@ -265,7 +265,7 @@ def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float 
 
 def without_timings(obj):
     """A record, marker or manifest line minus run-dependent values (render time)."""
-    from pipeline.records import RUN_DEPENDENT_STATS
+    from pipeline.store.records import RUN_DEPENDENT_STATS
 
     if isinstance(obj, dict):
         out = {k: without_timings(v) for k, v in obj.items()}
@@ -379,15 +379,15 @@ def check_complete(out: Path, reference: Path, use_validate: bool = True) -> Non
     ids = [r["id"] for r in lines]
     if len(ids) != len(set(ids)):
         problems.append(f"manifest: duplicate ids {sorted(i for i, n in Counter(ids).items() if n > 1)}")
-    from pipeline.plan import iter_samples, plan_dataset
-    from pipeline.spec import parse_spec
+    from pipeline.dataset.plan import iter_samples, plan_dataset
+    from pipeline.dataset.spec import parse_spec
 
     planned = [s.sample_id for s in iter_samples(plan_dataset(parse_spec(out / "spec.toml")))]
     if ids != planned:
         problems.append("manifest: ids are not the plan's, in plan order")
     if use_validate:
         try:
-            from pipeline.validate import validate
+            from pipeline.check.validate import validate
         except ImportError:
             validate = None
         if validate is not None:

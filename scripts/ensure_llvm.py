@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from pipeline.mitsuba_env import INSTALL_HINT, find_libllvm  # noqa: E402
+from pipeline.render.mitsuba_env import INSTALL_HINT, find_libllvm  # noqa: E402
 
 
 def main() -> int:

@@ -1,19 +1,14 @@
 """Sun and sky: directions, the lighting vector, sampling, the hard-case policy, the emitter.
 
-Importing this package does not import Mitsuba; only the emitter functions
-(:func:`emitter_dicts`, :func:`update_emitter_params`) load it, through
-``pipeline.mitsuba_env``. See docs/sky.md.
+A domain package: it imports neither Mitsuba nor anything of ``pipeline``. The
+emitter's Mitsuba side (:func:`pipeline.render.emitter.emitter_dicts`,
+:func:`pipeline.render.emitter.update_emitter_params`) builds on :mod:`sky.emitter`.
+See docs/sky.md.
 """
 
 from sky.directions import normalize_azimuth, sun_angles, sun_direction
-from sky.emitter import (
-    DEFAULT_SUN,
-    SKY_KEY,
-    SUN_KEY,
-    SUN_MODES,
-    emitter_dicts,
-    update_emitter_params,
-)
+from sky.emitter import DEFAULT_SUN, SKY_KEY, SUN_KEY, SUN_MODES
+from sky.errors import SkyError
 from sky.lighting import ELEVATION_RANGE, SCHEMES, TURBIDITY_RANGE, Light, LightingRanges
 from sky.policy import (
     DEFAULT_POLICY,
@@ -33,6 +28,7 @@ __all__ = [
     "SKY_KEY",
     "SUN_KEY",
     "SUN_MODES",
+    "SkyError",
     "TURBIDITY_RANGE",
     "Light",
     "LightingPolicy",
@@ -40,10 +36,8 @@ __all__ = [
     "apply_policy",
     "direction_pdf",
     "elevation_floor_deg",
-    "emitter_dicts",
     "normalize_azimuth",
     "sample_lights",
     "sun_angles",
     "sun_direction",
-    "update_emitter_params",
 ]

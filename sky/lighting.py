@@ -1,7 +1,7 @@
 """The lighting of one sample (``Light``) and the ranges a spec samples from (``LightingRanges``).
 
 Both are frozen dataclasses that check their own values on construction and raise
-:class:`pipeline.errors.ShaderballError` naming the field, the value and what is
+:class:`sky.errors.SkyError` naming the field, the value and what is
 allowed. Accepted values may still be moved by the hard-case policy
 (:mod:`sky.policy`) before rendering; that is recorded, never silent.
 """
@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
 from sky.directions import sun_direction
+from sky.errors import SkyError
 
 #: Mitsuba's sunsky refuses turbidity outside this range when a scene loads.
 TURBIDITY_RANGE = (1.0, 10.0)
@@ -27,8 +27,8 @@ MAX_AZIMUTH_SPAN_DEG = 360.0
 SCHEMES = ("uniform_hemisphere", "uniform_angles", "stratified", "sobol")
 
 
-def _fail(field: str, value, allowed: str) -> ShaderballError:
-    return ShaderballError(f"{field} = {value!r} is not allowed: {allowed}")
+def _fail(field: str, value, allowed: str) -> SkyError:
+    return SkyError(f"{field} = {value!r} is not allowed: {allowed}")
 
 
 def _check_number(field: str, value) -> float:
@@ -91,7 +91,7 @@ class Light:
         return {k: float(v) for k, v in asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Light":
+    def from_dict(cls, data: dict) -> Light:
         return cls(**{k: data[k] for k in ("elevation_deg", "azimuth_deg", "turbidity")})
 
 

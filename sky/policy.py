@@ -3,7 +3,7 @@
 Two layers (docs/sky.md, "Hard cases"):
 
 1. **Domain limits** (``Light.check``): turbidity outside [1, 10] and elevation
-   outside [0, 90] degrees are refused with a ShaderballError naming the field.
+   outside [0, 90] degrees are refused with a SkyError naming the field.
 2. **Elevation floor** (here): Mitsuba 3.9's RGB ``sunsky`` has negative radiance
    for low suns (the sun's blue channel below ~2.4 degrees; the sky at the
    horizon up to ~6.9 degrees at turbidity 10) and is black at 0 degrees. An
@@ -23,12 +23,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from pipeline.errors import ShaderballError
-from sky.lighting import Light, TURBIDITY_RANGE
+from sky.errors import SkyError
+from sky.lighting import TURBIDITY_RANGE, Light
 
 POLICY_NAME = "elevation-floor"
 POLICY_VERSION = 1
-#: What FLOOR_TABLE was measured on; regenerate with `python -m sky.hard_cases --table`.
+#: What FLOOR_TABLE was measured on; regenerate with `python -m pipeline.bench.sky_floor --table`.
 FLOOR_MEASURED_ON = "mitsuba 3.9.1, llvm_ad_rgb, sunsky albedo 0.3, sun_aperture 0.5358, complex_sun false"
 
 # fmt: off
@@ -95,9 +95,9 @@ class LightingPolicy:
 
     def check(self, prefix: str = "sky.policy") -> None:
         if self.floor not in FLOOR_MODES:
-            raise ShaderballError(f"{prefix}.floor = {self.floor!r} is not allowed: one of {', '.join(FLOOR_MODES)}")
+            raise SkyError(f"{prefix}.floor = {self.floor!r} is not allowed: one of {', '.join(FLOOR_MODES)}")
         if not (isinstance(self.margin_deg, (int, float)) and 0.0 <= self.margin_deg <= 5.0):
-            raise ShaderballError(f"{prefix}.margin_deg = {self.margin_deg!r} is not allowed: allowed range is [0, 5] degrees")
+            raise SkyError(f"{prefix}.margin_deg = {self.margin_deg!r} is not allowed: allowed range is [0, 5] degrees")
 
     def to_dict(self) -> dict:
         return {"floor": self.floor, "margin_deg": float(self.margin_deg)}
@@ -111,7 +111,7 @@ def measured_floor_deg(turbidity: float) -> float:
     t = float(turbidity)
     lo, hi = TURBIDITY_RANGE
     if not lo <= t <= hi:
-        raise ShaderballError(f"turbidity = {turbidity!r} is not allowed: allowed range is [{lo:g}, {hi:g}]")
+        raise SkyError(f"turbidity = {turbidity!r} is not allowed: allowed range is [{lo:g}, {hi:g}]")
     return max(floor for a, b, floor in FLOOR_TABLE if a <= t <= b)
 
 

@@ -1,10 +1,13 @@
-"""Shared fixtures. Mitsuba is loaded through pipeline.mitsuba_env so libLLVM is selected first."""
+"""Shared fixtures. Mitsuba is loaded through pipeline.render.mitsuba_env so libLLVM is selected first."""
 
 import importlib.util
 import sys
 from pathlib import Path
 
 import pytest
+
+from pipeline.render.mitsuba_env import load_mitsuba
+from support import VARIANT
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -22,9 +25,7 @@ def crash_module():
 
 @pytest.fixture(scope="session")
 def mi():
-    from pipeline.mitsuba_env import load_mitsuba
-
-    return load_mitsuba("llvm_ad_rgb")
+    return load_mitsuba(VARIANT)
 
 
 @pytest.fixture(scope="session")

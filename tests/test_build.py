@@ -3,7 +3,7 @@
 The smoke spec is built three times: twice in this process (workers=0, into two folders)
 and once on a 2-worker dask LocalCluster (spawned processes, one render thread each).
 Every EXR file of the three is byte-identical; records, markers and manifests are equal
-but for the run-dependent values of pipeline.records.RUN_DEPENDENT_STATS (timings).
+but for the run-dependent values of pipeline.store.records.RUN_DEPENDENT_STATS (timings).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.records import RUN_DEPENDENT_STATS, without_timings
+from pipeline.store.records import RUN_DEPENDENT_STATS, without_timings
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -57,7 +57,7 @@ def _diff_paths(a, b, prefix="") -> set[str]:
 @pytest.fixture(scope="module")
 def builds(tmp_path_factory):
     """{'a': in-process, 'b': in-process again, 'dask': 2-worker LocalCluster} smoke builds."""
-    from pipeline.build import build
+    from pipeline.run.build import build
 
     base = tmp_path_factory.mktemp("builds")
     out = {}
@@ -107,10 +107,10 @@ def test_in_process_and_two_dask_workers_give_byte_identical_files(builds):
 
 @pytest.mark.slow
 def test_every_record_carries_the_effect_plan_of_its_material(builds):
-    from pipeline.materialize import make_material
-    from pipeline.plan import plan_dataset
-    from pipeline.render import plan_effects
-    from pipeline.spec import parse_spec
+    from pipeline.dataset.materialize import make_material
+    from pipeline.dataset.plan import plan_dataset
+    from pipeline.dataset.spec import parse_spec
+    from pipeline.render.renderer import plan_effects
 
     spec = parse_spec(SMOKE)
     materials = {m.material_id: m for shard in plan_dataset(spec) for m in shard.materials}
@@ -183,8 +183,8 @@ def test_another_spec_on_a_built_dataset_exits_2_and_changes_nothing(tmp_path, b
 def test_build_is_byte_identical_at_the_papers_150_spp(tmp_path):
     """The determinism contract at the paper's spp. The smoke spec's 16 spp would hide a failure:
     a pixel's samples straddle drjit's work blocks only when spp does not divide the block
-    (pipeline.render.render_in_passes renders power-of-two passes for that reason)."""
-    from pipeline.build import build
+    (pipeline.render.renderer.render_in_passes renders power-of-two passes for that reason)."""
+    from pipeline.run.build import build
 
     spec = _write(tmp_path / "s150.toml", _smoke_with(materials=2, spp=150))
     for name in ("a", "b"):

@@ -7,6 +7,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from support import VARIANT
+
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
 PAPER = REPO / "manifests" / "paper.toml"
@@ -19,8 +21,8 @@ def _cli(*args):
 
 
 def test_derive_spec_cuts_whole_materials_and_resizes():
-    from pipeline.bench import derive_spec
-    from pipeline.spec import parse_spec
+    from pipeline.bench.build_bench import derive_spec
+    from pipeline.dataset.spec import parse_spec
 
     paper = parse_spec(PAPER)
     cut = derive_spec(paper, samples=12, resolution=200, spp=32)
@@ -59,7 +61,7 @@ def test_bench_refuses_a_non_empty_out(tmp_path):
 
 @pytest.mark.slow
 def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
-    from pipeline.bench import run_build_bench
+    from pipeline.bench.build_bench import run_build_bench
 
     bench = run_build_bench(str(SMOKE), out=str(tmp_path / "ds"), samples=4, workers=0)
     assert bench.samples == 4 and len(bench.timings) == 4
@@ -74,7 +76,7 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
 def test_effects_bench_reports_every_omission(tmp_path):
     import json
 
-    from pipeline.bench import run_from_args
+    from pipeline.bench.build_bench import run_from_args
 
     bench = run_from_args(effects=True, resolution=64, spp=4, repeats=1, json_path=str(tmp_path / "e.json"))
     cases = {c.omission: c for c in bench.cases}
@@ -104,24 +106,25 @@ def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_
 
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
-    from pipeline.render import RenderSettings, scene_dict
-    from pipeline.spec import parse_spec
-    from pipeline.plan import plan_dataset
-    from sky import Light, emitter_dicts, update_emitter_params
+    from pipeline.dataset.plan import plan_dataset
+    from pipeline.dataset.spec import parse_spec
+    from pipeline.render.emitter import emitter_dicts, update_emitter_params
+    from pipeline.render.renderer import RenderSettings, scene_dict
+    from sky import Light
 
     lights = [Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
               for shard in plan_dataset(parse_spec(SMOKE)) for m in shard.materials for s in m.samples]
     # Some of the smoke spec's lights load as a different float32 direction than the update writes.
     off_by_rounding = 0
     for light in lights:
-        entries, _ = emitter_dicts(light)
+        entries, _ = emitter_dicts(light, variant=VARIANT)
         loaded = np.asarray(mi.traverse(mi.load_dict({"type": "scene", **entries}))["sky.sun_direction"])
         written = np.asarray(mi.Vector3f(*entries["sky"]["sun_direction"]))
         off_by_rounding += not np.array_equal(loaded, written)
     assert off_by_rounding > 0
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=64, spp=4, variant="llvm_ad_rgb").check()
+    settings = RenderSettings(resolution=64, spp=4, variant=VARIANT).check()
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.3).to_maps(1)
 
     def render(scene, seed):
@@ -129,7 +132,7 @@ def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_
 
     def fresh_then_applied(light, seed):
         scene = mi.load_dict(scene_dict(ball, camera, maps, light, settings)[0])
-        update_emitter_params(mi.traverse(scene), light)
+        update_emitter_params(mi.traverse(scene), light, variant=VARIANT)
         return render(scene, seed)
 
     chosen = lights[:6]
@@ -137,7 +140,7 @@ def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_
     params = mi.traverse(scene)
     reused = []
     for i, light in enumerate(chosen):
-        update_emitter_params(params, light)
+        update_emitter_params(params, light, variant=VARIANT)
         reused.append(render(scene, 100 + i))
     del scene, params
     for i, light in enumerate(chosen):
@@ -145,7 +148,7 @@ def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_
 
 
 def test_power_of_two_passes():
-    from pipeline.render import power_of_two_passes
+    from pipeline.render.renderer import power_of_two_passes
 
     assert power_of_two_passes(150) == [128, 16, 4, 2]
     assert power_of_two_passes(16) == [16] and power_of_two_passes(1) == [1]
@@ -161,11 +164,10 @@ def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts
 
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
-    from pipeline.render import render_in_passes
-    from pipeline.render import RenderSettings, scene_dict
+    from pipeline.render.renderer import RenderSettings, render_in_passes, scene_dict
     from sky import Light
 
-    settings = RenderSettings(resolution=64, spp=150, variant="llvm_ad_rgb").check()
+    settings = RenderSettings(resolution=64, spp=150, variant=VARIANT).check()
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
     scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0),
                                      settings)[0])

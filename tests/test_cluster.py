@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cluster import ClusterOptions
 from pipeline.errors import ShaderballError
+from pipeline.run.cluster import ClusterOptions
+from support import VARIANT
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -119,7 +120,7 @@ def _free_port() -> int:
 
 
 def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
-    from pipeline.build import build
+    from pipeline.run.build import build
 
     out = tmp_path / "ds"
     start = time.monotonic()
@@ -135,19 +136,19 @@ def test_bad_scheduler_address_is_refused(address):
 
 
 def test_a_worker_that_cannot_see_the_dataset_refuses_the_shard(tmp_path):
-    from pipeline.build import _run_shard_task
-    from pipeline.plan import plan_dataset
-    from pipeline.spec import parse_spec
+    from pipeline.dataset.plan import plan_dataset
+    from pipeline.dataset.spec import parse_spec
+    from pipeline.run.shard import run_shard_in_process
 
     spec = parse_spec(SMOKE)
     with pytest.raises(ShaderballError, match="same path on a shared filesystem"):
-        _run_shard_task(str(tmp_path / "elsewhere"), spec, plan_dataset(spec)[0], 1)
+        run_shard_in_process(str(tmp_path / "elsewhere"), spec, plan_dataset(spec)[0], VARIANT, 1)
 
 
 @pytest.mark.slow
 def test_recycled_workers_build_the_same_dataset(tmp_path, reference):
     """--recycle-after 4: a fresh worker process after every shard (4 renders); nothing lost."""
-    from pipeline.build import build
+    from pipeline.run.build import build
 
     out = tmp_path / "ds"
     summary = build(str(SMOKE), str(out), cluster=ClusterOptions(workers=1, recycle_after=4))
@@ -157,7 +158,7 @@ def test_recycled_workers_build_the_same_dataset(tmp_path, reference):
 
 
 def test_memory_probe_reports_growth(capsys):
-    from pipeline.cluster import main
+    from pipeline.bench.memory_probe import main
 
     assert main(["--memory-probe", "4", "--resolution", "16", "--spp", "1", "--every", "2"]) == 0
     out = capsys.readouterr().out

@@ -10,9 +10,8 @@ import sys
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cluster import (ClusterOptions, job_script, jobqueue_cluster, worker_lifetime,
-                              WORKER_MEMORY_SHARE)
 from pipeline.errors import ShaderballError
+from pipeline.run.cluster import WORKER_MEMORY_SHARE, ClusterOptions, job_script, jobqueue_cluster, worker_lifetime
 
 pytest.importorskip("dask_jobqueue")
 
@@ -118,7 +117,7 @@ def test_bad_options_name_option_value_and_range(changes, message):
 @pytest.mark.parametrize("option", [["--jobs", "2"], ["--cores", "8"], ["--walltime", "01:00:00"],
                                     ["--queue", "q"], ["--account", "a"], ["--scratch", "/s"]])
 def test_jobqueue_options_are_refused_on_a_local_cluster(option):
-    from pipeline.cluster import ClusterOptions
+    from pipeline.run.cluster import ClusterOptions
 
     name = option[0].lstrip("-").replace("-", "_")
     value = int(option[1]) if option[1].isdigit() else option[1]
@@ -207,6 +206,6 @@ def test_slurm_build_runs_its_job_scripts_end_to_end(tmp_path):
     assert 1 <= len(jobs) and all(j.isdigit() for j in jobs)
     caches = [p for p in scratch.glob("shaderball-drjit-*") if any(p.iterdir())]
     assert caches, "no job wrote kernels to its own cache under --scratch"
-    from pipeline.validate import validate
+    from pipeline.check.validate import validate
 
     assert validate(str(out)).ok

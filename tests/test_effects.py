@@ -1,11 +1,11 @@
-"""Each effect the build leaves out of a scene leaves the image unchanged (pipeline.render's EffectPlan).
+"""Each effect the build leaves out of a scene leaves the image unchanged (pipeline.render.renderer's EffectPlan).
 
 Small renders (64x64, 32 spp, fixed seeds) of one material with and without the effect:
 bit-identical where the arithmetic is the same, equal to float32 rounding where it differs
 only in rounding, and within noise (a Z-test on the moment integrator's luminance
-variance, pipeline.bench.compare_renders) otherwise. The specular lobe of a zero specular
+variance, pipeline.bench.build_bench.compare_renders) otherwise. The specular lobe of a zero specular
 albedo is the exception the build keeps on purpose: its test shows the image changes.
-Render-time savings are measured by `python -m pipeline.bench --effects` (docs/build.md).
+Render-time savings are measured by `python -m pipeline.bench.build_bench --effects` (docs/build.md).
 """
 
 from __future__ import annotations
@@ -16,13 +16,9 @@ import numpy as np
 import pytest
 
 from materials.maps import MaterialMaps, UniformMaterial, tilt_normal
-from pipeline.bench import (
-    bitmap_bsdf,
-    compare_renders,
-    flat_normal_map_bsdf,
-    render_moments,
-    with_material_bsdf,
-)
+from pipeline.bench.compare import compare_renders, render_moments
+from pipeline.bench.effects import bitmap_bsdf, flat_normal_map_bsdf, with_material_bsdf
+from support import VARIANT
 
 RESOLUTION, SPP, SEED = 64, 32, 11
 
@@ -35,11 +31,11 @@ NO_SPECULAR = UniformMaterial((0.5, 0.5, 0.5), (0.0, 0.0, 0.0), 0.15)
 def scene_of(mi):
     """scene_of(maps, effects=None, bsdf=None) -> a loaded Mitsuba scene of the build's kind."""
     from geometry import build_shaderball, default_camera
-    from pipeline.render import RenderSettings, scene_dict
+    from pipeline.render.renderer import RenderSettings, scene_dict
     from sky import Light
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant="llvm_ad_rgb").check()
+    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant=VARIANT).check()
     light = Light(35.0, 300.0, 3.0)
 
     def make(maps, effects=None, bsdf=None):
@@ -79,7 +75,7 @@ def test_constant_parameters_render_as_replicated_bitmap_textures(mi, scene_of):
     |diff| ~1e-7 of the image's maximum); the path samples are the same."""
     maps = DIELECTRIC.to_maps(1)
     constant = _render(mi, scene_of(maps))
-    textured = _render(mi, scene_of(maps, bsdf=bitmap_bsdf(maps, 4)))
+    textured = _render(mi, scene_of(maps, bsdf=bitmap_bsdf(maps, 4, variant=VARIANT)))
     c = compare_renders(textured, constant)
     assert c["identical"] or c["rounding"], c
     assert c["within_noise"], c
@@ -90,9 +86,9 @@ def test_no_normal_map_renders_as_a_flat_normal_map(mi, scene_of):
     instead of the mesh's shading frame: the same frame to rounding, so equal to rounding."""
     maps = DIELECTRIC.to_maps(1)
     plain = _render(mi, scene_of(maps))
-    from materials.mitsuba_bsdf import bsdf_dict
+    from pipeline.render.bsdf import bsdf_dict
 
-    wrapped = _render(mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps), 4)))
+    wrapped = _render(mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps), 4, variant=VARIANT)))
     c = compare_renders(wrapped, plain)
     assert c["identical"] or c["rounding"], c
     assert c["within_noise"], c
@@ -101,7 +97,7 @@ def test_no_normal_map_renders_as_a_flat_normal_map(mi, scene_of):
 def test_zero_diffuse_albedo_without_the_diffuse_lobe_is_bit_identical(mi, scene_of):
     """diffuse lobe -> none. With d = 0 the lobe adds exact zeros to value and pdf, and the
     lobe-selection probability is f / (f + 0) = 1 exactly: the same arithmetic."""
-    from pipeline.render import plan_effects
+    from pipeline.render.renderer import plan_effects
 
     maps = METAL.to_maps(1)
     plan = plan_effects(maps)
@@ -113,7 +109,7 @@ def test_zero_diffuse_albedo_without_the_diffuse_lobe_is_bit_identical(mi, scene
 
 def test_a_white_specular_also_drops_the_diffuse_lobe_bit_identically(mi, scene_of):
     """d (1 - s) = 0 for s = 1 even with d > 0: the lobe is zero there too."""
-    from pipeline.render import plan_effects
+    from pipeline.render.renderer import plan_effects
 
     maps = UniformMaterial((0.6, 0.6, 0.6), (1.0, 1.0, 1.0), 0.3).to_maps(1)
     plan = plan_effects(maps)
@@ -129,7 +125,7 @@ def test_zero_specular_albedo_still_needs_the_specular_lobe(mi, scene_of):
     """Why the specular lobe is never dropped: Schlick's F = s + (1 - s) 2^(...) goes to 1 at
     grazing angles even for s = 0, so leaving the lobe out darkens the ball's rim far beyond
     noise."""
-    from pipeline.render import plan_effects
+    from pipeline.render.renderer import plan_effects
 
     maps = NO_SPECULAR.to_maps(1)
     plan = plan_effects(maps)
@@ -147,7 +143,7 @@ def test_zero_specular_albedo_still_needs_the_specular_lobe(mi, scene_of):
 
 def _svbrdf_maps() -> MaterialMaps:
     from materials import sample_svbrdf
-    from pipeline.plan import seeded_rng
+    from pipeline.dataset.plan import seeded_rng
 
     return sample_svbrdf(seeded_rng(5), "tiles", 16)
 
@@ -164,9 +160,9 @@ CASES = {
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_plan_effects_and_the_scene_dict_agree(name):
-    from pipeline.mitsuba_scene import BALL_SHAPE_ID
-    from pipeline.render import RenderSettings, plan_effects, scene_dict
     from geometry import build_shaderball, default_camera
+    from pipeline.render.renderer import RenderSettings, plan_effects, scene_dict
+    from pipeline.render.scene import BALL_SHAPE_ID
     from sky import Light
 
     maps, expected = CASES[name]
@@ -174,7 +170,7 @@ def test_plan_effects_and_the_scene_dict_agree(name):
     plan = plan_effects(maps)
     assert {k: getattr(plan, k) for k in expected} == expected
     assert plan.specular_lobe
-    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant="llvm_ad_rgb")
+    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant=VARIANT)
     desc, _, effects = scene_dict(build_shaderball(), default_camera(), maps, Light(40.0, 10.0, 3.0), settings)
     assert effects == plan
     bsdf = desc[BALL_SHAPE_ID]["bsdf"]

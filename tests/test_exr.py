@@ -5,9 +5,9 @@ import os
 import numpy as np
 import pytest
 
-from pipeline.atomic import sha256_file, write_bytes_atomic
 from pipeline.errors import ShaderballError
-from pipeline.exr import REC709_CHROMATICITIES, encode_exr, read_exr, write_exr
+from pipeline.store.atomic import sha256_file, write_bytes_atomic
+from pipeline.store.exr import REC709_CHROMATICITIES, encode_exr, read_exr, write_exr
 
 
 def _layers(rng):

@@ -8,8 +8,7 @@ import pytest
 
 from geometry import ShaderballParams, build_shaderball, default_camera
 from pipeline.errors import ShaderballError
-from pipeline.exr import read_exr
-from pipeline.gbuffer import (
+from pipeline.render.gbuffer import (
     compute_gbuffer,
     facing_mask,
     gbuffer_path,
@@ -20,8 +19,10 @@ from pipeline.gbuffer import (
     seam_share,
     view_directions,
 )
-from pipeline.mitsuba_scene import BALL_SHAPE_ID
-from pipeline.raster import bilinear_lookup, decode_normal, encode_normal_texture, project, project_material
+from pipeline.render.raster import bilinear_lookup, decode_normal, encode_normal_texture, project, project_material
+from pipeline.render.scene import BALL_SHAPE_ID
+from pipeline.store.exr import read_exr
+from support import VARIANT
 
 
 @pytest.fixture(scope="session")
@@ -41,7 +42,7 @@ def camera():
 
 @pytest.fixture(scope="session")
 def gbuffer96(ball, camera, cache_dir, mi):
-    return load_gbuffer(ball, camera, 96, cache_dir=cache_dir)
+    return load_gbuffer(ball, camera, 96, cache_dir=cache_dir, variant=VARIANT)
 
 
 def test_gbuffer_holds_the_ball_at_pixel_centres(gbuffer96, ball):
@@ -60,20 +61,20 @@ def test_gbuffer_holds_the_ball_at_pixel_centres(gbuffer96, ball):
 
 
 def test_gbuffer_cache_round_trip_and_key(gbuffer96, ball, camera, cache_dir):
-    path = gbuffer_path(ball, camera, 96, cache_dir)
+    path = gbuffer_path(ball, camera, 96, VARIANT, cache_dir)
     image = read_exr(path)
     assert set(image.layers) == {"uv", "normal", "mask"}
     assert image.meta["geometry"] == ball.digest and image.meta["resolution"] == 96
-    again = load_gbuffer(ball, camera, 96, cache_dir=cache_dir)
+    again = load_gbuffer(ball, camera, 96, cache_dir=cache_dir, variant=VARIANT)
     np.testing.assert_array_equal(again.uv, gbuffer96.uv)
     np.testing.assert_array_equal(again.mask, gbuffer96.mask)
-    assert gbuffer_path(ball, camera, 97, cache_dir) != path
+    assert gbuffer_path(ball, camera, 97, VARIANT, cache_dir) != path
     moved = dataclasses.replace(camera, fov_deg=camera.fov_deg + 1)
-    assert gbuffer_path(ball, moved, 96, cache_dir) != path
+    assert gbuffer_path(ball, moved, 96, VARIANT, cache_dir) != path
 
 
 def test_cached_gbuffer_equals_a_fresh_one(gbuffer96, ball, camera):
-    fresh = compute_gbuffer(ball, camera, 96)
+    fresh = compute_gbuffer(ball, camera, 96, variant=VARIANT)
     np.testing.assert_array_equal(fresh.uv, gbuffer96.uv)
     np.testing.assert_array_equal(fresh.normal, gbuffer96.normal)
     np.testing.assert_array_equal(fresh.mask, gbuffer96.mask)
@@ -82,13 +83,13 @@ def test_cached_gbuffer_equals_a_fresh_one(gbuffer96, ball, camera):
 @pytest.mark.parametrize("resolution", [15, 4097, 64.0, True])
 def test_resolution_is_checked(ball, camera, resolution):
     with pytest.raises(ShaderballError, match="resolution"):
-        compute_gbuffer(ball, camera, resolution)
+        compute_gbuffer(ball, camera, resolution, variant=VARIANT)
 
 
 def test_camera_model_matches_mitsuba_rays(ball, camera, mi):
     resolution = 40
-    scene = intersection_scene(ball, camera, resolution)
-    ray = pixel_centre_rays(scene, resolution)
+    scene = intersection_scene(ball, camera, resolution, variant=VARIANT)
+    ray = pixel_centre_rays(scene, resolution, variant=VARIANT)
     origin = np.array(ray.o, dtype=np.float64).T
     direction = np.array(ray.d, dtype=np.float64).T
     np.testing.assert_allclose(direction, view_directions(camera, resolution).reshape(-1, 3), atol=2e-6)
@@ -108,8 +109,8 @@ def test_mitsuba_tangent_frame_follows_v(ball, camera, mi):
     # along +v, so a tangent-space normal map's +y means +v (down the texture image).
     import drjit as dr
 
-    scene = intersection_scene(ball, camera, 48)
-    si = scene.ray_intersect(pixel_centre_rays(scene, 48))
+    scene = intersection_scene(ball, camera, 48, variant=VARIANT)
+    si = scene.ray_intersect(pixel_centre_rays(scene, 48, variant=VARIANT))
     ball_shape = next(s for s in scene.shapes() if s.id() == BALL_SHAPE_ID)
     on_ball = np.array(si.is_valid() & (si.shape == mi.ShapePtr(ball_shape)), bool)
     t_dot_dpdv = np.array(dr.dot(si.sh_frame.t, si.dp_dv))

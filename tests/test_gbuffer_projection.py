@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from geometry import ShaderballParams, build_shaderball, default_camera
-from pipeline.gbuffer import facing_mask, load_gbuffer
-from pipeline.mitsuba_scene import BALL_SHAPE_ID, bitmap_texture, sensor_dict, shape_dicts
-from pipeline.raster import project
+from pipeline.render.gbuffer import facing_mask, load_gbuffer
+from pipeline.render.raster import project
+from pipeline.render.scene import BALL_SHAPE_ID, bitmap_texture, sensor_dict, shape_dicts
+from support import VARIANT
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +28,9 @@ def _mitsuba_lookup(mi, ball, camera, resolution, texture):
         "type": "scene",
         "integrator": {"type": "path", "max_depth": 1},
         **shape_dicts(ball, {"type": "diffuse"}),
-        "sensor": sensor_dict(camera, resolution, 1, sampler="stratified-centres"),
+        "sensor": sensor_dict(camera, resolution, 1, sampler="stratified-centres", variant=VARIANT),
     }
-    scene[BALL_SHAPE_ID]["emitter"] = {"type": "area", "radiance": bitmap_texture(texture)}
+    scene[BALL_SHAPE_ID]["emitter"] = {"type": "area", "radiance": bitmap_texture(texture, variant=VARIANT)}
     return np.array(mi.render(mi.load_dict(scene), seed=0), dtype=np.float32)
 
 
@@ -41,7 +42,7 @@ def test_projection_equals_mitsuba_lookup(mi, ball, tmp_path, resolution, textur
     camera = default_camera()
     rng = np.random.default_rng(resolution + len(texture_shape))
     texture = rng.random(texture_shape).astype(np.float32)
-    gbuffer = load_gbuffer(ball, camera, resolution, cache_dir=str(tmp_path))
+    gbuffer = load_gbuffer(ball, camera, resolution, cache_dir=str(tmp_path), variant=VARIANT)
 
     rendered = _mitsuba_lookup(mi, ball, camera, resolution, texture)
     projected = project(texture, gbuffer)

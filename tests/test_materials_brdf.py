@@ -8,7 +8,7 @@ from scipy import integrate
 
 from materials import brdf_ref
 from materials.brdf_ref import eval_brdf, ggx_d, spec_albedo_quadrature
-from materials.testing import HARD_NORMALS, HARD_ROUGHNESS, hard_directions
+from support.material_cases import HARD_NORMALS, HARD_ROUGHNESS, hard_directions
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -10,16 +10,17 @@ import itertools
 import numpy as np
 import pytest
 
-from materials import UniformMaterial, sample_svbrdf
-from materials import brdf_ref, mitsuba_bsdf
-from materials.testing import HARD_NORMALS, HARD_ROUGHNESS, hard_directions
+from materials import UniformMaterial, brdf_ref, sample_svbrdf
+from pipeline.render import bsdf as mitsuba_bsdf
+from support import VARIANT
+from support.material_cases import HARD_NORMALS, HARD_ROUGHNESS, hard_directions
 
 Z = np.array([0.0, 0.0, 1.0])
 
 
 @pytest.fixture(scope="module")
 def mi(mi):
-    mitsuba_bsdf.register()
+    mitsuba_bsdf.register(variant=VARIANT)
     return mi
 
 
@@ -91,8 +92,8 @@ def _sample(mi, bsdf, si, rng, count, ctx=None):
 
 
 def test_register_is_idempotent_and_defaults_load(mi):
-    mitsuba_bsdf.register()
-    mitsuba_bsdf.register()
+    mitsuba_bsdf.register(variant=VARIANT)
+    mitsuba_bsdf.register(variant=VARIANT)
     bsdf = mi.load_dict({"type": "shaderball_ct"})
     assert "diffuse_lobe=True" in str(bsdf)
     assert bsdf.component_count() == 2
@@ -437,11 +438,11 @@ def test_needed_lobes_keeps_specular_always():
 
 def test_bsdf_dict_uniform_and_spatially_varying(mi, dr):
     flat = UniformMaterial(diffuse=(0.2, 0.3, 0.4), specular=(0.04,) * 3, roughness=0.5).to_maps(4)
-    desc = mitsuba_bsdf.bsdf_dict(flat)
+    desc = mitsuba_bsdf.bsdf_dict(flat, variant=VARIANT)
     assert desc["type"] == "shaderball_ct" and desc["roughness"] == 0.5
     mi.load_dict(desc)
     maps = sample_svbrdf(np.random.default_rng(0), "tiles", 32)
-    desc = mitsuba_bsdf.bsdf_dict(maps, filter_type="nearest")
+    desc = mitsuba_bsdf.bsdf_dict(maps, filter_type="nearest", variant=VARIANT)
     assert desc["type"] == "normalmap" and desc["bsdf"]["diffuse"]["type"] == "bitmap"
     bsdf = mi.load_dict(desc)
     # Evaluate at every texel centre and compare with the reference with that texel's maps.

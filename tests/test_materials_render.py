@@ -10,15 +10,16 @@ from the numpy reference by quadrature, supersampled over each pixel.
 import numpy as np
 import pytest
 
-from materials import mitsuba_bsdf
 from materials.brdf_ref import spec_albedo_quadrature
+from pipeline.render import bsdf as mitsuba_bsdf
+from support import VARIANT
 
 RES, RADIUS = 48, 0.95
 
 
 @pytest.fixture(scope="module")
 def mi(mi):
-    mitsuba_bsdf.register()
+    mitsuba_bsdf.register(variant=VARIANT)
     return mi
 
 

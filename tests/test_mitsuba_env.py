@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from pipeline import mitsuba_env
 from pipeline.errors import SetupError
+from pipeline.render import mitsuba_env
 
 
 def _touch(folder, name):
@@ -49,7 +49,7 @@ def test_fresh_process_renders_with_selected_llvm():
     """A new interpreter without DRJIT_LIBLLVM_PATH gets a working LLVM backend."""
     env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
     code = (
-        "from pipeline.mitsuba_env import load_mitsuba; import os;"
+        "from pipeline.render.mitsuba_env import load_mitsuba; import os;"
         "mi = load_mitsuba('llvm');"
         "img = mi.render(mi.load_dict(mi.cornell_box()), spp=1);"
         "print(mi.variant(), img.shape, os.environ['DRJIT_LIBLLVM_PATH'])"
@@ -64,5 +64,5 @@ def test_fresh_process_renders_with_selected_llvm():
 
 def test_unknown_variant_is_named(mi):
     with pytest.raises(SetupError, match="render.variant: 'vulkan'"):
-        mitsuba_env.resolve_variant("vulkan", mi)
-    assert mitsuba_env.resolve_variant("scalar", mi) == "scalar_rgb"
+        mitsuba_env.resolve_variant("vulkan")
+    assert mitsuba_env.resolve_variant("scalar") == "scalar_rgb"

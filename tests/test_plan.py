@@ -13,8 +13,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from pipeline.errors import ShaderballError
-from pipeline.plan import (
+from pipeline.dataset.plan import (
     KIND_SVBRDF,
     KIND_UNIFORM,
     MaterialPlan,
@@ -27,7 +26,8 @@ from pipeline.plan import (
     render_seeds,
     seeded_rng,
 )
-from pipeline.spec import parse_spec, parse_spec_text
+from pipeline.dataset.spec import parse_spec, parse_spec_text
+from pipeline.errors import ShaderballError
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
@@ -106,8 +106,8 @@ def test_same_spec_same_plan():
 
 def test_plan_is_the_same_in_a_fresh_interpreter():
     """No dependence on hash seeds, import order or process state."""
-    code = ("import json, sys; from pipeline.spec import parse_spec; "
-            "from pipeline.plan import plan_dataset, iter_samples; "
+    code = ("import json, sys; from pipeline.dataset.spec import parse_spec; "
+            "from pipeline.dataset.plan import plan_dataset, iter_samples; "
             "p = plan_dataset(parse_spec(sys.argv[1])); "
             "print(json.dumps([s.to_dict() for s in iter_samples(p)]))")
     out = subprocess.run([sys.executable, "-c", code, SMOKE], check=True, cwd=REPO,
@@ -334,8 +334,8 @@ def test_planning_touches_no_files_without_folders(monkeypatch):
 
 
 def test_plan_module_is_pure():
-    code = ("import sys; from pipeline.spec import parse_spec; "
-            "from pipeline.plan import plan_dataset; plan_dataset(parse_spec(%r)); "
+    code = ("import sys; from pipeline.dataset.spec import parse_spec; "
+            "from pipeline.dataset.plan import plan_dataset; plan_dataset(parse_spec(%r)); "
             "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
             "assert not bad, bad" % SMOKE)
     subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)

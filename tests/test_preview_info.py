@@ -23,7 +23,7 @@ def _cli(*args):
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     """A two-render dataset (one uniform, one SVBRDF material; two shards), built in-process."""
-    from pipeline.build import build
+    from pipeline.run.build import build
 
     text = SMOKE.read_text()
     for key, value in (("materials", 2), ("lights_per_material", 1), ("shard_size", 1)):
@@ -99,7 +99,7 @@ def _png(path: Path) -> np.ndarray:
 
 
 def test_preview_shows_each_render_beside_its_four_maps(dataset, tmp_path):
-    from pipeline.preview import COLUMNS, GAP, HEADER_HEIGHT, LABEL_WIDTH
+    from pipeline.check.preview import COLUMNS, GAP, HEADER_HEIGHT, LABEL_WIDTH
 
     out = tmp_path / "sheet.png"
     result = _cli("preview", dataset, "--out", out, "--tile", 64)
@@ -143,7 +143,7 @@ def test_preview_refuses_a_folder_that_is_not_a_dataset(tmp_path):
 
 
 def test_choose_samples_spreads_evenly_and_keeps_the_ends():
-    from pipeline.preview import choose_samples
+    from pipeline.check.preview import choose_samples
 
     records = [{"id": f"m{i:06d}_l0"} for i in range(16)]
     chosen = [r["id"] for r in choose_samples(list(reversed(records)), 8)]
@@ -153,7 +153,7 @@ def test_choose_samples_spreads_evenly_and_keeps_the_ends():
 
 
 def test_map_tiles_encode_maps_for_display():
-    from pipeline.preview import map_tiles
+    from pipeline.check.preview import map_tiles
 
     mask = np.ones((2, 2, 1), np.float32)
     mask[0, 0] = 0.0

@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
-from pipeline.exr import read_exr
+from pipeline.store.exr import read_exr
 
 SMALL = ["--resolution", "48", "--spp", "4"]
 

@@ -11,8 +11,9 @@ import pytest
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial
 from pipeline.errors import ShaderballError
-from pipeline.render import RenderSettings, render_sample
+from pipeline.render.renderer import RenderSettings, render_sample
 from sky import Light
+from support import VARIANT
 
 ELEVATIONS = (-5, -1e-4, 0, 0.5, 1.9, 2, 3, 10, 45, 89.999, 90)
 TURBIDITIES = (0.99, 1, 3, 10, 10.01)
@@ -21,7 +22,7 @@ MATERIALS = {
     "glossy": UniformMaterial((0.3, 0.1, 0.05), (0.04, 0.04, 0.04), 0.3),
     "near_mirror": UniformMaterial((0.0, 0.0, 0.0), (0.95, 0.95, 0.95), 0.02),
 }
-SETTINGS = RenderSettings(resolution=24, spp=4, max_depth=6)
+SETTINGS = RenderSettings(resolution=24, spp=4, max_depth=6, variant=VARIANT)
 
 
 @pytest.fixture(scope="module")

@@ -15,16 +15,18 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.build import build, check_output_dir, sweep_temp_files
+from pipeline.dataset.spec import parse_spec, spec_to_toml
 from pipeline.errors import ShaderballError
-from pipeline.layout import Layout
-from pipeline.spec import parse_spec, spec_to_toml
+from pipeline.run.build import build, check_output_dir, sweep_temp_files
+from pipeline.store.layout import Layout
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
 
 
 from conftest import crash_module  # noqa: E402
+
+from support import VARIANT  # noqa: E402
 
 crash = crash_module()
 
@@ -104,7 +106,7 @@ def test_directory_with_only_temp_files_is_new(tmp_path):
 
 def test_sweep_removes_only_temp_files_older_than_the_build(tmp_path):
     spec = parse_spec(SMOKE)
-    from pipeline.plan import plan_dataset
+    from pipeline.dataset.plan import plan_dataset
 
     plans = plan_dataset(spec)
     shard = Path(Layout(str(tmp_path)).shard_dir(plans[0].shard_id))
@@ -135,7 +137,7 @@ def test_resume_renders_only_missing_or_unverified_samples_and_trusts_markers(tm
     # The complete shard was not looked into (its marker is trusted); validate finds the damage.
     assert (s2 / "m000004_l0.render.exr").read_bytes() != \
         (reference / "shards" / "s00002" / "m000004_l0.render.exr").read_bytes()
-    from pipeline.validate import validate
+    from pipeline.check.validate import validate
 
     report = validate(str(out))
     assert {p.kind for p in report.problems} == {"checksum_mismatch"}
@@ -163,7 +165,7 @@ def test_two_builds_at_once_on_one_directory_commit_one_copy_of_each_sample(tmp_
                 crash.kill_group(p)
     assert [p.returncode for p in procs] == [0, 0], outputs
     crash.check_complete(out, reference, use_validate=False)
-    from pipeline.validate import validate
+    from pipeline.check.validate import validate
 
     # Everything validates: a record file whose copy in the marker holds the other run's
     # render time differs only in the run-dependent stats.time_s, which validate ignores.
@@ -175,14 +177,14 @@ def _late_second_run(tmp_path, reference) -> Path:
     """The interleaving at-least-once execution allows: run X of a shard writes its marker,
     then a second run Y (started earlier, on a worker declared dead) writes one material's
     files and records again, after X's marker."""
-    from pipeline.plan import plan_dataset
-    from pipeline.shard import build_material, worker_context
+    from pipeline.dataset.plan import plan_dataset
+    from pipeline.run.shard import build_material, worker_context
 
     out = tmp_path / "ds"
     shutil.copytree(reference, out)
     spec = parse_spec(out / "spec.toml")
     material = plan_dataset(spec)[1].materials[0]
-    build_material(Layout(str(out)), spec, worker_context(spec), material, [None] * material.n_lights)
+    build_material(Layout(str(out)), spec, worker_context(spec, variant=VARIANT), material, [None] * material.n_lights)
     return out
 
 
@@ -197,7 +199,7 @@ def test_a_late_second_run_of_a_shard_rewrites_identical_files(tmp_path, referen
 
 
 def test_after_a_late_second_run_validate_passes(tmp_path, reference):
-    from pipeline.validate import validate
+    from pipeline.check.validate import validate
 
     report = validate(str(_late_second_run(tmp_path, reference)))
     assert report.ok, [p.message for p in report.problems]

@@ -11,8 +11,8 @@ from cli import main
 from geometry import ShaderballParams, build_shaderball
 from geometry.ply import read_ply
 from pipeline.errors import ShaderballError
-from pipeline.exr import read_exr
-from pipeline.scene_cmd import write_scene
+from pipeline.render.scene_command import write_scene
+from pipeline.store.exr import read_exr
 
 
 @pytest.fixture()

@@ -6,11 +6,20 @@ import math
 import numpy as np
 import pytest
 
+from pipeline.bench.probe_scene import BALL_CENTER, BALL_RADIUS, PRESETS, pixel_rays, probe_scene_dict, render
 from pipeline.errors import ShaderballError
-from sky import SUN_MODES, Light, emitter_dicts, sun_angles, update_emitter_params
-from sky.emitter import LUMINANCE_RGB, SPLIT_SUN_WEIGHT_RANGE, desaturate_to_nonnegative, split_sampling_weights
-from sky.probe import SUN_APERTURE_DEG, SUN_SOLID_ANGLE_SR, SunskyProbe
-from sky.probe_scene import BALL_CENTER, BALL_RADIUS, PRESETS, pixel_rays, probe_scene_dict, render
+from pipeline.render.emitter import emitter_dicts, update_emitter_params
+from pipeline.render.sky_probe import SunskyProbe
+from sky import SUN_MODES, Light, sun_angles
+from sky.emitter import (
+    LUMINANCE_RGB,
+    SPLIT_SUN_WEIGHT_RANGE,
+    SUN_APERTURE_DEG,
+    SUN_SOLID_ANGLE_SR,
+    desaturate_to_nonnegative,
+    split_sampling_weights,
+)
+from support import VARIANT
 
 SIDE, TOP = PRESETS["side"], PRESETS["top"]
 
@@ -44,7 +53,7 @@ def test_split_sampling_weights_follow_the_sun_and_are_never_equal():
 @pytest.mark.parametrize("sun", SUN_MODES)
 def test_emitter_dicts_structure_and_record(mi, sun):
     light = Light(30.0, 200.0, 4.0)
-    entries, record = emitter_dicts(light, sun=sun)
+    entries, record = emitter_dicts(light, sun=sun, variant=VARIANT)
     sky = entries["sky"]
     assert sky["type"] == "sunsky" and "to_world" not in sky  # z-up like the world
     np.testing.assert_allclose(sky["sun_direction"], light.direction)
@@ -66,9 +75,9 @@ def test_emitter_dicts_structure_and_record(mi, sun):
 def test_split_sun_irradiance_is_disk_radiance_times_solid_angle(mi):
     """Integrate Mitsuba's own sun disk numerically and compare with the directional's irradiance."""
     light = Light(25.0, 40.0, 2.5)
-    entries, _ = emitter_dicts(light, sun="split")
+    entries, _ = emitter_dicts(light, sun="split", variant=VARIANT)
     irradiance = np.array(entries["sun"]["irradiance"]["value"])
-    probe = SunskyProbe().set(light.direction, light.turbidity)
+    probe = SunskyProbe(variant=VARIANT).set(light.direction, light.turbidity)
     half = math.radians(SUN_APERTURE_DEG / 2.0) * 1.2
     n = 240
     u = np.linspace(-half, half, n)
@@ -88,8 +97,8 @@ def test_split_and_sunsky_light_the_ground_equally(mi):
     """Equal irradiance: mean ground radiance seen from above agrees to within noise and penumbra."""
     means = {}
     for sun in SUN_MODES:
-        entries, _ = emitter_dicts(Light(50.0, 20.0, 3.0), sun=sun)
-        scene = mi.load_dict(probe_scene_dict(entries, **TOP))
+        entries, _ = emitter_dicts(Light(50.0, 20.0, 3.0), sun=sun, variant=VARIANT)
+        scene = mi.load_dict(probe_scene_dict(entries, **TOP, variant=VARIANT))
         means[sun] = _lum(render(mi, scene, TOP["spp"], 3)).mean()
     assert means["split"] == pytest.approx(means["sunsky"], rel=0.02)
 
@@ -108,36 +117,36 @@ def _render_kernel_hashes(mi, scene):
 @pytest.mark.parametrize("sun", SUN_MODES)
 def test_update_in_place_matches_a_fresh_scene_without_recompiling(mi, sun):
     a, b = Light(40.0, 10.0, 2.0), Light(12.0, 250.0, 8.5)
-    entries_a, _ = emitter_dicts(a, sun=sun)
-    scene = mi.load_dict(probe_scene_dict(entries_a, material="glossy", **SIDE))
+    entries_a, _ = emitter_dicts(a, sun=sun, variant=VARIANT)
+    scene = mi.load_dict(probe_scene_dict(entries_a, material="glossy", **SIDE, variant=VARIANT))
     before = _render_kernel_hashes(mi, scene)
     params = mi.traverse(scene)
-    record = update_emitter_params(params, b, sun=sun)
+    record = update_emitter_params(params, b, sun=sun, variant=VARIANT)
     assert record["effective"] == b.to_dict()
     assert _render_kernel_hashes(mi, scene) == before
     updated = render(mi, scene, SIDE["spp"], 5)
-    entries_b, record_b = emitter_dicts(b, sun=sun)
-    fresh = render(mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", **SIDE)), SIDE["spp"], 5)
+    entries_b, record_b = emitter_dicts(b, sun=sun, variant=VARIANT)
+    fresh = render(mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", **SIDE, variant=VARIANT)), SIDE["spp"], 5)
     assert np.array_equal(updated, fresh)
     assert record == record_b
 
 
 def test_changing_sun_scale_recompiles(mi):
     """Why the sun mode is fixed per scene (and why updates refuse a mode change)."""
-    entries, _ = emitter_dicts(Light(40.0, 10.0, 3.0), sun="sunsky")
-    scene = mi.load_dict(probe_scene_dict(entries, **SIDE))
+    entries, _ = emitter_dicts(Light(40.0, 10.0, 3.0), sun="sunsky", variant=VARIANT)
+    scene = mi.load_dict(probe_scene_dict(entries, **SIDE, variant=VARIANT))
     before = _render_kernel_hashes(mi, scene)
     params = mi.traverse(scene)
     params["sky.sun_scale"] = 0.0
     params.update()
     assert _render_kernel_hashes(mi, scene) != before
     with pytest.raises(ShaderballError, match="sky.sun = 'sunsky' does not match"):
-        update_emitter_params(params, Light(20.0, 0.0, 3.0), sun="sunsky")
+        update_emitter_params(params, Light(20.0, 0.0, 3.0), sun="sunsky", variant=VARIANT)
 
 
 def test_unknown_sun_mode_and_variant_are_refused():
     with pytest.raises(ShaderballError, match="sky.sun"):
-        emitter_dicts(Light(30.0, 0.0, 3.0), sun="disk")
+        emitter_dicts(Light(30.0, 0.0, 3.0), sun="disk", variant=VARIANT)
     for variant in ("llvm_ad_spectral", "scalar_rgb"):
         with pytest.raises(ShaderballError, match="RGB variant"):
             emitter_dicts(Light(30.0, 0.0, 3.0), variant=variant)
@@ -148,8 +157,8 @@ def test_unknown_sun_mode_and_variant_are_refused():
 
 @pytest.fixture(scope="module", params=SUN_MODES)
 def top_scene(request, mi):
-    entries, _ = emitter_dicts(Light(45.0, 0.0, 3.0), sun=request.param)
-    scene = mi.load_dict(probe_scene_dict(entries, **TOP))
+    entries, _ = emitter_dicts(Light(45.0, 0.0, 3.0), sun=request.param, variant=VARIANT)
+    scene = mi.load_dict(probe_scene_dict(entries, **TOP, variant=VARIANT))
     origins, _ = pixel_rays(mi, scene)
     return request.param, scene, mi.traverse(scene), origins[..., 0], origins[..., 1]
 
@@ -161,7 +170,7 @@ def _angle_diff(a, b):
 @pytest.mark.parametrize("elevation, azimuth", [(40.0, 30.0), (60.0, 135.0), (30.0, 250.0), (50.0, 320.0)])
 def test_shadow_and_highlight_follow_the_sun(mi, top_scene, elevation, azimuth):
     sun, scene, params, x, y = top_scene
-    update_emitter_params(params, Light(elevation, azimuth, 3.0), sun=sun)
+    update_emitter_params(params, Light(elevation, azimuth, 3.0), sun=sun, variant=VARIANT)
     lum = _lum(render(mi, scene, TOP["spp"], 11))
     r = np.hypot(x, y)
     # shadow: dark ground pixels, centred opposite the sun's azimuth
@@ -183,7 +192,7 @@ def test_shadow_moves_out_as_the_sun_sinks(mi, top_scene):
     sun, scene, params, x, y = top_scene
     distances = []
     for elevation in (70.0, 45.0, 30.0):
-        update_emitter_params(params, Light(elevation, 90.0, 3.0), sun=sun)
+        update_emitter_params(params, Light(elevation, 90.0, 3.0), sun=sun, variant=VARIANT)
         lum = _lum(render(mi, scene, TOP["spp"], 1))
         ground = np.hypot(x, y) > 1.1
         shadow = ground & (lum < 0.5 * np.percentile(lum[ground], 90))
@@ -194,8 +203,8 @@ def test_shadow_moves_out_as_the_sun_sinks(mi, top_scene):
 @pytest.mark.parametrize("azimuth, brighter", [(0.0, "right"), (180.0, "left")])
 def test_azimuth_0_lights_the_ball_from_the_image_right(mi, azimuth, brighter):
     """docs/conventions.md: camera on -y looking +y, image +x to the right."""
-    entries, _ = emitter_dicts(Light(20.0, azimuth, 3.0))
-    scene = mi.load_dict(probe_scene_dict(entries, **SIDE))
+    entries, _ = emitter_dicts(Light(20.0, azimuth, 3.0), variant=VARIANT)
+    scene = mi.load_dict(probe_scene_dict(entries, **SIDE, variant=VARIANT))
     origins, directions = pixel_rays(mi, scene)
     # pixels whose primary ray hits the ball
     oc = origins - np.array(BALL_CENTER)

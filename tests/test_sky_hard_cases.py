@@ -10,10 +10,12 @@ import json
 import numpy as np
 import pytest
 
+from pipeline.bench.probe_scene import MATERIALS, PRESETS, probe_scene_dict, render
+from pipeline.bench.sky_floor import SWEEP_ELEVATIONS_DEG, SWEEP_TURBIDITIES
 from pipeline.errors import ShaderballError
-from sky import SUN_MODES, Light, LightingPolicy, elevation_floor_deg, emitter_dicts, update_emitter_params
-from sky.hard_cases import SWEEP_ELEVATIONS_DEG, SWEEP_TURBIDITIES
-from sky.probe_scene import MATERIALS, PRESETS, probe_scene_dict, render
+from pipeline.render.emitter import emitter_dicts, update_emitter_params
+from sky import SUN_MODES, Light, LightingPolicy, elevation_floor_deg
+from support import VARIANT
 
 SIDE = PRESETS["side"]
 
@@ -41,8 +43,8 @@ def test_rejected_requests_name_the_field(elevation, turbidity):
 
 
 def _scene(mi, material, sun):
-    entries, _ = emitter_dicts(Light(45.0, AZIMUTH_DEG, 3.0), sun=sun)
-    scene = mi.load_dict(probe_scene_dict(entries, material=material, **SIDE))
+    entries, _ = emitter_dicts(Light(45.0, AZIMUTH_DEG, 3.0), sun=sun, variant=VARIANT)
+    scene = mi.load_dict(probe_scene_dict(entries, material=material, **SIDE, variant=VARIANT))
     return scene, mi.traverse(scene)
 
 
@@ -52,7 +54,7 @@ def _scene(mi, material, sun):
 def test_accepted_requests_render_finite_nonnegative_and_recorded(mi, material, sun):
     scene, params = _scene(mi, material, sun)
     for i, (elevation, turbidity) in enumerate(ACCEPTED):
-        record = update_emitter_params(params, Light(elevation, AZIMUTH_DEG, turbidity), sun=sun)
+        record = update_emitter_params(params, Light(elevation, AZIMUTH_DEG, turbidity), sun=sun, variant=VARIANT)
         image = render(mi, scene, SIDE["spp"], 1000 + i)
         case = (material, sun, elevation, turbidity)
         assert np.all(np.isfinite(image)), case
@@ -75,16 +77,16 @@ def test_without_the_policy_the_sweep_does_go_negative_and_black(mi):
     """The control: with the floor off, Mitsuba's raw emitter gives what the policy prevents."""
     off = LightingPolicy(floor="off")
     scene, params = _scene(mi, "near_mirror", "sunsky")
-    record = update_emitter_params(params, Light(0.5, AZIMUTH_DEG, 1.0), sun="sunsky", policy=off)
+    record = update_emitter_params(params, Light(0.5, AZIMUTH_DEG, 1.0), sun="sunsky", policy=off, variant=VARIANT)
     assert record["emitter"]["min_radiance_rgb"][2] < 0.0  # the sun's blue channel
     assert render(mi, scene, SIDE["spp"], 1).min() < 0.0
-    update_emitter_params(params, Light(0.0, AZIMUTH_DEG, 3.0), sun="sunsky", policy=off)
+    update_emitter_params(params, Light(0.0, AZIMUTH_DEG, 3.0), sun="sunsky", policy=off, variant=VARIANT)
     assert render(mi, scene, SIDE["spp"], 1).max() == 0.0
 
 
 def test_split_sun_is_desaturated_when_the_floor_is_off(mi):
     """Without the floor the directional sun would be negative in blue: the split keeps it >= 0."""
-    _, record = emitter_dicts(Light(1.0, 0.0, 1.0), sun="split", policy=LightingPolicy(floor="off"))
+    _, record = emitter_dicts(Light(1.0, 0.0, 1.0), sun="split", policy=LightingPolicy(floor="off"), variant=VARIANT)
     adjusted = record["emitter"]["sun_irradiance_adjusted"]
     assert adjusted is not None and adjusted["from"][2] < 0.0
     assert min(record["emitter"]["sun_irradiance_rgb"]) >= 0.0

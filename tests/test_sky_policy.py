@@ -8,6 +8,7 @@ import pytest
 from pipeline.errors import ShaderballError
 from sky import SAFE_ELEVATION_DEG, Light, LightingPolicy, apply_policy, elevation_floor_deg, sun_direction
 from sky.policy import FLOOR_TABLE, measured_floor_deg
+from support import VARIANT
 
 
 def test_floor_table_covers_1_to_10_without_gaps():
@@ -66,9 +67,9 @@ def test_policy_settings_are_checked():
 
 @pytest.fixture(scope="module")
 def probe(mi):
-    from sky.probe import SunskyProbe
+    from pipeline.render.sky_probe import SunskyProbe
 
-    return SunskyProbe("llvm_ad_rgb")
+    return SunskyProbe("llvm_ad_rgb", variant=VARIANT)
 
 
 def _min_radiance(probe, elevation_deg, turbidity):
@@ -103,7 +104,7 @@ def test_below_the_floor_the_raw_emitter_is_negative_or_black(probe):
 
 @pytest.mark.parametrize("turbidity", [0.99, 10.01])
 def test_raw_sunsky_rejects_turbidity_outside_1_10(mi, turbidity):
-    from sky.probe import sunsky_dict
+    from pipeline.render.sky_probe import sunsky_dict
 
     with pytest.raises(RuntimeError, match="out of range"):
         mi.load_dict(sunsky_dict(sun_direction(30.0, 0.0), turbidity))

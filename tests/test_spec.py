@@ -12,8 +12,7 @@ import textwrap
 
 import pytest
 
-from pipeline.errors import ShaderballError
-from pipeline.spec import (
+from pipeline.dataset.spec import (
     FALLBACK_LIGHT_SCHEMES,
     FALLBACK_SVBRDF_FAMILIES,
     MAP_LAYERS,
@@ -34,6 +33,7 @@ from pipeline.spec import (
     spec_to_toml,
     svbrdf_family_names,
 )
+from pipeline.errors import ShaderballError
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
@@ -359,7 +359,7 @@ def test_reference_page_matches_the_code():
         page = fh.read()
     assert reference_markdown() in page, (
         "docs/spec.md is out of date: paste the output of\n  .venv/bin/python -c 'from "
-        "pipeline.spec import reference_markdown; print(reference_markdown())'\nbetween its "
+        "pipeline.dataset.spec import reference_markdown; print(reference_markdown())'\nbetween its "
         "FIELD REFERENCE markers")
     keys = [row[0].strip("`") for row in reference_rows()]
     assert len(keys) == len(set(keys)) >= 25
@@ -420,7 +420,7 @@ def test_uniform_limits_match_materials(name):
 
 
 def test_spec_module_is_pure():
-    code = ("import sys; from pipeline.spec import parse_spec; parse_spec(%r); "
+    code = ("import sys; from pipeline.dataset.spec import parse_spec; parse_spec(%r); "
             "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
             "assert not bad, bad" % SMOKE)
     subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)

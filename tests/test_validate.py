@@ -20,9 +20,9 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
-from pipeline import validate as validate_mod
-from pipeline.records import without_timings
-from pipeline.validate import PROBLEM_KINDS, repair, validate
+from pipeline.check import validate as validate_mod
+from pipeline.check.validate import PROBLEM_KINDS, repair, validate
+from pipeline.store.records import without_timings
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -36,7 +36,7 @@ slow = pytest.mark.slow  # the tests that use the built dataset
 
 @pytest.fixture(scope="session")
 def smoke_dataset(tmp_path_factory) -> Path:
-    from pipeline.build import build
+    from pipeline.run.build import build
 
     base = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
@@ -158,7 +158,7 @@ def test_fast_finds_size_faults_without_reading(dataset, monkeypatch):
     delete_render(dataset)
     flip_byte(dataset)  # same size: only the full check can see it
     decoded = []
-    monkeypatch.setattr("pipeline.exr.read_exr", lambda *a, **k: decoded.append(a))
+    monkeypatch.setattr("pipeline.store.exr.read_exr", lambda *a, **k: decoded.append(a))
     fast = validate(str(dataset), fast=True)
     assert sorted(p.kind for p in fast.problems) == ["missing_file", "size_mismatch"]
     assert fast.bytes_read == 0 and decoded == []
@@ -219,7 +219,7 @@ def test_usage_errors_exit_2(tmp_path, smoke_dataset):
 
 def rewrite_consistently(root: Path, rel: str, layers: dict, meta: dict, half=()) -> None:
     """Replace a file and update every copy of its records: only content checks can tell."""
-    from pipeline.exr import write_exr
+    from pipeline.store.exr import write_exr
 
     sha = write_exr(str(root / rel), layers, meta, half=half, compression="zip")
     size = (root / rel).stat().st_size
@@ -241,7 +241,7 @@ def rewrite_consistently(root: Path, rel: str, layers: dict, meta: dict, half=()
 
 @slow
 def test_bad_map_values_found_and_regenerated(smoke_dataset, dataset):
-    from pipeline.exr import read_exr
+    from pipeline.store.exr import read_exr
 
     image = read_exr(str(dataset / MAPS))
     layers = {k: v.astype(np.float32).copy() for k, v in image.layers.items()}
@@ -261,7 +261,7 @@ def test_bad_map_values_found_and_regenerated(smoke_dataset, dataset):
 
 @slow
 def test_negative_render_and_stats_against_pixels(dataset):
-    from pipeline.exr import read_exr
+    from pipeline.store.exr import read_exr
 
     image = read_exr(str(dataset / RENDER))
     render = image.layers["render"].copy()

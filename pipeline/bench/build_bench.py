@@ -1,0 +1,511 @@
+"""The build benchmark: a build's overhead over bare Mitsuba renders of the same samples.
+
+``shaderball bench SPEC`` (or ``python -m pipeline.bench.build_bench SPEC``)
+    Builds SPEC (optionally cut to about ``--samples`` renders, at another
+    ``--resolution`` / ``--spp`` / ``--shard-size``) into a fresh folder, then renders the
+    same samples with bare ``mi.render`` calls: the same scene dicts
+    (:func:`pipeline.render.renderer.scene_dict`), each loaded once, one scene alive at a time,
+    kernels compiled beforehand, only the render call timed. It prints the build's wall
+    time over the sum of those render times (the overhead ratio; the target is at most
+    1.03), samples per second of both, the same ratio in CPU time (this process and its
+    reaped children: less disturbed by other load than wall time), for in-process builds
+    the build's own split between its render calls and the rest (:class:`RenderCallTimer`,
+    measured in the same run), and where the rest goes. Kernels are compiled before the
+    build (one spp-1 render per material, which fills drjit's on-disk kernel cache), so
+    the ratio is the steady state of a long build, not the first minute of a fresh
+    machine. ``--profile`` adds two measurements behind the proposals in docs/build.md:
+    all lightings of a material rendered from one loaded scene moved in place
+    (:func:`sky.update_emitter_params`), and the ``moment`` integrator against its nested
+    path tracer alone.
+
+``shaderball bench --effects`` is :mod:`pipeline.bench.effects`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import pipeline.render.renderer as render
+from pipeline.bench.effects import run_effects_bench
+from pipeline.dataset.materialize import make_material
+from pipeline.dataset.plan import plan_dataset
+from pipeline.dataset.spec import spec_to_toml
+from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
+from pipeline.render.emitter import update_emitter_params
+from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
+from pipeline.render.renderer import render_in_passes, scene_dict
+from pipeline.run.build import build, read_spec_text
+from pipeline.run.shard import worker_context, write_material_files
+from pipeline.store.atomic import write_text_atomic
+from pipeline.store.exr import read_exr, write_exr
+from pipeline.store.layout import Layout
+from pipeline.store.records import dumps, read_json
+from sky import Light
+
+# --------------------------------------------------------------------------- build benchmark
+
+
+def derive_spec(spec, *, samples: int | None = None, resolution: int | None = None, spp: int | None = None,
+                shard_size: int | None = None):
+    """``spec`` cut to about ``samples`` renders (whole materials) and re-sized; other fields kept."""
+    dataset, render = spec.dataset, spec.render
+    if shard_size is not None:
+        dataset = dataclasses.replace(dataset, shard_size=shard_size)
+    if samples is not None:
+        lights = dataset.lights_per_material
+        if samples < lights:
+            dataset = dataclasses.replace(dataset, materials=1, lights_per_material=samples)
+        else:
+            dataset = dataclasses.replace(dataset, materials=-(-samples // lights))
+    if resolution is not None:
+        render = dataclasses.replace(render, resolution=resolution)
+    if spp is not None:
+        render = dataclasses.replace(render, spp=spp)
+    return dataclasses.replace(spec, dataset=dataset, render=render)
+
+
+@dataclass
+class SampleTiming:
+    sample_id: str
+    dict_s: float  # pipeline.render.renderer.scene_dict
+    load_s: float  # mi.load_dict
+    render_s: float  # mi.render + numpy conversion: the bare render
+    render_cpu_s: float  # CPU time of this process (all render threads) over the same call
+    identical: bool  # the bare render equals the build's stored render, bit for bit
+
+
+@dataclass
+class BuildBench:
+    spec_name: str
+    samples: int
+    materials: int
+    resolution: int
+    spp: int
+    workers: str
+    variant: str
+    threads: int
+    warmup_s: float
+    build_s: float
+    build_cpu_s: float  # CPU time of this process and its (reaped) children during the build
+    startup_s: float  # build() call to the start of rendering (spec, plan, dask cluster)
+    in_build_render_s: float | None  # in-process builds: time inside render_scene during the build
+    timings: list[SampleTiming] = field(default_factory=list)
+    material_files_s: float = 0.0  # per material: raster projection + maps (+ texture) EXR
+    render_file_s: float = 0.0  # per render: EXR encode + SHA-256 + atomic write
+    reuse: dict | None = None
+    moment: dict | None = None
+    compiled: dict | None = None  # kernels compiled during the timed bare renders (should be 0)
+
+    @property
+    def bare_s(self) -> float:
+        return sum(t.render_s for t in self.timings)
+
+    @property
+    def ratio(self) -> float:
+        return self.build_s / self.bare_s if self.bare_s > 0 else math.inf
+
+    @property
+    def bare_cpu_s(self) -> float:
+        return sum(t.render_cpu_s for t in self.timings)
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Build CPU over bare-render CPU: less disturbed than wall time on a shared machine."""
+        return self.build_cpu_s / self.bare_cpu_s if self.bare_cpu_s > 0 else math.inf
+
+    def lines(self) -> list[str]:
+        n = self.samples
+        mean = lambda xs: sum(xs) / len(xs) if xs else 0.0  # noqa: E731
+        out = [
+            f"bench: {self.spec_name}, {n} renders ({self.materials} materials), "
+            f"{self.resolution}x{self.resolution}, {self.spp} spp, {self.variant}, "
+            f"workers: {self.workers}, {self.threads} render threads",
+            f"kernel warm-up before the build (not counted): {self.warmup_s:.1f} s",
+            f"build, end to end:        {self.build_s:8.2f} s  {n / self.build_s:7.3f} samples/s"
+            f"  (start-up before the first render: {self.startup_s:.1f} s)",
+            f"bare mi.render, summed:   {self.bare_s:8.2f} s  {n / self.bare_s:7.3f} samples/s"
+            f"  (mean {self.bare_s / n:.3f} s per render)",
+            f"ratio build / bare:       {self.ratio:8.3f}   (target <= 1.03); "
+            f"without start-up: {(self.build_s - self.startup_s) / self.bare_s:.3f}; "
+            f"CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s = {self.cpu_ratio:.3f}",
+            *([f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
+               f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
+               f"{self.build_s / self.in_build_render_s:.3f}"] if self.in_build_render_s else []),
+            f"bare renders bit-identical to the build's: "
+            f"{sum(t.identical for t in self.timings)}/{len(self.timings)}",
+            "where the rest goes, per render (measured outside the build): "
+            f"scene_dict {mean([t.dict_s for t in self.timings]):.3f} s, "
+            f"load_dict {mean([t.load_s for t in self.timings]):.3f} s, "
+            f"render EXR+SHA-256+fsync {self.render_file_s:.3f} s; per material: raster + maps EXR "
+            f"{self.material_files_s:.3f} s",
+        ]
+        if self.compiled:
+            out.append("kernels compiled during the timed renders (0 = all warm): "
+                       + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"
+                                   for k, v in self.compiled.items()))
+        if self.reuse:
+            r = self.reuse
+            out.append(f"profile, one loaded scene per material moved in place: {r['seconds']:.2f} s for "
+                       f"{n} renders, {r['seconds'] - r['compile_s']:.2f} s without its {r['compiled']} "
+                       f"kernel compile(s) (vs {r['fresh_seconds']:.2f} s dict+load+render each), "
+                       f"{r['identical']}/{n} bit-identical to the build's")
+        if self.moment:
+            m = self.moment
+            out.append(f"profile, moment vs plain {m['integrator']} ({m['samples']} renders): "
+                       f"{m['moment_s']:.2f} s vs {m['path_s']:.2f} s "
+                       f"({100 * (m['moment_s'] / m['path_s'] - 1):+.1f}%), RGB "
+                       f"{'bit-identical' if m['identical'] else 'not bit-identical'}")
+        return out
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio)
+        return d
+
+
+def _materials_of(plans):
+    return [m for shard in plans for m in shard.materials]
+
+
+def warm_kernels(spec, plans, variant: str) -> float:
+    """Compile (or fetch from drjit's disk cache) every kernel the build will need.
+
+    One spp-1 render per material: spp is not part of a kernel, the resolution is.
+    """
+
+    ctx = worker_context(spec, variant)
+
+    mi = load_mitsuba(variant)
+    start = time.perf_counter()
+    for material in _materials_of(plans):
+        maps, _ = make_material(material, spec)
+        s = material.samples[0]
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, Light(s.elevation_deg, s.azimuth_deg, s.turbidity),
+                                ctx.settings)
+        np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
+    return time.perf_counter() - start
+
+
+class KernelCounter:
+    """Counts drjit kernels compiled (not found in the memory or disk cache) while active.
+
+    A kernel's hash covers the Mitsuba objects alive in the process (virtual calls are
+    traced over every registered instance), so two scenes alive at once give new kernels:
+    the measurements below keep one scene alive at a time, as a build worker does.
+    """
+
+    def __init__(self):
+        import drjit as dr
+
+        self._dr = dr
+        self.compiled = 0
+        self.compile_s = 0.0
+
+    def __enter__(self):
+        self._dr.set_flag(self._dr.JitFlag.KernelHistory, True)
+        self._dr.kernel_history()  # clears
+        return self
+
+    def __exit__(self, *exc):
+        dr = self._dr
+        for k in dr.kernel_history():
+            if k["type"] == dr.KernelType.JIT and not k.get("cache_hit"):
+                self.compiled += 1
+                self.compile_s += k.get("backend_time", 0.0) / 1000.0
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+def _stored_render(layout, sample) -> np.ndarray:
+
+    return read_exr(layout.path(layout.render_rel(sample.shard_id, sample.sample_id))).layers["render"]
+
+
+def _render_seed(layout, sample) -> int:
+
+    record = read_json(layout.path(layout.record_rel(sample.shard_id, sample.sample_id))) or {}
+    return int(record.get("seeds", {}).get("render_used", sample.render_seed))
+
+
+def _light(sample):
+
+    return Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+
+
+def measure_bare(spec, plans, root: str, kernels: KernelCounter, variant: str) -> list[SampleTiming]:
+    """Time scene_dict, load_dict and the bare render of every sample; compare with the build."""
+
+    ctx = worker_context(spec, variant)
+    mi = load_mitsuba(variant)
+    layout = Layout(root)
+    timings = []
+    for material in _materials_of(plans):
+        maps, _ = make_material(material, spec)
+        for s in material.samples:
+            seed = _render_seed(layout, s)
+            t0 = time.perf_counter()
+            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+            t1 = time.perf_counter()
+            scene = mi.load_dict(desc)
+            t2, cpu = time.perf_counter(), time.process_time()
+            with kernels:
+                # The build's own arithmetic: power-of-two passes (pipeline.render.renderer.render_in_passes).
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
+            t3, cpu = time.perf_counter(), time.process_time() - cpu
+            del scene, desc  # one scene alive at a time, as in a build worker
+            timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2, cpu,
+                                        bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))))
+    return timings
+
+
+def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]:
+    """(per material: raster + maps files, per render: EXR + hash + atomic write), in seconds."""
+
+    ctx = worker_context(spec, variant)
+    layout = Layout(root)
+    scratch = tempfile.mkdtemp(prefix="shaderball-bench-io-")
+    try:
+        materials = _materials_of(plans)[:4]
+        start = time.perf_counter()
+        for material in materials:
+            maps, description = make_material(material, spec)
+            write_material_files(Layout(scratch), spec, ctx, material, maps, description)
+        per_material = (time.perf_counter() - start) / len(materials)
+        images = [_stored_render(layout, s) for m in materials for s in m.samples][:8]
+        start = time.perf_counter()
+        for i, image in enumerate(images):
+            write_exr(os.path.join(scratch, f"r{i}.render.exr"), {"render": image}, {"id": str(i)},
+                      compression=spec.storage.compression)
+        per_render = (time.perf_counter() - start) / len(images)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return per_material, per_render
+
+
+def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) -> dict:
+    """All lightings of a material from one loaded scene, moved with sky.update_emitter_params.
+
+    The first lighting renders the scene as loaded, the others after an in-place update:
+    the proposal of docs/build.md, timed against dict + load + render per sample.
+    """
+
+    ctx = worker_context(spec, variant)
+    mi = load_mitsuba(variant)
+    layout = Layout(root)
+    seconds = 0.0
+    identical = 0
+    for material in _materials_of(plans):
+        maps, _ = make_material(material, spec)
+        scene = params = None
+        for s in material.samples:
+            seed = _render_seed(layout, s)
+            t0 = time.perf_counter()
+            if scene is None:
+                desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+                scene = mi.load_dict(desc)
+                params = mi.traverse(scene)
+            else:
+                update_emitter_params(params, _light(s), sun=ctx.settings.sun, variant=ctx.variant)
+            with kernels:
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
+            seconds += time.perf_counter() - t0
+            identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
+        del scene, params
+    return {"seconds": seconds, "identical": identical}
+
+
+def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
+    """The first ``count`` samples rendered by the nested integrator alone, against ``moment``.
+
+    Each scene is loaded, rendered once at 1 spp (compiling its kernels if needed), then
+    timed at full spp; one scene alive at a time.
+    """
+
+    ctx = worker_context(spec, variant)
+    mi = load_mitsuba(variant)
+    totals = {"moment": 0.0, "path": 0.0}
+    identical = True
+    samples = [(m, s) for m in _materials_of(plans) for s in m.samples][:count]
+    for material, s in samples:
+        maps, _ = make_material(material, spec)
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+        images = {}
+        for name, d in (("path", dict(desc, integrator=desc["integrator"]["nested"])), ("moment", desc)):
+            scene = mi.load_dict(d)
+            np.asarray(mi.render(scene, spp=1, seed=0))
+            t0 = time.perf_counter()
+            images[name] = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed),
+                                      dtype=np.float32)[..., 0:3]
+            totals[name] += time.perf_counter() - t0
+            del scene
+        identical &= bool(np.array_equal(images["path"], images["moment"]))
+    return {"integrator": ctx.settings.integrator, "samples": len(samples), "moment_s": totals["moment"],
+            "path_s": totals["path"], "identical": identical}
+
+
+class RenderCallTimer:
+    """Times every ``pipeline.render.renderer.render_scene`` call made in this process while active.
+
+    For an in-process build (workers=0) this splits the build's own wall time into its
+    render calls and everything else, measured at the same moments, so the split is not
+    disturbed by other load the way two separate measurements are. (render_scene is looked
+    up in its module at each call, so wrapping the module attribute sees every call.)
+    """
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.calls = 0
+
+    def __enter__(self):
+
+        self._module, self._original = render, render.render_scene
+
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return self._original(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+                self.calls += 1
+
+        render.render_scene = timed
+        return self
+
+    def __exit__(self, *exc):
+        self._module.render_scene = self._original
+
+
+def _cpu_with_children() -> float:
+    """CPU seconds of this process and of its terminated, reaped children (dask's nannies and
+    workers are reaped when the build closes its local cluster)."""
+    import resource
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | None = None,
+                    resolution: int | None = None, spp: int | None = None, workers: int | None = None,
+                    shard_size: int | None = None, profile: bool = False, progress=None) -> BuildBench:
+    """Build a spec and time the same renders bare; see the module docstring."""
+
+    samples = check_int("--samples", samples, 1, 1_000_000)
+    resolution = check_int("--resolution", resolution, 16, 4096)
+    spp = check_int("--spp", spp, 1, 65536)
+    workers = check_int("--workers", workers, 0, 1024)
+    shard_size = check_int("--shard-size", shard_size, 1, 1_000_000)
+    spec, _ = read_spec_text(spec_path)
+    spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
+    if out is not None and os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+        raise bad_value("--out", out, "a new or empty folder (the benchmark builds from scratch)")
+    scratch = tempfile.mkdtemp(prefix="shaderball-bench-")
+    root = out or os.path.join(scratch, "dataset")
+    say = progress or (lambda message: None)
+    try:
+        derived_path = os.path.join(scratch, "bench-spec.toml")
+        write_text_atomic(derived_path, spec_to_toml(spec))
+        plans = plan_dataset(spec)
+        variant = resolve_variant(spec.render.variant)  # chosen once for the whole benchmark
+        load_mitsuba(variant)
+        import drjit as dr
+
+        say("warming kernels (one spp-1 render per material) ...")
+        warmup = warm_kernels(spec, plans, variant)
+        marks = {}
+
+        def started(where, _dashboard):
+            marks["where"] = where
+            marks["started"] = time.perf_counter()
+
+        say("building ...")
+        cpu0 = _cpu_with_children()
+        in_build = RenderCallTimer()
+        t0 = time.perf_counter()
+        with in_build:
+            summary = build(derived_path, root, workers=workers, on_start=started)
+        build_s = time.perf_counter() - t0
+        build_cpu = _cpu_with_children() - cpu0
+        first_start = min((marks.get("started", t0) - t0), build_s)
+        say("bare renders ...")
+        kernels = KernelCounter()
+        timings = measure_bare(spec, plans, root, kernels, variant)
+        per_material, per_render = measure_storage(spec, plans, root, variant)
+        bench = BuildBench(
+            spec_name=spec.dataset.name, samples=summary.total, materials=spec.dataset.materials,
+            resolution=spec.render.resolution, spp=spec.render.spp,
+            workers=marks.get("where", "?"), variant=variant, threads=dr.thread_count(),
+            warmup_s=warmup, build_s=build_s, build_cpu_s=build_cpu, startup_s=first_start,
+            in_build_render_s=in_build.seconds if in_build.calls else None,
+            timings=timings, material_files_s=per_material, render_file_s=per_render)
+        bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
+        if profile:
+            say("profile: one scene per material ...")
+            reuse_kernels = KernelCounter()
+            bench.reuse = measure_reuse(spec, plans, root, reuse_kernels, variant)
+            bench.reuse.update(fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
+                               compiled=reuse_kernels.compiled, compile_s=reuse_kernels.compile_s)
+            say("profile: moment vs plain integrator ...")
+            bench.moment = measure_moment(spec, plans, variant)
+        return bench
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------- python -m pipeline.bench.build_bench
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m pipeline.bench.build_bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("spec", nargs="?", help="spec file to build (not needed with --effects)")
+    p.add_argument("--samples", type=int, help="cut the spec to about this many renders (whole materials)")
+    p.add_argument("--resolution", type=int, help="override render.resolution (effects: default 128)")
+    p.add_argument("--spp", type=int, help="override render.spp (effects: default 64)")
+    p.add_argument("--workers", type=int, help="as `shaderball build --workers` (default: the build's)")
+    p.add_argument("--shard-size", type=int, help="override dataset.shard_size (materials per shard)")
+    p.add_argument("--out", help="keep the benchmark's dataset here (a new or empty folder)")
+    p.add_argument("--profile", action="store_true", help="also time scene reuse and moment vs path")
+    p.add_argument("--effects", action="store_true", help="run the effects benchmark instead")
+    p.add_argument("--repeats", type=int, help="effects: timed renders per variant (default 5)")
+    p.add_argument("--json", dest="json_path", help="also write the figures to this JSON file")
+    return p
+
+
+def run_from_args(spec=None, *, effects=False, samples=None, resolution=None, spp=None, workers=None,
+                  shard_size=None, out=None, profile=False, repeats=None, json_path=None, progress=None):
+    """What `shaderball bench` and `python -m pipeline.bench.build_bench` do; returns the result object."""
+    if effects:
+        result = run_effects_bench(resolution=resolution, spp=spp, repeats=repeats, progress=progress)
+    else:
+        if not spec:
+            raise ShaderballError("SPEC: missing; allowed: a spec file (e.g. manifests/smoke.toml), "
+                                  "or --effects for the effects benchmark")
+        result = run_build_bench(spec, out=out, samples=samples, resolution=resolution, spp=spp,
+                                 workers=workers, shard_size=shard_size, profile=profile, progress=progress)
+    if json_path:
+
+        write_text_atomic(json_path, dumps(result.to_dict()) + "\n")
+    return result
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        result = run_from_args(**vars(args), progress=lambda m: print(m, file=sys.stderr, flush=True))
+    except USER_ERRORS as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    print("\n".join(result.lines()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

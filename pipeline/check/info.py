@@ -1,0 +1,212 @@
+"""`shaderball info DIR`: what a dataset folder holds, complete or not.
+
+Reads only the folder's own files: the spec snapshot, the description, the shard markers
+and, in unfinished shards, the per-sample records (pipeline.store.layout). Nothing is
+rendered, hashed or written; `shaderball validate` is the command that checks files.
+Counts come from the spec (materials x lightings, shards), so a build that was stopped
+half-way reports how far it got.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+from collections import Counter
+from dataclasses import dataclass, field
+
+from pipeline.dataset.plan import shard_id
+from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.errors import ShaderballError
+from pipeline.store.layout import MARKER_FILE, Layout
+from pipeline.store.records import read_json
+
+#: Roles of the files a record lists, in the order they are reported.
+FILE_ROLES = ("render", "maps", "texture")
+#: What each role stores, for the report.
+ROLE_NOTES = {"render": "float32", "maps": "screen-space maps", "texture": "texture-space maps"}
+
+
+def shard_render_counts(spec) -> dict[str, int]:
+    """shard id -> renders planned in it, from the spec alone (no planning needed)."""
+
+    ds = spec.dataset
+    counts = {}
+    for s in range(ds.n_shards):
+        first = s * ds.shard_size
+        counts[shard_id(s)] = (min(first + ds.shard_size, ds.materials) - first) * ds.lights_per_material
+    return counts
+
+
+#: Effects of pipeline.render.renderer.EffectPlan, in the order they are reported.
+EFFECT_ORDER = ("textured", "normal_map", "diffuse_lobe", "specular_lobe")
+
+
+def _effect_order(name: str) -> tuple[int, str]:
+    return (EFFECT_ORDER.index(name) if name in EFFECT_ORDER else len(EFFECT_ORDER), name)
+
+
+def _human_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024.0
+    return f"{n:.1f} TiB"
+
+
+@dataclass
+class DatasetInfo:
+    root: str
+    name: str
+    version: str
+    spec_digest: str
+    description: dict | None
+    spec_lines: list[str]
+    total_renders: int
+    total_shards: int
+    recorded: int = 0
+    shards_complete: int = 0
+    shards_started: int = 0
+    manifest_records: int | None = None  # lines of manifest.jsonl, None when absent
+    files: dict = field(default_factory=dict)  # role -> {"count", "bytes"} (distinct files)
+    disk_bytes: int = 0
+    temp_files: int = 0
+    kinds: dict = field(default_factory=dict)  # "uniform" / "svbrdf" -> materials recorded
+    effects: dict = field(default_factory=dict)  # effect -> renders with it on
+    flagged: int = 0
+    rerendered: int = 0
+    noise_relative_median: float | None = None
+
+    @property
+    def complete(self) -> bool:
+        return (self.shards_complete == self.total_shards and self.manifest_records == self.total_renders)
+
+    def lines(self) -> list[str]:
+        d = self.description or {}
+        libs = d.get("libraries", {})
+        built = (f"; built with shaderball {d.get('shaderball', '?')}, mitsuba {libs.get('mitsuba', '?')} "
+                 f"{d.get('variant', '?')}") if d else "; no dataset.json yet"
+        pct = 100.0 * self.recorded / self.total_renders if self.total_renders else 100.0
+        state = "complete" if self.complete else "INCOMPLETE (resume with `shaderball build DIR/spec.toml --out DIR`)"
+        manifest = ("absent" if self.manifest_records is None else f"{self.manifest_records} records")
+        out = [f"dataset {self.root}: {self.name} v{self.version}, spec digest {self.spec_digest[:12]}{built}",
+               *self.spec_lines,
+               f"completion: {state}; {self.recorded}/{self.total_renders} renders recorded ({pct:.1f}%), "
+               f"{self.shards_complete}/{self.total_shards} shards complete, "
+               f"{self.shards_started - self.shards_complete} in progress; manifest.jsonl {manifest}"]
+        parts = [f"{self.files[r]['count']} {r} ({ROLE_NOTES[r]}) {_human_bytes(self.files[r]['bytes'])}"
+                 for r in FILE_ROLES if r in self.files]
+        out.append("files: " + (", ".join(parts) if parts else "none recorded yet")
+                   + f"; {_human_bytes(self.disk_bytes)} on disk in all"
+                   + (f"; {self.temp_files} temporary file(s) of an interrupted write" if self.temp_files else ""))
+        if self.kinds:
+            out.append("materials recorded: " + ", ".join(f"{n} {k}" for k, n in sorted(self.kinds.items())))
+        if self.recorded:
+            out.append("effects simulated (renders): " + ", ".join(
+                f"{name.replace('_', ' ')} {n}/{self.recorded}" for name, n in self.effects.items()))
+            noise = (f"; relative noise (RMS standard error / mean) median {self.noise_relative_median:.3f}"
+                     if self.noise_relative_median is not None else "")
+            out.append(f"renders flagged bad: {self.flagged}; re-rendered with a new seed: {self.rerendered}{noise}")
+        return out
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+
+        return {**asdict(self), "complete": self.complete}
+
+
+def spec_summary(spec) -> list[str]:
+    ds, r, lt, st = spec.dataset, spec.render, spec.lighting, spec.storage
+    n_svbrdf = ds.n_svbrdf
+    return [
+        f"spec: {ds.materials} materials ({ds.materials - n_svbrdf} uniform, {n_svbrdf} SVBRDF) x "
+        f"{ds.lights_per_material} lightings = {ds.n_renders} renders in {ds.n_shards} shards of "
+        f"{ds.shard_size} materials; seed {ds.seed}",
+        f"render: {r.resolution}x{r.resolution}, {r.spp} spp, max depth {r.max_depth}, {r.integrator}, "
+        f"variant {r.variant}; lighting: elevation {list(lt.elevation_deg)} deg, azimuth "
+        f"{list(lt.azimuth_deg)} deg, turbidity {list(lt.turbidity)}, {lt.scheme}, sun {lt.sun}",
+        f"storage: {st.compression}, maps {'half' if st.maps_half else 'float32'} "
+        f"({', '.join(st.layers)}), texture-space maps {'on' if st.texture_maps else 'off'}",
+    ]
+
+
+def shard_records(layout: Layout, shard: str) -> tuple[list[dict], bool, bool]:
+    """(records, complete, started) of one shard: the marker's, else the per-sample files."""
+    marker = read_json(layout.marker(shard))
+    if marker and marker.get("complete"):
+        return list(marker.get("records", [])), True, True
+    folder = layout.shard_dir(shard)
+    try:
+        names = sorted(os.listdir(folder))
+    except FileNotFoundError:
+        return [], False, False
+    records = []
+    for name in names:
+        if name.endswith(".json") and not name.startswith(".") and name != MARKER_FILE:
+            record = read_json(os.path.join(folder, name))
+            if isinstance(record, dict) and "id" in record:
+                records.append(record)
+    return records, False, True
+
+
+def _disk_usage(root: str) -> tuple[int, int]:
+    total = temps = 0
+    for folder, _dirs, names in os.walk(root):
+        for name in names:
+            try:
+                total += os.stat(os.path.join(folder, name)).st_size
+            except OSError:
+                continue
+            temps += name.startswith(".tmp-")
+    return total, temps
+
+
+def _count_lines(path: str) -> int | None:
+    try:
+        with open(path, "rb") as fh:
+            return sum(1 for line in fh if line.strip())
+    except OSError:
+        return None
+
+
+def dataset_info(root: str) -> DatasetInfo:
+    """Summarise the dataset folder ``root`` (complete or partial)."""
+
+    layout = Layout(root)
+    if not os.path.isdir(root):
+        raise ShaderballError(f"DIR: {root!r} is not a folder; allowed: a dataset folder made by `shaderball build`")
+    if not os.path.isfile(layout.spec):
+        raise ShaderballError(f"DIR: {root!r} holds no spec.toml; allowed: a dataset folder made by "
+                              "`shaderball build` (it writes spec.toml before anything else)")
+    spec = parse_spec(layout.spec)
+    counts = shard_render_counts(spec)
+    info = DatasetInfo(root=root, name=spec.dataset.name, version=spec.dataset.version,
+                       spec_digest=spec_digest(spec), description=read_json(layout.description),
+                       spec_lines=spec_summary(spec), total_renders=sum(counts.values()),
+                       total_shards=len(counts))
+    files: dict[str, dict] = {}
+    effects: Counter = Counter()
+    kinds: dict[str, str] = {}
+    noise = []
+    for shard in counts:
+        records, complete, started = shard_records(layout, shard)
+        info.shards_complete += complete
+        info.shards_started += started
+        for record in records:
+            info.recorded += 1
+            for entry in record.get("files", []):
+                files.setdefault(entry.get("role", "?"), {})[entry["path"]] = entry.get("bytes", 0)
+            for name, on in record.get("effects", {}).items():
+                effects[name] += bool(on)
+            kinds[record.get("material_id", "")] = record.get("material", {}).get("kind", "?")
+            stats = record.get("stats", {})
+            info.flagged += bool(stats.get("flagged"))
+            info.rerendered += stats.get("attempts", 1) > 1
+            if stats.get("noise_relative") is not None:
+                noise.append(stats["noise_relative"])
+    info.files = {role: {"count": len(paths), "bytes": sum(paths.values())} for role, paths in files.items()}
+    info.effects = {name: effects[name] for name in sorted(effects, key=_effect_order)}
+    info.kinds = dict(Counter(kinds.values()))
+    info.noise_relative_median = statistics.median(noise) if noise else None
+    info.manifest_records = _count_lines(layout.manifest)
+    info.disk_bytes, info.temp_files = _disk_usage(root)
+    return info

@@ -1,0 +1,188 @@
+"""`shaderball preview DIR --out FILE.png`: a contact sheet of a dataset, for people.
+
+One row per chosen sample: its label (id, material, sun elevation / azimuth, turbidity),
+its render tone-mapped (pipeline.render.tonemap: exposure from the ball's pixels, Reinhard,
+sRGB), then its four screen-space maps as the network sees them: diffuse and specular
+albedo (sRGB-encoded for display), roughness (grey, raw) and the tangent-space normal
+((n + 1) / 2, raw). Samples are spread evenly over the renders recorded so far, so it
+works on a partial build. Never used for data: the PNG is 8-bit and tone-mapped.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.check.info import shard_records, shard_render_counts
+from pipeline.dataset.spec import parse_spec
+from pipeline.errors import ShaderballError
+from pipeline.render.tonemap import to_uint8, tonemap
+from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.exr import read_exr
+from pipeline.store.layout import Layout
+
+COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
+LABEL_WIDTH = 190
+HEADER_HEIGHT = 22
+GAP = 4
+BACKGROUND = (24, 24, 24)
+MISSING_TILE = (60, 60, 60)
+
+
+@dataclass(frozen=True)
+class PreviewSummary:
+    out: str
+    samples: list[str]
+    recorded: int
+    total: int
+    size: tuple[int, int]
+
+    def lines(self) -> list[str]:
+        return [f"contact sheet {self.out}: {len(self.samples)} samples "
+                f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
+                "samples: " + ", ".join(self.samples)]
+
+
+def choose_samples(records: list[dict], count: int) -> list[dict]:
+    """``count`` records spread evenly over ``records`` (sorted by id), first and last included."""
+    records = sorted(records, key=lambda r: r["id"])
+    if len(records) <= count:
+        return records
+    picks = np.unique(np.round(np.linspace(0, len(records) - 1, count)).astype(int))
+    return [records[i] for i in picks]
+
+
+def map_tiles(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray | None]:
+    """uint8 (H, W, 3) pictures of the maps of a ``maps.exr`` (None for a layer not stored)."""
+
+    def grey(x):
+        return np.repeat(x.reshape(x.shape[0], x.shape[1], 1), 3, axis=-1)
+
+    out: dict[str, np.ndarray | None] = {}
+    for name in ("diffuse", "specular"):
+        out[name] = to_uint8(layers[name].astype(np.float32), srgb=True) if name in layers else None
+    rough = layers.get("roughness")
+    out["roughness"] = grey(to_uint8(rough.astype(np.float32), srgb=False)) if rough is not None else None
+    normal = layers.get("normal")
+    if normal is not None:
+        encoded = (normal.astype(np.float32) + 1.0) * 0.5
+        mask = layers.get("mask")
+        if mask is not None:
+            encoded = np.where(mask.reshape(mask.shape[0], mask.shape[1], 1) > 0.5, encoded, 0.0)
+        out["normal"] = to_uint8(encoded, srgb=False)
+    else:
+        out["normal"] = None
+    return out
+
+
+def label_text(record: dict) -> list[str]:
+    material = record.get("material", {})
+    kind = material.get("kind", "?")
+    if kind == "svbrdf":
+        source = material.get("family") or os.path.basename(material.get("file") or "") or "?"
+        kind = f"SVBRDF {source}"
+    lighting = record.get("lighting", {})
+    lines = [record["id"], kind,
+             f"sun elevation {lighting.get('elevation_deg', float('nan')):.1f} deg",
+             f"sun azimuth {lighting.get('azimuth_deg', float('nan')):.1f} deg",
+             f"turbidity {lighting.get('turbidity', float('nan')):.2f}"]
+    requested = lighting.get("requested", {})
+    if requested and abs(requested.get("elevation_deg", 0.0) - lighting.get("elevation_deg", 0.0)) > 1e-9:
+        lines.append(f"(raised from {requested['elevation_deg']:.1f} deg)")
+    if record.get("stats", {}).get("flagged"):
+        lines.append("FLAGGED: bad pixels")
+    return lines
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def _fit(picture: np.ndarray, tile: int):
+    from PIL import Image
+
+    image = Image.fromarray(picture)
+    if image.size == (tile, tile):
+        return image
+    upscale = tile >= image.size[0] and tile % image.size[0] == 0
+    return image.resize((tile, tile), Image.NEAREST if upscale else Image.LANCZOS)
+
+
+def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
+    """The sheet as uint8 (H, W, 3): a header, then one row per record."""
+    from PIL import Image, ImageDraw
+
+
+    width = LABEL_WIDTH + len(COLUMNS) * (tile + GAP) + GAP
+    height = HEADER_HEIGHT + len(records) * (tile + GAP) + GAP
+    sheet = Image.new("RGB", (width, height), BACKGROUND)
+    draw = ImageDraw.Draw(sheet)
+    font, small = _font(14), _font(12)
+    for c, name in enumerate(COLUMNS):
+        draw.text((LABEL_WIDTH + c * (tile + GAP) + GAP, 4), name, fill=(230, 230, 230), font=font)
+    cache: dict[str, dict] = {}
+    for r, record in enumerate(records):
+        y = HEADER_HEIGHT + r * (tile + GAP)
+        files = {entry["role"]: entry["path"] for entry in record.get("files", [])}
+        render = read_exr(os.path.join(root, *files["render"].split("/"))).layers["render"]
+        maps_rel = files.get("maps")
+        if maps_rel not in cache:
+            cache[maps_rel] = read_exr(os.path.join(root, *maps_rel.split("/"))).layers if maps_rel else {}
+        layers = cache[maps_rel]
+        mask = layers.get("mask")
+        mask = mask[..., 0] > 0.5 if mask is not None else None
+        pictures = {"render": tonemap(render, mask=mask), **map_tiles(layers)}
+        for c, name in enumerate(COLUMNS):
+            x = LABEL_WIDTH + c * (tile + GAP) + GAP
+            if pictures.get(name) is None:
+                draw.rectangle([x, y, x + tile - 1, y + tile - 1], fill=MISSING_TILE)
+                draw.text((x + 6, y + 6), "not stored", fill=(200, 200, 200), font=small)
+            else:
+                sheet.paste(_fit(pictures[name], tile), (x, y))
+        for i, line in enumerate(label_text(record)):
+            draw.text((8, y + 4 + 17 * i), line, fill=(235, 235, 235) if i == 0 else (190, 190, 190),
+                      font=font if i == 0 else small)
+    return np.asarray(sheet)
+
+
+def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = None) -> PreviewSummary:
+    """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
+    from PIL import Image
+
+
+    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 200:
+        raise ShaderballError(f"--samples: {samples!r} is not allowed; allowed: an integer from 1 to 200")
+    if tile is not None and (isinstance(tile, bool) or not isinstance(tile, int) or not 32 <= tile <= 1024):
+        raise ShaderballError(f"--tile: {tile!r} is not allowed; allowed: an integer from 32 to 1024 (pixels)")
+    if not out.lower().endswith(".png"):
+        raise ShaderballError(f"--out: {out!r} is not allowed; allowed: a file name ending in .png")
+    layout = Layout(root)
+    if not os.path.isdir(root) or not os.path.isfile(layout.spec):
+        raise ShaderballError(f"DIR: {root!r} is not allowed; allowed: a dataset folder made by "
+                              "`shaderball build` (with its spec.toml)")
+    spec = parse_spec(layout.spec)
+    counts = shard_render_counts(spec)
+    records = [r for shard in counts for r in shard_records(layout, shard)[0]]
+    if not records:
+        raise ShaderballError(f"DIR: {root!r} holds no finished render yet; nothing to preview")
+    chosen = choose_samples(records, samples)
+    if tile is None:
+        resolution = spec.render.resolution
+        tile = resolution * max(1, -(-128 // resolution)) if resolution < 128 else min(resolution, 256)
+    picture = contact_sheet(root, chosen, tile)
+    import io
+
+    buffer = io.BytesIO()
+    Image.fromarray(picture).save(buffer, format="PNG", optimize=True)
+    folder = os.path.dirname(os.path.abspath(out))
+    os.makedirs(folder, exist_ok=True)
+    write_bytes_atomic(out, buffer.getvalue())
+    return PreviewSummary(out=out, samples=[r["id"] for r in chosen], recorded=len(records),
+                          total=sum(counts.values()), size=(picture.shape[1], picture.shape[0]))

@@ -1,0 +1,346 @@
+"""The build plan: every shard, material and render of a dataset, with their seeds.
+
+:func:`plan_dataset` is a pure, deterministic function of the spec (and, for imported
+SVBRDF folders, of the sorted names of their map files). Nothing in it depends on
+worker count, scheduling, order of execution, time or host; ``shard_size`` changes only
+how materials are grouped into shards, never a seed, a lighting or a material's kind.
+
+Seed derivation (also in docs/spec.md). Each stream has a 64-bit key,
+``key(S) = SeedSequence(entropy=dataset.seed, spawn_key=(S,)).generate_state(1, uint64)[0]``,
+with a distinct tag S per stream. A seed for index i of stream S is then
+``mix64(key(S) + i mod 2^64) >> 1``, ``mix64`` being SplitMix64's bijective finaliser:
+distinct indices give distinct 64-bit words, and the shift keeps seeds in 63 bits so they
+fit TOML and JSON integers. (One SeedSequence per material and stream would cost ~1 s for
+the paper spec; this costs milliseconds and makes distinct indices provably distinct.)
+
+- ``material_seed`` of material m: index m of STREAM_MATERIAL. Keyed by m only: a
+  material's maps are the same under all its lightings, and do not change with
+  lights_per_material, svbrdf_fraction, shard_size or anything but dataset.seed.
+- ``light_seed`` of material m: index m of STREAM_LIGHTS. All lightings of a material
+  are drawn *jointly*, ``sky.sample_lights(seeded_rng(light_seed), L, ranges)`` with
+  L = lights_per_material, so stratified and Sobol' schemes stratify across a
+  material's lightings; light l is element l of that draw.
+- ``render_seed`` of (m, l), for ``mi.render(..., seed=...)`` (32 bits):
+  ``mix32(key32 + m * 1000 + l mod 2^32)``, key32 the low 32 bits of key(STREAM_RENDER),
+  ``mix32`` a bijective 32-bit hash: all render seeds of a dataset are distinct.
+- which materials are SVBRDF: the first k = floor(svbrdf_fraction * materials + 0.5)
+  entries of ``seeded_rng(index 0 of STREAM_SVBRDF).permutation(materials)``; the j-th
+  of them (in permutation order) gets source j mod S of the list
+  ``svbrdf_families + svbrdf_folders`` (S entries), so sources are balanced to within one.
+- which file of imported folder f: the t-th material given folder f takes file
+  ``order[t mod N]`` of its N sorted map files, ``order`` =
+  ``seeded_rng(index f of STREAM_IMPORT).permutation(N)``: every file is used once
+  before any is used twice.
+
+Use :func:`seeded_rng` to turn any of these seeds into a ``numpy.random.Generator``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, fields
+from functools import cached_property
+
+import numpy as np
+
+from pipeline.dataset.spec import DatasetSpec, import_sky_name, list_map_files
+from pipeline.errors import ShaderballError
+
+STREAM_MATERIAL = 1
+STREAM_LIGHTS = 2
+STREAM_RENDER = 3
+STREAM_SVBRDF = 4
+STREAM_IMPORT = 5
+
+KIND_UNIFORM = "uniform"
+KIND_SVBRDF = "svbrdf"
+
+#: render_seed packs (m, l) as m * RENDER_STRIDE + l before mixing: injective because
+#: lights_per_material <= 1000 and materials <= 10^6 (so the packed value < 2^32).
+RENDER_STRIDE = 1000
+
+_U64 = np.uint64
+_U32 = np.uint32
+
+
+def material_id(material_index: int) -> str:
+    return f"m{material_index:06d}"
+
+
+def sample_id(material_index: int, light_index: int) -> str:
+    return f"{material_id(material_index)}_l{light_index}"
+
+
+def shard_id(shard_index: int) -> str:
+    return f"s{shard_index:05d}"
+
+
+def seeded_rng(seed: int) -> np.random.Generator:
+    """The generator every consumer of a plan seed uses: PCG64 seeded with ``seed``."""
+    return np.random.Generator(np.random.PCG64(seed))
+
+
+def stream_key(spec_seed: int, stream: int) -> int:
+    """The 64-bit key of a stream: ``SeedSequence(spec_seed, spawn_key=(stream,))``."""
+    state = np.random.SeedSequence(spec_seed, spawn_key=(stream,)).generate_state(1, _U64)
+    return int(state[0])
+
+
+def _mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser: a bijection of uint64 that scatters neighbouring inputs."""
+    x = (x ^ (x >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> _U64(27))) * _U64(0x94D049BB133111EB)
+    return x ^ (x >> _U64(31))
+
+
+def _mix32(x: np.ndarray) -> np.ndarray:
+    """A 32-bit bijective integer hash (Wellons' lowbias32)."""
+    x = x ^ (x >> _U32(16))
+    x = x * _U32(0x7FEB352D)
+    x = x ^ (x >> _U32(15))
+    x = x * _U32(0x846CA68B)
+    return x ^ (x >> _U32(16))
+
+
+def index_seeds(spec_seed: int, stream: int, indices) -> np.ndarray:
+    """63-bit seeds (uint64 array) of ``indices`` in ``stream``: mix64(key + index) >> 1."""
+    key = _U64(stream_key(spec_seed, stream))
+    with np.errstate(over="ignore"):
+        return _mix64(np.asarray(indices, dtype=_U64) + key) >> _U64(1)
+
+
+def render_seeds(spec_seed: int, material_indices, light_indices) -> np.ndarray:
+    """32-bit render seeds (uint32 array) of (material, light) pairs, broadcast.
+
+    mix32(key32 + m * 1000 + l): distinct for every sample of a dataset.
+    """
+    key = _U32(stream_key(spec_seed, STREAM_RENDER) & 0xFFFFFFFF)
+    packed = (np.asarray(material_indices, dtype=_U32) * _U32(RENDER_STRIDE)
+              + np.asarray(light_indices, dtype=_U32))
+    with np.errstate(over="ignore"):
+        return _mix32(packed + key)
+
+
+@dataclass(frozen=True, slots=True)
+class SamplePlan:
+    """One render: a material under one lighting."""
+
+    material_index: int
+    light_index: int
+    material_id: str
+    sample_id: str
+    shard_index: int
+    kind: str  # "uniform" or "svbrdf"
+    svbrdf_family: str | None  # procedural family, for a procedural SVBRDF
+    svbrdf_file: str | None  # absolute path of the imported map file, for an imported one
+    material_seed: int  # 63-bit; seeded_rng(material_seed) samples the material
+    light_seed: int  # 63-bit; the material's joint light draw (light_index picks this one)
+    render_seed: int  # 32-bit; mi.render(..., seed=render_seed)
+    elevation_deg: float
+    azimuth_deg: float
+    turbidity: float
+
+    @property
+    def shard_id(self) -> str:
+        return shard_id(self.shard_index)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class MaterialPlan:
+    """A material and all its lightings; its maps are sampled once from ``material_seed``.
+
+    Per-lighting values are stored as tuples indexed by light index; :attr:`samples`
+    gives them as :class:`SamplePlan` records (built on first access: building 50,000
+    of them eagerly would double the planning time of the paper spec).
+    """
+
+    material_index: int
+    material_id: str
+    shard_index: int
+    kind: str  # "uniform" or "svbrdf"
+    svbrdf_family: str | None
+    svbrdf_file: str | None
+    material_seed: int
+    light_seed: int
+    render_seeds: tuple[int, ...]
+    elevation_deg: tuple[float, ...]
+    azimuth_deg: tuple[float, ...]
+    turbidity: tuple[float, ...]
+
+    @property
+    def shard_id(self) -> str:
+        return shard_id(self.shard_index)
+
+    @property
+    def n_lights(self) -> int:
+        return len(self.render_seeds)
+
+    @cached_property
+    def samples(self) -> tuple[SamplePlan, ...]:
+        m, mid = self.material_index, self.material_id
+        return tuple(
+            SamplePlan(m, l, mid, f"{mid}_l{l}", self.shard_index, self.kind,
+                       self.svbrdf_family, self.svbrdf_file, self.material_seed,
+                       self.light_seed, self.render_seeds[l], self.elevation_deg[l],
+                       self.azimuth_deg[l], self.turbidity[l])
+            for l in range(len(self.render_seeds)))
+
+    def to_dict(self) -> dict:
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        for key in ("render_seeds", "elevation_deg", "azimuth_deg", "turbidity"):
+            out[key] = list(out[key])
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class ShardPlan:
+    """The unit of work: consecutive materials, all their lightings."""
+
+    shard_index: int
+    shard_id: str
+    materials: tuple[MaterialPlan, ...]
+
+    @property
+    def samples(self) -> tuple[SamplePlan, ...]:
+        return tuple(s for m in self.materials for s in m.samples)
+
+    @property
+    def n_renders(self) -> int:
+        return sum(m.n_lights for m in self.materials)
+
+
+def list_imported_maps(spec: DatasetSpec) -> dict[str, tuple[str, ...]]:
+    """Sorted map-file names of each imported SVBRDF folder of ``spec``.
+
+    The one place the planner touches the file system (a directory listing). Pass its
+    result to :func:`plan_dataset` to keep planning itself pure.
+    """
+    return {folder: list_map_files(folder) for folder in spec.materials.svbrdf_folders}
+
+
+def _svbrdf_assignment(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
+                       ) -> dict[int, tuple[str | None, str | None]]:
+    """material index -> (family, file) for every SVBRDF material (see module doc)."""
+    n = spec.dataset.materials
+    k = spec.dataset.n_svbrdf
+    if k == 0:
+        return {}
+    seed = spec.dataset.seed
+    families = list(spec.materials.svbrdf_families)
+    folders = list(spec.materials.svbrdf_folders)
+    sources = [("family", f) for f in families] + [("folder", i) for i in range(len(folders))]
+    file_orders = {}
+    for i, folder in enumerate(folders):
+        names = sorted(imported.get(folder, ()))
+        if not names:
+            raise ShaderballError(f"materials.svbrdf_folders: {folder!r} holds no map file "
+                                  "to import")
+        order = seeded_rng(int(index_seeds(seed, STREAM_IMPORT, i))).permutation(len(names))
+        file_orders[i] = [os.path.join(folder, names[j]) for j in order.tolist()]
+    chosen = seeded_rng(int(index_seeds(seed, STREAM_SVBRDF, 0))).permutation(n)[:k]
+    uses: Counter = Counter()
+    out = {}
+    for j, m in enumerate(chosen.tolist()):
+        what, which = sources[j % len(sources)]
+        if what == "family":
+            out[m] = (which, None)
+        else:
+            files = file_orders[which]
+            out[m] = (None, files[uses[which] % len(files)])
+            uses[which] += 1
+    return out
+
+
+def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
+    """(elevation_deg, azimuth_deg, turbidity), each (materials, lights_per_material).
+
+    The unit-cube points come from ``sky.sampling.unit_points`` per material (so the
+    scheme is sky's); they are mapped to angles here in one vectorised pass with the same
+    arithmetic as ``sky.sampling.lights_from_unit_cube``, because building 50,000
+    ``sky.Light`` objects one material at a time takes about a second for the paper spec.
+    tests/test_plan.py checks the result against ``sky.sample_lights`` itself.
+    """
+    ranges = spec.lighting.to_lighting_ranges()
+    unit_points = import_sky_name("unit_points", "sampling")
+    n_lights = spec.dataset.lights_per_material
+    u = np.stack([unit_points(seeded_rng(int(s)), n_lights, ranges.scheme)
+                  for s in light_seeds.tolist()])
+    el_lo, el_hi = ranges.elevation_deg
+    az_lo, az_hi = ranges.azimuth_deg
+    t_lo, t_hi = ranges.turbidity
+    if ranges.scheme == "uniform_angles":
+        elevation = el_lo + u[..., 0] * (el_hi - el_lo)
+    else:
+        z_lo, z_hi = math.sin(math.radians(el_lo)), math.sin(math.radians(el_hi))
+        z = z_lo + u[..., 0] * (z_hi - z_lo)
+        elevation = np.clip(np.degrees(np.arcsin(np.clip(z, -1.0, 1.0))), el_lo, el_hi)
+    azimuth = az_lo + u[..., 1] * (az_hi - az_lo)
+    turbidity = np.clip(t_lo + u[..., 2] * (t_hi - t_lo), t_lo, t_hi)
+    if spec.lighting.turbidity_per == "material":
+        turbidity = np.broadcast_to(turbidity[:, :1], turbidity.shape)
+    return elevation, azimuth, turbidity
+
+
+def plan_dataset(spec: DatasetSpec,
+                 imported: Mapping[str, Sequence[str]] | None = None) -> list[ShardPlan]:
+    """Every shard of ``spec``, in order; deterministic and pure.
+
+    ``imported`` maps each of ``spec.materials.svbrdf_folders`` to its map-file names
+    (as :func:`list_imported_maps` returns); when None and the spec has folders, they
+    are listed here.
+    """
+    if imported is None:
+        imported = list_imported_maps(spec) if spec.materials.svbrdf_folders else {}
+    ds = spec.dataset
+    n = ds.materials
+    svbrdf = _svbrdf_assignment(spec, imported)
+    m_all = np.arange(n)
+    material_seeds = index_seeds(ds.seed, STREAM_MATERIAL, m_all).tolist()
+    light_seeds = index_seeds(ds.seed, STREAM_LIGHTS, m_all)
+    r_seeds = render_seeds(ds.seed, m_all[:, None],
+                           np.arange(ds.lights_per_material)[None, :]).tolist()
+    elevation, azimuth, turbidity = (a.tolist() for a in _light_arrays(spec, light_seeds))
+    light_seeds = light_seeds.tolist()
+
+    shards: list[ShardPlan] = []
+    for s in range(ds.n_shards):
+        materials = []
+        for m in range(s * ds.shard_size, min((s + 1) * ds.shard_size, n)):
+            family, file = svbrdf.get(m, (None, None))
+            kind = KIND_SVBRDF if m in svbrdf else KIND_UNIFORM
+            mid = material_id(m)
+            materials.append(MaterialPlan(
+                m, mid, s, kind, family, file, material_seeds[m], light_seeds[m],
+                tuple(r_seeds[m]), tuple(elevation[m]), tuple(azimuth[m]), tuple(turbidity[m])))
+        shards.append(ShardPlan(s, shard_id(s), tuple(materials)))
+    return shards
+
+
+def iter_samples(plans: Sequence[ShardPlan]):
+    """Every SamplePlan, in plan order (shard, material, light)."""
+    for shard in plans:
+        for material in shard.materials:
+            yield from material.samples
+
+
+def plan_summary(plans: Sequence[ShardPlan]) -> dict:
+    """Counts: shards, materials, renders, uniform and SVBRDF materials, SVBRDF sources."""
+    materials = [m for shard in plans for m in shard.materials]
+    sources = Counter(
+        f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else
+        f"folder:{os.path.dirname(m.svbrdf_file)}"
+        for m in materials if m.kind == KIND_SVBRDF)
+    return {
+        "shards": len(plans),
+        "materials": len(materials),
+        "renders": sum(m.n_lights for m in materials),
+        "uniform": sum(m.kind == KIND_UNIFORM for m in materials),
+        "svbrdf": sum(m.kind == KIND_SVBRDF for m in materials),
+        "svbrdf_sources": dict(sorted(sources.items())),
+    }

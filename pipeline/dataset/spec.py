@@ -1,0 +1,822 @@
+"""Dataset specs: a TOML file parsed into frozen, checked dataclasses.
+
+A spec has five sections, one dataclass each::
+
+    [dataset]    DatasetSection    name, version, seed, counts, uniform/SVBRDF split, shard size
+    [materials]  MaterialsSection  uniform-material ranges, SVBRDF sources, texture size
+    [lighting]   LightingSection   sun elevation/azimuth and turbidity ranges, scheme, sun form
+    [render]     RenderSection     resolution, spp, max depth, integrator, Mitsuba variant
+    [storage]    StorageSection    EXR compression, stored layers, texture-space maps, half maps
+
+Each section checks its own fields in ``__post_init__`` (so a section built from Python
+is checked too) and raises :class:`SpecError`, a :class:`ShaderballError` whose message
+reads ``<file>: <section>.<field>: <value> is not allowed; <what is allowed>``.
+Unknown sections and keys are errors (a typo must never be silently ignored); a missing
+key takes its documented default, except the required ``dataset.name``, ``dataset.seed``
+and ``dataset.materials``.
+
+The reference page ``docs/spec.md`` embeds :func:`reference_markdown`, generated from
+the field metadata below; a test keeps the two identical.
+
+This module is pure: it reads the spec file and checks that SVBRDF folders exist, nothing
+else. No Mitsuba, no dask.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import hashlib
+import json
+import math
+import numbers
+import os
+import re
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+import tomllib
+
+from pipeline.errors import ShaderballError
+
+# pipeline.store.exr loads only numpy at import time; its table is the one list of compressions.
+from pipeline.store.exr import COMPRESSIONS
+
+#: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
+#: Keep in sync with materials/ (a test compares them when materials/ is importable).
+FALLBACK_SVBRDF_FAMILIES: tuple[str, ...] = ("stains", "tiles", "bricks", "brushed_metal",
+                                             "worn_paint", "stones")
+
+#: File suffixes (lower case) of imported SVBRDF map files, as in Deschaintre et al. 2018's
+#: dataset (one PNG per material with the maps side by side).
+SVBRDF_IMPORT_SUFFIXES: tuple[str, ...] = (".png",)
+
+#: Screen-space map layers the storage stage can write (pipeline.store.exr layer names).
+MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal", "mask")
+
+#: Upper bounds that keep ids fixed-width: "m" + 6 digits, "s" + 5 digits (pipeline.store.layout).
+MAX_MATERIALS = 1_000_000
+MAX_SHARDS = 100_000
+
+SEED_MAX = 2**63 - 1
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def format_value(value: Any) -> str:
+    """A value as TOML would spell it, shortened for a one-line message."""
+    if value is _MISSING:
+        text = "(missing)"
+    elif isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = json.dumps(value, ensure_ascii=False)
+    elif isinstance(value, float):
+        text = "nan" if math.isnan(value) else ("inf" if value == math.inf else
+                                                 "-inf" if value == -math.inf else repr(value))
+    elif isinstance(value, (list, tuple)):
+        text = "[" + ", ".join(format_value(v) for v in value) + "]"
+    elif isinstance(value, dict):
+        text = "{" + ", ".join(f"{k} = {format_value(v)}" for k, v in value.items()) + "}"
+    else:
+        text = repr(value)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+class SpecError(ShaderballError):
+    """A bad spec field: names the file, the field, the value and what is allowed."""
+
+    def __init__(self, section: str, field_name: str, value: Any, allowed: str,
+                 source: str | None = None, *, what: str | None = None):
+        self.section = section
+        self.field_name = field_name
+        self.value = value
+        self.allowed = allowed
+        self.source = source
+        self.what = what
+        where = f"{section}.{field_name}" if field_name else f"[{section}]"
+        prefix = f"{source}: " if source else ""
+        if what is None:
+            what = f"{format_value(value)} is not allowed"
+        super().__init__(f"{prefix}{where}: {what}; {allowed}")
+
+    def with_source(self, source: str) -> SpecError:
+        return SpecError(self.section, self.field_name, self.value, self.allowed, source,
+                         what=self.what)
+
+
+class _Reject(Exception):
+    """Raised by a rule; the section turns it into a SpecError naming the field."""
+
+    def __init__(self, detail: str = ""):
+        super().__init__(detail)
+        self.detail = detail
+
+
+_MISSING = object()
+
+
+# --------------------------------------------------------------------------- rules
+
+
+def _is_number(v: Any) -> bool:
+    # bool is an int subclass in Python: `spp = true` must not pass as 1.
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def _is_integer(v: Any) -> bool:
+    # numbers.Integral admits numpy integers (from Python callers) but not floats like 8.0.
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+class _Rule:
+    allowed: str
+    #: What the reference page says is allowed, when ``allowed`` is computed at run time.
+    doc_allowed: str | None = None
+
+    def check(self, value: Any) -> Any:  # returns the normalised value or raises _Reject
+        raise NotImplementedError
+
+    @staticmethod
+    def plain(value: Any) -> Any:
+        """The value as plain TOML/JSON data (tuples become lists)."""
+        return list(value) if isinstance(value, tuple) else value
+
+
+class _Int(_Rule):
+    def __init__(self, lo: int, hi: int, also: tuple[int, ...] = (), also_text: str = ""):
+        self.lo, self.hi, self.also = lo, hi, also
+        self.allowed = f"an integer from {lo} to {hi}" + (f", or {also_text}" if also else "")
+
+    def check(self, value):
+        if not _is_integer(value):
+            raise _Reject()
+        value = int(value)
+        if value in self.also or self.lo <= value <= self.hi:
+            return value
+        raise _Reject()
+
+
+class _Float(_Rule):
+    def __init__(self, lo: float, hi: float):
+        self.lo, self.hi = lo, hi
+        self.allowed = f"a finite number from {lo:g} to {hi:g}"
+
+    def check(self, value):
+        if not _is_number(value) or not math.isfinite(value) or not self.lo <= value <= self.hi:
+            raise _Reject()
+        return float(value)
+
+
+class _Pair(_Rule):
+    """A closed interval [lo, hi]; lo == hi fixes the value."""
+
+    def __init__(self, lo: float, hi: float, max_span: float | None = None):
+        self.lo, self.hi, self.max_span = lo, hi, max_span
+        self.allowed = f"a pair [lo, hi] of finite numbers with {lo:g} <= lo <= hi <= {hi:g}"
+        if max_span is not None:
+            self.allowed += f" and hi - lo <= {max_span:g}"
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise _Reject()
+        if not all(_is_number(v) and math.isfinite(v) for v in value):
+            raise _Reject()
+        lo, hi = float(value[0]), float(value[1])
+        if lo > hi:
+            raise _Reject(f"(lo {lo:g} > hi {hi:g}: the range is inverted)")
+        if lo < self.lo or hi > self.hi:
+            raise _Reject()
+        if self.max_span is not None and hi - lo > self.max_span:
+            raise _Reject(f"(span {hi - lo:g})")
+        return (lo, hi)
+
+
+class _Choice(_Rule):
+    """One string from ``options`` (a tuple, or a callable asked at check time)."""
+
+    def __init__(self, options, doc_allowed: str | None = None):
+        self._options = options
+        self.doc_allowed = doc_allowed
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        return tuple(self._options() if callable(self._options) else self._options)
+
+    @property
+    def allowed(self) -> str:
+        return "one of " + ", ".join(json.dumps(o) for o in self.options)
+
+    def check(self, value):
+        if not isinstance(value, str) or value not in self.options:
+            raise _Reject()
+        return value
+
+
+class _Text(_Rule):
+    def __init__(self, pattern: str, text: str):
+        self.pattern = re.compile(pattern)
+        self.allowed = text
+
+    def check(self, value):
+        if not isinstance(value, str) or not self.pattern.fullmatch(value):
+            raise _Reject()
+        return value
+
+
+class _Bool(_Rule):
+    allowed = "true or false"
+
+    def check(self, value):
+        if not isinstance(value, bool):
+            raise _Reject()
+        return value
+
+
+class _StrList(_Rule):
+    """A list of distinct strings, optionally from a set; stored as a tuple.
+
+    ``options`` may be a callable, asked at check time, so the allowed set can come from
+    a package imported lazily.
+    """
+
+    def __init__(self, options, what: str, doc_allowed: str | None = None):
+        self._options = options
+        self._what = what
+        self.doc_allowed = doc_allowed
+
+    @property
+    def options(self) -> tuple[str, ...] | None:
+        return self._options() if callable(self._options) else self._options
+
+    @property
+    def allowed(self) -> str:
+        options = self.options
+        if options is None:
+            return f"a list of distinct {self._what}"
+        return f"a list of distinct {self._what} from " + ", ".join(json.dumps(o) for o in options)
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise _Reject()
+        if len(set(value)) != len(value):
+            dupes = sorted({v for v in value if list(value).count(v) > 1})
+            raise _Reject("(repeated: " + ", ".join(json.dumps(d) for d in dupes) + ")")
+        options = self.options
+        if options is not None:
+            bad = [v for v in value if v not in options]
+            if bad:
+                raise _Reject("(unknown: " + ", ".join(json.dumps(b) for b in bad) + ")")
+        return tuple(value)
+
+
+class _Folders(_StrList):
+    def __init__(self):
+        super().__init__(None, "existing folders (relative paths are taken from the spec "
+                               "file's folder), each holding at least one "
+                               + "/".join(SVBRDF_IMPORT_SUFFIXES) + " map file")
+
+    def check(self, value):
+        value = super().check(value)
+        for folder in value:
+            if not folder or not os.path.isdir(folder):
+                raise _Reject(f"({json.dumps(folder)} is not a folder)")
+            if not list_map_files(folder):
+                raise _Reject(f"({json.dumps(folder)} holds no "
+                              + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
+        return value
+
+
+def list_map_files(folder: str) -> tuple[str, ...]:
+    """Sorted names (not paths) of the importable SVBRDF map files directly in ``folder``."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return ()
+    return tuple(sorted(
+        n for n in names
+        if not n.startswith(".") and os.path.splitext(n)[1].lower() in SVBRDF_IMPORT_SUFFIXES
+        and os.path.isfile(os.path.join(folder, n))))
+
+
+def svbrdf_family_names() -> tuple[str, ...]:
+    """The procedural SVBRDF families: materials.SVBRDF_FAMILIES, else the fallback list."""
+    try:
+        from materials import SVBRDF_FAMILIES  # noqa: PLC0415 - lazy on purpose
+    except ImportError:
+        return FALLBACK_SVBRDF_FAMILIES
+    # An empty registry is a package still being written, never a real state.
+    return tuple(SVBRDF_FAMILIES) or FALLBACK_SVBRDF_FAMILIES
+
+
+def _field(default: Any = _MISSING, *, rule: _Rule, doc: str, unit: str = "",
+           factory: Any = None, doc_default: str | None = None):
+    meta = {"rule": rule, "doc": doc, "unit": unit, "doc_default": doc_default}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    if default is _MISSING:
+        return field(metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# --------------------------------------------------------------------------- sections
+
+
+class _Section:
+    """Mixin: check every field by its rule, then the section's own cross-field rules."""
+
+    SECTION: ClassVar[str]
+
+    def __post_init__(self):
+        for f in fields(self):
+            rule: _Rule = f.metadata["rule"]
+            value = getattr(self, f.name)
+            try:
+                normalised = rule.check(value)
+            except _Reject as exc:
+                allowed = rule.allowed + (f" {exc.detail}" if exc.detail else "")
+                raise SpecError(self.SECTION, f.name, value, allowed) from None
+            object.__setattr__(self, f.name, normalised)
+        self._check_section()
+
+    def _check_section(self) -> None:
+        pass
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: f.metadata["rule"].plain(getattr(self, f.name)) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class DatasetSection(_Section):
+    """[dataset]: what is built, how much of it, from which seed."""
+
+    SECTION: ClassVar[str] = "dataset"
+
+    name: str = _field(rule=_Text(r"[a-z0-9_-]{1,64}",
+                                  "1 to 64 characters from a-z, 0-9, _ and -"),
+                       doc="Dataset name; used in file names and the published description.")
+    seed: int = _field(rule=_Int(0, SEED_MAX),
+                       doc="Root of every random stream of the dataset (see the seed "
+                           "derivation below).")
+    materials: int = _field(rule=_Int(1, MAX_MATERIALS),
+                            doc="Number of materials; ids m000000 to m(materials-1).",
+                            unit="materials")
+    version: str = _field("1", rule=_Text(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,31}",
+                                          "1 to 32 characters from A-Z, a-z, 0-9, . _ + -, "
+                                          "starting with a letter or digit"),
+                          doc="Version of the dataset, recorded in its description.")
+    lights_per_material: int = _field(5, rule=_Int(1, 1000),
+                                      doc="Lightings (sun direction + turbidity) rendered per "
+                                          "material; the paper uses 5.",
+                                      unit="lightings")
+    svbrdf_fraction: float = _field(0.5, rule=_Float(0.0, 1.0),
+                                    doc="Share of materials that are spatially varying; "
+                                        "exactly floor(fraction x materials + 0.5) of them. "
+                                        "The paper: 0.5.")
+    shard_size: int = _field(20, rule=_Int(1, MAX_MATERIALS),
+                             doc="Materials per shard, the unit of work; all lightings of a "
+                                 "material are in its shard. Changes grouping only, never "
+                                 "seeds. At most 100000 shards.",
+                             unit="materials")
+
+    @property
+    def n_svbrdf(self) -> int:
+        """How many materials are SVBRDF: floor(fraction * materials + 0.5) (ties round up)."""
+        return int(math.floor(self.svbrdf_fraction * self.materials + 0.5))
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.materials // self.shard_size)
+
+    @property
+    def n_renders(self) -> int:
+        return self.materials * self.lights_per_material
+
+    def _check_section(self):
+        if self.n_shards > MAX_SHARDS:
+            need = -(-self.materials // MAX_SHARDS)
+            raise SpecError("dataset", "shard_size", self.shard_size,
+                            f"at least {need} with {self.materials} materials "
+                            f"(at most {MAX_SHARDS} shards)")
+
+
+@dataclass(frozen=True)
+class MaterialsSection(_Section):
+    """[materials]: ranges of uniform materials, sources of spatially varying ones."""
+
+    SECTION: ClassVar[str] = "materials"
+
+    # Uniform materials: the fields, defaults and limits of materials.UniformRanges
+    # (a test keeps them equal). The model: a dielectric (grey specular of a few percent,
+    # coloured diffuse) or, with probability metal_probability, a metal (coloured
+    # specular, almost no diffuse); colours drawn in HSV with V in sRGB-encoded units.
+    roughness: tuple[float, float] = _field(
+        (0.05, 1.0), rule=_Pair(0.0, 1.0),
+        doc="Range of a uniform material's roughness r, drawn uniformly (GGX alpha = r^2). "
+            "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.")
+    metal_probability: float = _field(
+        0.3, rule=_Float(0.0, 1.0),
+        doc="Probability that a uniform material is a metal (coloured specular, ~no diffuse).",
+        unit="probability")
+    dielectric_specular: tuple[float, float] = _field(
+        (0.02, 0.08), rule=_Pair(0.0, 1.0),
+        doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, "
+            "gems ~0.08+).",
+        unit="linear albedo")
+    diffuse_value_srgb: tuple[float, float] = _field(
+        (0.15, 0.95), rule=_Pair(0.0, 1.0),
+        doc="Range of a dielectric's diffuse brightness, HSV value in sRGB-encoded units "
+            "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
+        unit="sRGB-encoded value")
+    diffuse_saturation: tuple[float, float] = _field(
+        (0.0, 0.85), rule=_Pair(0.0, 1.0),
+        doc="Range of a dielectric's diffuse saturation (HSV).")
+    metal_value_srgb: tuple[float, float] = _field(
+        (0.55, 1.0), rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's specular brightness, HSV value in sRGB-encoded units "
+            "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
+        unit="sRGB-encoded value")
+    metal_saturation: tuple[float, float] = _field(
+        (0.0, 0.5), rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.")
+    metal_hue: tuple[float, float] = _field(
+        (0.0, 0.17), rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's specular hue (HSV, 0 = red, 1/6 = yellow): copper, gold and "
+            "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.")
+    metal_diffuse_fraction: tuple[float, float] = _field(
+        (0.0, 0.1), rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular "
+            "(dirt, oxide).")
+    flat_normal_probability: float = _field(
+        0.5, rule=_Float(0.0, 1.0),
+        doc="Probability that a uniform material's normal is flat, (0, 0, 1).",
+        unit="probability")
+    normal_tilt_max_deg: float = _field(
+        20.0, rule=_Float(0.0, 80.0),
+        doc="Largest tilt from (0, 0, 1) of a non-flat uniform normal; the tilt is uniform in "
+            "solid angle, towards a uniform azimuth.",
+        unit="degrees")
+    svbrdf_families: tuple[str, ...] = _field(
+        rule=_StrList(svbrdf_family_names, "procedural family names",
+                      doc_allowed="a list of distinct names from materials.SVBRDF_FAMILIES"),
+        factory=svbrdf_family_names, doc_default="all of materials.SVBRDF_FAMILIES",
+        doc="Procedural SVBRDF families SVBRDF materials are drawn from (default: all). "
+            "May be empty when svbrdf_folders is not.")
+    svbrdf_folders: tuple[str, ...] = _field(
+        (), rule=_Folders(),
+        doc="Folders of imported SVBRDF maps in Deschaintre et al. 2018's layout "
+            "(one .png per material), checked when the spec is read. Stored as "
+            "absolute paths in the canonical form.")
+    texture_resolution: int = _field(
+        256, rule=_Int(16, 4096),
+        doc="Width and height of a material's texture-space (UV) maps.",
+        unit="texels")
+
+    @property
+    def has_svbrdf_source(self) -> bool:
+        return bool(self.svbrdf_families or self.svbrdf_folders)
+
+    def to_uniform_ranges(self):
+        """The ranges as ``materials.UniformRanges`` (imported here, not at module load)."""
+        try:
+            from materials import UniformRanges  # noqa: PLC0415
+        except ImportError as exc:
+            raise ShaderballError(
+                f"materials.UniformRanges is not available ({exc}); "
+                "the materials package is needed to sample uniform materials") from None
+        return UniformRanges(**{name: getattr(self, name) for name in UNIFORM_FIELDS})
+
+
+#: The fields of MaterialsSection passed to materials.UniformRanges.
+UNIFORM_FIELDS: tuple[str, ...] = (
+    "roughness", "metal_probability", "dielectric_specular", "diffuse_value_srgb",
+    "diffuse_saturation", "metal_value_srgb", "metal_saturation", "metal_hue",
+    "metal_diffuse_fraction",
+    "flat_normal_probability", "normal_tilt_max_deg")
+
+
+#: Sun-direction sampling schemes, used when ``sky.lighting.SCHEMES`` can't be imported.
+FALLBACK_LIGHT_SCHEMES: tuple[str, ...] = ("uniform_hemisphere", "uniform_angles", "stratified",
+                                           "sobol")
+
+
+def light_scheme_names() -> tuple[str, ...]:
+    """The sun-sampling schemes: sky.lighting.SCHEMES, else the fallback list."""
+    try:
+        from sky.lighting import SCHEMES  # noqa: PLC0415 - lazy on purpose
+    except ImportError:
+        return FALLBACK_LIGHT_SCHEMES
+    return tuple(SCHEMES)
+
+
+#: How the sun is given to Mitsuba (pipeline.render.emitter.SUN_MODES; a test keeps them equal).
+SUN_FORMS: tuple[str, ...] = ("split", "sunsky")
+
+
+@dataclass(frozen=True)
+class LightingSection(_Section):
+    """[lighting]: the Hosek-Wilkie sun and sky each render is lit by."""
+
+    SECTION: ClassVar[str] = "lighting"
+
+    elevation_deg: tuple[float, float] = _field(
+        (5.0, 90.0), rule=_Pair(0.0, 90.0),
+        doc="Range of the sun's elevation above the horizon. Mitsuba's RGB sunsky is black at "
+            "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
+            "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
+            "(2.5 to 7.0 by turbidity; docs/sky.md) are raised to it, and the move is recorded.",
+        unit="degrees")
+    azimuth_deg: tuple[float, float] = _field(
+        (0.0, 360.0), rule=_Pair(-360.0, 360.0, max_span=360.0),
+        doc="Range of the sun's azimuth, counter-clockwise from +x seen from above "
+            "(0: from the image's right, 90: from behind, 270: from the camera's side).",
+        unit="degrees")
+    turbidity: tuple[float, float] = _field(
+        (1.0, 10.0), rule=_Pair(1.0, 10.0),
+        doc="Range of the atmosphere's turbidity (Hosek-Wilkie; Mitsuba accepts 1 to 10).")
+    scheme: str = _field(
+        "uniform_hemisphere", rule=_Choice(light_scheme_names, doc_allowed="one of "
+                                           + ", ".join(f'"{x}"' for x in FALLBACK_LIGHT_SCHEMES)
+                                           + " (sky.SCHEMES)"),
+        doc="How the lightings of a material are drawn (all of them jointly, see below): "
+            "uniform_hemisphere (uniform in solid angle over the band; the paper), "
+            "uniform_angles (uniform in elevation and azimuth degrees), stratified (Latin "
+            "hypercube over sin(elevation), azimuth and turbidity), sobol (scrambled Sobol' "
+            "points). Turbidity is uniform in every scheme.")
+    turbidity_per: str = _field(
+        "material", rule=_Choice(("material", "light")),
+        doc="material: one turbidity per material, shared by all its lightings (the paper: "
+            "'a random turbidity per material'; drawn with its first lighting); light: a "
+            "turbidity drawn for every lighting.")
+    sun: str = _field(
+        "split", rule=_Choice(SUN_FORMS),
+        doc="Sun representation (pipeline.render.emitter): split (a sky-only sunsky plus a directional "
+            "sun of the same irradiance; sky's measured default) or sunsky (one Mitsuba "
+            "sunsky emitter, its sun an area light of 0.5358 degrees).")
+
+    def to_lighting_ranges(self):
+        """The ranges as ``sky.LightingRanges`` (imported here, not at module load)."""
+        LightingRanges = import_sky_name("LightingRanges", "lighting")
+        return LightingRanges(
+            elevation_deg=self.elevation_deg,
+            azimuth_deg=self.azimuth_deg,
+            turbidity=self.turbidity,
+            scheme=self.scheme,
+        )
+
+
+def import_sky_name(name: str, module: str):
+    """``sky.<name>``, from the package or its ``sky.<module>`` submodule."""
+    import importlib  # noqa: PLC0415
+
+    errors = []
+    for where in ("sky", f"sky.{module}"):
+        try:
+            return getattr(importlib.import_module(where), name)
+        except (ImportError, AttributeError) as exc:
+            errors.append(str(exc))
+    raise ShaderballError(f"sky.{name} is not available ({'; '.join(errors)}); the sky "
+                          "package is needed to sample lightings")
+
+
+INTEGRATORS: tuple[str, ...] = ("path",)
+VARIANTS: tuple[str, ...] = ("auto", "llvm", "cuda", "scalar")
+
+
+@dataclass(frozen=True)
+class RenderSection(_Section):
+    """[render]: how each target image is path traced."""
+
+    SECTION: ClassVar[str] = "render"
+
+    resolution: int = _field(400, rule=_Int(16, 4096),
+                             doc="Width and height of renders and screen-space maps; the "
+                                 "paper: 400.",
+                             unit="pixels")
+    spp: int = _field(150, rule=_Int(1, 65536),
+                      doc="Samples per pixel of each render; the paper: 150.",
+                      unit="samples per pixel")
+    max_depth: int = _field(8, rule=_Int(1, 64, also=(-1,), also_text="-1 (unlimited, "
+                                                                        "Russian roulette ends "
+                                                                        "paths)"),
+                            doc="Longest light path, in Mitsuba's convention (1: emitters "
+                                "seen directly only, 2: direct lighting, ...). -1: no limit.",
+                            unit="path vertices")
+    integrator: str = _field("path", rule=_Choice(INTEGRATORS),
+                             doc="Mitsuba integrator.")
+    variant: str = _field("auto", rule=_Choice(VARIANTS),
+                          doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
+                              "llvm (llvm_ad_rgb), cuda (cuda_ad_rgb), scalar (scalar_rgb). "
+                              "Renders are reproducible for one backend and machine only.")
+
+
+@dataclass(frozen=True)
+class StorageSection(_Section):
+    """[storage]: what is written and how."""
+
+    SECTION: ClassVar[str] = "storage"
+
+    compression: str = _field("zip", rule=_Choice(tuple(COMPRESSIONS)),
+                              doc="EXR compression of every file (all lossless).")
+    layers: tuple[str, ...] = _field(MAP_LAYERS, rule=_StrList(MAP_LAYERS, "map layer names"),
+                                     doc="Screen-space maps stored per material (renders are "
+                                         "always stored). Canonical order: as listed here.")
+    texture_maps: bool = _field(True, rule=_Bool(),
+                                doc="Also store each material's texture-space (UV) maps.")
+    maps_half: bool = _field(True, rule=_Bool(),
+                             doc="Store maps as half floats (renders are always float32).")
+
+    def _check_section(self):
+        # One canonical order, so ["normal", "diffuse"] and ["diffuse", "normal"] are the
+        # same spec with the same digest.
+        object.__setattr__(self, "layers", tuple(n for n in MAP_LAYERS if n in self.layers))
+
+
+SECTIONS: dict[str, type[_Section]] = {
+    "dataset": DatasetSection,
+    "materials": MaterialsSection,
+    "lighting": LightingSection,
+    "render": RenderSection,
+    "storage": StorageSection,
+}
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """A whole, checked spec. Build one with :func:`parse_spec` or :func:`parse_spec_text`."""
+
+    dataset: DatasetSection
+    materials: MaterialsSection = field(default_factory=MaterialsSection)
+    lighting: LightingSection = field(default_factory=LightingSection)
+    render: RenderSection = field(default_factory=RenderSection)
+    storage: StorageSection = field(default_factory=StorageSection)
+
+    def __post_init__(self):
+        for name, cls in SECTIONS.items():
+            if not isinstance(getattr(self, name), cls):
+                raise TypeError(f"DatasetSpec.{name} must be a {cls.__name__}")
+        n_svbrdf = self.dataset.n_svbrdf
+        if n_svbrdf and not self.materials.has_svbrdf_source:
+            raise SpecError(
+                "materials", "svbrdf_families", list(self.materials.svbrdf_families),
+                f"at least one family (or a folder in materials.svbrdf_folders) when "
+                f"dataset.svbrdf_fraction = {self.dataset.svbrdf_fraction:g} makes "
+                f"{n_svbrdf} of {self.dataset.materials} materials SVBRDF")
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+def parse_spec(path: str | os.PathLike) -> DatasetSpec:
+    """Read and check the spec file at ``path``."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise ShaderballError(f"spec file {path}: not found") from None
+    except OSError as exc:
+        raise ShaderballError(f"spec file {path}: cannot be read ({exc.strerror})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ShaderballError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") \
+            from None
+    return parse_spec_text(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = None
+                    ) -> DatasetSpec:
+    """Parse and check spec TOML ``text``; ``source`` names it in error messages.
+
+    Relative ``materials.svbrdf_folders`` are taken from ``base_dir`` (default: the
+    current folder) and stored absolute.
+    """
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ShaderballError(f"{source}: not valid TOML: {exc}") from None
+    try:
+        return _spec_from_table(table, base_dir or os.getcwd())
+    except SpecError as exc:
+        raise exc.with_source(source) from None
+
+
+def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
+    for name, value in table.items():
+        if name not in SECTIONS:
+            raise SpecError(name, "", value, "sections are " + ", ".join(f"[{s}]" for s in SECTIONS)
+                            + _did_you_mean(name, SECTIONS), what="unknown section")
+        if not isinstance(value, dict):
+            raise SpecError(name, "", value, f"[{name}] must be a table of keys",
+                            what=f"{format_value(value)} is not a table")
+    if "dataset" not in table:
+        raise SpecError("dataset", "", _MISSING, "a [dataset] section with at least name, seed "
+                        "and materials is required", what="missing")
+    sections = {}
+    for name, cls in SECTIONS.items():
+        raw = dict(table.get(name, {}))
+        if name == "materials" and isinstance(raw.get("svbrdf_folders"), list):
+            raw["svbrdf_folders"] = [
+                os.path.normpath(os.path.join(base_dir, os.path.expanduser(f)))
+                if isinstance(f, str) and f else f
+                for f in raw["svbrdf_folders"]]
+        sections[name] = _section_from_table(cls, raw)
+    return DatasetSpec(**sections)
+
+
+def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
+    known = {f.name: f for f in fields(cls)}
+    for key, value in raw.items():
+        if key not in known:
+            raise SpecError(cls.SECTION, key, value,
+                            f"[{cls.SECTION}] takes only: " + ", ".join(known)
+                            + _did_you_mean(key, known),
+                            what=f"unknown key (value {format_value(value)}) is not allowed")
+    for name, f in known.items():
+        if name not in raw and f.default is dataclasses.MISSING \
+                and f.default_factory is dataclasses.MISSING:
+            raise SpecError(cls.SECTION, name, _MISSING, "required: " + f.metadata["rule"].allowed,
+                            what="missing")
+    return cls(**raw)
+
+
+def _did_you_mean(word: str, options) -> str:
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+# --------------------------------------------------------------------------- canonical form
+
+
+def spec_to_dict(spec: DatasetSpec) -> dict[str, dict[str, Any]]:
+    """Every field of every section, defaults included, as plain TOML/JSON data."""
+    return {name: getattr(spec, name).to_dict() for name in SECTIONS}
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"non-finite float {value!r} has no canonical form")
+        return repr(value)  # shortest round-tripping form; always has '.', 'e' or both
+    if isinstance(value, str):
+        # JSON's escapes are TOML's, but TOML refuses surrogate escapes (so no
+        # ensure_ascii) and wants DEL escaped (which JSON leaves alone).
+        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {type(value).__name__}")
+
+
+def spec_to_toml(spec: DatasetSpec) -> str:
+    """The canonical TOML snapshot: every field explicit; ``parse_spec_text(it) == spec``."""
+    lines = ["# shaderball dataset spec, canonical form: every field explicit.", ""]
+    for name, table in spec_to_dict(spec).items():
+        lines.append(f"[{name}]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
+        lines.append("")
+    return "\n".join(lines)
+
+
+def spec_digest(spec: DatasetSpec) -> str:
+    """SHA-256 (hex) of the canonical JSON form: equal specs, equal digests."""
+    canonical = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"),
+                           ensure_ascii=True, allow_nan=False)
+    return hashlib.sha256(canonical.encode("ascii")).hexdigest()
+
+
+# --------------------------------------------------------------------------- reference
+
+
+def reference_rows() -> list[tuple[str, str, str, str, str]]:
+    """(key, meaning, unit, default, allowed) for every field, for the reference page.
+
+    Static text only (no list read from another package at run time), so the page does
+    not change when materials/ or sky/ do.
+    """
+    rows = []
+    for name, cls in SECTIONS.items():
+        for f in fields(cls):
+            rule: _Rule = f.metadata["rule"]
+            if f.metadata["doc_default"] is not None:
+                default = f.metadata["doc_default"]
+            elif f.default is not dataclasses.MISSING:
+                default = f"`{format_value(rule.plain(f.default))}`"
+            else:
+                default = "**required**"
+            rows.append((f"`{name}.{f.name}`", f.metadata["doc"], f.metadata["unit"] or "-",
+                         default, rule.doc_allowed or rule.allowed))
+    return rows
+
+
+def reference_markdown() -> str:
+    """The field reference table embedded in docs/spec.md."""
+    out = ["| key | meaning | unit | default | allowed |", "|---|---|---|---|---|"]
+    for row in reference_rows():
+        out.append("| " + " | ".join(c.replace("|", "\\|") for c in row) + " |")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,155 @@
+"""Loading Mitsuba with a libLLVM that drjit's LLVM backend can use.
+
+drjit 1.5 aborts with Debian 12's libLLVM 15 ("Cannot select ... fmaximum") and
+works with libLLVM 19. It loads the first libLLVM it finds unless
+``DRJIT_LIBLLVM_PATH`` names one, so before drjit is imported we pick the newest
+libLLVM with a major version we know works, unless the user has chosen one.
+Every module that needs Mitsuba goes through :func:`load_mitsuba`.
+
+**The variant is chosen once.** Mitsuba's variant is process-global: ``set_variant``
+switches every ``mi.*`` type, and a Python plugin registered under one variant is
+"not found" under another. So the variant is resolved once, at the edge (a build's
+driver from the spec, a command from its options) by :func:`resolve_variant`, and that
+full name is passed down to everything that touches Mitsuba. This module is the only
+one that names a variant or calls ``set_variant`` (tests/test_architecture.py).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import sys
+
+from pipeline.errors import SetupError
+
+#: libLLVM majors below this crash drjit 1.5's LLVM backend (15 measured here).
+MIN_LLVM_MAJOR = 16
+#: The CPU variant: RGB, with the AD types the Python BSDF needs.
+LLVM_VARIANT = "llvm_ad_rgb"
+#: The GPU variant, chosen by ``auto`` when a CUDA device works.
+CUDA_VARIANT = "cuda_ad_rgb"
+#: What a spec's ``render.variant`` or a ``--variant`` option may say (or a full name).
+VARIANT_CHOICES = ("auto", "llvm", "cuda", "scalar")
+#: Short names of the variants.
+SHORT_VARIANTS = {"llvm": LLVM_VARIANT, "cuda": CUDA_VARIANT, "scalar": "scalar_rgb"}
+
+_SEARCH_GLOBS = (
+    "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/llvm-*/lib/libLLVM*.so*",
+    "/usr/local/lib/libLLVM*.so*",
+    "/usr/lib64/libLLVM*.so*",
+    "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
+    "/usr/local/opt/llvm/lib/libLLVM*.dylib",
+)
+
+INSTALL_HINT = (
+    f"drjit's LLVM backend needs libLLVM >= {MIN_LLVM_MAJOR} (19 is tested). On Debian 12: "
+    "`sudo apt-get install libllvm19`; elsewhere install LLVM 16-19 and set "
+    "DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so"
+)
+
+
+def _llvm_major(path: str) -> int | None:
+    name = os.path.basename(path)
+    match = re.search(r"libLLVM[-.]?(?:so\.)?(\d+)", name)
+    return int(match.group(1)) if match else None
+
+
+def find_libllvm(globs: tuple[str, ...] = _SEARCH_GLOBS) -> str | None:
+    """Return the path of the newest libLLVM with major >= MIN_LLVM_MAJOR, or None."""
+    best: tuple[int, str] | None = None
+    for pattern in globs:
+        for path in sorted(glob.glob(pattern)):
+            major = _llvm_major(path)
+            if major is None or major < MIN_LLVM_MAJOR or not os.path.isfile(path):
+                continue
+            if best is None or major > best[0]:
+                best = (major, os.path.realpath(path))
+    return best[1] if best else None
+
+
+def select_libllvm() -> str:
+    """Make sure DRJIT_LIBLLVM_PATH names a usable libLLVM; return its path.
+
+    Respects a path the user set. Must run before drjit is imported to have effect.
+    """
+    chosen = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if chosen:
+        if not os.path.isfile(chosen):
+            raise SetupError(f"DRJIT_LIBLLVM_PATH={chosen!r} does not exist. {INSTALL_HINT}")
+        return chosen
+    found = find_libllvm()
+    if found is None:
+        raise SetupError(f"no usable libLLVM found. {INSTALL_HINT}")
+    os.environ["DRJIT_LIBLLVM_PATH"] = found
+    return found
+
+
+def _import_mitsuba(requested: str):
+    if "drjit" not in sys.modules and not requested.startswith("cuda"):
+        try:
+            select_libllvm()
+        except SetupError:
+            if requested != "auto":
+                raise
+            # auto on a GPU machine needs no libLLVM; without a GPU, resolve_variant raises.
+    import mitsuba as mi
+
+    return mi
+
+
+def resolve_variant(requested: str = "auto") -> str:
+    """The full Mitsuba variant name for ``requested``; imports Mitsuba but sets nothing.
+
+    ``auto``: cuda when a CUDA device works, else llvm; ``llvm``/``cuda``: their RGB AD
+    variants; a full name: itself, if this Mitsuba build has it.
+    """
+    mi = _import_mitsuba(requested)
+    if requested == "auto":
+        try:
+            import drjit as dr
+
+            if dr.has_backend(dr.JitBackend.CUDA) and CUDA_VARIANT in mi.variants():
+                return CUDA_VARIANT
+        except Exception:  # no CUDA driver: fall back to the CPU
+            pass
+        select_libllvm()  # no GPU: the CPU variant needs a usable libLLVM
+        return LLVM_VARIANT
+    name = SHORT_VARIANTS.get(requested, requested)
+    if name not in mi.variants():
+        raise SetupError(
+            f"render.variant: {requested!r} is not available; allowed: {', '.join(VARIANT_CHOICES)} "
+            f"or one of {', '.join(mi.variants())}"
+        )
+    return name
+
+
+def load_mitsuba(variant: str):
+    """Import Mitsuba with a working libLLVM, make ``variant`` current; return the module.
+
+    ``variant`` is what :func:`resolve_variant` returned at the edge of the program
+    (short forms are resolved here too, for the command line of the tools). This is
+    the only call of ``mi.set_variant`` in the project.
+    """
+    name = resolve_variant(variant)
+    mi = _import_mitsuba(name)
+    if mi.variant() != name:
+        try:
+            mi.set_variant(name)
+        except Exception as exc:  # mitsuba raises plain ImportError/RuntimeError
+            raise SetupError(f"cannot use Mitsuba variant {name!r}: {exc}") from exc
+    return mi
+
+
+def library_versions() -> dict[str, str]:
+    """Versions that determine the bytes of a render (recorded in dataset descriptions)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return {
+        "mitsuba": mi.__version__,
+        "drjit": dr.__version__,
+        "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH", ""),
+    }

@@ -1,0 +1,125 @@
+"""Mitsuba scene-dict entries for the shaderball, its camera and its textures.
+
+The shaderball's meshes are loaded from the PLY files of the geometry cache entry
+(``ply`` plugin, vertex normals kept: ``face_normals = False``; UVs as stored, Mitsuba
+does not flip v). The shape ids are fixed: :data:`BALL_SHAPE_ID` bears the material.
+
+Mitsuba is loaded (through :mod:`pipeline.render.mitsuba_env`) only where a dict needs a
+Mitsuba object: the sensor's transform and a bitmap's tensor.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from geometry import Camera, Shaderball
+from pipeline.errors import ShaderballError
+from pipeline.render.mitsuba_env import load_mitsuba
+
+#: Shape id of the material-bearing surfaces (outer shell, rims, inner surface, core).
+BALL_SHAPE_ID = "shaderball"
+#: Shape id of the pedestal and neck.
+NEUTRAL_SHAPE_ID = "pedestal"
+#: Shape id of the ground plane.
+GROUND_SHAPE_ID = "ground"
+
+#: Neutral grey of the pedestal: linear albedo 0.5 (sRGB ~0.74).
+NEUTRAL_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+#: The ground: a darker neutral grey, linear albedo 0.3.
+GROUND_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.3, 0.3, 0.3]}}
+
+SAMPLERS = ("independent", "stratified-centres")
+
+
+def ball_shape_ids() -> tuple[str, ...]:
+    """Ids of the shapes that bear the material (one: the whole material mesh)."""
+    return (BALL_SHAPE_ID,)
+
+
+def shape_dicts(
+    ball: Shaderball,
+    material_bsdf: dict,
+    neutral_bsdf: dict | None = None,
+    ground_bsdf: dict | None = None,
+) -> dict[str, dict]:
+    """Scene-dict entries (id -> dict) for the material mesh, the pedestal and the ground."""
+
+    def ply(name: str, bsdf: dict) -> dict:
+        return {"type": "ply", "filename": ball.mesh_files[name], "face_normals": False, "bsdf": bsdf}
+
+    return {
+        BALL_SHAPE_ID: ply("material", material_bsdf),
+        NEUTRAL_SHAPE_ID: ply("neutral", neutral_bsdf or NEUTRAL_BSDF),
+        GROUND_SHAPE_ID: ply("ground", ground_bsdf or GROUND_BSDF),
+    }
+
+
+def sensor_dict(
+    camera: Camera,
+    resolution: int,
+    spp: int,
+    *,
+    sampler: str = "independent",
+    seed: int = 0,
+    pixel_format: str = "rgb",
+    variant: str,
+) -> dict:
+    """A perspective sensor for ``camera`` with a square ``resolution`` film and a box filter.
+
+    ``sampler``: ``"independent"`` (random positions in each pixel, for renders) or
+    ``"stratified-centres"`` (Mitsuba's ``stratified`` sampler with jitter off: at 1 spp
+    every sample sits on its pixel's centre, where the G-buffer is taken; ``spp`` must
+    then be a square number).
+    """
+    if sampler not in SAMPLERS:
+        raise ShaderballError(f"sampler: {sampler!r} is not allowed; allowed: {', '.join(SAMPLERS)}")
+    if not isinstance(spp, int) or spp < 1:
+        raise ShaderballError(f"spp: {spp!r} is not allowed; allowed: an integer >= 1")
+    if sampler == "stratified-centres":
+        if math.isqrt(spp) ** 2 != spp:
+            raise ShaderballError(f"spp: {spp} is not allowed with stratified-centres; allowed: a square number")
+        sampler_dict = {"type": "stratified", "sample_count": spp, "jitter": False, "seed": seed}
+    else:
+        sampler_dict = {"type": "independent", "sample_count": spp, "seed": seed}
+    return {
+        "type": "perspective",
+        "fov": float(camera.fov_deg),
+        "fov_axis": "x",
+        "to_world": _look_at(camera, variant),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(resolution),
+            "height": int(resolution),
+            "rfilter": {"type": "box"},
+            "pixel_format": pixel_format,
+        },
+        "sampler": sampler_dict,
+    }
+
+
+def _look_at(camera: Camera, variant: str):
+    mi = load_mitsuba(variant)
+    return mi.ScalarTransform4f().look_at(
+        origin=list(camera.origin), target=list(camera.target), up=list(camera.up)
+    )
+
+
+def bitmap_texture(texture: np.ndarray, *, variant: str, filter_type: str = "bilinear") -> dict:
+    """A ``bitmap`` texture dict for a texture-space map: raw data, bilinear, repeat.
+
+    This is the lookup :func:`pipeline.render.raster.project` reproduces: the array is rounded
+    to float32 first (both sides), ``raw`` so nothing is sRGB-decoded, row 0 at v = 0.
+    """
+    mi = load_mitsuba(variant)
+    data = np.ascontiguousarray(texture, dtype=np.float32)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    return {
+        "type": "bitmap",
+        "data": mi.TensorXf(data),
+        "raw": True,
+        "filter_type": filter_type,
+        "wrap_mode": "repeat",
+    }

@@ -1,0 +1,370 @@
+"""`shaderball build`: a spec to a sharded EXR dataset, in parallel, resumable.
+
+A shard (:mod:`pipeline.run.shard`) is one dask task; tasks are idempotent, so dask's
+at-least-once execution (a lost worker's tasks run again, possibly while the first run
+still goes on) is safe. This module submits the tasks; :mod:`pipeline.run.cluster` provides
+the workers (a local cluster, a scheduler address, SLURM or PBS). Worker processes are
+spawned, never forked (Mitsuba's LLVM JIT and fork() don't mix).
+
+Resume (docs/resume.md): a build on an existing directory of the same spec trusts every
+shard with a complete marker, re-renders only samples whose record does not verify, and
+rewrites the manifest. A different spec is refused, except a change of the fields no
+sample depends on (``dataset.name``, ``dataset.version``) with ``allow_spec_change``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pipeline import __version__
+from pipeline.dataset.plan import ShardPlan, plan_dataset, plan_summary
+from pipeline.dataset.spec import DatasetSpec, parse_spec, spec_digest, spec_to_dict, spec_to_toml
+from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.render.mitsuba_env import library_versions, resolve_variant
+from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
+from pipeline.run.shard import run_shard_in_process
+from pipeline.store.atomic import write_text_atomic
+from pipeline.store.layout import Layout
+from pipeline.store.records import dumps, read_json
+
+LAYOUT_VERSION = 1
+#: Prefix of the temporary files of pipeline.store.atomic (left behind by a killed write).
+TEMP_PREFIX = ".tmp-"
+#: Spec fields no sample, file or layout depends on: the only ones --allow-spec-change accepts.
+SPEC_FIELDS_FREE_TO_CHANGE = (("dataset", "name"), ("dataset", "version"))
+
+
+@dataclass
+class Progress:
+    """What a progress callback receives, about once a second and at the end."""
+
+    done: int
+    total: int
+    elapsed_s: float
+    rate: float  # renders per second since this build started rendering
+    eta_s: float | None
+    message: str = ""
+
+
+@dataclass
+class BuildSummary:
+    out: str
+    total: int
+    rendered: int
+    skipped: int
+    seconds: float
+    shards: int
+    dashboard: str | None = None
+    notes: list[str] = field(default_factory=list)
+    #: worker processes whose shard results came back (0 when nothing was to do).
+    processes: int = 0
+    #: stale temporary files of killed writes removed at the end.
+    temp_removed: int = 0
+    #: worker processes that restarted themselves (``--recycle-after``).
+    recycled: int = 0
+
+    def lines(self) -> list[str]:
+        rate = self.rendered / self.seconds if self.seconds > 0 else 0.0
+        return [
+            f"dataset {self.out}: {self.total} renders in {self.shards} shards, complete",
+            f"rendered {self.rendered}, already present {self.skipped}, "
+            f"{self.seconds:.1f} s ({rate:.2f} renders/s)",
+            f"manifest: {os.path.join(self.out, 'manifest.jsonl')}",
+        ] + self.notes
+
+
+def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
+    try:
+        with open(spec_path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ShaderballError(f"SPEC: cannot read {spec_path!r}: {exc.strerror}") from None
+    return parse_spec(spec_path), text
+
+
+def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
+    """(section, key, old value, new value) for every field that differs."""
+    a, b = spec_to_dict(old), spec_to_dict(new)
+    return [(section, key, a[section].get(key), b[section].get(key))
+            for section in a for key in a[section] if a[section].get(key) != b[section].get(key)]
+
+
+def _describe_differences(diffs, limit: int = 4) -> str:
+    shown = [f"{s}.{k} = {short_repr(o)} in the dataset, {short_repr(n)} in the spec" for s, k, o, n in diffs[:limit]]
+    more = f" and {len(diffs) - limit} more" if len(diffs) > limit else ""
+    return "; ".join(shown) + more
+
+
+def _only_temp_files(names: list[str]) -> bool:
+    return all(n.startswith(TEMP_PREFIX) for n in names)
+
+
+def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = False) -> str:
+    """Refuse an output directory that holds something else.
+
+    Return 'new' (empty, missing, or only temporary files of a build killed before it wrote
+    its spec snapshot), 'resume' (same spec) or 'respec' (a change ``allow_spec_change``
+    permits: only ``dataset.name`` / ``dataset.version``; the snapshot is then rewritten).
+    """
+    layout = Layout(out)
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ShaderballError(f"--out: {out!r} exists and is not a directory")
+    if not os.path.isdir(out) or _only_temp_files(os.listdir(out)):
+        parent = os.path.dirname(os.path.abspath(out))
+        probe = parent
+        while not os.path.exists(probe):
+            probe = os.path.dirname(probe)
+        if not os.access(probe, os.W_OK):
+            raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
+        return "new"
+    if not os.path.isfile(layout.spec):
+        raise ShaderballError(
+            f"--out: {out!r} is not empty and holds no {os.path.basename(layout.spec)}: "
+            "not a shaderball dataset; choose an empty or new directory")
+    try:
+        existing = parse_spec(layout.spec)
+    except USER_ERRORS as exc:
+        raise ShaderballError(f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
+                              "run `shaderball validate --repair` or choose another directory") from None
+    mode = "resume"
+    if spec_digest(existing) != spec_digest(spec):
+        diffs = spec_differences(existing, spec)
+        blocking = [d for d in diffs if (d[0], d[1]) not in SPEC_FIELDS_FREE_TO_CHANGE]
+        if blocking or not allow_spec_change:
+            free = " or ".join(f"{s}.{k}" for s, k in SPEC_FIELDS_FREE_TO_CHANGE)
+            hint = (f"--allow-spec-change accepts a change of {free} only, which no sample "
+                    "depends on" if blocking else
+                    "these fields change no sample: pass --allow-spec-change to accept them")
+            raise ShaderballError(
+                f"--out: {out!r} holds dataset {existing.dataset.name!r} built from a different spec "
+                f"(digest {spec_digest(existing)[:12]} vs {spec_digest(spec)[:12]}): "
+                f"{_describe_differences(blocking or diffs)}. Resume it with its own spec "
+                f"({layout.spec}) or build into a new directory; {hint}")
+        mode = "respec"
+    if not os.access(out, os.W_OK):
+        raise ShaderballError(f"--out: {out!r} is not writable")
+    return mode
+
+
+def plan_digest(plans: list[ShardPlan]) -> str:
+    """SHA-256 of every planned material and lighting (ids, seeds, angles, sources)."""
+    digest = hashlib.sha256()
+    for shard in plans:
+        for material in shard.materials:
+            digest.update(dumps(material.to_dict()).encode("utf-8"))
+    return digest.hexdigest()
+
+
+def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> None:
+    """Refuse to resume ``out`` when this installation would make its samples differently.
+
+    The spec snapshot alone cannot tell: a newer shaderball may plan other seeds or angles
+    for the same spec, and other Mitsuba/drjit versions or another backend render other
+    bytes. Mixing the two in one dataset would go unnoticed, so compare with dataset.json.
+    """
+    old = read_json(Layout(out).description)
+    if not isinstance(old, dict):
+        return  # a build killed before its first description: nothing rendered to compare
+    differences = []
+    if old.get("plan_digest") and old["plan_digest"] != plan_digest(plans):
+        differences.append(f"this shaderball plans other samples for the same spec (plan digest "
+                           f"{old['plan_digest'][:12]} in dataset.json, {plan_digest(plans)[:12]} now)")
+    libraries = library_versions()
+    for name in ("mitsuba", "drjit"):
+        was = (old.get("libraries") or {}).get(name)
+        if was and was != libraries.get(name):
+            differences.append(f"{name} {was} in dataset.json, {libraries.get(name)} now")
+    if old.get("variant") and old["variant"] != variant:
+        differences.append(f"Mitsuba variant {old['variant']} in dataset.json, {variant} now")
+    if differences:
+        raise ShaderballError(
+            f"--out: {out!r} was built by another installation: {'; '.join(differences)}. Resuming "
+            "would mix samples made two ways; finish it with the installation that started it, "
+            "or build into a new directory")
+
+
+def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict:
+    return {
+        "name": spec.dataset.name,
+        "version": spec.dataset.version,
+        "layout_version": LAYOUT_VERSION,
+        "spec_digest": spec_digest(spec),
+        "plan_digest": plan_digest(plans),
+        "shaderball": __version__,
+        "libraries": library_versions(),
+        "variant": variant,
+        "counts": plan_summary(plans),
+        "colorspace": "linear Rec.709 (sRGB primaries, D65 white)",
+    }
+
+
+def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False) -> str:
+    """Create ``out`` with the spec snapshot and description; return the Mitsuba variant.
+
+    The variant is resolved here, once, from the spec; every worker is given this name.
+    """
+    mode = check_output_dir(out, spec, allow_spec_change)
+    variant = resolve_variant(spec.render.variant)
+    if mode != "new":
+        check_same_installation(out, plans, variant)
+    os.makedirs(out, exist_ok=True)
+    layout = Layout(out)
+    if mode in ("new", "respec"):
+        write_text_atomic(layout.spec, spec_to_toml(spec))
+    write_text_atomic(layout.description, dumps(description(spec, plans, variant)) + "\n")
+    return variant
+
+
+def count_done(out: str, plans: list[ShardPlan]) -> int:
+    """Renders with a record on disk (progress; cheap: one listing per shard)."""
+    layout = Layout(out)
+    done = 0
+    for shard in plans:
+        folder = layout.shard_dir(shard.shard_id)
+        try:
+            names = os.listdir(folder)
+        except FileNotFoundError:
+            continue
+        if "COMPLETE.json" in names:
+            done += shard.n_renders
+        else:
+            done += sum(1 for n in names if n.endswith(".json") and not n.startswith("."))
+    return done
+
+
+def write_manifest(out: str, plans: list[ShardPlan]) -> int:
+    """manifest.jsonl from the shard markers, in plan order; return the record count."""
+    layout = Layout(out)
+    lines = []
+    for shard in plans:
+        marker = read_json(layout.marker(shard.shard_id))
+        if not marker or not marker.get("complete"):
+            raise ShaderballError(f"shard {shard.shard_id} is not complete; cannot write the manifest")
+        lines.extend(dumps(record) for record in marker["records"])
+    write_text_atomic(layout.manifest, "".join(line + "\n" for line in lines))
+    return len(lines)
+
+
+def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> int:
+    """Samples of ``shards`` whose record was written at or after ``since`` (wall clock).
+
+    Counted on disk, not from task results: under at-least-once execution a task's result
+    can be lost (its worker died or was recycled after the shard was done) and the re-run
+    reports nothing rendered.
+    """
+    layout = Layout(out)
+    count = 0
+    for shard in shards:
+        for sample in shard.samples:
+            try:
+                if os.stat(layout.path(layout.record_rel(shard.shard_id, sample.sample_id))).st_mtime >= since:
+                    count += 1
+            except FileNotFoundError:
+                pass
+    return count
+
+
+def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int:
+    """Remove temporary files (of writes killed mid-way) last modified before ``older_than``.
+
+    Called once a build is complete, with the build's start time: every write of this build
+    has finished by then, so a temp file older than its start belongs to a killed writer.
+    Removing a live writer's temp file (another build writing into the same directory, a
+    task of a worker wrongly declared dead) cannot corrupt anything: its rename fails, and
+    that task runs again. Return the count removed.
+    """
+    layout = Layout(out)
+    removed = 0
+    for folder in [out] + [layout.shard_dir(s.shard_id) for s in plans]:
+        try:
+            entries = list(os.scandir(folder))
+        except FileNotFoundError:
+            continue
+        for entry in entries:
+            if not entry.name.startswith(TEMP_PREFIX):
+                continue
+            try:
+                if entry.stat(follow_symlinks=False).st_mtime < older_than:
+                    os.unlink(entry.path)
+                    removed += 1
+            except FileNotFoundError:
+                pass
+    return removed
+
+
+def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
+          cluster: ClusterOptions | None = None, allow_spec_change: bool = False,
+          progress: Callable[[Progress], None] | None = None,
+          on_start: Callable[[str, str | None], None] | None = None) -> BuildSummary:
+    """Build (or resume) the dataset of ``spec_path`` into ``out``.
+
+    ``workers``: local worker processes (default: one per 2 cores); 0 runs the shards in
+    this process, without dask. ``scheduler``: address of an existing dask scheduler.
+    ``cluster``: every option of where the workers come from (then leave ``workers`` and
+    ``scheduler`` out). ``allow_spec_change``: accept a spec that differs from the
+    directory's snapshot in ``dataset.name`` / ``dataset.version`` only.
+    """
+    spec, _text = read_spec_text(spec_path)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 0 or workers > 1024):
+        raise ShaderballError(f"--workers: {workers!r} is not allowed; allowed: an integer in [0, 1024]")
+    if cluster is None:
+        cluster = ClusterOptions(workers=workers, scheduler=scheduler)
+    elif workers is not None or scheduler is not None:
+        raise TypeError("build(): pass workers and scheduler inside cluster=, not beside it")
+    cluster.check()
+    if cluster.scheduler:
+        check_scheduler_reachable(cluster.scheduler)  # before anything is written
+    plans = plan_dataset(spec)
+    variant = prepare(out, spec, plans, allow_spec_change)
+    total = sum(s.n_renders for s in plans)
+    layout = Layout(out)
+    todo = [s for s in plans if not (read_json(layout.marker(s.shard_id)) or {}).get("complete")]
+    already = total - sum(s.n_renders for s in todo)
+    start = time.perf_counter()
+    wall_start = time.time()
+    results: list[dict] = []
+    dashboard, recycled = None, 0
+    if todo:
+        if cluster.workers == 0 and cluster.scheduler is None and not cluster.is_jobqueue:
+            if on_start:
+                on_start("in-process (no dask)", None)
+            threads = os.cpu_count() or 1
+            for shard in todo:
+                results.append(run_shard_in_process(out, spec, shard, variant, threads))
+                _report(progress, out, plans, total, already, start)
+        else:
+            def report():
+                _report(progress, out, plans, total, already, start)
+
+            results, dashboard, recycled = run_shards_on_dask(out, spec, todo, variant, cluster,
+                                                              report, on_start)
+    write_manifest(out, plans)
+    removed = sweep_temp_files(out, plans, older_than=wall_start)
+    seconds = time.perf_counter() - start
+    rendered = renders_written_since(out, todo, wall_start - 1.0)  # mtime granularity
+    _report(progress, out, plans, total, already, start)
+    processes = len({r["pid"] for r in results})
+    notes = [f"variant {variant}"]
+    if removed:
+        notes.append(f"removed {removed} temporary file(s) left by interrupted writes")
+    if recycled:
+        notes.append(f"{recycled} worker process restart(s) to bound memory (--recycle-after)")
+    return BuildSummary(out=out, total=total, rendered=rendered, skipped=total - rendered,
+                        seconds=seconds, shards=len(plans), dashboard=dashboard, notes=notes,
+                        processes=processes, temp_removed=removed, recycled=recycled)
+
+
+def _report(progress, out, plans, total, already, start):
+    if progress is None:
+        return
+    done = count_done(out, plans)
+    elapsed = time.perf_counter() - start
+    new = max(0, done - already)
+    rate = new / elapsed if elapsed > 0 else 0.0
+    eta = (total - done) / rate if rate > 0 else None
+    progress(Progress(done=done, total=total, elapsed_s=elapsed, rate=rate, eta_s=eta))

@@ -1,0 +1,139 @@
+"""The one place that reads and writes EXR files.
+
+Layers follow OpenEXR's naming (`render.R`, `diffuse.G`, `roughness.Y`, `normal.X`, ...),
+so any EXR viewer shows them. Files are written to memory, then atomically to disk
+(:mod:`pipeline.store.atomic`), with linear Rec.709 chromaticities in the header. Nothing
+run-dependent (time, host) goes into a file: the same pixels give the same bytes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.errors import ShaderballError
+from pipeline.store.atomic import write_bytes_atomic
+
+#: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
+LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
+    "render": ("R", "G", "B"),
+    "diffuse": ("R", "G", "B"),
+    "specular": ("R", "G", "B"),
+    "checker": ("R", "G", "B"),
+    "roughness": ("Y",),
+    "mask": ("Y",),
+    "normal": ("X", "Y", "Z"),
+    "uv": ("U", "V"),
+}
+
+#: Linear Rec.709 / sRGB primaries and D65 white: red xy, green xy, blue xy, white xy.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+COMPRESSIONS = {
+    "none": "NO_COMPRESSION",
+    "zip": "ZIP_COMPRESSION",
+    "zips": "ZIPS_COMPRESSION",
+    "piz": "PIZ_COMPRESSION",
+    "rle": "RLE_COMPRESSION",
+}
+
+#: Header attribute holding JSON metadata written by shaderball.
+META_KEY = "shaderball"
+
+
+@dataclass(frozen=True)
+class ExrImage:
+    """Decoded layers (each (H, W, C), C >= 1) and the JSON metadata of a file."""
+
+    layers: dict[str, np.ndarray]
+    meta: dict
+    chromaticities: tuple[float, ...] | None
+
+
+def channel_names(layer: str, n_channels: int) -> tuple[str, ...]:
+    names = LAYER_CHANNELS.get(layer)
+    if names is None or len(names) != n_channels:
+        if n_channels == 1:
+            return ("Y",)
+        names = tuple(str(i) for i in range(n_channels))
+    return names
+
+
+def encode_exr(
+    layers: dict[str, np.ndarray],
+    meta: dict | None = None,
+    *,
+    half: tuple[str, ...] = (),
+    compression: str = "zip",
+) -> bytes:
+    """Encode ``layers`` (name -> (H, W) or (H, W, C) array) as EXR bytes.
+
+    Layers named in ``half`` are stored as float16, the others as float32.
+    """
+    import OpenEXR
+
+    if compression not in COMPRESSIONS:
+        raise ShaderballError(
+            f"storage.compression: {compression!r} is not allowed; allowed: {', '.join(COMPRESSIONS)}"
+        )
+    channels: dict[str, np.ndarray] = {}
+    shape = None
+    for layer, array in layers.items():
+        arr = np.asarray(array)
+        if arr.ndim == 2:
+            arr = arr[:, :, None]
+        if arr.ndim != 3:
+            raise ValueError(f"layer {layer!r} must be (H, W) or (H, W, C), got {arr.shape}")
+        if shape is None:
+            shape = arr.shape[:2]
+        elif arr.shape[:2] != shape:
+            raise ValueError(f"layer {layer!r} has shape {arr.shape[:2]}, others {shape}")
+        dtype = np.float16 if layer in half else np.float32
+        for i, suffix in enumerate(channel_names(layer, arr.shape[2])):
+            channels[f"{layer}.{suffix}"] = np.ascontiguousarray(arr[:, :, i], dtype=dtype)
+    header = {
+        "compression": getattr(OpenEXR, COMPRESSIONS[compression]),
+        "type": OpenEXR.scanlineimage,
+        "chromaticities": REC709_CHROMATICITIES,
+        META_KEY: json.dumps(meta or {}, sort_keys=True, separators=(",", ":")),
+    }
+    buffer = io.BytesIO()
+    OpenEXR.File(header, channels).write(buffer)
+    return buffer.getvalue()
+
+
+def write_exr(path: str, layers: dict[str, np.ndarray], meta: dict | None = None, **kwargs) -> str:
+    """Write an EXR atomically (temp file, fsync, rename); return its SHA-256."""
+    return write_bytes_atomic(path, encode_exr(layers, meta, **kwargs))
+
+
+def read_exr(path_or_bytes: str | bytes | os.PathLike) -> ExrImage:
+    """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers."""
+    import OpenEXR
+
+    source = io.BytesIO(path_or_bytes) if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
+    label = "<bytes>" if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
+    try:
+        handle = OpenEXR.File(source, separate_channels=True)
+        header = handle.header()
+        channels = {name: channel.pixels for name, channel in handle.channels().items()}
+    except Exception as exc:  # the bindings raise plain exceptions for corrupt files
+        raise ShaderballError(f"cannot decode EXR {label}: {exc}") from exc
+    grouped: dict[str, dict[str, np.ndarray]] = {}
+    for full_name, pixels in channels.items():
+        layer, _, suffix = full_name.rpartition(".")
+        grouped.setdefault(layer or full_name, {})[suffix] = pixels
+    layers = {}
+    for layer, chans in grouped.items():
+        order = LAYER_CHANNELS.get(layer)
+        if order is None or set(order) != set(chans):
+            order = tuple(sorted(chans))
+        layers[layer] = np.stack([chans[c] for c in order], axis=-1)
+    meta_text = header.get(META_KEY)
+    meta = json.loads(meta_text) if isinstance(meta_text, str) and meta_text else {}
+    chroma = header.get("chromaticities")
+    return ExrImage(layers=layers, meta=meta, chromaticities=tuple(chroma) if chroma else None)
