@@ -16,11 +16,14 @@ from pipeline.bench.build_bench import run_from_args
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import repair, validate
-from pipeline.errors import USER_ERRORS
+from pipeline.errors import USER_ERRORS, ShaderballError
 from pipeline.render.command import RenderRequest, parse_triple, render_to_files
+from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, span
+from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
 from pipeline.run.cluster import ClusterOptions, job_script
+from sky.emitter import DEFAULT_SUN, SUN_MODES
 
 
 def _friendly_errors(func):
@@ -32,7 +35,7 @@ def _friendly_errors(func):
             return func(*args, **kwargs)
         except USER_ERRORS as exc:
             click.echo(f"error: {exc}", err=True)
-            sys.exit(getattr(exc, "exit_code", 2))
+            sys.exit(exc.exit_code)
 
     return wrapper
 
@@ -52,12 +55,14 @@ def main():
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.")
 @click.option("--resolution", default=400, show_default=True, type=int,
-              help="Image width and height in pixels, 16 to 4096.")
+              help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.")
+@click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES),
+              help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).")
 @_friendly_errors
-def scene_cmd(out_dir: str, resolution: int):
+def scene_cmd(out_dir: str, resolution: int, variant: str):
     """Write the shaderball mesh, its G-buffer and a preview picture."""
 
-    summary = write_scene(out_dir, resolution=resolution)
+    summary = write_scene(out_dir, resolution=resolution, variant=variant)
     for line in summary.lines():
         click.echo(line)
 
@@ -85,18 +90,20 @@ def scene_cmd(out_dir: str, resolution: int):
                    "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side.")
 @click.option("--turbidity", default=3.0, show_default=True, type=float,
               help="Atmospheric turbidity in [1, 10] (1: very clear, 10: hazy).")
-@click.option("--spp", default=150, show_default=True, type=int, help="Samples per pixel, 1 to 65536 (the paper: 150).")
-@click.option("--resolution", default=400, show_default=True, type=int, help="Image width and height in pixels, 16 to 4096.")
-@click.option("--max-depth", default=8, show_default=True, type=int, help="Path length limit, 1 to 64.")
+@click.option("--spp", default=150, show_default=True, type=int, help=f"Samples per pixel, {span(SPP_RANGE)} (the paper: 150).")
+@click.option("--resolution", default=400, show_default=True, type=int, help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.")
+@click.option("--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Render seed, 0 to 2^32-1.")
-@click.option("--sun", type=click.Choice(["split", "sunsky"]), default="split", show_default=True,
+@click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES),
+              help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).")
+@click.option("--sun", type=click.Choice(SUN_MODES), default=DEFAULT_SUN, show_default=True,
               help="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
               help="Output EXR: layers render.R/G/B (float32) and the screen-space maps.")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
 @_friendly_errors
 def render_cmd(diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, elevation, azimuth,
-               turbidity, spp, resolution, max_depth, seed, sun, out, png):
+               turbidity, spp, resolution, max_depth, seed, variant, sun, out, png):
     """Render one material on the shaderball under one sun and sky."""
 
     request = RenderRequest(
@@ -104,7 +111,7 @@ def render_cmd(diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, 
         roughness=roughness, normal=parse_triple("--normal", normal, None, None), svbrdf=svbrdf,
         svbrdf_colorspace=svbrdf_colorspace, elevation_deg=elevation, azimuth_deg=azimuth,
         turbidity=turbidity, spp=spp, resolution=resolution, max_depth=max_depth, seed=seed, sun=sun,
-        out=out, png=png,
+        variant=variant, out=out, png=png,
     )
     for line in render_to_files(request).lines():
         click.echo(line)
@@ -299,9 +306,9 @@ def info_cmd(directory, as_json):
               help="Cut the spec to about this many renders (whole materials, all their lightings) "
                    "[default: all of them].")
 @click.option("--resolution", type=int, default=None,
-              help="Render size in pixels, 16 to 4096 [default: the spec's; with --effects 128].")
+              help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's; with --effects 128].")
 @click.option("--spp", type=int, default=None,
-              help="Samples per pixel, 1 to 65536 [default: the spec's; with --effects 64].")
+              help=f"Samples per pixel, {span(SPP_RANGE)} [default: the spec's; with --effects 64].")
 @click.option("--workers", type=int, default=None,
               help="As `shaderball build --workers` (0: in this process) [default: the build's].")
 @click.option("--shard-size", type=int, default=None,
@@ -325,6 +332,170 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
                            json_path=json_path,
                            progress=lambda message: click.echo(message, err=True))
     for line in result.lines():
+        click.echo(line)
+
+
+def _neural():
+    """pipeline.neural imports torch: an optional dependency (the `train` extra), loaded only here."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise ShaderballError("the neural stage needs torch: pip install -e '.[train]'") from None
+
+
+def _training_progress():
+    """One line on stderr per batch: epoch, batch, loss, samples/s, ETA."""
+    interactive = sys.stderr.isatty()
+
+    def show(p):
+        width = 20
+        filled = int(width * p["batch"] / p["batches"])
+        line = (f"epoch {p['epoch']}/{p['epochs']} [{'#' * filled}{'.' * (width - filled)}] "
+                f"batch {p['batch']}/{p['batches']}  loss {p['loss']:.4f}  {p['samples_per_s']:.1f} samples/s  "
+                f"ETA {_format_seconds(p['eta_s'])}")
+        click.echo(("\r" + line) if interactive else line, err=True, nl=not interactive)
+        if interactive and p["batch"] == p["batches"]:
+            click.echo("", err=True)
+
+    return show
+
+
+@main.command("train")
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option("--out", "out", type=click.Path(file_okay=False), default=None,
+              help="Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.")
+@click.option("--epochs", default=30, show_default=True, type=int,
+              help="Epochs to reach, 1 to 100000; running again with more continues the run.")
+@click.option("--batch-size", default=6, show_default=True, type=int, help="Samples per step, 1 to 4096 (the paper: 6).")
+@click.option("--lr", default=1e-2, show_default=True, type=float, help="Adam learning rate in (0, 10] (the paper: 1e-2).")
+@click.option("--loss", default="l1+vgg", show_default=True, type=click.Choice(["l1+vgg", "l1"]),
+              help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; needs VGG16 weights); l1: L1 alone.")
+@click.option("--vgg-weights", type=click.Path(dir_okay=False), default=None,
+              help="torchvision's vgg16 state dict (vgg16-397923af.pth) [default: torch hub's cache, "
+                   "$TORCH_HOME/hub/checkpoints/]. Never downloaded.")
+@click.option("--vgg-sha256", default=None, metavar="HEX",
+              help="Expected SHA-256 of --vgg-weights [default: torchvision's ImageNet file's].")
+@click.option("--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0.")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
+              help="auto: cuda when torch sees a GPU, else cpu.")
+@click.option("--workers", default=0, show_default=True, type=int, help="DataLoader worker processes, 0 to 64.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seeds weights, order and split, 0 to 2^63-1.")
+@click.option("--resolution", default=None, type=int,
+              help="Network resolution, a multiple of 16 dividing the dataset's (images box-averaged) "
+                   "[default: the dataset's].")
+@click.option("--test-fraction", default=0.2, show_default=True, type=float,
+              help="Fraction of materials held out for testing, in [0, 1).")
+@click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check on first read.")
+@click.option("--benchmark", is_flag=True,
+              help="Measure loader samples/s, training samples/s and inference ms instead of training; writes nothing.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary (or benchmark) as JSON on stdout.")
+@_friendly_errors
+def train_cmd(dataset, out, epochs, batch_size, lr, loss, vgg_weights, vgg_sha256, vgg_weight, device, workers,
+              seed, resolution, test_fraction, no_hash_check, benchmark, as_json):
+    """Train the paper's network on a dataset folder (docs/neural.md); resumes a killed run."""
+    _neural()
+    from pipeline.neural.train import TrainConfig, train
+
+    if out is None and not benchmark:
+        raise ShaderballError("--out: missing; name the run folder (or pass --benchmark)")
+    config = TrainConfig(dataset=dataset, out=out or "", epochs=epochs, batch_size=batch_size, lr=lr, loss=loss,
+                         vgg_weights=vgg_weights, vgg_sha256=vgg_sha256, vgg_weight=vgg_weight, device=device,
+                         workers=workers, seed=seed, resolution=resolution, test_fraction=test_fraction,
+                         check_hashes=not no_hash_check)
+    if benchmark:
+        from pipeline.neural.bench import benchmark as run_benchmark
+
+        result = run_benchmark(config)
+        lines, data = result.lines(), result.to_dict()
+    else:
+        summary = train(config, progress=None if as_json else _training_progress())
+        lines, data = summary.lines(), summary.to_dict()
+    if as_json:
+        import json
+
+        click.echo(json.dumps(data, sort_keys=True, indent=1))
+        return
+    for line in lines:
+        click.echo(line)
+
+
+@main.command("infer")
+@click.argument("run", metavar="RUN", type=click.Path())
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.")
+@click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
+@click.option("--diffuse", default="0.5,0.5,0.5", show_default=True, metavar="R,G,B",
+              help="Uniform diffuse albedo, linear RGB, each in [0, 1].")
+@click.option("--specular", default="0.04,0.04,0.04", show_default=True, metavar="R,G,B",
+              help="Uniform specular albedo (F0), linear RGB, each in [0, 1].")
+@click.option("--roughness", default=0.3, show_default=True, type=float, help="Uniform roughness in [0, 1].")
+@click.option("--normal", default="0,0,1", show_default=True, metavar="X,Y,Z",
+              help="Uniform tangent-space normal (Z > 0; normalised).")
+@click.option("--svbrdf", type=click.Path(), default=None,
+              help="Spatially varying material, as `shaderball render --svbrdf`.")
+@click.option("--svbrdf-colorspace", type=click.Choice(["raw", "srgb"]), default="raw", show_default=True,
+              help="How 8-bit albedo maps of --svbrdf are decoded.")
+@click.option("--elevation", default=45.0, show_default=True, type=float,
+              help="Sun elevation, degrees in [0, 90] (raised to the low-sun floor as `shaderball render` does).")
+@click.option("--azimuth", default=270.0, show_default=True, type=float, help="Sun azimuth, degrees in [-360, 720].")
+@click.option("--turbidity", default=3.0, show_default=True, type=float, help="Atmospheric turbidity in [1, 10].")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@_friendly_errors
+def infer_cmd(run, out, png, diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, elevation, azimuth,
+              turbidity, device, as_json):
+    """The trained network's picture of one material under one sun (no path tracing)."""
+    _neural()
+    from pipeline.neural.infer import InferRequest, infer_to_files
+
+    request = InferRequest(
+        run=run, out=out, png=png, diffuse=parse_triple("--diffuse", diffuse),
+        specular=parse_triple("--specular", specular), roughness=roughness,
+        normal=parse_triple("--normal", normal, None, None), svbrdf=svbrdf, svbrdf_colorspace=svbrdf_colorspace,
+        elevation_deg=elevation, azimuth_deg=azimuth, turbidity=turbidity, device=device)
+    summary = infer_to_files(request)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(summary.__dict__, sort_keys=True, indent=1))
+        return
+    for line in summary.lines():
+        click.echo(line)
+
+
+@main.command("evaluate")
+@click.argument("run", metavar="RUN", type=click.Path())
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option("--split", default="test", show_default=True, type=click.Choice(["test", "train", "all"]),
+              help="The run's held-out (test) or training materials (DATASET must be the run's), or all samples.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the results (per sample and mean) to this JSON file.")
+@click.option("--spp", default="1,2,4,16", show_default=True, metavar="N,N,...",
+              help="Low-spp path tracing to compare with, each 1 to 4096; 'none' for no path tracing.")
+@click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
+@click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
+@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@_friendly_errors
+def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device):
+    """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references."""
+    _neural()
+    from pipeline.neural.evaluate import EvaluateRequest, evaluate
+
+    if spp.strip().lower() == "none":
+        spp_list = ()
+    else:
+        try:
+            spp_list = tuple(int(x) for x in spp.split(","))
+        except ValueError:
+            raise ShaderballError(f"--spp: {spp!r} is not allowed; allowed: comma-separated integers from 1 "
+                                  "to 4096, or none") from None
+    request = EvaluateRequest(run=run, dataset=dataset, split=split, out_dir=out_dir, json_path=json_path,
+                              spp=spp_list, denoise=not no_denoise, limit=limit, device=device)
+    summary = evaluate(request, progress=lambda p: click.echo(f"sample {p['sample']}/{p['samples']} {p['id']}",
+                                                              err=True))
+    for line in summary.lines():
         click.echo(line)
 
 

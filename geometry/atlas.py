@@ -48,7 +48,7 @@ def pack_charts(charts: list[Patch], texture_repeats: int = 1) -> Atlas:
     faces = np.concatenate([c.faces + o for c, o in zip(charts, offsets)]).astype(np.uint32)
     face_chart = np.concatenate([np.full(len(c.faces), i, np.int16) for i, c in enumerate(charts)])
     # Each chart starts at the origin of its own metres so xatlas sees small numbers.
-    for c, lo, hi in zip(charts, offsets[:-1], offsets[1:]):
+    for lo, hi in zip(offsets[:-1], offsets[1:]):
         uv_m[lo:hi] -= uv_m[lo:hi].min(0)
 
     atlas = xatlas.Atlas()

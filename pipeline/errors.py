@@ -41,7 +41,7 @@ def check_int(field: str, value, low: int, high: int) -> int | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
-        raise bad_value(field, value, f"an integer in [{low}, {high}]")
+        raise bad_value(field, value, f"an integer from {low} to {high}")
     return int(value)
 
 

@@ -7,3 +7,6 @@ lists this type so the CLI reports it like its own errors (a clear message, exit
 
 class SkyError(ValueError):
     """A refused sky input: the message names the field, the value and what is allowed."""
+
+    #: The exit code the CLI gives it (the same as pipeline.errors.ShaderballError).
+    exit_code = 2

@@ -10,7 +10,7 @@ import trimesh
 
 from geometry import Camera, ShaderballParams, build_shaderball, default_camera
 from geometry.patches import band_frame, uv_signed_areas
-from pipeline.errors import ShaderballError
+from geometry.errors import GeometryError
 
 
 @pytest.fixture(scope="session")
@@ -46,7 +46,7 @@ def _face_areas(positions, faces):
 )
 def test_check_names_field_value_and_range(field, value):
     params = dataclasses.replace(ShaderballParams(), **{field: value})
-    with pytest.raises(ShaderballError) as info:
+    with pytest.raises(GeometryError) as info:
         params.check()
     message = str(info.value)
     assert field in message and repr(value) in message and "allowed" in message
@@ -54,7 +54,7 @@ def test_check_names_field_value_and_range(field, value):
 
 def test_band_must_clear_the_neck():
     params = ShaderballParams(band_width_m=0.48, band_tilt_deg=55.0)
-    with pytest.raises(ShaderballError, match=r"band_tilt_deg: 55.0 is not allowed; allowed: a number in \[-50"):
+    with pytest.raises(GeometryError, match=r"band_tilt_deg: 55.0 is not allowed; allowed: a number in \[-50"):
         params.check()
     dataclasses.replace(params, band_tilt_deg=45.0).check()
 

@@ -21,7 +21,7 @@ from materials import (
     sample_uniform,
 )
 from materials.colorspace import srgb_decode
-from pipeline.errors import ShaderballError
+from materials.errors import MaterialError
 
 
 def test_package_imports_without_mitsuba():
@@ -78,16 +78,16 @@ def test_check_names_map_and_value(name, index, value, message):
     maps = _uniform_example().to_maps(2)
     arrays = {k: np.array(getattr(maps, k)) for k in ("diffuse", "specular", "roughness", "normal")}
     arrays[name][index] = value
-    with pytest.raises(ShaderballError, match=message) as info:
+    with pytest.raises(MaterialError, match=message) as info:
         MaterialMaps(**arrays).check()
     assert str(index[:2])[:-1] in str(info.value)
 
 
 def test_shape_errors_name_the_map():
     ok = _uniform_example().to_maps(3)
-    with pytest.raises(ShaderballError, match="roughness"):
+    with pytest.raises(MaterialError, match="roughness"):
         MaterialMaps(diffuse=ok.diffuse, specular=ok.specular, roughness=ok.diffuse, normal=ok.normal)
-    with pytest.raises(ShaderballError, match="resolution"):
+    with pytest.raises(MaterialError, match="resolution"):
         MaterialMaps(diffuse=ok.diffuse, specular=ok.specular, roughness=np.zeros((2, 3)), normal=ok.normal)
 
 
@@ -103,7 +103,7 @@ def test_shape_errors_name_the_map():
 def test_uniform_material_rejects_bad_values(kwargs, field):
     args = dict(diffuse=(0.5,) * 3, specular=(0.04,) * 3, roughness=0.5)
     args.update(kwargs)
-    with pytest.raises(ShaderballError, match=field):
+    with pytest.raises(MaterialError, match=field):
         UniformMaterial(**args)
 
 
@@ -175,11 +175,11 @@ def test_uniform_sampler_reproducible_and_in_range():
 
 
 def test_uniform_ranges_check_names_field():
-    with pytest.raises(ShaderballError, match=r"UniformRanges.roughness: \(0.5, 0.2\)"):
+    with pytest.raises(MaterialError, match=r"UniformRanges.roughness: \(0.5, 0.2\)"):
         UniformRanges(roughness=(0.5, 0.2))
-    with pytest.raises(ShaderballError, match="metal_probability: 1.5 .*\\[0.0, 1.0\\]"):
+    with pytest.raises(MaterialError, match="metal_probability: 1.5 .*\\[0.0, 1.0\\]"):
         UniformRanges(metal_probability=1.5)
-    with pytest.raises(ShaderballError, match="normal_tilt_max_deg"):
+    with pytest.raises(MaterialError, match="normal_tilt_max_deg"):
         UniformRanges(normal_tilt_max_deg=90.0)
     ranges = UniformRanges(roughness=(0.3, 0.3), metal_probability=1.0, flat_normal_probability=1.0)
     m = sample_uniform(np.random.default_rng(1), ranges)
@@ -187,9 +187,9 @@ def test_uniform_ranges_check_names_field():
 
 
 def test_samplers_require_a_generator():
-    with pytest.raises(ShaderballError, match="Generator"):
+    with pytest.raises(MaterialError, match="Generator"):
         sample_uniform(np.random.RandomState(0))
-    with pytest.raises(ShaderballError, match="Generator"):
+    with pytest.raises(MaterialError, match="Generator"):
         sample_svbrdf(0, "tiles", 32)
 
 
@@ -256,9 +256,9 @@ def test_svbrdf_families_have_their_character():
 
 
 def test_svbrdf_rejects_bad_arguments():
-    with pytest.raises(ShaderballError, match="family: 'wood' is not one of stains"):
+    with pytest.raises(MaterialError, match="family: 'wood' is not one of stains"):
         sample_svbrdf(np.random.default_rng(0), "wood", 32)
-    with pytest.raises(ShaderballError, match="resolution"):
+    with pytest.raises(MaterialError, match="resolution"):
         sample_svbrdf(np.random.default_rng(0), "tiles", 4)
 
 
@@ -336,18 +336,18 @@ def test_load_16_bit_grey_roughness(tmp_path):
 def test_importer_errors(tmp_path):
     bad = tmp_path / "bad.png"
     Image.fromarray(np.zeros((8, 42, 3), np.uint8)).save(bad)
-    with pytest.raises(ShaderballError, match="width 42 is not a multiple of 5"):
+    with pytest.raises(MaterialError, match="width 42 is not a multiple of 5"):
         load_deschaintre(bad)
-    with pytest.raises(ShaderballError, match="colorspace: 'linear' is not one of raw, srgb"):
+    with pytest.raises(MaterialError, match="colorspace: 'linear' is not one of raw, srgb"):
         load_deschaintre(bad, colorspace="linear")
-    with pytest.raises(ShaderballError, match="colorspace.normal"):
+    with pytest.raises(MaterialError, match="colorspace.normal"):
         load_deschaintre(bad, colorspace={"normal": "srgb"})
-    with pytest.raises(ShaderballError, match="map 'albedo'"):
+    with pytest.raises(MaterialError, match="map 'albedo'"):
         load_deschaintre(bad, colorspace={"albedo": "srgb"})
     folder = tmp_path / "maps"
     folder.mkdir()
     Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(folder / "diffuse.png")
-    with pytest.raises(ShaderballError, match="no specular map"):
+    with pytest.raises(MaterialError, match="no specular map"):
         load_deschaintre(folder)
-    with pytest.raises(ShaderballError, match="neither a file nor a directory"):
+    with pytest.raises(MaterialError, match="neither a file nor a directory"):
         load_deschaintre(tmp_path / "missing.png")

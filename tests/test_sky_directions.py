@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import USER_ERRORS
 from sky import Light, LightingRanges, normalize_azimuth, sun_angles, sun_direction
 
 
@@ -89,7 +89,7 @@ def test_lighting_vector_and_record():
     ],
 )
 def test_light_rejects_out_of_domain_with_field_value_and_range(kwargs, field):
-    with pytest.raises(ShaderballError) as info:
+    with pytest.raises(USER_ERRORS) as info:
         Light(**kwargs)
     message = str(info.value)
     assert field in message
@@ -97,9 +97,9 @@ def test_light_rejects_out_of_domain_with_field_value_and_range(kwargs, field):
 
 
 def test_light_error_names_value_and_range():
-    with pytest.raises(ShaderballError, match=r"light\.turbidity = 10\.01 .*\[1, 10\]"):
+    with pytest.raises(USER_ERRORS, match=r"light\.turbidity = 10\.01 .*\[1, 10\]"):
         Light(10.0, 0.0, 10.01)
-    with pytest.raises(ShaderballError, match=r"light\.elevation_deg = -5\.0 .*\[0, 90\] degrees"):
+    with pytest.raises(USER_ERRORS, match=r"light\.elevation_deg = -5\.0 .*\[0, 90\] degrees"):
         Light(-5.0, 0.0, 3.0)
 
 
@@ -123,7 +123,7 @@ def test_light_accepts_domain_edges():
     ],
 )
 def test_ranges_reject_with_field(kwargs, field):
-    with pytest.raises(ShaderballError) as info:
+    with pytest.raises(USER_ERRORS) as info:
         LightingRanges(**kwargs)
     assert field in str(info.value)
 

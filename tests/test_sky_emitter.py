@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.bench.probe_scene import BALL_CENTER, BALL_RADIUS, PRESETS, pixel_rays, probe_scene_dict, render
-from pipeline.errors import ShaderballError
+from pipeline.errors import USER_ERRORS
 from pipeline.render.emitter import emitter_dicts, update_emitter_params
 from pipeline.render.sky_probe import SunskyProbe
 from sky import SUN_MODES, Light, sun_angles
@@ -140,15 +140,15 @@ def test_changing_sun_scale_recompiles(mi):
     params["sky.sun_scale"] = 0.0
     params.update()
     assert _render_kernel_hashes(mi, scene) != before
-    with pytest.raises(ShaderballError, match="sky.sun = 'sunsky' does not match"):
+    with pytest.raises(USER_ERRORS, match="sky.sun = 'sunsky' does not match"):
         update_emitter_params(params, Light(20.0, 0.0, 3.0), sun="sunsky", variant=VARIANT)
 
 
 def test_unknown_sun_mode_and_variant_are_refused():
-    with pytest.raises(ShaderballError, match="sky.sun"):
+    with pytest.raises(USER_ERRORS, match="sky.sun"):
         emitter_dicts(Light(30.0, 0.0, 3.0), sun="disk", variant=VARIANT)
     for variant in ("llvm_ad_spectral", "scalar_rgb"):
-        with pytest.raises(ShaderballError, match="RGB variant"):
+        with pytest.raises(USER_ERRORS, match="RGB variant"):
             emitter_dicts(Light(30.0, 0.0, 3.0), variant=variant)
 
 

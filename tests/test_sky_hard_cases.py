@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.bench.probe_scene import MATERIALS, PRESETS, probe_scene_dict, render
 from pipeline.bench.sky_floor import SWEEP_ELEVATIONS_DEG, SWEEP_TURBIDITIES
-from pipeline.errors import ShaderballError
+from pipeline.errors import USER_ERRORS
 from pipeline.render.emitter import emitter_dicts, update_emitter_params
 from sky import SUN_MODES, Light, LightingPolicy, elevation_floor_deg
 from support import VARIANT
@@ -33,7 +33,7 @@ def test_sweep_partition():
 
 @pytest.mark.parametrize("elevation, turbidity", REJECTED)
 def test_rejected_requests_name_the_field(elevation, turbidity):
-    with pytest.raises(ShaderballError) as info:
+    with pytest.raises(USER_ERRORS) as info:
         Light(elevation, AZIMUTH_DEG, turbidity)
     message = str(info.value)
     if not 1.0 <= turbidity <= 10.0 and elevation >= 0.0:

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import USER_ERRORS
 from sky import SAFE_ELEVATION_DEG, Light, LightingPolicy, apply_policy, elevation_floor_deg, sun_direction
 from sky.policy import FLOOR_TABLE, measured_floor_deg
 from support import VARIANT
@@ -13,7 +13,7 @@ from support import VARIANT
 
 def test_floor_table_covers_1_to_10_without_gaps():
     assert FLOOR_TABLE[0][0] == 1.0 and FLOOR_TABLE[-1][1] == 10.0
-    for (a0, b0, _), (a1, _, _) in zip(FLOOR_TABLE[:-1], FLOOR_TABLE[1:]):
+    for (_, b0, _), (a1, _, _) in zip(FLOOR_TABLE[:-1], FLOOR_TABLE[1:]):
         assert b0 == a1
     assert all(0.0 < f < 10.0 for _, _, f in FLOOR_TABLE)
 
@@ -56,9 +56,9 @@ def test_policy_off_changes_nothing_and_says_so():
 
 
 def test_policy_settings_are_checked():
-    with pytest.raises(ShaderballError, match="sky.policy.floor"):
+    with pytest.raises(USER_ERRORS, match="sky.policy.floor"):
         LightingPolicy(floor="clamp")
-    with pytest.raises(ShaderballError, match="sky.policy.margin_deg"):
+    with pytest.raises(USER_ERRORS, match="sky.policy.margin_deg"):
         LightingPolicy(margin_deg=-1.0)
 
 
@@ -69,7 +69,7 @@ def test_policy_settings_are_checked():
 def probe(mi):
     from pipeline.render.sky_probe import SunskyProbe
 
-    return SunskyProbe("llvm_ad_rgb", variant=VARIANT)
+    return SunskyProbe(VARIANT)
 
 
 def _min_radiance(probe, elevation_deg, turbidity):

@@ -12,6 +12,7 @@ import textwrap
 
 import pytest
 
+from materials.errors import MaterialError
 from pipeline.dataset.spec import (
     FALLBACK_LIGHT_SCHEMES,
     FALLBACK_SVBRDF_FAMILIES,
@@ -415,7 +416,7 @@ def test_uniform_limits_match_materials(name):
     for bad in (beyond, below):
         with pytest.raises(SpecError):
             MaterialsSection(**{name: bad})
-        with pytest.raises(ShaderballError):
+        with pytest.raises(MaterialError):
             materials.UniformRanges(**{name: bad})
 
 

@@ -42,6 +42,7 @@ from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
 from pipeline.render.emitter import update_emitter_params
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import render_in_passes, scene_dict
 from pipeline.run.build import build, read_spec_text
@@ -399,8 +400,8 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
     """Build a spec and time the same renders bare; see the module docstring."""
 
     samples = check_int("--samples", samples, 1, 1_000_000)
-    resolution = check_int("--resolution", resolution, 16, 4096)
-    spp = check_int("--spp", spp, 1, 65536)
+    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE)
+    spp = check_int("--spp", spp, *SPP_RANGE)
     workers = check_int("--workers", workers, 0, 1024)
     shard_size = check_int("--shard-size", shard_size, 1, 1_000_000)
     spec, _ = read_spec_text(spec_path)

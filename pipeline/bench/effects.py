@@ -26,6 +26,7 @@ from pipeline.bench.compare import compare_renders, describe_comparison, render_
 from pipeline.errors import ShaderballError, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import bsdf_dict
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import RenderSettings, plan_effects, scene_dict
 from pipeline.render.scene import BALL_SHAPE_ID, bitmap_texture
@@ -166,8 +167,8 @@ def run_effects_bench(*, resolution: int | None = None, spp: int | None = None, 
                       progress=None) -> EffectsBench:
     """Render time with and without each omission; see the module docstring."""
 
-    resolution = check_int("--resolution", resolution, 16, 4096) or 128
-    spp = check_int("--spp", spp, 1, 65536) or 64
+    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or 128
+    spp = check_int("--spp", spp, *SPP_RANGE) or 64
     repeats = check_int("--repeats", repeats, 1, 100) or 5
     texture_size = check_int("--texture-size", texture_size, 1, 4096) or 256
     variant = resolve_variant(variant)  # chosen once for the whole benchmark

@@ -20,6 +20,7 @@ from pathlib import Path
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
 from pipeline.errors import USER_ERRORS
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE, span
 from pipeline.run.build import prepare
 from pipeline.run.cluster import check_int
 from pipeline.run.shard import run_shard_in_process
@@ -109,14 +110,14 @@ def main(argv: list[str] | None = None) -> int:
                                      description="Measure a render worker's resident memory.")
     parser.add_argument("--memory-probe", type=int, metavar="N", required=True,
                         help="renders to run in one process (2 per material), 2 to 100000")
-    parser.add_argument("--resolution", type=int, default=64, help="pixels, 16 to 4096 (default 64)")
+    parser.add_argument("--resolution", type=int, default=64, help=f"pixels, {span(RESOLUTION_RANGE)} (default 64)")
     parser.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     parser.add_argument("--every", type=int, default=20, help="print RSS every N renders (default 20)")
     args = parser.parse_args(argv)
     try:
         check_int("--memory-probe", args.memory_probe, 2, 100_000)
-        check_int("--resolution", args.resolution, 16, 4096)
-        check_int("--spp", args.spp, 1, 65536)
+        check_int("--resolution", args.resolution, *RESOLUTION_RANGE)
+        check_int("--spp", args.spp, *SPP_RANGE)
 
         def show(done, rss):
             if done % max(1, args.every) < 2:
@@ -125,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         result = memory_probe(args.memory_probe, args.resolution, args.spp, progress=show)
     except USER_ERRORS as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return getattr(exc, "exit_code", 2)
+        return exc.exit_code
     for line in result.lines():
         print(line)
     return 0

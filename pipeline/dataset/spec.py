@@ -38,9 +38,12 @@ from typing import Any, ClassVar
 import tomllib
 
 from pipeline.errors import ShaderballError
+from pipeline.render.limits import INTEGRATORS, MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE
+from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
 
 # pipeline.store.exr loads only numpy at import time; its table is the one list of compressions.
 from pipeline.store.exr import COMPRESSIONS
+from sky.emitter import SUN_MODES
 
 #: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
 #: Keep in sync with materials/ (a test compares them when materials/ is importable).
@@ -510,8 +513,8 @@ def light_scheme_names() -> tuple[str, ...]:
     return tuple(SCHEMES)
 
 
-#: How the sun is given to Mitsuba (pipeline.render.emitter.SUN_MODES; a test keeps them equal).
-SUN_FORMS: tuple[str, ...] = ("split", "sunsky")
+#: How the sun is given to Mitsuba (defined in sky.emitter).
+SUN_FORMS: tuple[str, ...] = SUN_MODES
 
 
 @dataclass(frozen=True)
@@ -580,8 +583,7 @@ def import_sky_name(name: str, module: str):
                           "package is needed to sample lightings")
 
 
-INTEGRATORS: tuple[str, ...] = ("path",)
-VARIANTS: tuple[str, ...] = ("auto", "llvm", "cuda", "scalar")
+VARIANTS: tuple[str, ...] = VARIANT_CHOICES
 
 
 @dataclass(frozen=True)
@@ -590,14 +592,14 @@ class RenderSection(_Section):
 
     SECTION: ClassVar[str] = "render"
 
-    resolution: int = _field(400, rule=_Int(16, 4096),
+    resolution: int = _field(400, rule=_Int(*RESOLUTION_RANGE),
                              doc="Width and height of renders and screen-space maps; the "
                                  "paper: 400.",
                              unit="pixels")
-    spp: int = _field(150, rule=_Int(1, 65536),
+    spp: int = _field(150, rule=_Int(*SPP_RANGE),
                       doc="Samples per pixel of each render; the paper: 150.",
                       unit="samples per pixel")
-    max_depth: int = _field(8, rule=_Int(1, 64, also=(-1,), also_text="-1 (unlimited, "
+    max_depth: int = _field(8, rule=_Int(*MAX_DEPTH_RANGE, also=(-1,), also_text="-1 (unlimited, "
                                                                         "Russian roulette ends "
                                                                         "paths)"),
                             doc="Longest light path, in Mitsuba's convention (1: emitters "
@@ -607,8 +609,8 @@ class RenderSection(_Section):
                              doc="Mitsuba integrator.")
     variant: str = _field("auto", rule=_Choice(VARIANTS),
                           doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
-                              "llvm (llvm_ad_rgb), cuda (cuda_ad_rgb), scalar (scalar_rgb). "
-                              "Renders are reproducible for one backend and machine only.")
+                              + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
+                              + ". Renders are reproducible for one backend and machine only.")
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial, load_deschaintre
-from pipeline.errors import USER_ERRORS, ShaderballError, bad_value
+from pipeline.errors import bad_value, check_int
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
 from pipeline.render.raster import project_material
@@ -117,10 +117,8 @@ def load_material(req: RenderRequest):
 
     if req.svbrdf:
         return load_deschaintre(req.svbrdf, req.svbrdf_colorspace)
-    try:
-        return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
-    except USER_ERRORS as exc:  # re-word with the option names
-        raise ShaderballError(str(exc).replace("UniformMaterial.", "--")) from None
+    # check_request has refused bad values under their option names already.
+    return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
 
 
 def check_request(req: RenderRequest) -> None:
@@ -137,15 +135,11 @@ def check_request(req: RenderRequest) -> None:
     check_number("--elevation", req.elevation_deg, 0.0, 90.0, " degrees")
     check_number("--azimuth", req.azimuth_deg, -360.0, 720.0, " degrees")
     check_number("--turbidity", req.turbidity, 1.0, 10.0)
-    if not SEED_RANGE[0] <= req.seed <= SEED_RANGE[1]:
-        raise bad_value("--seed", req.seed, f"an integer in [{SEED_RANGE[0]}, {SEED_RANGE[1]}]")
+    check_int("--seed", req.seed, *SEED_RANGE)
     if req.variant not in VARIANT_CHOICES:
         raise bad_value("--variant", req.variant, ", ".join(VARIANT_CHOICES))
-    try:
-        RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
-                       variant=req.variant, sun=req.sun).check(prefix="-")
-    except USER_ERRORS as exc:
-        raise ShaderballError(str(exc).replace("-.", "--").replace("_", "-")) from None
+    RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
+                   variant=req.variant, sun=req.sun).check(lambda name: "--" + name.replace("_", "-"))
     Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     check_output("--out", req.out, ".exr")
     if req.png is not None:

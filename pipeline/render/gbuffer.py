@@ -21,14 +21,15 @@ import numpy as np
 
 from geometry import Camera, Shaderball
 from geometry.shaderball import default_cache_dir
-from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.errors import USER_ERRORS, check_int
+from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
 from pipeline.store.exr import read_exr, write_exr
 
 #: Bump when what the G-buffer holds or how it is taken changes.
 GBUFFER_CODE_VERSION = 1
-MIN_RESOLUTION, MAX_RESOLUTION = 16, 4096
+MIN_RESOLUTION, MAX_RESOLUTION = RESOLUTION_RANGE
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,13 +56,7 @@ class GBuffer:
 
 
 def check_resolution(resolution, name: str = "resolution") -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or not (
-        MIN_RESOLUTION <= resolution <= MAX_RESOLUTION
-    ):
-        raise ShaderballError(
-            f"{name}: {resolution!r} is not allowed; allowed: an integer in [{MIN_RESOLUTION}, {MAX_RESOLUTION}]"
-        )
-    return int(resolution)
+    return check_int(name, resolution, MIN_RESOLUTION, MAX_RESOLUTION)
 
 
 def intersection_scene(ball: Shaderball, camera: Camera, resolution: int, variant: str):

@@ -17,16 +17,16 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from pipeline.errors import bad_value
+from pipeline.errors import bad_value, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.emitter import emitter_dicts
+from pipeline.render.limits import INTEGRATORS, MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import sensor_dict, shape_dicts
 from pipeline.render.stats import is_bad, render_stats
 from sky.emitter import SUN_MODES
 
-INTEGRATORS = ("path",)
 #: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
 #: up to this many times in all; if every attempt is bad it is kept and flagged.
 MAX_RENDER_ATTEMPTS = 3
@@ -46,19 +46,19 @@ class RenderSettings:
     #: The resolved Mitsuba variant (pipeline.render.mitsuba_env.resolve_variant), chosen once.
     variant: str = field(kw_only=True)
 
-    def check(self, prefix: str = "render") -> RenderSettings:
-        def integer(name, lo, hi):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
-                raise bad_value(f"{prefix}.{name}", value, f"an integer in [{lo}, {hi}]")
+    def check(self, field_name=lambda name: f"render.{name}") -> RenderSettings:
+        """Raise naming the field as ``field_name(name)`` says (a spec field, a CLI option); else self."""
 
-        integer("resolution", 16, 4096)
-        integer("spp", 1, 65536)
-        integer("max_depth", 1, 64)
+        def integer(name, lo, hi):
+            check_int(field_name(name), getattr(self, name), lo, hi)
+
+        integer("resolution", *RESOLUTION_RANGE)
+        integer("spp", *SPP_RANGE)
+        integer("max_depth", *MAX_DEPTH_RANGE)
         if self.integrator not in INTEGRATORS:
-            raise bad_value(f"{prefix}.integrator", self.integrator, ", ".join(INTEGRATORS))
+            raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
-            raise bad_value(f"{prefix}.sun", self.sun, ", ".join(SUN_MODES))
+            raise bad_value(field_name("sun"), self.sun, ", ".join(SUN_MODES))
         return self
 
 

@@ -198,7 +198,7 @@ def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, 
     result = render_sample(ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed,
                            mask=ctx.gbuffer.mask)
     effective = Light.from_dict(result.lighting["effective"])
-    stats = {k: v for k, v in result.stats.items()}
+    stats = dict(result.stats)
     stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
     meta = {"id": sample.sample_id, "material_id": sample.material_id, "lighting": result.lighting,
             "effects": result.effects.to_dict(), "stats": stored_stats,

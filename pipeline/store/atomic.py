@@ -10,6 +10,10 @@ import hashlib
 import os
 import tempfile
 
+#: Prefix of the temporary file of a write in progress (left behind when the writer is
+#: killed). pipeline.store.folder tells such files apart by it.
+TEMP_PREFIX = ".tmp-"
+
 
 def _file_mode() -> int:
     """0666 less the process umask: what open() would have given (mkstemp gives 0600)."""
@@ -34,7 +38,7 @@ def write_bytes_atomic(path: str, data: bytes) -> str:
     """Write ``data`` to ``path`` atomically and durably; return its SHA-256 hex digest."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="-" + os.path.basename(path), dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix="-" + os.path.basename(path), dir=folder)
     try:
         os.fchmod(fd, _FILE_MODE)
         with os.fdopen(fd, "wb") as fh:
