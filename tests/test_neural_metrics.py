@@ -27,7 +27,7 @@ def _ssim_direct(a, b):
         p, q = a[..., c].astype(float), b[..., c].astype(float)
         h, w = p.shape
 
-        def valid(img):
+        def valid(img, h=h, w=w):
             return np.array([[np.sum(g * img[i:i + 11, j:j + 11]) for j in range(w - 10)] for i in range(h - 10)])
 
         mp, mq = valid(p), valid(q)

@@ -6,8 +6,13 @@ import pytest
 import torch
 
 from pipeline.errors import ShaderballError
-from pipeline.neural.network import (PAPER_PARAMETERS, NeuralRenderer, check_network_resolution, light_input,
-                                     parameter_count)
+from pipeline.neural.network import (
+    PAPER_PARAMETERS,
+    NeuralRenderer,
+    check_network_resolution,
+    light_input,
+    parameter_count,
+)
 
 torch.set_num_threads(1)
 

@@ -3,8 +3,15 @@
 import numpy as np
 import pytest
 
-from pipeline.neural.tonemap import (DEFAULT_EXPOSURE, hdr_to_srgb8, inverse_tonemap, srgb_decode, srgb_encode,
-                                     to_srgb8, tonemap)
+from pipeline.neural.tonemap import (
+    DEFAULT_EXPOSURE,
+    hdr_to_srgb8,
+    inverse_tonemap,
+    srgb_decode,
+    srgb_encode,
+    to_srgb8,
+    tonemap,
+)
 
 
 def test_known_values():

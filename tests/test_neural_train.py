@@ -6,11 +6,11 @@ import os
 import pytest
 import torch
 from PIL import Image
-from support.neural_fakes import FakeSource
 
 from pipeline.errors import ShaderballError
 from pipeline.neural import runfiles
 from pipeline.neural.train import TrainConfig, epoch_order, train
+from support.neural_fakes import FakeSource
 
 torch.set_num_threads(1)
 

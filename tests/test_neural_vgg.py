@@ -10,8 +10,16 @@ import torch
 
 from pipeline.errors import ShaderballError
 from pipeline.neural.loss import RenderLoss
-from pipeline.neural.vgg import (HUB_FILENAME, RELU3_3, find_vgg_weights, hub_cache_path, load_vgg16_relu3_3,
-                                 random_vgg16_state_dict, sha256_of, vgg16_features)
+from pipeline.neural.vgg import (
+    HUB_FILENAME,
+    RELU3_3,
+    find_vgg_weights,
+    hub_cache_path,
+    load_vgg16_relu3_3,
+    random_vgg16_state_dict,
+    sha256_of,
+    vgg16_features,
+)
 
 torch.set_num_threads(1)
 

@@ -59,7 +59,7 @@ class TrainConfig:
     exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.neural.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
 
-    def check(self) -> "TrainConfig":
+    def check(self) -> TrainConfig:
         def integer(name, lo, hi):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
@@ -99,6 +99,9 @@ class TrainSummary:
     baseline_psnr: float | None = None
     device: str = "cpu"
     parameters: int = 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
 
     def lines(self) -> list[str]:
         out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]

@@ -1,0 +1,256 @@
+"""A dataset folder as torch samples: the network's 12-channel input, the lighting vector,
+the tone-mapped target and the mask, read from the EXR files the manifest lists.
+
+A sample is a plain dict of tensors (``maps`` (12, R, R), ``light`` (4,), ``target``
+(3, R, R), ``mask`` (1, R, R)) plus its ``id`` and ``material_id``:
+
+- ``maps``: diffuse RGB, specular RGB, normal-map colour RGB (``(n + 1) / 2``, the
+  renderer's encoding, ``materials.encode_normal_map``; 0 off the ball like the other
+  maps), roughness repeated 3 times; each in [0, 1].
+- ``light``: the record's ``lighting_vector`` as stored (unit sun direction, turbidity);
+  the network's encoding of it is :func:`pipeline.neural.network.light_input`.
+- ``target``: the render through :func:`pipeline.neural.tonemap.tonemap`.
+- ``mask``: 1 where a pixel centre sees the material.
+
+At a network resolution R below the dataset's D (D a multiple of R), every image is
+box-averaged over D/R x D/R pixels first (renders in linear HDR, before the tone map).
+
+Every file is read as bytes once, its SHA-256 compared with the manifest's on its first
+read in a process (``check_hashes=False`` skips it), then decoded. A material's maps are
+assembled once and kept (a bounded cache per process) for all its lightings. Paths that
+leave the dataset folder (absolute, ``..``, or through a symbolic link) are refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from materials import encode_normal_map
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.neural.network import check_network_resolution
+from pipeline.neural.tonemap import DEFAULT_EXPOSURE, tonemap
+from pipeline.store.exr import read_exr
+from pipeline.store.layout import Layout
+
+MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
+#: Materials whose assembled maps a process keeps (400x400: 7.7 MB each).
+DEFAULT_CACHE_MATERIALS = 64
+
+
+def safe_path(root: str, rel: str) -> str:
+    """``rel`` (a manifest path) inside ``root``, or a ShaderballError naming it."""
+    if not isinstance(rel, str) or not rel or rel.startswith(("/", "\\")) or "\\" in rel or ":" in rel \
+            or any(part in ("", ".", "..") for part in rel.split("/")):
+        raise ShaderballError(f"manifest: file path {rel!r} leaves the dataset folder {root!r} or is not "
+                              "a plain relative path; refused")
+    real_root = os.path.realpath(root)
+    full = os.path.realpath(os.path.join(real_root, *rel.split("/")))
+    if os.path.commonpath([real_root, full]) != real_root:
+        raise ShaderballError(f"manifest: file path {rel!r} resolves to {full!r}, outside the dataset folder "
+                              f"{real_root!r} (a symbolic link?); refused")
+    return full
+
+
+def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
+    """(H, W, C) -> (H/f, W/f, C), the mean of each f x f block."""
+    if factor == 1:
+        return image
+    h, w, c = image.shape
+    return image.reshape(h // factor, factor, w // factor, factor, c).mean(axis=(1, 3), dtype=np.float64) \
+        .astype(np.float32)
+
+
+def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """A maps file's layers -> (12, R, R) network input and (1, R, R) mask, float32."""
+    mask = layers["mask"].astype(np.float32)
+    normal_colour = encode_normal_map(layers["normal"].astype(np.float32)) * (mask > 0.5)
+    rough = layers["roughness"].astype(np.float32)
+    stacked = np.concatenate([layers["diffuse"].astype(np.float32), layers["specular"].astype(np.float32),
+                              normal_colour, np.repeat(rough, 3, axis=-1), mask], axis=-1)
+    stacked = box_downsample(stacked, factor)
+    chw = np.ascontiguousarray(stacked.transpose(2, 0, 1))
+    return chw[:12], chw[12:]
+
+
+def read_json_file(path: str, what: str):
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except FileNotFoundError:
+        raise ShaderballError(f"{what}: {path} is missing") from None
+    except (OSError, ValueError) as exc:
+        raise ShaderballError(f"{what}: {path} is not readable JSON ({exc})") from None
+
+
+def read_manifest(root: str) -> tuple[dict, list[dict]]:
+    """dataset.json and the manifest's records of a complete dataset folder."""
+    layout = Layout(root)
+    if not os.path.isdir(root):
+        raise bad_value("DATASET", root, "a dataset folder written by `shaderball build`")
+    description = read_json_file(layout.description, "DATASET")
+    if not os.path.isfile(layout.manifest):
+        raise ShaderballError(f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
+                              "when a build completes); finish it with `shaderball build SPEC --out DIR`")
+    records = []
+    with open(layout.manifest, encoding="utf-8") as f:
+        for number, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                records.append(json.loads(line))
+            except ValueError:
+                raise ShaderballError(f"DATASET: {layout.manifest} line {number} is not JSON; "
+                                      "check the folder with `shaderball validate`") from None
+    expected = (description.get("counts") or {}).get("renders")
+    if expected is not None and len(records) != expected:
+        raise ShaderballError(f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
+                              f"{expected} renders; finish it with `shaderball build`")
+    if not records:
+        raise ShaderballError(f"DATASET: {root!r} has no renders")
+    return description, records
+
+
+@dataclass(frozen=True)
+class SampleFiles:
+    id: str
+    material_id: str
+    render: tuple[str, str]  # (absolute path, sha256)
+    maps: tuple[str, str]
+    lighting_vector: tuple[float, float, float, float]
+
+
+def sample_files(root: str, record: dict) -> SampleFiles:
+    files = {}
+    for entry in record.get("files", []):
+        files[entry.get("role")] = (safe_path(root, entry.get("path")), entry.get("sha256"))
+    missing = [role for role in ("render", "maps") if role not in files]
+    if missing:
+        raise ShaderballError(f"manifest: record {record.get('id')!r} lists no {' and no '.join(missing)} file")
+    vector = record.get("lighting_vector")
+    if not (isinstance(vector, list) and len(vector) == 4):
+        raise ShaderballError(f"manifest: record {record.get('id')!r} has no 4-value lighting_vector")
+    return SampleFiles(record["id"], record["material_id"], files["render"], files["maps"],
+                       tuple(float(v) for v in vector))
+
+
+class ShaderballDataset(Dataset):
+    """Samples of a dataset folder (see the module's docstring); build with :func:`open_dataset`."""
+
+    def __init__(self, root: str, samples: list[SampleFiles], resolution: int, factor: int,
+                 exposure: float = DEFAULT_EXPOSURE, check_hashes: bool = True,
+                 cache_materials: int = DEFAULT_CACHE_MATERIALS, identity: dict | None = None):
+        self.root = root
+        self.samples = samples
+        self.resolution = resolution
+        self.factor = factor
+        self.exposure = exposure
+        self.check_hashes = check_hashes
+        self.cache_materials = cache_materials
+        self.identity = identity or {}
+        self.material_ids = sorted({s.material_id for s in samples})
+        self._verified: set[str] = set()
+        self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self.maps_reads = 0  # maps files decoded by this process (tests count them)
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def subset(self, material_ids) -> ShaderballDataset:
+        keep = set(material_ids)
+        return ShaderballDataset(self.root, [s for s in self.samples if s.material_id in keep], self.resolution,
+                                 self.factor, self.exposure, self.check_hashes, self.cache_materials, self.identity)
+
+    def _read(self, path: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
+        try:
+            with open(path, "rb") as f:
+                data = f.read()
+        except OSError as exc:
+            raise ShaderballError(f"DATASET: cannot read {path} ({exc.strerror}); check the folder with "
+                                  "`shaderball validate`") from None
+        if self.check_hashes and path not in self._verified:
+            if hashlib.sha256(data).hexdigest() != sha256:
+                raise ShaderballError(f"DATASET: {path} does not match its SHA-256 in the manifest; repair the "
+                                      "folder with `shaderball validate --repair`")
+            self._verified.add(path)
+        decoded = read_exr(data).layers
+        absent = [name for name in layers if name not in decoded]
+        if absent:
+            raise ShaderballError(f"DATASET: {path} has no {', '.join(absent)} layer (the network needs "
+                                  f"{', '.join(layers)}; build with storage.layers naming them)")
+        shape = decoded[layers[0]].shape[:2]
+        if shape != (self.resolution * self.factor,) * 2:
+            raise ShaderballError(f"DATASET: {path} is {shape[0]}x{shape[1]}, the manifest says "
+                                  f"{self.resolution * self.factor}")
+        return decoded
+
+    def material_maps(self, sample: SampleFiles) -> tuple[torch.Tensor, torch.Tensor]:
+        cached = self._maps_cache.get(sample.material_id)
+        if cached is not None:
+            self._maps_cache.move_to_end(sample.material_id)
+            return cached
+        layers = self._read(*sample.maps, MAP_LAYERS)
+        maps, mask = assemble_maps(layers, self.factor)
+        self.maps_reads += 1
+        entry = (torch.from_numpy(maps), torch.from_numpy(mask))
+        self._maps_cache[sample.material_id] = entry
+        while len(self._maps_cache) > self.cache_materials:
+            self._maps_cache.popitem(last=False)
+        return entry
+
+    def target(self, sample: SampleFiles) -> torch.Tensor:
+        render = self._read(*sample.render, ("render",))["render"].astype(np.float32)
+        render = box_downsample(render, self.factor)
+        return torch.from_numpy(np.ascontiguousarray(tonemap(render, self.exposure).transpose(2, 0, 1)))
+
+    def __getitem__(self, index: int) -> dict:
+        sample = self.samples[index]
+        maps, mask = self.material_maps(sample)
+        return {
+            "maps": maps,
+            "light": torch.tensor(sample.lighting_vector, dtype=torch.float32),
+            "target": self.target(sample),
+            "mask": mask,
+            "id": sample.id,
+            "material_id": sample.material_id,
+        }
+
+
+def dataset_resolution(records: list[dict]) -> int:
+    sizes = {(r.get("render") or {}).get("resolution") for r in records}
+    if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
+        raise ShaderballError(f"DATASET: renders of several or unknown resolutions {sorted(map(str, sizes))}")
+    return next(iter(sizes))
+
+
+def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
+    """(network resolution, box factor) for a dataset of ``native`` pixels."""
+    if requested is None:
+        if native % 16:
+            raise bad_value("--resolution", None, f"a multiple of 16 that divides the dataset's {native} "
+                            f"(the network needs a multiple of 16; {native} is not)")
+        return native, 1
+    check_network_resolution(requested, "--resolution")
+    if native % requested:
+        raise bad_value("--resolution", requested, f"a multiple of 16 that divides the dataset's resolution {native}")
+    return requested, native // requested
+
+
+def open_dataset(root: str, resolution: int | None = None, exposure: float = DEFAULT_EXPOSURE,
+                 check_hashes: bool = True, cache_materials: int = DEFAULT_CACHE_MATERIALS) -> ShaderballDataset:
+    """A complete dataset folder as a :class:`ShaderballDataset` (all samples)."""
+    description, records = read_manifest(root)
+    native = dataset_resolution(records)
+    net_res, factor = network_resolution(native, resolution)
+    samples = [sample_files(root, r) for r in records]
+    manifest_sha = hashlib.sha256(open(Layout(root).manifest, "rb").read()).hexdigest()
+    identity = {"spec_digest": description.get("spec_digest"), "manifest_sha256": manifest_sha,
+                "name": description.get("name"), "resolution": native, "variant": description.get("variant")}
+    return ShaderballDataset(root, samples, net_res, factor, exposure, check_hashes, cache_materials, identity)

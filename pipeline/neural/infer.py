@@ -1,0 +1,139 @@
+"""`shaderball infer`: the network's picture of one material under one sun, no path tracing.
+
+The material and sun options are `shaderball render`'s (checked by the same code); the
+screen-space maps are made through the G-buffer exactly as a dataset's are, at the run's
+network resolution; the lighting vector is the low-sun policy's effective light, as a
+dataset record stores it.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from PIL import Image
+
+from geometry import build_shaderball, default_camera
+from pipeline.errors import ShaderballError
+from pipeline.neural import runfiles
+from pipeline.neural.data import assemble_maps
+from pipeline.neural.network import NeuralRenderer, light_input
+from pipeline.neural.tonemap import inverse_tonemap, to_srgb8
+from pipeline.neural.train import pick_device
+from pipeline.render.command import RenderRequest, check_request, load_material
+from pipeline.render.gbuffer import load_gbuffer
+from pipeline.render.mitsuba_env import resolve_variant
+from pipeline.render.raster import project_material
+from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.exr import write_exr
+from sky import Light
+from sky.policy import apply_policy
+
+
+@dataclass(frozen=True)
+class InferRequest:
+    run: str  # training run folder (config.json, checkpoint.pt)
+    out: str  # output EXR: the network's HDR estimate (inverse tone map) and the maps
+    png: str | None = None  # optional PNG: the network's output as 8-bit sRGB
+    diffuse: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    specular: tuple[float, float, float] = (0.04, 0.04, 0.04)
+    roughness: float = 0.3
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    svbrdf: str | None = None
+    svbrdf_colorspace: str = "raw"
+    elevation_deg: float = 45.0
+    azimuth_deg: float = 270.0
+    turbidity: float = 3.0
+    device: str = "auto"
+
+
+@dataclass
+class InferSummary:
+    out: str
+    png: str | None
+    resolution: int
+    device: str
+    load_s: float
+    maps_s: float
+    network_s: float
+    lighting_vector: list
+
+    def lines(self) -> list[str]:
+        return [
+            f"wrote {self.out}" + (f" and {self.png}" if self.png else ""),
+            f"{self.resolution}x{self.resolution} on {self.device}: maps {self.maps_s * 1000:.1f} ms (G-buffer "
+            f"lookup), network {self.network_s * 1000:.1f} ms; loading the run {self.load_s * 1000:.0f} ms",
+            "lighting vector (d_x, d_y, d_z, turbidity): " + ", ".join(f"{v:.4f}" for v in self.lighting_vector),
+        ]
+
+
+def load_run_model(run_dir: str, device: torch.device) -> tuple[NeuralRenderer, dict]:
+    """The trained network of a run (eval mode, on ``device``) and its config."""
+    config = runfiles.read_config(run_dir)
+    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"])
+    model = NeuralRenderer(int(config["network"]["resolution"]))
+    try:
+        model.load_state_dict(ckpt["model"])
+    except RuntimeError as exc:
+        raise ShaderballError(f"{run_dir}: the checkpoint's weights do not fit the network of its config "
+                              f"({str(exc).splitlines()[0]})") from None
+    return model.to(device).eval(), config
+
+
+def _synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+@torch.no_grad()
+def run_network(model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, device: torch.device) -> np.ndarray:
+    """One (12, R, R) input and a lighting vector -> (R, R, 3) network output in [0, 1]."""
+    maps = torch.from_numpy(np.ascontiguousarray(maps_chw, dtype=np.float32))[None].to(device)
+    light = light_input(torch.tensor([list(lighting_vector)], dtype=torch.float32, device=device))
+    return model(maps, light)[0].permute(1, 2, 0).float().cpu().numpy()
+
+
+def infer_to_files(req: InferRequest) -> InferSummary:
+    device = pick_device(req.device)
+    started = time.perf_counter()
+    model, config = load_run_model(req.run, device)
+    load_s = time.perf_counter() - started
+    resolution = model.resolution
+    render_req = RenderRequest(diffuse=req.diffuse, specular=req.specular, roughness=req.roughness,
+                               normal=req.normal, svbrdf=req.svbrdf, svbrdf_colorspace=req.svbrdf_colorspace,
+                               elevation_deg=req.elevation_deg, azimuth_deg=req.azimuth_deg,
+                               turbidity=req.turbidity, resolution=resolution, out=req.out, png=req.png)
+    check_request(render_req)
+    material = load_material(render_req)
+    material.check()
+    effective, _ = apply_policy(Light(req.elevation_deg, req.azimuth_deg, req.turbidity))
+    vector = [float(v) for v in effective.lighting_vector()]
+
+    started = time.perf_counter()
+    variant = resolve_variant((config.get("identity", {}).get("dataset") or {}).get("variant") or "auto")
+    gbuffer = load_gbuffer(build_shaderball(), default_camera(), resolution, variant)
+    screen = project_material(material, gbuffer)
+    layers = {k: (v[..., None] if v.ndim == 2 else v) for k, v in screen.items()}
+    maps_chw, _ = assemble_maps(layers)
+    maps_s = time.perf_counter() - started
+
+    run_network(model, maps_chw, vector, device)  # warm-up: first calls allocate
+    _synchronize(device)
+    started = time.perf_counter()
+    output = run_network(model, maps_chw, vector, device)
+    _synchronize(device)
+    network_s = time.perf_counter() - started
+
+    exposure = float(config["tonemap"]["exposure"])
+    meta = {"estimate": "neural renderer (KT et al. 2019)", "run": req.run, "lighting_vector": vector,
+            "tonemap": config["tonemap"], "colorspace": "linear Rec.709 (sRGB primaries, D65)"}
+    write_exr(req.out, {"render": inverse_tonemap(output, exposure), **screen}, meta,
+              half=("diffuse", "specular", "roughness", "normal", "mask"))
+    if req.png:
+        buffer = io.BytesIO()
+        Image.fromarray(to_srgb8(output)).save(buffer, format="PNG")
+        write_bytes_atomic(req.png, buffer.getvalue())
+    return InferSummary(req.out, req.png, resolution, str(device), load_s, maps_s, network_s, vector)
