@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_OUT ?= demo-out
 
-.PHONY: setup llvm demo test test-all bench clean
+.PHONY: setup llvm demo test lint test-all bench clean
 
 setup: llvm $(STAMP)
 
@@ -18,8 +18,11 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
+	@# torch first, pinned to this machine's local CPU wheel (an unpinned torch pulls gigabytes
+	@# of CUDA packages); then the train extra (torch>=2.4,<3, already met) for the neural stage.
 	@if [ -f /opt/wheels/torch-2.13.0+cpu-cp311-cp311-manylinux_2_28_x86_64.whl ] || [ -n "$$SHADERBALL_TORCH" ]; then \
 		$(PY) -m pip install -q 'torch==2.13.0'; fi
+	$(PY) -m pip install -q -e '.[dev,train]'
 	touch $(STAMP)
 
 demo: setup
@@ -30,7 +33,11 @@ demo: setup
 	@echo "demo: dataset in $(DEMO_OUT)/smoke (manifest.jsonl, shards/), contact sheet $(DEMO_OUT)/smoke-preview.png"
 
 test: setup
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q -n 2 tests
+
+lint: setup
+	$(VENV)/bin/ruff check .
 
 bench: setup
 	$(VENV)/bin/shaderball bench manifests/smoke.toml

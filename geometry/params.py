@@ -7,6 +7,8 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
+
 from geometry.errors import GeometryError
 
 #: Bump when the construction, the charts or the cache layout change: old caches then miss.
@@ -101,7 +103,6 @@ class ShaderballParams:
 
 
 def digest_inputs(params: ShaderballParams) -> dict:
-    import numpy
     import trimesh
     import xatlas
 
@@ -109,7 +110,7 @@ def digest_inputs(params: ShaderballParams) -> dict:
         "params": params.as_dict(),
         "code": GEOMETRY_CODE_VERSION,
         "versions": {
-            "numpy": numpy.__version__,
+            "numpy": np.__version__,
             "trimesh": trimesh.__version__,
             "xatlas": getattr(xatlas, "__version__", "unknown"),
         },

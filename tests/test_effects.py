@@ -88,7 +88,7 @@ def test_no_normal_map_renders_as_a_flat_normal_map(mi, scene_of):
     plain = _render(mi, scene_of(maps))
     from pipeline.render.bsdf import bsdf_dict
 
-    wrapped = _render(mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps), 4, variant=VARIANT)))
+    wrapped = _render(mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps, variant=VARIANT), 4, variant=VARIANT)))
     c = compare_renders(wrapped, plain)
     assert c["identical"] or c["rounding"], c
     assert c["within_noise"], c

@@ -10,7 +10,7 @@ import pytest
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial
-from pipeline.errors import ShaderballError
+from pipeline.errors import USER_ERRORS
 from pipeline.render.renderer import RenderSettings, render_sample
 from sky import Light
 from support import VARIANT
@@ -42,7 +42,7 @@ def test_lighting_sweep(scene_parts, material):
                 bad_elevation, bad_turbidity = not 0 <= elevation <= 90, not 1 <= turbidity <= 10
                 field = "elevation_deg|turbidity" if bad_elevation and bad_turbidity else (
                     "elevation_deg" if bad_elevation else "turbidity")
-                with pytest.raises(ShaderballError, match=f"({field}).*allowed"):
+                with pytest.raises(USER_ERRORS, match=f"({field}).*allowed"):
                     render_sample(ball, camera, maps, Light(elevation, 30.0, turbidity), SETTINGS, seed=1)
                 rejected += 1
                 continue

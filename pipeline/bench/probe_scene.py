@@ -8,6 +8,8 @@ z = 0, the ball centred on the z axis.
 
 from __future__ import annotations
 
+import numpy as np
+
 from pipeline.render.mitsuba_env import load_mitsuba
 
 #: Mitsuba BSDFs standing in for the three kinds of material of the hard-case sweep.
@@ -91,8 +93,6 @@ def probe_scene_dict(
 
 def render(mi, scene, spp: int, seed: int):
     """Render ``scene`` to a float64 numpy image (H, W, 3)."""
-    import numpy as np
-
     return np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
 
 
@@ -103,7 +103,6 @@ def pixel_rays(mi, scene):
     pixel the integrator writes at image row i, column j.
     """
     import drjit as dr
-    import numpy as np
 
     sensor = scene.sensors()[0]
     width, height = sensor.film().crop_size()

@@ -46,8 +46,9 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.dataset.spec import DatasetSpec, import_sky_name, list_map_files
+from pipeline.dataset.spec import DatasetSpec, list_map_files
 from pipeline.errors import ShaderballError
+from sky.sampling import unit_points
 
 STREAM_MATERIAL = 1
 STREAM_LIGHTS = 2
@@ -267,7 +268,6 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
     tests/test_plan.py checks the result against ``sky.sample_lights`` itself.
     """
     ranges = spec.lighting.to_lighting_ranges()
-    unit_points = import_sky_name("unit_points", "sampling")
     n_lights = spec.dataset.lights_per_material
     u = np.stack([unit_points(seeded_rng(int(s)), n_lights, ranges.scheme)
                   for s in light_seeds.tolist()])

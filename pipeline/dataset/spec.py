@@ -37,13 +37,25 @@ from typing import Any, ClassVar
 
 import tomllib
 
+from materials import SVBRDF_FAMILIES, UniformRanges
 from pipeline.errors import ShaderballError
-from pipeline.render.limits import INTEGRATORS, MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE
+from pipeline.render.limits import (
+    CLAMP_RANGE,
+    DEFAULT_RR_DEPTH,
+    INTEGRATORS,
+    MAX_DEPTH_RANGE,
+    RESOLUTION_RANGE,
+    RR_DEPTH_RANGE,
+    SAMPLERS,
+    SPP_RANGE,
+    TARGET_ERROR_RANGE,
+)
 from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
 
 # pipeline.store.exr loads only numpy at import time; its table is the one list of compressions.
 from pipeline.store.exr import COMPRESSIONS
 from sky.emitter import SUN_MODES
+from sky.lighting import SCHEMES, LightingRanges
 
 #: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
 #: Keep in sync with materials/ (a test compares them when materials/ is importable).
@@ -304,13 +316,8 @@ def list_map_files(folder: str) -> tuple[str, ...]:
 
 
 def svbrdf_family_names() -> tuple[str, ...]:
-    """The procedural SVBRDF families: materials.SVBRDF_FAMILIES, else the fallback list."""
-    try:
-        from materials import SVBRDF_FAMILIES  # noqa: PLC0415 - lazy on purpose
-    except ImportError:
-        return FALLBACK_SVBRDF_FAMILIES
-    # An empty registry is a package still being written, never a real state.
-    return tuple(SVBRDF_FAMILIES) or FALLBACK_SVBRDF_FAMILIES
+    """The procedural SVBRDF families (materials.SVBRDF_FAMILIES)."""
+    return tuple(SVBRDF_FAMILIES)
 
 
 def _field(default: Any = _MISSING, *, rule: _Rule, doc: str, unit: str = "",
@@ -481,13 +488,7 @@ class MaterialsSection(_Section):
         return bool(self.svbrdf_families or self.svbrdf_folders)
 
     def to_uniform_ranges(self):
-        """The ranges as ``materials.UniformRanges`` (imported here, not at module load)."""
-        try:
-            from materials import UniformRanges  # noqa: PLC0415
-        except ImportError as exc:
-            raise ShaderballError(
-                f"materials.UniformRanges is not available ({exc}); "
-                "the materials package is needed to sample uniform materials") from None
+        """The ranges as ``materials.UniformRanges``."""
         return UniformRanges(**{name: getattr(self, name) for name in UNIFORM_FIELDS})
 
 
@@ -499,17 +500,13 @@ UNIFORM_FIELDS: tuple[str, ...] = (
     "flat_normal_probability", "normal_tilt_max_deg")
 
 
-#: Sun-direction sampling schemes, used when ``sky.lighting.SCHEMES`` can't be imported.
+#: Sun-direction sampling schemes, as the spec reference words them (a test keeps them equal to sky's).
 FALLBACK_LIGHT_SCHEMES: tuple[str, ...] = ("uniform_hemisphere", "uniform_angles", "stratified",
                                            "sobol")
 
 
 def light_scheme_names() -> tuple[str, ...]:
-    """The sun-sampling schemes: sky.lighting.SCHEMES, else the fallback list."""
-    try:
-        from sky.lighting import SCHEMES  # noqa: PLC0415 - lazy on purpose
-    except ImportError:
-        return FALLBACK_LIGHT_SCHEMES
+    """The sun-sampling schemes (sky.lighting.SCHEMES)."""
     return tuple(SCHEMES)
 
 
@@ -559,8 +556,7 @@ class LightingSection(_Section):
             "sunsky emitter, its sun an area light of 0.5358 degrees).")
 
     def to_lighting_ranges(self):
-        """The ranges as ``sky.LightingRanges`` (imported here, not at module load)."""
-        LightingRanges = import_sky_name("LightingRanges", "lighting")
+        """The ranges as ``sky.LightingRanges``."""
         return LightingRanges(
             elevation_deg=self.elevation_deg,
             azimuth_deg=self.azimuth_deg,
@@ -568,19 +564,6 @@ class LightingSection(_Section):
             scheme=self.scheme,
         )
 
-
-def import_sky_name(name: str, module: str):
-    """``sky.<name>``, from the package or its ``sky.<module>`` submodule."""
-    import importlib  # noqa: PLC0415
-
-    errors = []
-    for where in ("sky", f"sky.{module}"):
-        try:
-            return getattr(importlib.import_module(where), name)
-        except (ImportError, AttributeError) as exc:
-            errors.append(str(exc))
-    raise ShaderballError(f"sky.{name} is not available ({'; '.join(errors)}); the sky "
-                          "package is needed to sample lightings")
 
 
 VARIANTS: tuple[str, ...] = VARIANT_CHOICES
@@ -611,6 +594,25 @@ class RenderSection(_Section):
                           doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
                               + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
                               + ". Renders are reproducible for one backend and machine only.")
+    sampler: str = _field("independent", rule=_Choice(SAMPLERS),
+                          doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
+                              "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
+                              "squared, ldsampler to a power-of-two square): each render records the spp used "
+                              "(docs/accuracy.md compares them).")
+    rr_depth: int = _field(DEFAULT_RR_DEPTH, rule=_Int(*RR_DEPTH_RANGE),
+                           doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above "
+                               "max_depth there is none.",
+                           unit="path vertices")
+    clamp: float = _field(0.0, rule=_Float(*CLAMP_RANGE),
+                          doc="Firefly clamp: each camera path's radiance is scaled down to this luminance "
+                              "when brighter (pipeline.render.clamp); 0: off. Biased: it removes real light "
+                              "(docs/accuracy.md measures how much).",
+                          unit="radiance (W m^-2 sr^-1)")
+    target_error: float = _field(0.0, rule=_Float(*TARGET_ERROR_RANGE),
+                                 doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
+                                     "the moment integrator's relative RMS standard error of the luminance on the "
+                                     "ball is at most this, or spp (then the cap) is reached; each render records "
+                                     "the spp used. 0: off, every render takes spp.")
 
 
 @dataclass(frozen=True)
@@ -785,9 +787,19 @@ def spec_to_toml(spec: DatasetSpec) -> str:
     return "\n".join(lines)
 
 
+#: Fields added after datasets were first built: left out of the digest while at their
+#: default, so a dataset built before they existed keeps its digest (and validates).
+DIGEST_OMITS_AT_DEFAULT: dict[str, dict[str, Any]] = {
+    "render": {"sampler": "independent", "rr_depth": DEFAULT_RR_DEPTH, "clamp": 0.0, "target_error": 0.0},
+}
+
+
 def spec_digest(spec: DatasetSpec) -> str:
     """SHA-256 (hex) of the canonical JSON form: equal specs, equal digests."""
-    canonical = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"),
+    table = spec_to_dict(spec)
+    for section, defaults in DIGEST_OMITS_AT_DEFAULT.items():
+        table[section] = {k: v for k, v in table[section].items() if not (k in defaults and v == defaults[k])}
+    canonical = json.dumps(table, sort_keys=True, separators=(",", ":"),
                            ensure_ascii=True, allow_nan=False)
     return hashlib.sha256(canonical.encode("ascii")).hexdigest()
 

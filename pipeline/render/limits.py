@@ -14,3 +14,15 @@ MAX_DEPTH_RANGE = (1, 64)
 def span(bounds: tuple[int, int]) -> str:
     """``"16 to 4096"``: a range as the CLI help words it."""
     return f"{bounds[0]} to {bounds[1]}"
+
+#: Mitsuba samplers a spec may name. Mitsuba rounds some sample counts (stratified: a square,
+#: multijitter: a product of two near-equal factors, orthogonal: a prime squared, ldsampler:
+#: a power-of-two square); renders record the spp actually used.
+SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+#: Depth at which Russian roulette starts (Mitsuba's ``rr_depth``; its default 5).
+RR_DEPTH_RANGE = (1, 64)
+DEFAULT_RR_DEPTH = 5
+#: Luminance clamp of each camera path's contribution (0: off); radiance units.
+CLAMP_RANGE = (0.0, 1.0e6)
+#: Adaptive rendering's target: relative RMS standard error on the ball (0: off).
+TARGET_ERROR_RANGE = (0.0, 1.0)

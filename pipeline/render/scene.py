@@ -16,6 +16,7 @@ import numpy as np
 
 from geometry import Camera, Shaderball
 from pipeline.errors import ShaderballError
+from pipeline.render.limits import SAMPLERS as RENDER_SAMPLERS
 from pipeline.render.mitsuba_env import load_mitsuba
 
 #: Shape id of the material-bearing surfaces (outer shell, rims, inner surface, core).
@@ -30,7 +31,8 @@ NEUTRAL_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5,
 #: The ground: a darker neutral grey, linear albedo 0.3.
 GROUND_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.3, 0.3, 0.3]}}
 
-SAMPLERS = ("independent", "stratified-centres")
+#: "stratified-centres" takes the G-buffer; the others (pipeline.render.limits.SAMPLERS) render.
+SAMPLERS = ("stratified-centres", *RENDER_SAMPLERS)
 
 
 def ball_shape_ids() -> tuple[str, ...]:
@@ -71,7 +73,8 @@ def sensor_dict(
     ``sampler``: ``"independent"`` (random positions in each pixel, for renders) or
     ``"stratified-centres"`` (Mitsuba's ``stratified`` sampler with jitter off: at 1 spp
     every sample sits on its pixel's centre, where the G-buffer is taken; ``spp`` must
-    then be a square number).
+    then be a square number), or another Mitsuba sampler of
+    :data:`pipeline.render.limits.SAMPLERS` with its defaults (Mitsuba may round ``spp``).
     """
     if sampler not in SAMPLERS:
         raise ShaderballError(f"sampler: {sampler!r} is not allowed; allowed: {', '.join(SAMPLERS)}")
@@ -82,7 +85,7 @@ def sensor_dict(
             raise ShaderballError(f"spp: {spp} is not allowed with stratified-centres; allowed: a square number")
         sampler_dict = {"type": "stratified", "sample_count": spp, "jitter": False, "seed": seed}
     else:
-        sampler_dict = {"type": "independent", "sample_count": spp, "seed": seed}
+        sampler_dict = {"type": sampler, "sample_count": spp, "seed": seed}
     return {
         "type": "perspective",
         "fov": float(camera.fov_deg),
