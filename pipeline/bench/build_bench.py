@@ -15,7 +15,7 @@
     the ratio is the steady state of a long build, not the first minute of a fresh
     machine. ``--profile`` adds two measurements behind the proposals in docs/build.md:
     all lightings of a material rendered from one loaded scene moved in place
-    (:func:`sky.update_emitter_params`), and the ``moment`` integrator against its nested
+    (:func:`pipeline.render.emitter.update_emitter_params`), and the ``moment`` integrator against its nested
     path tracer alone.
 
 ``shaderball bench --effects`` is :mod:`pipeline.bench.effects`.
@@ -293,7 +293,7 @@ def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]
 
 
 def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) -> dict:
-    """All lightings of a material from one loaded scene, moved with sky.update_emitter_params.
+    """All lightings of a material from one loaded scene, moved with pipeline.render.emitter.update_emitter_params.
 
     The first lighting renders the scene as loaded, the others after an in-place update:
     the proposal of docs/build.md, timed against dict + load + render per sample.
