@@ -1,6 +1,7 @@
 """Try every bad input in the table of docs/bad-inputs.md; print the table (markdown).
 
     .venv/bin/python scripts/bad_inputs.py > /tmp/table.md
+    .venv/bin/python scripts/bad_inputs.py --write     # replace the table in docs/bad-inputs.md
 
 Each case runs the real CLI (click's CliRunner, in this process) in a fresh folder and
 records the exit code, the message, and whether any file was created or changed.
@@ -130,6 +131,18 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out) + "\n"
 
 
+def write_page(new_table: str, page: Path = REPO / "docs" / "bad-inputs.md") -> None:
+    """Replace the page's table (its header line to the first line that is not a row)."""
+    lines = page.read_text().splitlines(keepends=True)
+    start = next(i for i, line in enumerate(lines) if line.startswith("| # | bad input |"))
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    page.write_text("".join(lines[:start]) + new_table + "".join(lines[end:]))
+
+
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    print(table(run_all()), end="")
+    result = table(run_all())
+    if "--write" in sys.argv[1:]:
+        write_page(result)
+    else:
+        print(result, end="")
