@@ -8,20 +8,40 @@ never dropped: the model's Schlick term is not zero for a zero specular albedo
 
 Renders use Mitsuba's ``moment`` integrator around the path tracer, which gives a
 per-pixel variance in the same pass: the noise estimate recorded with each render.
+
+Beyond the paper's recipe (independent sampler, fixed spp) a render may use another
+Mitsuba sampler, another Russian-roulette depth, a luminance clamp on each camera path's
+contribution (:mod:`pipeline.render.clamp`, biased) and adaptive rendering
+(``target_error``: power-of-two passes until the moment integrator's estimate of the
+relative error on the ball meets the target or ``spp`` is reached). Every default leaves
+the scene dict and the render exactly as they were before these options existed.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from pipeline.errors import bad_value, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
+from pipeline.render.clamp import register_clamp, wrap_in_clamp
 from pipeline.render.emitter import emitter_dicts
-from pipeline.render.limits import INTEGRATORS, MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE
+from pipeline.render.limits import (
+    CLAMP_RANGE,
+    DEFAULT_RR_DEPTH,
+    INTEGRATORS,
+    MAX_DEPTH_RANGE,
+    RESOLUTION_RANGE,
+    RR_DEPTH_RANGE,
+    SAMPLERS,
+    SPP_RANGE,
+    TARGET_ERROR_RANGE,
+)
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import sensor_dict, shape_dicts
 from pipeline.render.stats import is_bad, render_stats
@@ -31,6 +51,9 @@ from sky.emitter import SUN_MODES
 #: up to this many times in all; if every attempt is bad it is kept and flagged.
 MAX_RENDER_ATTEMPTS = 3
 _SEED_STEP = 0x9E3779B9  # golden-ratio step: retry seeds far from the original
+#: Adaptive rendering's first pass (or ``spp`` when smaller): enough samples for a
+#: variance estimate, then the total doubles pass by pass (docs/accuracy.md).
+ADAPTIVE_FIRST_SPP = 16
 
 
 
@@ -43,6 +66,15 @@ class RenderSettings:
     max_depth: int = 8
     integrator: str = "path"
     sun: str = "split"
+    #: Mitsuba sampler (pipeline.render.limits.SAMPLERS); some round the spp (recorded).
+    sampler: str = "independent"
+    #: Path depth at which Russian roulette starts (Mitsuba's default 5).
+    rr_depth: int = DEFAULT_RR_DEPTH
+    #: Luminance clamp of each camera path's contribution; 0: none (biased when on).
+    clamp: float = 0.0
+    #: Adaptive rendering: the relative RMS standard error on the ball to stop at; 0: off
+    #: (then ``spp`` is rendered, else ``spp`` is the cap).
+    target_error: float = 0.0
     #: The resolved Mitsuba variant (pipeline.render.mitsuba_env.resolve_variant), chosen once.
     variant: str = field(kw_only=True)
 
@@ -59,7 +91,18 @@ class RenderSettings:
             raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
             raise bad_value(field_name("sun"), self.sun, ", ".join(SUN_MODES))
+        if self.sampler not in SAMPLERS:
+            raise bad_value(field_name("sampler"), self.sampler, ", ".join(SAMPLERS))
+        integer("rr_depth", *RR_DEPTH_RANGE)
+        for name, (lo, hi) in (("clamp", CLAMP_RANGE), ("target_error", TARGET_ERROR_RANGE)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+                raise bad_value(field_name(name), value, f"a number from {lo:g} to {hi:g} (0: off)")
         return self
+
+    @property
+    def adaptive(self) -> bool:
+        return self.target_error > 0
 
 
 @dataclass(frozen=True)
@@ -107,13 +150,17 @@ def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: Eff
     """The whole Mitsuba scene dict for one sample; also the lighting record and effects."""
     effects = effects or plan_effects(maps)
     emitters, lighting_record = emitter_dicts(light, sun=settings.sun, variant=settings.variant)
+    nested = {"type": settings.integrator, "max_depth": int(settings.max_depth)}
+    if settings.rr_depth != DEFAULT_RR_DEPTH:  # only then: default scenes stay as they were
+        nested["rr_depth"] = int(settings.rr_depth)
+    if settings.clamp > 0:
+        register_clamp(settings.variant)
+        nested = wrap_in_clamp(nested, settings.clamp)
     scene = {
         "type": "scene",
-        "integrator": {
-            "type": "moment",
-            "nested": {"type": settings.integrator, "max_depth": int(settings.max_depth)},
-        },
-        "sensor": sensor_dict(camera, settings.resolution, settings.spp, seed=seed, variant=settings.variant),
+        "integrator": {"type": "moment", "nested": nested},
+        "sensor": sensor_dict(camera, settings.resolution, settings.spp, sampler=settings.sampler, seed=seed,
+                              variant=settings.variant),
         **shape_dicts(ball, material_bsdf(maps, effects, settings.variant)),
         **emitters,
     }
@@ -123,7 +170,7 @@ def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: Eff
 @dataclass(frozen=True)
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear Rec.709
-    variance: np.ndarray  # (H, W) float32, variance of the pixel estimate (mean over RGB)
+    variance: np.ndarray  # (H, W) float32, variance of each pixel's luminance estimate
     stats: dict  # pipeline.render.stats.render_stats + time, spp, seed, attempts, flagged
     lighting: dict  # the lighting policy's record
     effects: EffectPlan
@@ -162,18 +209,131 @@ def render_in_passes(mi, scene, spp: int, seed: int) -> np.ndarray:
     return total / spp
 
 
-def render_scene(mi, scene, spp: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Render a loaded scene (moment integrator); return (image, variance of the mean).
+def sampler_spp(mi, sampler: str, spp: int) -> int:
+    """The samples per pixel Mitsuba's ``sampler`` really takes when asked for ``spp``."""
+    if sampler == "independent":
+        return int(spp)
+    with _quiet(mi):  # its rounding warning: the spp used is recorded instead
+        return int(mi.load_dict({"type": sampler, "sample_count": int(spp)}).sample_count())
+
+
+class _quiet:
+    """Mitsuba's log at Error level while inside (a sampler's rounding warning is recorded, not printed)."""
+
+    def __init__(self, mi):
+        self.logger = mi.Thread.thread().logger()
+        self.error = mi.LogLevel.Error
+
+    def __enter__(self):
+        self.level = self.logger.log_level()
+        self.logger.set_log_level(self.error)
+
+    def __exit__(self, *exc):
+        self.logger.set_log_level(self.level)
+
+
+class PassSum:
+    """Running spp-weighted sum of render passes (float64), and the spp it holds."""
+
+    def __init__(self):
+        self.total, self.spp = None, 0
+
+    def add(self, image: np.ndarray, spp: int) -> None:
+        weighted = np.asarray(image, dtype=np.float64) * spp
+        self.total = weighted if self.total is None else self.total + weighted
+        self.spp += spp
+
+    def mean(self) -> np.ndarray:
+        return self.total / self.spp
+
+
+def render_pass(mi, scene, spp: int, seed: int, k: int, sampler: str = "independent") -> tuple[np.ndarray, int]:
+    """Pass ``k`` of a render seeded ``seed``: every channel (float64) and the spp it used."""
+    used = sampler_spp(mi, sampler, spp)
+    if used == spp:
+        image = mi.render(scene, spp=spp, seed=pass_seed(seed, k))
+    else:
+        with _quiet(mi):
+            image = mi.render(scene, spp=spp, seed=pass_seed(seed, k))
+    return np.asarray(image, dtype=np.float64), used
+
+
+def luminance_variance(out: np.ndarray, spp: int) -> np.ndarray:
+    """Variance of each pixel's luminance estimate: (m2 - m1^2) / spp of the Y channels."""
+    m1, m2 = out[..., 4], out[..., 7]
+    return np.clip(m2 - m1 * m1, 0.0, None) / spp
+
+
+def relative_error(out: np.ndarray, spp: int, mask: np.ndarray | None = None) -> float:
+    """The adaptive renderer's statistic: RMS standard error of the luminance over ``mask``
+    (the ball; the whole frame when None), relative to the mean luminance there.
+
+    It is the expected relative RMSE of the image against its converged limit, the quantity
+    relMSE measures, rather than the error of the ball's mean luminance, which is about
+    sqrt(pixels) times smaller and says nothing about the noise a viewer sees.
+    """
+    sel = np.ones(out.shape[:2], bool) if mask is None else np.asarray(mask, bool)
+    if not sel.any():
+        sel = np.ones(out.shape[:2], bool)
+    mean = float(out[..., 4][sel].mean())
+    if not math.isfinite(mean) or mean <= 0:
+        return math.inf
+    return float(np.sqrt(luminance_variance(out, spp)[sel].mean())) / mean
+
+
+def adaptive_stages(cap: int, first: int = ADAPTIVE_FIRST_SPP) -> list[list[int]]:
+    """Pass sizes of an adaptive render, stage by stage; the error is checked after each stage.
+
+    The first stage is ``first`` spp (or the largest power of two <= ``cap``); every later
+    stage doubles the total, the last one stops at ``cap`` exactly (its step split into
+    power-of-two passes): cap 150 -> [[16], [16], [32], [64], [16, 4, 2]] (totals 16, 32, 64,
+    128, 150).
+    """
+    start = min(first, 1 << (int(cap).bit_length() - 1))
+    stages, total = [[start]], start
+    while total < cap:
+        step = min(total, cap - total)
+        stages.append(power_of_two_passes(step))
+        total += step
+    return stages
+
+
+class RenderOutput(NamedTuple):
+    image: np.ndarray  # (H, W, 3) float32
+    variance: np.ndarray  # (H, W) float32: variance of each pixel's luminance estimate
+    spp_used: int  # samples per pixel rendered (after a sampler's rounding; adaptive: where it stopped)
+    error_estimate: float  # relative_error of the result (over ``mask``)
+
+
+def render_scene(mi, scene, spp: int, seed: int, *, sampler: str = "independent", target_error: float = 0.0,
+                 mask: np.ndarray | None = None) -> RenderOutput:
+    """Render a loaded scene (moment integrator): image, luminance variance, spp used, error.
 
     The moment integrator's extra channels are the first and second moments of the nested
     integrator in CIE XYZ; the variance returned is that of the luminance Y (channels 4
     and 7), divided by spp: the variance of the pixel's estimate.
+
+    ``target_error > 0`` renders adaptively (:func:`adaptive_stages`, ``spp`` the cap):
+    after each stage the estimate :func:`relative_error` is computed from all passes so
+    far and the render stops once it is at most ``target_error``. Every decision is a
+    function of the passes rendered, which are deterministic, so the result is too.
     """
-    out = render_in_passes(mi, scene, spp, seed)
+    if target_error <= 0 and sampler == "independent":
+        out, used = render_in_passes(mi, scene, spp, seed), int(spp)
+    else:
+        stages = adaptive_stages(spp) if target_error > 0 else [power_of_two_passes(spp)]
+        acc, k = PassSum(), 0
+        for stage in stages:
+            for n in stage:
+                image, n_used = render_pass(mi, scene, n, seed, k, sampler)
+                acc.add(image, n_used)
+                k += 1
+            if target_error > 0 and relative_error(acc.mean(), acc.spp, mask) <= target_error:
+                break
+        out, used = acc.mean(), acc.spp
     image = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
-    m1, m2 = out[..., 4], out[..., 7]
-    variance = np.clip(m2 - m1 * m1, 0.0, None) / spp
-    return image, variance.astype(np.float32)
+    variance = luminance_variance(out, used)
+    return RenderOutput(image, variance.astype(np.float32), used, relative_error(out, used, mask))
 
 
 def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int,
@@ -187,7 +347,9 @@ def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int
     attempts = []
     for attempt in range(MAX_RENDER_ATTEMPTS):
         attempt_seed = derived_seed(seed, attempt)
-        image, variance = render_scene(mi, scene, settings.spp, attempt_seed)
+        image, variance, spp_used, error_estimate = render_scene(
+            mi, scene, settings.spp, attempt_seed, sampler=settings.sampler, target_error=settings.target_error,
+            mask=mask)
         stats = render_stats(image, variance, mask)
         attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"],
                          "negative": stats["negative"]})
@@ -201,4 +363,8 @@ def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int
         rejected_attempts=attempts[:-1],
         flagged=is_bad(stats),
     )
+    if settings.adaptive or spp_used != settings.spp:  # only then: default headers stay as they were
+        stats.update(spp_used=spp_used, error_estimate=error_estimate)
+        if settings.adaptive:
+            stats["target_error"] = settings.target_error
     return RenderResult(image=image, variance=variance, stats=stats, lighting=lighting, effects=effects)

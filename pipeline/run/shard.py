@@ -53,12 +53,15 @@ _CONTEXTS: dict[tuple, WorkerContext] = {}
 def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
     """This process's context for ``spec``; ``variant`` is the one the build's driver resolved."""
     r = spec.render
-    key = (r.resolution, r.spp, r.max_depth, r.integrator, variant, spec.lighting.sun)
+    key = (r.resolution, r.spp, r.max_depth, r.integrator, variant, spec.lighting.sun, r.sampler, r.rr_depth,
+           r.clamp, r.target_error)
     if key not in _CONTEXTS:
         load_mitsuba(variant)
         ball, camera = build_shaderball(), default_camera()
         settings = RenderSettings(resolution=r.resolution, spp=r.spp, max_depth=r.max_depth,
-                                  integrator=r.integrator, variant=variant, sun=spec.lighting.sun)
+                                  integrator=r.integrator, variant=variant, sun=spec.lighting.sun,
+                                  sampler=r.sampler, rr_depth=r.rr_depth, clamp=r.clamp,
+                                  target_error=r.target_error)
         _CONTEXTS[key] = WorkerContext(ball, camera, load_gbuffer(ball, camera, r.resolution, variant),
                                        settings.check(), variant)
     return _CONTEXTS[key]
@@ -192,6 +195,13 @@ def write_material_files(layout, spec, ctx, material, maps, description) -> list
     return files
 
 
+def non_default_render_options(settings) -> dict:
+    """Sampler, Russian roulette, clamp and adaptive target where a spec changed them (what was applied)."""
+    defaults = RenderSettings(variant=settings.variant)
+    return {name: getattr(settings, name) for name in ("sampler", "rr_depth", "clamp", "target_error")
+            if getattr(settings, name) != getattr(defaults, name)}
+
+
 def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, material_files) -> dict:
 
     light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
@@ -228,7 +238,7 @@ def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, 
         "effects": result.effects.to_dict(),
         "render": {"resolution": ctx.settings.resolution, "spp": ctx.settings.spp,
                    "max_depth": ctx.settings.max_depth, "integrator": ctx.settings.integrator,
-                   "variant": ctx.variant, "sun": ctx.settings.sun},
+                   "variant": ctx.variant, "sun": ctx.settings.sun, **non_default_render_options(ctx.settings)},
         # The render's wall time (`time_s`) is the one run-dependent value of a record: it is
         # kept out of the EXR header (files are a pure function of the plan) and ignored
         # wherever records are compared (pipeline.store.records.RUN_DEPENDENT_STATS).
