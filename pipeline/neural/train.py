@@ -24,12 +24,14 @@ from torch.utils.data import DataLoader, Subset
 
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.neural import runfiles
+from pipeline.neural.data import open_dataset
 from pipeline.neural.loss import LOSSES, RenderLoss
 from pipeline.neural.metrics import psnr8
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
 from pipeline.neural.tonemap import DEFAULT_EXPOSURE, to_srgb8
+from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
 
 DEVICES = ("auto", "cpu", "cuda")
 #: Config fields that change what a run computes: a resume must match them.
@@ -149,8 +151,6 @@ def deterministic_algorithms():
 def make_loss(config: TrainConfig) -> tuple[RenderLoss, str | None]:
     if config.loss == "l1":
         return RenderLoss("l1"), None
-    from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
-
     weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
     return RenderLoss("l1+vgg", load_vgg16_relu3_3(weights), config.vgg_weight), weights.sha256
 
@@ -233,8 +233,6 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     _check_run_dir(config.out)
     device = pick_device(config.device)
     if source is None:
-        from pipeline.neural.data import open_dataset
-
         source = open_dataset(config.dataset, resolution=config.resolution, exposure=config.exposure,
                               check_hashes=config.check_hashes)
     resolution = source.resolution
