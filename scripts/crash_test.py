@@ -35,7 +35,6 @@ import fcntl
 import json
 import os
 import random
-import re
 import shutil
 import signal
 import subprocess
@@ -47,7 +46,6 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE_SPEC = REPO / "manifests" / "smoke.toml"
-TEMP_PREFIX = ".tmp-"
 #: Kinds of files the build writes atomically, by name.
 KINDS = ("exr", "record", "marker", "manifest", "description", "spec")
 #: Points inside one atomic write where a ``write`` attempt kills the process group.
@@ -56,14 +54,17 @@ NOTE_ENV = "SHADERBALL_CRASH_NOTE"
 
 
 def file_kind(path: str) -> str:
+    from pipeline.store.folder import is_record_file
+    from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, MARKER_FILE, SPEC_FILE
+
     name = os.path.basename(path)
     if name.endswith(".exr"):
         return "exr"
-    if name == "COMPLETE.json":
+    if name == MARKER_FILE:
         return "marker"
-    if re.fullmatch(r"m\d+_l\d+\.json", name):
+    if is_record_file(name):
         return "record"
-    return {"manifest.jsonl": "manifest", "dataset.json": "description", "spec.toml": "spec"}.get(name, "other")
+    return {MANIFEST_FILE: "manifest", DESCRIPTION_FILE: "description", SPEC_FILE: "spec"}.get(name, "other")
 
 
 # --------------------------------------------------------------------------- the child side
@@ -342,7 +343,9 @@ def _compare_file(rel: str, path: Path, ref: Path, problems: list[str]) -> None:
 
 
 def temp_files(root: Path) -> set[str]:
-    return {rel for rel in dataset_files(root) if os.path.basename(rel).startswith(TEMP_PREFIX)}
+    from pipeline.store.folder import is_temp_file
+
+    return {rel for rel in dataset_files(root) if is_temp_file(os.path.basename(rel))}
 
 
 def check_interrupted(out: Path, reference: Path) -> int:
@@ -352,10 +355,12 @@ def check_interrupted(out: Path, reference: Path) -> int:
     snapshot byte for byte, JSON without timings), so every record and marker on disk refers
     to durable, correct files; nothing exists that the reference lacks.
     """
+    from pipeline.store.folder import is_temp_file
+
     problems, temps = [], 0
     ref_files = dataset_files(reference)
     for rel, path in sorted(dataset_files(out).items()):
-        if os.path.basename(rel).startswith(TEMP_PREFIX):
+        if is_temp_file(os.path.basename(rel)):
             temps += 1
             continue
         if rel not in ref_files:
@@ -435,7 +440,9 @@ class CampaignResult:
 
 def expected_writes(out: Path, reference: Path) -> Counter:
     """How many atomic writes of each kind the next build of ``out`` will at least make."""
-    have = {rel for rel in dataset_files(out) if not os.path.basename(rel).startswith(TEMP_PREFIX)}
+    from pipeline.store.folder import is_temp_file
+
+    have = {rel for rel in dataset_files(out) if not is_temp_file(os.path.basename(rel))}
     missing = Counter(file_kind(rel) for rel in dataset_files(reference) if rel not in have)
     return Counter({"exr": missing["exr"], "record": missing["record"], "marker": missing["marker"],
                     "spec": missing["spec"], "description": 1, "manifest": 1})

@@ -1,7 +1,7 @@
 """`shaderball info DIR`: what a dataset folder holds, complete or not.
 
 Reads only the folder's own files: the spec snapshot, the description, the shard markers
-and, in unfinished shards, the per-sample records (pipeline.store.layout). Nothing is
+and, in unfinished shards, the per-sample records (through pipeline.store.folder). Nothing is
 rendered, hashed or written; `shaderball validate` is the command that checks files.
 Counts come from the spec (materials x lightings, shards), so a build that was stopped
 half-way reports how far it got.
@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from pipeline.dataset.plan import shard_id
 from pipeline.dataset.spec import parse_spec, spec_digest
 from pipeline.errors import ShaderballError
-from pipeline.store.layout import MARKER_FILE, Layout
+from pipeline.store.folder import disk_usage, manifest_record_count, shard_records
+from pipeline.store.layout import Layout
 from pipeline.store.records import read_json
 
 #: Roles of the files a record lists, in the order they are reported.
@@ -129,45 +130,6 @@ def spec_summary(spec) -> list[str]:
     ]
 
 
-def shard_records(layout: Layout, shard: str) -> tuple[list[dict], bool, bool]:
-    """(records, complete, started) of one shard: the marker's, else the per-sample files."""
-    marker = read_json(layout.marker(shard))
-    if marker and marker.get("complete"):
-        return list(marker.get("records", [])), True, True
-    folder = layout.shard_dir(shard)
-    try:
-        names = sorted(os.listdir(folder))
-    except FileNotFoundError:
-        return [], False, False
-    records = []
-    for name in names:
-        if name.endswith(".json") and not name.startswith(".") and name != MARKER_FILE:
-            record = read_json(os.path.join(folder, name))
-            if isinstance(record, dict) and "id" in record:
-                records.append(record)
-    return records, False, True
-
-
-def _disk_usage(root: str) -> tuple[int, int]:
-    total = temps = 0
-    for folder, _dirs, names in os.walk(root):
-        for name in names:
-            try:
-                total += os.stat(os.path.join(folder, name)).st_size
-            except OSError:
-                continue
-            temps += name.startswith(".tmp-")
-    return total, temps
-
-
-def _count_lines(path: str) -> int | None:
-    try:
-        with open(path, "rb") as fh:
-            return sum(1 for line in fh if line.strip())
-    except OSError:
-        return None
-
-
 def dataset_info(root: str) -> DatasetInfo:
     """Summarise the dataset folder ``root`` (complete or partial)."""
 
@@ -207,6 +169,6 @@ def dataset_info(root: str) -> DatasetInfo:
     info.effects = {name: effects[name] for name in sorted(effects, key=_effect_order)}
     info.kinds = dict(Counter(kinds.values()))
     info.noise_relative_median = statistics.median(noise) if noise else None
-    info.manifest_records = _count_lines(layout.manifest)
-    info.disk_bytes, info.temp_files = _disk_usage(root)
+    info.manifest_records = manifest_record_count(layout)
+    info.disk_bytes, info.temp_files = disk_usage(root)
     return info

@@ -15,12 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.check.info import shard_records, shard_render_counts
+from pipeline.check.info import shard_render_counts
 from pipeline.dataset.spec import parse_spec
 from pipeline.errors import ShaderballError
 from pipeline.render.tonemap import to_uint8, tonemap
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
+from pipeline.store.folder import shard_records
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")

@@ -29,7 +29,6 @@ import hashlib
 import json
 import math
 import os
-import re
 import shutil
 import time
 from collections import Counter
@@ -42,10 +41,12 @@ import numpy as np
 from pipeline.dataset.plan import iter_samples, plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad, render_stats
 from pipeline.run.build import build, write_manifest
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr
+from pipeline.store.folder import is_temp_file, read_manifest, record_file_names, shard_ids_on_disk
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, dumps, read_json, without_timings
 from sky import Light
@@ -89,8 +90,6 @@ MAP_CHANNELS = {"diffuse": 3, "specular": 3, "roughness": 1, "normal": 3, "mask"
 HALF_LAYERS = ("diffuse", "specular", "roughness", "normal")
 #: Files at the top of DIR that belong to the dataset.
 ROOT_FILES = (SPEC_FILE, DESCRIPTION_FILE, MANIFEST_FILE)
-_RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json$")
-_SHARD_NAME = re.compile(r"^s\d{5}$")
 
 
 # --------------------------------------------------------------------------- results
@@ -319,8 +318,7 @@ def _load_plan(layout: Layout, problems: _Problems):
 def _load_manifest(layout: Layout, problems: _Problems):
     """[(source, record)] of manifest.jsonl, or None when there is no manifest."""
     try:
-        with open(layout.manifest, "rb") as fh:
-            data = fh.read()
+        data = read_manifest(layout)
     except FileNotFoundError:
         problems.add("missing_manifest", None, MANIFEST_FILE,
                      f"{MANIFEST_FILE}: missing (an unfinished build, or deleted); records are "
@@ -360,14 +358,6 @@ def _load_markers(layout: Layout, shard_ids, known: dict) -> dict:
                                  and known[r["id"]] == r else r for r in marker["records"]]
         markers[sid] = marker
     return markers
-
-
-def _shard_ids_on_disk(layout: Layout) -> list[str]:
-    try:
-        names = os.listdir(os.path.join(layout.root, SHARDS_DIR))
-    except OSError:
-        return []
-    return sorted(n for n in names if _SHARD_NAME.match(n))
 
 
 # --------------------------------------------------------------------------- file checks
@@ -600,7 +590,9 @@ def _plan_discrepancies(record: dict, sample, state: _State) -> list[str]:
         r = spec.render
         wanted += [("render.resolution", r.resolution), ("render.spp", r.spp),
                    ("render.max_depth", r.max_depth), ("render.integrator", r.integrator),
-                   ("render.sun", spec.lighting.sun)]
+                   ("render.sun", spec.lighting.sun),
+                   # absent for the default model (pipeline.render.renderer.model_record)
+                   ("render.model", model_record(spec.materials.model).get("model"))]
     if state.variant:
         wanted.append(("render.variant", state.variant))
     out = [f"{key} is {_get(record, key)!r}, the plan says {value!r}"
@@ -768,7 +760,7 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
     planned = {}
     if plans is not None:
         planned = {s.sample_id: s for s in iter_samples(plans)}
-    shard_ids = [s.shard_id for s in plans] if plans is not None else _shard_ids_on_disk(layout)
+    shard_ids = [s.shard_id for s in plans] if plans is not None else shard_ids_on_disk(layout)
     state = _State(layout=layout, spec=spec, plans=plans, planned=planned,
                    variant=(description or {}).get("variant"), spec_ok=spec_ok,
                    description_ok=description_ok, manifest={}, markers={},
@@ -820,9 +812,8 @@ def _fallback_records(state: _State) -> list:
         if isinstance(marker, dict) and marker.get("complete") and isinstance(marker.get("records"), list):
             out += [(_Source(layout.marker_rel(sid)), r) for r in marker["records"] if isinstance(r, dict)]
             continue
-        folder = layout.shard_dir(sid)
         try:
-            names = sorted(n for n in os.listdir(folder) if _RECORD_NAME.match(n))
+            names = record_file_names(layout, sid) or []
         except OSError:
             continue
         for name in names:
@@ -1070,14 +1061,14 @@ def _allowed_files(state: _State, primary: dict) -> tuple[set, set]:
                 files.add(layout.record_rel(shard.shard_id, sample.sample_id))
                 files.update(rel for _role, rel in _expected_files(sample, state.spec))
         return files, dirs
-    for sid in _shard_ids_on_disk(layout):
+    for sid in shard_ids_on_disk(layout):
         dirs.add(f"{SHARDS_DIR}/{sid}")
         files.add(layout.marker_rel(sid))
         try:
-            files.update(f"{SHARDS_DIR}/{sid}/{n}" for n in os.listdir(layout.shard_dir(sid))
-                         if _RECORD_NAME.match(n))
+            names = record_file_names(layout, sid) or []
         except OSError:
-            pass
+            names = []
+        files.update(f"{SHARDS_DIR}/{sid}/{n}" for n in names)
     for _source, record in primary.values():
         for entry in record.get("files") or []:
             if isinstance(entry, dict) and _safe_rel(entry.get("path")):
@@ -1102,7 +1093,7 @@ def _check_extra_files(state: _State, primary: dict, problems: _Problems) -> Non
             rel = rel_dir + name
             if rel in files:
                 continue
-            why = ("a temporary file left by an interrupted write" if name.startswith(".tmp-")
+            why = ("a temporary file left by an interrupted write" if is_temp_file(name)
                    else "no part of the dataset: no planned record or marker refers to it")
             state.extra_files.append(rel)
             problems.add("extra_file", None, rel, f"{rel}: {why}")

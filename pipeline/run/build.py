@@ -28,12 +28,11 @@ from pipeline.render.mitsuba_env import library_versions, resolve_variant
 from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_text_atomic
+from pipeline.store.folder import only_temp_files, recorded_count, remove_temp_files
 from pipeline.store.layout import Layout
 from pipeline.store.records import dumps, read_json
 
 LAYOUT_VERSION = 1
-#: Prefix of the temporary files of pipeline.store.atomic (left behind by a killed write).
-TEMP_PREFIX = ".tmp-"
 #: Spec fields no sample, file or layout depends on: the only ones --allow-spec-change accepts.
 SPEC_FIELDS_FREE_TO_CHANGE = (("dataset", "name"), ("dataset", "version"))
 
@@ -99,10 +98,6 @@ def _describe_differences(diffs, limit: int = 4) -> str:
     return "; ".join(shown) + more
 
 
-def _only_temp_files(names: list[str]) -> bool:
-    return all(n.startswith(TEMP_PREFIX) for n in names)
-
-
 def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = False) -> str:
     """Refuse an output directory that holds something else.
 
@@ -113,7 +108,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     layout = Layout(out)
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
-    if not os.path.isdir(out) or _only_temp_files(os.listdir(out)):
+    if not os.path.isdir(out) or only_temp_files(os.listdir(out)):
         parent = os.path.dirname(os.path.abspath(out))
         probe = parent
         while not os.path.exists(probe):
@@ -222,18 +217,7 @@ def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_chan
 def count_done(out: str, plans: list[ShardPlan]) -> int:
     """Renders with a record on disk (progress; cheap: one listing per shard)."""
     layout = Layout(out)
-    done = 0
-    for shard in plans:
-        folder = layout.shard_dir(shard.shard_id)
-        try:
-            names = os.listdir(folder)
-        except FileNotFoundError:
-            continue
-        if "COMPLETE.json" in names:
-            done += shard.n_renders
-        else:
-            done += sum(1 for n in names if n.endswith(".json") and not n.startswith("."))
-    return done
+    return sum(recorded_count(layout, shard.shard_id, shard.n_renders) for shard in plans)
 
 
 def write_manifest(out: str, plans: list[ShardPlan]) -> int:
@@ -277,23 +261,7 @@ def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int
     task of a worker wrongly declared dead) cannot corrupt anything: its rename fails, and
     that task runs again. Return the count removed.
     """
-    layout = Layout(out)
-    removed = 0
-    for folder in [out] + [layout.shard_dir(s.shard_id) for s in plans]:
-        try:
-            entries = list(os.scandir(folder))
-        except FileNotFoundError:
-            continue
-        for entry in entries:
-            if not entry.name.startswith(TEMP_PREFIX):
-                continue
-            try:
-                if entry.stat(follow_symlinks=False).st_mtime < older_than:
-                    os.unlink(entry.path)
-                    removed += 1
-            except FileNotFoundError:
-                pass
-    return removed
+    return remove_temp_files(Layout(out), [s.shard_id for s in plans], older_than)
 
 
 def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
