@@ -41,7 +41,6 @@ import numpy as np
 from pipeline.dataset.plan import iter_samples, plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
-from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad, render_stats
 from pipeline.run.build import build, write_manifest
 from pipeline.store.atomic import write_text_atomic
@@ -590,9 +589,7 @@ def _plan_discrepancies(record: dict, sample, state: _State) -> list[str]:
         r = spec.render
         wanted += [("render.resolution", r.resolution), ("render.spp", r.spp),
                    ("render.max_depth", r.max_depth), ("render.integrator", r.integrator),
-                   ("render.sun", spec.lighting.sun),
-                   # absent for the default model (pipeline.render.renderer.model_record)
-                   ("render.model", model_record(spec.materials.model).get("model"))]
+                   ("render.sun", spec.lighting.sun)]
     if state.variant:
         wanted.append(("render.variant", state.variant))
     out = [f"{key} is {_get(record, key)!r}, the plan says {value!r}"
