@@ -1,0 +1,354 @@
+"""``README.md`` of a publication: a dataset card with the YAML header the Hugging Face Hub
+reads, and what a reader needs: what a sample is, how it was made, the paper's citation,
+a contact sheet, and how to load it (this tool, webdataset, plain tarfile + OpenEXR).
+
+The card is a pure function of the dataset and the publication's files: publishing the
+same folder twice writes the same card.
+"""
+
+from __future__ import annotations
+
+import statistics
+
+from pipeline.dataset.spec import spec_to_toml
+from pipeline.publish.facts import CITATION, PublicationFacts
+from pipeline.publish.names import (
+    CROISSANT_FILE,
+    INDEX_FILE,
+    MARKERS_REL,
+    PREVIEW_FILE,
+    SAMPLES_FILE,
+    SOURCE_FILES,
+    SUMS_FILE,
+)
+from pipeline.publish.table import COLUMN_DOCS
+from pipeline.store.records import dumps
+
+EFFECTS = (("textured", "textures (every map holds one value: constants instead)"),
+           ("normal_map", "the normal map (every normal is (0, 0, 1))"),
+           ("diffuse_lobe", "the diffuse lobe (d (1 - s) = 0 everywhere)"),
+           ("specular_lobe", "the specular lobe"))
+
+SIZE_CATEGORIES = ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M"),
+                   (10_000_000, "1M<n<10M"))
+
+LOAD_WITH_SHADERBALL = '''from pipeline.publish import iter_samples
+from pipeline.store.exr import read_exr
+
+root = "."  # the folder holding this card
+n = 0
+for sample in iter_samples(root):  # checks every SHA-256 and member as it streams
+    record = sample["record"]  # the manifest record (docs/manifest.md)
+    render = read_exr(sample["files"]["render"]).layers["render"]  # (H, W, 3) float32
+    maps = read_exr(sample["files"]["maps"]).layers  # diffuse, specular, roughness, normal, mask
+    n += 1
+'''
+
+LOAD_WITH_WEBDATASET = '''import io
+import json
+
+import OpenEXR
+import webdataset as wds
+
+root = "."  # the folder holding this card
+with open(f"{root}/publication.json") as fh:
+    shards = [f"{root}/{shard['path']}" for shard in json.load(fh)["shards"]]
+
+
+def layers(data):
+    exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+    return {name: channel.pixels for name, channel in exr.channels().items()}
+
+
+def attach_maps(samples):
+    """A material's maps come first, under the material's key: add them to its lightings."""
+    maps = {}
+    for sample in samples:
+        if "_l" not in sample["__key__"]:
+            maps = {field: data for field, data in sample.items() if field.endswith(".exr")}
+            continue
+        yield {**sample, **maps}
+
+
+dataset = wds.DataPipeline(wds.SimpleShardList(shards), wds.tarfile_to_samples(), attach_maps)
+n = 0
+for sample in dataset:  # shuffle shards before tarfile_to_samples, samples after attach_maps
+    record = json.loads(sample["json"])
+    render = layers(sample["render.exr"])  # {"render.R": (H, W) float32, ...}
+    maps = layers(sample["maps.exr"])  # {"diffuse.R": ..., "normal.X": ..., "mask.Y": ...}
+    n += 1
+'''
+
+LOAD_WITH_TARFILE = '''import io
+import json
+import tarfile
+
+import OpenEXR
+
+root = "."  # the folder holding this card
+
+
+def layers(data):
+    exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+    return {name: channel.pixels for name, channel in exr.channels().items()}
+
+
+with open(f"{root}/publication.json") as fh:
+    shards = [shard["path"] for shard in json.load(fh)["shards"]]
+n = 0
+for path in shards:
+    with tarfile.open(f"{root}/{path}", mode="r:") as tar:  # stream members; never extractall
+        files = {}
+        for member in tar:
+            if not member.isfile():
+                raise ValueError(f"{path}: {member.name} is not a regular file")
+            key, field = member.name.split(".", 1)
+            if field in ("maps.exr", "texture.exr"):  # a new material: its maps come first
+                files = {}
+            files[field] = tar.extractfile(member).read()
+            if field == "render.exr":  # a sample is complete: record, render, its material's maps
+                record = json.loads(files["json"])
+                render = layers(files["render.exr"])
+                maps = layers(files["maps.exr"])
+                n += 1
+'''
+
+
+def size_category(count: int) -> str:
+    for bound, name in SIZE_CATEGORIES:
+        if count < bound:
+            return name
+    return "n>10M"
+
+
+def yaml_header(facts: PublicationFacts) -> list[str]:
+    return [
+        "---",
+        f"license: {facts.license_id}",
+        f"pretty_name: {dumps(f'shaderball {facts.name}')}",
+        "size_categories:",
+        f"- {size_category(len(facts.records))}",
+        "task_categories:",
+        "- image-to-image",
+        "tags:",
+        *(f"- {tag}" for tag in ("rendering", "path-tracing", "materials", "svbrdf", "shaderball", "hdr", "exr",
+                                 "webdataset", "croissant", "mitsuba")),
+        "configs:",
+        "- config_name: default",
+        "  data_files:",
+        "  - split: train",
+        f"    path: {SAMPLES_FILE}",
+        "---",
+    ]
+
+
+def _range(values) -> str:
+    values = [v for v in values if isinstance(v, (int, float))]
+    return f"{min(values):.3g} to {max(values):.3g}" if values else "none"
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.2f} MB"
+
+
+def sample_section(facts: PublicationFacts) -> list[str]:
+    spec = facts.spec
+    res, tex = spec.render.resolution, spec.materials.texture_resolution
+    maps_type = "half" if spec.storage.maps_half else "float32"
+    texture = spec.storage.texture_maps
+    lines = [
+        "## What a sample is",
+        "",
+        "One sample pairs a material's four screen-space maps and a lighting vector with a path-traced render "
+        "of the shaderball (the paper's input and target). Its files are tar members named `KEY.FIELD` "
+        "(the WebDataset convention; a key never holds a dot):",
+        "",
+        "| member | what |",
+        "|---|---|",
+        "| `m000012_l3.json` | the sample's record: lighting (sun elevation, azimuth, direction, turbidity, "
+        "low-sun policy), the network's lighting vector, material, seeds, render settings, statistics, its "
+        "files with SHA-256 (docs/manifest.md of shaderball) |",
+        f"| `m000012_l3.render.exr` | the render: layers `render.R/G/B`, {res}x{res}, float32, linear Rec.709, "
+        "physical radiance (a direct view of the sun is about 2e4) |",
+        f"| `m000012.maps.exr` | the material's screen-space maps, what the renderer saw: `diffuse.R/G/B`, "
+        f"`specular.R/G/B`, `roughness.Y`, `normal.X/Y/Z` (tangent space) in {maps_type}, `mask.Y` (1 where a "
+        f"pixel sees the material) in float32; {res}x{res} |",
+    ]
+    if texture:
+        lines.append(f"| `m000012.texture.exr` | the material's maps in texture (UV) space, {tex}x{tex} "
+                     "(1x1 for a uniform material) |")
+    lines += [
+        "",
+        "A material's maps are identical under all its lightings, so they are stored **once per material**, "
+        "under the material's key, just before its lightings and in the same tar; a reader keeps the last "
+        "maps it saw (see *How to load it*). `samples.jsonl` lists every sample with its tar, members and "
+        "their SHA-256, and the columns below (Croissant's record set reads it):",
+        "",
+        "| column | type | meaning |",
+        "|---|---|---|",
+        *(f"| `{c}` | {t.split(':')[1]} | {d} |" for c, t, d in COLUMN_DOCS),
+        "",
+        "The network's lighting input is the record's `lighting_vector`: the unit sun direction (3) and the "
+        "turbidity, as float32.",
+        "",
+    ]
+    return lines
+
+
+def made_section(facts: PublicationFacts) -> list[str]:
+    spec, description, records = facts.spec, facts.description, facts.records
+    counts = description.get("counts") or {}
+    libraries = description.get("libraries") or {}
+    lighting = [r.get("lighting") or {} for r in records]
+    changed = sum(1 for light in lighting if (light.get("policy") or {}).get("changed"))
+    flagged = [r["id"] for r in records if (r.get("stats") or {}).get("flagged")]
+    noise = [(r.get("stats") or {}).get("noise_relative") for r in records]
+    noise = [v for v in noise if isinstance(v, (int, float))]
+    families = counts.get("svbrdf_sources") or {}
+    left_out = []
+    for key, what in EFFECTS:
+        n = sum(1 for r in records if (r.get("effects") or {}).get(key) is False)
+        left_out.append(f"| {what} | {n} of {len(records)} |")
+    lines = [
+        "## How it was made",
+        "",
+        f"Built by `shaderball build` (shaderball {description.get('shaderball', '?')}) from the spec "
+        f"`{SOURCE_FILES['spec.toml']}` (below; SHA-256 of its canonical form "
+        f"`{description.get('spec_digest', '?')}`), rendered with Mitsuba {libraries.get('mitsuba', '?')} "
+        f"(drjit {libraries.get('drjit', '?')}, variant `{description.get('variant', '?')}`). Every random draw "
+        f"derives from the spec seed {spec.dataset.seed} and the sample's ids; each record holds its seeds "
+        "(`seeds.material`, `seeds.light`, `seeds.render_used`), so the same spec, versions and machine "
+        "rebuild the same bytes.",
+        "",
+        f"- **Counts**: {counts.get('materials', facts.materials)} materials x "
+        f"{spec.dataset.lights_per_material} lightings = {len(records)} renders in {counts.get('shards', '?')} "
+        f"source shards; {counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying"
+        + (" (" + ", ".join(f"{k} {v}" for k, v in sorted(families.items())) + ")" if families else "") + ".",
+        f"- **Renders**: {spec.render.resolution}x{spec.render.resolution}, {spec.render.spp} spp, "
+        f"`{spec.render.integrator}` integrator, max depth {spec.render.max_depth}, box filter, sun mode "
+        f"`{spec.lighting.sun}`; mean relative noise (standard error / mean over the ball) "
+        + (f"{statistics.fmean(noise):.3f}" if noise else "unknown") + ".",
+        f"- **Lighting**: sun scheme `{spec.lighting.scheme}`, elevation {spec.lighting.elevation_deg[0]:g} to "
+        f"{spec.lighting.elevation_deg[1]:g} deg, azimuth {spec.lighting.azimuth_deg[0]:g} to "
+        f"{spec.lighting.azimuth_deg[1]:g} deg, turbidity {spec.lighting.turbidity[0]:g} to "
+        f"{spec.lighting.turbidity[1]:g} (one per {spec.lighting.turbidity_per}). Rendered: elevation "
+        f"{_range(light.get('elevation_deg') for light in lighting)} deg, turbidity "
+        f"{_range(light.get('turbidity') for light in lighting)}; the low-sun policy raised {changed} sun(s).",
+        f"- **Materials**: Cook-Torrance (GGX) as in Deschaintre et al. 2018; uniform materials drawn from "
+        f"roughness {spec.materials.roughness[0]:g} to {spec.materials.roughness[1]:g}, metal probability "
+        f"{spec.materials.metal_probability:g}, flat-normal probability {spec.materials.flat_normal_probability:g} "
+        f"(every range in the spec below); SVBRDFs from the procedural families "
+        f"{', '.join(spec.materials.svbrdf_families) or 'none'}"
+        + (f" and {len(spec.materials.svbrdf_folders)} imported folder(s)" if spec.materials.svbrdf_folders else "")
+        + ".",
+        f"- **Flagged renders** (NaN, infinite or negative pixels after every retry, kept and flagged): "
+        f"{len(flagged)}" + (": " + ", ".join(f"`{i}`" for i in flagged[:20]) if flagged else "")
+        + (" ..." if len(flagged) > 20 else "") + ".",
+        "",
+        "**Effects left out** of a scene where the material does not need them (the image is the same to "
+        "float32 rounding or bit for bit; the specular lobe is never left out):",
+        "",
+        "| effect | samples rendered without it |",
+        "|---|---|",
+        *left_out,
+        "",
+        "<details><summary>The spec</summary>",
+        "",
+        "```toml",
+        *_spec_lines(facts),
+        "```",
+        "",
+        "</details>",
+        "",
+    ]
+    return lines
+
+
+def _spec_lines(facts: PublicationFacts) -> list[str]:
+    return spec_to_toml(facts.spec).rstrip("\n").split("\n")
+
+
+def files_section(facts: PublicationFacts) -> list[str]:
+    tar_total = sum(t.bytes for t in facts.tars)
+    rows = [f"| `{t.path}` | {_mb(t.bytes)} | samples `{t.first}` to `{t.last}` ({t.samples}), {t.members} "
+            "members |" for t in facts.tars]
+    return [
+        "## Files",
+        "",
+        "| file | size | what |",
+        "|---|---|---|",
+        *rows,
+        f"| `{SAMPLES_FILE}` | {_mb(facts.sizes[SAMPLES_FILE])} | one row per sample (the table above) |",
+        f"| `{SOURCE_FILES['spec.toml']}`, `{SOURCE_FILES['dataset.json']}`, `{SOURCE_FILES['manifest.jsonl']}`, "
+        f"`{MARKERS_REL}` | "
+        f"{_mb(sum(facts.sizes[r] for r in (*SOURCE_FILES.values(), MARKERS_REL)))} | the source folder's "
+        "spec, description, manifest and shard markers, byte for byte |",
+        f"| `{INDEX_FILE}` | {_mb(facts.sizes[INDEX_FILE])} | publication format and the tar shards |",
+        f"| `{CROISSANT_FILE}` | {_mb(facts.sizes[CROISSANT_FILE])} | Croissant 1.1 metadata |",
+        *([f"| `{PREVIEW_FILE}` | {_mb(facts.sizes[PREVIEW_FILE])} | the contact sheet |"]
+          if facts.has_preview else []),
+        f"| `{SUMS_FILE}` | | SHA-256 of every other file: `sha256sum -c {SUMS_FILE}` |",
+        "",
+        f"Tars: {_mb(tar_total)} for {_mb(facts.member_bytes)} of members (ustar headers and padding: "
+        f"{_mb(tar_total - facts.member_bytes)}). Storing each material's maps with every lighting instead "
+        f"would add {_mb(facts.repeated_maps_extra_bytes)}. The source folder is {_mb(facts.source_bytes)}.",
+        "",
+    ]
+
+
+def load_section() -> list[str]:
+    return [
+        "## How to load it",
+        "",
+        "### With shaderball",
+        "",
+        "```sh",
+        "shaderball verify .                 # every checksum and every tar member, nothing extracted",
+        "shaderball unpack . --out DIR       # the source dataset folder, byte for byte; then validated",
+        "shaderball validate DIR",
+        "```",
+        "",
+        "```python",
+        LOAD_WITH_SHADERBALL.rstrip("\n"),
+        "```",
+        "",
+        "### With webdataset",
+        "",
+        "```python",
+        LOAD_WITH_WEBDATASET.rstrip("\n"),
+        "```",
+        "",
+        "### With tarfile and OpenEXR",
+        "",
+        "The tars are plain ustar. Read members as a stream; never `extractall` an archive you did not write "
+        "(Python before 3.11.13/3.12.11 has path-traversal bugs in `tarfile`); run `shaderball verify` first "
+        "on a copy you received.",
+        "",
+        "```python",
+        LOAD_WITH_TARFILE.rstrip("\n"),
+        "```",
+        "",
+    ]
+
+
+def dataset_card(facts: PublicationFacts) -> str:
+    spec = facts.spec
+    counts = facts.description.get("counts") or {}
+    intro = [
+        f"# shaderball dataset `{facts.name}` (version {facts.description.get('version', '?')})",
+        "",
+        f"{len(facts.records)} path-traced renders of a shaderball, {counts.get('materials', facts.materials)} "
+        f"materials under {spec.dataset.lights_per_material} sun-and-sky lightings each, with the material "
+        "maps and lighting vector each render was made from: the data of *A Flexible Neural Renderer for "
+        "Material Visualization* (KT, Sakurikar, Saini, Narayanan; SIGGRAPH Asia 2019 Technical Briefs), "
+        "built with shaderball and Mitsuba 3.",
+        "",
+    ]
+    if facts.has_preview:
+        intro += [f"![contact sheet: renders beside their diffuse, specular, roughness and normal maps]"
+                  f"({PREVIEW_FILE})", ""]
+    citation = ["## Citation", "", "```bibtex", CITATION, "```", ""]
+    lines = (yaml_header(facts) + intro + sample_section(facts) + made_section(facts) + files_section(facts)
+             + load_section() + citation)
+    return "\n".join(lines)
+

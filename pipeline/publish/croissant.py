@@ -1,0 +1,145 @@
+"""``croissant.json``: Croissant 1.1 metadata of a publication (http://mlcommons.org/croissant/1.1).
+
+Every file of PUB but the card and SHA256SUMS is a FileObject with its SHA-256; the EXR
+and JSON members of the tars are FileSets ``containedIn`` them. Croissant's reader cannot
+decode EXR, and its extractor unpacks archives with ``extractall``; so the record set
+``samples`` reads only ``samples.jsonl`` (one row per sample, naming its members, their
+checksums and the tar that holds them), never the tars.
+"""
+
+from __future__ import annotations
+
+from pipeline.publish.facts import CITATION, LICENSES, PublicationFacts
+from pipeline.publish.names import INDEX_FILE, MARKERS_REL, PREVIEW_FILE, SAMPLES_FILE, SOURCE_FILES
+from pipeline.publish.table import COLUMN_DOCS
+
+CONFORMS_TO = "http://mlcommons.org/croissant/1.1"
+RECORD_SET = "samples"
+
+#: The JSON-LD context of Croissant 1.1 (as its reference datasets write it).
+CONTEXT = {
+    "@language": "en", "@vocab": "https://schema.org/", "arrayShape": "cr:arrayShape", "citeAs": "cr:citeAs",
+    "column": "cr:column", "conformsTo": "dct:conformsTo", "containedIn": "cr:containedIn",
+    "cr": "http://mlcommons.org/croissant/", "rai": "http://mlcommons.org/croissant/RAI/",
+    "data": {"@id": "cr:data", "@type": "@json"}, "dataType": {"@id": "cr:dataType", "@type": "@vocab"},
+    "dct": "http://purl.org/dc/terms/", "description": {"@container": "@language"},
+    "equivalentProperty": "cr:equivalentProperty", "examples": {"@id": "cr:examples", "@type": "@json"},
+    "extract": "cr:extract", "field": "cr:field", "fileProperty": "cr:fileProperty",
+    "fileObject": "cr:fileObject", "fileSet": "cr:fileSet", "format": "cr:format", "includes": "cr:includes",
+    "isArray": "cr:isArray", "isLiveDataset": "cr:isLiveDataset", "jsonPath": "cr:jsonPath", "key": "cr:key",
+    "md5": "cr:md5", "name": {"@container": "@language"}, "parentField": "cr:parentField", "path": "cr:path",
+    "recordSet": "cr:recordSet", "references": "cr:references", "regex": "cr:regex", "repeated": "cr:repeated",
+    "replace": "cr:replace", "samplingRate": "cr:samplingRate", "sc": "https://schema.org/",
+    "separator": "cr:separator", "source": "cr:source", "subField": "cr:subField", "transform": "cr:transform",
+}
+
+#: Columns read as one field with sub-fields (a vector).
+VECTORS = {
+    "sun_direction": (("sun_x", "x"), ("sun_y", "y"), ("sun_z", "z")),
+    "diffuse": (("diffuse_r", "r"), ("diffuse_g", "g"), ("diffuse_b", "b")),
+    "specular": (("specular_r", "r"), ("specular_g", "g"), ("specular_b", "b")),
+    "normal": (("normal_x", "x"), ("normal_y", "y"), ("normal_z", "z")),
+}
+VECTOR_DOCS = {
+    "sun_direction": "unit vector towards the sun (world frame, z up)",
+    "diffuse": "uniform diffuse albedo, linear Rec.709 (null for an SVBRDF)",
+    "specular": "uniform specular albedo F0, linear Rec.709 (null for an SVBRDF)",
+    "normal": "uniform tangent-space normal (null for an SVBRDF)",
+}
+
+MEMBER_SETS = (
+    ("render-exr", "*.render.exr", "image/x-exr", "renders: render.R/G/B, linear HDR float32"),
+    ("maps-exr", "*.maps.exr", "image/x-exr",
+     "screen-space maps of a material: diffuse, specular, roughness, normal, mask"),
+    ("texture-exr", "*.texture.exr", "image/x-exr", "texture-space (UV) maps of a material"),
+    ("record-json", "*.json", "application/json", "per-sample records (docs/manifest.md)"),
+)
+
+FORMATS = {".tar": "application/x-tar", ".jsonl": "application/jsonlines", ".json": "application/json",
+           ".toml": "application/toml", ".png": "image/png"}
+
+
+def _file_object(rel: str, facts: PublicationFacts, description: str) -> dict:
+    suffix = rel[rel.rfind("."):]
+    return {"@type": "cr:FileObject", "@id": rel, "name": rel, "description": description, "contentUrl": rel,
+            "contentSize": f"{facts.sizes[rel]} B", "encodingFormat": FORMATS[suffix], "sha256": facts.files[rel]}
+
+
+def _field(column: str, data_type: str, description: str, field_id: str) -> dict:
+    return {"@type": "cr:Field", "@id": field_id, "name": field_id.rsplit("/", 1)[-1], "description": description,
+            "dataType": data_type,
+            "source": {"fileObject": {"@id": SAMPLES_FILE}, "extract": {"column": column}}}
+
+
+def record_set_fields() -> list[dict]:
+    docs = {c: (t, d) for c, t, d in COLUMN_DOCS}
+    in_vector = {column: name for name, parts in VECTORS.items() for column, _ in parts}
+    fields, done = [], set()
+    for column, data_type, description in COLUMN_DOCS:
+        vector = in_vector.get(column)
+        if vector is None:
+            fields.append(_field(column, data_type, description, f"{RECORD_SET}/{column}"))
+        elif vector not in done:
+            done.add(vector)
+            fields.append({"@type": "cr:Field", "@id": f"{RECORD_SET}/{vector}", "name": vector,
+                           "description": VECTOR_DOCS[vector],
+                           "subField": [_field(c, docs[c][0], docs[c][1], f"{RECORD_SET}/{vector}/{axis}")
+                                        for c, axis in VECTORS[vector]]})
+    return fields
+
+
+def croissant_metadata(facts: PublicationFacts) -> dict:
+    counts = facts.description.get("counts") or {}
+    resolution = facts.spec.render.resolution
+    distribution = [_file_object(t.path, facts, f"tar shard (WebDataset convention): samples {t.first} to "
+                                                f"{t.last}, {t.members} members") for t in facts.tars]
+    distribution.append(_file_object(SAMPLES_FILE, facts, "one row per sample: lighting, material, members "
+                                                          "and their SHA-256"))
+    for rel, what in ((SOURCE_FILES["spec.toml"], "the spec the dataset was built from"),
+                      (SOURCE_FILES["dataset.json"], "the source dataset's description: versions, counts"),
+                      (SOURCE_FILES["manifest.jsonl"], "every sample's full record (docs/manifest.md)"),
+                      (MARKERS_REL, "the source shards' completion markers"),
+                      (INDEX_FILE, "publication format, source dataset, tar shards")):
+        distribution.append(_file_object(rel, facts, what))
+    if facts.has_preview:
+        distribution.append(_file_object(PREVIEW_FILE, facts, "contact sheet: renders beside their maps"))
+    tar_ids = [{"@id": t.path} for t in facts.tars]
+    for set_id, pattern, encoding, what in MEMBER_SETS:
+        if set_id == "texture-exr" and not any(r.get("texture") for r in facts.rows):
+            continue
+        distribution.append({"@type": "cr:FileSet", "@id": set_id, "name": set_id, "description": what,
+                             "containedIn": tar_ids, "encodingFormat": encoding, "includes": pattern})
+    metadata = {
+        "@context": CONTEXT,
+        "@type": "sc:Dataset",
+        "name": facts.name,
+        "description": (
+            f"{len(facts.records)} path-traced renders ({resolution}x{resolution}, {facts.spec.render.spp} spp, "
+            f"Mitsuba 3) of a shaderball with {counts.get('materials', facts.materials)} materials "
+            f"({counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying) under a "
+            "Hosek-Wilkie sun and sky, each with its material's screen-space maps (diffuse, specular, roughness, "
+            "normal) and lighting vector (sun direction, turbidity): the data of 'A Flexible Neural Renderer "
+            "for Material Visualization' (SIGGRAPH Asia 2019), made with shaderball."),
+        "conformsTo": CONFORMS_TO,
+        "license": LICENSES[facts.license_id],
+        "version": _semver(facts.description.get("version")),
+        "citeAs": CITATION,
+        "keywords": ["rendering", "path tracing", "materials", "SVBRDF", "neural rendering", "HDR", "EXR"],
+        "distribution": distribution,
+        "recordSet": [{"@type": "cr:RecordSet", "@id": RECORD_SET, "name": RECORD_SET,
+                       "description": "one record per sample (render); its EXR files are the tar members it "
+                                      "names, in the tar it names",
+                       "key": {"@id": f"{RECORD_SET}/id"}, "field": record_set_fields()}],
+    }
+    if facts.url:
+        metadata["url"] = facts.url
+    return metadata
+
+
+def _semver(version) -> str:
+    """Croissant wants MAJOR.MINOR.PATCH; a spec's dataset.version "1" becomes "1.0.0"."""
+    text = str(version or "0")
+    parts = text.split(".")
+    if all(p.isdigit() for p in parts) and len(parts) <= 3:
+        return ".".join(str(int(p)) for p in parts + ["0"] * (3 - len(parts)))
+    return text

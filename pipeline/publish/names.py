@@ -1,0 +1,76 @@
+"""The one place that knows the layout of a published dataset (``PUB``) and the names of
+its tar members (docs/publish.md).
+
+    PUB/
+      README.md                      dataset card (Hugging Face YAML header)
+      croissant.json                 Croissant 1.1 metadata
+      publication.json               format version, source dataset, the tar shards
+      samples.jsonl                  one row per sample: the table Croissant's record set reads
+      preview.png                    contact sheet (pipeline.check.preview)
+      SHA256SUMS                     SHA-256 of every other file (``sha256sum -c`` format)
+      dataset/spec.toml              the source folder's files, byte for byte
+      dataset/dataset.json
+      dataset/manifest.jsonl
+      dataset/markers.jsonl          every shard's COMPLETE.json, one per line, in shard order
+      shards/shard-000000.tar        WebDataset-convention tar shards (uncompressed USTAR)
+
+Inside a tar, for each material in plan order: ``m000012.maps.exr``,
+``m000012.texture.exr`` (if stored), then for each of its lightings ``m000012_l0.json``
+(the sample's record file) and ``m000012_l0.render.exr``. A key (the part before the
+first dot) never holds a dot; a material is never split across tars.
+"""
+
+from __future__ import annotations
+
+import re
+
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
+
+FORMAT = "shaderball-publish"
+FORMAT_VERSION = 1
+
+CARD_FILE = "README.md"
+CROISSANT_FILE = "croissant.json"
+INDEX_FILE = "publication.json"
+SAMPLES_FILE = "samples.jsonl"
+PREVIEW_FILE = "preview.png"
+SUMS_FILE = "SHA256SUMS"
+DATASET_DIR = "dataset"
+SHARDS_DIR = "shards"
+MARKERS_FILE = "markers.jsonl"
+
+#: The source folder's root files and where they are published.
+SOURCE_FILES = {SPEC_FILE: f"{DATASET_DIR}/{SPEC_FILE}",
+                DESCRIPTION_FILE: f"{DATASET_DIR}/{DESCRIPTION_FILE}",
+                MANIFEST_FILE: f"{DATASET_DIR}/{MANIFEST_FILE}"}
+MARKERS_REL = f"{DATASET_DIR}/{MARKERS_FILE}"
+
+#: Files of PUB other than the tar shards, in the order SHA256SUMS lists them (sorted).
+PLAIN_FILES = tuple(sorted([CARD_FILE, CROISSANT_FILE, INDEX_FILE, SAMPLES_FILE, PREVIEW_FILE, MARKERS_REL,
+                            *SOURCE_FILES.values()]))
+#: Files that may be absent (a publication written without a contact sheet).
+OPTIONAL_FILES = (PREVIEW_FILE,)
+
+TAR_NAME = re.compile(r"^shards/shard-(\d{6})\.tar$")
+SAMPLE_ID = re.compile(r"^m\d{6}_l\d{1,3}$")
+MATERIAL_ID = re.compile(r"^m\d{6}$")
+SHARD_ID = re.compile(r"^s\d{5}$")
+#: A member name: a key without a dot, then its field.
+MEMBER_NAME = re.compile(r"^(m\d{6})\.(maps\.exr|texture\.exr)$|^(m\d{6}_l\d{1,3})\.(json|render\.exr)$")
+
+#: Record roles (docs/manifest.md) -> member field.
+ROLE_FIELDS = {"render": "render.exr", "maps": "maps.exr", "texture": "texture.exr"}
+RECORD_FIELD = "json"
+
+
+def tar_rel(index: int) -> str:
+    return f"{SHARDS_DIR}/shard-{index:06d}.tar"
+
+
+def member_name(key: str, field: str) -> str:
+    return f"{key}.{field}"
+
+
+def allowed_file(rel: str) -> bool:
+    """Whether ``rel`` (relative to PUB, forward slashes) is a file a publication may hold."""
+    return rel in PLAIN_FILES or TAR_NAME.match(rel) is not None

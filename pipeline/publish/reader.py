@@ -1,0 +1,454 @@
+"""Reading a publication without trusting it: `shaderball verify`, the first pass of
+`shaderball unpack`, and :func:`iter_samples` for the training stage.
+
+:func:`open_publication` reads only the small files: it refuses links and unlisted files,
+checks every file's SHA-256 against ``SHA256SUMS`` (tars are checked when they are
+opened), checks every manifest path against the layout before any is used, and derives
+from the manifest and ``samples.jsonl`` the exact members each tar must hold, in order,
+with their sizes and SHA-256. :meth:`Publication.members` then streams one tar: its
+SHA-256 first, then every header (pipeline.publish.tarsafe), then each member, whose
+size, SHA-256, EXR header or record must be the expected one. Any difference raises
+:class:`~pipeline.publish.refusal.Refused` naming the file and member.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+from pipeline.errors import bad_value
+from pipeline.publish.exrcheck import check_exr_header
+from pipeline.publish.names import (
+    CROISSANT_FILE,
+    DATASET_DIR,
+    FORMAT,
+    FORMAT_VERSION,
+    INDEX_FILE,
+    MARKERS_REL,
+    OPTIONAL_FILES,
+    PLAIN_FILES,
+    SAMPLES_FILE,
+    SHARDS_DIR,
+    SOURCE_FILES,
+    SUMS_FILE,
+    TAR_NAME,
+    allowed_file,
+)
+from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
+from pipeline.publish.table import FileRef, file_refs, record_member, sample_row
+from pipeline.publish.tarsafe import Member, read_members, scan_tar
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
+from pipeline.store.records import dumps, without_timings
+
+HEX = frozenset("0123456789abcdef")
+
+
+@dataclass(frozen=True)
+class Expected:
+    """A member a tar must hold: its name, what it is, its size and SHA-256, and where it
+    lives in the dataset folder (``path``, relative, the layout's)."""
+
+    name: str
+    role: str  # maps, texture, record, render
+    size: int
+    sha256: str
+    path: str
+    sample_id: str | None
+    material_id: str
+
+
+@dataclass
+class TarEntry:
+    rel: str
+    sha256: str
+    size: int
+    expected: list[Expected] = field(default_factory=list)
+
+
+@dataclass
+class Publication:
+    """A publication whose small files have been checked (:func:`open_publication`)."""
+
+    root: str
+    limits: Limits
+    sums: dict[str, str]
+    sizes: dict[str, int]
+    source_files: dict[str, bytes]  # spec.toml, dataset.json, manifest.jsonl: bytes as published
+    markers: list[tuple[str, bytes]]  # (shard id, COMPLETE.json bytes)
+    records: list[dict]  # the manifest's, in order
+    tars: list[TarEntry]
+    index: dict
+
+    def __post_init__(self):
+        self.by_id = {r["id"]: r for r in self.records}
+
+    def path(self, rel: str) -> str:
+        return os.path.join(self.root, *rel.split("/"))
+
+    @property
+    def description(self) -> dict:
+        return json.loads(self.source_files[DESCRIPTION_FILE])
+
+    def members(self, tar: TarEntry, before: int = 0) -> Iterator[tuple[Expected, bytes]]:
+        """Every member of ``tar``, checked, in order (``before``: members of earlier tars)."""
+        label = tar.rel
+        with _open_regular(self.path(tar.rel), label) as fh:
+            digest = hashlib.sha256()
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+            if digest.hexdigest() != tar.sha256:
+                raise Refused("checksum", f"{label}: SHA-256 {digest.hexdigest()[:16]}... differs from {SUMS_FILE}'s "
+                                          f"{tar.sha256[:16]}...: the file changed or is corrupt; nothing of it is read")
+            scanned = scan_tar(fh, label, self.limits, before)
+            _compare_members(label, scanned, tar.expected)
+            for (member, data), expected in zip(read_members(fh, label, scanned), tar.expected):
+                _check_member(label, member, data, expected, self.by_id, self.limits)
+                yield expected, data
+
+
+# --------------------------------------------------------------------------- small files
+
+
+def _open_regular(path: str, label: str):
+    """Open a file for reading without following a symbolic link; refuse anything but a file."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except FileNotFoundError:
+        raise Refused("missing_file", f"{label}: missing") from None
+    except OSError as exc:
+        raise Refused("not_regular", f"{label}: cannot be opened as a regular file ({exc.strerror}); refused") \
+            from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise Refused("not_regular", f"{label}: not a regular file; refused")
+    return os.fdopen(fd, "rb")
+
+
+def _walk(root: str, limits: Limits) -> dict[str, int]:
+    """Every file under ``root`` (relative path -> size); links, devices and unknown folders refused."""
+    files: dict[str, int] = {}
+    entries = 0
+    pending = [""]
+    while pending:
+        folder = pending.pop()
+        with os.scandir(os.path.join(root, *folder.split("/")) if folder else root) as it:
+            for entry in it:
+                entries += 1
+                if entries > limits.entries:
+                    raise Refused("too_many_files", f"PUB: more than {limits.entries} files and folders; refused")
+                rel = f"{folder}/{entry.name}" if folder else entry.name
+                mode = entry.stat(follow_symlinks=False).st_mode
+                if stat.S_ISLNK(mode):
+                    raise Refused("link", f"{rel}: a symbolic link inside PUB; refused")
+                if stat.S_ISDIR(mode):
+                    if folder or entry.name not in (DATASET_DIR, SHARDS_DIR):
+                        raise Refused("unlisted_file", f"{rel}/: a folder that is no part of a publication; refused")
+                    pending.append(rel)
+                elif stat.S_ISREG(mode):
+                    files[rel] = entry.stat(follow_symlinks=False).st_size
+                else:
+                    raise Refused("not_regular", f"{rel}: not a regular file (a device, FIFO or socket); refused")
+    return files
+
+
+def _read_small(root: str, rel: str, size_cap: int) -> bytes:
+    with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
+        data = fh.read(size_cap + 1)
+    if len(data) > size_cap:
+        raise Refused("too_large", f"{rel}: over the cap of {size_cap} bytes for a file read into memory; refused")
+    return data
+
+
+def _parse_sums(data: bytes) -> dict[str, str]:
+    sums: dict[str, str] = {}
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise Refused("bad_sums", f"{SUMS_FILE}: not ASCII text; refused") from None
+    for number, line in enumerate(text.split("\n"), start=1):
+        if not line:
+            continue
+        sha, sep, rel = line.partition("  ")
+        if not sep or len(sha) != 64 or not set(sha) <= HEX:
+            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: not 'SHA256  PATH' ({line[:80]!r}); refused")
+        if not allowed_file(rel):
+            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is not a file a publication holds; "
+                                      "refused")
+        if rel in sums:
+            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is listed twice; refused")
+        sums[rel] = sha
+    return sums
+
+
+def _json(data: bytes, where: str):
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError) as exc:
+        raise Refused("bad_json", f"{where}: not JSON ({str(exc)[:80]}); refused") from None
+
+
+def _json_lines(data: bytes, rel: str, cap: int) -> list:
+    lines = data.split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    if len(lines) > cap:
+        raise Refused("too_many_members", f"{rel}: more than {cap} lines; refused")
+    return [_json(line, f"{rel} line {number}") for number, line in enumerate(lines, start=1)]
+
+
+def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
+    """Check the small files of the publication at ``root``; see the module's docstring."""
+    if not os.path.isdir(root):
+        raise bad_value("PUB", root, "a folder written by `shaderball publish`")
+    files = _walk(root, limits)
+    if SUMS_FILE not in files:
+        raise Refused("missing_file", f"{SUMS_FILE}: missing; PUB is not a (finished) publication")
+    total = sum(files.values())
+    if total > limits.total_bytes:
+        raise Refused("too_large", f"PUB: {total} bytes, over the cap of {limits.total_bytes}; refused")
+    sums = _parse_sums(_read_small(root, SUMS_FILE, limits.text_bytes))
+    for rel in sorted(set(files) - set(sums) - {SUMS_FILE}):
+        raise Refused("unlisted_file", f"{rel}: not listed in {SUMS_FILE}; refused")
+    for rel in sorted(set(sums) - set(files)):
+        raise Refused("missing_file", f"{rel}: listed in {SUMS_FILE} but missing")
+    for rel in PLAIN_FILES:
+        if rel not in sums and rel not in OPTIONAL_FILES:
+            raise Refused("missing_file", f"{rel}: missing from the publication")
+    texts: dict[str, bytes] = {}
+    for rel in sorted(r for r in sums if not TAR_NAME.match(r)):
+        data = _read_small(root, rel, limits.text_bytes)
+        if hashlib.sha256(data).hexdigest() != sums[rel]:
+            raise Refused("checksum", f"{rel}: SHA-256 differs from {SUMS_FILE}'s; the file changed or is corrupt")
+        texts[rel] = data
+    records = _manifest(texts[SOURCE_FILES[MANIFEST_FILE]], limits)
+    index = _json(texts[INDEX_FILE], INDEX_FILE)
+    tars = _tars(index, sums, files)
+    _expect_members(tars, records, texts[SAMPLES_FILE], limits)
+    _check_croissant(texts, sums)
+    markers = _markers(texts[MARKERS_REL], records)
+    source = {name: texts[rel] for name, rel in SOURCE_FILES.items()}
+    _json(source[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE])
+    return Publication(root=root, limits=limits, sums=sums, sizes=files, source_files=source, markers=markers,
+                       records=records, tars=tars, index=index)
+
+
+def _manifest(data: bytes, limits: Limits) -> list[dict]:
+    rel = SOURCE_FILES[MANIFEST_FILE]
+    records = _json_lines(data, rel, limits.members)
+    seen: set[str] = set()
+    for number, record in enumerate(records, start=1):
+        file_refs(record, f"{rel} line {number}")
+        if record["id"] in seen:
+            raise Refused("duplicate", f"{rel} line {number}: a second record for {record['id']}; refused")
+        seen.add(record["id"])
+    if not records:
+        raise Refused("bad_record", f"{rel}: no records")
+    return records
+
+
+def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
+    if not isinstance(index, dict) or index.get("format") != FORMAT or index.get("format_version") != FORMAT_VERSION:
+        raise Refused("bad_index", f"{INDEX_FILE}: not a {FORMAT} version {FORMAT_VERSION} index; refused")
+    shards = index.get("shards")
+    listed = sorted(r for r in sums if TAR_NAME.match(r))
+    if not isinstance(shards, list) or [s.get("path") if isinstance(s, dict) else None for s in shards] != listed:
+        raise Refused("bad_index", f"{INDEX_FILE}: its shards are not the tars {SUMS_FILE} lists ({len(listed)})")
+    for number, rel in enumerate(listed):
+        if TAR_NAME.match(rel).group(1) != f"{number:06d}":
+            raise Refused("bad_index", f"{rel}: tars must be numbered from 000000 without gaps")
+        if shards[number].get("bytes") != files[rel]:
+            raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {shards[number].get('bytes')}")
+    return [TarEntry(rel=rel, sha256=sums[rel], size=files[rel]) for rel in listed]
+
+
+def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, limits: Limits) -> None:
+    """Fill each tar's expected members from the manifest and the samples table, refusing any
+    disagreement between the two."""
+    rows = table.split(b"\n")
+    if rows and rows[-1] == b"":
+        rows.pop()
+    if len(rows) != len(records):
+        raise Refused("bad_table", f"{SAMPLES_FILE}: {len(rows)} rows for {len(records)} manifest records")
+    by_rel = {t.rel: t for t in tars}
+    material_tar: dict[str, tuple[str, dict]] = {}
+    last_tar = -1
+    manifest = SOURCE_FILES[MANIFEST_FILE]
+    for number, (record, line) in enumerate(zip(records, rows), start=1):
+        row = _json(line, f"{SAMPLES_FILE} line {number}")
+        tar_rel, sha, size = (row.get("shard"), row.get("record_sha256"), row.get("record_bytes")) \
+            if isinstance(row, dict) else (None, None, None)
+        if tar_rel not in by_rel or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX) \
+                or isinstance(size, bool) or not isinstance(size, int) or not 0 <= size <= limits.member_bytes:
+            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and "
+                                       "record_bytes; refused")
+        if dumps(sample_row(record, tar_rel, sha, size)).encode("utf-8") != line:
+            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line "
+                                       f"{number} ({record['id']}) gives; refused")
+        tar = by_rel[tar_rel]
+        position = tars.index(tar)
+        if position < last_tar:
+            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: {record['id']} is in {tar_rel}, before "
+                                       "the tar of the sample above it; refused")
+        last_tar = position
+        refs = file_refs(record, f"{manifest} line {number}")
+        material = record["material_id"]
+        shared = {r: (refs[r].sha256, refs[r].bytes) for r in ("maps", "texture") if r in refs}
+        if material not in material_tar:
+            material_tar[material] = (tar_rel, shared)
+            tar.expected += [_shared(refs[role], material) for role in ("maps", "texture") if role in refs]
+        elif material_tar[material][0] != tar_rel:
+            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: material {material} is split across "
+                                       f"{material_tar[material][0]} and {tar_rel}; refused")
+        elif material_tar[material][1] != shared or tar.expected[-1].material_id != material:
+            raise Refused("bad_record", f"{manifest} line {number} ({record['id']}): its material's maps differ "
+                                        "from its other lightings', or its lightings are not adjacent; refused")
+        sample = record["id"]
+        shard = record["shard"]
+        tar.expected.append(Expected(record_member(sample), "record", size, sha, Layout.record_rel(shard, sample),
+                                     sample, material))
+        render = refs["render"]
+        tar.expected.append(Expected(render.member, "render", render.bytes, render.sha256, render.path, sample,
+                                     material))
+
+
+def _shared(ref: FileRef, material: str) -> Expected:
+    return Expected(ref.member, ref.role, ref.bytes, ref.sha256, ref.path, None, material)
+
+
+def _check_croissant(texts: dict[str, bytes], sums: dict[str, str]) -> None:
+    """croissant.json's SHA-256 of each file must be the one SHA256SUMS lists."""
+    metadata = _json(texts[CROISSANT_FILE], CROISSANT_FILE)
+    objects = metadata.get("distribution") if isinstance(metadata, dict) else None
+    if not isinstance(objects, list):
+        raise Refused("bad_croissant", f"{CROISSANT_FILE}: no distribution list; refused")
+    for entry in objects:
+        if isinstance(entry, dict) and entry.get("@type") == "cr:FileObject":
+            rel = entry.get("contentUrl")
+            if rel not in sums or entry.get("sha256") != sums[rel]:
+                raise Refused("bad_croissant", f"{CROISSANT_FILE}: FileObject {rel!r} has a SHA-256 that is not "
+                                               f"{SUMS_FILE}'s (or names no file of PUB); refused")
+
+
+def _markers(data: bytes, records: list[dict]) -> list[tuple[str, bytes]]:
+    shards = list(dict.fromkeys(r["shard"] for r in records))
+    lines = [line + b"\n" for line in data.split(b"\n")[:-1]] if data.endswith(b"\n") else None
+    if lines is None or len(lines) != len(shards):
+        raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({len(shards)}); refused")
+    out = []
+    for number, (shard, line) in enumerate(zip(shards, lines), start=1):
+        marker = _json(line, f"{MARKERS_REL} line {number}")
+        if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
+            raise Refused("bad_marker", f"{MARKERS_REL} line {number}: not the complete marker of shard {shard}")
+        out.append((shard, line))
+    return out
+
+
+# --------------------------------------------------------------------------- members
+
+
+def _compare_members(label: str, scanned: list[Member], expected: list[Expected]) -> None:
+    names = [m.name for m in scanned]
+    wanted = [e.name for e in expected]
+    if names == wanted:
+        return
+    have, want = set(names), set(wanted)
+    missing = [n for n in wanted if n not in have]
+    extra = [n for n in names if n not in want]
+    if missing:
+        raise Refused("missing_member", f"{label}: member(s) {', '.join(missing[:5])} missing; refused")
+    if extra:
+        raise Refused("extra_member", f"{label}: member(s) {', '.join(extra[:5])} are no part of this tar; refused")
+    first = next(i for i, (a, b) in enumerate(zip(names, wanted)) if a != b)
+    raise Refused("member_order", f"{label}: member {first} is {names[first]!r}, expected {wanted[first]!r} "
+                                  "(members in plan order); refused")
+
+
+def _check_member(label: str, member: Member, data: bytes, expected: Expected, records: dict[str, dict],
+                  limits: Limits) -> None:
+    where = f"{label}: member {member.name!r}"
+    if member.size != expected.size:
+        raise Refused("member_checksum", f"{where} is {member.size} bytes, the manifest says {expected.size}; "
+                                         "refused")
+    digest = hashlib.sha256(data).hexdigest()
+    if digest != expected.sha256:
+        raise Refused("member_checksum", f"{where}: SHA-256 {digest[:16]}... differs from the manifest's "
+                                         f"{expected.sha256[:16]}...; refused")
+    if expected.role == "record":
+        record = _json(data, where)
+        if not isinstance(record, dict) or without_timings(record) != without_timings(records[expected.sample_id]):
+            raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
+    else:
+        check_exr_header(data, where, limits)
+
+
+# --------------------------------------------------------------------------- samples
+
+
+def sample_dict(record: dict, files: dict[str, bytes]) -> dict:
+    """The sample :func:`iter_samples` and :func:`iter_folder_samples` yield."""
+    paths = {entry["role"]: entry["path"] for entry in record["files"]}
+    return {"id": record["id"], "material_id": record["material_id"], "record": record,
+            "files": {role: files[role] for role in paths}, "paths": paths}
+
+
+def iter_samples(pub: str, limits: Limits = DEFAULT_LIMITS,
+                 progress: Callable[[str], None] | None = None) -> Iterator[dict]:
+    """Every sample of the publication at ``pub``, in plan order, checked as it streams.
+
+    Each sample is ``{"id", "material_id", "record", "files", "paths"}``: ``record`` is its
+    manifest record (docs/manifest.md), ``files`` maps each role of the record's files
+    (``render``, ``maps``, ``texture``) to the file's bytes (decode with
+    ``pipeline.store.exr.read_exr``), ``paths`` maps it to the file's path in the dataset
+    folder. A tar's SHA-256 is checked before it is opened; every member's against the
+    manifest. Raises :class:`Refused` on the first problem (samples already yielded were
+    checked).
+    """
+    publication = open_publication(pub, limits)
+    yield from publication_samples(publication, progress)
+
+
+def publication_samples(publication: Publication, progress: Callable[[str], None] | None = None) -> Iterator[dict]:
+    records = {r["id"]: r for r in publication.records}
+    before = 0
+    for tar in publication.tars:
+        if progress:
+            progress(tar.rel)
+        shared: dict[str, bytes] = {}
+        for expected, data in publication.members(tar, before):
+            if expected.role in ("maps", "texture"):
+                if expected.role == "maps":
+                    shared = {}
+                shared[expected.role] = data
+            elif expected.role == "render":
+                yield sample_dict(records[expected.sample_id], {**shared, "render": data})
+        before += len(tar.expected)
+
+
+def iter_folder_samples(root: str) -> Iterator[dict]:
+    """The samples of a complete dataset folder, as :func:`iter_samples` yields them from its
+    publication (each file's SHA-256 checked against the manifest)."""
+    layout = Layout(root)
+    with open(layout.manifest, encoding="utf-8") as fh:
+        records = [json.loads(line) for line in fh if line.strip()]
+    shared: dict[str, bytes] = {}
+    material = None
+    for number, record in enumerate(records, start=1):
+        refs = file_refs(record, f"{MANIFEST_FILE} line {number}")
+        if record["material_id"] != material:
+            material = record["material_id"]
+            shared = {role: _read_verified(layout, refs[role]) for role in ("maps", "texture") if role in refs}
+        yield sample_dict(record, {**shared, "render": _read_verified(layout, refs["render"])})
+
+
+def _read_verified(layout: Layout, ref: FileRef) -> bytes:
+    with open(layout.path(ref.path), "rb") as fh:
+        data = fh.read()
+    if hashlib.sha256(data).hexdigest() != ref.sha256:
+        raise Refused("checksum", f"{ref.path}: SHA-256 differs from the manifest's; check the folder with "
+                                  "`shaderball validate`")
+    return data
+

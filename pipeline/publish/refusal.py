@@ -1,0 +1,47 @@
+"""Why a publication is refused, and the caps that bound what reading one may cost."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pipeline.errors import ShaderballError
+
+
+class Refused(ShaderballError):
+    """A publication (or the dataset to publish) that is not accepted: exit code 1.
+
+    ``kind`` names the reason (docs/publish.md lists them); the message names the file,
+    the member and what was expected.
+    """
+
+    exit_code = 1
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(message)
+        self.kind = kind
+        self.message = message
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "message": self.message}
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Caps checked before anything is read into memory or written (docs/publish.md)."""
+
+    #: one tar member (a 4096x4096 float32 render is 201 MB uncompressed)
+    member_bytes: int = 1 << 30
+    #: members over all tars (the paper's spec: 120,000)
+    members: int = 10_000_000
+    #: every file of PUB together
+    total_bytes: int = 1 << 44
+    #: one plain file of PUB read into memory (manifest, samples table, ...)
+    text_bytes: int = 1 << 30
+    #: files and folders under PUB
+    entries: int = 1_000_000
+    #: an EXR header (attributes), and its image's width or height
+    exr_header_bytes: int = 1 << 20
+    exr_side: int = 4096
+
+
+DEFAULT_LIMITS = Limits()

@@ -1,0 +1,78 @@
+"""`shaderball unpack PUB --out DIR`: the dataset folder a publication was made from, byte
+for byte, then validated (`shaderball validate`).
+
+The publication is verified in full first (pipeline.publish.verify), so a refused one
+writes nothing; the members are then streamed again and checked again as they are written
+(a file changed in between is refused too). Every path written is the layout's
+(pipeline.store.layout) for ids that fit it, inside DIR. On any refusal or error DIR is
+left as it was found (absent, or empty).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pipeline.check.validate import validate
+from pipeline.publish.output import Output, check_out
+from pipeline.publish.reader import open_publication
+from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
+from pipeline.publish.verify import verify_publication
+from pipeline.store.layout import Layout
+
+
+@dataclass(frozen=True)
+class UnpackSummary:
+    pub: str
+    out: str
+    files: int
+    samples: int
+    bytes_written: int
+    validated: bool
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"pub": self.pub, "out": self.out, "files": self.files, "samples": self.samples,
+                "bytes_written": self.bytes_written, "validated": self.validated, "seconds": round(self.seconds, 3)}
+
+    def lines(self) -> list[str]:
+        check = "valid (`shaderball validate`)" if self.validated else "not validated (--no-validate)"
+        return [f"unpacked {self.pub} into {self.out}: {self.samples} samples, {self.files} files, "
+                f"{self.bytes_written / 1e6:.1f} MB in {self.seconds:.1f} s; {check}"]
+
+
+def unpack(pub: str, out: str, *, limits: Limits = DEFAULT_LIMITS, validate_after: bool = True,
+           progress: Callable[[str], None] | None = None) -> UnpackSummary:
+    """Restore the dataset folder of the publication ``pub`` into ``out`` (new or empty)."""
+    start = time.perf_counter()
+    check_out(out)
+    publication = open_publication(pub, limits)
+    verify_publication(publication, progress)
+    output = Output(out)
+    try:
+        for name, data in publication.source_files.items():
+            output.write(name, data)
+        for shard, data in publication.markers:
+            output.write(Layout.marker_rel(shard), data)
+        before = 0
+        for tar in publication.tars:
+            if progress:
+                progress(f"unpacking {tar.rel}")
+            for expected, data in publication.members(tar, before):
+                output.write(expected.path, data)
+            before += len(tar.expected)
+        if validate_after:
+            if progress:
+                progress(f"validating {out}")
+            report = validate(out)
+            if not report.ok:
+                first = "; ".join(p.message for p in report.problems[:3])
+                raise Refused("invalid_dataset", f"the unpacked folder does not pass `shaderball validate` "
+                                                 f"({len(report.problems)} problem(s): {first}); nothing was kept")
+    except BaseException:
+        output.discard()
+        raise
+    return UnpackSummary(pub=pub, out=out, files=len(output.sums), samples=len(publication.records),
+                         bytes_written=sum(output.sizes.values()), validated=validate_after,
+                         seconds=time.perf_counter() - start)

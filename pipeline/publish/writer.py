@@ -1,0 +1,323 @@
+"""`shaderball publish DIR --out PUB`: a validated dataset folder as tar shards, a samples
+table, a dataset card, Croissant metadata and checksums (layout: pipeline.publish.names).
+
+The same folder gives the same bytes: members in plan order with fixed metadata
+(pipeline.publish.tarsafe), JSON with sorted keys, nothing from the clock, the host or
+the user. A material's maps are stored once, before its lightings, in the same tar
+(docs/publish.md measures what repeating them per sample would cost).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pipeline.check.preview import write_preview
+from pipeline.check.validate import validate
+from pipeline.dataset.spec import DatasetSpec, parse_spec
+from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.publish.card import dataset_card
+from pipeline.publish.croissant import croissant_metadata
+from pipeline.publish.facts import LICENSES, PublicationFacts, TarFacts
+from pipeline.publish.names import (
+    CARD_FILE,
+    CROISSANT_FILE,
+    FORMAT,
+    FORMAT_VERSION,
+    INDEX_FILE,
+    MARKERS_REL,
+    PREVIEW_FILE,
+    SAMPLES_FILE,
+    SOURCE_FILES,
+    SUMS_FILE,
+    tar_rel,
+)
+from pipeline.publish.output import Output, check_out
+from pipeline.publish.refusal import Refused
+from pipeline.publish.table import file_refs, record_member, sample_row
+from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
+from pipeline.store.atomic import fsync_dir, sha256_file
+from pipeline.store.layout import MARKER_FILE, Layout
+from pipeline.store.records import dumps
+
+DEFAULT_SHARD_BYTES = 1_000_000_000
+SHARD_BYTES_RANGE = (1 << 16, 1 << 40)
+DEFAULT_LICENSE = "cc-by-4.0"
+PREVIEW_SAMPLES = 8
+
+
+@dataclass(frozen=True)
+class PackedMember:
+    """A member to write: its name, the source file, its size and (for EXR files) its SHA-256."""
+
+    name: str
+    source: str
+    size: int
+    sha256: str | None
+
+
+@dataclass
+class MaterialGroup:
+    """A material's members: its maps (and texture), then each lighting's record and render."""
+
+    material_id: str
+    members: list[PackedMember] = field(default_factory=list)
+    records: list[dict] = field(default_factory=list)
+    shared_bytes: int = 0  # tar bytes of the maps and texture members
+
+    @property
+    def tar_bytes(self) -> int:
+        return sum(BLOCK + padded(m.size) for m in self.members)
+
+
+@dataclass(frozen=True)
+class PublishSummary:
+    out: str
+    samples: int
+    materials: int
+    tars: list[TarFacts]
+    published_bytes: int
+    source_bytes: int
+    member_bytes: int
+    repeated_maps_extra_bytes: int
+    validation_s: float
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"out": self.out, "samples": self.samples, "materials": self.materials,
+                "shards": [t.to_dict() for t in self.tars], "published_bytes": self.published_bytes,
+                "source_bytes": self.source_bytes, "member_bytes": self.member_bytes,
+                "repeated_maps_extra_bytes": self.repeated_maps_extra_bytes,
+                "validation_s": round(self.validation_s, 3), "seconds": round(self.seconds, 3)}
+
+    def lines(self) -> list[str]:
+        return [f"published {self.out}: {self.samples} samples ({self.materials} materials) in "
+                f"{len(self.tars)} tar shard(s), {self.published_bytes / 1e6:.2f} MB "
+                f"(source folder {self.source_bytes / 1e6:.2f} MB)",
+                f"maps stored once per material; repeating them per sample would add "
+                f"{self.repeated_maps_extra_bytes / 1e6:.2f} MB",
+                f"validated in {self.validation_s:.1f} s, published in {self.seconds:.1f} s; "
+                f"check with `shaderball verify {self.out}`"]
+
+
+def check_options(shard_bytes: int, license_id: str) -> None:
+    check_int("--shard-bytes", shard_bytes, *SHARD_BYTES_RANGE)
+    if license_id not in LICENSES:
+        raise bad_value("--license", license_id, ", ".join(LICENSES))
+
+
+def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, license_id: str = DEFAULT_LICENSE,
+            url: str | None = None, progress: Callable[[str], None] | None = None) -> PublishSummary:
+    """Validate the dataset at ``root`` fully, then publish it to ``out``.
+
+    Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
+    """
+    check_options(shard_bytes, license_id)
+    check_out(out)
+    start = time.perf_counter()
+    if progress:
+        progress(f"validating {root} (every file, as `shaderball validate`)")
+    report = validate(root)
+    if not report.ok:
+        first = "; ".join(p.message for p in report.problems[:3])
+        raise Refused("invalid_dataset", f"DIR: {root!r} does not pass `shaderball validate` "
+                                         f"({len(report.problems)} problem(s): {first}); nothing was published")
+    validation_s = time.perf_counter() - start
+    return write_publication(root, out, shard_bytes=shard_bytes, license_id=license_id, url=url,
+                             validation_s=validation_s, progress=progress)
+
+
+# --------------------------------------------------------------------------- planning
+
+
+def _read_manifest(layout: Layout) -> list[dict]:
+    with open(layout.manifest, encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
+    """Members of each material in plan order (the manifest's)."""
+    groups: list[MaterialGroup] = []
+    for number, record in enumerate(records, start=1):
+        refs = file_refs(record, f"manifest.jsonl line {number}")
+        if not groups or groups[-1].material_id != record["material_id"]:
+            group = MaterialGroup(record["material_id"])
+            for role in ("maps", "texture"):
+                if role in refs:
+                    ref = refs[role]
+                    group.members.append(PackedMember(ref.member, ref.path, ref.bytes, ref.sha256))
+                    group.shared_bytes += BLOCK + padded(ref.bytes)
+            groups.append(group)
+        group = groups[-1]
+        record_rel = Layout.record_rel(record["shard"], record["id"])
+        group.members.append(PackedMember(record_member(record["id"]), record_rel,
+                                          os.path.getsize(layout.path(record_rel)), None))
+        render = refs["render"]
+        group.members.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
+        group.records.append(record)
+    return groups
+
+
+def assign_tars(groups: list[MaterialGroup], shard_bytes: int) -> list[list[MaterialGroup]]:
+    """Whole materials, in order, into tars of at most ``shard_bytes`` (a material larger than
+    that gets a tar of its own)."""
+    tars: list[list[MaterialGroup]] = []
+    current: list[MaterialGroup] = []
+    for group in groups:
+        sizes = [m.size for g in current + [group] for m in g.members]
+        if current and tar_bytes(sizes) > shard_bytes:
+            tars.append(current)
+            current = []
+        current.append(group)
+    if current:
+        tars.append(current)
+    return tars
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _read_checked(layout: Layout, member: PackedMember) -> bytes:
+    with open(layout.path(member.source), "rb") as fh:
+        data = fh.read(member.size + 1)
+    if len(data) != member.size or (member.sha256 and hashlib.sha256(data).hexdigest() != member.sha256):
+        raise Refused("changed", f"{member.source}: {len(data)} bytes whose SHA-256 differs from the manifest's: "
+                                 "the folder changed while it was published; publish again")
+    return data
+
+
+def _write_tar(output: Output, layout: Layout, rel: str, groups: list[MaterialGroup],
+               record_sums: dict[str, tuple[str, int]]) -> TarFacts:
+    final = output.path(rel)
+    folder = os.path.dirname(final)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".tar", dir=folder)
+    try:
+        with os.fdopen(fd, "w+b") as fh:
+            with open_writer(fh) as tar:
+                for group in groups:
+                    for member in group.members:
+                        data = _read_checked(layout, member)
+                        if member.sha256 is None:
+                            record_sums[member.name] = (hashlib.sha256(data).hexdigest(), len(data))
+                        write_member(tar, member.name, data)
+            fh.flush()
+            os.fsync(fh.fileno())
+            size = fh.tell()
+        digest = sha256_file(tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, final)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    fsync_dir(folder)
+    expected = tar_bytes([m.size for g in groups for m in g.members])
+    assert size == expected, (size, expected)
+    output.adopt(rel, digest, size)
+    records = [r for g in groups for r in g.records]
+    return TarFacts(path=rel, bytes=size, sha256=digest, members=sum(len(g.members) for g in groups),
+                    samples=len(records), materials=len(groups), first=records[0]["id"], last=records[-1]["id"])
+
+
+def _markers(layout: Layout, records: list[dict]) -> bytes:
+    """Every shard's marker file, byte for byte, one line each, in plan order."""
+    lines = []
+    for shard in dict.fromkeys(r["shard"] for r in records):
+        with open(layout.marker(shard), "rb") as fh:
+            data = fh.read()
+        if not data.endswith(b"\n") or data.count(b"\n") != 1:
+            raise Refused("invalid_dataset", f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
+                                             "`shaderball build` writes it; cannot publish it byte for byte")
+        lines.append(data)
+    return b"".join(lines)
+
+
+def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES,
+                      license_id: str = DEFAULT_LICENSE, url: str | None = None, contact_sheet: bool = True,
+                      validation_s: float = 0.0, progress: Callable[[str], None] | None = None) -> PublishSummary:
+    """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
+    does; tests use this to build hostile publications)."""
+    check_options(shard_bytes, license_id)
+    check_out(out)
+    start = time.perf_counter()
+    layout = Layout(root)
+    spec: DatasetSpec = parse_spec(layout.spec)
+    records = _read_manifest(layout)
+    if not records:
+        raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
+    groups = material_groups(layout, records)
+    assignment = assign_tars(groups, shard_bytes)
+    output = Output(out)
+    try:
+        record_sums: dict[str, tuple[str, int]] = {}
+        tars, rows = [], []
+        for index, tar_groups in enumerate(assignment):
+            rel = tar_rel(index)
+            if progress:
+                progress(f"writing {rel} ({index + 1}/{len(assignment)})")
+            facts = _write_tar(output, layout, rel, tar_groups, record_sums)
+            tars.append(facts)
+            for group in tar_groups:
+                for record in group.records:
+                    rows.append(sample_row(record, rel, *record_sums[record_member(record["id"])]))
+        for source, rel in SOURCE_FILES.items():
+            with open(layout.path(source), "rb") as fh:
+                output.write(rel, fh.read())
+        output.write(MARKERS_REL, _markers(layout, records))
+        output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
+        if contact_sheet:
+            if progress:
+                progress("drawing the contact sheet")
+            write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
+            with open(output.path(PREVIEW_FILE), "rb") as fh:
+                output.adopt(PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(),
+                             os.path.getsize(output.path(PREVIEW_FILE)))
+        with open(layout.description, encoding="utf-8") as fh:
+            description = json.load(fh)
+        source_bytes = sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.members) \
+            + sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
+        facts = PublicationFacts(
+            spec=spec, description=description, records=records, rows=rows, tars=tars, license_id=license_id,
+            url=url, shard_bytes=shard_bytes, files=dict(output.sums), sizes=dict(output.sizes),
+            source_bytes=source_bytes, member_bytes=sum(m.size for g in groups for m in g.members),
+            repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
+            materials=len(groups), has_preview=contact_sheet)
+        output.write(INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n")
+                     .encode("utf-8"))
+        facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
+        facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
+        output.write(CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n")
+                     .encode("utf-8"))
+        facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
+        output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
+        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items()))
+                     .encode("utf-8"))
+    except BaseException:
+        output.discard()
+        raise
+    published = sum(output.sizes.values())
+    return PublishSummary(out=out, samples=len(records), materials=len(groups), tars=tars,
+                          published_bytes=published, source_bytes=facts.source_bytes,
+                          member_bytes=facts.member_bytes, repeated_maps_extra_bytes=facts.repeated_maps_extra_bytes,
+                          validation_s=validation_s, seconds=time.perf_counter() - start)
+
+
+def publication_index(facts: PublicationFacts) -> dict:
+    """``publication.json``: what a reader checks the rest against."""
+    description = facts.description
+    return {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "maps": "once per material: MATERIAL.maps.exr (and MATERIAL.texture.exr) before its lightings, "
+                "in the same tar",
+        "source": {"name": description.get("name"), "version": description.get("version"),
+                   "spec_digest": description.get("spec_digest"), "plan_digest": description.get("plan_digest"),
+                   "renders": len(facts.records), "materials": facts.materials},
+        "shard_bytes": facts.shard_bytes,
+        "shards": [t.to_dict() for t in facts.tars],
+    }
