@@ -17,6 +17,11 @@ from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import repair, validate
 from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.publish.facts import LICENSES
+from pipeline.publish.refusal import Refused
+from pipeline.publish.unpack import unpack
+from pipeline.publish.verify import verify
+from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
 from pipeline.render.command import RenderRequest, parse_triple, render_to_files
 from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, span
 from pipeline.render.mitsuba_env import VARIANT_CHOICES
@@ -333,6 +338,91 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
                            progress=lambda message: click.echo(message, err=True))
     for line in result.lines():
         click.echo(line)
+
+
+def _refusals_as_json(as_json: bool):
+    """With --json, a refused dataset or publication is printed as JSON on stdout (exit 1)."""
+    import contextlib
+    import json
+
+    @contextlib.contextmanager
+    def guard():
+        try:
+            yield
+        except Refused as exc:
+            if not as_json:
+                raise
+            click.echo(json.dumps({"ok": False, **exc.to_dict()}, indent=1, sort_keys=True))
+            sys.exit(exc.exit_code)
+
+    return guard()
+
+
+def _print_result(result, as_json: bool) -> None:
+    if as_json:
+        import json
+
+        click.echo(json.dumps(result.to_dict(), indent=1, sort_keys=True))
+        return
+    for line in result.lines():
+        click.echo(line)
+
+
+@main.command("publish")
+@click.argument("directory", metavar="DIR", type=click.Path())
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "
+                   "card), croissant.json, SHA256SUMS (docs/publish.md).")
+@click.option("--shard-bytes", default=DEFAULT_SHARD_BYTES, show_default=True, type=int,
+              help=f"Largest tar shard in bytes, {span(SHARD_BYTES_RANGE)}; shards hold whole materials "
+                   "(a larger material gets a shard of its own).")
+@click.option("--license", "license_id", default=DEFAULT_LICENSE, show_default=True, type=click.Choice(list(LICENSES)),
+              help="License of the data, as the Hugging Face Hub names it (card and Croissant metadata).")
+@click.option("--url", default=None, help="Where the publication will live (Croissant's url), e.g. "
+                                          "https://huggingface.co/datasets/ORG/NAME [default: none].")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@_friendly_errors
+def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
+    """Publish a dataset that passes `shaderball validate` (checked first; exit 1 if not).
+
+    Deterministic WebDataset-convention tar shards, a samples table, a dataset card with a
+    contact sheet, Croissant metadata and SHA256SUMS; the same folder publishes to the same bytes.
+    """
+    with _refusals_as_json(as_json):
+        summary = publish(directory, out, shard_bytes=shard_bytes, license_id=license_id, url=url,
+                          progress=lambda message: click.echo(message, err=True))
+    _print_result(summary, as_json)
+
+
+@main.command("verify")
+@click.argument("pub", metavar="PUB", type=click.Path())
+@click.option("--json", "as_json", is_flag=True, help="Print the report (or the refusal: kind, message) as JSON only.")
+@_friendly_errors
+def verify_cmd(pub, as_json):
+    """Check a publication without extracting it: every file's SHA-256, every tar header and member.
+
+    Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
+    """
+    with _refusals_as_json(as_json):
+        report = verify(pub, progress=lambda message: click.echo(message, err=True))
+    _print_result(report, as_json)
+
+
+@main.command("unpack")
+@click.argument("pub", metavar="PUB", type=click.Path())
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="New or empty folder for the dataset; left as it was if the publication is refused.")
+@click.option("--no-validate", is_flag=True,
+              help="Skip `shaderball validate` of the result (it needs the spec's svbrdf_folders, if any, "
+                   "on this machine).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@_friendly_errors
+def unpack_cmd(pub, out, no_validate, as_json):
+    """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
+    with _refusals_as_json(as_json):
+        summary = unpack(pub, out, validate_after=not no_validate,
+                         progress=lambda message: click.echo(message, err=True))
+    _print_result(summary, as_json)
 
 
 def _neural():
