@@ -20,7 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
-from pipeline.check import validate as validate_mod
+from pipeline.check import inspect as inspect_mod
 from pipeline.check.validate import PROBLEM_KINDS, repair, validate
 from pipeline.store.records import without_timings
 
@@ -344,17 +344,17 @@ def _maps(n=8):
 ])
 def test_map_value_checks(edit, kind):
     layers = _maps()
-    assert validate_mod.map_value_issues(layers, screen_space=True) == []
+    assert inspect_mod.map_value_issues(layers, screen_space=True) == []
     edit(layers)
-    assert [k for k, _ in validate_mod.map_value_issues(layers, screen_space=True)] == [kind]
+    assert [k for k, _ in inspect_mod.map_value_issues(layers, screen_space=True)] == [kind]
 
 
 def test_layer_checks():
-    expect = validate_mod._Expect("maps", {"diffuse": (3, "float16"), "mask": (1, "float32")}, (8, 8))
+    expect = inspect_mod.Expect("maps", {"diffuse": (3, "float16"), "mask": (1, "float32")}, (8, 8))
     good = {"diffuse": np.zeros((8, 8, 3), np.float16), "mask": np.zeros((8, 8, 1), np.float32)}
-    assert validate_mod.layer_issues(good, expect) == []
+    assert inspect_mod.layer_issues(good, expect) == []
     bad = {"diffuse": np.zeros((4, 8, 1), np.float32), "uv": np.zeros((4, 8, 2), np.float32)}
-    messages = [m for _, m in validate_mod.layer_issues(bad, expect)]
+    messages = [m for _, m in inspect_mod.layer_issues(bad, expect)]
     assert any("mask missing" in m for m in messages) and any("unexpected layer(s) uv" in m for m in messages)
     assert any("1 channel(s), expected 3" in m for m in messages)
     assert any("8x4 pixels, expected 8x8" in m for m in messages)

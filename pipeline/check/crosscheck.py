@@ -1,0 +1,681 @@
+"""The checks across a dataset: records against the plan, the files and each other (the
+manifest, the shard markers, the per-sample record files), and files that are no part of it."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.check.inspect import FileFacts, expectations
+from pipeline.check.report import Problems, summarise
+from pipeline.dataset.plan import plan_dataset
+from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.render.stats import is_bad
+from pipeline.store.folder import is_temp_file, read_manifest, record_file_names, shard_ids_on_disk
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
+from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
+from sky import Light
+
+#: Relative tolerance for recomputed float statistics (same pixels, same float64 sums).
+STATS_RTOL = 1e-6
+#: Keys of a render's statistics recomputed from its pixels (pipeline.render.stats.render_stats).
+PIXEL_STATS = ("min", "max", "mean", "nan", "inf", "negative")
+#: Files at the top of DIR that belong to the dataset.
+ROOT_FILES = (SPEC_FILE, DESCRIPTION_FILE, MANIFEST_FILE)
+
+
+@dataclass
+class Source:
+    """Where a record was read: 'manifest.jsonl line 3' or a marker or record file."""
+
+    path: str
+    line: int | None = None
+
+    def __str__(self) -> str:
+        return f"{self.path} line {self.line}" if self.line else self.path
+
+
+@dataclass
+class State:
+    """Everything validate learned, kept for repair."""
+
+    layout: Layout
+    spec: object | None
+    plans: list | None
+    planned: dict  # sample id -> SamplePlan, plan order
+    variant: str | None
+    spec_ok: bool
+    description_ok: bool
+    manifest: dict  # sample id -> first manifest record
+    markers: dict  # shard id -> marker dict or None
+    record_files: dict  # sample id -> record file content or None
+    facts: dict  # rel path -> FileFacts
+    extra_files: list[str]
+    allowed_dirs: set
+    manifest_dirty: bool
+
+
+def check_root(root: str) -> Layout:
+    if not os.path.exists(root):
+        raise ShaderballError(f"DIR: {root!r} does not exist; give a dataset directory "
+                              "written by `shaderball build`")
+    if not os.path.isdir(root):
+        raise ShaderballError(f"DIR: {root!r} is not a directory; give a dataset directory "
+                              "written by `shaderball build`")
+    layout = Layout(root)
+    if not any(os.path.exists(os.path.join(root, name)) for name in ROOT_FILES):
+        raise ShaderballError(f"DIR: {root!r} is not a shaderball dataset: it holds none of "
+                              f"{', '.join(ROOT_FILES)}")
+    return layout
+
+
+def load_plan(layout: Layout, problems: Problems):
+    """(spec, plans, description, spec_ok, description_ok); spec and plans None if unusable."""
+
+    description = read_json(layout.description)
+    description_ok = isinstance(description, dict)
+    if not description_ok:
+        what = "missing" if not os.path.exists(layout.description) else "not a JSON object"
+        problems.add("spec_snapshot", None, DESCRIPTION_FILE,
+                     f"{DESCRIPTION_FILE}: {what}; it records the spec digest, variant and counts")
+        description = None
+    if not os.path.exists(layout.spec):
+        problems.add("spec_snapshot", None, SPEC_FILE,
+                     f"{SPEC_FILE}: missing; the dataset cannot be checked against its plan")
+        return None, None, description, False, description_ok
+    try:
+        spec = parse_spec(layout.spec)
+    except USER_ERRORS as exc:
+        problems.add("spec_snapshot", None, SPEC_FILE,
+                     f"{SPEC_FILE}: unreadable ({exc}); the dataset cannot be checked against its plan")
+        return None, None, description, False, description_ok
+    if description is not None and description.get("spec_digest") != spec_digest(spec):
+        problems.add("spec_snapshot", None, SPEC_FILE,
+                     f"{SPEC_FILE}: digest {spec_digest(spec)[:12]} differs from "
+                     f"{DESCRIPTION_FILE}'s spec_digest {str(description.get('spec_digest'))[:12]}: "
+                     "the snapshot (or the description) was edited after the build")
+        spec_ok = False
+    else:
+        spec_ok = True
+    try:
+        plans = plan_dataset(spec)
+    except USER_ERRORS as exc:
+        problems.add("spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: cannot be planned ({exc})")
+        return spec, None, description, False, description_ok
+    return spec, plans, description, spec_ok, description_ok
+
+
+def load_manifest(layout: Layout, problems: Problems):
+    """[(source, record)] of manifest.jsonl, or None when there is no manifest."""
+    try:
+        data = read_manifest(layout)
+    except FileNotFoundError:
+        problems.add("missing_manifest", None, MANIFEST_FILE,
+                     f"{MANIFEST_FILE}: missing (an unfinished build, or deleted); records are "
+                     "taken from the shard markers and per-sample record files")
+        return None
+    except OSError as exc:
+        problems.add("missing_manifest", None, MANIFEST_FILE,
+                     f"{MANIFEST_FILE}: cannot be read ({exc.strerror})")
+        return None
+    out = []
+    for number, raw in enumerate(data.split(b"\n"), start=1):
+        if not raw.strip():
+            continue
+        try:
+            record = json.loads(raw)
+        except ValueError as exc:
+            problems.add("edited_record", None, MANIFEST_FILE,
+                         f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})")
+            continue
+        if not isinstance(record, dict) or not isinstance(record.get("id"), str):
+            problems.add("edited_record", None, MANIFEST_FILE,
+                         f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)")
+            continue
+        out.append((Source(MANIFEST_FILE, number), record))
+    return out
+
+
+def load_markers(layout: Layout, shard_ids, known: dict) -> dict:
+    """shard id -> marker (None when missing or torn). A marker's record equal to the one in
+    ``known`` (id -> manifest record) is replaced by that object: one copy in memory, not two
+    (a record is ~11 kB as Python objects; the paper's dataset has 50,000)."""
+    markers = {}
+    for sid in shard_ids:
+        marker = read_json(layout.marker(sid))
+        if isinstance(marker, dict) and isinstance(marker.get("records"), list):
+            marker["records"] = [known[r["id"]] if isinstance(r, dict) and r.get("id") in known
+                                 and known[r["id"]] == r else r for r in marker["records"]]
+        markers[sid] = marker
+    return markers
+
+
+def _safe_rel(rel) -> bool:
+    if not isinstance(rel, str) or not rel or rel.startswith("/") or "\\" in rel:
+        return False
+    return all(part not in ("", ".", "..") for part in rel.split("/"))
+
+
+def _file_problems(facts: FileFacts, entry: dict, id_: str, listed_by: str, problems: Problems) -> None:
+    rel, recorded = facts.rel, entry.get("bytes")
+    if facts.size is None:
+        problems.add("missing_file", id_, rel,
+                     f"{rel}: missing ({listed_by} lists it for {id_}, {recorded} bytes)")
+        return
+    if facts.error == "not a regular file":
+        problems.add("undecodable", id_, rel, f"{rel}: not a regular file")
+        return
+    if facts.size != recorded:
+        how = "truncated" if isinstance(recorded, int) and facts.size < recorded else "grown"
+        problems.add("size_mismatch", id_, rel,
+                     f"{rel}: {facts.size} bytes, {listed_by} says {recorded}: the file was {how}")
+        return
+    if facts.sha256 is None:  # not read: fast mode, or reading failed
+        if facts.error:
+            problems.add("undecodable", id_, rel, f"{rel}: {facts.error}")
+        return
+    if facts.sha256 != entry.get("sha256"):
+        decodes = "it no longer decodes" if facts.error else "it still decodes"
+        problems.add("checksum_mismatch", id_, rel,
+                     f"{rel}: SHA-256 {facts.sha256[:16]}... differs from {listed_by}'s "
+                     f"{str(entry.get('sha256'))[:16]}...: the bytes changed ({decodes})")
+        return  # content problems of a changed file are a consequence, not news
+    if facts.error:
+        problems.add("undecodable", id_, rel, f"{rel}: {facts.error}")
+        return
+    by_kind: dict[str, list[str]] = {}
+    for kind, message in facts.issues:
+        by_kind.setdefault(kind, []).append(message)
+    for kind, messages in by_kind.items():  # one problem per kind and file
+        problems.add(kind, id_, rel, f"{rel}: {summarise(messages, 4)}")
+
+
+def _close(a, b, rtol: float = 1e-12, atol: float = 1e-12) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool):
+        return a == b
+    if isinstance(a, int) and isinstance(b, int):
+        return a == b  # 63-bit seeds: a float comparison would miss a change of 1
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(float(a), float(b), rel_tol=rtol, abs_tol=atol)
+    return a == b
+
+
+def _get(record: dict, dotted: str):
+    value = record
+    for key in dotted.split("."):
+        if not isinstance(value, dict):
+            return None
+        value = value.get(key)
+    return value
+
+
+def expected_files(sample, spec) -> list[tuple[str, str]]:
+    out = [("render", Layout.render_rel(sample.shard_id, sample.sample_id)),
+           ("maps", Layout.maps_rel(sample.shard_id, sample.material_id))]
+    if spec is None or spec.storage.texture_maps:
+        out.append(("texture", Layout.texture_rel(sample.shard_id, sample.material_id)))
+    return out
+
+
+def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
+    """Fields of ``record`` that must equal the plan (and the spec) but do not."""
+    spec = state.spec
+    wanted = [
+        ("id", sample.sample_id), ("material_id", sample.material_id),
+        ("material_index", sample.material_index), ("light_index", sample.light_index),
+        ("shard", sample.shard_id),
+        ("seeds.material", sample.material_seed), ("seeds.light", sample.light_seed),
+        ("seeds.render", sample.render_seed),
+        ("lighting.requested.elevation_deg", sample.elevation_deg),
+        ("lighting.requested.azimuth_deg", sample.azimuth_deg),
+        ("lighting.requested.turbidity", sample.turbidity),
+        ("material.kind", sample.kind),
+    ]
+    if sample.svbrdf_family is not None:
+        wanted.append(("material.family", sample.svbrdf_family))
+    if sample.svbrdf_file is not None:
+        wanted.append(("material.file", sample.svbrdf_file))
+    if spec is not None:
+        r = spec.render
+        wanted += [("render.resolution", r.resolution), ("render.spp", r.spp),
+                   ("render.max_depth", r.max_depth), ("render.integrator", r.integrator),
+                   ("render.sun", spec.lighting.sun)]
+    if state.variant:
+        wanted.append(("render.variant", state.variant))
+    out = [f"{key} is {_get(record, key)!r}, the plan says {value!r}"
+           for key, value in wanted if not _close(_get(record, key), value)]
+    files = record.get("files")
+    got = [(f.get("role"), f.get("path")) for f in files if isinstance(f, dict)] \
+        if isinstance(files, list) else None
+    expected = expected_files(sample, spec)
+    if got != expected:
+        out.append(f"files lists {got!r}, the layout says {expected!r}")
+    return out + _lighting_discrepancies(record)
+
+
+def _lighting_discrepancies(record: dict) -> list[str]:
+    """The effective lighting's direction and lighting vector follow from its angles."""
+
+    lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
+    try:
+        light = Light.from_dict(lighting)
+    except Exception as exc:  # missing keys, out-of-range values: the message says which
+        return [f"lighting is not a valid light ({exc})"]
+    out = []
+    direction = lighting.get("direction")
+    try:
+        if not np.allclose(np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9):
+            out.append(f"lighting.direction {direction!r} does not follow from elevation_deg "
+                       f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}")
+    except (TypeError, ValueError):
+        out.append(f"lighting.direction is {direction!r}, not a 3-vector")
+    vector = record.get("lighting_vector")
+    try:
+        if not np.allclose(np.asarray(vector, np.float64), light.lighting_vector(), rtol=0, atol=1e-6):
+            out.append(f"lighting_vector {vector!r} does not follow from the effective lighting "
+                       f"(direction and turbidity {light.turbidity!r})")
+    except (TypeError, ValueError):
+        out.append(f"lighting_vector is {vector!r}, not a 4-vector")
+    seeds, stats = record.get("seeds") or {}, record.get("stats") or {}
+    if isinstance(seeds, dict) and isinstance(stats, dict) and seeds.get("render_used") != stats.get("seed"):
+        out.append(f"seeds.render_used is {seeds.get('render_used')!r}, stats.seed is {stats.get('seed')!r}")
+    return out
+
+
+def _header_discrepancies(record: dict, render: FileFacts | None, maps: FileFacts | None) -> list[str]:
+    """Fields of ``record`` that the files' own headers contradict, one message per field."""
+    checks = []
+    meta = render.meta if render is not None else None
+    if meta is not None:
+        lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
+        header_lighting = meta.get("lighting") or {}
+        effective = header_lighting.get("effective") or {}
+        checks += [("render", "id", record.get("id"), meta.get("id")),
+                   ("render", "material_id", record.get("material_id"), meta.get("material_id")),
+                   ("render", "effects", record.get("effects"), meta.get("effects")),
+                   ("render", "lighting.requested", lighting.get("requested"), header_lighting.get("requested")),
+                   ("render", "lighting.policy", lighting.get("policy"),
+                    {k: v for k, v in header_lighting.items() if k not in ("requested", "effective")})]
+        checks += [("render", f"lighting.{key}", lighting.get(key), effective.get(key))
+                   for key in ("elevation_deg", "azimuth_deg", "turbidity")]
+    maps_meta = maps.meta if maps is not None else None
+    if maps_meta is not None:
+        checks += [("maps", "material_id", record.get("material_id"), maps_meta.get("id")),
+                   ("maps", "material", record.get("material"), maps_meta.get("material"))]
+    out = []
+    for which, key, mine, theirs in checks:
+        for sub in _diff_keys(mine, theirs):
+            dotted = key if sub == "(record)" else f"{key}.{sub}"
+            out.append(f"{dotted} is {short_repr(_get_path(mine, sub), 123)}, the {which} file's header says "
+                       f"{short_repr(_get_path(theirs, sub), 123)}")
+    return out
+
+
+def _get_path(value, dotted: str):
+    return value if dotted == "(record)" else _get(value, dotted)
+
+
+def _stats_discrepancies(record: dict, render: FileFacts) -> list[str]:
+    """The record's statistics against the pixels and the header of its render file."""
+
+    stats = record.get("stats") if isinstance(record.get("stats"), dict) else {}
+    out = []
+    if render.pixel_stats is not None:
+        for key in PIXEL_STATS:
+            mine, actual = stats.get(key), render.pixel_stats.get(key)
+            if not (_close(mine, actual, STATS_RTOL, 0.0) if mine is not None and actual is not None
+                    else mine == actual):
+                out.append(f"stats.{key} is {mine!r}, the pixels give {actual!r}")
+        if stats.get("flagged") is not None and bool(stats.get("flagged")) != is_bad(render.pixel_stats):
+            out.append(f"stats.flagged is {stats.get('flagged')!r}, but the pixels are "
+                       f"{'bad' if is_bad(render.pixel_stats) else 'clean'}")
+    meta = render.meta
+    if meta is not None and "stats" in meta:
+        stored = {k: v for k, v in stats.items() if k not in RUN_DEPENDENT_STATS}
+        header = meta["stats"] if isinstance(meta["stats"], dict) else {}
+        keys = sorted(k for k in set(stored) | set(header) if stored.get(k) != header.get(k))
+        keys = [k for k in keys if not any(line.startswith(f"stats.{k} ") for line in out)]
+        out += [f"stats.{k} is {stored.get(k)!r}, the render file's header says {header.get(k)!r}"
+                for k in keys]
+    return out
+
+
+def _policy_problems(record: dict, render: FileFacts) -> list[tuple[str, str]]:
+    """Bad pixels are allowed only in a render the render policy flagged."""
+    stats, pixels = record.get("stats") or {}, render.pixel_stats
+    if pixels is None or (isinstance(stats, dict) and stats.get("flagged")):
+        return []
+    out = []
+    if pixels["nan"] or pixels["inf"]:
+        out.append(("non_finite", f"{pixels['nan']} NaN and {pixels['inf']} infinite value(s) in a "
+                                  "render not flagged by the render policy"))
+    if pixels["negative"]:
+        out.append(("negative_render", f"{pixels['negative']} negative value(s) (min "
+                                       f"{pixels['min']:.6g}) in a render not flagged by the render policy"))
+    return out
+
+
+def _diff_keys(a, b, prefix: str = "") -> list[str]:
+    """Dotted paths where two JSON values differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b)):
+            out += _diff_keys(a.get(key), b.get(key), f"{prefix}{key}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".") or "(record)"]
+
+
+def record_ok(record: dict | None, sample, state: State) -> bool:
+    """A record repair may keep: plan, headers, stats and its render file all agree."""
+    if not isinstance(record, dict):
+        return False
+    entries = {e.get("role"): e for e in record.get("files", []) if isinstance(e, dict)}
+    render_entry = entries.get("render")
+    if render_entry is None or _plan_discrepancies(record, sample, state):
+        return False
+    render = state.facts.get(render_entry.get("path"))
+    if render is None or not render.content_ok or render.sha256 is None:
+        return False
+    if (render.size, render.sha256) != (render_entry.get("bytes"), render_entry.get("sha256")):
+        return False
+    maps = state.facts.get((entries.get("maps") or {}).get("path"))
+    maps = maps if maps is not None and maps.content_ok and maps.decoded else None
+    return not (_header_discrepancies(record, render, maps) or _stats_discrepancies(record, render)
+                or _policy_problems(record, render))
+
+
+def _copy_faulty(record, sample, state: State, fast: bool) -> bool:
+    """Whether one copy of a record is itself wrong (not merely different from another)."""
+    if sample is None or not isinstance(record, dict):
+        return True
+    if fast:
+        return bool(_plan_discrepancies(record, sample, state))
+    return not record_ok(record, sample, state)
+
+
+def fallback_records(state: State) -> list:
+    """Without a manifest: complete markers' records, else each sample's record file."""
+    layout, out = state.layout, []
+    for sid, marker in state.markers.items():
+        if isinstance(marker, dict) and marker.get("complete") and isinstance(marker.get("records"), list):
+            out += [(Source(layout.marker_rel(sid)), r) for r in marker["records"] if isinstance(r, dict)]
+            continue
+        try:
+            names = record_file_names(layout, sid) or []
+        except OSError:
+            continue
+        for name in names:
+            rel = f"{SHARDS_DIR}/{sid}/{name}"
+            record = read_json(layout.path(rel))
+            if isinstance(record, dict) and isinstance(record.get("id"), str):
+                out.append((Source(rel), record))
+    return out
+
+
+def check_records_against_plan(records, state: State, problems: Problems, from_manifest: bool) -> dict:
+    """sample id -> (source, record) of the first record per id; plan-level problems."""
+    primary: dict = {}
+    plan_order = {sid: i for i, sid in enumerate(state.planned)}
+    last_index = -1
+    order_reported = False
+    for source, record in records:
+        sid = record["id"]
+        if sid in primary:
+            first = primary[sid][0]
+            same = "identical" if record == primary[sid][1] else "different"
+            problems.add("duplicate_record", sid, source.path,
+                         f"{source}: a second record for {sid} ({same} to the first, at {first})")
+            continue
+        primary[sid] = (source, record)
+        if state.plans is None:
+            continue
+        if sid not in state.planned:
+            problems.add("extra_sample", sid, source.path,
+                         f"{source}: record for {sid}, which the plan does not have")
+            continue
+        if from_manifest and plan_order[sid] < last_index and not order_reported:
+            problems.add("edited_record", sid, source.path,
+                         f"{source}: record for {sid} is out of plan order")
+            order_reported = True
+        last_index = max(last_index, plan_order[sid])
+    if state.plans is not None:
+        where = MANIFEST_FILE if from_manifest else "the shard markers or record files"
+        for sid, sample in state.planned.items():
+            if sid not in primary:
+                problems.add("missing_sample", sid, MANIFEST_FILE if from_manifest else None,
+                             f"{sid} (shard {sample.shard_id}): planned, but there is no record of it in {where}")
+    state.manifest = {sid: rec for sid, (src, rec) in primary.items()} if from_manifest else {}
+    return primary
+
+
+def check_markers(state: State, primary: dict, problems: Problems, have_manifest: bool,
+                   fast: bool) -> None:
+    """Each planned shard's marker: present, complete, listing its planned samples, and
+    holding the same records as the manifest."""
+    if state.plans is None:
+        return
+    layout = state.layout
+    for shard in state.plans:
+        sid, rel = shard.shard_id, layout.marker_rel(shard.shard_id)
+        marker = state.markers.get(sid)
+        wanted = [s.sample_id for s in shard.samples]
+        if marker is None:
+            exists = os.path.exists(layout.marker(sid))
+            recorded = sum(1 for s in wanted if s in primary)
+            problems.add("incomplete_shard", sid, rel,
+                         f"{rel}: {'unreadable (torn or not JSON)' if exists else 'missing'}; "
+                         f"{recorded} of {len(wanted)} samples of shard {sid} have a record")
+            continue
+        if not isinstance(marker, dict) or not marker.get("complete") or \
+                not isinstance(marker.get("records"), list):
+            problems.add("incomplete_shard", sid, rel, f"{rel}: does not mark shard {sid} complete")
+            continue
+        ids = [r.get("id") for r in marker["records"] if isinstance(r, dict)]
+        if marker.get("shard") != sid or marker.get("samples") != ids:
+            problems.add("edited_record", sid, rel,
+                         f"{rel}: its shard ({marker.get('shard')!r}) or sample list disagrees with "
+                         "its records")
+        lacking = [s for s in wanted if s not in ids]
+        if lacking:
+            problems.add("incomplete_shard", sid, rel,
+                         f"{rel}: lacks {len(lacking)} planned sample(s): {', '.join(lacking[:5])}")
+        strays = [s for s in ids if s not in wanted]
+        if strays:
+            problems.add("edited_record", sid, rel,
+                         f"{rel}: holds record(s) for {', '.join(map(str, strays[:5]))}, "
+                         f"not planned in {sid}")
+        if have_manifest:
+            _compare_copies(state, primary, problems, fast, rel,
+                            [r for r in marker["records"] if isinstance(r, dict) and r.get("id") in wanted])
+
+
+def _compare_copies(state: State, primary: dict, problems: Problems, fast: bool, rel: str,
+                    copies: list[dict]) -> None:
+    """Copies of records in ``rel`` against the primary ones; a difference is reported on
+    the side that is wrong (the primary side's own faults are reported by the record checks)."""
+    for copy in copies:
+        sid = copy.get("id")
+        if sid not in primary or primary[sid][1] is copy or primary[sid][1] == copy:
+            continue
+        if without_timings(primary[sid][1]) == without_timings(copy):
+            continue  # two runs of one shard: equal but for the run-dependent render time
+        source, mine = primary[sid]
+        sample = state.planned.get(sid)
+        keys = ", ".join(_diff_keys(mine, copy)[:5])
+        if _copy_faulty(copy, sample, state, fast):
+            problems.add("edited_record", sid, rel, f"{rel}: record for {sid} differs from {source} at {keys}")
+        elif not _copy_faulty(mine, sample, state, fast):
+            # Both copies check out (a field no check covers, or a fast check): name both.
+            problems.add("edited_record", sid, source.path,
+                         f"{source} and {rel} hold different records for {sid}, at {keys}"
+                         + ("; the full check tells which is right" if fast else ""))
+
+
+def check_record_files(state: State, primary: dict, problems: Problems) -> None:
+    """Per-sample record files (what a resumed build trusts) must match the shard's record."""
+    if state.plans is None:
+        return
+    layout = state.layout
+    for sid, sample in state.planned.items():
+        rel = layout.record_rel(sample.shard_id, sid)
+        path = layout.path(rel)
+        if not os.path.exists(path):
+            state.record_files[sid] = None
+            continue
+        content = read_json(path)
+        reference = marker_record(state, sample) or (primary.get(sid) or (None, None))[1]
+        state.record_files[sid] = reference if content == reference else content  # one copy
+        if reference is None or content == reference:
+            continue
+        if isinstance(content, dict) and isinstance(reference, dict) and \
+                without_timings(content) == without_timings(reference):
+            continue  # two runs of one shard: equal but for the run-dependent render time
+        if not isinstance(content, dict):
+            problems.add("edited_record", sid, rel, f"{rel}: not a JSON record (torn or edited)")
+            continue
+        if _copy_faulty(content, sample, state, False) or not _copy_faulty(reference, sample, state, False):
+            keys = ", ".join(_diff_keys(content, reference)[:5])
+            problems.add("edited_record", sid, rel,
+                         f"{rel}: differs from the shard's record of {sid} at {keys}")
+
+
+def marker_record(state: State, sample) -> dict | None:
+    marker = state.markers.get(sample.shard_id)
+    if not isinstance(marker, dict) or not isinstance(marker.get("records"), list):
+        return None
+    for record in marker["records"]:
+        if isinstance(record, dict) and record.get("id") == sample.sample_id:
+            return record
+    return None
+
+
+def referenced_files(primary: dict, state: State) -> dict:
+    """rel path -> (first id, entry, listed_by, expectation) of every file a record lists."""
+    files: dict = {}
+    for sid, (source, record) in primary.items():
+        entries = record.get("files")
+        if not isinstance(entries, list):
+            continue
+        sample = state.planned.get(sid)
+        expect = expectations(state.spec, sample.kind if sample else None,
+                               sample.svbrdf_family if sample else None)
+        for entry in entries:
+            if not isinstance(entry, dict) or entry.get("role") not in expect:
+                continue
+            rel = entry.get("path")
+            if not _safe_rel(rel) or rel in files:
+                continue
+            owner = sid if entry["role"] == "render" else record.get("material_id", sid)
+            files[rel] = (owner, entry, source.path, expect[entry["role"]])
+    return files
+
+
+def _trusted(facts: FileFacts | None, files: dict) -> bool:
+    """Read, decoded, and the bytes its (first) record describes."""
+    return facts is not None and facts.decoded and facts.sha256 is not None and \
+        facts.sha256 == files.get(facts.rel, (None, {}))[1].get("sha256")
+
+
+def check_files_and_records(primary: dict, files: dict, state: State, problems: Problems,
+                             fast: bool) -> None:
+    """File problems (once per file) and each record's agreement with plan, headers, stats."""
+    for rel, (owner, entry, listed_by, _expect) in files.items():
+        _file_problems(state.facts[rel], entry, owner, listed_by, problems)
+    for sid, (source, record) in primary.items():
+        sample = state.planned.get(sid)
+        if sample is None:
+            continue
+        entries = {e.get("role"): e for e in record.get("files", []) if isinstance(e, dict)} \
+            if isinstance(record.get("files"), list) else {}
+        messages = _plan_discrepancies(record, sample, state)
+        for role, entry in entries.items():
+            rel = entry.get("path")
+            if not _safe_rel(rel):
+                messages.append(f"files[{role}].path {rel!r} is not a path inside the dataset")
+                continue
+            first = files.get(rel)
+            if first is not None and first[1] is not entry and \
+                    (first[1].get("bytes"), first[1].get("sha256")) != (entry.get("bytes"), entry.get("sha256")):
+                messages.append(f"files[{role}] of {rel} has size/SHA-256 different from {first[0]}'s record")
+        render = state.facts.get((entries.get("render") or {}).get("path"))
+        maps = state.facts.get((entries.get("maps") or {}).get("path"))
+        render = render if _trusted(render, files) else None
+        maps = maps if _trusted(maps, files) else None
+        if not fast:
+            said = {m.split(" ", 1)[0] for m in messages}
+            messages += [m for m in _header_discrepancies(record, render, maps)
+                         if m.split(" ", 1)[0] not in said]
+        if messages:
+            problems.add("edited_record", sid, source.path,
+                         f"{source} ({sid}): {summarise(messages)}")
+        if fast or render is None:
+            continue
+        stats_messages = _stats_discrepancies(record, render)
+        if stats_messages:
+            problems.add("stats_mismatch", sid, source.path,
+                         f"{source} ({sid}) vs {render.rel}: {summarise(stats_messages)}")
+        for kind, message in _policy_problems(record, render):
+            problems.add(kind, sid, render.rel, f"{render.rel}: {message}")
+
+
+def _allowed_files(state: State, primary: dict) -> tuple[set, set]:
+    """(files, directories) that belong to the dataset, relative to DIR."""
+    layout = state.layout
+    files, dirs = set(ROOT_FILES), {SHARDS_DIR}
+    if state.plans is not None:
+        for shard in state.plans:
+            dirs.add(f"{SHARDS_DIR}/{shard.shard_id}")
+            files.add(layout.marker_rel(shard.shard_id))
+            for sample in shard.samples:
+                files.add(layout.record_rel(shard.shard_id, sample.sample_id))
+                files.update(rel for _role, rel in expected_files(sample, state.spec))
+        return files, dirs
+    for sid in shard_ids_on_disk(layout):
+        dirs.add(f"{SHARDS_DIR}/{sid}")
+        files.add(layout.marker_rel(sid))
+        try:
+            names = record_file_names(layout, sid) or []
+        except OSError:
+            names = []
+        files.update(f"{SHARDS_DIR}/{sid}/{n}" for n in names)
+    for _source, record in primary.values():
+        for entry in record.get("files") or []:
+            if isinstance(entry, dict) and _safe_rel(entry.get("path")):
+                files.add(entry["path"])
+    return files, dirs
+
+
+def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
+    files, dirs = _allowed_files(state, primary)
+    state.allowed_dirs = dirs
+    root = state.layout.root
+    for folder, subdirs, names in os.walk(root):
+        rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
+        rel_dir = "" if rel_dir == "." else rel_dir + "/"
+        for name in sorted(subdirs):
+            rel = rel_dir + name
+            if rel not in dirs and not os.listdir(os.path.join(folder, name)):
+                state.extra_files.append(rel)
+                problems.add("extra_file", None, rel, f"{rel}/: an empty directory that is no part of the dataset")
+        subdirs.sort()
+        for name in sorted(names):
+            rel = rel_dir + name
+            if rel in files:
+                continue
+            why = ("a temporary file left by an interrupted write" if is_temp_file(name)
+                   else "no part of the dataset: no planned record or marker refers to it")
+            state.extra_files.append(rel)
+            problems.add("extra_file", None, rel, f"{rel}: {why}")
+
+
+def render_present(record: dict, state: State) -> bool:
+    for entry in record.get("files") or []:
+        if isinstance(entry, dict) and entry.get("role") == "render":
+            facts = state.facts.get(entry.get("path"))
+            return facts is not None and facts.size is not None
+    return False

@@ -1,0 +1,220 @@
+"""One dataset file inspected: stat, or read once, hash, decode and check its layers and
+values against what the spec asks for (no record, plan or other file is consulted)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.check.report import Progress
+from pipeline.errors import USER_ERRORS
+from pipeline.render.stats import render_stats
+from pipeline.store.exr import read_exr
+
+#: Largest |length - 1| of a stored normal: half floats carry 11 significant bits, so a unit
+#: vector rounded per component is off by up to ~1e-3 in length; measured here: <= 2.5e-4.
+NORMAL_TOLERANCE = 2e-3
+#: Layers of the texture-space maps file.
+TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
+#: Channels of each map layer (pipeline.store.exr naming).
+MAP_CHANNELS = {"diffuse": 3, "specular": 3, "roughness": 1, "normal": 3, "mask": 1}
+#: Layers stored as half floats when ``storage.maps_half`` (the mask is always float32).
+HALF_LAYERS = ("diffuse", "specular", "roughness", "normal")
+
+
+@dataclass
+class FileFacts:
+    """What one read of a file showed. ``sha256`` is None when not read (fast, missing)."""
+
+    rel: str
+    size: int | None
+    sha256: str | None = None
+    error: str | None = None
+    layers: dict[str, tuple[tuple[int, ...], str]] | None = None
+    meta_json: str | None = None  # the header's metadata, kept as text: ~4x smaller than dicts
+    issues: list[tuple[str, str]] = field(default_factory=list)
+    pixel_stats: dict | None = None
+
+    @property
+    def meta(self) -> dict | None:
+        if self.meta_json is None:
+            return None
+        meta = json.loads(self.meta_json)
+        return meta if isinstance(meta, dict) else {}
+
+    @property
+    def decoded(self) -> bool:
+        return self.layers is not None
+
+    @property
+    def content_ok(self) -> bool:
+        return self.size is not None and self.error is None and not self.issues
+
+
+@dataclass(frozen=True)
+class Expect:
+    role: str
+    layers: dict[str, tuple[int, str]] | None  # name -> (channels, dtype name); None: any
+    shape: tuple[int, int] | None
+
+
+def expectations(spec, material_kind: str | None, family: str | None) -> dict[str, Expect]:
+    """What each role's EXR must hold, from the spec (None: only what every file needs)."""
+    if spec is None:
+        return {"render": Expect("render", {"render": (3, "float32")}, None),
+                "maps": Expect("maps", None, None), "texture": Expect("texture", None, None)}
+    res = (spec.render.resolution, spec.render.resolution)
+    storage = spec.storage
+
+    def dtype(name):
+        return "float16" if storage.maps_half and name in HALF_LAYERS else "float32"
+
+    maps = {name: (MAP_CHANNELS[name], dtype(name)) for name in storage.layers}
+    texture = {name: (MAP_CHANNELS[name], dtype(name)) for name in TEXTURE_LAYERS}
+    if material_kind == "uniform":
+        texture_shape = (1, 1)
+    elif family is not None:
+        texture_shape = (spec.materials.texture_resolution,) * 2
+    else:
+        texture_shape = None  # imported maps keep their file's size
+    return {"render": Expect("render", {"render": (3, "float32")}, res),
+            "maps": Expect("maps", maps, res),
+            "texture": Expect("texture", texture, texture_shape)}
+
+
+def layer_issues(layers: dict[str, np.ndarray], expect: Expect) -> list[tuple[str, str]]:
+    """bad_layers issues: missing or extra layers, wrong channels, size or sample type."""
+    issues = []
+    if expect.layers is None:
+        return issues
+    missing = [n for n in expect.layers if n not in layers]
+    extra = [n for n in layers if n not in expect.layers]
+    if missing:
+        issues.append(("bad_layers", f"layer(s) {', '.join(missing)} missing"))
+    if extra:
+        issues.append(("bad_layers", f"unexpected layer(s) {', '.join(sorted(extra))}"))
+    for name, (channels, dtype) in expect.layers.items():
+        arr = layers.get(name)
+        if arr is None:
+            continue
+        if arr.shape[2] != channels:
+            issues.append(("bad_layers", f"layer {name} has {arr.shape[2]} channel(s), expected {channels}"))
+        if expect.shape is not None and tuple(arr.shape[:2]) != expect.shape:
+            issues.append(("bad_layers", f"layer {name} is {arr.shape[1]}x{arr.shape[0]} pixels, "
+                                         f"expected {expect.shape[1]}x{expect.shape[0]}"))
+        if arr.dtype.name != dtype:
+            issues.append(("bad_layers", f"layer {name} is {arr.dtype.name}, expected {dtype}"))
+    return issues
+
+
+def _range_text(values: np.ndarray) -> str:
+    return f"min {float(values.min()):.6g}, max {float(values.max()):.6g}"
+
+
+def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[tuple[str, str]]:
+    """Sanity of material maps: finite, albedos and roughness in [0, 1], mask 0/1, unit
+    normals (inside the mask for screen-space maps), nothing outside the mask."""
+    issues = []
+    inside = None
+    if screen_space and "mask" in layers:
+        inside = np.asarray(layers["mask"][..., 0], np.float32) > 0.5
+    for name in ("diffuse", "specular", "roughness", "normal", "mask"):
+        if name not in layers:
+            continue
+        values = np.asarray(layers[name], np.float32)
+        finite = np.isfinite(values)
+        if not finite.all():
+            n_nan, n_inf = int(np.isnan(values).sum()), int(np.isinf(values).sum())
+            issues.append(("non_finite", f"layer {name} has {n_nan} NaN and {n_inf} infinite value(s)"))
+        values = np.where(finite, values, 0.0)
+        if name in ("diffuse", "specular", "roughness"):
+            bad = (values < 0) | (values > 1)
+            if bad.any():
+                issues.append(("out_of_range", f"layer {name} has {int(bad.sum())} value(s) outside "
+                                               f"[0, 1] ({_range_text(values[bad])})"))
+        elif name == "mask":
+            bad = (values != 0) & (values != 1)
+            if bad.any():
+                issues.append(("out_of_range", f"layer mask has {int(bad.sum())} value(s) other than "
+                                               f"0 and 1 ({_range_text(values[bad])})"))
+        elif name == "normal" and values.shape[-1] == 3 and (inside is not None or not screen_space):
+            length = np.sqrt(np.sum(values.astype(np.float64) ** 2, axis=-1))
+            deviation = np.abs(length - 1.0)
+            if inside is not None and inside.shape == deviation.shape:
+                deviation = deviation[inside]
+            bad = deviation > NORMAL_TOLERANCE
+            if bad.any():
+                where = "inside the mask " if inside is not None else ""
+                issues.append(("normal_not_unit",
+                               f"layer normal: {int(bad.sum())} pixel(s) {where}not of unit length "
+                               f"(worst |length - 1| = {float(deviation.max()):.3g}; tolerance "
+                               f"{NORMAL_TOLERANCE:g})"))
+        if inside is not None and name != "mask" and values.shape[:2] == inside.shape:
+            outside = np.any(values[~inside] != 0, axis=-1)
+            if outside.any():
+                issues.append(("out_of_range", f"layer {name} is non-zero at {int(outside.sum())} "
+                                               "pixel(s) outside the mask"))
+    return issues
+
+
+def inspect_file(root: str, rel: str, expect: Expect, recorded_bytes, fast: bool) -> FileFacts:
+    """Stat (fast) or read, hash, decode and check one file, reading it once."""
+
+    path = os.path.join(root, *rel.split("/"))
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return FileFacts(rel, None)
+    if not os.path.isfile(path):
+        return FileFacts(rel, size, error="not a regular file")
+    facts = FileFacts(rel, size)
+    if fast or (recorded_bytes is not None and size != recorded_bytes):
+        return facts  # a size mismatch is reported as such; its content is not the record's
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        facts.error = f"cannot be read ({exc.strerror})"
+        return facts
+    facts.sha256 = hashlib.sha256(data).hexdigest()
+    try:
+        image = read_exr(data)
+    except USER_ERRORS as exc:
+        facts.error = str(exc).replace("<bytes>", "").replace("EXR :", "EXR:").strip()
+        return facts
+    facts.layers = {name: (tuple(arr.shape), arr.dtype.name) for name, arr in image.layers.items()}
+    facts.meta_json = json.dumps(image.meta, separators=(",", ":"))
+    facts.issues = layer_issues(image.layers, expect)
+    if expect.role == "render":
+        if "render" in image.layers:
+            facts.pixel_stats = render_stats(image.layers["render"])
+    else:
+        facts.issues += map_value_issues(image.layers, screen_space=expect.role == "maps")
+    return facts
+
+
+def inspect_all(root: str, files: dict, fast: bool, progress, found: dict, threads, start) -> int:
+    """Inspect ``files`` (rel path -> (owner, entry, listed_by, expectation)) on ``threads``
+    threads, putting each one's facts in ``found``; return the bytes read."""
+    total, bytes_read = len(files), 0
+    items = list(files.items())
+
+    def one(item):
+        rel, (_owner, entry, _src, expect) = item
+        return inspect_file(root, rel, expect, entry.get("bytes"), fast)
+
+    n_threads = threads or min(4, os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=max(1, n_threads)) as pool:
+        for done, facts in enumerate(pool.map(one, items), start=1):
+            found[facts.rel] = facts
+            if facts.sha256 is not None:
+                bytes_read += facts.size or 0
+            if progress is not None:
+                progress(Progress("check", done, total, facts.rel, bytes_read, time.perf_counter() - start))
+    return bytes_read

@@ -1,0 +1,153 @@
+"""The steps of :func:`pipeline.check.validate.repair`: settle which record each sample
+keeps, delete what is bad, and resume the build for the shards this touches."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+from pipeline.check.crosscheck import State, expected_files, marker_record, record_ok
+from pipeline.check.inspect import expectations, inspect_file
+from pipeline.check.report import Progress, RepairAction
+from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
+from pipeline.errors import ShaderballError
+from pipeline.run.build import build
+from pipeline.store.atomic import write_text_atomic
+from pipeline.store.layout import DESCRIPTION_FILE, SPEC_FILE, Layout
+from pipeline.store.records import dumps, read_json
+
+
+def restore_spec(state: State, spec_path: str) -> RepairAction:
+    """Write ``spec_path`` as the snapshot, if it is the spec dataset.json says was built."""
+
+    description = read_json(state.layout.description)
+    recorded = description.get("spec_digest") if isinstance(description, dict) else None
+    if not recorded:
+        raise ShaderballError(f"--spec: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
+                              "spec_digest, so no spec can be confirmed as the one it was built from")
+    spec = parse_spec(spec_path)
+    if spec_digest(spec) != recorded:
+        raise ShaderballError(f"--spec: {spec_path!r} has digest {spec_digest(spec)[:12]}, "
+                              f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: "
+                              "not this dataset's spec")
+    write_text_atomic(state.layout.spec, spec_to_toml(spec))
+    return RepairAction("restore_spec", SPEC_FILE, f"{SPEC_FILE}: restored from {spec_path} (digest "
+                                                   f"{recorded[:12]} matches {DESCRIPTION_FILE})")
+
+
+def remove_file(path: str) -> bool:
+    try:
+        os.remove(path)
+        return True
+    except FileNotFoundError:
+        return False
+
+
+def delete_extra_files(state: State, actions: list) -> None:
+    """Delete extra files, then the directories they leave empty (unless the layout's)."""
+    root = state.layout.root
+    for rel in state.extra_files:
+        path = state.layout.path(rel)
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            remove_file(path)
+        actions.append(RepairAction("delete_extra", rel, f"{rel}: deleted (no part of the dataset)"))
+    for rel in state.extra_files:
+        parent = os.path.dirname(rel)
+        while parent and parent not in state.allowed_dirs:
+            try:
+                os.rmdir(os.path.join(root, *parent.split("/")))
+            except OSError:
+                break  # not empty, or gone
+            parent = os.path.dirname(parent)
+
+
+def inspect_unlisted(state: State) -> None:
+    """Read the planned files no manifest record listed (a torn or lost manifest line), so
+    the marker's or record file's copy can be judged."""
+    for sample in state.planned.values():
+        expect = expectations(state.spec, sample.kind, sample.svbrdf_family)
+        for role, rel in expected_files(sample, state.spec):
+            if rel not in state.facts:
+                state.facts[rel] = inspect_file(state.layout.root, rel, expect[role], None, False)
+
+
+def _candidates(state: State, sample) -> list[dict]:
+    """The copies of a sample's record, the marker's first (the manifest is made from it)."""
+    out = []
+    for record in (marker_record(state, sample), state.record_files.get(sample.sample_id),
+                   state.manifest.get(sample.sample_id)):
+        if isinstance(record, dict) and record not in out:
+            out.append(record)
+    return out
+
+
+def chosen_record(state: State, sample) -> dict | None:
+    """The record repair keeps for ``sample``: the first copy that checks out, preferring one
+    whose material entries match intact material files."""
+    good = [r for r in _candidates(state, sample) if record_ok(r, sample, state)]
+
+    def material_match(record):
+        for entry in record.get("files", [])[1:]:
+            facts = state.facts.get(entry.get("path"))
+            if facts is not None and facts.content_ok and facts.sha256 is not None and \
+                    (facts.size, facts.sha256) != (entry.get("bytes"), entry.get("sha256")):
+                return False
+        return True
+
+    preferred = [r for r in good if material_match(r)]
+    return (preferred or good or [None])[0]
+
+
+def settle_samples(state: State, chosen: dict, actions: list) -> set:
+    """Delete renders without a good record, and material files that are bad; return the
+    shards this touches."""
+    layout, affected = state.layout, set()
+    for sid, sample in state.planned.items():
+        if chosen[sid] is not None:
+            continue
+        affected.add(sample.shard_id)
+        rel = layout.render_rel(sample.shard_id, sid)
+        remove_file(layout.path(rel))
+        remove_file(layout.path(layout.record_rel(sample.shard_id, sid)))
+        state.record_files[sid] = None
+        actions.append(RepairAction("rerender", rel, f"{rel}: no intact copy of its record and file; re-rendered"))
+    for shard in state.plans:
+        for material in shard.materials:
+            kept = [chosen[s.sample_id] for s in material.samples]
+            for role, rel in expected_files(material.samples[0], state.spec)[1:]:
+                facts = state.facts.get(rel)
+                entries = {(e.get("bytes"), e.get("sha256")) for r in kept if r
+                           for e in r.get("files", []) if isinstance(e, dict) and e.get("path") == rel}
+                if facts is not None and facts.content_ok and facts.sha256 is not None and \
+                        (facts.size, facts.sha256) in entries:
+                    continue
+                affected.add(shard.shard_id)
+                remove_file(layout.path(rel))
+                actions.append(RepairAction("regenerate", rel, f"{rel}: bad or missing {role} file; regenerated"))
+    return affected
+
+
+def write_good_record_files(state: State, chosen: dict, affected: set, actions: list) -> None:
+    """Record files must say what the kept records say: a resumed build trusts a record file
+    whose files verify, whatever else it says. Missing ones are written in affected shards."""
+
+    layout = state.layout
+    for sid, sample in state.planned.items():
+        good, current = chosen[sid], state.record_files.get(sid)
+        if good is None or current == good or (current is None and sample.shard_id not in affected):
+            continue
+        rel = layout.record_rel(sample.shard_id, sid)
+        write_text_atomic(layout.path(rel), dumps(good) + "\n")
+        actions.append(RepairAction("rewrite_record", rel, f"{rel}: rewritten from the intact copy"))
+
+
+def rebuild(root: str, workers: int, progress, n_shards: int) -> None:
+    """Resume the build: the shards without a marker are rebuilt, the manifest rewritten."""
+
+    def forward(p):
+        if progress is not None:
+            progress(Progress("repair", p.done, p.total, f"{n_shards} shard(s)", 0, p.elapsed_s))
+
+    build(Layout(root).spec, root, workers=workers, progress=forward)
