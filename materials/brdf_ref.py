@@ -15,6 +15,17 @@ roughness, ``n`` the normal, ``l`` = ``wo`` (towards the light) and ``v`` = ``wi
 ``G`` is the Smith-Schlick masking already divided by ``n.l n.v``, hence the
 ``/ 4`` and no ``/ (4 n.l n.v)``.
 
+Two models share these formulas (``model=``, :data:`MODELS`):
+
+* ``"shaderball"`` (the default): the formulas as written. D integrates to 1,
+  so a white furnace keeps all the light of a mirror-like metal.
+* ``"deschaintre2018"``: the two floors of Deschaintre et al.'s own code,
+  ``D = alpha^2 / (pi max(0.001, (n.h)^2 (alpha^2 - 1) + 1)^2)`` and
+  ``G1(x) = 1 / max(0.001, x (1 - k) + k)``. The first acts for every
+  ``r < 0.001^(1/4) = 0.178`` and caps the peak of D, which then no longer
+  integrates to 1 (``python -m pipeline.figures.albedo_table`` measures the
+  loss); the second only for ``r < 0.045`` at cosines below ~1e-3.
+
 Forms and floors that differ from the text above (each one is an exact
 rewrite, or a floor that only acts where the text has no finite value); the
 plugin uses the same ones, see docs/materials.md:
@@ -31,7 +42,10 @@ plugin uses the same ones, see docs/materials.md:
   never negative.
 * The BRDF is one-sided: zero unless ``n.v > 0`` and ``n.l > 0`` (Mitsuba's
   convention; the text multiplies by ``n.l`` clamped at 0, which only covers
-  the light side).
+  the light side). A normal map never shows a viewer the back of its normal:
+  :func:`mapped_normal` mirrors such a normal's tangential part, as Mitsuba's
+  ``normalmap`` does in the renders, and :func:`eval_normal_mapped` evaluates
+  the BRDF with it.
 * Degenerate geometry gives 0, never NaN: a zero-length ``n``, ``wi`` or
   ``wo``, or ``|wi + wo|^2 < 1e-20`` (``wo = -wi``, only possible with both
   directions on the horizon, where the BRDF is zero anyway).
@@ -45,6 +59,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.errors import MaterialError
+
+#: The material models (see the module docstring); the first is the default.
+MODELS = ("shaderball", "deschaintre2018")
+DEFAULT_MODEL = MODELS[0]
+#: Deschaintre et al.'s floor on the denominators of GGX D and Smith-Schlick G1.
+DESCHAINTRE_FLOOR = 0.001
+#: Where the GGX floor acts, D is flat-topped with the tails of GGX: shaped like GGX with
+#: alpha^2 = DESCHAINTRE_FLOOR. "deschaintre2018" samples and integrates with at least this alpha.
+DESCHAINTRE_SAMPLING_ALPHA_MIN = DESCHAINTRE_FLOOR**0.5
 #: Roughness is clipped to this range before alpha = roughness^2.
 ROUGHNESS_MIN = 0.001
 ROUGHNESS_MAX = 1.0
@@ -53,6 +77,29 @@ FRESNEL_C1 = -5.55473
 FRESNEL_C2 = -6.98316
 #: |wi + wo|^2 below this is treated as an undefined half vector (BRDF = 0).
 HALF_VECTOR_MIN_SQUARED = 1e-20
+
+
+def check_model(model) -> str:
+    """``model`` if it is one of :data:`MODELS`; else a MaterialError naming it and the choices."""
+    if not isinstance(model, str) or model not in MODELS:
+        raise MaterialError(f"model: {model!r} is not allowed; allowed: {', '.join(MODELS)}")
+    return model
+
+
+def _floored(model) -> bool:
+    return check_model(model) == "deschaintre2018"
+
+
+def sampling_alpha(alpha, model=DEFAULT_MODEL):
+    """The GGX alpha whose distribution of half vectors the model is sampled and integrated with.
+
+    ``alpha`` for "shaderball"; for "deschaintre2018" at least
+    :data:`DESCHAINTRE_SAMPLING_ALPHA_MIN`, because its floored D is spread over
+    that lobe's width however small alpha is.
+    """
+    if _floored(model):
+        return np.maximum(alpha, DESCHAINTRE_SAMPLING_ALPHA_MIN)
+    return alpha
 
 
 def alpha_from_roughness(roughness):
@@ -68,18 +115,23 @@ def fresnel(specular, cos_vh):
     return s + (1.0 - s) * np.exp2((FRESNEL_C1 * c + FRESNEL_C2) * c)
 
 
-def ggx_d(sin2_h, cos2_h, alpha):
-    """GGX distribution in the cancellation-free form (see module docstring)."""
+def ggx_d(sin2_h, cos2_h, alpha, model=DEFAULT_MODEL):
+    """GGX distribution in the cancellation-free form (see module docstring), floored per ``model``."""
     a2 = alpha * alpha
     denom = sin2_h + a2 * cos2_h
+    if _floored(model):
+        denom = np.maximum(DESCHAINTRE_FLOOR, denom)
     return a2 / (np.pi * denom * denom)
 
 
-def g1_divided(cos_theta, alpha):
-    """Smith-Schlick G1 divided by the cosine: 1 / (x (1 - k) + k), k = alpha / 2."""
+def g1_divided(cos_theta, alpha, model=DEFAULT_MODEL):
+    """Smith-Schlick G1 divided by the cosine: 1 / (x (1 - k) + k), k = alpha / 2, floored per ``model``."""
     k = 0.5 * alpha
     x = np.clip(cos_theta, 0.0, 1.0)
-    return 1.0 / (x * (1.0 - k) + k)
+    denom = x * (1.0 - k) + k
+    if _floored(model):
+        denom = np.maximum(DESCHAINTRE_FLOOR, denom)
+    return 1.0 / denom
 
 
 def _unit(v):
@@ -90,7 +142,8 @@ def _unit(v):
 
 
 def eval_brdf(
-    wi, wo, n, diffuse, specular, roughness, *, lobes=("diffuse", "specular"), normalize=True
+    wi, wo, n, diffuse, specular, roughness, *, lobes=("diffuse", "specular"), normalize=True,
+    model=DEFAULT_MODEL,
 ):
     """Cosine-weighted BRDF ``f(wi, wo) * max(0, n.wo)``: what Mitsuba's ``BSDF.eval`` returns.
 
@@ -98,7 +151,8 @@ def eval_brdf(
     (shading) normal; all (..., 3) in one frame of the caller's choice, need
     not be unit. ``diffuse`` and ``specular`` are (..., 3) linear albedos,
     ``roughness`` is (...). Arguments broadcast. Returns (..., 3) float64.
-    ``lobes`` selects which terms are summed (both by default).
+    ``lobes`` selects which terms are summed (both by default); ``model`` is one
+    of :data:`MODELS`.
 
     ``normalize=False`` uses ``wi`` and ``wo`` as given (they must then be
     unit): for comparisons with the float32 plugin, which takes Mitsuba's unit
@@ -133,16 +187,51 @@ def eval_brdf(
         cos_h = np.sum(n_u * h, axis=-1)
         sin2_h = np.sum(np.cross(n_u, h) ** 2, axis=-1)
         cos_vh = np.sum(wi_u * h, axis=-1)
-        d_term = ggx_d(sin2_h, cos_h * cos_h, alpha)
-        g_i = g1_divided(cos_i, alpha)
-        cos_g_o = np.clip(cos_o, 0.0, 1.0) * g1_divided(cos_o, alpha)
+        d_term = ggx_d(sin2_h, cos_h * cos_h, alpha, model)
+        g_i = g1_divided(cos_i, alpha, model)
+        cos_g_o = np.clip(cos_o, 0.0, 1.0) * g1_divided(cos_o, alpha, model)
         spec = (d_term * g_i * cos_g_o / 4.0)[..., None] * fresnel(s, cos_vh[..., None])
         out = out + np.where(h_ok[..., None], spec, 0.0)
     out = np.broadcast_to(out, np.broadcast_shapes(np.shape(out), valid.shape + (3,)))
     return np.where(valid[..., None], out, 0.0)
 
 
-def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_phi=256):
+def mapped_normal(wi, normal):
+    """The shading normal a tangent-space normal map gives a viewer at ``wi``: the one convention.
+
+    ``wi`` and ``normal`` (..., 3) are in the unperturbed shading frame (its
+    normal is z). Where the viewer would see the back of the mapped normal,
+    ``wi.z (wi . n) <= 0``, its tangential part is mirrored, ``(x, y, z) ->
+    (-x, -y, z)``, which puts it on the viewer's side whenever ``z > 0`` and
+    ``wi.z > 0``; a zero-length normal reads as (0, 0, 1). This is exactly what
+    Mitsuba's ``normalmap`` does with ``flip_invalid_normals`` (after Schuessler
+    et al. 2017), so renders, the plugin's tests and this reference agree.
+    Returns unit normals, (..., 3) float64.
+    """
+    wi = np.asarray(wi, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64)
+    n, wi = np.broadcast_arrays(n, wi)
+    behind = wi[..., 2] * np.sum(wi * n, axis=-1) <= 0.0
+    n = np.where(behind[..., None], n * np.array([-1.0, -1.0, 1.0]), n)
+    unit, ok = _unit(n)
+    return np.where(ok[..., None], unit, np.array([0.0, 0.0, 1.0]))
+
+
+def eval_normal_mapped(wi, wo, normal, diffuse, specular, roughness, **options):
+    """:func:`eval_brdf` under a tangent-space normal map, as the renders evaluate it.
+
+    ``wi``, ``wo`` and the map's ``normal`` are in the unperturbed shading frame
+    (normal z). The BRDF is evaluated with :func:`mapped_normal`, and is zero
+    where ``wo`` is below the unperturbed surface (``wo.z <= 0``), as in
+    Mitsuba's wrapper. ``options`` are :func:`eval_brdf`'s.
+    """
+    wo = np.asarray(wo, dtype=np.float64)
+    value = eval_brdf(wi, wo, mapped_normal(wi, normal), diffuse, specular, roughness, **options)
+    return np.where((wo[..., 2] > 0.0)[..., None], value, 0.0)
+
+
+def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_phi=256,
+                           model=DEFAULT_MODEL):
     """Directional albedo of the specular term, ``int F G D / 4 cos_o dwo``, for ``n = z``.
 
     Deterministic quadrature in half-vector space: the midpoint rule on the
@@ -150,10 +239,13 @@ def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_p
     the integrand there is ``F G1(i) cos_o G1(o) (wi.h) / cos_h``, bounded and
     smooth except where ``wo`` crosses the horizon. Scalar arguments; the
     specular albedo ``specular`` may be a scalar or an RGB triple.
-    Accurate to about 1e-3 absolute at the default grid.
+    Accurate to about 1e-3 absolute at the default grid. For "deschaintre2018"
+    the half vectors are those of :func:`sampling_alpha` and the integrand is
+    multiplied by the (bounded) ratio of the floored D to that GGX D.
     """
     alpha = float(alpha_from_roughness(roughness))
-    a2 = alpha * alpha
+    alpha_q = float(sampling_alpha(alpha, model))
+    a2 = alpha_q * alpha_q
     cos_i = float(np.clip(cos_theta_i, 0.0, 1.0))
     if cos_i <= 0.0:
         return np.zeros(np.shape(specular))
@@ -175,7 +267,11 @@ def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_p
     cos_ih = h @ wi
     wo_z = 2.0 * cos_ih * h[..., 2] - cos_i
     ok = (wo_z > 0.0) & (cos_ih > 0.0)
-    base = g1_divided(cos_i, alpha) * np.clip(wo_z, 0, 1) * g1_divided(wo_z, alpha) * cos_ih / h[..., 2]
+    base = (g1_divided(cos_i, alpha, model) * np.clip(wo_z, 0, 1) * g1_divided(wo_z, alpha, model)
+            * cos_ih / h[..., 2])
+    if _floored(model):
+        sin2_h, cos2_h = (sin_h * sin_h)[:, None], (cos_h * cos_h)[:, None]
+        base = base * ggx_d(sin2_h, cos2_h, alpha, model) / ggx_d(sin2_h, cos2_h, alpha_q)
     base = np.where(ok, base, 0.0)
     spec = np.atleast_1d(np.asarray(specular, dtype=np.float64))
     result = np.array([np.mean(base * fresnel(sv, cos_ih)) for sv in spec.ravel()])
@@ -183,7 +279,10 @@ def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_p
 
 
 def directional_albedo(roughness, cos_theta_i, diffuse, specular, **grid):
-    """Total directional albedo ``int f cos_o dwo`` for ``n = z`` (diffuse part is exact)."""
+    """Total directional albedo ``int f cos_o dwo`` for ``n = z`` (diffuse part is exact).
+
+    ``grid`` goes to :func:`spec_albedo_quadrature` (its ``model`` too).
+    """
     d = np.maximum(np.asarray(diffuse, dtype=np.float64), 0.0)
     s = np.clip(np.asarray(specular, dtype=np.float64), 0.0, 1.0)
     if cos_theta_i <= 0.0:

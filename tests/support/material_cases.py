@@ -48,3 +48,78 @@ HARD_NORMALS = np.array(
         [3.0, 0.0, 4.0],
     ]
 )
+
+
+def deschaintre_code_brdf(view, light, normal, diffuse, specular, roughness):
+    """Deschaintre et al. 2018's rendering code transcribed to numpy, float64: ``f cos`` per RGB.
+
+    From ``material_net.py`` of valentin-deschaintre/Single-Image-SVBRDF-Capture-rendering-loss
+    (``render``, ``render_D_GGX_Substance``, ``render_G_GGX_Substance``, ``G1_Substance``,
+    ``render_F_GGX_Substance``, ``render_diffuse_Substance``), without the lamp's intensity
+    and distance factors. Their ``wi`` is the light, their ``wo`` the viewer; every dot
+    product is clamped at 0 (``relu``) and nothing else is: a viewer below the normal
+    gets ``G1(0) = 1 / max(0.001, k)``, not 0. Arrays (..., 3) broadcast; roughness (...).
+    """
+
+    def unit(v):
+        v = np.asarray(v, dtype=np.float64)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def dot(a, b):
+        return np.sum(a * b, axis=-1, keepdims=True)
+
+    wi, wo, n = unit(light), unit(view), unit(normal)
+    h = unit((wi + wo) / 2.0)
+    diffuse = np.clip(np.asarray(diffuse, dtype=np.float64), 0.0, 1.0)
+    specular = np.clip(np.asarray(specular, dtype=np.float64), 0.0, 1.0)
+    roughness = np.maximum(np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0), 0.001)[..., None]
+    n_dot_h = np.maximum(dot(n, h), 0.0)
+    n_dot_l = np.maximum(dot(n, wi), 0.0)
+    n_dot_v = np.maximum(dot(n, wo), 0.0)
+    v_dot_h = np.maximum(dot(wo, h), 0.0)
+
+    alpha = roughness**2
+    under_d = 1.0 / np.maximum(0.001, n_dot_h**2 * (alpha**2 - 1.0) + 1.0)
+    d_term = (alpha * under_d) ** 2 / np.pi
+    k = alpha / 2.0
+
+    def g1(n_dot_w):
+        return 1.0 / np.maximum(n_dot_w * (1.0 - k) + k, 0.001)
+
+    g_term = g1(n_dot_l) * g1(n_dot_v)
+    f_term = specular + (1.0 - specular) * 2.0 ** ((-5.55473 * v_dot_h - 6.98316) * v_dot_h)
+    result = f_term * (g_term * d_term * 0.25) + diffuse * (1.0 - specular) / np.pi
+    return result * n_dot_l
+
+
+def floor_cases(rng, count: int):
+    """(wi, wo, roughness) in n = z where Deschaintre et al.'s floors act, plus a label per case.
+
+    Half are near-mirror pairs (the half vector within a few lobe widths of n) with
+    r < 0.178, where their GGX floor caps D; half have r < 0.045 and a cosine below
+    1e-3, where their Smith floor acts. Both directions are above the surface.
+    """
+    half = count // 2
+
+    def at(theta, phi):
+        return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
+
+    r_ggx = rng.uniform(0.001, 0.177, half)
+    theta_h = rng.uniform(0.0, 3.0, half) * np.maximum(r_ggx**2, 0.002)
+    h = at(theta_h, rng.uniform(0, 2 * np.pi, half))
+    wi_ggx = at(rng.uniform(0.0, 1.3, half), rng.uniform(0, 2 * np.pi, half))
+    wo_ggx = 2.0 * np.sum(wi_ggx * h, axis=-1, keepdims=True) * h - wi_ggx
+
+    rest = count - half
+    r_smith = rng.uniform(0.0, 0.044, rest)
+    grazing = at(np.arccos(rng.uniform(1e-6, 1e-3, rest)), rng.uniform(0, 2 * np.pi, rest))
+    other = at(rng.uniform(0.0, 1.5, rest), rng.uniform(0, 2 * np.pi, rest))
+    swap = rng.uniform(size=rest) < 0.5
+    wi_smith = np.where(swap[:, None], grazing, other)
+    wo_smith = np.where(swap[:, None], other, grazing)
+
+    wi = np.concatenate([wi_ggx, wi_smith])
+    wo = np.concatenate([wo_ggx, wo_smith])
+    keep = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    labels = np.array(["ggx"] * half + ["smith"] * rest)
+    return wi[keep], wo[keep], np.concatenate([r_ggx, r_smith])[keep], labels[keep]
