@@ -103,7 +103,7 @@ for path in shards:
             if not member.isfile():
                 raise ValueError(f"{path}: {member.name} is not a regular file")
             key, field = member.name.split(".", 1)
-            if field in ("maps.exr", "texture.exr"):  # a new material: its maps come first
+            if field == "maps.exr":  # a new material: its maps come first
                 files = {}
             files[field] = tar.extractfile(member).read()
             if field == "render.exr":  # a sample is complete: record, render, its material's maps
