@@ -28,6 +28,7 @@ from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
 from pipeline.run.cluster import ClusterOptions, job_script
+from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
 from sky.emitter import DEFAULT_SUN, SUN_MODES
 
 
@@ -302,6 +303,46 @@ def info_cmd(directory, as_json):
         click.echo(json.dumps(info.to_dict(), sort_keys=True, indent=1))
         return
     for line in info.lines():
+        click.echo(line)
+
+
+@main.command("study")
+@click.argument("spec", type=click.Path(dir_okay=False))
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
+                   "report.md. Re-running the same command resumes; another request is refused.")
+@click.option("--samples", type=int, default=12, show_default=True,
+              help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and "
+                   "roughness; 1 to 1000.")
+@click.option("--reference-spp", type=int, default=4096, show_default=True,
+              help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
+                   "studied, at most 65536.")
+@click.option("--resolution", type=int, default=None,
+              help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's].")
+@click.option("--ladder", default="1,2,4,8,16,32,64,128,150,256,512,1024", show_default=True,
+              help="spp ladder of the independent sampler, comma-separated, 1 to 16384 (the spec's spp is "
+                   "always added).")
+@click.option("--configs", "families", default="all", show_default=True,
+              help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, depth, "
+                   "rr, sun, clamp, robust, adaptive (the ladder is always measured).")
+@click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout (progress stays on stderr).")
+@_friendly_errors
+def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, no_flip, as_json):
+    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
+
+    def progress(p):
+        click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {_format_seconds(p['elapsed_s'])}", err=True)
+
+    req = StudyRequest(spec=spec, out=out, samples=samples, reference_spp=reference_spp, resolution=resolution,
+                       ladder=parse_ladder(ladder), families=parse_families(families), flip=not no_flip)
+    summary = run_study(req, progress=progress)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(summary.to_dict(), sort_keys=True, indent=1))
+        return
+    for line in summary.lines():
         click.echo(line)
 
 

@@ -610,9 +610,10 @@ class RenderSection(_Section):
                           unit="radiance (W m^-2 sr^-1)")
     target_error: float = _field(0.0, rule=_Float(*TARGET_ERROR_RANGE),
                                  doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
-                                     "the moment integrator's relative RMS standard error of the luminance on the "
-                                     "ball is at most this, or spp (then the cap) is reached; each render records "
-                                     "the spp used. 0: off, every render takes spp.")
+                                     "the moment integrator's estimate of the relative RMS error of the luminance on "
+                                     "the ball, sqrt(mean(var / (Y^2 + 0.01))), the square root of the relMSE the "
+                                     "study ranks by, is at most this, or spp (then the cap) is reached; each "
+                                     "render records the spp used. 0: off, every render takes spp.")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,365 @@
+"""`shaderball study SPEC --out DIR`: render references and configurations, measure, report.
+
+Order of work: the selection (:mod:`pipeline.study.select`), then every sample's
+reference (the expensive part, written first so a killed study keeps them), then every
+configuration of every sample, each row written as soon as it is measured. Re-running the
+same command on the same folder resumes: references and rows already written are kept;
+another request on the same folder is refused. Nothing is written before every option
+and the spec have been checked.
+
+Time is that of the render alone, kernels warm: before each timed render the same scene
+is rendered once at 1 spp (untimed), which compiles its kernels (Mitsuba compiles per
+scene structure and resolution, not per spp). CPU time is the process's over all
+threads (time.process_time), so it counts both render threads; post-processes (OIDN,
+robust combinations) are timed apart and added.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import time
+import zlib
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from geometry import build_shaderball, default_camera
+from pipeline.dataset.materialize import make_material
+from pipeline.dataset.plan import plan_dataset
+from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.neural.tonemap import hdr_to_srgb8
+from pipeline.render.gbuffer import load_gbuffer
+from pipeline.render.limits import RESOLUTION_RANGE
+from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
+from pipeline.render.raster import project_material
+from pipeline.render.renderer import RenderSettings, luminance_variance, render_pass, render_scene, scene_dict
+from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
+from pipeline.study import measure as m
+from pipeline.study.configs import DEFAULT_LADDER, FAMILIES, Config, study_configs
+from pipeline.study.denoise import denoise, guides, shape_ids_and_normals
+from pipeline.study.report import write_outputs
+from pipeline.study.select import select_samples
+from sky import Light
+
+REQUEST_FILE = "request.json"
+MAX_LADDER_SPP = 16384
+
+
+@dataclass(frozen=True)
+class StudyRequest:
+    spec: str
+    out: str
+    samples: int = 12
+    reference_spp: int = 4096
+    resolution: int | None = None  # default: the spec's
+    ladder: tuple[int, ...] = DEFAULT_LADDER
+    families: tuple[str, ...] = FAMILIES
+    scan: int = 60  # materials of the plan whose lightings are candidates
+    flip: bool = True  # HDR-FLIP (the slowest metric)
+
+
+@dataclass
+class StudySummary:
+    out: str
+    samples: int
+    configs: int
+    rows: int
+    rendered: int
+    reused: int
+    seconds: float
+    recommendations: dict = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        out = [f"study: {self.samples} samples x {self.configs} configurations = {self.rows} rows "
+               f"({self.rendered} measured now, {self.reused} kept) in {self.seconds:.0f} s",
+               f"wrote {self.out}/study.json, study.csv, pareto.png, report.md"]
+        for key, rec in self.recommendations.items():
+            if rec:
+                out.append(f"{key}: {rec['config']} ({rec['note']})")
+        return out
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def parse_ladder(text: str) -> tuple[int, ...]:
+    """``"1,2,4,150"`` -> (1, 2, 4, 150); refused naming --ladder."""
+    allowed = f"comma-separated integers from 1 to {MAX_LADDER_SPP}"
+    try:
+        values = tuple(int(t) for t in str(text).split(","))
+    except ValueError:
+        raise bad_value("--ladder", text, allowed) from None
+    if not values or any(not 1 <= v <= MAX_LADDER_SPP for v in values):
+        raise bad_value("--ladder", text, allowed)
+    return tuple(sorted(set(values)))
+
+
+def parse_families(text: str) -> tuple[str, ...]:
+    """``"ladder,denoise"`` or ``"all"`` -> families; refused naming --configs."""
+    if str(text).strip() == "all":
+        return FAMILIES
+    names = tuple(t.strip() for t in str(text).split(","))
+    if not names or any(n not in FAMILIES for n in names):
+        raise bad_value("--configs", text, "all, or comma-separated names from " + ", ".join(FAMILIES))
+    return tuple(f for f in FAMILIES if f in names or f == "ladder")
+
+
+def check_request(req: StudyRequest):
+    """The parsed spec; raises a ShaderballError naming the option, value and what is allowed."""
+    check_int("--samples", req.samples, 1, 1000)
+    if req.resolution is not None:
+        check_int("--resolution", req.resolution, *RESOLUTION_RANGE)
+    check_int("--scan", req.scan, 1, 100000)
+    parse_families(",".join(req.families))
+    parse_ladder(",".join(map(str, req.ladder)))
+    spec = parse_spec(req.spec)
+    top = max(*req.ladder, spec.render.spp)
+    ref = req.reference_spp
+    if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= 65536:
+        raise bad_value("--reference-spp", ref, f"an even integer from {2 * top} to 65536 (at least twice the "
+                                                f"largest spp studied, {top})")
+    if os.path.exists(req.out) and not os.path.isdir(req.out):
+        raise bad_value("--out", req.out, "a folder (new, or a study folder of this same request)")
+    return spec
+
+
+def request_record(req: StudyRequest, spec) -> dict:
+    return {"spec_digest": spec_digest(spec), "samples": req.samples, "reference_spp": req.reference_spp,
+            "resolution": req.resolution or spec.render.resolution, "ladder": list(req.ladder),
+            "families": list(req.families), "scan": req.scan, "flip": req.flip}
+
+
+def check_resumable(out: str, record: dict) -> None:
+    path = os.path.join(out, REQUEST_FILE)
+    if not os.path.isdir(out) or not os.listdir(out):
+        return
+    if not os.path.exists(path):
+        raise bad_value("--out", out, "an empty or new folder, or a study folder (holding request.json)")
+    with open(path, encoding="utf-8") as fh:
+        old = json.load(fh)
+    diff = sorted(k for k in set(old) | set(record) if old.get(k) != record.get(k))
+    if diff:
+        raise ShaderballError(f"--out {out}: holds a study of another request (differs in {', '.join(diff)}); "
+                              "use a new folder, or the same spec and options to resume")
+
+
+def derived_seed(*keys) -> int:
+    """A 32-bit seed keyed by integers and strings (strings through CRC-32)."""
+    words = [k if isinstance(k, int) else zlib.crc32(str(k).encode()) for k in keys]
+    return int(np.random.SeedSequence(words).generate_state(1, np.uint32)[0])
+
+
+def _finite(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+class Sampler:
+    """One study sample: its material, light, scene guides; renders it under settings."""
+
+    def __init__(self, ctx, sample, plan):
+        self.ctx, self.sample = ctx, sample
+        self.maps, _ = make_material(plan, ctx.spec)
+        self.light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+        self.screen = project_material(self.maps, ctx.gbuffer)
+
+    def scene(self, settings):
+        desc, _, _ = scene_dict(self.ctx.ball, self.ctx.camera, self.maps, self.light, settings)
+        return self.ctx.mi.load_dict(desc)
+
+    def render(self, settings: RenderSettings, seed: int, passes: tuple[int, ...] = ()) -> dict:
+        mi, mask = self.ctx.mi, self.ctx.gbuffer.mask
+        scene = self.scene(settings)
+        render_scene(mi, scene, 1, derived_seed(seed, "warm"), sampler=settings.sampler)  # compile, untimed
+        wall, cpu = time.perf_counter(), time.process_time()
+        if passes:
+            images = [render_pass(mi, scene, p, seed, k)[0] for k, p in enumerate(passes)]
+            result = {"passes": images, "spp_used": int(sum(passes)), "error_estimate": None}
+        else:
+            out = render_scene(mi, scene, settings.spp, seed, sampler=settings.sampler,
+                               target_error=settings.target_error, mask=mask)
+            result = {"image": out.image, "variance": out.variance, "spp_used": out.spp_used,
+                      "error_estimate": out.error_estimate}
+        result.update(wall_s=time.perf_counter() - wall, cpu_s=time.process_time() - cpu)
+        del scene
+        return result
+
+
+@dataclass
+class Context:
+    spec: object
+    variant: str
+    mi: object
+    ball: object
+    camera: object
+    gbuffer: object
+    base: RenderSettings
+    shape_ids: np.ndarray
+    normals: np.ndarray
+
+
+def robust_combine(passes: list[np.ndarray], post: str) -> np.ndarray:
+    """Equal passes (each (H, W, 9) moments) combined per pixel: mean, trim (drop the pass
+    brightest in luminance, average the rest) or mom (median of the pass means per channel)."""
+    images = np.stack([p[..., 0:3] for p in passes])
+    if post == "mean":
+        return images.mean(axis=0).astype(np.float32)
+    if post == "trim":
+        y = images @ m.LUMA
+        brightest = np.argmax(y, axis=0)
+        keep = np.ones(y.shape, bool)
+        np.put_along_axis(keep, brightest[None], False, axis=0)
+        return ((images * keep[..., None]).sum(axis=0) / (len(passes) - 1)).astype(np.float32)
+    if post == "mom":
+        return np.median(images, axis=0).astype(np.float32)
+    raise ValueError(post)
+
+
+def render_reference(sampler: Sampler, ctx: Context, reference_spp: int) -> dict:
+    settings = replace(ctx.base, spp=reference_spp // 2)
+    seed = sampler.sample.render_seed
+    halves = [sampler.render(settings, derived_seed(seed, "reference", h)) for h in (1, 2)]
+    image = ((halves[0]["image"].astype(np.float64) + halves[1]["image"]) / 2).astype(np.float32)
+    variance = ((halves[0]["variance"].astype(np.float64) + halves[1]["variance"]) / 4).astype(np.float32)
+    floor = m.reference_floor(image, variance, halves[0]["image"], halves[1]["image"], ctx.gbuffer.mask)
+    return {"image": image, "variance": variance, "half1": halves[0]["image"], "half2": halves[1]["image"],
+            "floor": floor, "cpu_s": halves[0]["cpu_s"] + halves[1]["cpu_s"],
+            "wall_s": halves[0]["wall_s"] + halves[1]["wall_s"]}
+
+
+def save_reference(path: str, ref: dict) -> None:
+    buf = io.BytesIO()
+    np.savez(buf, image=ref["image"], variance=ref["variance"], half1=ref["half1"], half2=ref["half2"],
+             meta=np.frombuffer(json.dumps({"floor": ref["floor"], "cpu_s": ref["cpu_s"],
+                                            "wall_s": ref["wall_s"]}).encode(), dtype=np.uint8))
+    write_bytes_atomic(path, buf.getvalue())
+
+
+def load_reference(path: str) -> dict | None:
+    try:
+        with np.load(path) as z:
+            ref = {k: z[k] for k in ("image", "variance", "half1", "half2")}
+            ref.update(json.loads(z["meta"].tobytes().decode()))
+    except (OSError, ValueError, KeyError, EOFError):
+        return None
+    return ref
+
+
+def measure_config(sampler: Sampler, ctx: Context, config: Config, ref: dict, cache: dict, flip: bool) -> dict:
+    key = config.settings_key()
+    seed = derived_seed(sampler.sample.render_seed, repr(key))
+    if key not in cache:
+        settings = replace(ctx.base, spp=config.spp, **config.changes).check()
+        for old in [k for k, v in cache.items() if "passes" in v]:  # pass stacks are big: keep one
+            del cache[old]
+        cache[key] = sampler.render(settings, seed, config.passes)  # denoisers reuse the ladder's renders
+    r = cache[key]
+    post_wall = post_cpu = 0.0
+    variance = None
+    if config.post in ("mean", "trim", "mom"):
+        wall, cpu = time.perf_counter(), time.process_time()
+        image = robust_combine(r["passes"], config.post)
+        post_wall, post_cpu = time.perf_counter() - wall, time.process_time() - cpu
+        if config.post == "mean":
+            acc = np.mean(np.stack(r["passes"]), axis=0)
+            variance = luminance_variance(acc, r["spp_used"])
+    elif config.post in ("oidn", "oidn-color"):
+        albedo = normal = None
+        if config.post == "oidn":
+            albedo, normal = guides(ctx.shape_ids, ctx.normals, sampler.screen)
+        image, post_wall, post_cpu = denoise(r["image"], albedo, normal)
+    else:
+        image, variance = r["image"], r["variance"]
+    metrics = m.measure(image, ref, ctx.gbuffer.mask, variance, flip=flip)
+    row = {"sample_id": sampler.sample.sample_id, "material_class": sampler.sample.material_class,
+           "config": config.name, "family": config.family, "post": config.post, "spp": config.spp,
+           "spp_used": r["spp_used"], "seed": seed, **config.changes,
+           "error_estimate": r["error_estimate"], "render_wall_s": r["wall_s"], "render_cpu_s": r["cpu_s"],
+           "post_wall_s": post_wall, "post_cpu_s": post_cpu, "wall_s": r["wall_s"] + post_wall,
+           "cpu_s": r["cpu_s"] + post_cpu, "floor_ball": ref["floor"]["floor_ball"], **metrics}
+    return {k: _finite(v) for k, v in row.items()}
+
+
+def run_study(req: StudyRequest, progress=None) -> StudySummary:
+    """Run (or resume) a study; see the module's docstring."""
+    started = time.perf_counter()
+    spec = check_request(req)
+    record = request_record(req, spec)
+    check_resumable(req.out, record)
+    variant = resolve_variant(spec.render.variant)
+    mi = load_mitsuba(variant)
+    ball, camera = build_shaderball(), default_camera()
+    resolution = record["resolution"]
+    gbuffer = load_gbuffer(ball, camera, resolution, variant)
+    r = spec.render
+    base = RenderSettings(resolution=resolution, spp=r.spp, max_depth=r.max_depth, integrator=r.integrator,
+                          sun=spec.lighting.sun, variant=variant).check()
+    shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
+    ctx = Context(spec, variant, mi, ball, camera, gbuffer, base, shape_ids, normals)
+    selection = select_samples(spec, req.samples, req.scan)
+    configs = study_configs(r.spp, spec.lighting.sun, req.ladder, req.families, r.max_depth)
+    wanted = {s.material_index for s in selection}
+    plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials
+             if p.material_index in wanted}
+
+    os.makedirs(os.path.join(req.out, "references"), exist_ok=True)
+    os.makedirs(os.path.join(req.out, "rows"), exist_ok=True)
+    write_text_atomic(os.path.join(req.out, REQUEST_FILE), json.dumps(record, indent=1) + "\n")
+    total, done = len(selection) * (1 + len(configs)), 0
+    counts = {"rendered": 0, "reused": 0}
+
+    def tick(what):
+        nonlocal done
+        done += 1
+        if progress is not None:
+            elapsed = time.perf_counter() - started
+            progress({"done": done, "total": total, "what": what, "elapsed_s": elapsed})
+
+    samplers, references = {}, {}
+    for s in selection:  # references first: the expensive part, kept by a killed study
+        samplers[s.sample_id] = Sampler(ctx, s, plans[s.material_index])
+        path = os.path.join(req.out, "references", f"{s.sample_id}.npz")
+        ref = load_reference(path)
+        if ref is None:
+            ref = render_reference(samplers[s.sample_id], ctx, req.reference_spp)
+            save_reference(path, ref)
+        ref["srgb8"] = hdr_to_srgb8(ref["image"])
+        references[s.sample_id] = ref
+        tick(f"reference {s.sample_id}")
+
+    rows = []
+    for s in selection:
+        path = os.path.join(req.out, "rows", f"{s.sample_id}.json")
+        try:
+            with open(path, encoding="utf-8") as fh:
+                mine = json.load(fh)
+        except (OSError, ValueError):
+            mine = {}
+        cache: dict = {}
+        for config in configs:
+            if config.name in mine:
+                counts["reused"] += 1
+            else:
+                mine[config.name] = measure_config(samplers[s.sample_id], ctx, config, references[s.sample_id],
+                                                   cache, req.flip)
+                write_text_atomic(path, json.dumps(mine, indent=0, allow_nan=False) + "\n")
+                counts["rendered"] += 1
+            rows.append(mine[config.name])
+            tick(f"{s.sample_id} {config.name}")
+
+    meta = {"request": record, "spec": os.path.abspath(req.spec), "variant": variant, "resolution": resolution,
+            "recipe": {"spp": r.spp, "max_depth": r.max_depth, "sun": spec.lighting.sun,
+                       "sampler": "independent"},
+            "selection": [s.to_dict() for s in selection], "configs": [c.to_dict() for c in configs],
+            "references": {sid: {**ref["floor"], "cpu_s": ref["cpu_s"], "wall_s": ref["wall_s"]}
+                           for sid, ref in references.items()},
+            "cpu_count": os.cpu_count(), "relmse_eps": m.RELMSE_EPS, "floor_factor": m.FLOOR_FACTOR,
+            "firefly_share": m.FIREFLY_SHARE}
+    recommendations = write_outputs(req.out, meta, rows, configs)
+    return StudySummary(req.out, len(selection), len(configs), len(rows), counts["rendered"], counts["reused"],
+                        time.perf_counter() - started, recommendations)
