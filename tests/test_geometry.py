@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from geometry import Camera, ShaderballParams, build_shaderball, default_camera
-from geometry.patches import band_frame, uv_signed_areas
 from geometry.errors import GeometryError
+from geometry.patches import band_frame, uv_signed_areas
 
 
 @pytest.fixture(scope="session")
