@@ -11,19 +11,25 @@ them. This module adds what a renderer needs on top of the formulas:
   eval / pdf of the mixture) computed by one function, so they agree;
 * lobe switches ``diffuse_lobe`` / ``specular_lobe`` that are Python-level
   branches: a lobe that is off is neither sampled nor evaluated, and the
-  compiled kernel does not contain it.
+  compiled kernel does not contain it;
+* the ``model`` switch, also a Python-level branch: "deschaintre2018" applies
+  the two floors of Deschaintre et al.'s code to D and G1 and samples its
+  specular lobe with :func:`materials.brdf_ref.sampling_alpha` (the kernel of
+  the default model is the one it was before the switch existed).
 
 Dict parameters of ``{"type": "shaderball_ct", ...}``:
 
-=================  ===============  =======  ==========================================
-name               type             default  meaning
-=================  ===============  =======  ==========================================
-``diffuse``        texture or rgb   0.5      linear diffuse albedo ``d``
-``specular``       texture or rgb   0.04     linear specular albedo ``s``
-``roughness``      texture / float  0.5      roughness ``r`` (alpha = r^2); bitmap: raw
-``diffuse_lobe``   bool             true     include the ``d (1 - s) / pi`` lobe
-``specular_lobe``  bool             true     include the ``F G D / 4`` lobe
-=================  ===============  =======  ==========================================
+=================  ===============  ==============  ======================================
+name               type             default         meaning
+=================  ===============  ==============  ======================================
+``diffuse``        texture or rgb   0.5             linear diffuse albedo ``d``
+``specular``       texture or rgb   0.04            linear specular albedo ``s``
+``roughness``      texture / float  0.5             roughness ``r`` (alpha = r^2); bitmap: raw
+``diffuse_lobe``   bool             true            include the ``d (1 - s) / pi`` lobe
+``specular_lobe``  bool             true            include the ``F G D / 4`` lobe
+``model``          string           "shaderball"    ``materials.brdf_ref.MODELS``: or
+                                                    "deschaintre2018" (their code's floors)
+=================  ===============  ==============  ======================================
 
 Normal maps go through Mitsuba's ``normalmap`` BSDF wrapping this one, with
 the map encoded by :func:`materials.maps.encode_normal_map` in a ``bitmap``
@@ -44,11 +50,16 @@ import math
 import numpy as np
 
 from materials.brdf_ref import (
+    DEFAULT_MODEL,
+    DESCHAINTRE_FLOOR,
+    DESCHAINTRE_SAMPLING_ALPHA_MIN,
     FRESNEL_C1,
     FRESNEL_C2,
     HALF_VECTOR_MIN_SQUARED,
+    MODELS,
     ROUGHNESS_MAX,
     ROUGHNESS_MIN,
+    check_model,
 )
 from materials.maps import MaterialMaps, encode_normal_map
 from pipeline.render.mitsuba_env import load_mitsuba
@@ -103,6 +114,7 @@ def bsdf_dict(
     filter_type: str = "bilinear",
     wrap_mode: str = "repeat",
     lobes: dict[str, bool] | None = None,
+    model: str = DEFAULT_MODEL,
     variant: str,
 ) -> dict:
     """A Mitsuba dict for ``maps`` (call :func:`register` before ``mi.load_dict``).
@@ -111,13 +123,14 @@ def bsdf_dict(
     textures with ``raw: True`` (the maps are already linear; roughness and the
     encoded normal are data). A non-flat normal wraps the BSDF in Mitsuba's
     ``normalmap``; a flat one (every texel (0, 0, 1)) leaves it out. ``lobes``
-    defaults to :func:`needed_lobes`. ``variant`` is the Mitsuba variant the
+    defaults to :func:`needed_lobes`. ``model`` is one of
+    ``materials.brdf_ref.MODELS``. ``variant`` is the Mitsuba variant the
     dict is for (the bitmaps are built with it), the one resolved at the edge.
     """
 
     mi = load_mitsuba(variant)
     lobes = needed_lobes(maps) if lobes is None else lobes
-    bsdf: dict = {"type": PLUGIN_NAME, **lobes}
+    bsdf: dict = {"type": PLUGIN_NAME, **lobes, "model": check_model(model)}
 
     def bitmap(data: np.ndarray) -> dict:
         array = np.array(data, dtype=np.float32, order="C", copy=True)  # writeable: nanobind rejects read-only
@@ -154,7 +167,9 @@ def normalmap_dict(normal_texture: dict, bsdf: dict) -> dict:
     ``wo``, which is not part of Deschaintre et al.'s model and breaks
     reciprocity. ``flip_invalid_normals`` stays on (Mitsuba's default): where
     the viewer sees the back of the shading normal (``wi.n <= 0``) Mitsuba
-    mirrors the normal's tangential part instead of returning black.
+    mirrors the normal's tangential part instead of returning black. That is
+    the project's one convention for normal maps seen from below, the one
+    :func:`materials.brdf_ref.mapped_normal` implements.
     """
     return {
         "type": "normalmap",
@@ -180,6 +195,11 @@ def _define_class(mi):
             self.roughness = props.get_texture("roughness", 0.5)
             self.diffuse_on = bool(props.get("diffuse_lobe", True))
             self.specular_on = bool(props.get("specular_lobe", True))
+            self.model = props.get("model", DEFAULT_MODEL)
+            if self.model not in MODELS:
+                raise ValueError(f"{PLUGIN_NAME}: model {self.model!r} is not allowed; allowed: "
+                                 + ", ".join(MODELS))
+            self.floored = self.model == "deschaintre2018"
             if not (self.diffuse_on or self.specular_on):
                 raise ValueError(
                     f"{PLUGIN_NAME}: diffuse_lobe and specular_lobe are both false; "
@@ -221,6 +241,33 @@ def _define_class(mi):
             c = dr.clip(cos_vh, 0.0, 1.0)
             return s + (1.0 - s) * dr.exp2((FRESNEL_C1 * c + FRESNEL_C2) * c)
 
+        def _sampling_alpha(self, alpha):
+            return dr.maximum(alpha, DESCHAINTRE_SAMPLING_ALPHA_MIN) if self.floored else alpha
+
+        @staticmethod
+        def _half_vector(wi, wo):
+            h_raw = wi + wo
+            len2 = dr.squared_norm(h_raw)
+            h_ok = len2 > HALF_VECTOR_MIN_SQUARED
+            h = h_raw * dr.rsqrt(dr.maximum(len2, HALF_VECTOR_MIN_SQUARED))
+            return h_ok, h, dr.fma(h.x, h.x, h.y * h.y)
+
+        def _floored_spec(self, wi, h, sin2_h, cos_i, cos_o, alpha):
+            """Deschaintre et al.'s D G / 4 (both floors) and the visible-normal pdf it is sampled with."""
+            a2 = alpha * alpha
+            k = 0.5 * alpha
+            denom = dr.maximum(dr.fma(a2, h.z * h.z, sin2_h), DESCHAINTRE_FLOOR)
+            d_term = a2 / (math.pi * denom * denom)
+            g_i = dr.rcp(dr.maximum(dr.fma(cos_i, 1.0 - k, k), DESCHAINTRE_FLOOR))
+            cos_g_o = cos_o / dr.maximum(dr.fma(cos_o, 1.0 - k, k), DESCHAINTRE_FLOOR)
+            alpha_s = self._sampling_alpha(alpha)
+            a2_s = alpha_s * alpha_s
+            denom_s = dr.fma(a2_s, h.z * h.z, sin2_h)
+            d_sample = a2_s / (math.pi * denom_s * denom_s)
+            sin2_i = dr.fma(wi.x, wi.x, wi.y * wi.y)
+            root = dr.sqrt(dr.fma(cos_i, cos_i, a2_s * sin2_i))
+            return 0.25 * d_term * g_i * cos_g_o, d_sample / (2.0 * (cos_i + root))
+
         def _spec_prob(self, spec, diff, wi, d, s):
             if not diff:
                 return mi.Float(1.0)
@@ -242,14 +289,15 @@ def _define_class(mi):
             if diff:
                 value += d * (1.0 - s) * (cos_o * inv_pi)
                 pdf += (1.0 - p_spec) * (cos_o * inv_pi)
-            if spec:
+            if spec and self.floored:
+                h_ok, h, sin2_h = self._half_vector(wi, wo)
+                dg_term, spec_pdf = self._floored_spec(wi, h, sin2_h, cos_i, cos_o, alpha)
+                value += dr.select(h_ok, self._fresnel(s, dr.dot(wi, h)) * dg_term, 0.0)
+                pdf += dr.select(h_ok, p_spec * spec_pdf, 0.0)
+            elif spec:
                 a2 = alpha * alpha
                 k = 0.5 * alpha
-                h_raw = wi + wo
-                len2 = dr.squared_norm(h_raw)
-                h_ok = len2 > HALF_VECTOR_MIN_SQUARED
-                h = h_raw * dr.rsqrt(dr.maximum(len2, HALF_VECTOR_MIN_SQUARED))
-                sin2_h = dr.fma(h.x, h.x, h.y * h.y)
+                h_ok, h, sin2_h = self._half_vector(wi, wo)
                 denom = dr.fma(a2, h.z * h.z, sin2_h)
                 d_term = a2 / (math.pi * denom * denom)
                 cos_vh = dr.dot(wi, h)
@@ -315,7 +363,7 @@ def _define_class(mi):
                 pick_spec = mi.Bool(spec)
             wo = mi.Vector3f(0.0, 0.0, 1.0)
             if spec:
-                m = self._sample_visible_normal(wi, alpha, sample2)
+                m = self._sample_visible_normal(wi, self._sampling_alpha(alpha), sample2)
                 wo_spec = dr.fma(mi.Vector3f(2.0 * dr.dot(wi, m)), m, -wi)
                 wo = wo_spec
             if diff:
@@ -351,7 +399,7 @@ def _define_class(mi):
             return (
                 f"ShaderballCT[diffuse={self.diffuse}, specular={self.specular}, "
                 f"roughness={self.roughness}, diffuse_lobe={self.diffuse_on}, "
-                f"specular_lobe={self.specular_on}]"
+                f"specular_lobe={self.specular_on}, model={self.model}]"
             )
 
     return ShaderballCT
