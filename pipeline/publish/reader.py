@@ -196,7 +196,7 @@ def _json_lines(data: bytes, rel: str, cap: int) -> list:
     if lines and lines[-1] == b"":
         lines.pop()
     if len(lines) > cap:
-        raise Refused("too_many_members", f"{rel}: more than {cap} lines; refused")
+        raise Refused("too_many_members", f"{rel}: more than {cap} lines (the cap on members); refused")
     return [_json(line, f"{rel} line {number}") for number, line in enumerate(lines, start=1)]
 
 
