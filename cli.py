@@ -12,6 +12,7 @@ import sys
 
 import click
 
+from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
@@ -104,12 +105,16 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
               help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).")
 @click.option("--sun", type=click.Choice(SUN_MODES), default=DEFAULT_SUN, show_default=True,
               help="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.")
+@click.option("--model", type=click.Choice(MODELS), default=DEFAULT_MODEL, show_default=True,
+              help="Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
+                   "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
+                   "roughness 0.178; docs/materials.md). A spec's materials.model.")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
               help="Output EXR: layers render.R/G/B (float32) and the screen-space maps.")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
 @_friendly_errors
 def render_cmd(diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, elevation, azimuth,
-               turbidity, spp, resolution, max_depth, seed, variant, sun, out, png):
+               turbidity, spp, resolution, max_depth, seed, variant, sun, model, out, png):
     """Render one material on the shaderball under one sun and sky."""
 
     request = RenderRequest(
@@ -117,7 +122,7 @@ def render_cmd(diffuse, specular, roughness, normal, svbrdf, svbrdf_colorspace, 
         roughness=roughness, normal=parse_triple("--normal", normal, None, None), svbrdf=svbrdf,
         svbrdf_colorspace=svbrdf_colorspace, elevation_deg=elevation, azimuth_deg=azimuth,
         turbidity=turbidity, spp=spp, resolution=resolution, max_depth=max_depth, seed=seed, sun=sun,
-        variant=variant, out=out, png=png,
+        variant=variant, model=model, out=out, png=png,
     )
     for line in render_to_files(request).lines():
         click.echo(line)

@@ -15,6 +15,7 @@ from pipeline.check.report import Problems, summarise
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad
 from pipeline.store.folder import is_temp_file, read_manifest, record_file_names, shard_ids_on_disk
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
@@ -244,7 +245,9 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
         r = spec.render
         wanted += [("render.resolution", r.resolution), ("render.spp", r.spp),
                    ("render.max_depth", r.max_depth), ("render.integrator", r.integrator),
-                   ("render.sun", spec.lighting.sun)]
+                   ("render.sun", spec.lighting.sun),
+                   # absent for the default model (pipeline.render.renderer.model_record)
+                   ("render.model", model_record(spec.materials.model).get("model"))]
     if state.variant:
         wanted.append(("render.variant", state.variant))
     out = [f"{key} is {_get(record, key)!r}, the plan says {value!r}"

@@ -38,6 +38,7 @@ from typing import Any, ClassVar
 import tomllib
 
 from materials import SVBRDF_FAMILIES, UniformRanges
+from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError
 from pipeline.render.limits import (
     CLAMP_RANGE,
@@ -482,6 +483,13 @@ class MaterialsSection(_Section):
         256, rule=_Int(16, 4096),
         doc="Width and height of a material's texture-space (UV) maps.",
         unit="texels")
+    model: str = _field(
+        DEFAULT_MODEL, rule=_Choice(MODELS),
+        doc="The BRDF every material is rendered with: shaderball (Cook-Torrance as "
+            "published, GGX normalised, energy-conserving) or deschaintre2018 (the same with "
+            "the two floors of Deschaintre et al.'s code on GGX D and Smith G1, to match data "
+            "rendered by that code; it darkens surfaces with roughness below 0.178, "
+            "docs/materials.md). Recorded in each sample's record when not the default.")
 
     @property
     def has_svbrdf_source(self) -> bool:
@@ -791,6 +799,7 @@ def spec_to_toml(spec: DatasetSpec) -> str:
 #: Fields added after datasets were first built: left out of the digest while at their
 #: default, so a dataset built before they existed keeps its digest (and validates).
 DIGEST_OMITS_AT_DEFAULT: dict[str, dict[str, Any]] = {
+    "materials": {"model": DEFAULT_MODEL},
     "render": {"sampler": "independent", "rr_depth": DEFAULT_RR_DEPTH, "clamp": 0.0, "target_error": 0.0},
 }
 

@@ -22,6 +22,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
+from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.neural import metrics, runfiles
 from pipeline.neural.data import box_downsample, open_dataset, read_manifest, safe_path
@@ -91,7 +92,8 @@ class PathTracer:
     def render(self, record: dict, maps, spp: int) -> tuple[np.ndarray, float]:
         r = record["render"]
         settings = RenderSettings(resolution=r["resolution"], spp=spp, max_depth=r["max_depth"],
-                                  integrator=r["integrator"], sun=r["sun"], variant=resolve_variant(r["variant"]))
+                                  integrator=r["integrator"], sun=r["sun"], variant=resolve_variant(r["variant"]),
+                                  model=r.get("model", DEFAULT_MODEL))  # absent: the default model
         light = Light.from_dict(record["lighting"]["requested"])
         seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2 ** 32
         if not self.warm:  # the first render compiles kernels: keep that out of the timings

@@ -14,6 +14,7 @@ import numpy as np
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial, load_deschaintre
+from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import bad_value, check_int
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
@@ -80,6 +81,7 @@ class RenderRequest:
     max_depth: int = 8
     seed: int = 0
     sun: str = "split"
+    model: str = DEFAULT_MODEL
     variant: str = "auto"
     out: str = "render.exr"
     png: str | None = None
@@ -139,7 +141,7 @@ def check_request(req: RenderRequest) -> None:
     if req.variant not in VARIANT_CHOICES:
         raise bad_value("--variant", req.variant, ", ".join(VARIANT_CHOICES))
     RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
-                   variant=req.variant, sun=req.sun).check(lambda name: "--" + name.replace("_", "-"))
+                   variant=req.variant, sun=req.sun, model=req.model).check(lambda name: "--" + name.replace("_", "-"))
     Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     check_output("--out", req.out, ".exr")
     if req.png is not None:
@@ -157,7 +159,7 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
     settings = RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
-                              variant=variant, sun=req.sun)
+                              variant=variant, sun=req.sun, model=req.model)
     light = Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     result = render_sample(ball, camera, maps, light, settings, req.seed, mask=gbuffer.mask)
     screen = project_material(maps, gbuffer)
@@ -174,7 +176,8 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
               half=("diffuse", "specular", "roughness", "normal", "mask"))
     if req.png:
         write_png(req.png, result.image, gbuffer.mask)
-    return RenderSummary(req.out, req.png, result.stats, result.lighting, result.effects.to_dict())
+    return RenderSummary(req.out, req.png, result.stats, result.lighting, result.effects.to_dict(),
+                         extra=[f"material model: {req.model}"])
 
 
 def write_png(path: str, image: np.ndarray, mask: np.ndarray | None = None, exposure: float | None = None) -> None:

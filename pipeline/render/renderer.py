@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import bad_value, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
@@ -69,6 +70,8 @@ class RenderSettings:
     max_depth: int = 8
     integrator: str = "path"
     sun: str = "split"
+    #: The material model (materials.brdf_ref.MODELS; the spec's ``materials.model``).
+    model: str = DEFAULT_MODEL
     #: Mitsuba sampler (pipeline.render.limits.SAMPLERS); some round the spp (recorded).
     sampler: str = "independent"
     #: Path depth at which Russian roulette starts (Mitsuba's default 5).
@@ -94,6 +97,8 @@ class RenderSettings:
             raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
             raise bad_value(field_name("sun"), self.sun, ", ".join(SUN_MODES))
+        if self.model not in MODELS:
+            raise bad_value(field_name("model"), self.model, ", ".join(MODELS))
         if self.sampler not in SAMPLERS:
             raise bad_value(field_name("sampler"), self.sampler, ", ".join(SAMPLERS))
         integer("rr_depth", *RR_DEPTH_RANGE)
@@ -106,6 +111,15 @@ class RenderSettings:
     @property
     def adaptive(self) -> bool:
         return self.target_error > 0
+
+
+def model_record(model: str) -> dict:
+    """What records and render files say about the material model: nothing for the default.
+
+    Absent means "shaderball", so the files and records of the default model are
+    the bytes they were before the model could be chosen.
+    """
+    return {} if model == DEFAULT_MODEL else {"model": model}
 
 
 @dataclass(frozen=True)
@@ -136,12 +150,12 @@ def plan_effects(maps) -> EffectPlan:
     )
 
 
-def material_bsdf(maps, effects: EffectPlan, variant: str) -> dict:
-    """The Mitsuba dict of the material, honouring ``effects``."""
+def material_bsdf(maps, effects: EffectPlan, variant: str, model: str = DEFAULT_MODEL) -> dict:
+    """The Mitsuba dict of the material in ``model``, honouring ``effects``."""
     mitsuba_bsdf.register(variant)
     bsdf = mitsuba_bsdf.bsdf_dict(
         maps, lobes={"diffuse_lobe": effects.diffuse_lobe, "specular_lobe": effects.specular_lobe},
-        variant=variant,
+        model=model, variant=variant,
     )
     if effects.normal_map != (bsdf["type"] == "normalmap"):
         raise AssertionError("effect plan and BSDF disagree about the normal map")
@@ -164,7 +178,7 @@ def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: Eff
         "integrator": {"type": "moment", "nested": nested},
         "sensor": sensor_dict(camera, settings.resolution, settings.spp, sampler=settings.sampler, seed=seed,
                               variant=settings.variant),
-        **shape_dicts(ball, material_bsdf(maps, effects, settings.variant)),
+        **shape_dicts(ball, material_bsdf(maps, effects, settings.variant, settings.model)),
         **emitters,
     }
     return scene, lighting_record, effects

@@ -26,7 +26,7 @@ from pipeline.errors import ShaderballError
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import RenderSettings, render_sample
+from pipeline.render.renderer import RenderSettings, model_record, render_sample
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import write_exr
 from pipeline.store.layout import Layout
@@ -54,14 +54,14 @@ def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
     """This process's context for ``spec``; ``variant`` is the one the build's driver resolved."""
     r = spec.render
     key = (r.resolution, r.spp, r.max_depth, r.integrator, variant, spec.lighting.sun, r.sampler, r.rr_depth,
-           r.clamp, r.target_error)
+           r.clamp, r.target_error, spec.materials.model)
     if key not in _CONTEXTS:
         load_mitsuba(variant)
         ball, camera = build_shaderball(), default_camera()
         settings = RenderSettings(resolution=r.resolution, spp=r.spp, max_depth=r.max_depth,
                                   integrator=r.integrator, variant=variant, sun=spec.lighting.sun,
                                   sampler=r.sampler, rr_depth=r.rr_depth, clamp=r.clamp,
-                                  target_error=r.target_error)
+                                  target_error=r.target_error, model=spec.materials.model)
         _CONTEXTS[key] = WorkerContext(ball, camera, load_gbuffer(ball, camera, r.resolution, variant),
                                        settings.check(), variant)
     return _CONTEXTS[key]
@@ -212,7 +212,7 @@ def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, 
     stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
     meta = {"id": sample.sample_id, "material_id": sample.material_id, "lighting": result.lighting,
             "effects": result.effects.to_dict(), "stats": stored_stats,
-            "colorspace": "linear Rec.709 (sRGB primaries, D65)"}
+            "colorspace": "linear Rec.709 (sRGB primaries, D65)", **model_record(ctx.settings.model)}
     rel = layout.render_rel(sample.shard_id, sample.sample_id)
     digest = write_exr(layout.path(rel), {"render": result.image}, meta,
                        compression=spec.storage.compression)
@@ -238,7 +238,8 @@ def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, 
         "effects": result.effects.to_dict(),
         "render": {"resolution": ctx.settings.resolution, "spp": ctx.settings.spp,
                    "max_depth": ctx.settings.max_depth, "integrator": ctx.settings.integrator,
-                   "variant": ctx.variant, "sun": ctx.settings.sun, **non_default_render_options(ctx.settings)},
+                   "variant": ctx.variant, "sun": ctx.settings.sun, **non_default_render_options(ctx.settings),
+                   **model_record(ctx.settings.model)},
         # The render's wall time (`time_s`) is the one run-dependent value of a record: it is
         # kept out of the EXR header (files are a pure function of the plan) and ignored
         # wherever records are compared (pipeline.store.records.RUN_DEPENDENT_STATS).
