@@ -238,7 +238,7 @@ class _quiet:
     """Mitsuba's log at Error level while inside (a sampler's rounding warning is recorded, not printed)."""
 
     def __init__(self, mi):
-        self.logger = mi.Thread.thread().logger()
+        self.logger = mi.logger()
         self.error = mi.LogLevel.Error
 
     def __enter__(self):
