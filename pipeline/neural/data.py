@@ -70,13 +70,17 @@ def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
 
 def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """A maps file's layers -> (12, R, R) network input and (1, R, R) mask, float32."""
-    mask = layers["mask"].astype(np.float32)
-    normal_colour = encode_normal_map(layers["normal"].astype(np.float32)) * (mask > 0.5)
-    rough = layers["roughness"].astype(np.float32)
-    stacked = np.concatenate([layers["diffuse"].astype(np.float32), layers["specular"].astype(np.float32),
-                              normal_colour, np.repeat(rough, 3, axis=-1), mask], axis=-1)
-    stacked = box_downsample(stacked, factor)
-    chw = np.ascontiguousarray(stacked.transpose(2, 0, 1))
+    mask = layers["mask"][..., 0].astype(np.float32)
+    h, w = mask.shape
+    chw = np.empty((13, h, w), np.float32)
+    chw[0:3] = layers["diffuse"].transpose(2, 0, 1)
+    chw[3:6] = layers["specular"].transpose(2, 0, 1)
+    chw[6:9] = encode_normal_map(layers["normal"]).transpose(2, 0, 1) * (mask > 0.5)
+    chw[9:12] = layers["roughness"][..., 0]
+    chw[12] = mask
+    if factor > 1:
+        chw = chw.reshape(13, h // factor, factor, w // factor, factor).mean(axis=(2, 4), dtype=np.float64) \
+            .astype(np.float32)
     return chw[:12], chw[12:]
 
 

@@ -28,7 +28,7 @@ Y_MAX = 1.0 - 1e-6
 def srgb_encode(linear01: np.ndarray) -> np.ndarray:
     """Linear [0, 1] -> sRGB transfer curve (IEC 61966-2-1); input clamped to [0, 1]."""
     x = np.clip(linear01, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.where(x <= 0.0031308, x * 12.92, np.power(x, 1 / 2.4) * 1.055 - 0.055).astype(x.dtype)
 
 
 def srgb_decode(encoded01: np.ndarray) -> np.ndarray:
@@ -40,10 +40,11 @@ def srgb_decode(encoded01: np.ndarray) -> np.ndarray:
 def tonemap(hdr: np.ndarray, exposure: float = DEFAULT_EXPOSURE) -> np.ndarray:
     """Linear HDR radiance (any shape) -> [0, 1] network target, float32. NaN and
     negative values count as 0 (renders flagged in the manifest may hold them)."""
-    x = np.nan_to_num(np.asarray(hdr, dtype=np.float64), nan=0.0, posinf=np.finfo(np.float64).max)
+    # float32 throughout: this runs on every training target (the data loader's hot path)
+    x = np.nan_to_num(np.asarray(hdr, dtype=np.float32), nan=0.0, posinf=np.finfo(np.float32).max)
     with np.errstate(over="ignore", invalid="ignore"):
-        v = np.maximum(x, 0.0) * exposure
-        mapped = np.where(np.isinf(v), 1.0, v / (1.0 + v))
+        v = np.maximum(x, np.float32(0.0)) * np.float32(exposure)
+        mapped = np.where(np.isinf(v), np.float32(1.0), v / (np.float32(1.0) + v))
     return srgb_encode(mapped).astype(np.float32)
 
 
