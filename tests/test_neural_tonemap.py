@@ -29,7 +29,7 @@ def test_round_trip_over_the_renders_range():
     rel = np.abs(back - x) / np.maximum(x, 1e-3)
     # float32 y has steps of 6e-8 near 1, where a highlight of 2e4 lies 1.2e-5 below 1
     assert rel[x <= 100].max() < 2e-4  # the curve is computed in float32
-    assert rel.max() < 1e-2
+    assert rel.max() < 3e-2
     assert np.all(np.diff(tonemap(np.sort(x))) >= 0)  # monotonic
 
 
