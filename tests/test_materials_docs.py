@@ -35,6 +35,15 @@ def test_albedo_lut_numbers():
     assert total.max() > 1.5
 
 
+def test_model_comparison_numbers():
+    # Issue 17: A1 at normal incidence 0.012 / 0.19 / 0.76 with Deschaintre et al.'s floors, ~1 without.
+    a1 = albedo_table.model_comparison(roughness=(0.05, 0.1, 0.15, 0.2))
+    np.testing.assert_allclose(a1["shaderball"], 1.0, atol=3e-3)
+    np.testing.assert_allclose(a1["deschaintre2018"][:3], [0.012, 0.190, 0.755], atol=2e-3)
+    assert a1["deschaintre2018"][3] == pytest.approx(a1["shaderball"][3], rel=1e-12)  # summation order only
+    assert albedo_table.FLOOR_ROUGHNESS == pytest.approx(0.1778, abs=1e-4)
+
+
 def test_contact_sheet_is_reproducible_and_current():
     small = contact_sheet.contact_sheet(examples=1, resolution=32)
     assert small.dtype == np.uint8 and small.ndim == 3

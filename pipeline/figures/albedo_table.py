@@ -10,7 +10,11 @@ term is linear in ``s`` per channel, ``F = s + (1 - s) E(v.h)``, so
 with ``A1`` the specular albedo at F = 1 and ``A0`` the one at s = 0 (F = E).
 Two numbers per (roughness, incidence) describe every material; the tables
 print them, the total for the brightest materials, and how often the
-samplers' materials exceed 1.
+samplers' materials exceed 1. Then the same for the "deschaintre2018" model
+(:data:`materials.brdf_ref.MODELS`), whose floors lose light below roughness
+0.001^(1/4) = 0.178: the two models side by side at normal incidence, and the
+share of the samplers' materials (texels) where that floor acts.
+``--models`` prints only the comparison of the models.
 """
 
 from __future__ import annotations
@@ -20,12 +24,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from materials.brdf_ref import spec_albedo_quadrature
+from materials.brdf_ref import DEFAULT_MODEL, DESCHAINTRE_FLOOR, MODELS, spec_albedo_quadrature
 from materials.svbrdf import SVBRDF_FAMILIES, sample_svbrdf
-from materials.uniform import sample_uniform
+from materials.uniform import UniformRanges, sample_uniform
 
 ROUGHNESS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0)
 INCIDENCE_DEG = (0.0, 30.0, 60.0, 70.0, 75.0, 80.0, 85.0, 89.0)
+#: Deschaintre et al.'s GGX floor acts for every roughness below this: alpha^2 < 0.001.
+FLOOR_ROUGHNESS = DESCHAINTRE_FLOOR**0.25
+#: Rows of the side-by-side table of the models (normal incidence).
+MODEL_ROUGHNESS = (0.01, 0.03, 0.05, 0.075, 0.1, 0.125, 0.15, 0.17, FLOOR_ROUGHNESS, 0.2, 0.3)
 
 
 @dataclass(frozen=True)
@@ -51,8 +59,9 @@ class AlbedoLUT:
         return d * (1.0 - s) + s * a1[..., None] + (1.0 - s) * a0[..., None]
 
 
-def build_lut(roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi=128) -> AlbedoLUT:
-    """Tabulate A0 and A1 (default roughness grid: 0.02 to 1 in 0.02 steps plus the table's values)."""
+def build_lut(roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi=128,
+              model: str = DEFAULT_MODEL) -> AlbedoLUT:
+    """Tabulate A0 and A1 of ``model`` (default roughness grid: 0.02 to 1 in 0.02 steps plus the table's values)."""
     if roughness is None:
         roughness = np.unique(np.concatenate([np.arange(0.02, 1.0001, 0.02), ROUGHNESS]))
     roughness = np.asarray(roughness, dtype=np.float64)
@@ -61,7 +70,8 @@ def build_lut(roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi
     for i, r in enumerate(roughness):
         for t, theta in enumerate(incidence_deg):
             a0[i, t], a1[i, t] = spec_albedo_quadrature(
-                r, np.cos(np.radians(theta)), np.array([0.0, 1.0]), n_theta=n_theta, n_phi=n_phi
+                r, np.cos(np.radians(theta)), np.array([0.0, 1.0]), n_theta=n_theta, n_phi=n_phi,
+                model=model,
             )
     return AlbedoLUT(roughness, np.asarray(incidence_deg, dtype=np.float64), a0, a1)
 
@@ -111,6 +121,54 @@ def _texels(maps_list):
     return d, s, r
 
 
+def model_comparison(roughness=MODEL_ROUGHNESS, *, n_theta=512, n_phi=128) -> dict[str, np.ndarray]:
+    """A1 at normal incidence (specular albedo with F = 1, the white furnace of a mirror-like metal) per model."""
+    return {model: build_lut(roughness, (0.0,), n_theta=n_theta, n_phi=n_phi, model=model).a1[:, 0]
+            for model in MODELS}
+
+
+def floor_share(*, svbrdf_per_family: int = 100, svbrdf_resolution: int = 32, seed: int = 7) -> dict[str, float]:
+    """Share of the samplers' materials (uniform) or texels (SVBRDF) with r < FLOOR_ROUGHNESS.
+
+    Uniform: exact, the sampler draws r uniformly in ``UniformRanges().roughness``.
+    SVBRDF: estimated over ``svbrdf_per_family`` materials per family.
+    """
+    lo, hi = UniformRanges().roughness
+    shares = {"uniform": float(np.clip((FLOOR_ROUGHNESS - lo) / (hi - lo), 0.0, 1.0))}
+    rng = np.random.default_rng(seed)
+    for family in SVBRDF_FAMILIES:
+        _, _, r = _texels([sample_svbrdf(rng, family, svbrdf_resolution) for _ in range(svbrdf_per_family)])
+        shares[f"svbrdf:{family}"] = float(np.mean(r < FLOOR_ROUGHNESS))
+    return shares
+
+
+def models_markdown() -> str:
+    """The comparison of the material models: A1 at normal incidence, and where the GGX floor acts."""
+    a1 = model_comparison()
+    lines = [
+        "**Models: A1 at normal incidence (specular albedo with F = 1, s = 1, d = 0), and the share "
+        "the floored model loses**",
+        "",
+        "| r | " + " | ".join(MODELS) + " | lost |",
+        "|---|" + "---|" * (len(MODELS) + 1),
+    ]
+    for i, r in enumerate(MODEL_ROUGHNESS):
+        base, floored = a1[DEFAULT_MODEL][i], a1["deschaintre2018"][i]
+        lines.append(f"| {r:.4g} | " + " | ".join(f"{a1[m][i]:.3f}" for m in MODELS)
+                     + f" | {round(100 * (1 - floored / base), 1) + 0.0:.1f}% |")  # + 0.0: no "-0.0"
+    shares = floor_share()
+    lines += [
+        "",
+        f"**Where the GGX floor acts (r < {FLOOR_ROUGHNESS:.4f}): share of the samplers' materials "
+        "(uniform with the default ranges, exact) or texels (SVBRDF, 100 materials of 32 x 32 per family)**",
+        "",
+        "| sampler | share |",
+        "|---|---|",
+        *[f"| {name} | {100 * share:.1f}% |" for name, share in shares.items()],
+    ]
+    return "\n".join(lines)
+
+
 def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str:
     """All tables of docs/materials.md, as markdown."""
     lut = build_lut() if lut is None else lut
@@ -135,14 +193,22 @@ def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str
             cells = [f"{100 * p:.1f}% / {m:.2f}" for p, m in zip(share, largest)]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
+    floored = build_lut(ROUGHNESS, lut.incidence_deg, model="deschaintre2018")
+    parts += [
+        _table("deschaintre2018: A1, specular albedo with F = 1", floored.a1, floored),
+        _table("deschaintre2018: A0, specular albedo with s = 0", floored.a0, floored),
+        models_markdown(),
+    ]
     return "\n\n".join(parts)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--no-samplers", action="store_true", help="skip the sampler statistics")
+    parser.add_argument("--models", action="store_true",
+                        help="print only the comparison of the material models (a few seconds)")
     args = parser.parse_args(argv)
-    print(markdown(with_samplers=not args.no_samplers))
+    print(models_markdown() if args.models else markdown(with_samplers=not args.no_samplers))
     return 0
 
 
