@@ -27,7 +27,25 @@ class SetupError(ShaderballError):
     """The environment cannot run Mitsuba (no usable libLLVM, unknown variant, ...)."""
 
 
-#: Every error type whose message is meant for the user (exit code 2 at the CLI).
+class FolderBusy(ShaderballError):
+    """Another writer (a build, ``validate --repair``, an unpack) holds the dataset folder.
+
+    Exit code 3: nothing is wrong with the input; the same command succeeds once the other
+    writer is done (pipeline.store.lock).
+    """
+
+    exit_code = 3
+
+
+class FilesystemError(ShaderballError):
+    """The operating system refused a read or write of the dataset (permission, full disk,
+    name too long, ...). Exit code 4; every write is atomic, so the same command resumes
+    once the cause is fixed."""
+
+    exit_code = 4
+
+
+#: Every error type whose message is meant for the user (a clean message and its exit code at the CLI).
 USER_ERRORS = (ShaderballError, MaterialError, SkyError, GeometryError)
 
 

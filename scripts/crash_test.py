@@ -355,7 +355,7 @@ def check_interrupted(out: Path, reference: Path) -> int:
     snapshot byte for byte, JSON without timings), so every record and marker on disk refers
     to durable, correct files; nothing exists that the reference lacks.
     """
-    from pipeline.store.folder import is_temp_file
+    from pipeline.store.folder import is_lock_file, is_temp_file
 
     problems, temps = [], 0
     ref_files = dataset_files(reference)
@@ -363,6 +363,8 @@ def check_interrupted(out: Path, reference: Path) -> int:
         if is_temp_file(os.path.basename(rel)):
             temps += 1
             continue
+        if is_lock_file(rel):
+            continue  # the killed writer's lock file, unlocked by the kernel (pipeline.store.lock)
         if rel not in ref_files:
             problems.append(f"{rel}: not in the reference build")
             continue

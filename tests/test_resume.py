@@ -1,6 +1,7 @@
 """Resume: a second build finishes only what is missing or fails verification; another spec is
-refused (docs/resume.md). Two builds at once on one directory (dask's at-least-once execution,
-or two users) give one committed copy of every sample.
+refused (docs/resume.md). Two builds at once on one directory (two users) give one committed
+copy of every sample: one of them is refused while the other writes; two runs of one shard
+(dask's at-least-once execution) write identical files.
 """
 
 from __future__ import annotations
@@ -152,7 +153,10 @@ def _flip_byte(path: Path, offset: int = -100) -> None:
 
 @pytest.mark.slow
 def test_two_builds_at_once_on_one_directory_commit_one_copy_of_each_sample(tmp_path, reference):
-    """The same shards run twice at the same time (what at-least-once execution allows)."""
+    """Two users start the same build: one writes, the other is refused while it does (exit
+    code 3, pipeline.store.lock) or, coming after it, finds the dataset complete. Two runs
+    of one shard inside a build (dask's at-least-once execution) are the late-second-run
+    tests below."""
     out = tmp_path / "ds"
     procs = [subprocess.Popen(crash.child_command(SMOKE, out, 0), cwd=REPO, stdin=subprocess.DEVNULL,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
@@ -163,7 +167,8 @@ def test_two_builds_at_once_on_one_directory_commit_one_copy_of_each_sample(tmp_
         for p in procs:
             if p.poll() is None:
                 crash.kill_group(p)
-    assert [p.returncode for p in procs] == [0, 0], outputs
+    assert sorted(p.returncode for p in procs) in ([0, 0], [0, 3]), outputs
+    assert all("Traceback" not in text for text in outputs), outputs
     crash.check_complete(out, reference, use_validate=False)
     from pipeline.check.validate import validate
 

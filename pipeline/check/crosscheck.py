@@ -18,7 +18,7 @@ from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad
 from pipeline.store.folder import is_temp_file, read_manifest, record_file_names, shard_ids_on_disk
-from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
+from pipeline.store.layout import DESCRIPTION_FILE, LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
 from sky import Light
 
@@ -629,7 +629,7 @@ def check_files_and_records(primary: dict, files: dict, state: State, problems: 
 def _allowed_files(state: State, primary: dict) -> tuple[set, set]:
     """(files, directories) that belong to the dataset, relative to DIR."""
     layout = state.layout
-    files, dirs = set(ROOT_FILES), {SHARDS_DIR}
+    files, dirs = {*ROOT_FILES, LOCK_FILE}, {SHARDS_DIR}  # the lock: while a writer runs, or a killed one's
     if state.plans is not None:
         for shard in state.plans:
             dirs.add(f"{SHARDS_DIR}/{shard.shard_id}")

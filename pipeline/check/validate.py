@@ -64,6 +64,7 @@ from pipeline.dataset.plan import iter_samples
 from pipeline.run.build import write_manifest
 from pipeline.store.folder import shard_ids_on_disk
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
+from pipeline.store.lock import writer_lock
 
 __all__ = ["PROBLEM_KINDS", "Problem", "Progress", "RepairAction", "Report", "repair", "validate"]
 
@@ -122,6 +123,18 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
 def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None,
            spec_path: str | None = None) -> tuple[Report, Report, list[RepairAction]]:
     """Fix what :func:`validate` finds; return (report before, report after, actions).
+
+    A writer: it holds ``root`` (pipeline.store.lock) from the first check to the last, so
+    it never runs beside a build (FolderBusy, exit code 3, names the build that holds it).
+    """
+    check_root(root)
+    with writer_lock(root, "validate --repair"):
+        return _repair_locked(root, workers=workers, progress=progress, spec_path=spec_path)
+
+
+def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], None] | None,
+                   spec_path: str | None) -> tuple[Report, Report, list[RepairAction]]:
+    """:func:`repair` under the lock.
 
     Deletes extra files; keeps every sample whose best record (the marker's, the record
     file's, or the manifest's copy) agrees with the plan and with its intact render; deletes

@@ -5,21 +5,26 @@ The publication is verified in full first (pipeline.publish.verify), so a refuse
 writes nothing; the members are then streamed again and checked again as they are written
 (a file changed in between is refused too). Every path written is the layout's
 (pipeline.store.layout) for ids that fit it, inside DIR. On any refusal or error DIR is
-left as it was found (absent, or empty).
+left as it was found (absent, or empty). DIR is held for writing (pipeline.store.lock) while
+it is written, as a build holds it: one writer at a time.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from pipeline.check.validate import validate
+from pipeline.errors import bad_value
 from pipeline.publish.output import Output, check_out
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.verify import verify_publication
+from pipeline.store.folder import only_temp_files
 from pipeline.store.layout import Layout
+from pipeline.store.lock import writer_lock
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,16 @@ def unpack(pub: str, out: str, *, limits: Limits = DEFAULT_LIMITS, validate_afte
     publication = open_publication(pub, limits)
     verify_publication(publication, progress)
     output = Output(out)
+    with writer_lock(out, "unpack"):
+        return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
+
+
+def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, progress, start) -> UnpackSummary:
+    """Write the folder while this process holds it (pipeline.store.lock): a build or a second
+    unpack started meanwhile is refused, and one that got there first is not written over."""
+    if not only_temp_files(os.listdir(out)):
+        raise bad_value("--out", out, "a new or empty folder (another writer filled it meanwhile; "
+                                      "nothing in it is overwritten)")
     try:
         for name, data in publication.source_files.items():
             output.write(name, data)

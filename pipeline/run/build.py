@@ -30,6 +30,7 @@ from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.folder import only_temp_files, recorded_count, remove_temp_files
 from pipeline.store.layout import Layout
+from pipeline.store.lock import writer_lock
 from pipeline.store.records import dumps, read_json
 
 LAYOUT_VERSION = 1
@@ -288,6 +289,16 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
     if cluster.scheduler:
         check_scheduler_reachable(cluster.scheduler)  # before anything is written
     plans = plan_dataset(spec)
+    check_output_dir(out, spec, allow_spec_change)  # refused here, nothing is created
+    os.makedirs(out, exist_ok=True)
+    with writer_lock(out, "build"):
+        return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start)
+
+
+def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: ClusterOptions,
+                  allow_spec_change: bool, progress, on_start) -> BuildSummary:
+    """The build, once this process holds ``out`` (pipeline.store.lock): the folder is
+    checked again (another writer may have finished in between), then written."""
     variant = prepare(out, spec, plans, allow_spec_change)
     total = sum(s.n_renders for s in plans)
     layout = Layout(out)

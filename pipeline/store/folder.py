@@ -11,12 +11,12 @@ import os
 import re
 
 from pipeline.store.atomic import TEMP_PREFIX
-from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, Layout
+from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, Layout
 from pipeline.store.records import read_json
 
 __all__ = [
-    "MANIFEST_FILE", "MARKER_FILE", "RECORD_NAME", "SHARD_NAME", "TEMP_PREFIX", "disk_usage",
-    "is_record_file", "is_temp_file", "manifest_record_count", "only_temp_files", "read_manifest",
+    "LOCK_FILE", "MANIFEST_FILE", "MARKER_FILE", "RECORD_NAME", "SHARD_NAME", "TEMP_PREFIX", "disk_usage",
+    "is_lock_file", "is_record_file", "is_temp_file", "manifest_record_count", "only_temp_files", "read_manifest",
     "recorded_count", "record_file_names", "remove_temp_files", "shard_ids_on_disk", "shard_records",
 ]
 
@@ -37,8 +37,16 @@ def is_record_file(name: str) -> bool:
     return RECORD_NAME.match(name) is not None
 
 
+def is_lock_file(name: str) -> bool:
+    """The writer lock (pipeline.store.lock): present while a writer runs, or left unlocked by
+    a killed one; no part of the data."""
+    return name == LOCK_FILE
+
+
 def only_temp_files(names) -> bool:
-    return all(is_temp_file(n) for n in names)
+    """Nothing but temporary files and the writer lock: what a build killed before its first
+    whole file leaves (such a folder is new to the next build)."""
+    return all(is_temp_file(n) or is_lock_file(n) for n in names)
 
 
 def shard_ids_on_disk(layout: Layout) -> list[str]:

@@ -10,6 +10,7 @@
         m000012_l0.render.exr        one render per lighting (float32)
         m000012_l0.json              the sample's record, written after its files are durable
         COMPLETE.json                the shard's marker: every record, with file checksums
+      .shaderball.lock               while a writer runs: who holds the folder (pipeline.store.lock)
 
 Paths inside records are relative to DIR, with forward slashes.
 """
@@ -24,6 +25,9 @@ DESCRIPTION_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.jsonl"
 SHARDS_DIR = "shards"
 MARKER_FILE = "COMPLETE.json"
+#: The writer lock (pipeline.store.lock): present while a build, repair or unpack writes
+#: the folder (and after one was killed); no part of the data.
+LOCK_FILE = ".shaderball.lock"
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,167 @@
+"""One writer per dataset folder at a time: an exclusive ``flock`` on ``DIR/.shaderball.lock``.
+
+Writers (a build, ``validate --repair``, ``shaderball unpack``) hold the lock for as long as
+they write; a second writer is refused at once (:class:`pipeline.errors.FolderBusy`, exit
+code 3) with a message naming the holder (host, pid, command, since). Readers (validate
+without ``--repair``, info, preview, publish, the training loader) never take it: every file
+is written atomically, so they see whole files, old or new, beside a writer.
+
+Why ``flock``: the kernel drops the lock when its holder dies, however it dies (``kill -9``
+included), so a killed writer never blocks the next one; there is nothing stale to clean up
+by hand. The holder's description written into the file is information only, never trusted
+as the lock itself.
+
+The lock file is unlinked by its holder before it lets go, so a finished dataset holds no
+lock file; a writer killed with ``kill -9`` leaves one behind, unlocked, which the next
+writer takes over and removes. A writer that opened the file just before it was unlinked
+finds the path gone or pointing to another file after it locks, and tries again.
+
+A process that holds the lock may take it again (a repair resumes the build inside itself):
+the lock is counted per folder per process.
+
+Shared filesystems (a cluster build): the build's driver takes the lock and holds it for the
+whole build; its dask workers write shards under it and take no lock. On Linux NFS clients
+``flock`` is carried out as a POSIX lock on the whole file, which the NFS server arbitrates
+(NFSv4, or NFSv3 with lockd/statd): a second driver on another node is refused as it would
+be locally. A driver on a node that crashes holds the lock until the server notices (the
+NFSv4 lease, typically 90 s; NFSv3 waits for the node's statd to report its reboot). A
+mount with ``nolock`` or ``local_lock=flock`` keeps locks on each node: then two drivers on
+two nodes are NOT kept apart. A filesystem that refuses locks altogether (e.g. Lustre
+mounted without ``flock``) makes every writer stop with a message saying so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import errno
+import fcntl
+import json
+import os
+import shlex
+import socket
+import stat
+import sys
+
+from pipeline.errors import FilesystemError, FolderBusy, ShaderballError
+from pipeline.store.layout import LOCK_FILE
+
+#: Bytes of the holder's description read back (it is one short JSON line).
+HOLDER_BYTES = 4096
+#: Attempts at locking a file that another writer unlinks meanwhile before giving up.
+ATTEMPTS = 50
+
+_held: dict[str, list] = {}  # real path of the folder -> [fd, depth]
+
+
+def lock_path(root: str) -> str:
+    return os.path.join(root, LOCK_FILE)
+
+
+def holder_text(info: dict | None) -> str:
+    """The holder as people read it: 'build, pid 4242 on host node1, since ... (`command`)'."""
+    if not isinstance(info, dict) or not info:
+        return "a writer that is just starting (it has not yet said who it is)"
+    command = info.get("command")
+    return (f"{info.get('purpose', '?')}, pid {info.get('pid', '?')} on host {info.get('host', '?')}, "
+            f"since {info.get('since', '?')}" + (f" (`{command}`)" if command else ""))
+
+
+def _read_holder(fd: int) -> dict | None:
+    try:
+        data = os.pread(fd, HOLDER_BYTES, 0)
+        info = json.loads(data.decode("utf-8")) if data.strip() else None
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) else None
+
+
+def _open_lock_file(root: str) -> int:
+    path = lock_path(root)
+    flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ShaderballError(f"DIR: {path!r} is a symbolic link; a dataset folder holds none "
+                                  "(`shaderball validate` reports it); remove it") from None
+        raise FilesystemError(f"DIR: cannot create the writer lock {path!r}: {exc.strerror}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ShaderballError(f"DIR: {path!r} is not a regular file; remove it (it is the writer lock)")
+    return fd
+
+
+def _same_file(fd: int, path: str) -> bool:
+    try:
+        here, there = os.fstat(fd), os.lstat(path)
+    except FileNotFoundError:
+        return False
+    return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
+
+
+def _acquire(root: str, purpose: str) -> int:
+    path = lock_path(root)
+    for _ in range(ATTEMPTS):
+        fd = _open_lock_file(root)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _read_holder(fd)
+            os.close(fd)
+            raise FolderBusy(f"DIR: {root!r} is being written by another writer: {holder_text(holder)}. "
+                             "One writer at a time (build, validate --repair, unpack): wait for it to "
+                             "finish, or stop it (a writer that is killed releases the folder at once); "
+                             "readers (validate, info, preview, publish, train) may run beside it") from None
+        except OSError as exc:
+            os.close(fd)
+            raise FilesystemError(
+                f"DIR: the filesystem of {root!r} refuses file locks ({exc.strerror}), so two writers "
+                "could not be kept apart; use a filesystem (or mount option) with flock support") from None
+        if _same_file(fd, path):
+            break
+        os.close(fd)  # its holder unlinked it as we locked it: take the new one
+    else:
+        raise FolderBusy(f"DIR: {root!r}: the writer lock {path!r} kept changing hands; try again")
+    info = {"purpose": purpose, "pid": os.getpid(), "host": socket.gethostname(),
+            "since": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "command": shlex.join(sys.argv)}
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(info, sort_keys=True) + "\n").encode("utf-8"), 0)
+    except OSError:
+        pass  # a full disk: the lock holds all the same, only the description is lost
+    return fd
+
+
+def _release(root: str, fd: int) -> None:
+    with contextlib.suppress(OSError):
+        if _same_file(fd, lock_path(root)):
+            os.unlink(lock_path(root))  # while still locked: see the module's docstring
+    os.close(fd)
+
+
+@contextlib.contextmanager
+def writer_lock(root: str, purpose: str):
+    """Hold the folder ``root`` (an existing directory) for writing; ``purpose`` names the
+    writer in a refusal ("build", "validate --repair", "unpack")."""
+    key = os.path.realpath(root)
+    if key in _held:
+        _held[key][1] += 1
+        try:
+            yield
+        finally:
+            _held[key][1] -= 1
+        return
+    fd = _acquire(root, purpose)
+    _held[key] = [fd, 1]
+    try:
+        yield
+    finally:
+        del _held[key]
+        _release(root, fd)
+
+
+def holds_lock(root: str) -> bool:
+    """This process holds ``root`` (a writer's own code may rely on it)."""
+    return os.path.realpath(root) in _held

@@ -1,0 +1,230 @@
+"""One writer per dataset folder (pipeline.store.lock; issue 15): a second writer is refused
+naming the holder, readers run beside a writer, and a writer killed with kill -9 never
+blocks the next one. Every case runs real processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.errors import FolderBusy
+from pipeline.publish import unpack as unpack_module
+from pipeline.store.layout import LOCK_FILE
+from pipeline.store.lock import holds_lock, writer_lock
+
+REPO = Path(__file__).resolve().parents[1]
+SMOKE = REPO / "manifests" / "smoke.toml"
+HOLD = ("import sys, time\n"
+        "from pipeline.store.lock import writer_lock\n"
+        "with writer_lock(sys.argv[1], sys.argv[2]):\n"
+        "    print('held', flush=True)\n"
+        "    time.sleep(600)\n")
+
+
+def cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "cli", *map(str, args)]
+
+
+def start(cmd: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(cmd, cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, start_new_session=True, text=True)
+
+
+def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(cli(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+def hold(folder: Path, purpose: str = "build") -> subprocess.Popen:
+    """A process that holds ``folder``'s lock until it is killed."""
+    proc = start([sys.executable, "-c", HOLD, str(folder), purpose])
+    assert proc.stdout.readline().strip() == "held", proc.stderr.read()
+    return proc
+
+
+def kill9(proc: subprocess.Popen) -> None:
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+
+
+def wait_for_lock(folder: Path, proc: subprocess.Popen, timeout_s: float = 120) -> dict:
+    """The holder's description, once a writer (``proc``) has taken ``folder``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        try:
+            text = (folder / LOCK_FILE).read_text()
+            if text.strip():
+                return json.loads(text)
+        except (FileNotFoundError, ValueError):
+            pass
+        time.sleep(0.05)
+    raise AssertionError(f"{folder}: no writer took the lock within {timeout_s} s")
+
+
+def snapshot(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    holder = hold(folder, "build")
+    try:
+        with pytest.raises(FolderBusy) as refused:
+            with writer_lock(str(folder), "validate --repair"):
+                pass
+        message = str(refused.value)
+        assert f"pid {holder.pid} on host " in message and "build" in message and "since 20" in message
+        assert "-c" in message  # the holder's command line
+        assert refused.value.exit_code == 3
+    finally:
+        kill9(holder)
+
+
+def test_a_writer_killed_with_kill_9_never_blocks_the_next(tmp_path):
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    kill9(hold(folder))
+    assert (folder / LOCK_FILE).exists()  # left behind, but nobody holds it
+    start_s = time.monotonic()
+    with writer_lock(str(folder), "build"):
+        assert holds_lock(str(folder))
+        assert json.loads((folder / LOCK_FILE).read_text())["pid"] == os.getpid()
+    assert time.monotonic() - start_s < 1.0
+    assert not (folder / LOCK_FILE).exists()  # its holder removes it on the way out
+    assert not holds_lock(str(folder))
+
+
+def test_the_lock_is_counted_per_process_so_repair_may_resume_its_build(tmp_path):
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    with writer_lock(str(folder), "validate --repair"):
+        with writer_lock(str(folder), "build"):
+            pass
+        assert holds_lock(str(folder)) and (folder / LOCK_FILE).exists()
+        other = subprocess.run([sys.executable, "-c", HOLD, str(folder), "build"], cwd=REPO,
+                               capture_output=True, text=True, timeout=60)
+        assert other.returncode != 0 and "FolderBusy" in other.stderr and "validate --repair" in other.stderr
+    assert not holds_lock(str(folder))
+
+
+def test_a_lock_file_that_is_a_symlink_or_a_fifo_is_refused_not_followed(tmp_path):
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep")
+    linked, fifo = tmp_path / "linked", tmp_path / "fifo"
+    linked.mkdir()
+    fifo.mkdir()
+    (linked / LOCK_FILE).symlink_to(outside)
+    os.mkfifo(fifo / LOCK_FILE)
+    for folder, what in ((linked, "symbolic link"), (fifo, "not a regular file")):
+        with pytest.raises(Exception, match=what):
+            with writer_lock(str(folder), "build"):
+                pass
+    assert outside.read_text() == "keep"
+
+
+def test_unpack_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_path, monkeypatch):
+    """The race the lock closes: DIR was new when unpack looked, a build took it before the
+    first write. unpack is refused (exit code 3) and writes nothing there."""
+    out = tmp_path / "ds"
+    holders = []
+    real_output = unpack_module.Output
+
+    def output_then_a_build_starts(path):
+        made = real_output(path)
+        holders.append(hold(Path(path), "build"))
+        return made
+
+    monkeypatch.setattr(unpack_module, "open_publication", lambda pub, limits: object())
+    monkeypatch.setattr(unpack_module, "verify_publication", lambda publication, progress: None)
+    monkeypatch.setattr(unpack_module, "Output", output_then_a_build_starts)
+    try:
+        with pytest.raises(FolderBusy, match="build, pid"):
+            unpack_module.unpack(str(tmp_path / "pub"), str(out))
+        assert os.listdir(out) == [LOCK_FILE]  # the build's lock; unpack wrote nothing
+    finally:
+        for proc in holders:
+            kill9(proc)
+
+
+def _spec_with_seed(tmp_path: Path, seed: int) -> Path:
+    path = tmp_path / f"seed{seed}.toml"
+    path.write_text(SMOKE.read_text().replace("seed = 20191117", f"seed = {seed}"))
+    return path
+
+
+@pytest.mark.slow
+def test_two_builds_of_different_specs_on_one_new_folder_one_is_refused(tmp_path, reference):
+    """Issue 15's first data loss: both builds saw a new folder and mixed two datasets."""
+    from conftest import crash_module
+
+    out = tmp_path / "mix"
+    other = _spec_with_seed(tmp_path, 7)
+    procs = [start(cli("build", spec, "--out", out, "--workers", 0)) for spec in (SMOKE, other)]
+    outputs = [p.communicate(timeout=400) for p in procs]
+    codes = [p.returncode for p in procs]
+    assert sorted(codes)[0] == 0 and sorted(codes)[1] in (2, 3), (codes, outputs)
+    loser = outputs[codes.index(sorted(codes)[1])][1]
+    assert "Traceback" not in loser and loser.startswith("error: "), loser
+    assert ("being written by another writer: build, pid" in loser) or ("different spec" in loser), loser
+    winner = (SMOKE, other)[codes.index(0)]
+    assert (out / "spec.toml").read_text().count(f"seed = {7 if winner == other else 20191117}") == 1
+    assert run("validate", out).returncode == 0
+    if winner == SMOKE:
+        crash_module().check_complete(out, reference)
+
+
+@pytest.mark.slow
+def test_repair_and_a_second_build_during_a_build_are_refused_and_readers_run_beside_it(tmp_path):
+    """Issue 15's second data loss (repair deleting a live build's files), deterministically:
+    the writers start once the build holds the folder."""
+    out = tmp_path / "ds"
+    build = start(cli("build", SMOKE, "--out", out, "--workers", 0))
+    try:
+        holder = wait_for_lock(out, build)
+        assert holder["purpose"] == "build" and holder["pid"] == build.pid
+        before = snapshot(out)
+        repair = run("validate", out, "--repair")
+        assert repair.returncode == 3, repair
+        assert repair.stderr.startswith(f"error: DIR: {str(out)!r} is being written by another writer: build, "
+                                        f"pid {build.pid} on host "), repair.stderr
+        assert "Traceback" not in repair.stderr
+        other = run("build", _spec_with_seed(tmp_path, 7), "--out", out, "--workers", 0)
+        assert other.returncode in (2, 3) and "Traceback" not in other.stderr, other
+        # Readers beside the writer: no traceback, nothing written by them.
+        checked = run("validate", out, "--json")
+        assert checked.returncode in (0, 1) and "Traceback" not in checked.stderr, checked
+        assert json.loads(checked.stdout)["expected"] == 16
+        info = run("info", out)
+        assert info.returncode == 0 and "Traceback" not in info.stderr, info
+        files_now = snapshot(out)
+        assert all(rel in files_now for rel in before if not rel.startswith(".tmp-")), "a writer lost files"
+        stdout, stderr = build.communicate(timeout=400)
+    finally:
+        if build.poll() is None:
+            kill9(build)
+    assert build.returncode == 0, stderr
+    assert run("validate", out).returncode == 0
+    assert not (out / LOCK_FILE).exists()
+
+
+@pytest.mark.slow
+def test_a_build_killed_with_kill_9_does_not_block_its_resume(tmp_path, reference):
+    from conftest import crash_module
+
+    out = tmp_path / "ds"
+    build = start(cli("build", SMOKE, "--out", out, "--workers", 0))
+    wait_for_lock(out, build)
+    kill9(build)
+    resumed = run("build", SMOKE, "--out", out, "--workers", 0)
+    assert resumed.returncode == 0, resumed.stderr
+    assert not (out / LOCK_FILE).exists()
+    crash_module().check_complete(out, reference)
