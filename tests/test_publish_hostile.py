@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import random
 import shutil
 from pathlib import Path
 
@@ -127,6 +128,15 @@ def huge_member(pub):
     with_extra(pub, bytes(header))
 
 
+def owned_member(pub):
+    header = bytearray(entry("m000000_l9.render.exr", b"x")[:512])
+    header[108:116] = b"0001750\x00"  # uid 1000
+    header[265:270] = b"alice"  # a user name
+    header[148:156] = b" " * 8
+    header[148:156] = b"%06o\x00 " % sum(header)
+    with_extra(pub, bytes(header) + b"x" + bytes(511))
+
+
 def trailing(pub):
     path = pub / TAR
     path.write_bytes(path.read_bytes() + b"\x01" * 512)
@@ -231,6 +241,7 @@ CASES = [
     (off_layout, "bad_name", "member 'run.sh' does not fit the layout"),
     (duplicate, "duplicate", f"member '{RENDER}' appears twice"),
     (huge_member, "member_too_large", "is 3221225472 bytes, over the cap of 1073741824 bytes per member"),
+    (owned_member, "header_fields", "member 'm000000_l9.render.exr' has a header other than the one publish writes"),
     (trailing, "trailing_data", "data after the end of the archive"),
     (compressed, "compressed", "a gzip-compressed file, not a plain tar"),
     (shard_checksum, "checksum", f"{TAR}: SHA-256"),
@@ -367,3 +378,55 @@ def test_the_shard_checksum_is_checked_before_the_tar_is_parsed(pub, monkeypatch
 def test_the_untouched_copy_verifies(pub, good):
     assert run("verify", str(pub)).exit_code == 0
     assert files_of(pub) == files_of(good)
+
+
+# --------------------------------------------------------------------------- any change
+
+
+def test_any_changed_byte_of_a_tar_is_refused_even_with_every_checksum_resealed(good, tmp_path):
+    size = (good / TAR).stat().st_size
+    first_padding = 512 + (len(dict(members(good / TAR))["m000000.maps.exr"]))  # inside the first pad
+    rng = random.Random(14)
+    positions = [0, 100, 108, 124, 136, 148, 156, 257, 265, 345, first_padding, size - 1]  # header fields,
+    positions += rng.sample(range(size), 40)  # padding, the end; and anywhere
+    kinds = set()
+    for position in positions:
+        pub = tmp_path / f"p{position}"
+        shutil.copytree(good, pub)
+        data = bytearray((pub / TAR).read_bytes())
+        data[position] ^= 0x20
+        (pub / TAR).write_bytes(bytes(data))
+        reseal(pub)
+        with pytest.raises(Refused) as caught:
+            verify(str(pub))
+        kinds.add(caught.value.kind)
+        shutil.rmtree(pub)
+    assert {"not_tar", "member_checksum", "trailing_data"} <= kinds  # a header's own checksum breaks first
+
+
+@pytest.mark.parametrize("rel", ["dataset/manifest.jsonl", "samples.jsonl", "publication.json",
+                                 "dataset/markers.jsonl", "croissant.json", "SHA256SUMS"])
+def test_mangled_metadata_is_refused_or_harmless_never_a_crash(good, tmp_path, rel):
+    rng = random.Random(rel)
+    for attempt in range(15):
+        pub = tmp_path / f"p{attempt}"
+        shutil.copytree(good, pub)
+        data = bytearray((pub / rel).read_bytes())
+        at = rng.randrange(len(data))
+        if attempt % 3 == 0:
+            data = data[:at]
+        else:
+            data[at] = rng.choice(b'{}[]",:0123456789-eE.ntf \n')
+        (pub / rel).write_bytes(bytes(data))
+        try:
+            reseal(pub)
+        except Exception:  # a forger cannot re-seal what no longer parses or names no file; SHA256SUMS alone
+            (pub / "SHA256SUMS").write_text("".join(
+                f"{sha(p.read_bytes())}  {p.relative_to(pub).as_posix()}\n"
+                for p in sorted(pub.rglob("*"), key=lambda p: p.relative_to(pub).as_posix())
+                if p.is_file() and p.name != "SHA256SUMS"))
+        try:
+            verify(str(pub))
+        except Refused:
+            pass  # any other exception fails the test
+        shutil.rmtree(pub)

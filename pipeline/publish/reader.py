@@ -242,6 +242,8 @@ def _manifest(data: bytes, limits: Limits) -> list[dict]:
     seen: set[str] = set()
     for number, record in enumerate(records, start=1):
         file_refs(record, f"{rel} line {number}")
+        if not isinstance(record.get("stats", {}), dict):
+            raise Refused("bad_record", f"{rel} line {number}: stats is not an object; refused")
         if record["id"] in seen:
             raise Refused("duplicate", f"{rel} line {number}: a second record for {record['id']}; refused")
         seen.add(record["id"])
@@ -281,7 +283,7 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
         row = _json(line, f"{SAMPLES_FILE} line {number}")
         tar_rel, sha, size = (row.get("shard"), row.get("record_sha256"), row.get("record_bytes")) \
             if isinstance(row, dict) else (None, None, None)
-        if tar_rel not in by_rel or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX) \
+        if not isinstance(tar_rel, str) or tar_rel not in by_rel or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX) \
                 or isinstance(size, bool) or not isinstance(size, int) or not 0 <= size <= limits.member_bytes:
             raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and "
                                        "record_bytes; refused")
@@ -328,7 +330,7 @@ def _check_croissant(texts: dict[str, bytes], sums: dict[str, str]) -> None:
     for entry in objects:
         if isinstance(entry, dict) and entry.get("@type") == "cr:FileObject":
             rel = entry.get("contentUrl")
-            if rel not in sums or entry.get("sha256") != sums[rel]:
+            if not isinstance(rel, str) or rel not in sums or entry.get("sha256") != sums[rel]:
                 raise Refused("bad_croissant", f"{CROISSANT_FILE}: FileObject {rel!r} has a SHA-256 that is not "
                                                f"{SUMS_FILE}'s (or names no file of PUB); refused")
 
@@ -343,6 +345,13 @@ def _markers(data: bytes, records: list[dict]) -> list[tuple[str, bytes]]:
         marker = _json(line, f"{MARKERS_REL} line {number}")
         if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
             raise Refused("bad_marker", f"{MARKERS_REL} line {number}: not the complete marker of shard {shard}")
+        mine = [r for r in records if r["shard"] == shard]
+        theirs = marker.get("records")
+        if not isinstance(theirs, list) or len(theirs) != len(mine) or marker.get("samples") != [r["id"] for r in mine] \
+                or any(not isinstance(t, dict) or not isinstance(t.get("stats", {}), dict)
+                       or without_timings(t) != without_timings(r) for t, r in zip(theirs, mine)):
+            raise Refused("bad_marker", f"{MARKERS_REL} line {number}: the marker of shard {shard} does not hold "
+                                        f"the manifest's records of that shard; refused")
         out.append((shard, line))
     return out
 
@@ -379,7 +388,8 @@ def _check_member(label: str, member: Member, data: bytes, expected: Expected, r
                                          f"{expected.sha256[:16]}...; refused")
     if expected.role == "record":
         record = _json(data, where)
-        if not isinstance(record, dict) or without_timings(record) != without_timings(records[expected.sample_id]):
+        if not isinstance(record, dict) or not isinstance(record.get("stats", {}), dict) \
+                or without_timings(record) != without_timings(records[expected.sample_id]):
             raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
     else:
         check_exr_header(data, where, limits)

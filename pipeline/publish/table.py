@@ -111,7 +111,7 @@ def file_refs(record, source: str) -> dict[str, FileRef]:
         if not isinstance(entry, dict):
             raise Refused("bad_record", f"{where}: a files entry is not an object")
         role, path = entry.get("role"), entry.get("path")
-        if role not in expected or role in refs:
+        if not isinstance(role, str) or role not in expected or role in refs:
             raise Refused("bad_record", f"{where}: file role {role!r} is unknown or repeated")
         if path != expected[role]:
             raise Refused("manifest_path", f"{where}: {role} file path {path!r} is not the layout's "
@@ -137,14 +137,18 @@ def _triple(values, index: int):
     return values[index] if isinstance(values, list) and len(values) == 3 else None
 
 
+def _object(value) -> dict:
+    return value if isinstance(value, dict) else {}
+
+
 def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) -> dict:
     """The ``samples.jsonl`` row of a (checked) manifest record in the tar ``tar``."""
     refs = file_refs(record, "manifest")
-    lighting = record.get("lighting") or {}
+    lighting = _object(record.get("lighting"))
     direction = lighting.get("direction")
-    material = record.get("material") or {}
-    values = material.get("values") or {}
-    seeds = record.get("seeds") or {}
+    material = _object(record.get("material"))
+    values = _object(material.get("values"))
+    seeds = _object(record.get("seeds"))
     texture = refs.get("texture")
     row = {
         "id": record["id"], "material_id": record["material_id"],
@@ -162,7 +166,7 @@ def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) ->
         "roughness": values.get("roughness"),
         "normal_x": _triple(values.get("normal"), 0), "normal_y": _triple(values.get("normal"), 1),
         "normal_z": _triple(values.get("normal"), 2),
-        "flagged": bool((record.get("stats") or {}).get("flagged")),
+        "flagged": bool(_object(record.get("stats")).get("flagged")),
         "seed_material": seeds.get("material"), "seed_light": seeds.get("light"),
         "seed_render": seeds.get("render_used"),
         "record": record_member(record["id"]), "record_sha256": record_sha256, "record_bytes": record_bytes,

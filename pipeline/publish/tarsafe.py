@@ -6,8 +6,8 @@ no user or group names, mode 0644; the same members give the same bytes.
 Reading: Python 3.11.7's ``tarfile`` predates the 2025 fixes (CVE-2025-4517, -4330,
 -4138, -4435, -8194), so :func:`scan_tar` first parses every 512-byte header itself and
 accepts only what :func:`write_member` writes: plain ustar headers with a valid checksum
-for regular files whose names fit the layout, below the size and count caps, with nothing
-but zeros after the end of the archive. Only then does :func:`read_members` stream the
+for regular files whose names fit the layout, below the size and count caps, byte for byte
+the header publish writes, zero padding, and nothing but zeros after the end of the archive. Only then does :func:`read_members` stream the
 members through ``tarfile``'s ``extractfile`` (never ``extract``/``extractall``), checking
 that ``tarfile`` sees exactly the members the scan saw.
 """
@@ -66,15 +66,24 @@ def open_writer(fileobj) -> tarfile.TarFile:
     return tarfile.open(fileobj=fileobj, mode="w", format=tarfile.USTAR_FORMAT)
 
 
-def write_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
+def _info(name: str, size: int) -> tarfile.TarInfo:
     info = tarfile.TarInfo(name)
-    info.size = len(data)
+    info.size = size
     info.mtime = 0
     info.mode = MEMBER_MODE
     info.uid = info.gid = 0
     info.uname = info.gname = ""
     info.type = tarfile.REGTYPE
-    tar.addfile(info, io.BytesIO(data))
+    return info
+
+
+def member_header(name: str, size: int) -> bytes:
+    """The 512 bytes :func:`write_member` writes before a member's data."""
+    return _info(name, size).tobuf(tarfile.USTAR_FORMAT, tarfile.ENCODING, "surrogateescape")
+
+
+def write_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
+    tar.addfile(_info(name, len(data)), io.BytesIO(data))
 
 
 # --------------------------------------------------------------------------- reading
@@ -186,6 +195,12 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
         if position + BLOCK + padded(size) > length:
             raise Refused("not_tar", f"{label}: member {name!r} says {size} bytes, past the end of the file; "
                                      "truncated")
+        if header != member_header(name, size):
+            raise Refused("header_fields", f"{label}: member {name!r} has a header other than the one publish "
+                                           "writes (mode, owner, time or unused fields differ); refused")
+        fh.seek(position + BLOCK + size)
+        if any(fh.read(padded(size) - size)):
+            raise Refused("not_tar", f"{label}: member {name!r} is followed by non-zero padding; refused")
         if name in names:
             raise Refused("duplicate", f"{label}: member {name!r} appears twice; refused")
         if members_before + len(members) + 1 > limits.members:
