@@ -177,6 +177,7 @@ def test_publish_refuses_an_invalid_dataset_and_writes_nothing(smoke, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--shard-bytes", "100"], "--shard-bytes: 100 is not allowed; allowed: an integer from 65536"),
     (["--license", "gpl-9"], "Invalid value for '--license'"),
+    (["--url", "ftp://x y"], "--url: 'ftp://x y' is not allowed; allowed: an http(s) URL"),
 ])
 def test_publish_usage_errors_exit_2(smoke, tmp_path, args, message):
     result = run("publish", str(smoke), "--out", str(tmp_path / "pub"), *args)
@@ -195,6 +196,20 @@ def test_out_must_be_new_or_empty(smoke, published, tmp_path):
     assert [p.name for p in taken.iterdir()] == ["keep.txt"]
     missing = run("verify", str(tmp_path / "nothing"))
     assert missing.exit_code == 2 and "PUB" in missing.output
+    for args in (["publish", str(smoke), "--out", str(smoke / "pub")], ["unpack", str(pub), "--out", str(pub / "ds")]):
+        inside = run(*args)
+        assert inside.exit_code == 2 and "a folder outside" in inside.output
+    assert not (smoke / "pub").exists() and not (pub / "ds").exists()
+
+
+def test_url_and_license_reach_the_metadata(smoke, tmp_path):
+    pub = tmp_path / "pub"
+    url = "https://huggingface.co/datasets/example/shaderball-smoke"
+    result = run("publish", str(smoke), "--out", str(pub), "--license", "cc0-1.0", "--url", url)
+    assert result.exit_code == 0, result.output
+    croissant = json.loads((pub / "croissant.json").read_text())
+    assert croissant["url"] == url and croissant["license"] == "https://creativecommons.org/publicdomain/zero/1.0/"
+    assert "license: cc0-1.0" in (pub / "README.md").read_text()
 
 
 # --------------------------------------------------------------------------- metadata

@@ -343,12 +343,12 @@ def test_a_consistent_publication_of_an_invalid_dataset_is_unpacked_then_refused
     pub = tmp_path / "pub"
     write_publication(str(forged), str(pub), shard_bytes=300_000, contact_sheet=False)
     assert run("verify", str(pub)).exit_code == 0  # every checksum agrees: verify cannot know
-    out = tmp_path / "out"
+    out = tmp_path / "new" / "parents" / "out"
     result = run("unpack", str(pub), "--out", str(out), "--json")
     assert result.exit_code == 1
     refusal = json.loads(result.stdout)
     assert refusal["kind"] == "invalid_dataset" and "m000002.maps.exr" in refusal["message"]
-    assert not out.exists()
+    assert not (tmp_path / "new").exists()  # written, then removed with the parents it made
 
 
 @pytest.mark.parametrize("limits, kind, words", [

@@ -10,10 +10,16 @@ from pipeline.errors import bad_value
 from pipeline.store.atomic import write_bytes_atomic
 
 
-def check_out(out: str) -> None:
-    """PUB (or an unpack's DIR) must be new or an empty folder: nothing is overwritten."""
+def check_out(out: str, source: str | None = None) -> None:
+    """PUB (or an unpack's DIR) must be new or an empty folder, and not inside ``source`` (the
+    folder read from, which would no longer check): nothing is overwritten."""
     if os.path.lexists(out) and (not os.path.isdir(out) or os.path.islink(out) or os.listdir(out)):
         raise bad_value("--out", out, "a new or empty folder (nothing in it is overwritten)")
+    if source is not None:
+        inner, outer = os.path.realpath(out), os.path.realpath(source)
+        if os.path.commonpath([inner, outer]) in (inner, outer):
+            raise bad_value("--out", out, f"a folder outside {source!r} and not containing it (files written "
+                                          "there would make it fail its own checks)")
 
 
 class Output:
@@ -21,7 +27,11 @@ class Output:
 
     def __init__(self, out: str):
         self.out = out
-        self.created_root = not os.path.lexists(out)
+        # the outermost folder this write creates (out itself, or a missing parent of it)
+        self.created_top = None
+        path = os.path.abspath(out)
+        while not os.path.lexists(path):
+            self.created_top, path = path, os.path.dirname(path)
         os.makedirs(out, exist_ok=True)
         self.sums: dict[str, str] = {}
         self.sizes: dict[str, int] = {}
@@ -38,8 +48,8 @@ class Output:
         self.sums[rel], self.sizes[rel] = sha256, size
 
     def discard(self) -> None:
-        if self.created_root:
-            shutil.rmtree(self.out, ignore_errors=True)
+        if self.created_top:
+            shutil.rmtree(self.created_top, ignore_errors=True)
             return
         for name in os.listdir(self.out):
             target = os.path.join(self.out, name)

@@ -51,7 +51,7 @@ def unpack(pub: str, out: str, *, limits: Limits = DEFAULT_LIMITS, validate_afte
            progress: Callable[[str], None] | None = None) -> UnpackSummary:
     """Restore the dataset folder of the publication ``pub`` into ``out`` (new or empty)."""
     start = time.perf_counter()
-    check_out(out)
+    check_out(out, pub)
     publication = open_publication(pub, limits)
     verify_publication(publication, progress)
     output = Output(out)

@@ -105,10 +105,12 @@ class PublishSummary:
                 f"check with `shaderball verify {self.out}`"]
 
 
-def check_options(shard_bytes: int, license_id: str) -> None:
+def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> None:
     check_int("--shard-bytes", shard_bytes, *SHARD_BYTES_RANGE)
     if license_id not in LICENSES:
         raise bad_value("--license", license_id, ", ".join(LICENSES))
+    if url is not None and not (isinstance(url, str) and url.startswith(("https://", "http://")) and " " not in url):
+        raise bad_value("--url", url, "an http(s) URL without spaces, where the publication will live")
 
 
 def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, license_id: str = DEFAULT_LICENSE,
@@ -117,8 +119,8 @@ def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, lice
 
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
     """
-    check_options(shard_bytes, license_id)
-    check_out(out)
+    check_options(shard_bytes, license_id, url)
+    check_out(out, root)
     start = time.perf_counter()
     if progress:
         progress(f"validating {root} (every file, as `shaderball validate`)")
@@ -243,8 +245,8 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
                       validation_s: float = 0.0, progress: Callable[[str], None] | None = None) -> PublishSummary:
     """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
     does; tests use this to build hostile publications)."""
-    check_options(shard_bytes, license_id)
-    check_out(out)
+    check_options(shard_bytes, license_id, url)
+    check_out(out, root)
     start = time.perf_counter()
     layout = Layout(root)
     spec: DatasetSpec = parse_spec(layout.spec)
