@@ -148,7 +148,7 @@ def _range(values) -> str:
 
 
 def _mb(n: int) -> str:
-    return f"{n / 1e6:.2f} MB"
+    return f"{n / 1e6:.2f} MB" if n >= 100_000 else f"{n / 1e3:.1f} KB"
 
 
 def sample_section(facts: PublicationFacts) -> list[str]:
