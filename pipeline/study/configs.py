@@ -18,7 +18,7 @@ FAMILIES = ("ladder", "denoise", "samplers", "depth", "rr", "sun", "clamp", "rob
 #: Families whose estimate converges to the reference's image: the candidates for a faster
 #: recipe of the same meaning. Depth cuts, clamps, robust combinations and denoisers are biased.
 UNBIASED_FAMILIES = ("ladder", "samplers", "rr", "adaptive")
-SAMPLER_SPP = (4, 16, 64, 128, 150, 256)
+SAMPLER_SPP = (4, 16, 32, 48, 64, 96, 128, 150, 256)
 DEPTHS = (1, 2, 3, 4, 6, 12, 16)
 RR_DEPTHS = (1, 2, 3, 8)
 CLAMPS = (1.0, 4.0, 16.0, 64.0)
