@@ -98,7 +98,7 @@ def test_a_file_not_matching_its_hash_is_refused_on_first_read(copy):
 @pytest.mark.parametrize("bad", ["../outside.exr", "/etc/passwd", "shards/../../x.exr", "shards\\s0\\x.exr"])
 def test_paths_leaving_the_dataset_are_refused(copy, bad):
     _rewrite_manifest(copy, lambda rs: rs[0]["files"][0].update(path=bad))
-    with pytest.raises(ShaderballError, match="leaves the dataset folder"):
+    with pytest.raises(ShaderballError, match="file path .*(leaves the folder|is absolute)"):
         open_dataset(str(copy))
 
 
@@ -108,7 +108,7 @@ def test_a_symbolic_link_out_of_the_dataset_is_refused(copy, tmp_path):
     rel = _records(copy)[0]["files"][0]["path"]
     os.unlink(copy / rel)
     os.symlink(outside, copy / rel)
-    with pytest.raises(ShaderballError, match="outside the dataset folder"):
+    with pytest.raises(ShaderballError, match="is refused: .* is a symbolic link .*not followed"):
         open_dataset(str(copy))
 
 

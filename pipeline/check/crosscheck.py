@@ -13,11 +13,21 @@ import numpy as np
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.report import Problems, summarise
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad
-from pipeline.store.folder import is_temp_file, read_manifest, record_file_names, shard_ids_on_disk
+from pipeline.run.build import read_snapshot
+from pipeline.store.folder import (
+    is_temp_file,
+    list_bound,
+    read_json_checked,
+    read_json_in,
+    read_manifest,
+    record_file_names,
+    shard_ids_on_disk,
+    symlinks_and_odd_files,
+)
 from pipeline.store.layout import DESCRIPTION_FILE, LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
 from sky import Light
@@ -69,7 +79,7 @@ def check_root(root: str) -> Layout:
         raise ShaderballError(f"DIR: {root!r} is not a directory; give a dataset directory "
                               "written by `shaderball build`")
     layout = Layout(root)
-    if not any(os.path.exists(os.path.join(root, name)) for name in ROOT_FILES):
+    if not any(os.path.lexists(os.path.join(root, name)) for name in ROOT_FILES):
         raise ShaderballError(f"DIR: {root!r} is not a shaderball dataset: it holds none of "
                               f"{', '.join(ROOT_FILES)}")
     return layout
@@ -81,16 +91,16 @@ def load_plan(layout: Layout, problems: Problems):
     description = read_json(layout.description)
     description_ok = isinstance(description, dict)
     if not description_ok:
-        what = "missing" if not os.path.exists(layout.description) else "not a JSON object"
+        what = read_json_checked(layout.description)[1] or "not a JSON object"
         problems.add("spec_snapshot", None, DESCRIPTION_FILE,
                      f"{DESCRIPTION_FILE}: {what}; it records the spec digest, variant and counts")
         description = None
-    if not os.path.exists(layout.spec):
+    if not os.path.lexists(layout.spec):
         problems.add("spec_snapshot", None, SPEC_FILE,
                      f"{SPEC_FILE}: missing; the dataset cannot be checked against its plan")
         return None, None, description, False, description_ok
     try:
-        spec = parse_spec(layout.spec)
+        spec = read_snapshot(layout.root)
     except USER_ERRORS as exc:
         problems.add("spec_snapshot", None, SPEC_FILE,
                      f"{SPEC_FILE}: unreadable ({exc}); the dataset cannot be checked against its plan")
@@ -111,10 +121,11 @@ def load_plan(layout: Layout, problems: Problems):
     return spec, plans, description, spec_ok, description_ok
 
 
-def load_manifest(layout: Layout, problems: Problems):
-    """[(source, record)] of manifest.jsonl, or None when there is no manifest."""
+def load_manifest(layout: Layout, problems: Problems, renders: int | None = None):
+    """[(source, record)] of manifest.jsonl, or None when there is no manifest (or it cannot
+    be read: not a regular file, or larger than ``renders`` records can be)."""
     try:
-        data = read_manifest(layout)
+        data = read_manifest(layout, renders)
     except FileNotFoundError:
         problems.add("missing_manifest", None, MANIFEST_FILE,
                      f"{MANIFEST_FILE}: missing (an unfinished build, or deleted); records are "
@@ -130,6 +141,10 @@ def load_manifest(layout: Layout, problems: Problems):
             continue
         try:
             record = json.loads(raw)
+        except RecursionError:
+            problems.add("edited_record", None, MANIFEST_FILE,
+                         f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)")
+            continue
         except ValueError as exc:
             problems.add("edited_record", None, MANIFEST_FILE,
                          f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})")
@@ -142,13 +157,13 @@ def load_manifest(layout: Layout, problems: Problems):
     return out
 
 
-def load_markers(layout: Layout, shard_ids, known: dict) -> dict:
+def load_markers(layout: Layout, shard_ids, known: dict, renders: dict | None = None) -> dict:
     """shard id -> marker (None when missing or torn). A marker's record equal to the one in
     ``known`` (id -> manifest record) is replaced by that object: one copy in memory, not two
     (a record is ~11 kB as Python objects; the paper's dataset has 50,000)."""
     markers = {}
     for sid in shard_ids:
-        marker = read_json(layout.marker(sid))
+        marker = read_json_in(layout, layout.marker_rel(sid), list_bound((renders or {}).get(sid)))[0]
         if isinstance(marker, dict) and isinstance(marker.get("records"), list):
             marker["records"] = [known[r["id"]] if isinstance(r, dict) and r.get("id") in known
                                  and known[r["id"]] == r else r for r in marker["records"]]
@@ -168,8 +183,8 @@ def _file_problems(facts: FileFacts, entry: dict, id_: str, listed_by: str, prob
         problems.add("missing_file", id_, rel,
                      f"{rel}: missing ({listed_by} lists it for {id_}, {recorded} bytes)")
         return
-    if facts.error == "not a regular file":
-        problems.add("undecodable", id_, rel, f"{rel}: not a regular file")
+    if facts.unsafe:
+        problems.add("unsafe_path", id_, rel, f"{rel}: {facts.error} ({listed_by} lists it for {id_})")
         return
     if facts.size != recorded:
         how = "truncated" if isinstance(recorded, int) and facts.size < recorded else "grown"
@@ -414,7 +429,7 @@ def fallback_records(state: State) -> list:
             continue
         for name in names:
             rel = f"{SHARDS_DIR}/{sid}/{name}"
-            record = read_json(layout.path(rel))
+            record = read_json_in(layout, rel)[0]
             if isinstance(record, dict) and isinstance(record.get("id"), str):
                 out.append((Source(rel), record))
     return out
@@ -468,11 +483,11 @@ def check_markers(state: State, primary: dict, problems: Problems, have_manifest
         marker = state.markers.get(sid)
         wanted = [s.sample_id for s in shard.samples]
         if marker is None:
-            exists = os.path.exists(layout.marker(sid))
+            why = read_json_in(layout, rel, list_bound(len(wanted)))[1]
+            why = f"unreadable ({why})" if why and why != "missing" else "missing"
             recorded = sum(1 for s in wanted if s in primary)
             problems.add("incomplete_shard", sid, rel,
-                         f"{rel}: {'unreadable (torn or not JSON)' if exists else 'missing'}; "
-                         f"{recorded} of {len(wanted)} samples of shard {sid} have a record")
+                         f"{rel}: {why}; {recorded} of {len(wanted)} samples of shard {sid} have a record")
             continue
         if not isinstance(marker, dict) or not marker.get("complete") or \
                 not isinstance(marker.get("records"), list):
@@ -527,10 +542,10 @@ def check_record_files(state: State, primary: dict, problems: Problems) -> None:
     for sid, sample in state.planned.items():
         rel = layout.record_rel(sample.shard_id, sid)
         path = layout.path(rel)
-        if not os.path.exists(path):
+        if not os.path.lexists(path):
             state.record_files[sid] = None
             continue
-        content = read_json(path)
+        content = read_json_in(layout, rel)[0]
         reference = marker_record(state, sample) or (primary.get(sid) or (None, None))[1]
         state.record_files[sid] = reference if content == reference else content  # one copy
         if reference is None or content == reference:
@@ -657,9 +672,19 @@ def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
     files, dirs = _allowed_files(state, primary)
     state.allowed_dirs = dirs
     root = state.layout.root
+    odd = dict(symlinks_and_odd_files(root))
+    for rel, what in odd.items():
+        facts = state.facts.get(rel)
+        if facts is not None and facts.unsafe:
+            continue  # a file a record lists: reported with the record's id
+        state.extra_files.append(rel)
+        problems.add("unsafe_path", None, rel, f"{rel}: {what}; a dataset folder holds only regular files and "
+                                               "folders: not followed, not read")
     for folder, subdirs, names in os.walk(root):
         rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
         rel_dir = "" if rel_dir == "." else rel_dir + "/"
+        subdirs[:] = [name for name in subdirs if rel_dir + name not in odd]  # links: never entered
+        names = [name for name in names if rel_dir + name not in odd]
         for name in sorted(subdirs):
             rel = rel_dir + name
             if rel not in dirs and not os.listdir(os.path.join(folder, name)):

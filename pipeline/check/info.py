@@ -15,11 +15,19 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from pipeline.dataset.plan import shard_id
-from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.dataset.spec import spec_digest
 from pipeline.errors import ShaderballError
-from pipeline.store.folder import disk_usage, manifest_record_count, shard_records
-from pipeline.store.layout import Layout
-from pipeline.store.records import read_json
+from pipeline.run.build import read_snapshot
+from pipeline.store.folder import (
+    disk_usage,
+    manifest_record_count,
+    read_json_checked,
+    read_manifest,
+    shard_records,
+    symlinks_and_odd_files,
+    unsafe_entry,
+)
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 
 #: Roles of the files a record lists, in the order they are reported.
 FILE_ROLES = ("render", "maps", "texture")
@@ -76,6 +84,9 @@ class DatasetInfo:
     flagged: int = 0
     rerendered: int = 0
     noise_relative_median: float | None = None
+    #: what was left out and why: malformed markers or records, paths leaving the folder,
+    #: symbolic links or FIFOs in it (``shaderball validate`` checks everything).
+    problems: list = field(default_factory=list)
 
     @property
     def complete(self) -> bool:
@@ -83,7 +94,7 @@ class DatasetInfo:
 
     def lines(self) -> list[str]:
         d = self.description or {}
-        libs = d.get("libraries", {})
+        libs = _dict(d.get("libraries"))
         built = (f"; built with shaderball {d.get('shaderball', '?')}, mitsuba {libs.get('mitsuba', '?')} "
                  f"{d.get('variant', '?')}") if d else "; no dataset.json yet"
         pct = 100.0 * self.recorded / self.total_renders if self.total_renders else 100.0
@@ -107,6 +118,9 @@ class DatasetInfo:
             noise = (f"; relative noise (RMS standard error / mean) median {self.noise_relative_median:.3f}"
                      if self.noise_relative_median is not None else "")
             out.append(f"renders flagged bad: {self.flagged}; re-rendered with a new seed: {self.rerendered}{noise}")
+        if self.problems:
+            out.append(f"NOT READ ({len(self.problems)}; run `shaderball validate`): "
+                       + "; ".join(self.problems[:5]) + (" ..." if len(self.problems) > 5 else ""))
         return out
 
     def to_dict(self) -> dict:
@@ -130,45 +144,67 @@ def spec_summary(spec) -> list[str]:
     ]
 
 
+def _dict(value) -> dict:
+    return value if isinstance(value, dict) else {}
+
+
+def _number(value) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
 def dataset_info(root: str) -> DatasetInfo:
-    """Summarise the dataset folder ``root`` (complete or partial)."""
+    """Summarise the dataset folder ``root`` (complete or partial). Malformed or unsafe
+    markers, records and files are left out and listed in ``problems``, never followed."""
 
     layout = Layout(root)
     if not os.path.isdir(root):
         raise ShaderballError(f"DIR: {root!r} is not a folder; allowed: a dataset folder made by `shaderball build`")
-    if not os.path.isfile(layout.spec):
+    if not os.path.lexists(layout.spec):
         raise ShaderballError(f"DIR: {root!r} holds no spec.toml; allowed: a dataset folder made by "
                               "`shaderball build` (it writes spec.toml before anything else)")
-    spec = parse_spec(layout.spec)
+    spec = read_snapshot(root)
     counts = shard_render_counts(spec)
+    description, why = read_json_checked(layout.description)
     info = DatasetInfo(root=root, name=spec.dataset.name, version=spec.dataset.version,
-                       spec_digest=spec_digest(spec), description=read_json(layout.description),
+                       spec_digest=spec_digest(spec), description=description if isinstance(description, dict) else None,
                        spec_lines=spec_summary(spec), total_renders=sum(counts.values()),
                        total_shards=len(counts))
+    if (why is not None and why != "missing") or (why is None and not isinstance(description, dict)):
+        info.problems.append(f"{DESCRIPTION_FILE}: {why or 'not a JSON object'}")
     files: dict[str, dict] = {}
     effects: Counter = Counter()
     kinds: dict[str, str] = {}
     noise = []
-    for shard in counts:
-        records, complete, started = shard_records(layout, shard)
+    for shard, renders in counts.items():
+        records, complete, started, problems = shard_records(layout, shard, renders)
+        info.problems += problems
         info.shards_complete += complete
         info.shards_started += started
         for record in records:
+            unsafe = [e["path"] for e in record["files"] if unsafe_entry(root, e["path"])]
+            if unsafe:
+                info.problems.append(f"record {record['id']}: {unsafe_entry(root, unsafe[0])}")
             info.recorded += 1
-            for entry in record.get("files", []):
-                files.setdefault(entry.get("role", "?"), {})[entry["path"]] = entry.get("bytes", 0)
-            for name, on in record.get("effects", {}).items():
+            for entry in record["files"]:
+                files.setdefault(entry["role"], {})[entry["path"]] = entry["bytes"]
+            for name, on in _dict(record.get("effects")).items():
                 effects[name] += bool(on)
-            kinds[record.get("material_id", "")] = record.get("material", {}).get("kind", "?")
-            stats = record.get("stats", {})
+            kinds[str(record.get("material_id", ""))] = str(_dict(record.get("material")).get("kind", "?"))
+            stats = _dict(record.get("stats"))
             info.flagged += bool(stats.get("flagged"))
-            info.rerendered += stats.get("attempts", 1) > 1
-            if stats.get("noise_relative") is not None:
-                noise.append(stats["noise_relative"])
+            info.rerendered += (_number(stats.get("attempts")) or 1) > 1
+            if _number(stats.get("noise_relative")) is not None:
+                noise.append(_number(stats["noise_relative"]))
     info.files = {role: {"count": len(paths), "bytes": sum(paths.values())} for role, paths in files.items()}
     info.effects = {name: effects[name] for name in sorted(effects, key=_effect_order)}
     info.kinds = dict(Counter(kinds.values()))
     info.noise_relative_median = statistics.median(noise) if noise else None
-    info.manifest_records = manifest_record_count(layout)
+    info.manifest_records = manifest_record_count(layout, info.total_renders)
+    if info.manifest_records is None and os.path.lexists(layout.manifest):
+        try:
+            read_manifest(layout, info.total_renders)
+        except OSError as exc:
+            info.problems.append(f"{MANIFEST_FILE}: {exc.strerror}")
+    info.problems += [f"{rel}: {what}" for rel, what in symlinks_and_odd_files(root)]
     info.disk_bytes, info.temp_files = disk_usage(root)
     return info

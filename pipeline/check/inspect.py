@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -16,6 +17,7 @@ from pipeline.check.report import Progress
 from pipeline.errors import USER_ERRORS
 from pipeline.render.stats import render_stats
 from pipeline.store.exr import read_exr
+from pipeline.store.folder import UnsafePath, read_bytes, resolve_inside
 
 #: Largest |length - 1| of a stored normal: half floats carry 11 significant bits, so a unit
 #: vector rounded per component is off by up to ~1e-3 in length; measured here: <= 2.5e-4.
@@ -40,6 +42,9 @@ class FileFacts:
     meta_json: str | None = None  # the header's metadata, kept as text: ~4x smaller than dicts
     issues: list[tuple[str, str]] = field(default_factory=list)
     pixel_stats: dict | None = None
+    #: not read because it is unsafe: a symbolic link on its way, not a regular file
+    #: (pipeline.store.folder); ``error`` says which.
+    unsafe: bool = False
 
     @property
     def meta(self) -> dict | None:
@@ -166,19 +171,24 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
 def inspect_file(root: str, rel: str, expect: Expect, recorded_bytes, fast: bool) -> FileFacts:
     """Stat (fast) or read, hash, decode and check one file, reading it once."""
 
-    path = os.path.join(root, *rel.split("/"))
     try:
-        size = os.stat(path).st_size
+        path = resolve_inside(root, rel)
+        info = os.lstat(path)
+    except UnsafePath as exc:
+        return FileFacts(rel, 0, error=exc.strerror, unsafe=True)
     except OSError:
         return FileFacts(rel, None)
-    if not os.path.isfile(path):
-        return FileFacts(rel, size, error="not a regular file")
+    if not stat.S_ISREG(info.st_mode):
+        return FileFacts(rel, info.st_size, error="not a regular file: not read", unsafe=True)
+    size = info.st_size
     facts = FileFacts(rel, size)
     if fast or (recorded_bytes is not None and size != recorded_bytes):
         return facts  # a size mismatch is reported as such; its content is not the record's
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
+        data = read_bytes(path, size)
+    except UnsafePath as exc:  # swapped for a link or a FIFO since the lstat above
+        facts.error, facts.unsafe = exc.strerror, True
+        return facts
     except OSError as exc:
         facts.error = f"cannot be read ({exc.strerror})"
         return facts

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.check.info import shard_render_counts
-from pipeline.dataset.spec import parse_spec
 from pipeline.errors import ShaderballError
 from pipeline.render.tonemap import to_uint8, tonemap
+from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
-from pipeline.store.folder import shard_records
+from pipeline.store.folder import read_bytes, resolve_inside, shard_records, unsafe_entry
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
@@ -39,11 +39,17 @@ class PreviewSummary:
     recorded: int
     total: int
     size: tuple[int, int]
+    #: records left out, and why (malformed, or naming a path that leaves the folder)
+    problems: tuple[str, ...] = ()
 
     def lines(self) -> list[str]:
-        return [f"contact sheet {self.out}: {len(self.samples)} samples "
-                f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
-                "samples: " + ", ".join(self.samples)]
+        out = [f"contact sheet {self.out}: {len(self.samples)} samples "
+               f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
+               "samples: " + ", ".join(self.samples)]
+        if self.problems:
+            out.append(f"left out ({len(self.problems)}; run `shaderball validate`): "
+                       + "; ".join(self.problems[:5]) + (" ..." if len(self.problems) > 5 else ""))
+        return out
 
 
 def choose_samples(records: list[dict], count: int) -> list[dict]:
@@ -78,23 +84,45 @@ def map_tiles(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray | None]:
     return out
 
 
+def _dict(value) -> dict:
+    return value if isinstance(value, dict) else {}
+
+
+def _num(value) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
+
+
 def label_text(record: dict) -> list[str]:
-    material = record.get("material", {})
-    kind = material.get("kind", "?")
+    material = _dict(record.get("material"))
+    kind = str(material.get("kind", "?"))
     if kind == "svbrdf":
-        source = material.get("family") or os.path.basename(material.get("file") or "") or "?"
+        file = material.get("file")
+        source = material.get("family") or (os.path.basename(file) if isinstance(file, str) else "") or "?"
         kind = f"SVBRDF {source}"
-    lighting = record.get("lighting", {})
-    lines = [record["id"], kind,
-             f"sun elevation {lighting.get('elevation_deg', float('nan')):.1f} deg",
-             f"sun azimuth {lighting.get('azimuth_deg', float('nan')):.1f} deg",
-             f"turbidity {lighting.get('turbidity', float('nan')):.2f}"]
-    requested = lighting.get("requested", {})
-    if requested and abs(requested.get("elevation_deg", 0.0) - lighting.get("elevation_deg", 0.0)) > 1e-9:
-        lines.append(f"(raised from {requested['elevation_deg']:.1f} deg)")
-    if record.get("stats", {}).get("flagged"):
+    lighting = _dict(record.get("lighting"))
+    lines = [str(record["id"]), kind,
+             f"sun elevation {_num(lighting.get('elevation_deg')):.1f} deg",
+             f"sun azimuth {_num(lighting.get('azimuth_deg')):.1f} deg",
+             f"turbidity {_num(lighting.get('turbidity')):.2f}"]
+    requested = _dict(lighting.get("requested"))
+    if requested and abs(_num(requested.get("elevation_deg")) - _num(lighting.get("elevation_deg"))) > 1e-9:
+        lines.append(f"(raised from {_num(requested.get('elevation_deg')):.1f} deg)")
+    if _dict(record.get("stats")).get("flagged"):
         lines.append("FLAGGED: bad pixels")
     return lines
+
+
+def _read_layers(root: str, rel: str, layer: str | None = None) -> dict:
+    """The layers of the EXR a record names at ``rel``, read only inside the folder
+    (pipeline.store.folder.resolve_inside); ShaderballError naming it otherwise."""
+    try:
+        data = read_bytes(resolve_inside(root, rel))
+    except OSError as exc:
+        raise ShaderballError(f"DIR: {rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
+    layers = read_exr(data).layers
+    if layer is not None and layer not in layers:
+        raise ShaderballError(f"DIR: {rel}: holds no {layer} layer; run `shaderball validate`")
+    return layers
 
 
 def _font(size: int):
@@ -131,11 +159,11 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
     cache: dict[str, dict] = {}
     for r, record in enumerate(records):
         y = HEADER_HEIGHT + r * (tile + GAP)
-        files = {entry["role"]: entry["path"] for entry in record.get("files", [])}
-        render = read_exr(os.path.join(root, *files["render"].split("/"))).layers["render"]
+        files = {entry["role"]: entry["path"] for entry in record["files"]}
+        render = _read_layers(root, files["render"], "render")["render"]
         maps_rel = files.get("maps")
         if maps_rel not in cache:
-            cache[maps_rel] = read_exr(os.path.join(root, *maps_rel.split("/"))).layers if maps_rel else {}
+            cache[maps_rel] = _read_layers(root, maps_rel) if maps_rel else {}
         layers = cache[maps_rel]
         mask = layers.get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None
@@ -165,14 +193,24 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     if not out.lower().endswith(".png"):
         raise ShaderballError(f"--out: {out!r} is not allowed; allowed: a file name ending in .png")
     layout = Layout(root)
-    if not os.path.isdir(root) or not os.path.isfile(layout.spec):
+    if not os.path.isdir(root) or not os.path.lexists(layout.spec):
         raise ShaderballError(f"DIR: {root!r} is not allowed; allowed: a dataset folder made by "
                               "`shaderball build` (with its spec.toml)")
-    spec = parse_spec(layout.spec)
+    spec = read_snapshot(root)
     counts = shard_render_counts(spec)
-    records = [r for shard in counts for r in shard_records(layout, shard)[0]]
+    records, problems = [], []
+    for shard, renders in counts.items():
+        found, _complete, _started, left_out = shard_records(layout, shard, renders)
+        problems += left_out
+        for record in found:
+            unsafe = next((why for e in record["files"] if (why := unsafe_entry(root, e["path"]))), None)
+            if unsafe:
+                problems.append(f"record {record['id']}: {unsafe}")
+            else:
+                records.append(record)
     if not records:
-        raise ShaderballError(f"DIR: {root!r} holds no finished render yet; nothing to preview")
+        raise ShaderballError(f"DIR: {root!r} holds no finished render yet; nothing to preview"
+                              + (f" ({len(problems)} left out: {problems[0]})" if problems else ""))
     chosen = choose_samples(records, samples)
     if tile is None:
         resolution = spec.render.resolution
@@ -186,4 +224,5 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     os.makedirs(folder, exist_ok=True)
     write_bytes_atomic(out, buffer.getvalue())
     return PreviewSummary(out=out, samples=[r["id"] for r in chosen], recorded=len(records),
-                          total=sum(counts.values()), size=(picture.shape[1], picture.shape[0]))
+                          total=sum(counts.values()), size=(picture.shape[1], picture.shape[0]),
+                          problems=tuple(problems))

@@ -26,6 +26,8 @@ PROBLEM_KINDS: dict[str, str] = {
     "edited_record": "a record disagrees with the plan, with its files' headers or with the "
                      "shard marker's copy",
     "extra_file": "a file under DIR that is no part of the dataset",
+    "unsafe_path": "a symbolic link, or something that is not a regular file or folder (a FIFO, a "
+                   "device), under DIR: never followed or read",
     "spec_snapshot": "spec.toml unreadable, or its digest differs from dataset.json's",
     "missing_manifest": "no manifest.jsonl (an unfinished build); records come from the shards",
     "incomplete_shard": "a shard without a complete marker, or a marker missing samples",

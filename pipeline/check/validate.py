@@ -90,11 +90,12 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
                    description_ok=description_ok, manifest={}, markers={},
                    record_files={}, facts={}, extra_files=[], allowed_dirs=set(),
                    manifest_dirty=False)
-    manifest = load_manifest(layout, problems)
+    manifest = load_manifest(layout, problems, len(planned) if plans is not None else None)
     first = {}
     for _source, record in manifest or ():
         first.setdefault(record["id"], record)
-    state.markers = load_markers(layout, shard_ids, first)
+    state.markers = load_markers(layout, shard_ids, first,
+                                 {s.shard_id: s.n_renders for s in plans} if plans is not None else None)
     records = manifest if manifest is not None else fallback_records(state)
     primary = check_records_against_plan(records, state, problems, from_manifest=manifest is not None)
     files = referenced_files(primary, state)

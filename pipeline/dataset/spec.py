@@ -681,22 +681,59 @@ class DatasetSpec:
 # --------------------------------------------------------------------------- parsing
 
 
-def parse_spec(path: str | os.PathLike) -> DatasetSpec:
-    """Read and check the spec file at ``path``."""
+#: Largest spec file read (the paper's spec is ~2 kB; 20,000 svbrdf_folders fit in ~1 MB).
+MAX_SPEC_BYTES = 16 << 20
+#: Deepest nesting of arrays and tables accepted in a spec (the deepest a spec needs is 2).
+MAX_SPEC_NESTING = 32
+_UTF8_BOM = b"\xef\xbb\xbf"
+
+
+def read_spec_bytes(path: str | os.PathLike) -> bytes:
+    """A spec file's bytes, read once (a pipe such as ``<(cat spec.toml)`` or /dev/stdin can
+    be read only once), at most MAX_SPEC_BYTES."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as fh:
-            data = fh.read()
+            data = fh.read(MAX_SPEC_BYTES + 1)
     except FileNotFoundError:
         raise ShaderballError(f"spec file {path}: not found") from None
     except OSError as exc:
         raise ShaderballError(f"spec file {path}: cannot be read ({exc.strerror})") from None
+    if len(data) > MAX_SPEC_BYTES:
+        raise ShaderballError(f"spec file {path}: larger than {MAX_SPEC_BYTES} bytes; a spec is a short "
+                              "TOML file (docs/spec.md)")
+    return data
+
+
+def parse_spec(path: str | os.PathLike) -> DatasetSpec:
+    """Read (once) and check the spec file at ``path``."""
+    path = os.fspath(path)
+    return parse_spec_bytes(read_spec_bytes(path), source=path,
+                            base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def parse_spec_bytes(data: bytes, source: str = "<bytes>", base_dir: str | None = None) -> DatasetSpec:
+    """Decode (UTF-8; a leading byte-order mark is accepted and dropped) and check spec bytes."""
+    if data.startswith(_UTF8_BOM):
+        data = data[len(_UTF8_BOM):]
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ShaderballError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") \
-            from None
-    return parse_spec_text(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+        raise ShaderballError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start}); "
+                              "save the spec as UTF-8") from None
+    return parse_spec_text(text, source=source, base_dir=base_dir)
+
+
+def _nesting_depth(value) -> int:
+    """How deeply lists and tables nest in a parsed spec (iterative: a spec nested thousands
+    deep must not overflow Python's stack here either)."""
+    worst, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        worst = max(worst, depth)
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        stack.extend((child, depth + 1) for child in children)
+    return worst
 
 
 def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = None
@@ -706,10 +743,16 @@ def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = 
     Relative ``materials.svbrdf_folders`` are taken from ``base_dir`` (default: the
     current folder) and stored absolute.
     """
+    too_deep = ShaderballError(f"{source}: arrays or tables nested more than {MAX_SPEC_NESTING} levels deep "
+                               "(a spec needs 3: [section], key, [lo, hi]); docs/spec.md")
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ShaderballError(f"{source}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib's parser recurses per level of nesting
+        raise too_deep from None
+    if _nesting_depth(table) > MAX_SPEC_NESTING:
+        raise too_deep
     try:
         return _spec_from_table(table, base_dir or os.getcwd())
     except SpecError as exc:

@@ -38,6 +38,8 @@ from pipeline.errors import ShaderballError, bad_value
 from pipeline.neural.network import check_network_resolution
 from pipeline.neural.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.store.exr import read_exr
+from pipeline.store.folder import UnsafePath, read_bytes, read_json_checked, record_problem, resolve_inside
+from pipeline.store.folder import read_manifest as folder_read_manifest
 from pipeline.store.layout import Layout
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
@@ -46,17 +48,13 @@ DEFAULT_CACHE_MATERIALS = 64
 
 
 def safe_path(root: str, rel: str) -> str:
-    """``rel`` (a manifest path) inside ``root``, or a ShaderballError naming it."""
-    if not isinstance(rel, str) or not rel or rel.startswith(("/", "\\")) or "\\" in rel or ":" in rel \
-            or any(part in ("", ".", "..") for part in rel.split("/")):
-        raise ShaderballError(f"manifest: file path {rel!r} leaves the dataset folder {root!r} or is not "
-                              "a plain relative path; refused")
-    real_root = os.path.realpath(root)
-    full = os.path.realpath(os.path.join(real_root, *rel.split("/")))
-    if os.path.commonpath([real_root, full]) != real_root:
-        raise ShaderballError(f"manifest: file path {rel!r} resolves to {full!r}, outside the dataset folder "
-                              f"{real_root!r} (a symbolic link?); refused")
-    return full
+    """``rel`` (a manifest path) inside ``root`` (pipeline.store.folder.resolve_inside: no
+    ``..``, not absolute, through no symbolic link), or a ShaderballError naming it."""
+    try:
+        return resolve_inside(root, rel)
+    except UnsafePath as exc:
+        raise ShaderballError(f"manifest: file path {rel!r} is refused: {exc.strerror} (the dataset folder "
+                              f"{root!r} must hold it; check it with `shaderball validate`)") from None
 
 
 def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
@@ -85,13 +83,13 @@ def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.nd
 
 
 def read_json_file(path: str, what: str):
-    try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except FileNotFoundError:
-        raise ShaderballError(f"{what}: {path} is missing") from None
-    except (OSError, ValueError) as exc:
-        raise ShaderballError(f"{what}: {path} is not readable JSON ({exc})") from None
+    """A small JSON file of the dataset folder (a regular file, bounded: pipeline.store.folder)."""
+    value, why = read_json_checked(path)
+    if why == "missing":
+        raise ShaderballError(f"{what}: {path} is missing")
+    if why is not None:
+        raise ShaderballError(f"{what}: {path} is not readable JSON ({why})")
+    return value
 
 
 def read_manifest(root: str) -> tuple[dict, list[dict]]:
@@ -100,20 +98,33 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
     if not os.path.isdir(root):
         raise bad_value("DATASET", root, "a dataset folder written by `shaderball build`")
     description = read_json_file(layout.description, "DATASET")
-    if not os.path.isfile(layout.manifest):
+    if not isinstance(description, dict):
+        raise ShaderballError(f"DATASET: {layout.description} is not a JSON object; check the folder with "
+                              "`shaderball validate`")
+    if not os.path.lexists(layout.manifest):
         raise ShaderballError(f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
                               "when a build completes); finish it with `shaderball build SPEC --out DIR`")
+    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
+    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
+    try:
+        data = folder_read_manifest(layout, expected)
+    except OSError as exc:
+        raise ShaderballError(f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder "
+                              "with `shaderball validate`") from None
     records = []
-    with open(layout.manifest, encoding="utf-8") as f:
-        for number, line in enumerate(f, start=1):
-            if not line.strip():
-                continue
-            try:
-                records.append(json.loads(line))
-            except ValueError:
-                raise ShaderballError(f"DATASET: {layout.manifest} line {number} is not JSON; "
-                                      "check the folder with `shaderball validate`") from None
-    expected = (description.get("counts") or {}).get("renders")
+    for number, line in enumerate(data.split(b"\n"), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except (ValueError, RecursionError):
+            raise ShaderballError(f"DATASET: {layout.manifest} line {number} is not JSON; "
+                                  "check the folder with `shaderball validate`") from None
+        problem = record_problem(record)
+        if problem:
+            raise ShaderballError(f"DATASET: {layout.manifest} line {number}: {problem}; check the folder with "
+                                  "`shaderball validate`")
+        records.append(record)
     if expected is not None and len(records) != expected:
         raise ShaderballError(f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
                               f"{expected} renders; finish it with `shaderball build`")
@@ -138,8 +149,10 @@ def sample_files(root: str, record: dict) -> SampleFiles:
     missing = [role for role in ("render", "maps") if role not in files]
     if missing:
         raise ShaderballError(f"manifest: record {record.get('id')!r} lists no {' and no '.join(missing)} file")
+    if not isinstance(record.get("material_id"), str):
+        raise ShaderballError(f"manifest: record {record.get('id')!r} has no material_id")
     vector = record.get("lighting_vector")
-    if not (isinstance(vector, list) and len(vector) == 4):
+    if not (isinstance(vector, list) and len(vector) == 4 and all(isinstance(v, (int, float)) for v in vector)):
         raise ShaderballError(f"manifest: record {record.get('id')!r} has no 4-value lighting_vector")
     return SampleFiles(record["id"], record["material_id"], files["render"], files["maps"],
                        tuple(float(v) for v in vector))
@@ -174,8 +187,7 @@ class ShaderballDataset(Dataset):
 
     def _read(self, path: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
         try:
-            with open(path, "rb") as f:
-                data = f.read()
+            data = read_bytes(path)
         except OSError as exc:
             raise ShaderballError(f"DATASET: cannot read {path} ({exc.strerror}); check the folder with "
                                   "`shaderball validate`") from None
@@ -254,7 +266,7 @@ def open_dataset(root: str, resolution: int | None = None, exposure: float = DEF
     native = dataset_resolution(records)
     net_res, factor = network_resolution(native, resolution)
     samples = [sample_files(root, r) for r in records]
-    manifest_sha = hashlib.sha256(open(Layout(root).manifest, "rb").read()).hexdigest()
+    manifest_sha = hashlib.sha256(folder_read_manifest(Layout(root), len(records))).hexdigest()
     identity = {"spec_digest": description.get("spec_digest"), "manifest_sha256": manifest_sha,
                 "name": description.get("name"), "resolution": native, "variant": description.get("variant")}
     return ShaderballDataset(root, samples, net_res, factor, exposure, check_hashes, cache_materials, identity)

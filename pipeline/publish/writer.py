@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import validate
-from pipeline.dataset.spec import DatasetSpec, parse_spec
+from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.publish.card import dataset_card
 from pipeline.publish.croissant import croissant_metadata
@@ -41,8 +41,10 @@ from pipeline.publish.output import Output, check_out
 from pipeline.publish.refusal import Refused
 from pipeline.publish.table import file_refs, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
+from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import fsync_dir, sha256_file
-from pipeline.store.layout import MARKER_FILE, Layout
+from pipeline.store.folder import MAX_JSON_BYTES, list_bound, read_bytes, read_manifest, resolve_inside
+from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.records import dumps
 
 DEFAULT_SHARD_BYTES = 1_000_000_000
@@ -138,8 +140,8 @@ def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, lice
 
 
 def _read_manifest(layout: Layout) -> list[dict]:
-    with open(layout.manifest, encoding="utf-8") as fh:
-        return [json.loads(line) for line in fh if line.strip()]
+    data = read_manifest(layout)  # a regular file, bounded (pipeline.store.folder)
+    return [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
 
 
 def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
@@ -185,8 +187,11 @@ def assign_tars(groups: list[MaterialGroup], shard_bytes: int) -> list[list[Mate
 
 
 def _read_checked(layout: Layout, member: PackedMember) -> bytes:
-    with open(layout.path(member.source), "rb") as fh:
-        data = fh.read(member.size + 1)
+    try:  # inside the folder, through no link, a regular file (pipeline.store.folder)
+        data = read_bytes(resolve_inside(layout.root, member.source), member.size)
+    except OSError as exc:
+        raise Refused("changed", f"{member.source}: cannot be read ({exc.strerror}): the folder changed while "
+                                 "it was published; publish again") from None
     if len(data) != member.size or (member.sha256 and hashlib.sha256(data).hexdigest() != member.sha256):
         raise Refused("changed", f"{member.source}: {len(data)} bytes whose SHA-256 differs from the manifest's: "
                                  "the folder changed while it was published; publish again")
@@ -231,8 +236,7 @@ def _markers(layout: Layout, records: list[dict]) -> bytes:
     """Every shard's marker file, byte for byte, one line each, in plan order."""
     lines = []
     for shard in dict.fromkeys(r["shard"] for r in records):
-        with open(layout.marker(shard), "rb") as fh:
-            data = fh.read()
+        data = read_bytes(resolve_inside(layout.root, Layout.marker_rel(shard)), list_bound(None))
         if not data.endswith(b"\n") or data.count(b"\n") != 1:
             raise Refused("invalid_dataset", f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
                                              "`shaderball build` writes it; cannot publish it byte for byte")
@@ -249,7 +253,7 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
     check_out(out, root)
     start = time.perf_counter()
     layout = Layout(root)
-    spec: DatasetSpec = parse_spec(layout.spec)
+    spec: DatasetSpec = read_snapshot(root)
     records = _read_manifest(layout)
     if not records:
         raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
@@ -269,8 +273,8 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
                 for record in group.records:
                     rows.append(sample_row(record, rel, *record_sums[record_member(record["id"])]))
         for source, rel in SOURCE_FILES.items():
-            with open(layout.path(source), "rb") as fh:
-                output.write(rel, fh.read())
+            output.write(rel, read_bytes(layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE
+                                         else list_bound(len(records))))
         output.write(MARKERS_REL, _markers(layout, records))
         output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
         if contact_sheet:
@@ -280,8 +284,7 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
             with open(output.path(PREVIEW_FILE), "rb") as fh:
                 output.adopt(PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(),
                              os.path.getsize(output.path(PREVIEW_FILE)))
-        with open(layout.description, encoding="utf-8") as fh:
-            description = json.load(fh)
+        description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
         source_bytes = sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.members) \
             + sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
         facts = PublicationFacts(

@@ -16,19 +16,33 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pipeline import __version__
 from pipeline.dataset.plan import ShardPlan, plan_dataset, plan_summary
-from pipeline.dataset.spec import DatasetSpec, parse_spec, spec_digest, spec_to_dict, spec_to_toml
+from pipeline.dataset.spec import (
+    MAX_SPEC_BYTES,
+    DatasetSpec,
+    parse_spec_bytes,
+    spec_digest,
+    spec_to_dict,
+    spec_to_toml,
+)
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.render.mitsuba_env import library_versions, resolve_variant
 from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_text_atomic
-from pipeline.store.folder import only_temp_files, recorded_count, remove_temp_files
+from pipeline.store.folder import (
+    complete_marker,
+    only_temp_files,
+    read_spec_snapshot,
+    recorded_count,
+    remove_temp_files,
+)
 from pipeline.store.layout import Layout
 from pipeline.store.lock import writer_lock
 from pipeline.store.records import dumps, read_json
@@ -78,12 +92,34 @@ class BuildSummary:
 
 
 def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
+    """The spec at ``spec_path`` and its text, read once: a pipe (``<(cat spec.toml)``,
+    /dev/stdin) can be read only once. Relative ``svbrdf_folders`` are taken from the
+    spec file's folder, or from the current folder for a pipe."""
     try:
-        with open(spec_path, encoding="utf-8") as fh:
-            text = fh.read()
+        with open(spec_path, "rb") as fh:
+            regular = stat.S_ISREG(os.fstat(fh.fileno()).st_mode)
+            data = fh.read(MAX_SPEC_BYTES + 1)
     except OSError as exc:
         raise ShaderballError(f"SPEC: cannot read {spec_path!r}: {exc.strerror}") from None
-    return parse_spec(spec_path), text
+    if len(data) > MAX_SPEC_BYTES:
+        raise ShaderballError(f"SPEC: {spec_path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a "
+                              "short TOML file (docs/spec.md)")
+    base_dir = os.path.dirname(os.path.abspath(spec_path)) if regular else os.getcwd()
+    spec = parse_spec_bytes(data, source=spec_path, base_dir=base_dir)
+    return spec, data.decode("utf-8-sig")
+
+
+def read_snapshot(root: str) -> DatasetSpec:
+    """The spec snapshot ``DIR/spec.toml`` of a dataset folder: a regular file (not a link, a
+    FIFO or a device; pipeline.store.folder), bounded, parsed; ShaderballError if not."""
+    layout = Layout(root)
+    try:
+        data = read_spec_snapshot(layout)
+    except FileNotFoundError:
+        raise ShaderballError(f"{layout.spec}: missing") from None
+    except OSError as exc:
+        raise ShaderballError(f"{layout.spec}: cannot be read ({exc.strerror})") from None
+    return parse_spec_bytes(data, source=layout.spec, base_dir=os.path.abspath(root))
 
 
 def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
@@ -117,12 +153,12 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
         if not os.access(probe, os.W_OK):
             raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
         return "new"
-    if not os.path.isfile(layout.spec):
+    if not os.path.lexists(layout.spec):
         raise ShaderballError(
             f"--out: {out!r} is not empty and holds no {os.path.basename(layout.spec)}: "
             "not a shaderball dataset; choose an empty or new directory")
     try:
-        existing = parse_spec(layout.spec)
+        existing = read_snapshot(out)
     except USER_ERRORS as exc:
         raise ShaderballError(f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
                               "run `shaderball validate --repair` or choose another directory") from None
@@ -226,10 +262,10 @@ def write_manifest(out: str, plans: list[ShardPlan]) -> int:
     layout = Layout(out)
     lines = []
     for shard in plans:
-        marker = read_json(layout.marker(shard.shard_id))
-        if not marker or not marker.get("complete"):
+        records = complete_marker(layout, shard.shard_id, [s.sample_id for s in shard.samples])
+        if records is None:
             raise ShaderballError(f"shard {shard.shard_id} is not complete; cannot write the manifest")
-        lines.extend(dumps(record) for record in marker["records"])
+        lines.extend(dumps(record) for record in records)
     write_text_atomic(layout.manifest, "".join(line + "\n" for line in lines))
     return len(lines)
 
@@ -302,7 +338,7 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
     variant = prepare(out, spec, plans, allow_spec_change)
     total = sum(s.n_renders for s in plans)
     layout = Layout(out)
-    todo = [s for s in plans if not (read_json(layout.marker(s.shard_id)) or {}).get("complete")]
+    todo = [s for s in plans if complete_marker(layout, s.shard_id, [x.sample_id for x in s.samples]) is None]
     already = total - sum(s.n_renders for s in todo)
     start = time.perf_counter()
     wall_start = time.time()

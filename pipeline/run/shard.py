@@ -29,6 +29,7 @@ from pipeline.render.raster import project_material
 from pipeline.render.renderer import RenderSettings, model_record, render_sample
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import write_exr
+from pipeline.store.folder import complete_marker, real_dir, record_problem
 from pipeline.store.layout import Layout
 from pipeline.store.records import SCHEMA_VERSION, dumps, file_entry, file_ok, read_json
 from sky import Light
@@ -83,16 +84,31 @@ def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
         return False
 
 
+def files_where_the_layout_says(record: dict, sample: SamplePlan) -> bool:
+    """Every file ``record`` lists is at the path the layout gives its role (a render, the
+    material's maps or texture file): a record naming any other path (``..``, absolute,
+    another shard's file) is not this sample's, whatever its checksums say."""
+    files = record.get("files")
+    if not isinstance(files, list) or not files or record_problem(record, sample.shard_id):
+        return False
+    where = {"render": Layout.render_rel(sample.shard_id, sample.sample_id),
+             "maps": Layout.maps_rel(sample.shard_id, sample.material_id),
+             "texture": Layout.texture_rel(sample.shard_id, sample.material_id)}
+    roles = [entry["role"] for entry in files]
+    return roles[0] == "render" and len(set(roles)) == len(roles) and \
+        all(where.get(entry["role"]) == entry["path"] for entry in files)
+
+
 def sample_verified(root: str, record: dict | None, sample: SamplePlan,
                     checked: dict[str, bool] | None = None) -> bool:
     """``record`` is the plan's and its files are present with their recorded size and SHA-256.
 
     ``checked`` memoises file checks: a material's maps are shared by its lightings.
     """
-    if not record or not record_matches_plan(record, sample):
+    if not record or not record_matches_plan(record, sample) or not files_where_the_layout_says(record, sample):
         return False
     checked = {} if checked is None else checked
-    for entry in record.get("files", []):
+    for entry in record["files"]:
         key = dumps(entry)
         if key not in checked:
             checked[key] = file_ok(root, entry)
@@ -104,11 +120,10 @@ def sample_verified(root: str, record: dict | None, sample: SamplePlan,
 def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> dict:
     """Build ``shard`` under ``root``; return a summary. Safe to run again or concurrently."""
     layout = Layout(root)
-    marker = read_json(layout.marker(shard.shard_id))
-    if marker and marker.get("complete"):
+    if complete_marker(layout, shard.shard_id, [s.sample_id for s in shard.samples]) is not None:
         return {"shard": shard.shard_id, "rendered": 0, "skipped": shard.n_renders, "seconds": 0.0}
     start = time.perf_counter()
-    os.makedirs(layout.shard_dir(shard.shard_id), exist_ok=True)
+    make_shard_dir(layout, shard.shard_id)
     records, rendered = [], 0
     ctx = None
     checked: dict[str, bool] = {}
@@ -127,6 +142,20 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
     write_marker(layout, shard, records)
     return {"shard": shard.shard_id, "rendered": rendered, "skipped": shard.n_renders - rendered,
             "seconds": time.perf_counter() - start}
+
+
+def make_shard_dir(layout: Layout, shard_id: str) -> None:
+    """Create ``shards/<shard_id>`` (and ``shards``) as real folders: a symbolic link in their
+    place would send this shard's writes outside the dataset folder, so it is refused."""
+    for path in (os.path.dirname(layout.shard_dir(shard_id)), layout.shard_dir(shard_id)):
+        try:
+            os.mkdir(path)
+        except FileExistsError:
+            if not real_dir(path):
+                raise ShaderballError(
+                    f"{path}: a symbolic link or not a folder where the dataset's shard folder belongs; "
+                    "nothing is written through it: remove it (`shaderball validate --repair` does) "
+                    "and run the build again") from None
 
 
 def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant: str,

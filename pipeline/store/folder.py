@@ -1,30 +1,270 @@
 """The one reader of a dataset folder: which files are records, markers, the manifest and
-temporary files, and what each shard holds so far (the names: pipeline.store.layout).
+temporary files, what each shard holds so far (the names: pipeline.store.layout), and the
+rules for reading anything in it.
 
-Build (progress, resume, the sweep of temporary files), info, preview, validate and the
-crash harness read folders through this module, so they agree on what a file is.
+Build (progress, resume, the sweep of temporary files), info, preview, validate, the
+training loader and the crash harness read folders through this module, so they agree on
+what a file is and on what is safe to open.
+
+A dataset folder is untrusted input (issue 15): anyone may have edited it. So:
+
+- a path named in a manifest, record or marker is opened only through :func:`resolve_inside`:
+  a plain relative path (no ``..``, not absolute, no backslash), every component of it inside
+  the folder and none a symbolic link; a path that fails is never followed
+  (:class:`UnsafePath`);
+- files are opened with ``O_NOFOLLOW | O_NONBLOCK`` and read only when they are regular files
+  (a FIFO or a device is refused at once, it never blocks), and never past a size bound
+  (:data:`MAX_JSON_BYTES` for a record, a description or a spec; markers and the manifest by
+  the plan's count of renders);
+- JSON records and markers are checked for shape before use (:func:`record_problem`,
+  :func:`complete_marker`): a marker ``[1]``, a record without ``bytes``, a marker listing no
+  files are reported or treated as not done, never a ``KeyError``.
+
+The folder given by the user (DIR itself) may be a symbolic link: that is their choice.
+What is checked is everything below it. Between the check of a path and its opening, a
+process that can write the folder could swap a component for a link; the last component is
+opened with ``O_NOFOLLOW``, the ones before it are not re-checked (a writer with that access
+can write the data itself anyway).
 """
 
 from __future__ import annotations
 
+import errno
+import hashlib
+import json
 import os
 import re
+import stat
 
 from pipeline.store.atomic import TEMP_PREFIX
-from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, Layout
-from pipeline.store.records import read_json
+from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
 
 __all__ = [
-    "LOCK_FILE", "MANIFEST_FILE", "MARKER_FILE", "RECORD_NAME", "SHARD_NAME", "TEMP_PREFIX", "disk_usage",
-    "is_lock_file", "is_record_file", "is_temp_file", "manifest_record_count", "only_temp_files", "read_manifest",
-    "recorded_count", "record_file_names", "remove_temp_files", "shard_ids_on_disk", "shard_records",
+    "LOCK_FILE", "MANIFEST_FILE", "MARKER_FILE", "MAX_JSON_BYTES", "RECORD_NAME", "SHARD_NAME", "TEMP_PREFIX",
+    "UnsafePath", "complete_marker", "disk_usage", "file_digest", "is_lock_file", "is_record_file", "is_temp_file",
+    "manifest_record_count", "only_temp_files", "read_bytes", "read_json", "read_json_checked", "read_json_in", "read_manifest",
+    "read_spec_snapshot", "record_file_names", "record_problem", "recorded_count", "rel_problem",
+    "real_dir", "remove_temp_files", "resolve_inside", "shard_ids_on_disk", "shard_records",
+    "symlinks_and_odd_files", "unsafe_entry", "list_bound", "marker_records",
 ]
 
-#: A sample's record file, ``Layout.record_rel``: ``m<6-digit material>_l<light>.json``
-#: (MAX_MATERIALS is 1,000,000, so a material index has 6 digits).
-RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json$")
-#: A shard folder, ``pipeline.dataset.plan.shard_id``: ``s<5-digit index>`` (MAX_SHARDS 100,000).
-SHARD_NAME = re.compile(r"^s\d{5}$")
+#: Largest record file, description or spec read from a folder (a record is ~3 kB).
+MAX_JSON_BYTES = 1 << 20
+#: Largest marker or manifest without a plan to size them by (the paper's 250,000 renders
+#: make a ~800 MB manifest).
+MAX_LIST_BYTES = 1 << 32
+
+
+class UnsafePath(OSError):
+    """A path that leaves the folder, passes through a symbolic link, or names something that
+    is not a regular file, or a file over its size bound: never followed, never read.
+    ``strerror`` says which (an OSError, so callers that report unreadable files report it)."""
+
+    def __init__(self, path: str, reason: str):
+        super().__init__(errno.EPERM, reason, path)
+
+
+def list_bound(renders: int | None) -> int:
+    """Size bound of a marker or manifest listing ``renders`` records."""
+    return MAX_LIST_BYTES if renders is None else 4096 + renders * MAX_JSON_BYTES
+
+
+def rel_problem(rel) -> str | None:
+    """Why ``rel`` is not a plain relative path inside a folder (None when it is)."""
+    if not isinstance(rel, str) or not rel:
+        return f"{rel!r} is not a path"
+    if rel.startswith("/") or "\\" in rel or "\0" in rel or ":" in rel.split("/")[0]:
+        return f"{rel!r} is absolute or not a plain relative path"
+    if any(part in ("", ".", "..") for part in rel.split("/")):
+        return f"{rel!r} leaves the folder or is not a plain relative path ('..', '.' or an empty part)"
+    return None
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISDIR, "a directory")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def resolve_inside(root: str, rel) -> str:
+    """The path of ``rel`` (a path a record names, relative to DIR with forward slashes)
+    inside ``root``, after checking that it stays there: UnsafePath if it is absolute, has a
+    ``..``, or passes through a symbolic link (none is followed). A part that does not exist
+    ends the walk: opening the path then fails with FileNotFoundError."""
+    problem = rel_problem(rel)
+    if problem:
+        raise UnsafePath(str(rel), f"{problem}: it is not followed")
+    path = root
+    for part in rel.split("/"):
+        path = os.path.join(path, part)
+        try:
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            break
+        except OSError:
+            break  # e.g. ENOTDIR: opening it reports the reason
+        if stat.S_ISLNK(mode):
+            where = os.path.relpath(path, root).replace(os.sep, "/")
+            raise UnsafePath(rel, f"{where} is a symbolic link (to {os.readlink(path)!r}): not followed")
+    return path
+
+
+def unsafe_entry(root: str, rel) -> str | None:
+    """Why ``rel`` may not be opened inside ``root`` (None when it may)."""
+    try:
+        resolve_inside(root, rel)
+    except UnsafePath as exc:
+        return exc.strerror
+    return None
+
+
+def _open_regular(path: str, limit: int | None) -> tuple[int, int]:
+    """(fd, size) of the regular file at ``path``, opened without following a final symbolic
+    link and without blocking on a FIFO; UnsafePath when it is not a regular file or is over
+    ``limit`` bytes."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise UnsafePath(path, "a symbolic link: not followed") from None
+        raise
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise UnsafePath(path, f"{_kind(info.st_mode)}, not a regular file: not read")
+    if limit is not None and info.st_size > limit:
+        os.close(fd)
+        raise UnsafePath(path, f"{info.st_size} bytes, over the {limit}-byte bound for this file: not read")
+    return fd, info.st_size
+
+
+def _chunks(fd: int, path: str, limit: int | None):
+    total = 0
+    while True:
+        chunk = os.read(fd, 1 << 20)
+        if not chunk:
+            return
+        total += len(chunk)
+        if limit is not None and total > limit:
+            raise UnsafePath(path, f"grew past the {limit}-byte bound for this file while read: not read")
+        yield chunk
+
+
+def read_bytes(path: str, limit: int | None = None) -> bytes:
+    """The bytes of the regular file at ``path``: not through a final symbolic link, never
+    from a FIFO or a device (refused at once), at most ``limit`` bytes (UnsafePath beyond).
+    FileNotFoundError and other OSErrors pass through."""
+    fd, _size = _open_regular(path, limit)
+    try:
+        return b"".join(_chunks(fd, path, limit))
+    finally:
+        os.close(fd)
+
+
+def file_digest(path: str, limit: int | None = None) -> tuple[int, str]:
+    """(size, SHA-256 hex) of the regular file at ``path``, read as :func:`read_bytes` reads
+    (streamed: a large render is not held in memory)."""
+    fd, _size = _open_regular(path, limit)
+    digest, size = hashlib.sha256(), 0
+    try:
+        for chunk in _chunks(fd, path, limit):
+            digest.update(chunk)
+            size += len(chunk)
+    finally:
+        os.close(fd)
+    return size, digest.hexdigest()
+
+
+def read_json_checked(path: str, limit: int = MAX_JSON_BYTES):
+    """(value, None) for a readable JSON file, else (None, why: 'missing', 'a FIFO, ...')."""
+    try:
+        data = read_bytes(path, limit)
+    except FileNotFoundError:
+        return None, "missing"
+    except OSError as exc:
+        return None, exc.strerror or str(exc)
+    try:
+        return json.loads(data.decode("utf-8")), None
+    except (UnicodeDecodeError, ValueError) as exc:
+        return None, f"not JSON (torn or edited: {exc})"
+    except RecursionError:
+        return None, "not JSON this reader accepts (nested too deeply)"
+
+
+def read_json(path: str, limit: int = MAX_JSON_BYTES):
+    """A JSON file's content, or None when it is missing, torn, unsafe or over ``limit``."""
+    return read_json_checked(path, limit)[0]
+
+
+def read_json_in(layout: Layout, rel: str, limit: int = MAX_JSON_BYTES):
+    """(value, why) of the JSON file at ``rel`` inside the folder, as :func:`read_json_checked`,
+    after :func:`resolve_inside` (a marker under a ``shards`` that is a link is not read)."""
+    try:
+        path = resolve_inside(layout.root, rel)
+    except UnsafePath as exc:
+        return None, exc.strerror
+    return read_json_checked(path, limit)
+
+
+def read_spec_snapshot(layout: Layout) -> bytes:
+    """DIR/spec.toml's bytes (a regular file, bounded); OSError (UnsafePath included) if not."""
+    return read_bytes(os.path.join(layout.root, SPEC_FILE), MAX_JSON_BYTES)
+
+
+def record_problem(record, shard_id: str | None = None) -> str | None:
+    """Why ``record`` (from a marker or a record file) cannot be used, or None: a JSON
+    object with a string ``id`` and a list ``files`` of entries, each a ``role``, a plain
+    relative ``path`` (inside ``shards/<shard_id>/`` when given), an integer ``bytes`` and a
+    ``sha256`` string, with a ``render`` among them."""
+    if not isinstance(record, dict):
+        return f"not a record (a JSON {type(record).__name__}, not an object)"
+    if not isinstance(record.get("id"), str):
+        return "a record without an id"
+    files = record.get("files")
+    if not isinstance(files, list) or not files:
+        return f"record {record['id']}: no files listed"
+    for entry in files:
+        if not isinstance(entry, dict):
+            return f"record {record['id']}: a file entry that is not an object"
+        missing = [key for key, kind in (("role", str), ("path", str), ("bytes", int), ("sha256", str))
+                   if not isinstance(entry.get(key), kind) or isinstance(entry.get(key), bool)]
+        if missing:
+            return f"record {record['id']}: a file entry without {', '.join(missing)}"
+        problem = rel_problem(entry["path"])
+        if problem:
+            return f"record {record['id']}: file path {problem}"
+        if shard_id is not None and not entry["path"].startswith(f"{SHARDS_DIR}/{shard_id}/"):
+            return f"record {record['id']}: file path {entry['path']!r} is not in its shard's folder"
+    if not any(entry["role"] == "render" for entry in files):
+        return f"record {record['id']}: no render file listed"
+    return None
+
+
+def complete_marker(layout: Layout, shard_id: str, sample_ids: list[str] | None = None,
+                    renders: int | None = None) -> list[dict] | None:
+    """The records of ``shard_id``'s marker when it marks the shard complete and is
+    well-formed (:func:`marker_records`); else None: a build then runs the shard again,
+    verifying each sample."""
+    bound = list_bound(renders if renders is not None else (len(sample_ids) if sample_ids is not None else None))
+    return marker_records(read_json_in(layout, Layout.marker_rel(shard_id), bound)[0], shard_id, sample_ids)
+
+
+def marker_records(marker, shard_id: str, sample_ids: list[str] | None = None) -> list[dict] | None:
+    """``marker``'s records if it marks ``shard_id`` complete, its sample list equals its
+    records' ids (and ``sample_ids`` when given), and every record is usable
+    (:func:`record_problem`); else None."""
+    if not isinstance(marker, dict) or marker.get("complete") is not True or marker.get("shard") != shard_id:
+        return None
+    records = marker.get("records")
+    if not isinstance(records, list) or any(record_problem(r, shard_id) for r in records):
+        return None
+    ids = [r["id"] for r in records]
+    if marker.get("samples") != ids or (sample_ids is not None and ids != list(sample_ids)):
+        return None
+    return records
 
 
 def is_temp_file(name: str) -> bool:
@@ -35,6 +275,12 @@ def is_temp_file(name: str) -> bool:
 def is_record_file(name: str) -> bool:
     """A sample's record file (not the marker, not a temporary file)."""
     return RECORD_NAME.match(name) is not None
+
+#: A sample's record file, ``Layout.record_rel``: ``m<6-digit material>_l<light>.json``
+#: (MAX_MATERIALS is 1,000,000, so a material index has 6 digits).
+RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json$")
+#: A shard folder, ``pipeline.dataset.plan.shard_id``: ``s<5-digit index>`` (MAX_SHARDS 100,000).
+SHARD_NAME = re.compile(r"^s\d{5}$")
 
 
 def is_lock_file(name: str) -> bool:
@@ -49,20 +295,36 @@ def only_temp_files(names) -> bool:
     return all(is_temp_file(n) or is_lock_file(n) for n in names)
 
 
-def shard_ids_on_disk(layout: Layout) -> list[str]:
-    """The shard folders under ``shards/``, sorted (none when it cannot be listed)."""
+def real_dir(path: str) -> bool:
+    """``path`` is a directory and not a symbolic link to one."""
     try:
-        names = os.listdir(os.path.join(layout.root, SHARDS_DIR))
+        return stat.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def shard_ids_on_disk(layout: Layout) -> list[str]:
+    """The shard folders under ``shards/``, sorted (none when it cannot be listed, or is a
+    symbolic link: never followed)."""
+    shards = os.path.join(layout.root, SHARDS_DIR)
+    if not real_dir(shards):
+        return []
+    try:
+        names = os.listdir(shards)
     except OSError:
         return []
-    return sorted(n for n in names if SHARD_NAME.match(n))
+    return sorted(n for n in names if SHARD_NAME.match(n) and real_dir(os.path.join(shards, n)))
 
 
 def _shard_names(layout: Layout, shard_id: str) -> list[str] | None:
-    """The names in a shard's folder, or None when the folder does not exist."""
+    """The names in a shard's folder, or None when there is no such folder (or the folder, or
+    ``shards/``, is a symbolic link: never followed)."""
+    folder = layout.shard_dir(shard_id)
+    if not (real_dir(os.path.dirname(folder)) and real_dir(folder)):
+        return None
     try:
-        return os.listdir(layout.shard_dir(shard_id))
-    except FileNotFoundError:
+        return os.listdir(folder)
+    except OSError:
         return None
 
 
@@ -83,58 +345,119 @@ def recorded_count(layout: Layout, shard_id: str, planned: int) -> int:
     return sum(1 for n in names if is_record_file(n))
 
 
-def shard_records(layout: Layout, shard_id: str) -> tuple[list[dict], bool, bool]:
-    """(records, complete, started) of one shard: the marker's, else the record files'."""
-    marker = read_json(layout.marker(shard_id))
-    if marker and marker.get("complete"):
-        return list(marker.get("records", [])), True, True
-    names = record_file_names(layout, shard_id)
+def shard_records(layout: Layout, shard_id: str, renders: int | None = None
+                  ) -> tuple[list[dict], bool, bool, list[str]]:
+    """(records, complete, started, problems) of one shard: the marker's records when it is
+    complete and well-formed, else the usable record files'. ``problems`` says, one line
+    each, what was left out and why (a torn or malformed marker, a record without files, a
+    path leaving the folder); nothing here raises on a malformed file."""
+    rel = Layout.marker_rel(shard_id)
+    problems = []
+    names = _shard_names(layout, shard_id)
+    folder = layout.shard_dir(shard_id)
     if names is None:
-        return [], False, False
+        if os.path.lexists(folder) or os.path.islink(os.path.dirname(folder)):
+            return [], False, False, [f"{SHARDS_DIR}/{shard_id}: a symbolic link or not a folder: not followed"]
+        return [], False, False, []
+    if MARKER_FILE in names:
+        marker, why = read_json_checked(layout.marker(shard_id), list_bound(renders))
+        records = marker_records(marker, shard_id) if why is None else None
+        if records is not None:
+            return records, True, True, []
+        problems.append(f"{rel}: {why or _marker_problem(marker, shard_id)}; the shard counts as not complete")
     records = []
-    for name in names:
-        record = read_json(os.path.join(layout.shard_dir(shard_id), name))
-        if isinstance(record, dict) and "id" in record:
-            records.append(record)
-    return records, False, True
+    for name in sorted(n for n in names if is_record_file(n)):
+        record, why = read_json_checked(os.path.join(folder, name))
+        problem = why or record_problem(record, shard_id)
+        if problem:
+            problems.append(f"{SHARDS_DIR}/{shard_id}/{name}: {problem}; left out")
+            continue
+        records.append(record)
+    return records, False, True, problems
 
 
-def read_manifest(layout: Layout) -> bytes:
-    """The manifest's bytes (OSError, FileNotFoundError included, when it cannot be read)."""
-    with open(layout.manifest, "rb") as fh:
-        return fh.read()
+def _marker_problem(marker, shard_id: str) -> str:
+    if not isinstance(marker, dict):
+        return f"not a marker (a JSON {type(marker).__name__}, not an object)"
+    if marker.get("complete") is not True:
+        return "does not mark the shard complete"
+    if marker.get("shard") != shard_id:
+        return f"names shard {marker.get('shard')!r}"
+    records = marker.get("records")
+    if not isinstance(records, list):
+        return "holds no list of records"
+    for index, record in enumerate(records):
+        problem = record_problem(record, shard_id)
+        if problem:
+            return f"record {index}: {problem}"
+    return "its sample list disagrees with its records"
 
 
-def manifest_record_count(layout: Layout) -> int | None:
-    """Non-empty lines of the manifest, None when there is none."""
+def read_manifest(layout: Layout, renders: int | None = None) -> bytes:
+    """The manifest's bytes: a regular file, at most :func:`list_bound` of ``renders``
+    (OSError, FileNotFoundError and UnsafePath included, when it cannot be read)."""
+    return read_bytes(layout.manifest, list_bound(renders))
+
+
+def manifest_record_count(layout: Layout, renders: int | None = None) -> int | None:
+    """Non-empty lines of the manifest, None when there is none (or it cannot be read)."""
     try:
-        data = read_manifest(layout)
+        data = read_manifest(layout, renders)
     except OSError:
         return None
     return sum(1 for line in data.split(b"\n") if line.strip())
 
 
 def disk_usage(root: str) -> tuple[int, int]:
-    """(bytes of every file under ``root``, count of temporary files)."""
+    """(bytes of every file under ``root``, count of temporary files); links are counted as
+    links, never followed."""
     total = temps = 0
     for folder, _dirs, names in os.walk(root):
         for name in names:
             try:
-                total += os.stat(os.path.join(folder, name)).st_size
+                total += os.lstat(os.path.join(folder, name)).st_size
             except OSError:
                 continue
             temps += is_temp_file(name)
     return total, temps
 
 
+def symlinks_and_odd_files(root: str) -> list[tuple[str, str]]:
+    """(path relative to ``root``, what it is) of every symbolic link and every entry that is
+    neither a regular file nor a directory under ``root`` (none is followed)."""
+    out = []
+    for folder, dirs, names in os.walk(root):
+        dirs.sort()
+        for name in sorted(dirs + names):
+            path = os.path.join(folder, name)
+            try:
+                mode = os.lstat(path).st_mode
+            except OSError:
+                continue
+            if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+                continue
+            rel = os.path.relpath(path, root).replace(os.sep, "/")
+            what = _kind(mode)
+            if stat.S_ISLNK(mode):
+                try:
+                    what += f" (to {os.readlink(path)!r})"
+                except OSError:
+                    pass
+            out.append((rel, what))
+    return out
+
+
 def remove_temp_files(layout: Layout, shard_ids, older_than: float) -> int:
     """Remove the temporary files in DIR and the shards' folders last modified before
-    ``older_than`` (wall clock); return the count removed."""
+    ``older_than`` (wall clock); return the count removed. A shard folder that is a symbolic
+    link is not entered."""
     removed = 0
     for folder in [layout.root] + [layout.shard_dir(s) for s in shard_ids]:
+        if folder != layout.root and not (real_dir(os.path.dirname(folder)) and real_dir(folder)):
+            continue
         try:
             entries = list(os.scandir(folder))
-        except FileNotFoundError:
+        except OSError:
             continue
         for entry in entries:
             if not is_temp_file(entry.name):

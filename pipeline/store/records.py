@@ -6,6 +6,10 @@ import json
 import os
 
 from pipeline.store.atomic import sha256_file
+from pipeline.store.folder import file_digest, read_json, resolve_inside
+
+__all__ = ["RUN_DEPENDENT_STATS", "SCHEMA_VERSION", "dumps", "file_entry", "file_ok", "read_json",
+           "without_timings"]
 
 SCHEMA_VERSION = 1
 #: Keys of a render's statistics that depend on the run (timings), not on the data.
@@ -22,24 +26,21 @@ def file_entry(root: str, rel: str, role: str, sha256: str | None = None) -> dic
     }
 
 
-def file_ok(root: str, entry: dict, hash_check: bool = True) -> bool:
-    """The file of a record's entry exists with the recorded size (and SHA-256)."""
-    path = os.path.join(root, *entry["path"].split("/"))
-    try:
-        if os.path.getsize(path) != entry["bytes"]:
-            return False
-    except OSError:
+def file_ok(root: str, entry, hash_check: bool = True) -> bool:
+    """The file of a record's entry is inside ``root`` (pipeline.store.folder.resolve_inside:
+    no ``..``, not absolute, through no symbolic link), a regular file with the recorded
+    size (and SHA-256). A malformed entry is simply not ok."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("bytes"), int) or \
+            not isinstance(entry.get("sha256"), str):
         return False
-    return not hash_check or sha256_file(path) == entry["sha256"]
-
-
-def read_json(path: str):
-    """A JSON file's content, or None when it is missing or torn."""
     try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
-        return None
+        path = resolve_inside(root, entry.get("path"))
+        if not hash_check:
+            return os.lstat(path).st_size == entry["bytes"] and os.path.isfile(path)
+        size, sha256 = file_digest(path, entry["bytes"])
+    except OSError:  # missing, unsafe, larger than recorded
+        return False
+    return size == entry["bytes"] and sha256 == entry["sha256"]
 
 
 def dumps(obj) -> str:
