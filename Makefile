@@ -6,13 +6,18 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_OUT ?= demo-out
 
-.PHONY: setup llvm demo test lint test-all bench clean
+.PHONY: setup llvm slurm demo test lint test-all bench clean
 
 setup: llvm $(STAMP)
 
 # drjit 1.5 crashes with Debian's libLLVM 15; install 19 unless a usable one exists.
 llvm:
 	@$(PYTHON) scripts/ensure_llvm.py
+
+# The real-SLURM tests (tests/test_slurm_real.py) need Debian's slurm-wlm and munge: installed
+# as root with apt-get where possible; anywhere else a note, and those tests are skipped.
+slurm:
+	@$(PYTHON) scripts/ensure_slurm.py
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,7 +37,7 @@ demo: setup
 	@echo
 	@echo "demo: dataset in $(DEMO_OUT)/smoke (manifest.jsonl, shards/), contact sheet $(DEMO_OUT)/smoke-preview.png"
 
-test: setup
+test: setup slurm
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q -n 2 tests
 

@@ -136,20 +136,24 @@ def _format_seconds(seconds: float | None) -> str:
 
 
 def _progress_printer():
-    """A one-line progress bar on stderr: count, percentage, renders/s, elapsed, ETA."""
+    """A one-line progress bar on stderr: count, percentage, renders/s, elapsed, ETA, and what the
+    build waits on (workers, batch jobs pending and why), printed again when either changes."""
     interactive = sys.stderr.isatty()
-    last = {"done": -1}
+    last = {"done": -1, "message": "", "width": 0}
 
     def show(p):
-        if p.done == last["done"] and p.done < p.total:
+        message = getattr(p, "message", "")
+        if p.done == last["done"] and message == last["message"]:
             return
-        last["done"] = p.done
+        last["done"], last["message"] = p.done, message
         width = 30
         filled = int(width * p.done / p.total) if p.total else width
         line = (f"[{'#' * filled}{'.' * (width - filled)}] {p.done}/{p.total} renders "
                 f"{100.0 * p.done / max(p.total, 1):5.1f}%  {p.rate:.2f}/s  "
-                f"elapsed {_format_seconds(p.elapsed_s)}  ETA {_format_seconds(p.eta_s)}")
-        click.echo(("\r" + line) if interactive else line, err=True, nl=not interactive)
+                f"elapsed {_format_seconds(p.elapsed_s)}  ETA {_format_seconds(p.eta_s)}"
+                + (f"  | {message}" if message else ""))
+        padded, last["width"] = line.ljust(last["width"]), len(line)
+        click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive)
         if interactive and p.done >= p.total:
             click.echo("", err=True)
 
@@ -178,7 +182,8 @@ def _progress_printer():
               help="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
                    "its limit is restarted and its shard runs again.")
 @click.option("--walltime", default=None, metavar="HH:MM:SS",
-              help="slurm/pbs: wall-clock limit per job; workers retire 5 min (or 5%) before it.")
+              help="slurm/pbs: wall-clock limit per job, 00:01:00 to 9999:59:59; workers retire about 5 min "
+                   "(or 5%; half the walltime below 10 min) before it and a new job replaces each.")
 @click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
 @click.option("--account", default=None, help="slurm/pbs: account to charge.")
 @click.option("--scratch", default=None, metavar="DIR",
@@ -187,11 +192,16 @@ def _progress_printer():
 @click.option("--recycle-after", type=int, default=2000, show_default=True, metavar="RENDERS",
               help="Restart a dask worker process once it has rendered this many samples, 0 to 10000000 "
                    "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.")
+@click.option("--start-timeout", type=int, default=None, metavar="SECONDS",
+              help="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
+                   "this long, 10 to 10000000: before the first one arrives, or after the last one left "
+                   "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
+                   "as long as it takes]")
 @click.option("--print-job-script", is_flag=True,
               help="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.")
 @_friendly_errors
 def build_cmd(spec, out, workers, scheduler, allow_spec_change, cluster_kind, jobs, cores, memory, walltime,
-              queue, account, scratch, recycle_after, print_job_script):
+              queue, account, scratch, recycle_after, start_timeout, print_job_script):
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
@@ -199,7 +209,7 @@ def build_cmd(spec, out, workers, scheduler, allow_spec_change, cluster_kind, jo
 
     options = ClusterOptions(kind=cluster_kind, workers=workers, scheduler=scheduler, jobs=jobs, cores=cores,
                              memory=memory, walltime=walltime, queue=queue, account=account, scratch=scratch,
-                             recycle_after=recycle_after).check()
+                             recycle_after=recycle_after, start_timeout=start_timeout).check()
     if print_job_script:
         if not options.is_jobqueue:
             raise click.UsageError("--print-job-script needs --cluster slurm or --cluster pbs")

@@ -11,7 +11,14 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.errors import ShaderballError
-from pipeline.run.cluster import WORKER_MEMORY_SHARE, ClusterOptions, job_script, jobqueue_cluster, worker_lifetime
+from pipeline.run.cluster import (
+    WORKER_MEMORY_SHARE,
+    ClusterOptions,
+    job_script,
+    jobqueue_cluster,
+    walltime_seconds,
+    worker_lifetime,
+)
 
 pytest.importorskip("dask_jobqueue")
 
@@ -96,8 +103,9 @@ def test_user_prologue_from_dask_config_comes_first():
     ({"memory": None}, "--memory: required with --cluster slurm; for example: --memory 64GiB"),
     ({"cores": None}, "--cores: required with --cluster slurm; for example: --cores 32"),
     ({"walltime": None}, "--walltime: required"),
-    ({"walltime": "12h"}, "--walltime: '12h' is not allowed; allowed: HH:MM:SS from 00:15:00"),
-    ({"walltime": "00:05:00"}, "--walltime: '00:05:00' is not allowed"),
+    ({"walltime": "12h"}, "--walltime: '12h' is not allowed; allowed: HH:MM:SS from 00:01:00"),
+    ({"walltime": "00:00:59"}, "--walltime: '00:00:59' is not allowed"),
+    ({"start_timeout": 9}, r"--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
     ({"memory": "lots"}, "--memory: 'lots' is not allowed; allowed: an amount from 256MiB to 64TiB"),
     ({"memory": "100MB"}, "--memory: '100MB' is not allowed"),
     ({"cores": 0}, r"--cores: 0 is not allowed; allowed: an integer from 1 to 1024"),
@@ -128,6 +136,17 @@ def test_jobqueue_options_are_refused_on_a_local_cluster(option):
 def test_worker_lifetime_leaves_a_margin():
     assert worker_lifetime("01:00:00") == (3300, 150)
     assert worker_lifetime("24:00:00") == (86400 - 4320, 2160)
+    assert worker_lifetime("00:15:00") == (600, 150)
+
+
+@pytest.mark.parametrize("walltime,expected", [("00:01:00", (30, 15)), ("00:02:00", (60, 30)),
+                                               ("00:09:00", (270, 135)), ("00:10:00", (300, 150))])
+def test_short_walltimes_retire_workers_in_the_second_half(walltime, expected):
+    """dask staggers a lifetime by +-stagger: a worker retires 0.5 to 1.5 margins before the end."""
+    lifetime, stagger = worker_lifetime(walltime)
+    assert (lifetime, stagger) == expected
+    total = walltime_seconds(walltime)
+    assert total // 4 <= lifetime - stagger and lifetime + stagger < total
 
 
 def _cli(args, tmp_path):

@@ -61,6 +61,7 @@ class Progress:
     elapsed_s: float
     rate: float  # renders per second since this build started rendering
     eta_s: float | None
+    #: what the build waits on, e.g. "0 worker(s); slurm jobs: 1 pending (job 7: PartitionDown)".
     message: str = ""
 
 
@@ -353,8 +354,8 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
                 results.append(run_shard_in_process(out, spec, shard, variant, threads))
                 _report(progress, out, plans, total, already, start)
         else:
-            def report():
-                _report(progress, out, plans, total, already, start)
+            def report(status: str = ""):
+                _report(progress, out, plans, total, already, start, status)
 
             results, dashboard, recycled = run_shards_on_dask(out, spec, todo, variant, cluster,
                                                               report, on_start)
@@ -374,7 +375,7 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
                         processes=processes, temp_removed=removed, recycled=recycled)
 
 
-def _report(progress, out, plans, total, already, start):
+def _report(progress, out, plans, total, already, start, status=""):
     if progress is None:
         return
     done = count_done(out, plans)
@@ -382,4 +383,4 @@ def _report(progress, out, plans, total, already, start):
     new = max(0, done - already)
     rate = new / elapsed if elapsed > 0 else 0.0
     eta = (total - done) / rate if rate > 0 else None
-    progress(Progress(done=done, total=total, elapsed_s=elapsed, rate=rate, eta_s=eta))
+    progress(Progress(done=done, total=total, elapsed_s=elapsed, rate=rate, eta_s=eta, message=status))

@@ -23,9 +23,11 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import socket
+import subprocess
 import sys
-import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -54,7 +56,11 @@ JOB_ID_VARIABLE = {"slurm": "${SLURM_JOB_ID:-$$}", "pbs": "${PBS_JOBID:-$$}"}
 _WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)$")
 _SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}$")
 _SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}$")
-_MIN_WALLTIME_S = 15 * 60
+_MIN_WALLTIME_S = 60
+#: --start-timeout's range in seconds: below 10 s not even a local worker process starts.
+START_TIMEOUT_RANGE = (10, 10_000_000)
+#: Seconds between two looks at the batch system's queue (squeue) while a build runs.
+QUEUE_POLL_S = 5.0
 _MIN_MEMORY, _MAX_MEMORY = 256 * 2**20, 64 * 2**40
 
 
@@ -84,6 +90,9 @@ class ClusterOptions:
     scratch: str | None = None
     #: restart a worker process once it has rendered this many samples; 0: never.
     recycle_after: int = DEFAULT_RECYCLE_AFTER
+    #: seconds the build may go without any worker (before the first one arrives, or after
+    #: the last one left) before it stops; None: wait as long as it takes.
+    start_timeout: int | None = None
 
     @property
     def is_jobqueue(self) -> bool:
@@ -97,6 +106,9 @@ class ClusterOptions:
         check_int("--jobs", self.jobs, 1, 10000)
         check_int("--cores", self.cores, 1, 1024)
         check_int("--recycle-after", self.recycle_after, 0, 10_000_000)
+        check_int("--start-timeout", self.start_timeout, *START_TIMEOUT_RANGE)
+        if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
+            raise ShaderballError("--start-timeout: not allowed with --workers 0 (no workers to wait for)")
         if self.memory is not None:
             memory_bytes(self.memory)
         if self.walltime is not None:
@@ -154,7 +166,7 @@ def walltime_seconds(text: str) -> int:
     match = _WALLTIME.match(text)
     seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
     if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:15:00 "
+        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:01:00 "
                               "to 9999:59:59")
     return seconds
 
@@ -163,11 +175,13 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
     """(lifetime, stagger) in seconds: workers retire before the batch system kills the job.
 
     A worker that retires hands its queued shards back; jobqueue's adaptive scaling then
-    submits a fresh job. The margin (5 minutes or 5 % of the walltime, the larger) leaves
-    the running shard time to finish or be handed back cleanly.
+    submits a fresh job. The margin (5 minutes or 5 % of the walltime, the larger, but at
+    most half of it for walltimes under 10 minutes) leaves the running shard time to finish
+    or be handed back cleanly. dask staggers each worker's lifetime by up to +-stagger, so a
+    worker retires between 1.5 and 0.5 margins before the walltime.
     """
     total = walltime_seconds(walltime)
-    margin = max(300, total // 20)
+    margin = min(max(300, total // 20), total // 2)
     return total - margin, margin // 2
 
 
@@ -205,6 +219,22 @@ def _jobqueue_job_class(kind: str):
                               "`pip install dask-jobqueue`") from None
 
     class ShaderballJob(base):
+        #: Submissions the batch system refused (sbatch/qsub's exit code and output), read by
+        #: the build's WorkerWatch. dask-jobqueue never retries a refused job: the build
+        #: stops on the first refusal.
+        refusals: list[str] = []
+
+        async def start(self):
+            try:
+                await super().start()
+            except Exception as exc:
+                # Recorded for the build to stop on, not raised: raised, it is printed as a
+                # traceback by the event loop and leaves a job that fails the cluster's close.
+                from distributed.core import Status
+
+                type(self).refusals.append(_refusal_text(str(exc)))
+                self.status = Status.running  # a job without an id: closing it cancels nothing
+
         # One shard at a time per worker process; its renders use all the job's cores.
         @property
         def worker_process_threads(self):
@@ -220,7 +250,21 @@ def _jobqueue_job_class(kind: str):
             return format_bytes(share).replace(" ", "")
 
     ShaderballJob.__name__ = ShaderballJob.__qualname__ = f"Shaderball{base.__name__}"
+    ShaderballJob.refusals = []
     return ShaderballJob
+
+
+def _refusal_text(error: str) -> str:
+    """dask-jobqueue's error for a failed submit command, on one line: command, exit code, output."""
+    parts = dict(re.findall(r"(Exit code|Command|stdout|stderr):[ \t]*\n?(.*?)(?=\n(?:Exit code|Command|stdout|stderr):|\Z)",
+                            error, re.S))
+    if not parts:
+        return " ".join(error.split())[:800]
+    output = (parts.get("stderr") or "").strip() or (parts.get("stdout") or "").strip() or "no output"
+    output = " / ".join(line.strip() for line in output.splitlines() if line.strip())
+    # The script's temporary file is gone by now: name it for what it is.
+    command = re.sub(r"\S+\.sh\b", "JOB-SCRIPT", " ".join(parts.get("Command", "").split()))
+    return f"`{command}` exited {parts.get('Exit code', '?').strip()}: {output}"[:800]
 
 
 def job_script_prologue(options: ClusterOptions) -> list[str]:
@@ -300,6 +344,8 @@ class Connection:
     where: str
     #: Mitsuba threads per worker; None: each worker decides (:func:`worker_render_threads`).
     render_threads: int | None
+    #: the dask-jobqueue cluster (its jobs), for --cluster slurm/pbs; else None.
+    jobqueue: object | None = None
 
 
 def local_workers(workers: int | None) -> int:
@@ -338,7 +384,7 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             client = Client(cluster)
             stack.callback(client.close)
             yield Connection(client, f"{options.kind} cluster, {options.jobs or 1} job(s) of "
-                                     f"{options.cores} cores, {options.memory}", None)
+                                     f"{options.cores} cores, {options.memory}", None, cluster)
         else:
             n = local_workers(options.workers)
             memory = memory_bytes(options.memory) if options.memory else "auto"
@@ -406,12 +452,16 @@ def shard_task(out: str, spec, shard, variant: str, threads: int | None, recycle
 
 
 def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: ClusterOptions,
-                       report: Callable[[], None], on_start=None) -> tuple[list[dict], str | None, int]:
-    """Run the shards ``todo`` on the workers ``options`` describe; ``report`` is called every second.
+                       report: Callable[[str], None], on_start=None) -> tuple[list[dict], str | None, int]:
+    """Run the shards ``todo`` on the workers ``options`` describe.
 
-    Returns (the shards' results, the dashboard link or None, worker restarts for memory).
+    ``report(status)`` is called about every second; ``status`` says what the build waits on
+    (workers, batch jobs pending and why), "" when there is nothing to say. Stops with a
+    ShaderballError when the build has had no worker for ``options.start_timeout`` seconds,
+    or the batch system refused a job. Returns (the shards' results, the dashboard link or
+    None, worker restarts for memory).
     """
-    from distributed import as_completed
+    from distributed import wait
     from distributed.scheduler import KilledWorker
 
     # Remote workers resolve paths in their own working directory: give them an absolute one.
@@ -422,30 +472,203 @@ def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: Cluste
         dashboard = client.dashboard_link if _has_dashboard() else None
         if on_start:
             on_start(conn.where, dashboard)
-        futures = [client.submit(shard_task, out_abs, spec, shard, variant, conn.render_threads,
-                                 options.recycle_after, key=f"shard-{shard.shard_id}-{token}",
-                                 pure=False)
-                   for shard in todo]
-        stop = threading.Event()
-
-        def report_loop():
-            while not stop.wait(1.0):
-                report()
-
-        reporter = threading.Thread(target=report_loop, daemon=True)
-        reporter.start()
+        pending = {client.submit(shard_task, out_abs, spec, shard, variant, conn.render_threads,
+                                 options.recycle_after, key=f"shard-{shard.shard_id}-{token}", pure=False)
+                   for shard in todo}
+        watch = WorkerWatch(lambda: len(client.nthreads()), options, conn.jobqueue)
+        results: list[dict] = []
         try:
-            results = [f.result() for f in as_completed(futures)]  # raises a task's error here
+            while pending:
+                try:
+                    done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done = set()
+                for future in done:
+                    results.append(future.result())  # raises a task's error here
+                    # Released at once: a worker that retires (walltime, recycling) then has no
+                    # results to hand to a peer first (a hung peer stalled that: measured on
+                    # SLURM), and a lost worker's finished shards are not run again.
+                    future.release()
+                if pending:
+                    watch.poll()
+                    report(watch.status())
+                    watch.check()
             recycled = len(client.get_events(RECYCLE_EVENT))
         except KilledWorker as exc:
             raise ShaderballError(
                 f"build: a shard's worker died too often ({exc}); see the workers' logs (memory "
                 "limit? a crash in Mitsuba?). What was rendered is kept: run the same command "
                 "again to resume") from None
-        finally:
-            stop.set()
-            reporter.join()
     return results, dashboard, recycled
+
+
+# --------------------------------------------------------------------------- waiting for workers
+
+
+#: Plain words for SLURM's commonest reasons a job waits (`man squeue`, JOB REASON CODES).
+SLURM_REASONS = {
+    "PartitionDown": "the partition is down",
+    "PartitionInactive": "the partition is inactive",
+    "ReqNodeNotAvail": "the nodes it needs are down, drained or reserved",
+    "Resources": "waiting for free nodes",
+    "Priority": "jobs of higher priority go first",
+    "PartitionTimeLimit": "--walltime is above the partition's limit",
+    "PartitionNodeLimit": "more nodes than the partition allows",
+    "JobHeldAdmin": "held by an administrator",
+    "JobHeldUser": "held by its user",
+}
+
+
+@dataclass(frozen=True)
+class JobState:
+    """A batch job as the batch system reports it."""
+
+    job_id: str
+    #: the batch system's word, e.g. SLURM's PENDING, RUNNING, COMPLETING.
+    state: str
+    #: why a pending job waits: SLURM's reason code (PartitionDown, Resources, Priority, ...).
+    reason: str = ""
+
+
+def slurm_job_states(job_ids: list[str]) -> list[JobState]:
+    """``job_ids`` as ``squeue`` lists them; jobs it no longer lists (ended) are left out.
+
+    Raises ShaderballError naming the command, its exit code and output when squeue fails.
+    """
+    squeue = shutil.which("squeue") or "squeue"
+    command = [squeue, "--noheader", "--format=%i|%T|%r", f"--user={os.getuid()}"]
+    try:
+        result = subprocess.run(command, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise ShaderballError(f"`{' '.join(command)}` failed: {exc}") from None
+    if result.returncode != 0:
+        output = " ".join((result.stderr or result.stdout).split()) or "no output"
+        raise ShaderballError(f"`{' '.join(command)}` exited {result.returncode}: {output}")
+    wanted, states = set(job_ids), []
+    for line in result.stdout.splitlines():
+        fields = line.strip().split("|", 2)
+        if len(fields) == 3 and fields[0] in wanted:
+            reason = "" if fields[2] in ("None", "(null)") else fields[2]
+            states.append(JobState(fields[0], fields[1], reason))
+    return states
+
+
+def describe_jobs(kind: str, states: list[JobState], limit: int = 3, explain: bool = False) -> str:
+    """'slurm jobs: 1 running, 2 pending (job 7: PartitionDown; job 8: Resources)'; ``explain``
+    adds plain words to the reasons SLURM_REASONS knows."""
+    if not states:
+        return f"{kind} jobs: none in the queue"
+    counts: dict[str, int] = {}
+    for job in sorted(states, key=lambda job: (job.state != "RUNNING", job.state != "PENDING", job.state)):
+        counts[job.state.lower()] = counts.get(job.state.lower(), 0) + 1
+    text = f"{kind} jobs: " + ", ".join(f"{n} {state}" for state, n in counts.items())
+    waiting = [f"job {job.job_id}: {job.reason}" + (f", {SLURM_REASONS[job.reason]}"
+                                                     if explain and job.reason in SLURM_REASONS else "")
+               for job in states if job.reason]
+    if waiting:
+        more = f"; and {len(waiting) - limit} more" if len(waiting) > limit else ""
+        text += f" ({'; '.join(waiting[:limit])}{more})"
+    return text
+
+
+class WorkerWatch:
+    """What a build waits on, and how long it has had no worker at all.
+
+    ``workers()`` counts the workers connected to the scheduler. For ``--cluster slurm`` the
+    build's jobs are looked up with ``squeue`` every QUEUE_POLL_S seconds, so the progress
+    line shows them pending and why; PBS jobs are counted as submitted (no qstat parsing).
+    The clock of ``--start-timeout`` runs while no worker is connected: from the start until
+    the first worker arrives, and again from when the last one leaves until a replacement
+    arrives. A job the batch system refused stops the build at once (dask-jobqueue would
+    never submit it again).
+    """
+
+    def __init__(self, workers: Callable[[], int], options: ClusterOptions, jobqueue=None,
+                 clock: Callable[[], float] = time.monotonic, job_states=slurm_job_states):
+        self._workers, self.options, self.jobqueue = workers, options, jobqueue
+        self.clock, self.job_states = clock, job_states
+        self.workers = 0
+        self.seen_worker = False
+        #: start of the current spell without any worker; None while there are workers.
+        self.without_since: float | None = clock()
+        self.jobs: list[JobState] | None = None
+        self.queue_error = ""
+        self._next_queue_poll = 0.0
+
+    def job_ids(self) -> list[str]:
+        if self.jobqueue is None:
+            return []
+        for _ in range(3):  # the cluster's event loop may change the dict meanwhile
+            try:
+                return [str(job.job_id) for job in list(self.jobqueue.workers.values())
+                        if getattr(job, "job_id", None)]
+            except RuntimeError:
+                continue
+        return []
+
+    def poll(self) -> None:
+        now = self.clock()
+        before, self.workers = self.workers, self._workers()
+        if self.workers:
+            self.without_since, self.seen_worker = None, True
+        elif self.without_since is None:
+            self.without_since = now
+        if self.jobqueue is not None and (now >= self._next_queue_poll or self.workers != before):
+            self._next_queue_poll = now + QUEUE_POLL_S
+            ids = self.job_ids()
+            if self.options.kind != "slurm":
+                self.jobs = [JobState(job_id, "submitted") for job_id in ids]
+            elif ids:
+                try:
+                    self.jobs, self.queue_error = self.job_states(ids), ""
+                except ShaderballError as exc:
+                    self.queue_error = str(exc)
+            else:
+                self.jobs = None  # none submitted yet
+
+    def refusals(self) -> list[str]:
+        return list(getattr(getattr(self.jobqueue, "job_cls", None), "refusals", None) or [])
+
+    def status(self) -> str:
+        """For the progress line, e.g. '1 worker(s); slurm jobs: 1 running, 1 pending (job 8:
+        Resources)'; '' for a local cluster or scheduler that has workers."""
+        if self.jobqueue is None:
+            return "" if self.workers else "waiting for a worker (none connected)"
+        return f"{self.workers} worker(s); {self.jobs_text()}"
+
+    def jobs_text(self, explain: bool = False) -> str:
+        if self.queue_error:
+            return f"{self.options.kind} jobs unknown: {self.queue_error}"
+        if self.jobs is None:
+            return f"{self.options.kind} jobs: submitting"
+        return describe_jobs(self.options.kind, self.jobs, explain=explain)
+
+    def check(self) -> None:
+        """Raise ShaderballError on a refused job or when --start-timeout has run out."""
+        refused = self.refusals()
+        if refused:
+            raise ShaderballError(
+                f"--cluster {self.options.kind}: the batch system refused a job: {refused[0]} "
+                "(JOB-SCRIPT is what --print-job-script prints). Check --queue, --account, --cores, "
+                "--memory and --walltime against the cluster's limits; what was rendered is kept: "
+                "run the same command again to resume")
+        limit = self.options.start_timeout
+        if limit is None or self.without_since is None or self.clock() - self.without_since < limit:
+            return
+        since = "since the last one left" if self.seen_worker else "since the build started"
+        if self.jobqueue is not None:
+            self._next_queue_poll = 0.0
+            self.poll()  # the queue as it is now, for the message
+            if self.without_since is None:
+                return
+            why = self.jobs_text(explain=True)
+            then = "The jobs are cancelled; what"
+        else:
+            why = "the scheduler has no worker" if self.options.scheduler else "no local worker started"
+            then = "What"
+        raise ShaderballError(
+            f"--start-timeout {limit}: no worker for {limit} s {since}; {why}. {then} was rendered "
+            "is kept: run the same command again to resume (a larger --start-timeout waits longer)")
 
 
 def _has_dashboard() -> bool:

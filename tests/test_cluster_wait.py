@@ -1,0 +1,256 @@
+"""A build waiting on workers says so, and --start-timeout bounds the wait (docs/cluster.md).
+
+Unit tests of pipeline.run.cluster.WorkerWatch with a fake clock and a fake queue; squeue's
+output parsed through a stand-in `squeue`; and two builds end to end without a batch system:
+`--cluster slurm` with stand-ins whose jobs stay pending (PartitionDown) for ever, and
+`--scheduler` pointing at a dask scheduler without workers. The same against a real SLURM:
+tests/test_slurm_real.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from conftest import crash_module
+
+from pipeline.errors import ShaderballError
+from pipeline.run.cluster import (
+    ClusterOptions,
+    JobState,
+    WorkerWatch,
+    _refusal_text,
+    describe_jobs,
+    slurm_job_states,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+crash = crash_module()
+
+
+class Clock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self):
+        return self.now
+
+
+def _slurm(**changes) -> ClusterOptions:
+    base = dict(kind="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
+    base.update(changes)
+    return ClusterOptions(**base).check()
+
+
+def _jobqueue(*job_ids, refusals=()):
+    """What WorkerWatch reads of a dask-jobqueue cluster: its jobs' ids and its job class."""
+    return SimpleNamespace(workers={f"w{i}": SimpleNamespace(job_id=j) for i, j in enumerate(job_ids)},
+                           job_cls=SimpleNamespace(refusals=list(refusals)))
+
+
+def _watch(workers, states, options=None, jobqueue=None, clock=None):
+    counts = iter(workers) if isinstance(workers, list) else None
+    return WorkerWatch((lambda: next(counts)) if counts else (lambda: workers), options or _slurm(),
+                       jobqueue if jobqueue is not None else _jobqueue("7", "8"), clock=clock or Clock(),
+                       job_states=lambda ids: [s for s in states if s.job_id in ids])
+
+
+PENDING = [JobState("7", "PENDING", "PartitionDown"), JobState("8", "PENDING", "PartitionDown")]
+
+
+def test_status_shows_workers_jobs_and_why_they_wait():
+    watch = _watch(0, [JobState("7", "RUNNING"), JobState("8", "PENDING", "Resources")])
+    watch.poll()
+    assert watch.status() == "0 worker(s); slurm jobs: 1 running, 1 pending (job 8: Resources)"
+
+
+def test_status_before_any_job_is_submitted():
+    watch = _watch(0, [], jobqueue=_jobqueue())
+    watch.poll()
+    assert watch.status() == "0 worker(s); slurm jobs: submitting"
+
+
+def test_the_start_timeout_stops_with_the_jobs_and_their_reasons():
+    clock = Clock()
+    watch = _watch(0, PENDING, clock=clock)
+    watch.poll()
+    clock.now += 29.5
+    watch.poll()
+    watch.check()  # not yet
+    clock.now += 1
+    watch.poll()
+    with pytest.raises(ShaderballError) as error:
+        watch.check()
+    assert str(error.value) == (
+        "--start-timeout 30: no worker for 30 s since the build started; slurm jobs: 2 pending (job 7: "
+        "PartitionDown, the partition is down; job 8: PartitionDown, the partition is down). The jobs are "
+        "cancelled; what was rendered is kept: run the same command again to resume (a larger "
+        "--start-timeout waits longer)")
+
+
+def test_the_clock_runs_only_while_there_is_no_worker():
+    clock = Clock()
+    watch = _watch([0, 1] + [0] * 8, PENDING, clock=clock)
+    for step in (25, 10, 25, 4.5):  # 25 s without, a worker, then 29.5 s without again
+        watch.poll()
+        watch.check()
+        clock.now += step
+    watch.poll()
+    watch.check()
+    clock.now += 1
+    with pytest.raises(ShaderballError, match=r"no worker for 30 s since the last one left"):
+        watch.poll()
+        watch.check()
+
+
+def test_no_start_timeout_waits_for_ever():
+    clock = Clock()
+    watch = _watch(0, PENDING, options=_slurm(start_timeout=None), clock=clock)
+    clock.now += 10 ** 7
+    watch.poll()
+    watch.check()
+    assert watch.status().startswith("0 worker(s); slurm jobs: 2 pending (job 7: PartitionDown")
+
+
+def test_a_refused_job_stops_the_build_at_once():
+    refusal = _refusal_text(
+        "Command exited with non-zero exit code.\nExit code: 1\nCommand:\nsbatch /tmp/tmpab12cd.sh\nstdout:\n\n"
+        "stderr:\nsbatch: error: invalid partition specified: nosuch\nsbatch: error: Batch job submission "
+        "failed: Invalid partition name specified\n\n")
+    assert refusal == ("`sbatch JOB-SCRIPT` exited 1: sbatch: error: invalid partition specified: nosuch / "
+                       "sbatch: error: Batch job submission failed: Invalid partition name specified")
+    watch = _watch(0, [], jobqueue=_jobqueue(refusals=[refusal]))
+    watch.poll()
+    with pytest.raises(ShaderballError, match=r"^--cluster slurm: the batch system refused a job: `sbatch "
+                                              r"JOB-SCRIPT` exited 1: sbatch: error: invalid partition"):
+        watch.check()
+
+
+def test_a_failing_squeue_is_shown_not_fatal():
+    def broken(ids):
+        raise ShaderballError("`squeue --noheader` exited 1: slurm_load_jobs error: Unable to contact slurm controller")
+
+    watch = WorkerWatch(lambda: 1, _slurm(), _jobqueue("7"), clock=Clock(), job_states=broken)
+    watch.poll()
+    watch.check()
+    assert watch.status() == ("1 worker(s); slurm jobs unknown: `squeue --noheader` exited 1: slurm_load_jobs "
+                              "error: Unable to contact slurm controller")
+
+
+def test_pbs_jobs_are_counted_without_reasons():
+    watch = WorkerWatch(lambda: 0, _slurm(kind="pbs"), _jobqueue("12.pbs"), clock=Clock(),
+                        job_states=lambda ids: pytest.fail("no squeue for PBS"))
+    watch.poll()
+    assert watch.status() == "0 worker(s); pbs jobs: 1 submitted"
+
+
+def test_a_local_cluster_says_nothing_while_it_has_workers():
+    watch = WorkerWatch(lambda: 2, ClusterOptions(), None, clock=Clock())
+    watch.poll()
+    assert watch.status() == ""
+
+
+def test_describe_jobs_keeps_the_line_short():
+    states = [JobState(str(i), "PENDING", "Priority") for i in range(5)] + [JobState("9", "RUNNING")]
+    assert describe_jobs("slurm", states) == ("slurm jobs: 1 running, 5 pending (job 0: Priority; job 1: Priority; "
+                                              "job 2: Priority; and 2 more)")
+    assert describe_jobs("slurm", []) == "slurm jobs: none in the queue"
+
+
+@pytest.mark.parametrize("changes,message", [
+    ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
+    ({"kind": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
+     "--start-timeout: not allowed with --workers 0"),
+])
+def test_bad_start_timeouts(changes, message):
+    base = dict(kind="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
+    base.update(changes)
+    with pytest.raises(ShaderballError, match=message):
+        ClusterOptions(**base).check()
+
+
+def _stand_in(folder: Path, name: str, text: str) -> None:
+    (folder / name).write_text("#!/bin/bash\n" + text)
+    (folder / name).chmod(0o755)
+
+
+def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):
+    _stand_in(tmp_path, "squeue", 'echo "$@" > "$(dirname "$0")/args"\n'
+                                  "printf '7|PENDING|PartitionDown\\n8|RUNNING|None\\n99|PENDING|Priority\\n'\n")
+    monkeypatch.setenv("PATH", f"{tmp_path}:{os.environ['PATH']}")
+    assert slurm_job_states(["7", "8"]) == [JobState("7", "PENDING", "PartitionDown"), JobState("8", "RUNNING")]
+    assert (tmp_path / "args").read_text().split() == ["--noheader", "--format=%i|%T|%r", f"--user={os.getuid()}"]
+    _stand_in(tmp_path, "squeue", "echo 'squeue: error: Unable to contact slurm controller' >&2; exit 1\n")
+    with pytest.raises(ShaderballError, match=r"squeue --noheader --format=%i\|%T\|%r --user=\d+` exited 1: "
+                                              r"squeue: error: Unable to contact slurm controller"):
+        slurm_job_states(["7"])
+
+
+# Jobs that never start: sbatch queues them, squeue says PartitionDown, scancel removes them.
+PENDING_SBATCH = """n=$(( $(cat "$FAKE_SLURM_DIR/next" 2>/dev/null || echo 100) + 1 ))
+echo $n > "$FAKE_SLURM_DIR/next"
+echo $n >> "$FAKE_SLURM_DIR/queue"
+echo "Submitted batch job $n"
+"""
+PENDING_SQUEUE = """while read -r job; do echo "$job|PENDING|PartitionDown"; done < "$FAKE_SLURM_DIR/queue"
+"""
+PENDING_SCANCEL = """for job in "$@"; do grep -vx "$job" "$FAKE_SLURM_DIR/queue" > "$FAKE_SLURM_DIR/q"; \
+mv "$FAKE_SLURM_DIR/q" "$FAKE_SLURM_DIR/queue"; echo "$job" >> "$FAKE_SLURM_DIR/cancelled"; done
+"""
+
+
+@pytest.mark.slow
+def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name, text in (("sbatch", PENDING_SBATCH), ("squeue", PENDING_SQUEUE), ("scancel", PENDING_SCANCEL)):
+        _stand_in(bin_dir, name, text)
+    (tmp_path / "queue").touch()
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", FAKE_SLURM_DIR=str(tmp_path),
+               DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}')
+    out = tmp_path / "ds"
+    cmd = [sys.executable, "-c", "import cli; cli.main()", "build", "manifests/smoke.toml", "--out", str(out),
+           "--cluster", "slurm", "--jobs", "2", "--cores", "2", "--memory", "2GiB", "--walltime", "00:30:00",
+           "--start-timeout", "10"]
+    start = time.monotonic()
+    result = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    seconds = time.monotonic() - start
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "| 0 worker(s); slurm jobs: 2 pending (job 101: PartitionDown; job 102: PartitionDown)" in result.stderr
+    assert ("error: --start-timeout 10: no worker for 10 s since the build started; slurm jobs: 2 pending (job "
+            "101: PartitionDown, the partition is down; job 102: PartitionDown, the partition is down). The jobs "
+            "are cancelled; what was rendered is kept") in result.stderr, result.stderr
+    assert seconds < 40, seconds
+    assert (tmp_path / "queue").read_text().split() == []  # both cancelled
+    assert sorted((tmp_path / "cancelled").read_text().split()) == ["101", "102"]
+    assert {p.name for p in out.iterdir()} == {"spec.toml", "dataset.json"}
+
+
+@pytest.mark.slow
+def test_a_scheduler_without_workers_stops_at_the_start_timeout(tmp_path):
+    dask = str(Path(sys.executable).with_name("dask"))
+    scheduler_file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                  "--scheduler-file", str(scheduler_file)], cwd=tmp_path, stdin=subprocess.DEVNULL,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
+            assert time.monotonic() < deadline and scheduler.poll() is None, "dask scheduler did not start"
+            time.sleep(0.1)
+        address = json.loads(scheduler_file.read_text())["address"]
+        cmd = [sys.executable, "-c", "import cli; cli.main()", "build", "manifests/smoke.toml", "--out",
+               str(tmp_path / "ds"), "--scheduler", address, "--start-timeout", "10"]
+        result = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+    finally:
+        crash.kill_group(scheduler)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "| waiting for a worker (none connected)" in result.stderr
+    assert ("error: --start-timeout 10: no worker for 10 s since the build started; the scheduler has no worker. "
+            "What was rendered is kept: run the same command again to resume") in result.stderr, result.stderr
