@@ -93,58 +93,91 @@ def test_effects_bench_reports_every_omission(tmp_path):
     assert len(saved["cases"]) == 5 and "saved_cpu" in saved["cases"][0]
 
 
-def test_one_scene_per_material_is_bit_identical_when_every_light_is_applied_in_place(mi):
-    """Evidence for the scene-reuse proposal of docs/build.md.
+def test_a_scene_moved_to_a_light_renders_the_bytes_of_a_scene_loaded_for_it(mi):
+    """What lets a build keep one scene per material (pipeline.render.renderer.MaterialScene).
 
     Mitsuba's sunsky normalises a dict's ``sun_direction`` in float32 when it loads, and
-    that rounding differs from the float32 vector sky.update_emitter_params writes by up
-    to an ulp for some directions (shown below), so a scene moved to light B renders a
-    few ulps away from a scene loaded for B. Applying every light in place, the first
-    one included, makes the two paths the same arithmetic: bit-identical renders.
+    for some directions that differs by an ulp from the rounded vector (shown below), so an
+    update writing the rounded vector renders a few ulps away from a fresh load. The update
+    writes the loader's own vector (pipeline.render.emitter.loaded_sun_direction): a scene
+    loaded for the first light and moved to each next one renders the bytes of a scene
+    loaded for that light, with no kernel compiled for the moves.
     """
     import numpy as np
 
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
+    from pipeline.bench.build_bench import KernelCounter
     from pipeline.dataset.plan import plan_dataset
     from pipeline.dataset.spec import parse_spec
-    from pipeline.render.emitter import emitter_dicts, update_emitter_params
-    from pipeline.render.renderer import RenderSettings, scene_dict
+    from pipeline.render.emitter import emitter_dicts, loaded_sun_direction
+    from pipeline.render.renderer import MaterialScene, RenderSettings, scene_dict
     from sky import Light
 
     lights = [Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
               for shard in plan_dataset(parse_spec(SMOKE)) for m in shard.materials for s in m.samples]
-    # Some of the smoke spec's lights load as a different float32 direction than the update writes.
     off_by_rounding = 0
     for light in lights:
         entries, _ = emitter_dicts(light, variant=VARIANT)
         loaded = np.asarray(mi.traverse(mi.load_dict({"type": "scene", **entries}))["sky.sun_direction"])
-        written = np.asarray(mi.Vector3f(*entries["sky"]["sun_direction"]))
-        off_by_rounding += not np.array_equal(loaded, written)
+        rounded = np.asarray(mi.Vector3f(*entries["sky"]["sun_direction"]))
+        off_by_rounding += not np.array_equal(loaded, rounded)
+        assert np.array_equal(loaded, np.asarray(loaded_sun_direction(light.direction, VARIANT)))
     assert off_by_rounding > 0
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=64, spp=4, variant=VARIANT).check()
+    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT).check()
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.3).to_maps(1)
 
     def render(scene, seed):
         return np.asarray(mi.render(scene, spp=4, seed=seed))
 
-    def fresh_then_applied(light, seed):
+    fresh = []
+    for i, light in enumerate(lights):
         scene = mi.load_dict(scene_dict(ball, camera, maps, light, settings)[0])
-        update_emitter_params(mi.traverse(scene), light, variant=VARIANT)
-        return render(scene, seed)
+        fresh.append(render(scene, 100 + i))
+        del scene
+    kernels = KernelCounter()
+    with MaterialScene() as held, kernels:
+        for i, light in enumerate(lights):
+            scene, lighting, _ = held.lit(mi, ball, camera, maps, light, settings)
+            assert lighting == emitter_dicts(light, variant=VARIANT)[1]
+            assert np.array_equal(fresh[i], render(scene, 100 + i)), i
+    assert kernels.compiled == 0
+    other = UniformMaterial((0.1, 0.3, 0.2), (0.04,) * 3, 0.3).to_maps(1)
+    with MaterialScene() as held, pytest.raises(ValueError, match="another material"):
+        held.lit(mi, ball, camera, maps, lights[0], settings)
+        held.lit(mi, ball, camera, other, lights[1], settings)
 
-    chosen = lights[:6]
-    scene = mi.load_dict(scene_dict(ball, camera, maps, chosen[0], settings)[0])
-    params = mi.traverse(scene)
-    reused = []
-    for i, light in enumerate(chosen):
-        update_emitter_params(params, light, variant=VARIANT)
-        reused.append(render(scene, 100 + i))
-    del scene, params
-    for i, light in enumerate(chosen):
-        assert np.array_equal(reused[i], fresh_then_applied(light, 100 + i)), i
+
+def test_pass_plan_follows_the_variants_guarantee():
+    """Power-of-two passes where they make re-renders byte-identical (llvm), one pass where
+    re-renders are not byte-identical anyway (cuda: the passes would only cost launches)."""
+    from pipeline.render.mitsuba_env import BYTE_IDENTICAL, WITHIN_NOISE, determinism
+    from pipeline.render.renderer import pass_plan
+
+    assert determinism("llvm_ad_rgb") == BYTE_IDENTICAL and determinism("cuda_ad_rgb") == WITHIN_NOISE
+    assert pass_plan(150, "llvm_ad_rgb") == [128, 16, 4, 2]
+    assert pass_plan(150, "cuda_ad_rgb") == [150]
+    assert pass_plan(16, "llvm_ad_rgb") == pass_plan(16, "cuda_ad_rgb") == [16]
+
+
+def test_a_single_pass_is_the_pass_the_power_of_two_plan_renders_for_a_power_of_two(mi):
+    """render_in_passes' one-pass shortcut returns the same values as the weighted average it skips."""
+    import numpy as np
+
+    from geometry import build_shaderball, default_camera
+    from materials.maps import UniformMaterial
+    from pipeline.render.renderer import RenderSettings, pass_seed, render_in_passes, scene_dict
+    from sky import Light
+
+    settings = RenderSettings(resolution=32, spp=8, variant=VARIANT).check()
+    maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
+    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0),
+                                     settings)[0])
+    one = render_in_passes(mi, scene, 8, 5, [8])
+    raw = np.asarray(mi.render(scene, spp=8, seed=pass_seed(5, 0)), dtype=np.float64)
+    assert np.array_equal(one, raw * 8 / 8) and np.array_equal(one, render_in_passes(mi, scene, 8, 5))
 
 
 def test_power_of_two_passes():

@@ -10,13 +10,15 @@
     1.03), samples per second of both, the same ratio in CPU time (this process and its
     reaped children: less disturbed by other load than wall time), for in-process builds
     the build's own split between its render calls and the rest (:class:`RenderCallTimer`,
-    measured in the same run), and where the rest goes. Kernels are compiled before the
-    build (one spp-1 render per material, which fills drjit's on-disk kernel cache), so
-    the ratio is the steady state of a long build, not the first minute of a fresh
-    machine. ``--profile`` adds two measurements behind the proposals in docs/build.md:
-    all lightings of a material rendered from one loaded scene moved in place
-    (:func:`pipeline.render.emitter.update_emitter_params`), and the ``moment`` integrator against its nested
-    path tracer alone.
+    measured in the same run), the kernels an in-process build compiled, where the rest
+    goes, and the paper's 50,000 renders on this machine (:meth:`BuildBench.paper_estimate`).
+    Kernels are compiled before the build (one spp-1 render per material, which fills
+    drjit's on-disk kernel cache), so the ratio is the steady state of a long build, not the
+    first minute of a fresh machine. The bare renders use the build's passes
+    (:func:`pipeline.render.renderer.pass_plan`). ``--profile`` adds two measurements: all
+    lightings of a material rendered from one loaded scene moved in place, as the build
+    does (:class:`pipeline.render.renderer.MaterialScene`), against dict + load + render
+    each, and the ``moment`` integrator against its nested path tracer alone.
 
 ``shaderball bench --effects`` is :mod:`pipeline.bench.effects`.
 """
@@ -41,10 +43,9 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
-from pipeline.render.emitter import update_emitter_params
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
-from pipeline.render.renderer import render_in_passes, scene_dict
+from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run.build import build, read_spec_text
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
@@ -54,6 +55,9 @@ from pipeline.store.records import dumps, read_json
 from sky import Light
 
 # --------------------------------------------------------------------------- build benchmark
+
+#: The paper's dataset (manifests/paper.toml): 10,000 materials x 5 lightings, 400x400, 150 spp.
+PAPER_RENDERS, PAPER_RESOLUTION, PAPER_SPP = 50_000, 400, 150
 
 
 def derive_spec(spec, *, samples: int | None = None, resolution: int | None = None, spp: int | None = None,
@@ -106,6 +110,7 @@ class BuildBench:
     reuse: dict | None = None
     moment: dict | None = None
     compiled: dict | None = None  # kernels compiled during the timed bare renders (should be 0)
+    build_compiled: int | None = None  # in-process builds: kernels compiled during the build (warm: 0)
 
     @property
     def bare_s(self) -> float:
@@ -124,6 +129,25 @@ class BuildBench:
         """Build CPU over bare-render CPU: less disturbed than wall time on a shared machine."""
         return self.build_cpu_s / self.bare_cpu_s if self.bare_cpu_s > 0 else math.inf
 
+    @property
+    def steady_ratio(self) -> float:
+        """Build wall time from its first render on, over the bare renders: the ratio a long
+        build tends to, where the start-up (spec, plan, cluster) is spread over many renders."""
+        return (self.build_s - self.startup_s) / self.bare_s if self.bare_s > 0 else math.inf
+
+    def paper_estimate(self) -> dict:
+        """The paper's 50,000 renders on this machine: the mean bare render (one at a time with
+        every render thread of this process: the whole machine, or its GPU), scaled to
+        400x400 and 150 spp by pixels x spp when the run was smaller (rough: a render's fixed
+        costs do not scale), x 50,000, x the build's steady wall ratio. Parallelism is in the
+        per-render time already: a build's workers split the same cores (or share the GPU)."""
+        scale = (PAPER_RESOLUTION ** 2 * PAPER_SPP) / (self.resolution ** 2 * self.spp)
+        per_render = self.bare_s / max(len(self.timings), 1) * scale
+        return {"renders": PAPER_RENDERS, "per_render_s": per_render, "scaled_by": scale,
+                "ratio": self.steady_ratio,
+                "hours": per_render * PAPER_RENDERS * self.steady_ratio / 3600.0,
+                "hours_bare": per_render * PAPER_RENDERS / 3600.0}
+
     def lines(self) -> list[str]:
         n = self.samples
         mean = lambda xs: sum(xs) / len(xs) if xs else 0.0  # noqa: E731
@@ -136,14 +160,18 @@ class BuildBench:
             f"  (start-up before the first render: {self.startup_s:.1f} s)",
             f"bare mi.render, summed:   {self.bare_s:8.2f} s  {n / self.bare_s:7.3f} samples/s"
             f"  (mean {self.bare_s / n:.3f} s per render)",
-            f"ratio build / bare:       {self.ratio:8.3f}   (target <= 1.03); "
-            f"without start-up: {(self.build_s - self.startup_s) / self.bare_s:.3f}; "
-            f"CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s = {self.cpu_ratio:.3f}",
+            f"wall ratio build / bare:  {self.ratio:8.3f}   (target <= 1.03 on CPU, 1.15 on GPU); "
+            f"from the first render on: {self.steady_ratio:.3f}",
+            f"CPU ratio build / bare:   {self.cpu_ratio:8.3f}   "
+            f"(CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s, this process and its reaped children)",
             *([f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
                f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
                f"{self.build_s / self.in_build_render_s:.3f}"] if self.in_build_render_s else []),
             f"bare renders bit-identical to the build's: "
             f"{sum(t.identical for t in self.timings)}/{len(self.timings)}",
+            *([f"kernels compiled during the build (in-process; 0 = every scene and light change "
+               f"reused warm kernels): {self.build_compiled}"] if self.build_compiled is not None else []),
+            self._paper_line(),
             "where the rest goes, per render (measured outside the build): "
             f"scene_dict {mean([t.dict_s for t in self.timings]):.3f} s, "
             f"load_dict {mean([t.load_s for t in self.timings]):.3f} s, "
@@ -168,9 +196,19 @@ class BuildBench:
                        f"{'bit-identical' if m['identical'] else 'not bit-identical'}")
         return out
 
+    def _paper_line(self) -> str:
+        e = self.paper_estimate()
+        scaled = "" if e["scaled_by"] == 1 else (
+            f", scaled from {self.resolution}x{self.resolution}/{self.spp} spp by pixels x spp (x{e['scaled_by']:.4g}, "
+            "rough)")
+        return (f"paper scale on this machine: {e['renders']:,} renders x {e['per_render_s']:.2f} s "
+                f"(mean bare render, {self.threads} render threads{scaled}) x {e['ratio']:.3f} (steady wall "
+                f"ratio) = {e['hours']:.1f} h ({e['hours'] / 24:.1f} days; renders alone {e['hours_bare']:.1f} h)")
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio)
+        d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio,
+                 steady_ratio=self.steady_ratio, paper_estimate=self.paper_estimate())
         return d
 
 
@@ -259,8 +297,9 @@ def measure_bare(spec, plans, root: str, kernels: KernelCounter, variant: str) -
             scene = mi.load_dict(desc)
             t2, cpu = time.perf_counter(), time.process_time()
             with kernels:
-                # The build's own arithmetic: power-of-two passes (pipeline.render.renderer.render_in_passes).
-                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
+                # The build's own passes (pipeline.render.renderer.pass_plan: power-of-two on llvm).
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed,
+                                       pass_plan(ctx.settings.spp, variant)).astype(np.float32)
             t3, cpu = time.perf_counter(), time.process_time() - cpu
             del scene, desc  # one scene alive at a time, as in a build worker
             timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2, cpu,
@@ -293,10 +332,8 @@ def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]
 
 
 def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) -> dict:
-    """All lightings of a material from one loaded scene, moved with pipeline.render.emitter.update_emitter_params.
-
-    The first lighting renders the scene as loaded, the others after an in-place update:
-    the proposal of docs/build.md, timed against dict + load + render per sample.
+    """All lightings of a material from one loaded scene moved in place, as the build does
+    (pipeline.render.renderer.MaterialScene), timed against dict + load + render per sample.
     """
 
     ctx = worker_context(spec, variant)
@@ -306,21 +343,17 @@ def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) 
     identical = 0
     for material in _materials_of(plans):
         maps, _ = make_material(material, spec)
-        scene = params = None
-        for s in material.samples:
-            seed = _render_seed(layout, s)
-            t0 = time.perf_counter()
-            if scene is None:
-                desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
-                scene = mi.load_dict(desc)
-                params = mi.traverse(scene)
-            else:
-                update_emitter_params(params, _light(s), sun=ctx.settings.sun, variant=ctx.variant)
-            with kernels:
-                out = render_in_passes(mi, scene, ctx.settings.spp, seed).astype(np.float32)
-            seconds += time.perf_counter() - t0
-            identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
-        del scene, params
+        with MaterialScene() as held:
+            for s in material.samples:
+                seed = _render_seed(layout, s)
+                t0 = time.perf_counter()
+                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+                with kernels:
+                    out = render_in_passes(mi, scene, ctx.settings.spp, seed,
+                                           pass_plan(ctx.settings.spp, variant)).astype(np.float32)
+                seconds += time.perf_counter() - t0
+                identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
+                del scene
     return {"seconds": seconds, "identical": identical}
 
 
@@ -429,9 +462,9 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
 
         say("building ...")
         cpu0 = _cpu_with_children()
-        in_build = RenderCallTimer()
+        in_build, build_kernels = RenderCallTimer(), KernelCounter()
         t0 = time.perf_counter()
-        with in_build:
+        with in_build, build_kernels:
             summary = build(derived_path, root, workers=workers, on_start=started)
         build_s = time.perf_counter() - t0
         build_cpu = _cpu_with_children() - cpu0
@@ -448,6 +481,8 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
             in_build_render_s=in_build.seconds if in_build.calls else None,
             timings=timings, material_files_s=per_material, render_file_s=per_render)
         bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
+        if in_build.calls:
+            bench.build_compiled = build_kernels.compiled
         if profile:
             say("profile: one scene per material ...")
             reuse_kernels = KernelCounter()

@@ -108,13 +108,8 @@ def resolve_variant(requested: str = "auto") -> str:
     """
     mi = _import_mitsuba(requested)
     if requested == "auto":
-        try:
-            import drjit as dr
-
-            if dr.has_backend(dr.JitBackend.CUDA) and CUDA_VARIANT in mi.variants():
-                return CUDA_VARIANT
-        except Exception:  # no CUDA driver: fall back to the CPU
-            pass
+        if cuda_works() and CUDA_VARIANT in mi.variants():
+            return CUDA_VARIANT
         select_libllvm()  # no GPU: the CPU variant needs a usable libLLVM
         return LLVM_VARIANT
     name = SHORT_VARIANTS.get(requested, requested)
@@ -123,7 +118,20 @@ def resolve_variant(requested: str = "auto") -> str:
             f"render.variant: {requested!r} is not available; allowed: {', '.join(VARIANT_CHOICES)} "
             f"or one of {', '.join(mi.variants())}"
         )
+    if name.startswith("cuda_") and not cuda_works():
+        raise SetupError(f"render.variant: {requested!r} needs a CUDA device and none works here "
+                         "(drjit.has_backend(drjit.JitBackend.CUDA) is false)")
     return name
+
+
+def cuda_works() -> bool:
+    """Whether drjit's CUDA backend works in this process (a GPU and its driver)."""
+    try:
+        import drjit as dr
+
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except Exception:  # no CUDA driver at all
+        return False
 
 
 def load_mitsuba(variant: str):
@@ -141,6 +149,36 @@ def load_mitsuba(variant: str):
         except Exception as exc:  # mitsuba raises plain ImportError/RuntimeError
             raise SetupError(f"cannot use Mitsuba variant {name!r}: {exc}") from exc
     return mi
+
+
+#: Re-rendering a sample on the same machine and versions gives the same bytes. Holds for the
+#: llvm variant, whose renders are split into power-of-two passes for it (docs/build.md,
+#: Determinism; tests/test_build.py).
+BYTE_IDENTICAL = "byte-identical"
+#: Re-rendering a sample gives another render of the same image, equal within its noise but
+#: not bit for bit: Mitsuba's cuda variant is not bit-stable (mitsuba3#1938).
+WITHIN_NOISE = "within-noise"
+#: Strongest first: a dataset's guarantee is the weakest of the builds that wrote it.
+GUARANTEES = (BYTE_IDENTICAL, WITHIN_NOISE)
+GUARANTEE_BASIS = {
+    BYTE_IDENTICAL: "llvm variant, spp rendered as power-of-two passes: byte-identical re-renders, "
+                    "tested (tests/test_build.py)",
+    WITHIN_NOISE: "not bit-stable on this backend (mitsuba3#1938): a re-render agrees within noise, "
+                  "not byte for byte",
+}
+
+
+def determinism(variant: str) -> str:
+    """The guarantee a re-render of ``variant`` (a full name) gives: :data:`BYTE_IDENTICAL` for
+    the llvm variants, whose byte-identity is tested here, :data:`WITHIN_NOISE` for every other
+    (cuda's is reported unstable upstream; scalar is neither used nor tested)."""
+    return BYTE_IDENTICAL if variant.startswith("llvm_") else WITHIN_NOISE
+
+
+def weakest_guarantee(*guarantees: str | None) -> str:
+    """The weakest of ``guarantees`` (None and unknown values ignored; none left: byte-identical)."""
+    known = [g for g in guarantees if g in GUARANTEES]
+    return max(known, key=GUARANTEES.index) if known else BYTE_IDENTICAL
 
 
 def library_versions() -> dict[str, str]:

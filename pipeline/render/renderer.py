@@ -31,7 +31,7 @@ from pipeline.errors import bad_value, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
-from pipeline.render.emitter import emitter_dicts
+from pipeline.render.emitter import emitter_dicts, update_emitter_params
 from pipeline.render.limits import (
     CLAMP_RANGE,
     DEFAULT_RR_DEPTH,
@@ -43,7 +43,7 @@ from pipeline.render.limits import (
     SPP_RANGE,
     TARGET_ERROR_RANGE,
 )
-from pipeline.render.mitsuba_env import load_mitsuba
+from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import sensor_dict, shape_dicts
 from pipeline.render.stats import is_bad, render_stats
 from sky.emitter import SUN_MODES
@@ -207,7 +207,14 @@ def pass_seed(seed: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed), k]).generate_state(1, np.uint32)[0])
 
 
-def render_in_passes(mi, scene, spp: int, seed: int) -> np.ndarray:
+def pass_plan(spp: int, variant: str) -> list[int]:
+    """The passes a render of ``spp`` is split into on ``variant``: power-of-two passes where
+    re-renders are byte-identical (llvm: the passes are what makes them so), one pass where
+    they are not anyway (cuda, mitsuba3#1938: there the passes would only add launches)."""
+    return power_of_two_passes(spp) if determinism(variant) == BYTE_IDENTICAL else [int(spp)]
+
+
+def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = None) -> np.ndarray:
     """Every channel of ``spp`` samples per pixel, rendered as power-of-two passes, averaged.
 
     Why: in the llvm variant a render whose spp is not a power of two is not
@@ -217,10 +224,14 @@ def render_in_passes(mi, scene, spp: int, seed: int) -> np.ndarray:
     power-of-two passes a pixel's samples never straddle; the passes are averaged in
     float64, weighted by their spp: exact for every channel of the moment integrator,
     whose channels are per-pixel means too. Cost: one kernel per distinct pass size
-    (cached) and about +10% at 150 spp (docs/build.md).
+    (cached) and about +10% at 150 spp (docs/build.md). ``passes`` (:func:`pass_plan`) may
+    say otherwise; a single pass is seeded like the first of several.
     """
+    passes = power_of_two_passes(spp) if passes is None else passes
+    if len(passes) == 1:  # no float64 sum to make: the pass itself (same values, half the copies)
+        return np.asarray(mi.render(scene, spp=passes[0], seed=pass_seed(seed, 0)), dtype=np.float64)
     total = None
-    for k, n in enumerate(power_of_two_passes(spp)):
+    for k, n in enumerate(passes):
         image = np.asarray(mi.render(scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
         total = image if total is None else total + image
     return total / spp
@@ -325,7 +336,7 @@ class RenderOutput(NamedTuple):
 
 
 def render_scene(mi, scene, spp: int, seed: int, *, sampler: str = "independent", target_error: float = 0.0,
-                 mask: np.ndarray | None = None) -> RenderOutput:
+                 mask: np.ndarray | None = None, single_pass: bool = False) -> RenderOutput:
     """Render a loaded scene (moment integrator): image, luminance variance, spp used, error.
 
     The moment integrator's extra channels are the first and second moments of the nested
@@ -336,11 +347,16 @@ def render_scene(mi, scene, spp: int, seed: int, *, sampler: str = "independent"
     after each stage the estimate :func:`relative_error` is computed from all passes so
     far and the render stops once it is at most ``target_error``. Every decision is a
     function of the passes rendered, which are deterministic, so the result is too.
+
+    ``single_pass`` (a variant whose re-renders are not byte-identical anyway, :func:`pass_plan`):
+    each stage is one pass instead of power-of-two passes.
     """
     if target_error <= 0 and sampler == "independent":
-        out, used = render_in_passes(mi, scene, spp, seed), int(spp)
+        out, used = render_in_passes(mi, scene, spp, seed, [int(spp)] if single_pass else None), int(spp)
     else:
         stages = adaptive_stages(spp) if target_error > 0 else [power_of_two_passes(spp)]
+        if single_pass:
+            stages = [[sum(stage)] for stage in stages]
         acc, k = PassSum(), 0
         for stage in stages:
             for n in stage:
@@ -355,20 +371,62 @@ def render_scene(mi, scene, spp: int, seed: int, *, sampler: str = "independent"
     return RenderOutput(image, variance.astype(np.float32), used, relative_error(out, used, mask))
 
 
+class MaterialScene:
+    """One material's loaded scene, moved from lighting to lighting.
+
+    The first :meth:`lit` loads the material's scene; the next ones move its emitters in
+    place (:func:`pipeline.render.emitter.update_emitter_params`): no scene dict, no
+    ``load_dict`` (~0.1 s, and the memory growth of repeated loads, mitsuba3#1890), no kernel
+    compiled, and the same bytes as a scene loaded afresh for that light
+    (tests/test_build_bench.py). Release it (``with``, or :meth:`release`) before the next
+    material's: two scenes alive at once change the kernels' hashes (drjit traces virtual
+    calls over every registered instance) and recompile them.
+    """
+
+    def __init__(self):
+        self.maps = self.scene = self.params = self.effects = None
+
+    def lit(self, mi, ball, camera, maps, light, settings: RenderSettings):
+        """The scene of ``maps`` lit by ``light``; its lighting record and effects."""
+        if self.scene is None:
+            desc, lighting, self.effects = scene_dict(ball, camera, maps, light, settings)
+            self.scene, self.maps = mi.load_dict(desc), maps
+            return self.scene, lighting, self.effects
+        if maps is not self.maps:
+            raise ValueError("MaterialScene holds another material's scene: release it first")
+        if self.params is None:
+            self.params = mi.traverse(self.scene)
+        lighting = update_emitter_params(self.params, light, sun=settings.sun, variant=settings.variant)
+        return self.scene, lighting, self.effects
+
+    def release(self) -> None:
+        self.maps = self.scene = self.params = self.effects = None
+
+    def __enter__(self) -> MaterialScene:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
 def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int,
-                  mask: np.ndarray | None = None) -> RenderResult:
-    """Render one material under one light, re-rendering bad (NaN/Inf/negative) results."""
+                  mask: np.ndarray | None = None, scene: MaterialScene | None = None) -> RenderResult:
+    """Render one material under one light, re-rendering bad (NaN/Inf/negative) results.
+
+    ``scene``: the material's :class:`MaterialScene`, kept across its lightings (a build
+    renders every lighting of a material in a row); None loads a scene for this render only.
+    """
     settings.check()
     mi = load_mitsuba(settings.variant)
     start = time.perf_counter()
-    scene_desc, lighting, effects = scene_dict(ball, camera, maps, light, settings)
-    scene = mi.load_dict(scene_desc)
+    loaded, lighting, effects = (scene or MaterialScene()).lit(mi, ball, camera, maps, light, settings)
+    single_pass = determinism(settings.variant) != BYTE_IDENTICAL
     attempts = []
     for attempt in range(MAX_RENDER_ATTEMPTS):
         attempt_seed = derived_seed(seed, attempt)
         image, variance, spp_used, error_estimate = render_scene(
-            mi, scene, settings.spp, attempt_seed, sampler=settings.sampler, target_error=settings.target_error,
-            mask=mask)
+            mi, loaded, settings.spp, attempt_seed, sampler=settings.sampler, target_error=settings.target_error,
+            mask=mask, single_pass=single_pass)
         stats = render_stats(image, variance, mask)
         attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"],
                          "negative": stats["negative"]})

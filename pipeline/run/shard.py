@@ -9,6 +9,11 @@ A shard task may run twice, even at the same time, or be killed at any instant:
   not rendered again;
 - the shard's marker (``COMPLETE.json``), written last, lists every record. A shard
   with a marker is complete and is trusted by later builds (``validate`` checks it).
+
+Rendering and writing overlap: the maps' raster projection, EXR encoding, SHA-256, fsync
+and records run on one writer thread (:class:`OrderedWriter`), in the order a synchronous
+build would write them, while the next render runs. A material's scene is loaded once and
+moved from lighting to lighting (:class:`pipeline.render.renderer.MaterialScene`).
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ from __future__ import annotations
 import os
 import socket
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from geometry import build_shaderball, default_camera
@@ -26,7 +33,7 @@ from pipeline.errors import ShaderballError
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import RenderSettings, model_record, render_sample
+from pipeline.render.renderer import MaterialScene, RenderSettings, model_record, render_sample
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import write_exr
 from pipeline.store.folder import complete_marker, real_dir, record_problem
@@ -68,6 +75,68 @@ def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
     return _CONTEXTS[key]
 
 
+class OrderedWriter:
+    """Runs a shard's writes on one thread, in submission order, beside the next render.
+
+    Crash safety is the synchronous build's: the jobs run one at a time in the order they
+    were submitted, and each render job writes its EXR (temp file, fsync, rename) before its
+    record, after the material files it lists (submitted earlier); the marker is written
+    only after :meth:`close`. A process killed at any instant leaves what a synchronous
+    build killed at some instant would. After a job fails no later job runs (a record must
+    not follow a write that failed); the error is raised in the caller at the next
+    :meth:`submit` or at :meth:`close`. At most ``max_pending`` jobs wait (memory bound: a
+    job holds one render's pixels).
+    """
+
+    def __init__(self, max_pending: int = 4):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="shard-writer")
+        self._pending: deque[Future] = deque()
+        self._max_pending = max_pending
+        self._failed: BaseException | None = None
+
+    def _run(self, fn, args):
+        if self._failed is not None:
+            raise RuntimeError("skipped: an earlier write of this shard failed")
+        try:
+            return fn(*args)
+        except BaseException as exc:
+            self._failed = exc
+            raise
+
+    def submit(self, fn, *args) -> Future:
+        """Queue ``fn(*args)``; its future holds what it returns."""
+        self._raise_failure()
+        while len(self._pending) >= self._max_pending:
+            self._pending.popleft().exception()
+            self._raise_failure()
+        future = self._pool.submit(self._run, fn, args)
+        self._pending.append(future)
+        return future
+
+    def _raise_failure(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+
+    def close(self) -> None:
+        """Wait for every job; raise the first failure."""
+        self._pool.shutdown(wait=True)
+        self._pending.clear()
+        self._raise_failure()
+
+    def __enter__(self) -> OrderedWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if exc[0] is None:
+            self.close()
+        else:  # the caller failed: finish the writes already queued, keep its error
+            self._pool.shutdown(wait=True)
+
+
+def _resolved(records: list) -> list[dict]:
+    return [r.result() if isinstance(r, Future) else r for r in records]
+
+
 def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
     """The identity, seeds and requested lighting of ``record`` are the plan's."""
     try:
@@ -100,15 +169,16 @@ def files_where_the_layout_says(record: dict, sample: SamplePlan) -> bool:
 
 
 def sample_verified(root: str, record: dict | None, sample: SamplePlan,
-                    checked: dict[str, bool] | None = None) -> bool:
+                    checked: dict[str, bool] | None = None, *, render_only: bool = False) -> bool:
     """``record`` is the plan's and its files are present with their recorded size and SHA-256.
 
     ``checked`` memoises file checks: a material's maps are shared by its lightings.
+    ``render_only``: its render file only (the material's files are judged apart).
     """
     if not record or not record_matches_plan(record, sample) or not files_where_the_layout_says(record, sample):
         return False
     checked = {} if checked is None else checked
-    for entry in record["files"]:
+    for entry in record["files"][:1] if render_only else record["files"]:
         key = dumps(entry)
         if key not in checked:
             checked[key] = file_ok(root, entry)
@@ -127,19 +197,22 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
     records, rendered = [], 0
     ctx = None
     checked: dict[str, bool] = {}
-    for material in shard.materials:
-        existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
-                    for s in material.samples]
-        verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
-        if all(verified):
-            records.extend(existing)
-            continue
-        ctx = ctx or worker_context(spec, variant)
-        existing = [r if ok else None for r, ok in zip(existing, verified)]
-        new = build_material(layout, spec, ctx, material, existing)
-        rendered += sum(1 for r, old in zip(new, existing) if r is not old)
-        records.extend(new)
-    write_marker(layout, shard, records)
+    with OrderedWriter() as writer:
+        for material in shard.materials:
+            existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
+                        for s in material.samples]
+            verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
+            if all(verified):
+                records.extend(existing)
+                continue
+            ctx = ctx or worker_context(spec, variant)
+            render_kept = [r if not ok and sample_verified(root, r, s, checked, render_only=True) else None
+                           for r, ok, s in zip(existing, verified, material.samples)]
+            existing = [r if ok else None for r, ok in zip(existing, verified)]
+            new = queue_material(layout, spec, ctx, material, existing, writer, render_kept)
+            rendered += sum(isinstance(r, Future) for r in new)
+            records.extend(new)
+    write_marker(layout, shard, _resolved(records))
     return {"shard": shard.shard_id, "rendered": rendered, "skipped": shard.n_renders - rendered,
             "seconds": time.perf_counter() - start}
 
@@ -191,31 +264,72 @@ def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
 def build_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
                    existing: list[dict | None]) -> list[dict]:
     """Write a material's maps (once) and every render it lacks; return all its records."""
+    with OrderedWriter() as writer:
+        records = queue_material(layout, spec, ctx, material, existing, writer)
+    return _resolved(records)
+
+
+def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
+                   existing: list[dict | None], writer: OrderedWriter,
+                   render_kept: list[dict | None] | None = None) -> list[dict | Future]:
+    """Render every sample of ``material`` that ``existing`` (verified records or None) lacks;
+    its files and records are queued on ``writer``. Return the kept records and, for the
+    others, futures of their records.
+
+    Nothing that verifies is rewritten, which matters where a re-render would not give the
+    same bytes (a dataset whose guarantee is within-noise, docs/manifest.md): a kept record's
+    material files verified, so they are not written again; and ``render_kept`` (records
+    whose render verifies but whose material files do not: a lost maps file) keep their
+    render when the material files written anew are the ones they list (the maps are a pure
+    function of the plan). Otherwise the material files are written before the first
+    render's record.
+    """
     maps, description = make_material(material, spec)
     maps.check()
-    material_files = write_material_files(layout, spec, ctx, material, maps, description)
-    records = []
-    for sample, old in zip(material.samples, existing):
-        if old is not None and old.get("files", [])[1:] == material_files:
-            records.append(old)
-            continue
-        records.append(render_and_record(layout, spec, ctx, sample, maps, description, material_files))
+    kept = [old for old in existing if old is not None]
+    if kept:
+        material_files = kept[0]["files"][1:]
+    elif any(r is not None for r in render_kept or ()):
+        listed = next(r for r in render_kept if r is not None)["files"][1:]
+        intact = [entry for entry in listed if file_ok(layout.root, entry)]
+        material_files = writer.submit(write_material_files, layout, spec, ctx, material, maps,
+                                       description, intact).result()
+        existing = [r if r is not None and r["files"][1:] == material_files else None for r in render_kept]
+    else:
+        material_files = writer.submit(write_material_files, layout, spec, ctx, material, maps, description)
+    records: list[dict | Future] = []
+    with MaterialScene() as scene:
+        for sample, old in zip(material.samples, existing):
+            if old is not None and old.get("files", [])[1:] == material_files:
+                records.append(old)
+                continue
+            records.append(render_and_queue(layout, spec, ctx, sample, maps, description, material_files,
+                                            writer, scene))
     return records
 
 
-def write_material_files(layout, spec, ctx, material, maps, description) -> list[dict]:
-    """The screen-space maps (and texture-space maps) of a material, stored once."""
+def write_material_files(layout, spec, ctx, material, maps, description, intact=()) -> list[dict]:
+    """The screen-space maps (and texture-space maps) of a material, stored once.
+
+    ``intact``: entries of this material's files that verify on disk; those are kept as
+    they are, not written again."""
 
     storage = spec.storage
+    intact = {entry["role"]: entry for entry in intact}
     half = ("diffuse", "specular", "roughness", "normal") if storage.maps_half else ()
     meta = {"id": material.material_id, "material": description,
             "colorspace": "linear Rec.709 (sRGB primaries, D65) for diffuse and specular"}
-    screen = project_material(maps, ctx.gbuffer)
-    layers = {name: screen[name] for name in storage.layers}
     rel = layout.maps_rel(material.shard_id, material.material_id)
-    files = [file_entry(layout.root, rel, "maps",
-                        write_exr(layout.path(rel), layers, meta, half=half, compression=storage.compression))]
-    if storage.texture_maps:
+    if "maps" in intact:
+        files = [intact["maps"]]
+    else:
+        screen = project_material(maps, ctx.gbuffer)
+        layers = {name: screen[name] for name in storage.layers}
+        files = [file_entry(layout.root, rel, "maps",
+                            write_exr(layout.path(rel), layers, meta, half=half, compression=storage.compression))]
+    if storage.texture_maps and "texture" in intact:
+        files.append(intact["texture"])
+    elif storage.texture_maps:
         rel = layout.texture_rel(material.shard_id, material.material_id)
         texture = {"diffuse": maps.diffuse, "specular": maps.specular,
                    "roughness": maps.roughness, "normal": maps.normal}
@@ -231,11 +345,20 @@ def non_default_render_options(settings) -> dict:
             if getattr(settings, name) != getattr(defaults, name)}
 
 
-def render_and_record(layout, spec, ctx, sample: SamplePlan, maps, description, material_files) -> dict:
-
+def render_and_queue(layout, spec, ctx, sample: SamplePlan, maps, description, material_files,
+                     writer: OrderedWriter, scene: MaterialScene | None = None) -> Future:
+    """Render one sample here; queue its EXR and record on ``writer``. ``material_files``: the
+    material's file entries, or the future of the job writing them (queued before)."""
     light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
     result = render_sample(ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed,
-                           mask=ctx.gbuffer.mask)
+                           mask=ctx.gbuffer.mask, scene=scene)
+    return writer.submit(write_render_and_record, layout, spec, ctx, sample, description, material_files, result)
+
+
+def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, material_files, result) -> dict:
+    """The writer's half of a sample: its render EXR, then (durable) its record."""
+    if isinstance(material_files, Future):
+        material_files = material_files.result()  # done: it was queued before this job
     effective = Light.from_dict(result.lighting["effective"])
     stats = dict(result.stats)
     stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
