@@ -248,13 +248,14 @@ def sampler_spp(mi, sampler: str, spp: int) -> int:
 class _quiet:
     """Mitsuba's log at Error level while inside (a sampler's rounding warning is recorded, not printed)."""
 
-    def __init__(self, mi):
-        self.logger = mi.logger()
+    def __init__(self, mi, on: bool = True):
+        self.logger, self.on = mi.logger(), on
         self.error = mi.LogLevel.Error
 
     def __enter__(self):
         self.level = self.logger.log_level()
-        self.logger.set_log_level(self.error)
+        if self.on:
+            self.logger.set_log_level(self.error)
 
     def __exit__(self, *exc):
         self.logger.set_log_level(self.level)
@@ -390,7 +391,8 @@ class MaterialScene:
         """The scene of ``maps`` lit by ``light``; its lighting record and effects."""
         if self.scene is None:
             desc, lighting, self.effects = scene_dict(ball, camera, maps, light, settings)
-            self.scene, self.maps = mi.load_dict(desc), maps
+            with _quiet(mi, settings.sampler != "independent"):  # a sampler's rounding: recorded, not printed
+                self.scene, self.maps = mi.load_dict(desc), maps
             return self.scene, lighting, self.effects
         if maps is not self.maps:
             raise ValueError("MaterialScene holds another material's scene: release it first")
