@@ -10,8 +10,9 @@ from pipeline.check.crosscheck import State, expected_files, marker_record, reco
 from pipeline.check.inspect import expectations, inspect_file
 from pipeline.check.report import Progress, RepairAction
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
-from pipeline.errors import ShaderballError
-from pipeline.run.build import build
+from pipeline.errors import SetupError, ShaderballError
+from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
+from pipeline.run.build import build, recorded_guarantee
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.layout import DESCRIPTION_FILE, SPEC_FILE, Layout
 from pipeline.store.records import dumps, read_json
@@ -143,11 +144,81 @@ def write_good_record_files(state: State, chosen: dict, affected: set, actions: 
         actions.append(RepairAction("rewrite_record", rel, f"{rel}: rewritten from the intact copy"))
 
 
-def rebuild(root: str, workers: int, progress, n_shards: int) -> None:
-    """Resume the build: the shards without a marker are rebuilt, the manifest rewritten."""
+def recorded_variant(state: State) -> str | None:
+    """The Mitsuba variant the dataset was rendered with: dataset.json's, else the one every
+    record copy names (a lost dataset.json); None when neither says."""
+    if state.variant:
+        return state.variant
+    named = {r.get("render", {}).get("variant") for sample in state.planned.values()
+             for r in _candidates(state, sample) if isinstance(r.get("render"), dict)}
+    named.discard(None)
+    return named.pop() if len(named) == 1 else None
+
+
+def repair_variant(state: State) -> str | None:
+    """The variant a repair renders with: the recorded one, resolved (not what the spec's
+    ``auto`` would pick on this machine, which may be another backend); SetupError, saying
+    where the repair can run, when it cannot be used here."""
+    recorded = recorded_variant(state)
+    if recorded is None:
+        return None
+    try:
+        return resolve_variant(recorded)
+    except SetupError as exc:
+        raise SetupError(f"{DESCRIPTION_FILE}: the dataset was rendered with Mitsuba variant {recorded}, which "
+                         f"cannot be used here ({exc}); a repair re-renders with the dataset's own variant, "
+                         "so run it on a machine where that variant works; nothing was changed") from None
+
+
+def lost_render_digests(state: State, chosen: dict) -> dict[str, set]:
+    """For every sample that will be re-rendered, the SHA-256 its record copies gave its render."""
+    lost = {}
+    for sid, sample in state.planned.items():
+        if chosen[sid] is None:
+            lost[sid] = {e.get("sha256") for r in _candidates(state, sample) for e in r.get("files", [])
+                         if isinstance(e, dict) and e.get("role") == "render"}
+    return lost
+
+
+def describe_rerenders(state: State, lost: dict[str, set], actions: list) -> list:
+    """The ``rerender`` actions, each told what its new render is against the lost copy.
+
+    Under the byte-identical guarantee the new render has the recorded bytes (else the
+    message says so: the lost copy was not what this dataset renders). Under within-noise
+    (docs/manifest.md) a new render with other bytes is the expected outcome, not a
+    corruption: its record, the shard's marker and the manifest all list the new file.
+    """
+    guarantee = recorded_guarantee(state.layout.root) or determinism(state.variant or "")
+    out = []
+    for action in actions:
+        sid = os.path.basename(action.path or "").removesuffix(".render.exr")
+        if action.action != "rerender" or sid not in lost:
+            out.append(action)
+            continue
+        record = read_json(state.layout.path(state.layout.record_rel(state.planned[sid].shard_id, sid)))
+        digest = next((e.get("sha256") for e in (record or {}).get("files", []) if e.get("role") == "render"), None)
+        if digest is None:
+            note = "not re-rendered (the build did not finish it)"
+        elif not lost[sid]:
+            note = "no copy of its record said what the lost file held"
+        elif digest in lost[sid]:
+            note = "byte-identical to the lost copy"
+        elif guarantee == BYTE_IDENTICAL:
+            note = ("its bytes differ from the lost copy's recorded SHA-256 although this dataset's re-renders "
+                    "are byte-identical: the lost copy was not this installation's render")
+        else:
+            note = (f"a new render, not the lost copy's bytes ({guarantee} dataset: equal within noise); "
+                    "its record, the shard marker and the manifest list the new file")
+        out.append(RepairAction(action.action, action.path, f"{action.message}: {note}"))
+    return out
+
+
+def rebuild(root: str, workers: int, progress, n_shards: int, variant: str | None = None) -> None:
+    """Resume the build with ``variant`` (the dataset's): the shards without a marker are
+    rebuilt, the manifest rewritten."""
 
     def forward(p):
         if progress is not None:
             progress(Progress("repair", p.done, p.total, f"{n_shards} shard(s)", 0, p.elapsed_s))
 
-    build(Layout(root).spec, root, workers=workers, progress=forward)
+    build(Layout(root).spec, root, workers=workers, progress=forward, variant=variant)

@@ -16,9 +16,10 @@ The default mode reads every file once: the bytes it hashes are the bytes it dec
 ``fast=True`` only lists and stats (sizes, markers, records against the plan).
 
 :func:`repair` re-validates, deletes what is bad, re-runs only the affected shards (through
-the resumable build, which re-renders only samples whose record does not verify; renders are
-deterministic, so a repaired file is byte-identical to the original), rewrites the manifest
-from the shard markers and validates again.
+the resumable build with the dataset's recorded Mitsuba variant, which re-renders only
+samples whose record does not verify: on a byte-identical dataset a repaired file is the
+original's bytes, on a within-noise one (cuda) a new render that every record copy then
+lists), rewrites the manifest from the shard markers and validates again.
 
 Library code: nothing here prints; progress goes to a callback. This module holds the two
 entry points; the work is split by concern: :mod:`pipeline.check.report` (problem kinds, the
@@ -52,9 +53,12 @@ from pipeline.check.inspect import inspect_all
 from pipeline.check.repair import (
     chosen_record,
     delete_extra_files,
+    describe_rerenders,
     inspect_unlisted,
+    lost_render_digests,
     rebuild,
     remove_file,
+    repair_variant,
     restore_spec,
     settle_samples,
     write_good_record_files,
@@ -165,9 +169,11 @@ def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], No
             f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
             "give the spec the dataset was built from (--spec) to restore it; nothing was changed")]
     layout = state.layout
+    variant = repair_variant(state)  # the dataset's own, or SetupError before anything changes
     delete_extra_files(state, actions)
     inspect_unlisted(state)
     chosen = {sid: chosen_record(state, sample) for sid, sample in state.planned.items()}
+    lost = lost_render_digests(state, chosen)
     affected = settle_samples(state, chosen, actions)
     for shard in state.plans:
         marker = state.markers.get(shard.shard_id)
@@ -181,7 +187,8 @@ def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], No
         actions.append(RepairAction("rerun_shard", layout.marker_rel(sid),
                                     f"shard {sid}: marker removed; rebuilt from its verified records"))
     if affected or not state.description_ok:
-        rebuild(root, workers, progress, len(affected))
+        rebuild(root, workers, progress, len(affected), variant)
+        actions = describe_rerenders(state, lost, actions)
         if not state.description_ok:
             actions.append(RepairAction("rewrite_description", DESCRIPTION_FILE,
                                         f"{DESCRIPTION_FILE}: rewritten from the spec snapshot"))

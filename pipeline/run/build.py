@@ -32,7 +32,13 @@ from pipeline.dataset.spec import (
     spec_to_toml,
 )
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
-from pipeline.render.mitsuba_env import library_versions, resolve_variant
+from pipeline.render.mitsuba_env import (
+    GUARANTEE_BASIS,
+    determinism,
+    library_versions,
+    resolve_variant,
+    weakest_guarantee,
+)
 from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_text_atomic
@@ -220,7 +226,9 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> N
             "or build into a new directory")
 
 
-def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict:
+def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str, guarantee: str | None = None) -> dict:
+    """dataset.json; ``guarantee``: the dataset's determinism (default: the variant's)."""
+    guarantee = guarantee or determinism(variant)
     return {
         "name": spec.dataset.name,
         "version": spec.dataset.version,
@@ -230,25 +238,40 @@ def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str) -> dict
         "shaderball": __version__,
         "libraries": library_versions(),
         "variant": variant,
+        "determinism": {"guarantee": guarantee, "basis": GUARANTEE_BASIS[guarantee]},
         "counts": plan_summary(plans),
         "colorspace": "linear Rec.709 (sRGB primaries, D65 white)",
     }
 
 
-def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False) -> str:
+def recorded_guarantee(out: str) -> str | None:
+    """The determinism guarantee dataset.json records (None: none, or a folder from before it)."""
+    old = read_json(Layout(out).description)
+    recorded = old.get("determinism") if isinstance(old, dict) else None
+    return recorded.get("guarantee") if isinstance(recorded, dict) else None
+
+
+def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False,
+            variant: str | None = None) -> str:
     """Create ``out`` with the spec snapshot and description; return the Mitsuba variant.
 
-    The variant is resolved here, once, from the spec; every worker is given this name.
+    The variant is resolved here, once, from the spec (or ``variant``: validate --repair
+    passes the one dataset.json records, not what ``auto`` would pick on this machine);
+    every worker is given this name. The dataset's determinism guarantee is the weakest of
+    the variant's and the one already recorded: a resume never promises more than the
+    renders it keeps.
     """
     mode = check_output_dir(out, spec, allow_spec_change)
-    variant = resolve_variant(spec.render.variant)
+    variant = resolve_variant(variant or spec.render.variant)
+    guarantee = determinism(variant)
     if mode != "new":
         check_same_installation(out, plans, variant)
+        guarantee = weakest_guarantee(guarantee, recorded_guarantee(out))
     os.makedirs(out, exist_ok=True)
     layout = Layout(out)
     if mode in ("new", "respec"):
         write_text_atomic(layout.spec, spec_to_toml(spec))
-    write_text_atomic(layout.description, dumps(description(spec, plans, variant)) + "\n")
+    write_text_atomic(layout.description, dumps(description(spec, plans, variant, guarantee)) + "\n")
     return variant
 
 
@@ -305,14 +328,16 @@ def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int
 def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
           cluster: ClusterOptions | None = None, allow_spec_change: bool = False,
           progress: Callable[[Progress], None] | None = None,
-          on_start: Callable[[str, str | None], None] | None = None) -> BuildSummary:
+          on_start: Callable[[str, str | None], None] | None = None, variant: str | None = None) -> BuildSummary:
     """Build (or resume) the dataset of ``spec_path`` into ``out``.
 
     ``workers``: local worker processes (default: one per 2 cores); 0 runs the shards in
     this process, without dask. ``scheduler``: address of an existing dask scheduler.
     ``cluster``: every option of where the workers come from (then leave ``workers`` and
     ``scheduler`` out). ``allow_spec_change``: accept a spec that differs from the
-    directory's snapshot in ``dataset.name`` / ``dataset.version`` only.
+    directory's snapshot in ``dataset.name`` / ``dataset.version`` only. ``variant``: the
+    Mitsuba variant instead of the spec's ``render.variant`` resolved anew (validate --repair
+    passes the dataset's recorded one).
     """
     spec, _text = read_spec_text(spec_path)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
@@ -329,14 +354,14 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
     check_output_dir(out, spec, allow_spec_change)  # refused here, nothing is created
     os.makedirs(out, exist_ok=True)
     with writer_lock(out, "build"):
-        return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start)
+        return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start, variant)
 
 
 def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: ClusterOptions,
-                  allow_spec_change: bool, progress, on_start) -> BuildSummary:
+                  allow_spec_change: bool, progress, on_start, variant: str | None = None) -> BuildSummary:
     """The build, once this process holds ``out`` (pipeline.store.lock): the folder is
     checked again (another writer may have finished in between), then written."""
-    variant = prepare(out, spec, plans, allow_spec_change)
+    variant = prepare(out, spec, plans, allow_spec_change, variant)
     total = sum(s.n_renders for s in plans)
     layout = Layout(out)
     todo = [s for s in plans if complete_marker(layout, s.shard_id, [x.sample_id for x in s.samples]) is None]
