@@ -193,14 +193,17 @@ def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):
 
 
 # Jobs that never start: sbatch queues them, squeue says PartitionDown, scancel removes them.
-PENDING_SBATCH = """n=$(( $(cat "$FAKE_SLURM_DIR/next" 2>/dev/null || echo 100) + 1 ))
+# dask-jobqueue submits and cancels jobs concurrently: one lock around each queue change.
+PENDING_SBATCH = """exec 9>"$FAKE_SLURM_DIR/lock"; flock 9
+n=$(( $(cat "$FAKE_SLURM_DIR/next" 2>/dev/null || echo 100) + 1 ))
 echo $n > "$FAKE_SLURM_DIR/next"
 echo $n >> "$FAKE_SLURM_DIR/queue"
 echo "Submitted batch job $n"
 """
 PENDING_SQUEUE = """while read -r job; do echo "$job|PENDING|PartitionDown"; done < "$FAKE_SLURM_DIR/queue"
 """
-PENDING_SCANCEL = """for job in "$@"; do grep -vx "$job" "$FAKE_SLURM_DIR/queue" > "$FAKE_SLURM_DIR/q"; \
+PENDING_SCANCEL = """exec 9>"$FAKE_SLURM_DIR/lock"; flock 9
+for job in "$@"; do grep -vx "$job" "$FAKE_SLURM_DIR/queue" > "$FAKE_SLURM_DIR/q"; \
 mv "$FAKE_SLURM_DIR/q" "$FAKE_SLURM_DIR/queue"; echo "$job" >> "$FAKE_SLURM_DIR/cancelled"; done
 """
 

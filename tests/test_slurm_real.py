@@ -7,8 +7,8 @@ of their jobs, at the end, even when a test fails or times out. Without Debian's
 `slurm-wlm`/`munge` or root, every test is skipped with the reason (`make setup` installs them
 where it can). Cases: a plain build; a job cancelled mid-build; a job SLURM kills at its
 walltime while the other job's worker retires before it; a node drained mid-build with its
-job requeued; jobs that cannot start (partition down) under --start-timeout; a job sbatch
-refuses. Each build is checked byte for byte against an in-process build and validated.
+job requeued; jobs that cannot start (partition down) under --start-timeout, at the start and
+as a replacement; a job sbatch refuses. Each build is checked byte for byte against an in-process build and validated.
 """
 
 from __future__ import annotations
@@ -73,8 +73,10 @@ class Build:
 
     def __init__(self, slurm: LocalSlurm, tmp_path: Path, out: Path, *options: str):
         self.out, self.cwd = out, tmp_path
+        # --scratch: each test's jobs compile their kernels afresh, in a folder pytest removes.
         self.command = [sys.executable, "-c", "import cli; cli.main()", "build", str(SMOKE), "--out", str(out),
-                        "--cluster", "slurm", "--queue", slurm.partition, "--memory", "2GiB", *options]
+                        "--cluster", "slurm", "--queue", slurm.partition, "--memory", "2GiB",
+                        "--scratch", str(tmp_path / "scratch"), *options]
         self.stdout, self.stderr = tmp_path / "build.out", tmp_path / "build.err"
         self.start = time.monotonic()
         # cwd: the jobs' slurm-<id>.out files land where sbatch runs.
@@ -104,11 +106,6 @@ class Build:
 
     def records(self) -> int:
         return len(list(self.out.glob("shards/*/m*_l*.json")))
-
-    def shards_in_progress(self) -> int:
-        """Shard folders with a record and no complete marker: a worker is rendering each."""
-        return sum(1 for folder in self.out.glob("shards/*")
-                   if not (folder / "COMPLETE.json").exists() and any(folder.glob("m*_l*.json")))
 
     def until(self, condition, what: str, slurm: LocalSlurm, timeout_s: float = 180.0) -> None:
         deadline = time.monotonic() + timeout_s
@@ -148,6 +145,11 @@ def _job_processes(slurm, job_id: str) -> list[int]:
     return pids
 
 
+def _job_log(folder: Path, job_id: str) -> str:
+    path = folder / f"slurm-{job_id}.out"
+    return path.read_text(errors="replace") if path.exists() else ""
+
+
 def _seconds(hhmmss: str) -> int:
     parts = [int(p) for p in hhmmss.split("-")[-1].split(":")]
     return sum(v * 60 ** i for i, v in enumerate(reversed(parts)))
@@ -185,11 +187,14 @@ def test_a_cancelled_job_is_replaced_and_the_build_completes(idle, builds, refer
 
 def test_walltime_kills_a_hung_job_while_the_other_worker_retires_before_it(idle, builds, reference, tmp_path):
     """--walltime 00:01:00: workers retire 15-45 s in (lifetime 30 s +- 15 s). One job's processes
-    are stopped (SIGSTOP, a hung worker) mid-shard, so only SLURM's time limit ends that job."""
+    are stopped (SIGSTOP, a hung worker) while it holds shards, so only SLURM's time limit ends
+    that job. Both workers hold shards once both are connected and none is complete: each
+    takes two of the four at once (dask's worker-saturation 1.1 of one thread)."""
     slurm = idle
     before = set(slurm.jobs())
     build = _run(builds, slurm, tmp_path, tmp_path / "ds", "--jobs", "2", "--cores", "1", "--walltime", "00:01:00")
-    build.until(lambda: build.shards_in_progress() >= 2 and len(_running(slurm)) == 2, "two shards in progress", slurm)
+    build.until(lambda: "| 2 worker(s)" in build.output() and len(_running(slurm)) == 2, "two workers", slurm)
+    assert not list(build.out.glob("shards/*/COMPLETE.json")), "a shard was complete before the hang"
     hung = _running(slurm)[0]
     pids = _job_processes(slurm, hung)
     assert pids, f"no processes of job {hung} found"
@@ -200,11 +205,14 @@ def test_walltime_kills_a_hung_job_while_the_other_worker_retires_before_it(idle
     assert build.wait() == 0, build.explain(slurm)
     jobs = {k: v for k, v in slurm.jobs().items() if k not in before}
     assert jobs[hung]["JobState"] == "TIMEOUT", (jobs[hung], build.explain(slurm))
-    assert time.monotonic() - stopped_at > 15, "the build did not wait for the hung job's shard"
-    retired = [j for k, j in jobs.items() if k != hung and j["JobState"] == "COMPLETED"]
+    ran_s = _seconds(jobs[hung]["RunTime"])  # the hung job ran its whole time limit
+    assert ran_s >= 60 and time.monotonic() - stopped_at > 30, "the build did not wait for the hung job"
+    assert "DUE TO TIME LIMIT" in _job_log(tmp_path, hung)
+    retired = [k for k, j in jobs.items() if k != hung and j["JobState"] != "TIMEOUT"
+               and "Reason: worker-lifetime-reached" in _job_log(tmp_path, k)]
     assert retired, f"no worker retired before its walltime: {[(k, j['JobState']) for k, j in jobs.items()]}"
     for job in retired:
-        assert _seconds(job["RunTime"]) < _seconds(job["TimeLimit"]), job  # ended by the retirement
+        assert _seconds(jobs[job]["RunTime"]) < 60, jobs[job]
     crash.check_complete(build.out, reference)
 
 
@@ -253,6 +261,31 @@ def test_jobs_that_cannot_start_stop_the_build_at_the_start_timeout_and_it_resum
     slurm.scontrol("update", f"PartitionName={slurm.partition}", "State=UP")
     again = _run(builds, slurm, tmp_path, tmp_path / "ds", *options)
     assert again.wait() == 0, again.explain(slurm)
+    crash.check_complete(again.out, reference)
+
+
+def test_a_replacement_that_cannot_start_stops_the_build_and_it_resumes(idle, builds, reference, tmp_path):
+    """The partition goes down and the only job is cancelled mid-build: its replacement pends, and
+    --start-timeout counts from the moment the last worker left. The samples committed stay."""
+    slurm = idle
+    options = ("--jobs", "1", "--cores", "2", "--walltime", "00:30:00", "--start-timeout", "20")
+    build = _run(builds, slurm, tmp_path, tmp_path / "ds", *options)
+    build.until(lambda: build.records() >= 1 and _running(slurm), "first record", slurm)
+    slurm.scontrol("update", f"PartitionName={slurm.partition}", "State=DOWN")
+    slurm.run("scancel", *_running(slurm))
+    assert build.wait(timeout_s=180) == 2, build.explain(slurm)
+    out = build.output()
+    assert re.search(r"error: --start-timeout 20: no worker for 20 s since the last one left; slurm jobs: 1 pending "
+                     r"\(job \d+: PartitionDown, the partition is down\)\. The jobs are cancelled; what was rendered "
+                     r"is kept", out), out
+    kept = build.records()
+    assert 1 <= kept < 16
+    assert slurm.queue() == []
+
+    slurm.scontrol("update", f"PartitionName={slurm.partition}", "State=UP")
+    again = _run(builds, slurm, tmp_path, tmp_path / "ds", *options)
+    assert again.wait() == 0, again.explain(slurm)
+    assert f"rendered {16 - kept}, already present {kept}" in again.output()
     crash.check_complete(again.out, reference)
 
 
