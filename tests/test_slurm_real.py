@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 from conftest import crash_module
 
-from support.slurm import LocalSlurm, unavailable_reason
+from support.slurm import LocalSlurm, die_with_parent, unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -82,7 +82,7 @@ class Build:
         # cwd: the jobs' slurm-<id>.out files land where sbatch runs.
         self.proc = subprocess.Popen(self.command, cwd=tmp_path, env=slurm.env, stdin=subprocess.DEVNULL,
                                      stdout=open(self.stdout, "w"), stderr=open(self.stderr, "w"),
-                                     start_new_session=True)
+                                     start_new_session=True, preexec_fn=die_with_parent)
         self.seconds = None
 
     def wait(self, timeout_s: float = 420.0) -> int:

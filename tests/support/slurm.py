@@ -15,6 +15,7 @@ no cgroups (they are not available in every container).
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import secrets
 import shutil
@@ -46,6 +47,13 @@ def unavailable_reason() -> str | None:
     if os.geteuid() != 0:
         return "real SLURM not available: starting slurmd needs root"
     return None
+
+
+def die_with_parent() -> None:
+    """preexec_fn: SIGTERM this child when the process that started it dies (even by SIGKILL),
+    so a killed test run leaves no daemon behind. Linux only; elsewhere nothing."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def free_port() -> int:
@@ -252,7 +260,8 @@ class LocalSlurm:
     def _daemon(self, argv: list[str], name: str) -> None:
         log = open(self.root / "log" / f"{name}.out", "ab")
         self.procs.append(subprocess.Popen(argv, env=self.env, stdin=subprocess.DEVNULL, stdout=log,
-                                           stderr=subprocess.STDOUT, start_new_session=True))
+                                           stderr=subprocess.STDOUT, start_new_session=True,
+                                           preexec_fn=die_with_parent))
 
     def _nodes_idle(self) -> bool:
         for proc in self.procs:
