@@ -37,7 +37,13 @@ from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import RenderSettings, luminance_variance, render_pass, render_scene, scene_dict
+from pipeline.render.renderer import (
+    MaterialScene,
+    RenderSettings,
+    luminance_variance,
+    render_pass,
+    render_scene,
+)
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.study import measure as m
 from pipeline.study.configs import DEFAULT_LADDER, FAMILIES, Config, study_configs
@@ -170,8 +176,9 @@ class Sampler:
         self.screen = project_material(self.maps, ctx.gbuffer)
 
     def scene(self, settings):
-        desc, _, _ = scene_dict(self.ctx.ball, self.ctx.camera, self.maps, self.light, settings)
-        return self.ctx.mi.load_dict(desc)
+        loaded, _, _ = MaterialScene().lit(self.ctx.mi, self.ctx.ball, self.ctx.camera, self.maps, self.light,
+                                           settings)
+        return loaded
 
     def render(self, settings: RenderSettings, seed: int, passes: tuple[int, ...] = ()) -> dict:
         mi, mask = self.ctx.mi, self.ctx.gbuffer.mask
