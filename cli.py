@@ -538,7 +538,7 @@ def _training_progress():
 @_friendly_errors
 def train_cmd(dataset, out, epochs, batch_size, lr, loss, vgg_weights, vgg_sha256, vgg_weight, device, workers,
               seed, resolution, test_fraction, no_hash_check, benchmark, as_json):
-    """Train the paper's network on a dataset folder (docs/neural.md); resumes a killed run."""
+    """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run."""
     _neural()
     from pipeline.neural.train import TrainConfig, train
 
@@ -625,7 +625,11 @@ def infer_cmd(run, out, png, diffuse, specular, roughness, normal, svbrdf, svbrd
 @click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
 @_friendly_errors
 def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device):
-    """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references."""
+    """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
+
+    DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
+    the first-hit albedo and normal, and on the colour alone (docs/neural.md).
+    """
     _neural()
     from pipeline.neural.evaluate import EvaluateRequest, evaluate
 

@@ -1,6 +1,6 @@
 """The neural renderer stage: the network of "A Flexible Neural Renderer for Material
 Visualization" (KT et al. 2019), its loss, tone map, metrics, training, inference and
-evaluation over a dataset folder (docs/neural.md).
+evaluation over a dataset folder or its publication (docs/neural.md).
 
 Importing this package does not import torch; its modules do.
 """

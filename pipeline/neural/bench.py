@@ -2,26 +2,42 @@
 
 - loader: EXR reading, SHA-256 check, decoding and assembly of every sample of the
   dataset through a DataLoader with the given workers, from a fresh dataset object (so
-  the per-process maps cache starts empty, as in a first epoch);
+  the per-process maps cache starts empty, as in a first epoch); DATASET may be a
+  publication, whose opening (the reader's check of every tar) is timed apart;
 - training: steps of the network with the chosen loss on random inputs at the dataset's
   network resolution (a randomly initialised VGG16 stands in for ImageNet weights: the
   rate does not depend on the weights' values);
 - inference: the network at batch 1, mean of repeated timed calls after a warm-up.
+
+``python -m pipeline.neural.bench loaders DIR PUB`` compares the loader alone on a dataset
+folder and its publication (:func:`compare_loaders`): the same samples, best of a few passes
+each. ``python -m pipeline.neural.bench denoise DATASET`` compares what OIDN is fed
+(:func:`compare_denoisers`) against fresh high-spp renders of the same samples.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
 import time
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from pipeline.errors import ShaderballError
+from pipeline.neural import metrics
 from pipeline.neural.data import open_dataset
+from pipeline.neural.denoise import AuxBuffers, denoise
+from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
+from pipeline.neural.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
 from pipeline.neural.train import TrainConfig, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
+from pipeline.render.mitsuba_env import resolve_variant
 
 
 @dataclass
@@ -37,12 +53,15 @@ class BenchResult:
     train_loss: str
     infer_ms: float
     threads: int
+    source: str = "dataset folder"
+    open_s: float = 0.0
 
     def lines(self) -> list[str]:
         return [
             f"loader: {self.loader_samples_per_s:.1f} samples/s ({self.loader_samples} samples at "
             f"{self.resolution}x{self.resolution}, {self.workers} workers, SHA-256 "
-            f"{'checked' if self.loader_hash_checked else 'not checked'})",
+            f"{'checked' if self.loader_hash_checked else 'not checked'}; from a {self.source}, opened in "
+            f"{self.open_s:.2f} s{', every tar checked' if self.source == 'publication' else ''})",
             f"training: {self.train_samples_per_s:.2f} samples/s (batch {self.train_batch}, {self.train_loss}, "
             f"{self.device}, {self.threads} torch threads)",
             f"inference: {self.infer_ms:.1f} ms per image (batch 1, {self.device})",
@@ -57,22 +76,42 @@ def _sync(device):
         torch.cuda.synchronize(device)
 
 
-def loader_rate(config: TrainConfig) -> tuple[int, float, int]:
-    dataset = open_dataset(config.dataset, resolution=config.resolution, exposure=config.exposure,
-                           check_hashes=config.check_hashes)
-    loader = DataLoader(dataset, batch_size=config.batch_size, num_workers=config.workers,
-                        persistent_workers=False)
-    started, count = time.perf_counter(), 0
+@dataclass
+class LoaderRate:
+    source: str  # "dataset folder" or "publication"
+    open_s: float  # open_dataset (a publication: every tar checked)
+    samples: int
+    samples_per_s: float
+    resolution: int
+    ids: list
+
+
+def loader_rate(config: TrainConfig) -> LoaderRate:
+    return measure_loader(config.dataset, config.resolution, config.exposure, config.check_hashes,
+                          config.batch_size, config.workers)
+
+
+def measure_loader(root: str, resolution: int | None, exposure: float, check_hashes: bool, batch_size: int,
+                   workers: int) -> LoaderRate:
+    """Open ``root`` afresh and read every sample through a DataLoader."""
+    started = time.perf_counter()
+    dataset = open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=check_hashes)
+    open_s = time.perf_counter() - started
+    loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, persistent_workers=False)
+    started, count, ids = time.perf_counter(), 0, []
     for batch in loader:
         count += batch["maps"].shape[0]
-    return count, count / (time.perf_counter() - started), dataset.resolution
+        ids += batch["id"]
+    return LoaderRate(dataset.files.kind, open_s, count, count / (time.perf_counter() - started),
+                      dataset.resolution, ids)
 
 
 def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
     """Loader, training and inference rates for ``config``; writes nothing."""
     config.check()
     device = pick_device(config.device)
-    count, rate, resolution = loader_rate(config)
+    loaded = loader_rate(config)
+    resolution = loaded.resolution
     model = NeuralRenderer(resolution).to(device)
     if config.loss == "l1+vgg":
         vgg = vgg16_features(upto=RELU3_3)
@@ -109,5 +148,118 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
             model(one, one_light)
         _sync(device)
         infer_ms = (time.perf_counter() - started) / infer_repeats * 1000
-    return BenchResult(resolution, str(device), config.workers, count, rate, config.check_hashes,
-                       config.batch_size, train_rate, config.loss, infer_ms, torch.get_num_threads())
+    return BenchResult(resolution, str(device), config.workers, loaded.samples, loaded.samples_per_s,
+                       config.check_hashes, config.batch_size, train_rate, config.loss, infer_ms,
+                       torch.get_num_threads(), loaded.source, loaded.open_s)
+
+
+def compare_loaders(folder: str, pub: str, resolution: int | None = None, batch_size: int = 6, workers: int = 0,
+                    repeats: int = 3, check_hashes: bool = True, exposure: float = DEFAULT_EXPOSURE) -> dict:
+    """The loader's samples/s on a dataset folder and on its publication, passes alternated,
+    best of ``repeats`` each (a shared machine's load only slows a pass); the publication's
+    opening (every tar checked) is reported apart. Both must yield the same sample ids."""
+    runs: dict[str, list[LoaderRate]] = {"folder": [], "publication": []}
+    for _ in range(repeats):
+        runs["folder"].append(measure_loader(folder, resolution, exposure, check_hashes, batch_size, workers))
+        runs["publication"].append(measure_loader(pub, resolution, exposure, check_hashes, batch_size, workers))
+    if runs["folder"][0].source != "dataset folder" or runs["publication"][0].source != "publication":
+        raise ShaderballError("compare_loaders: name a dataset folder, then its publication")
+    if runs["folder"][0].ids != runs["publication"][0].ids:
+        raise ShaderballError(f"compare_loaders: {pub!r} does not hold the samples of {folder!r}")
+    out = {"samples": runs["folder"][0].samples, "resolution": runs["folder"][0].resolution, "workers": workers,
+           "batch_size": batch_size, "sha256_checked": check_hashes, "repeats": repeats,
+           "torch_threads": torch.get_num_threads()}
+    for name, rates in runs.items():
+        out[name] = {"samples_per_s": max(r.samples_per_s for r in rates),
+                     "samples_per_s_all": [round(r.samples_per_s, 2) for r in rates],
+                     "open_s": min(r.open_s for r in rates)}
+    return out
+
+
+#: What OIDN is fed, by row of :func:`compare_denoisers`: None, the colour alone; else
+#: AuxBuffers' options (the last row is what `shaderball evaluate` uses).
+DENOISE_VARIANTS = {
+    "colour only": None,
+    "pixel centres, material only (0 elsewhere)": {"supersample": 1, "surroundings": False},
+    "pixel centres": {"supersample": 1},
+    "4x4 centres, diffuse albedo d": {"albedo": "diffuse"},
+    "4x4 centres (used)": {},
+}
+
+
+def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_spp: int = 256,
+                      progress=None) -> dict:
+    """Mean PSNR, SSIM (8-bit sRGB) and relMSE of OIDN's output against ``reference_spp`` renders
+    of ``samples`` samples spread over the dataset (which must store texture maps), for each
+    row of :data:`DENOISE_VARIANTS` and each spp."""
+    dataset = open_dataset(root)
+    variant = resolve_variant(dataset_variant(dataset.records))
+    tracer = PathTracer(dataset, variant)
+    auxes = {name: AuxBuffers(tracer.ball, tracer.camera, dataset.resolution, variant, **options)
+             for name, options in DENOISE_VARIANTS.items() if options is not None}
+    picked = sorted({int(i) for i in np.linspace(0, len(dataset) - 1, min(samples, len(dataset))).round()})
+    scores: dict[tuple[int, str], list] = {}
+    for n, index in enumerate(picked, start=1):
+        sample = dataset.samples[index]
+        maps = tracer.material(sample)
+        if maps is None:
+            raise ShaderballError(f"DATASET: {root!r} stores no texture maps; the comparison re-renders samples")
+        record = dataset.records[sample.id]
+        truth = tracer.render(record, maps, reference_spp)[0]
+        truth8 = hdr_to_srgb8(truth, dataset.exposure)
+        for spp in spps:
+            noisy = tracer.render(record, maps, spp)[0]
+            for name in DENOISE_VARIANTS:
+                aux = auxes.get(name)
+                out = denoise(noisy)[0] if aux is None else denoise(noisy, aux.albedo(maps), aux.normal)[0]
+                out8 = hdr_to_srgb8(out, dataset.exposure)
+                scores.setdefault((spp, name), []).append(
+                    (metrics.psnr8(out8, truth8), metrics.ssim8(out8, truth8), metrics.relmse(out, truth)))
+        if progress is not None:
+            progress(f"sample {n}/{len(picked)} {sample.id}")
+    rows = [{"spp": spp, "fed": name, "psnr": float(np.mean([v[0] for v in values])),
+             "ssim": float(np.mean([v[1] for v in values])), "relmse": float(np.mean([v[2] for v in values]))}
+            for (spp, name), values in scores.items()]
+    return {"dataset": root, "samples": [dataset.samples[i].id for i in picked], "reference_spp": reference_spp,
+            "resolution": dataset.resolution, "rows": rows}
+
+
+def denoise_table(result: dict) -> str:
+    lines = ["| spp | OIDN fed | PSNR (dB) | SSIM | relMSE |", "|---|---|---|---|---|"]
+    for row in result["rows"]:
+        lines.append(f"| {row['spp']} | {row['fed']} | {row['psnr']:.2f} | {row['ssim']:.4f} | {row['relmse']:.5f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.bench",
+                                     description="The loader on a dataset folder and on its publication; "
+                                                 "what OIDN is fed.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    loaders = commands.add_parser("loaders", help="loader samples/s on a dataset folder and on its publication")
+    loaders.add_argument("folder")
+    loaders.add_argument("pub")
+    loaders.add_argument("--resolution", type=int, default=None)
+    loaders.add_argument("--batch-size", type=int, default=6)
+    loaders.add_argument("--workers", type=int, default=0)
+    loaders.add_argument("--repeats", type=int, default=3)
+    loaders.add_argument("--no-hash-check", action="store_true")
+    denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
+    denoising.add_argument("dataset")
+    denoising.add_argument("--samples", type=int, default=12)
+    denoising.add_argument("--spp", default="1,4,16")
+    denoising.add_argument("--reference-spp", type=int, default=256)
+    args = parser.parse_args(argv)
+    if args.command == "loaders":
+        result = compare_loaders(args.folder, args.pub, args.resolution, args.batch_size, args.workers,
+                                 args.repeats, not args.no_hash_check)
+        print(json.dumps(result, indent=1, sort_keys=True))
+        return
+    result = compare_denoisers(args.dataset, args.samples, tuple(int(x) for x in args.spp.split(",")),
+                               args.reference_spp, progress=lambda line: print(line, file=sys.stderr))
+    print(json.dumps(result, indent=1, sort_keys=True))
+    print(denoise_table(result), end="")
+
+
+if __name__ == "__main__":
+    main()

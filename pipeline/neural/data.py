@@ -19,6 +19,16 @@ Every file is read as bytes once, its SHA-256 compared with the manifest's on it
 read in a process (``check_hashes=False`` skips it), then decoded. A material's maps are
 assembled once and kept (a bounded cache per process) for all its lightings. Paths that
 leave the dataset folder (absolute, ``..``, or through a symbolic link) are refused.
+
+The source is a dataset folder or a publication (the folder `shaderball publish` writes,
+recognised by its ``publication.json`` or ``SHA256SUMS``): :func:`open_dataset` opens
+either, with the same samples in the same order, the same tensors and the same identity
+(so the same split). A publication is checked first, all of it, by
+``pipeline.publish.reader`` (every SHA-256, tar header, member and EXR header, streamed;
+nothing extracted); then each file is read at the offset where its checked bytes lie in
+its tar (:func:`pipeline.publish.reader.read_located`, no ``tarfile``), and its SHA-256
+compared again on its first read in a process. A publication that does not verify is a
+user error (exit code 2), named with the reader's message.
 """
 
 from __future__ import annotations
@@ -37,10 +47,13 @@ from materials import encode_normal_map
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.neural.network import check_network_resolution
 from pipeline.neural.tonemap import DEFAULT_EXPOSURE, tonemap
+from pipeline.publish.names import INDEX_FILE, SUMS_FILE
+from pipeline.publish.reader import Located, open_publication, read_located
+from pipeline.publish.refusal import Refused
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import UnsafePath, read_bytes, read_json_checked, record_problem, resolve_inside
 from pipeline.store.folder import read_manifest as folder_read_manifest
-from pipeline.store.layout import Layout
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
 #: Materials whose assembled maps a process keeps (400x400: 7.7 MB each).
@@ -96,7 +109,8 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
     """dataset.json and the manifest's records of a complete dataset folder."""
     layout = Layout(root)
     if not os.path.isdir(root):
-        raise bad_value("DATASET", root, "a dataset folder written by `shaderball build`")
+        raise bad_value("DATASET", root, "a dataset folder written by `shaderball build`, or its publication "
+                        "(`shaderball publish`)")
     description = read_json_file(layout.description, "DATASET")
     if not isinstance(description, dict):
         raise ShaderballError(f"DATASET: {layout.description} is not a JSON object; check the folder with "
@@ -111,6 +125,14 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
     except OSError as exc:
         raise ShaderballError(f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder "
                               "with `shaderball validate`") from None
+    return description, parse_records(data, description, root, layout.manifest, "`shaderball validate`")
+
+
+def parse_records(data: bytes, description: dict, root: str, where: str, checker: str) -> list[dict]:
+    """The records of a manifest's bytes, each checked (pipeline.store.folder.record_problem),
+    as many as ``dataset.json`` counts."""
+    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
+    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
     records = []
     for number, line in enumerate(data.split(b"\n"), start=1):
         if not line.strip():
@@ -118,35 +140,102 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
         try:
             record = json.loads(line)
         except (ValueError, RecursionError):
-            raise ShaderballError(f"DATASET: {layout.manifest} line {number} is not JSON; "
-                                  "check the folder with `shaderball validate`") from None
+            raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
         problem = record_problem(record)
         if problem:
-            raise ShaderballError(f"DATASET: {layout.manifest} line {number}: {problem}; check the folder with "
-                                  "`shaderball validate`")
+            raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
         records.append(record)
     if expected is not None and len(records) != expected:
         raise ShaderballError(f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
                               f"{expected} renders; finish it with `shaderball build`")
     if not records:
         raise ShaderballError(f"DATASET: {root!r} has no renders")
-    return description, records
+    return records
+
+
+class FolderFiles:
+    """The files of a dataset folder; a file's key is its path, checked to lie inside."""
+
+    kind = "dataset folder"
+
+    def __init__(self, root: str):
+        self.root = root
+
+    def key(self, rel: str) -> str:
+        return safe_path(self.root, rel)
+
+    def read(self, key: str) -> bytes:
+        try:
+            return read_bytes(key)
+        except OSError as exc:
+            raise ShaderballError(f"DATASET: cannot read {key} ({exc.strerror}); check the folder with "
+                                  "`shaderball validate`") from None
+
+    def label(self, key: str) -> str:
+        return key
+
+    def changed(self, key: str) -> ShaderballError:
+        return ShaderballError(f"DATASET: {key} does not match its SHA-256 in the manifest; repair the folder with "
+                               "`shaderball validate --repair`")
+
+
+class PublishedFiles:
+    """The files of a publication that passed :meth:`pipeline.publish.reader.Publication.locate`;
+    a file's key is its path in the dataset folder's layout, its bytes lie in a tar."""
+
+    kind = "publication"
+
+    def __init__(self, root: str, located: dict[str, Located]):
+        self.root = root
+        self.located = located
+
+    def key(self, rel: str) -> str:
+        if rel not in self.located:  # the reader checked every manifest path: not reached
+            raise ShaderballError(f"DATASET: {rel} is in no tar of the publication {self.root!r}")
+        return rel
+
+    def read(self, key: str) -> bytes:
+        try:
+            return read_located(self.root, self.located[key], check_sha256=False)
+        except Refused as exc:
+            raise refused(self.root, exc) from None
+        except OSError as exc:
+            raise ShaderballError(f"DATASET: cannot read {self.label(key)} ({exc.strerror}); check the "
+                                  "publication with `shaderball verify`") from None
+
+    def label(self, key: str) -> str:
+        at = self.located[key]
+        return f"{os.path.join(self.root, at.tar)}: member {at.name}"
+
+    def changed(self, key: str) -> ShaderballError:
+        return ShaderballError(f"DATASET: {self.label(key)} does not match its SHA-256 in the manifest: the "
+                               "publication changed since it was verified; check it with `shaderball verify`")
+
+
+def refused(root: str, exc: Refused) -> ShaderballError:
+    """A publication the reader refuses, as a user error of the training stage (exit code 2)."""
+    return ShaderballError(f"DATASET: {root!r} is a publication that does not verify ({exc.kind}): {exc.message}")
 
 
 @dataclass(frozen=True)
 class SampleFiles:
     id: str
     material_id: str
-    render: tuple[str, str]  # (absolute path, sha256)
+    render: tuple[str, str]  # (key of the file in its source, sha256)
     maps: tuple[str, str]
     lighting_vector: tuple[float, float, float, float]
+    texture: tuple[str, str] | None = None
 
 
-def sample_files(root: str, record: dict) -> SampleFiles:
-    files = {}
+def sample_files(files, record: dict) -> SampleFiles:
+    """A record's files (``files``: a :class:`FolderFiles` or :class:`PublishedFiles`, or a
+    dataset folder's path)."""
+    if isinstance(files, str):
+        files = FolderFiles(files)
+    refs = {}
     for entry in record.get("files", []):
-        files[entry.get("role")] = (safe_path(root, entry.get("path")), entry.get("sha256"))
-    missing = [role for role in ("render", "maps") if role not in files]
+        refs[entry.get("role")] = (files.key(entry.get("path")), entry.get("sha256"))
+    missing = [role for role in ("render", "maps") if role not in refs]
     if missing:
         raise ShaderballError(f"manifest: record {record.get('id')!r} lists no {' and no '.join(missing)} file")
     if not isinstance(record.get("material_id"), str):
@@ -154,16 +243,19 @@ def sample_files(root: str, record: dict) -> SampleFiles:
     vector = record.get("lighting_vector")
     if not (isinstance(vector, list) and len(vector) == 4 and all(isinstance(v, (int, float)) for v in vector)):
         raise ShaderballError(f"manifest: record {record.get('id')!r} has no 4-value lighting_vector")
-    return SampleFiles(record["id"], record["material_id"], files["render"], files["maps"],
-                       tuple(float(v) for v in vector))
+    return SampleFiles(record["id"], record["material_id"], refs["render"], refs["maps"],
+                       tuple(float(v) for v in vector), refs.get("texture"))
 
 
 class ShaderballDataset(Dataset):
-    """Samples of a dataset folder (see the module's docstring); build with :func:`open_dataset`."""
+    """Samples of a dataset folder or a publication (see the module's docstring); build with
+    :func:`open_dataset`. ``files`` reads them (default: the folder ``root``); ``records``
+    maps each sample id to its manifest record."""
 
     def __init__(self, root: str, samples: list[SampleFiles], resolution: int, factor: int,
                  exposure: float = DEFAULT_EXPOSURE, check_hashes: bool = True,
-                 cache_materials: int = DEFAULT_CACHE_MATERIALS, identity: dict | None = None):
+                 cache_materials: int = DEFAULT_CACHE_MATERIALS, identity: dict | None = None,
+                 files=None, records: dict[str, dict] | None = None):
         self.root = root
         self.samples = samples
         self.resolution = resolution
@@ -172,6 +264,8 @@ class ShaderballDataset(Dataset):
         self.check_hashes = check_hashes
         self.cache_materials = cache_materials
         self.identity = identity or {}
+        self.files = files if files is not None else FolderFiles(root)
+        self.records = records or {}
         self.material_ids = sorted({s.material_id for s in samples})
         self._verified: set[str] = set()
         self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
@@ -183,29 +277,32 @@ class ShaderballDataset(Dataset):
     def subset(self, material_ids) -> ShaderballDataset:
         keep = set(material_ids)
         return ShaderballDataset(self.root, [s for s in self.samples if s.material_id in keep], self.resolution,
-                                 self.factor, self.exposure, self.check_hashes, self.cache_materials, self.identity)
+                                 self.factor, self.exposure, self.check_hashes, self.cache_materials, self.identity,
+                                 self.files, self.records)
 
-    def _read(self, path: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
-        try:
-            data = read_bytes(path)
-        except OSError as exc:
-            raise ShaderballError(f"DATASET: cannot read {path} ({exc.strerror}); check the folder with "
-                                  "`shaderball validate`") from None
-        if self.check_hashes and path not in self._verified:
+    def read_layers(self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False) -> dict[str, np.ndarray]:
+        """The decoded layers of the file ``ref`` (key, sha256), which must hold ``layers``;
+        ``screen``: and be the dataset's resolution (renders, maps)."""
+        key, sha256 = ref
+        data = self.files.read(key)
+        if self.check_hashes and key not in self._verified:
             if hashlib.sha256(data).hexdigest() != sha256:
-                raise ShaderballError(f"DATASET: {path} does not match its SHA-256 in the manifest; repair the "
-                                      "folder with `shaderball validate --repair`")
-            self._verified.add(path)
+                raise self.files.changed(key)
+            self._verified.add(key)
         decoded = read_exr(data).layers
+        label = self.files.label(key)
         absent = [name for name in layers if name not in decoded]
         if absent:
-            raise ShaderballError(f"DATASET: {path} has no {', '.join(absent)} layer (the network needs "
+            raise ShaderballError(f"DATASET: {label} has no {', '.join(absent)} layer (the network needs "
                                   f"{', '.join(layers)}; build with storage.layers naming them)")
         shape = decoded[layers[0]].shape[:2]
-        if shape != (self.resolution * self.factor,) * 2:
-            raise ShaderballError(f"DATASET: {path} is {shape[0]}x{shape[1]}, the manifest says "
+        if screen and shape != (self.resolution * self.factor,) * 2:
+            raise ShaderballError(f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says "
                                   f"{self.resolution * self.factor}")
         return decoded
+
+    def _read(self, key: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
+        return self.read_layers((key, sha256), layers, screen=True)
 
     def material_maps(self, sample: SampleFiles) -> tuple[torch.Tensor, torch.Tensor]:
         cached = self._maps_cache.get(sample.material_id)
@@ -259,14 +356,59 @@ def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
     return requested, native // requested
 
 
+def is_publication(root: str) -> bool:
+    """Whether ``root`` is a publication (it holds ``publication.json`` or ``SHA256SUMS``)
+    rather than a dataset folder (``dataset.json``, ``manifest.jsonl``); both is refused."""
+    if not os.path.isdir(root):
+        return False
+    published = [n for n in (INDEX_FILE, SUMS_FILE) if os.path.lexists(os.path.join(root, n))]
+    folder = [n for n in (DESCRIPTION_FILE, MANIFEST_FILE) if os.path.lexists(os.path.join(root, n))]
+    if published and folder:
+        raise ShaderballError(f"DATASET: {root!r} holds both a dataset folder's {folder[0]} and a publication's "
+                              f"{published[0]}; it is neither (name a folder `shaderball build` or `shaderball "
+                              "publish` wrote)")
+    return bool(published)
+
+
 def open_dataset(root: str, resolution: int | None = None, exposure: float = DEFAULT_EXPOSURE,
                  check_hashes: bool = True, cache_materials: int = DEFAULT_CACHE_MATERIALS) -> ShaderballDataset:
-    """A complete dataset folder as a :class:`ShaderballDataset` (all samples)."""
+    """A complete dataset folder, or a publication of one, as a :class:`ShaderballDataset`
+    (all samples, in manifest order; see the module's docstring)."""
+    if is_publication(root):
+        return open_published(root, resolution, exposure, check_hashes, cache_materials)
+    layout = Layout(root)
     description, records = read_manifest(root)
+    manifest = folder_read_manifest(layout, len(records))
+    return _make(root, description, records, manifest, FolderFiles(root), resolution, exposure, check_hashes,
+                 cache_materials)
+
+
+def open_published(root: str, resolution: int | None = None, exposure: float = DEFAULT_EXPOSURE,
+                   check_hashes: bool = True, cache_materials: int = DEFAULT_CACHE_MATERIALS) -> ShaderballDataset:
+    """A publication as a :class:`ShaderballDataset`: checked whole first (every tar streamed
+    through the reader), then read member by member at the checked offsets."""
+    try:
+        publication = open_publication(root)
+        located = publication.locate()
+    except Refused as exc:
+        raise refused(root, exc) from None
+    description = json.loads(publication.source_files[DESCRIPTION_FILE])
+    if not isinstance(description, dict):
+        raise ShaderballError(f"DATASET: {root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object")
+    manifest = publication.source_files[MANIFEST_FILE]
+    records = parse_records(manifest, description, root, os.path.join(root, "dataset", MANIFEST_FILE),
+                            "`shaderball verify`")
+    keep = {entry["path"] for record in records for entry in record["files"]}
+    files = PublishedFiles(root, {path: at for path, at in located.items() if path in keep})
+    return _make(root, description, records, manifest, files, resolution, exposure, check_hashes, cache_materials)
+
+
+def _make(root: str, description: dict, records: list[dict], manifest: bytes, files, resolution, exposure,
+          check_hashes, cache_materials) -> ShaderballDataset:
     native = dataset_resolution(records)
     net_res, factor = network_resolution(native, resolution)
-    samples = [sample_files(root, r) for r in records]
-    manifest_sha = hashlib.sha256(folder_read_manifest(Layout(root), len(records))).hexdigest()
-    identity = {"spec_digest": description.get("spec_digest"), "manifest_sha256": manifest_sha,
+    samples = [sample_files(files, r) for r in records]
+    identity = {"spec_digest": description.get("spec_digest"), "manifest_sha256": hashlib.sha256(manifest).hexdigest(),
                 "name": description.get("name"), "resolution": native, "variant": description.get("variant")}
-    return ShaderballDataset(root, samples, net_res, factor, exposure, check_hashes, cache_materials, identity)
+    return ShaderballDataset(root, samples, net_res, factor, exposure, check_hashes, cache_materials, identity,
+                             files=files, records={r["id"]: r for r in records})

@@ -6,8 +6,11 @@ Per sample and on average: PSNR and SSIM on 8-bit sRGB (both images through
 relMSE and HDR-FLIP on linear HDR (the network's HDR is the inverse tone map of its
 output), and the time per image. Low-spp renders use the sample's own material (its
 texture-space maps file), lighting, settings and a seed of their own; denoising is Intel
-Open Image Denoise (``pyoidn``) on the colour alone, in HDR mode. Writes results.json,
-results.md (Table 1-shaped) and grid.png (reference, network, 2 spp, 2 spp + denoiser).
+Open Image Denoise (``pyoidn``) in HDR mode, fed the noise-free first-hit albedo and normal
+(:mod:`pipeline.neural.denoise`), and on the colour alone as a second row. DATASET may be
+a dataset folder or its publication (:func:`pipeline.neural.data.open_dataset`). The
+Mitsuba variant is resolved once, from the dataset's. Writes results.json, results.md
+(Table 1-shaped) and grid.png (reference, network, 2 spp, 2 spp + denoiser).
 """
 
 from __future__ import annotations
@@ -25,13 +28,13 @@ from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.neural import metrics, runfiles
-from pipeline.neural.data import box_downsample, open_dataset, read_manifest, safe_path
+from pipeline.neural.data import box_downsample, open_dataset
+from pipeline.neural.denoise import AuxBuffers, denoise
 from pipeline.neural.infer import load_run_model, run_network
 from pipeline.neural.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural.train import pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
-from pipeline.store.exr import read_exr
 from sky import Light
 
 SPLITS = ("test", "train", "all")
@@ -39,6 +42,9 @@ DEFAULT_SPP = (1, 2, 4, 16)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
+DENOISER = ("Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
+            "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
+            "pixel centres per pixel and box-averaged, clean_aux; '+ OIDN, colour only': the colour alone")
 
 
 @dataclass(frozen=True)
@@ -74,25 +80,29 @@ def _scores(hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.nd
             "relmse": metrics.relmse(hdr, ref_hdr), "flip": metrics.hdr_flip(hdr, ref_hdr), "time_s": time_s}
 
 
-class PathTracer:
-    """Low-spp renders of a dataset's sample, with the sample's material, light and settings."""
+TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
 
-    def __init__(self, root: str, factor: int):
-        self.root, self.factor = root, factor
+
+class PathTracer:
+    """Low-spp renders of a dataset's sample, with the sample's material, light and settings,
+    under ``variant`` (resolved once by the caller)."""
+
+    def __init__(self, dataset, variant: str):
+        self.dataset, self.factor, self.variant = dataset, dataset.factor, variant
         self.ball, self.camera = build_shaderball(), default_camera()
         self.warm = False
 
-    def material(self, record: dict):
-        entry = next((f for f in record["files"] if f["role"] == "texture"), None)
-        if entry is None:
+    def material(self, sample) -> MaterialMaps | None:
+        """The sample's texture-space maps (its texture file), or None if the dataset stores none."""
+        if sample.texture is None:
             return None
-        layers = read_exr(safe_path(self.root, entry["path"])).layers
+        layers = self.dataset.read_layers(sample.texture, TEXTURE_LAYERS)
         return MaterialMaps(layers["diffuse"], layers["specular"], layers["roughness"][..., 0], layers["normal"])
 
     def render(self, record: dict, maps, spp: int) -> tuple[np.ndarray, float]:
         r = record["render"]
         settings = RenderSettings(resolution=r["resolution"], spp=spp, max_depth=r["max_depth"],
-                                  integrator=r["integrator"], sun=r["sun"], variant=resolve_variant(r["variant"]),
+                                  integrator=r["integrator"], sun=r["sun"], variant=self.variant,
                                   model=r.get("model", DEFAULT_MODEL))  # absent: the default model
         light = Light.from_dict(record["lighting"]["requested"])
         seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2 ** 32
@@ -102,14 +112,6 @@ class PathTracer:
         result = render_sample(self.ball, self.camera, maps, light, settings, seed)
         image = box_downsample(np.asarray(result.image, dtype=np.float32), self.factor)
         return image, float(result.stats["time_s"])
-
-
-def denoise(image: np.ndarray) -> tuple[np.ndarray, float]:
-    import pyoidn
-
-    started = time.perf_counter()
-    out = pyoidn.denoise(np.ascontiguousarray(np.maximum(image, 0.0), dtype=np.float32), hdr=True)
-    return np.asarray(out, dtype=np.float32), time.perf_counter() - started
 
 
 def _check(req: EvaluateRequest) -> None:
@@ -153,9 +155,16 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             want_denoise = False
             notes.append("denoising: pyoidn is not installed (pip install pyoidn); left out")
 
-    records = {r["id"]: r for r in read_manifest(req.dataset)[1]}
-    tracer = PathTracer(req.dataset, dataset.factor) if req.spp else None
+    records = source.records
+    tracer = aux = None
+    if req.spp:
+        variant = resolve_variant(dataset_variant(records))  # once; every render and buffer takes it
+        tracer = PathTracer(dataset, variant)
+        if want_denoise:
+            aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant,
+                             dataset.factor)
     rows, grid = [], []
+    aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
     for n, index in enumerate(indices, start=1):
         item = dataset[index]
         sample = dataset.samples[index]
@@ -168,7 +177,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         row = {"id": sample.id, "material_id": sample.material_id,
                "network": _scores(inverse_tonemap(pred, exposure), to_srgb8(pred), ref_hdr, ref8, net_s)}
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
-        maps = tracer.material(records[sample.id]) if tracer else None
+        maps = tracer.material(sample) if tracer else None
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
@@ -177,8 +186,13 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             if spp == GRID_SPP:
                 pictures[f"{spp} spp"] = hdr_to_srgb8(image, exposure)
             if want_denoise:
-                clean, t_dn = denoise(image)
+                if aux_albedo[0] != sample.material_id:
+                    aux_albedo = (sample.material_id, aux.albedo(maps))
+                clean, t_dn = denoise(image, aux_albedo[1], aux.normal)
                 row[f"pt{spp}+oidn"] = _scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
+                alone, t_alone = denoise(image)
+                row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8,
+                                                      t + t_alone)
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
         rows.append(row)
@@ -192,6 +206,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     result = {"run": os.path.abspath(req.run), "dataset": os.path.abspath(req.dataset), "split": req.split,
               "resolution": model.resolution, "device": str(device), "samples": rows, "mean": means,
               "notes": notes, "tonemap": config["tonemap"],
+              "denoiser": DENOISER if want_denoise else None,
               "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR"}
     table = markdown_table(means, len(rows), model.resolution)
     os.makedirs(out_dir, exist_ok=True)
@@ -201,6 +216,13 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)
+
+
+def dataset_variant(records: dict) -> str:
+    variants = {(r.get("render") or {}).get("variant") for r in records.values()}
+    if len(variants) != 1 or not isinstance(next(iter(variants)), str):
+        raise ShaderballError(f"DATASET: renders of several or unknown Mitsuba variants {sorted(map(str, variants))}")
+    return next(iter(variants))
 
 
 def _read_render(dataset, sample) -> np.ndarray:
@@ -216,7 +238,7 @@ def _label(method: str) -> str:
     if method == "network":
         return "neural renderer"
     spp, _, extra = method[2:].partition("+")
-    return f"path tracing, {spp} spp" + (" + OIDN" if extra else "")
+    return f"path tracing, {spp} spp" + {"": "", "oidn": " + OIDN", "oidn-colour": " + OIDN, colour only"}[extra]
 
 
 def markdown_table(means: dict, samples: int, resolution: int) -> str:

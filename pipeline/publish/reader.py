@@ -9,6 +9,9 @@ with their sizes and SHA-256. :meth:`Publication.members` then streams one tar: 
 SHA-256 first, then every header (pipeline.publish.tarsafe), then each member, whose
 size, SHA-256, EXR header or record must be the expected one. Any difference raises
 :class:`~pipeline.publish.refusal.Refused` naming the file and member.
+:meth:`Publication.locate` streams every tar so and says where each checked member's bytes
+lie; :func:`read_located` reads one again there (the training stage's map-style loader,
+pipeline.neural.data).
 """
 
 from __future__ import annotations
@@ -61,6 +64,20 @@ class Expected:
     material_id: str
 
 
+@dataclass(frozen=True)
+class Located:
+    """Where a member checked by :meth:`Publication.locate` lies: its tar (relative to PUB) and
+    that tar's size when checked, the member's name, the offset and size of its bytes, and
+    its SHA-256 (the manifest's). :func:`read_located` reads it again without ``tarfile``."""
+
+    tar: str
+    tar_size: int
+    name: str
+    offset: int
+    size: int
+    sha256: str
+
+
 @dataclass
 class TarEntry:
     rel: str
@@ -95,6 +112,11 @@ class Publication:
 
     def members(self, tar: TarEntry, before: int = 0) -> Iterator[tuple[Expected, bytes]]:
         """Every member of ``tar``, checked, in order (``before``: members of earlier tars)."""
+        for expected, _member, data in self.checked_members(tar, before):
+            yield expected, data
+
+    def checked_members(self, tar: TarEntry, before: int = 0) -> Iterator[tuple[Expected, Member, bytes]]:
+        """As :meth:`members`, with where each member's bytes lie in the tar (``Member``)."""
         label = tar.rel
         with _open_regular(self.path(tar.rel), label) as fh:
             digest = hashlib.sha256()
@@ -107,7 +129,21 @@ class Publication:
             _compare_members(label, scanned, tar.expected)
             for (member, data), expected in zip(read_members(fh, label, scanned), tar.expected):
                 _check_member(label, member, data, expected, self.by_id, self.limits)
-                yield expected, data
+                yield expected, member, data
+
+    def locate(self, progress: Callable[[str], None] | None = None) -> dict[str, Located]:
+        """Check every tar and member (as `shaderball verify` does) and say where each member's
+        bytes lie: the dataset-folder path of each file (``Expected.path``) -> :class:`Located`."""
+        found: dict[str, Located] = {}
+        before = 0
+        for tar in self.tars:
+            if progress:
+                progress(tar.rel)
+            for expected, member, _data in self.checked_members(tar, before):
+                found[expected.path] = Located(tar.rel, tar.size, member.name, member.offset, member.size,
+                                               expected.sha256)
+            before += len(tar.expected)
+        return found
 
 
 # --------------------------------------------------------------------------- small files
@@ -462,3 +498,26 @@ def _read_verified(layout: Layout, ref: FileRef) -> bytes:
                                   "`shaderball validate`")
     return data
 
+
+
+def read_located(root: str, at: Located, check_sha256: bool = True) -> bytes:
+    """The bytes of a member :meth:`Publication.locate` checked, read again at its offset (one
+    ``pread``, no ``tarfile``, nothing extracted); the tar must still have the size it had
+    and, with ``check_sha256``, the bytes the manifest's SHA-256. Raises :class:`Refused`."""
+    label = f"{at.tar}: member {at.name!r}"
+    with _open_regular(os.path.join(root, *at.tar.split("/")), at.tar) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size != at.tar_size:
+            raise Refused("changed", f"{at.tar}: {size} bytes, {at.tar_size} when it was verified: the publication "
+                                     "changed since; check it with `shaderball verify`")
+        data = os.pread(fh.fileno(), at.size, at.offset)
+    if len(data) != at.size:
+        raise Refused("changed", f"{label} is cut short: the publication changed since it was verified; check it "
+                                 "with `shaderball verify`")
+    if check_sha256:
+        digest = hashlib.sha256(data).hexdigest()
+        if digest != at.sha256:
+            raise Refused("member_checksum", f"{label}: SHA-256 {digest[:16]}... differs from the manifest's "
+                                             f"{at.sha256[:16]}...: the publication changed since it was verified; "
+                                             "check it with `shaderball verify`")
+    return data

@@ -24,7 +24,7 @@ from geometry.shaderball import default_cache_dir
 from pipeline.errors import USER_ERRORS, check_int
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
-from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
+from pipeline.render.scene import BALL_SHAPE_ID, GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID, sensor_dict, shape_dicts
 from pipeline.store.exr import read_exr, write_exr
 
 #: Bump when what the G-buffer holds or how it is taken changes.
@@ -103,6 +103,44 @@ def compute_gbuffer(ball: Shaderball, camera: Camera, resolution: int, variant: 
     uv[~mask] = 0.0
     normal[~mask] = 0.0
     return GBuffer(uv, normal, mask, resolution, camera, ball.digest, variant)
+
+
+#: The surfaces a first hit may be on, in the order of :attr:`FirstHits.surface`'s codes.
+SURFACES = (BALL_SHAPE_ID, NEUTRAL_SHAPE_ID, GROUND_SHAPE_ID)
+
+
+@dataclass(frozen=True, eq=False)
+class FirstHits:
+    """What the pixel-centre rays hit first, every surface of the scene (not cached).
+
+    ``surface`` (H, W) int8: the index in :data:`SURFACES`, -1 where nothing is hit;
+    ``uv`` (H, W, 2) and ``normal`` (H, W, 3, world-space shading normal) as in
+    :class:`GBuffer`, 0 where nothing is hit. On the material mesh they equal the G-buffer's.
+    """
+
+    surface: np.ndarray
+    uv: np.ndarray
+    normal: np.ndarray
+
+
+def first_hits(ball: Shaderball, camera: Camera, resolution: int, variant: str) -> FirstHits:
+    """Intersect the pixel-centre rays with the shaderball, pedestal and ground (the
+    auxiliary buffers of a denoiser: pipeline.neural.denoise)."""
+    resolution = check_resolution(resolution)
+    mi = load_mitsuba(variant)
+    scene = intersection_scene(ball, camera, resolution, variant)
+    ray = pixel_centre_rays(scene, resolution, variant)
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+    shape = (resolution, resolution)
+    surface = np.full(shape, -1, np.int8)
+    for code, shape_id in enumerate(SURFACES):
+        mesh = next(s for s in scene.shapes() if s.id() == shape_id)
+        surface[np.array(si.is_valid() & (si.shape == mi.ShapePtr(mesh)), dtype=bool).reshape(shape)] = code
+    uv = np.array(si.uv, dtype=np.float32).T.reshape(shape + (2,))
+    normal = np.array(si.sh_frame.n, dtype=np.float32).T.reshape(shape + (3,))
+    uv[surface < 0] = 0.0
+    normal[surface < 0] = 0.0
+    return FirstHits(surface, uv, normal)
 
 
 def view_directions(camera: Camera, resolution: int) -> np.ndarray:
