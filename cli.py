@@ -17,7 +17,7 @@ from pipeline.bench.build_bench import run_from_args
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import repair, validate
-from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -32,9 +32,14 @@ from pipeline.run.cluster import ClusterOptions, job_script
 from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
 from sky.emitter import DEFAULT_SUN, SUN_MODES
 
+#: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
+INTERRUPTED_EXIT = 130
+
 
 def _friendly_errors(func):
-    """Turn a user error (pipeline.errors.USER_ERRORS) into `error: ...` on stderr and its exit code."""
+    """Turn a user error (pipeline.errors.USER_ERRORS) into `error: ...` on stderr and its exit
+    code; an OSError the library did not name (a file system refusing a write) into one line
+    and exit code 4; Ctrl-C into one line saying how to go on, exit code 130. No traceback."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -43,6 +48,14 @@ def _friendly_errors(func):
         except USER_ERRORS as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(exc.exit_code)
+        except OSError as exc:
+            error = filesystem_error(exc, "?", "fix the cause and run the same command again")
+            click.echo(f"error: {error}", err=True)
+            sys.exit(error.exit_code)
+        except KeyboardInterrupt:
+            click.echo("\ninterrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command "
+                       "again to resume", err=True)
+            sys.exit(INTERRUPTED_EXIT)
 
     return wrapper
 

@@ -7,6 +7,7 @@ reports a user error catches ``USER_ERRORS``, never ``ShaderballError`` alone, s
 domain error reaches the user as the same clear message and exit code.
 """
 
+import errno
 import numbers
 
 from geometry.errors import GeometryError
@@ -43,6 +44,14 @@ class FilesystemError(ShaderballError):
     once the cause is fixed."""
 
     exit_code = 4
+
+
+def filesystem_error(exc: OSError, where: str, hint: str) -> FilesystemError:
+    """The one-line message of an OSError met while writing ``where``: the path, the
+    reason and its errno name, then ``hint`` (what to do next)."""
+    name = errno.errorcode.get(exc.errno, str(exc.errno)) if exc.errno is not None else "?"
+    path = exc.filename if exc.filename is not None else where
+    return FilesystemError(f"{path}: {exc.strerror or exc} ({name}); {hint}")
 
 
 #: Every error type whose message is meant for the user (a clean message and its exit code at the CLI).

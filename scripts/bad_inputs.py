@@ -49,6 +49,15 @@ SPEC_CASES = [
     ("storage.layers unknown", spec_with('layers = ["diffuse"', 'layers = ["albedo"')),
     ("unknown section", SMOKE + "\n[renderer]\nspp = 4\n"),
     ("TOML syntax error", SMOKE.replace("[render]", "[render")),
+    ("arrays nested 5,000 deep", spec_with("roughness = [0.05, 1.0]", "roughness = " + "[" * 5000 + "]" * 5000)),
+    ("a table name of 3,000 parts", SMOKE + "\n[" + ".".join(["a"] * 3000) + "]\nk = 1\n"),
+    ("10^9 renders (10^6 materials x 1,000 lightings)",
+     spec_with("materials = 8 ", "materials = 1000000 ").replace("lights_per_material = 2", "lights_per_material = 1000")
+     .replace("shard_size = 2 ", "shard_size = 20 ")),
+    ("a shard of 200,000 renders", spec_with("shard_size = 2 ", "shard_size = 100000 ")
+     .replace("materials = 8 ", "materials = 100000 ")),
+    ("storage.layers repeated 20,000 times", spec_with('layers = ["diffuse"', 'layers = [' + '"diffuse", ' * 20000 + '"diffuse"')),
+    ("a corrupt image in svbrdf_folders", spec_with("svbrdf_folders = []", 'svbrdf_folders = ["badmaps"]')),
 ]
 
 COMMAND_CASES = [
@@ -58,6 +67,12 @@ COMMAND_CASES = [
     ("build: --out is a file", ["build", "{smoke}", "--out", "{file}"]),
     ("build: --out holds other files", ["build", "{smoke}", "--out", "{foreign}"]),
     ("build: --out holds another spec's dataset", ["build", "{smoke}", "--out", "{other_dataset}"]),
+    ("build: spec not UTF-8", ["build", "{dir}/latin1.toml", "--out", "{out}"]),
+    ("build: --out under a regular file", ["build", "{smoke}", "--out", "{file}/ds"]),
+    ("build: --out a dangling symlink", ["build", "{smoke}", "--out", "{dir}/dangling"]),
+    ("build: --out a symlink loop", ["build", "{smoke}", "--out", "{dir}/loop"]),
+    ("build: --out a name of 300 bytes", ["build", "{smoke}", "--out", "{dir}/" + "x" * 300]),
+    ("bench: spec not UTF-8", ["bench", "{dir}/latin1.toml"]),
     ("render: --elevation 95", ["render", "--elevation", "95", "--out", "{out}/x.exr"]),
     ("render: --turbidity 11", ["render", "--turbidity", "11", "--out", "{out}/x.exr"]),
     ("render: --diffuse out of range", ["render", "--diffuse", "1.5,0,0", "--out", "{out}/x.exr"]),
@@ -74,8 +89,14 @@ COMMAND_CASES = [
 
 
 def snapshot(folder: Path) -> dict:
-    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
-            for p in sorted(folder.rglob("*"))}
+    """Every entry under ``folder`` (links as links: a symlink loop is one entry)."""
+    out = {}
+    for dirpath, dirnames, names in os.walk(folder):
+        for name in sorted(dirnames + names):
+            path = os.path.join(dirpath, name)
+            info = os.lstat(path)
+            out[os.path.relpath(path, folder)] = (info.st_size, info.st_mtime_ns)
+    return out
 
 
 def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
@@ -91,6 +112,11 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     other = base / "other"
     other.mkdir()
     (other / "spec.toml").write_text(spec_with("seed = 20191117", "seed = 7"))
+    (base / "latin1.toml").write_bytes(SMOKE.replace('name = "smoke"', 'name = "sm\u00f6ke"').encode("latin-1"))
+    (base / "dangling").symlink_to(base / "nowhere")
+    (base / "loop").symlink_to(base / "loop")
+    (base / "badmaps").mkdir()
+    (base / "badmaps" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
     spec = base / "spec.toml"
     if spec_text is not None:
         spec.write_text(spec_text)
@@ -105,6 +131,7 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     if result.exception is not None and not isinstance(result.exception, SystemExit):
         message = f"UNCAUGHT {type(result.exception).__name__}: {result.exception}"
     message = message.replace(str(base), "DIR").replace(str(REPO), ".")
+    message = re.sub(r"x{300}", "<300 x's>", message)
     return {"argv": argv, "exit_code": result.exit_code, "message": message, "wrote": before != after}
 
 

@@ -114,7 +114,7 @@ def load_plan(layout: Layout, problems: Problems):
     else:
         spec_ok = True
     try:
-        plans = plan_dataset(spec)
+        plans = list(plan_dataset(spec))  # validate holds every record anyway: plan each shard once
     except USER_ERRORS as exc:
         problems.add("spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: cannot be planned ({exc})")
         return spec, None, description, False, description_ok

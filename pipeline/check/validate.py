@@ -65,6 +65,7 @@ from pipeline.check.repair import (
 )
 from pipeline.check.report import PROBLEM_KINDS, Problem, Problems, Progress, RepairAction, Report
 from pipeline.dataset.plan import iter_samples
+from pipeline.errors import filesystem_error
 from pipeline.run.build import write_manifest
 from pipeline.store.folder import shard_ids_on_disk
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
@@ -133,8 +134,11 @@ def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] 
     it never runs beside a build (FolderBusy, exit code 3, names the build that holds it).
     """
     check_root(root)
-    with writer_lock(root, "validate --repair"):
-        return _repair_locked(root, workers=workers, progress=progress, spec_path=spec_path)
+    try:
+        with writer_lock(root, "validate --repair"):
+            return _repair_locked(root, workers=workers, progress=progress, spec_path=spec_path)
+    except OSError as exc:
+        raise filesystem_error(exc, root, "every write is atomic: fix the cause and run the repair again") from None
 
 
 def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], None] | None,

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from materials import load_deschaintre, sample_svbrdf, sample_uniform
-from pipeline.dataset.plan import KIND_UNIFORM, MaterialPlan, seeded_rng
+from materials.errors import MaterialError
+from pipeline.dataset.plan import KIND_UNIFORM, MaterialPlan, Plan, seeded_rng
 from pipeline.dataset.spec import DatasetSpec
+from pipeline.errors import ShaderballError
 
 
 def make_material(plan: MaterialPlan, spec: DatasetSpec):
@@ -23,3 +25,21 @@ def make_material(plan: MaterialPlan, spec: DatasetSpec):
         return maps, {"kind": "svbrdf", "family": plan.svbrdf_family}
     maps = load_deschaintre(plan.svbrdf_file)
     return maps, {"kind": "svbrdf", "file": plan.svbrdf_file}
+
+
+def check_imported_files(plans) -> int:
+    """Import every map file of the spec's ``svbrdf_folders`` once, before anything is
+    written: a file that cannot be imported refuses the build up front instead of stopping
+    it half-way. Returns the count of files checked."""
+    if not isinstance(plans, Plan):
+        return 0
+    count = 0
+    for files in plans.file_orders.values():
+        for path in files:
+            try:
+                load_deschaintre(path).check()
+            except (MaterialError, ValueError, OSError) as exc:
+                raise ShaderballError(f"materials.svbrdf_folders: {path}: cannot be imported ({exc}); "
+                                      "fix or remove the file (nothing was written)") from None
+            count += 1
+    return count

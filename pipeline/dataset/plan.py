@@ -225,18 +225,22 @@ def list_imported_maps(spec: DatasetSpec) -> dict[str, tuple[str, ...]]:
     return {folder: list_map_files(folder) for folder in spec.materials.svbrdf_folders}
 
 
-def _svbrdf_assignment(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
-                       ) -> dict[int, tuple[str | None, str | None]]:
-    """material index -> (family, file) for every SVBRDF material (see module doc)."""
+def _svbrdf_arrays(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
+    """(sources, file_orders, source_of, use_of): ``source_of[m]`` is the index in ``sources``
+    of material m's SVBRDF source (-1: a uniform material), ``use_of[m]`` how many SVBRDF
+    materials drew that source before it (the t of the module doc). Vectorised: the j-th
+    chosen material takes source j mod S, and is that source's (j div S)-th use."""
     n = spec.dataset.materials
     k = spec.dataset.n_svbrdf
-    if k == 0:
-        return {}
     seed = spec.dataset.seed
     families = list(spec.materials.svbrdf_families)
     folders = list(spec.materials.svbrdf_folders)
     sources = [("family", f) for f in families] + [("folder", i) for i in range(len(folders))]
-    file_orders = {}
+    file_orders: dict[int, list[str]] = {}
+    source_of = np.full(n, -1, dtype=np.int32)
+    use_of = np.zeros(n, dtype=np.int32)
+    if k == 0:
+        return sources, file_orders, source_of, use_of
     for i, folder in enumerate(folders):
         names = sorted(imported.get(folder, ()))
         if not names:
@@ -245,17 +249,17 @@ def _svbrdf_assignment(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
         order = seeded_rng(int(index_seeds(seed, STREAM_IMPORT, i))).permutation(len(names))
         file_orders[i] = [os.path.join(folder, names[j]) for j in order.tolist()]
     chosen = seeded_rng(int(index_seeds(seed, STREAM_SVBRDF, 0))).permutation(n)[:k]
-    uses: Counter = Counter()
-    out = {}
-    for j, m in enumerate(chosen.tolist()):
-        what, which = sources[j % len(sources)]
-        if what == "family":
-            out[m] = (which, None)
-        else:
-            files = file_orders[which]
-            out[m] = (None, files[uses[which] % len(files)])
-            uses[which] += 1
-    return out
+    j = np.arange(k)
+    source_of[chosen] = j % len(sources)
+    use_of[chosen] = j // len(sources)
+    return sources, file_orders, source_of, use_of
+
+
+def _svbrdf_assignment(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
+                       ) -> dict[int, tuple[str | None, str | None]]:
+    """material index -> (family, file) for every SVBRDF material (see module doc)."""
+    plan = Plan(spec, imported)
+    return {m: plan.svbrdf_source(m) for m in np.flatnonzero(plan.source_of >= 0).tolist()}
 
 
 def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
@@ -265,7 +269,8 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
     scheme is sky's); they are mapped to angles here in one vectorised pass with the same
     arithmetic as ``sky.sampling.lights_from_unit_cube``, because building 50,000
     ``sky.Light`` objects one material at a time takes about a second for the paper spec.
-    tests/test_plan.py checks the result against ``sky.sample_lights`` itself.
+    tests/test_plan.py checks the result against ``sky.sample_lights`` itself, and that a
+    shard's values are the same computed alone or with every other material.
     """
     ranges = spec.lighting.to_lighting_ranges()
     n_lights = spec.dataset.lights_per_material
@@ -287,9 +292,125 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
     return elevation, azimuth, turbidity
 
 
+class Plan(Sequence):
+    """Every shard of a spec, in order: a sequence of :class:`ShardPlan` made on demand.
+
+    Planning is lazy (issue 15): making the plan costs the SVBRDF assignment only (two
+    int32 arrays of ``materials`` entries); each shard's materials, seeds and lightings are
+    computed when the shard is asked for, and not kept. A plan of 10 million renders is made
+    in well under a second and a few tens of MB (``python -m pipeline.bench.plan_scale``).
+    Counts, shard ids and sample ids come from arithmetic (:meth:`shard_counts`,
+    :meth:`shard_sample_ids`, :meth:`summary`), so a build's bookkeeping never builds the
+    whole plan. Iterating it builds every shard once (a build's plan digest does that,
+    streamed).
+
+    Values are those of one vectorised computation over every material: seeds and angles
+    are element-wise (the test compares a shard made alone with the whole).
+    """
+
+    def __init__(self, spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
+        self.spec = spec
+        self.sources, self.file_orders, self.source_of, self.use_of = _svbrdf_arrays(spec, imported)
+
+    # -- Sequence
+    def __len__(self) -> int:
+        return self.spec.dataset.n_shards
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self.shard(i) for i in range(*index.indices(len(self)))]
+        if index < 0:
+            index += len(self)
+        if not 0 <= index < len(self):
+            raise IndexError(f"shard index {index} out of range")
+        return self.shard(index)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Sequence) or len(other) != len(self):
+            return NotImplemented if not isinstance(other, Sequence) else False
+        return all(a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        ds = self.spec.dataset
+        return f"Plan({ds.name!r}: {len(self)} shards, {ds.materials} materials, {ds.n_renders} renders)"
+
+    # -- arithmetic
+    def material_range(self, index: int) -> range:
+        ds = self.spec.dataset
+        return range(index * ds.shard_size, min((index + 1) * ds.shard_size, ds.materials))
+
+    def shard_counts(self) -> list[tuple[str, int]]:
+        """(shard id, renders) of every shard, without planning them."""
+        lights = self.spec.dataset.lights_per_material
+        return [(shard_id(i), len(self.material_range(i)) * lights) for i in range(len(self))]
+
+    def shard_sample_ids(self, index: int) -> list[str]:
+        """The sample ids of shard ``index`` in plan order, without planning it."""
+        lights = range(self.spec.dataset.lights_per_material)
+        return [sample_id(m, l) for m in self.material_range(index) for l in lights]
+
+    @property
+    def n_renders(self) -> int:
+        return self.spec.dataset.n_renders
+
+    def svbrdf_source(self, m: int) -> tuple[str | None, str | None]:
+        """(family, file) of material ``m`` ((None, None) for a uniform one)."""
+        src = int(self.source_of[m])
+        if src < 0:
+            return None, None
+        what, which = self.sources[src]
+        if what == "family":
+            return which, None
+        files = self.file_orders[which]
+        return None, files[int(self.use_of[m]) % len(files)]
+
+    def summary(self) -> dict:
+        """:func:`plan_summary` of this plan, from the arrays."""
+        svbrdf = self.source_of >= 0
+        per_source = np.bincount(self.source_of[svbrdf], minlength=len(self.sources)) if svbrdf.any() \
+            else np.zeros(len(self.sources), dtype=np.int64)
+        sources: Counter = Counter()
+        for (what, which), count in zip(self.sources, per_source.tolist()):
+            if count:
+                key = f"family:{which}" if what == "family" else \
+                    f"folder:{os.path.dirname(self.file_orders[which][0])}"
+                sources[key] += count
+        n_svbrdf = int(svbrdf.sum())
+        return {
+            "shards": len(self),
+            "materials": self.spec.dataset.materials,
+            "renders": self.n_renders,
+            "uniform": self.spec.dataset.materials - n_svbrdf,
+            "svbrdf": n_svbrdf,
+            "svbrdf_sources": dict(sorted(sources.items())),
+        }
+
+    # -- one shard
+    def shard(self, index: int) -> ShardPlan:
+        ds = self.spec.dataset
+        ms = self.material_range(index)
+        m_all = np.arange(ms.start, ms.stop)
+        material_seeds = index_seeds(ds.seed, STREAM_MATERIAL, m_all).tolist()
+        light_seeds = index_seeds(ds.seed, STREAM_LIGHTS, m_all)
+        r_seeds = render_seeds(ds.seed, m_all[:, None], np.arange(ds.lights_per_material)[None, :]).tolist()
+        elevation, azimuth, turbidity = (a.tolist() for a in _light_arrays(self.spec, light_seeds))
+        light_seeds = light_seeds.tolist()
+        materials = []
+        for i, m in enumerate(ms):
+            family, file = self.svbrdf_source(m)
+            kind = KIND_SVBRDF if self.source_of[m] >= 0 else KIND_UNIFORM
+            materials.append(MaterialPlan(
+                m, material_id(m), index, kind, family, file, material_seeds[i], light_seeds[i],
+                tuple(r_seeds[i]), tuple(elevation[i]), tuple(azimuth[i]), tuple(turbidity[i])))
+        return ShardPlan(index, shard_id(index), tuple(materials))
+
+
 def plan_dataset(spec: DatasetSpec,
-                 imported: Mapping[str, Sequence[str]] | None = None) -> list[ShardPlan]:
-    """Every shard of ``spec``, in order; deterministic and pure.
+                 imported: Mapping[str, Sequence[str]] | None = None) -> Plan:
+    """Every shard of ``spec``, in order (a :class:`Plan`: shards are made on demand);
+    deterministic and pure.
 
     ``imported`` maps each of ``spec.materials.svbrdf_folders`` to its map-file names
     (as :func:`list_imported_maps` returns); when None and the spec has folders, they
@@ -297,29 +418,7 @@ def plan_dataset(spec: DatasetSpec,
     """
     if imported is None:
         imported = list_imported_maps(spec) if spec.materials.svbrdf_folders else {}
-    ds = spec.dataset
-    n = ds.materials
-    svbrdf = _svbrdf_assignment(spec, imported)
-    m_all = np.arange(n)
-    material_seeds = index_seeds(ds.seed, STREAM_MATERIAL, m_all).tolist()
-    light_seeds = index_seeds(ds.seed, STREAM_LIGHTS, m_all)
-    r_seeds = render_seeds(ds.seed, m_all[:, None],
-                           np.arange(ds.lights_per_material)[None, :]).tolist()
-    elevation, azimuth, turbidity = (a.tolist() for a in _light_arrays(spec, light_seeds))
-    light_seeds = light_seeds.tolist()
-
-    shards: list[ShardPlan] = []
-    for s in range(ds.n_shards):
-        materials = []
-        for m in range(s * ds.shard_size, min((s + 1) * ds.shard_size, n)):
-            family, file = svbrdf.get(m, (None, None))
-            kind = KIND_SVBRDF if m in svbrdf else KIND_UNIFORM
-            mid = material_id(m)
-            materials.append(MaterialPlan(
-                m, mid, s, kind, family, file, material_seeds[m], light_seeds[m],
-                tuple(r_seeds[m]), tuple(elevation[m]), tuple(azimuth[m]), tuple(turbidity[m])))
-        shards.append(ShardPlan(s, shard_id(s), tuple(materials)))
-    return shards
+    return Plan(spec, imported)
 
 
 def iter_samples(plans: Sequence[ShardPlan]):
@@ -331,6 +430,8 @@ def iter_samples(plans: Sequence[ShardPlan]):
 
 def plan_summary(plans: Sequence[ShardPlan]) -> dict:
     """Counts: shards, materials, renders, uniform and SVBRDF materials, SVBRDF sources."""
+    if isinstance(plans, Plan):
+        return plans.summary()
     materials = [m for shard in plans for m in shard.materials]
     sources = Counter(
         f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else

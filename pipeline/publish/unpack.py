@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from pipeline.check.validate import validate
-from pipeline.errors import bad_value
+from pipeline.errors import bad_value, filesystem_error
 from pipeline.publish.output import Output, check_out
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
@@ -54,9 +54,12 @@ def unpack(pub: str, out: str, *, limits: Limits = DEFAULT_LIMITS, validate_afte
     check_out(out, pub)
     publication = open_publication(pub, limits)
     verify_publication(publication, progress)
-    output = Output(out)
-    with writer_lock(out, "unpack"):
-        return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
+    try:
+        output = Output(out)
+        with writer_lock(out, "unpack"):
+            return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
+    except OSError as exc:  # what was written is removed again (Output.discard)
+        raise filesystem_error(exc, out, "nothing was kept: fix the cause and run the same command again") from None
 
 
 def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, progress, start) -> UnpackSummary:

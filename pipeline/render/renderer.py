@@ -20,6 +20,7 @@ the scene dict and the render exactly as they were before these options existed.
 from __future__ import annotations
 
 import math
+import signal
 import time
 from dataclasses import asdict, dataclass, field
 from typing import NamedTuple
@@ -229,12 +230,26 @@ def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = 
     """
     passes = power_of_two_passes(spp) if passes is None else passes
     if len(passes) == 1:  # no float64 sum to make: the pass itself (same values, half the copies)
-        return np.asarray(mi.render(scene, spp=passes[0], seed=pass_seed(seed, 0)), dtype=np.float64)
+        return np.asarray(render_whole(mi, scene, spp=passes[0], seed=pass_seed(seed, 0)), dtype=np.float64)
     total = None
     for k, n in enumerate(passes):
-        image = np.asarray(mi.render(scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
+        image = np.asarray(render_whole(mi, scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
         total = image if total is None else total + image
     return total / spp
+
+
+def render_whole(mi, scene, spp: int, seed: int):
+    """``mi.render``, never cut short. Mitsuba installs a SIGINT handler for the length of a
+    render that cancels it and returns what it has so far (fewer samples, no error). Here a
+    cancelled render is never used: where this process ignores SIGINT (a dask worker: the
+    build's driver handles Ctrl-C, pipeline.run.build.workers_ignore_sigint) it is rendered
+    again, to the same bytes (same seed); elsewhere KeyboardInterrupt is raised."""
+    while True:
+        image = mi.render(scene, spp=spp, seed=seed)
+        if not scene.integrator().should_stop():
+            return image
+        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+            raise KeyboardInterrupt("a render was cancelled by SIGINT; it is not stored")
 
 
 def sampler_spp(mi, sampler: str, spp: int) -> int:
@@ -280,10 +295,10 @@ def render_pass(mi, scene, spp: int, seed: int, k: int, sampler: str = "independ
     """Pass ``k`` of a render seeded ``seed``: every channel (float64) and the spp it used."""
     used = sampler_spp(mi, sampler, spp)
     if used == spp:
-        image = mi.render(scene, spp=spp, seed=pass_seed(seed, k))
+        image = render_whole(mi, scene, spp=spp, seed=pass_seed(seed, k))
     else:
         with _quiet(mi):
-            image = mi.render(scene, spp=spp, seed=pass_seed(seed, k))
+            image = render_whole(mi, scene, spp=spp, seed=pass_seed(seed, k))
     return np.asarray(image, dtype=np.float64), used
 
 

@@ -14,15 +14,19 @@ sample depends on (``dataset.name``, ``dataset.version``) with ``allow_spec_chan
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import signal
 import stat
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pipeline import __version__
-from pipeline.dataset.plan import ShardPlan, plan_dataset, plan_summary
+from pipeline.dataset.materialize import check_imported_files
+from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset, plan_summary
 from pipeline.dataset.spec import (
     MAX_SPEC_BYTES,
     DatasetSpec,
@@ -31,7 +35,7 @@ from pipeline.dataset.spec import (
     spec_to_dict,
     spec_to_toml,
 )
-from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, short_repr
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,
@@ -41,13 +45,14 @@ from pipeline.render.mitsuba_env import (
 )
 from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
 from pipeline.run.shard import run_shard_in_process
-from pipeline.store.atomic import write_text_atomic
+from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
     complete_marker,
     only_temp_files,
     read_spec_snapshot,
     recorded_count,
     remove_temp_files,
+    shard_ids_on_disk,
 )
 from pipeline.store.layout import Layout
 from pipeline.store.lock import writer_lock
@@ -150,13 +155,23 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     permits: only ``dataset.name`` / ``dataset.version``; the snapshot is then rewritten).
     """
     layout = Layout(out)
+    check_path_lengths(out)
+    if os.path.lexists(out) and not os.path.exists(out):
+        raise ShaderballError(f"--out: {out!r} is a symbolic link to {os.readlink(out)!r}, which does not exist "
+                              "or is a loop of links; give a folder")
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
-    if not os.path.isdir(out) or only_temp_files(os.listdir(out)):
-        parent = os.path.dirname(os.path.abspath(out))
-        probe = parent
-        while not os.path.exists(probe):
+    try:
+        names = os.listdir(out) if os.path.isdir(out) else None
+    except OSError as exc:
+        raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
+    if names is None or only_temp_files(names):
+        probe = os.path.abspath(out)
+        while not os.path.lexists(probe):
             probe = os.path.dirname(probe)
+        if not os.path.isdir(probe):
+            what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
+            raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
         if not os.access(probe, os.W_OK):
             raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
         return "new"
@@ -189,16 +204,46 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     return mode
 
 
-def plan_digest(plans: list[ShardPlan]) -> str:
-    """SHA-256 of every planned material and lighting (ids, seeds, angles, sources)."""
+#: The longest name a build writes below DIR: a texture file's temporary file
+#: (pipeline.store.atomic: prefix, 8 random characters, "-", the file's name).
+LONGEST_REL = f"shards/s00000/.tmp-xxxxxxxx-{Layout.texture_rel('s00000', 'm000000').rsplit('/', 1)[1]}"
+
+
+def check_path_lengths(out: str) -> None:
+    """Refuse an output folder whose files would have names the filesystem cannot hold
+    (ENAMETOOLONG half-way through a build), before anything is written."""
+    full = os.path.join(os.path.abspath(out), *LONGEST_REL.split("/"))
+    probe = os.path.abspath(out)
+    while not os.path.isdir(probe):
+        probe = os.path.dirname(probe)
+    try:
+        name_max, path_max = os.pathconf(probe, "PC_NAME_MAX"), os.pathconf(probe, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        name_max, path_max = 255, 4096
+    long_part = next((part for part in full.split(os.sep) if len(os.fsencode(part)) > name_max), None)
+    if long_part is not None:
+        raise ShaderballError(f"--out: {out!r} is not allowed; a folder name there is "
+                              f"{len(os.fsencode(long_part))} bytes long, the filesystem allows {name_max}")
+    if len(os.fsencode(full)) >= path_max:
+        raise ShaderballError(f"--out: {out!r} is not allowed; the dataset's files would have paths of "
+                              f"{len(os.fsencode(full))} bytes, the filesystem allows {path_max - 1}")
+
+
+def plan_digest(plans: list[ShardPlan], tick: Callable[[int, int], None] | None = None) -> str:
+    """SHA-256 of every planned material and lighting (ids, seeds, angles, sources).
+
+    Streamed: each shard is planned, hashed and dropped (a lazy plan is never held whole);
+    ``tick(shards done, shards)`` is called after each shard."""
     digest = hashlib.sha256()
-    for shard in plans:
+    for done, shard in enumerate(plans, start=1):
         for material in shard.materials:
             digest.update(dumps(material.to_dict()).encode("utf-8"))
+        if tick is not None:
+            tick(done, len(plans))
     return digest.hexdigest()
 
 
-def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> None:
+def check_same_installation(out: str, plans: list[ShardPlan], variant: str, digest: str | None = None) -> None:
     """Refuse to resume ``out`` when this installation would make its samples differently.
 
     The spec snapshot alone cannot tell: a newer shaderball may plan other seeds or angles
@@ -209,9 +254,10 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> N
     if not isinstance(old, dict):
         return  # a build killed before its first description: nothing rendered to compare
     differences = []
-    if old.get("plan_digest") and old["plan_digest"] != plan_digest(plans):
+    digest = digest or plan_digest(plans)
+    if old.get("plan_digest") and old["plan_digest"] != digest:
         differences.append(f"this shaderball plans other samples for the same spec (plan digest "
-                           f"{old['plan_digest'][:12]} in dataset.json, {plan_digest(plans)[:12]} now)")
+                           f"{str(old['plan_digest'])[:12]} in dataset.json, {digest[:12]} now)")
     libraries = library_versions()
     for name in ("mitsuba", "drjit"):
         was = (old.get("libraries") or {}).get(name)
@@ -226,7 +272,8 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str) -> N
             "or build into a new directory")
 
 
-def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str, guarantee: str | None = None) -> dict:
+def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str, digest: str | None = None,
+                guarantee: str | None = None) -> dict:
     """dataset.json; ``guarantee``: the dataset's determinism (default: the variant's)."""
     guarantee = guarantee or determinism(variant)
     return {
@@ -234,7 +281,7 @@ def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str, guarant
         "version": spec.dataset.version,
         "layout_version": LAYOUT_VERSION,
         "spec_digest": spec_digest(spec),
-        "plan_digest": plan_digest(plans),
+        "plan_digest": digest or plan_digest(plans),
         "shaderball": __version__,
         "libraries": library_versions(),
         "variant": variant,
@@ -252,46 +299,99 @@ def recorded_guarantee(out: str) -> str | None:
 
 
 def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False,
-            variant: str | None = None) -> str:
+            tick: Callable[[int, int], None] | None = None, variant: str | None = None) -> str:
     """Create ``out`` with the spec snapshot and description; return the Mitsuba variant.
 
     The variant is resolved here, once, from the spec (or ``variant``: validate --repair
     passes the one dataset.json records, not what ``auto`` would pick on this machine);
     every worker is given this name. The dataset's determinism guarantee is the weakest of
     the variant's and the one already recorded: a resume never promises more than the
-    renders it keeps.
+    renders it keeps. ``tick(shards, of)`` follows the plan digest (every shard planned and
+    hashed once).
     """
     mode = check_output_dir(out, spec, allow_spec_change)
     variant = resolve_variant(variant or spec.render.variant)
     guarantee = determinism(variant)
+    digest = plan_digest(plans, tick)
     if mode != "new":
-        check_same_installation(out, plans, variant)
+        check_same_installation(out, plans, variant, digest)
         guarantee = weakest_guarantee(guarantee, recorded_guarantee(out))
     os.makedirs(out, exist_ok=True)
     layout = Layout(out)
     if mode in ("new", "respec"):
         write_text_atomic(layout.spec, spec_to_toml(spec))
-    write_text_atomic(layout.description, dumps(description(spec, plans, variant, guarantee)) + "\n")
+    write_text_atomic(layout.description, dumps(description(spec, plans, variant, digest, guarantee)) + "\n")
     return variant
 
 
 def count_done(out: str, plans: list[ShardPlan]) -> int:
     """Renders with a record on disk (progress; cheap: one listing per shard)."""
-    layout = Layout(out)
-    return sum(recorded_count(layout, shard.shard_id, shard.n_renders) for shard in plans)
+    return DoneCounter(out, plans)()
+
+
+class DoneCounter:
+    """Renders with a record on disk, counted again at each progress report: one listing of
+    ``shards/``, then one of each shard folder not yet seen complete (a complete shard is
+    remembered), so a report costs the shards in progress, not all of them."""
+
+    def __init__(self, out: str, plans):
+        self.layout = Layout(out)
+        self.counts = dict(shard_counts(plans))
+        self.complete: set[str] = set()
+
+    def __call__(self) -> int:
+        started = set(shard_ids_on_disk(self.layout)) & self.counts.keys()
+        done = sum(self.counts[sid] for sid in self.complete)
+        for sid in started - self.complete:
+            planned = self.counts[sid]
+            count = recorded_count(self.layout, sid, planned)
+            if count == planned and os.path.lexists(self.layout.marker(sid)):
+                self.complete.add(sid)
+            done += count
+        return done
+
+
+def shard_counts(plans) -> list[tuple[str, int]]:
+    """(shard id, renders) of every shard: from arithmetic for a lazy Plan."""
+    if isinstance(plans, Plan):
+        return plans.shard_counts()
+    return [(shard.shard_id, shard.n_renders) for shard in plans]
+
+
+def shard_sample_ids(plans, index: int) -> list[str]:
+    if isinstance(plans, Plan):
+        return plans.shard_sample_ids(index)
+    return [sample.sample_id for sample in plans[index].samples]
+
+
+#: A manifest up to this size is written in one piece (write_bytes_atomic, which the crash
+#: harness interrupts); a larger one is streamed, one shard's lines at a time.
+MANIFEST_IN_MEMORY_BYTES = 256 << 20
 
 
 def write_manifest(out: str, plans: list[ShardPlan]) -> int:
     """manifest.jsonl from the shard markers, in plan order; return the record count."""
     layout = Layout(out)
-    lines = []
-    for shard in plans:
-        records = complete_marker(layout, shard.shard_id, [s.sample_id for s in shard.samples])
-        if records is None:
-            raise ShaderballError(f"shard {shard.shard_id} is not complete; cannot write the manifest")
-        lines.extend(dumps(record) for record in records)
-    write_text_atomic(layout.manifest, "".join(line + "\n" for line in lines))
-    return len(lines)
+    count = 0
+
+    def shard_lines():
+        nonlocal count
+        for index, (sid, _renders) in enumerate(shard_counts(plans)):
+            records = complete_marker(layout, sid, shard_sample_ids(plans, index))
+            if records is None:
+                raise ShaderballError(f"shard {sid} is not complete; cannot write the manifest")
+            count += len(records)
+            yield "".join(dumps(record) + "\n" for record in records).encode("utf-8")
+
+    if plan_summary_renders(plans) * 4096 <= MANIFEST_IN_MEMORY_BYTES:
+        write_bytes_atomic(layout.manifest, b"".join(shard_lines()))
+    else:
+        write_chunks_atomic(layout.manifest, shard_lines())
+    return count
+
+
+def plan_summary_renders(plans) -> int:
+    return sum(renders for _sid, renders in shard_counts(plans))
 
 
 def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> int:
@@ -304,9 +404,11 @@ def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> in
     layout = Layout(out)
     count = 0
     for shard in shards:
-        for sample in shard.samples:
+        sid, ids = (shard.shard_id, [s.sample_id for s in shard.samples]) if isinstance(shard, ShardPlan) \
+            else shard  # (shard id, sample ids): a lazy plan's, without planning it
+        for sample in ids:
             try:
-                if os.stat(layout.path(layout.record_rel(shard.shard_id, sample.sample_id))).st_mtime >= since:
+                if os.stat(layout.path(layout.record_rel(sid, sample))).st_mtime >= since:
                     count += 1
             except FileNotFoundError:
                 pass
@@ -322,7 +424,7 @@ def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int
     task of a worker wrongly declared dead) cannot corrupt anything: its rename fails, and
     that task runs again. Return the count removed.
     """
-    return remove_temp_files(Layout(out), [s.shard_id for s in plans], older_than)
+    return remove_temp_files(Layout(out), [sid for sid, _renders in shard_counts(plans)], older_than)
 
 
 def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
@@ -351,23 +453,32 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
     if cluster.scheduler:
         check_scheduler_reachable(cluster.scheduler)  # before anything is written
     plans = plan_dataset(spec)
+    check_imported_files(plans)
     check_output_dir(out, spec, allow_spec_change)  # refused here, nothing is created
-    os.makedirs(out, exist_ok=True)
-    with writer_lock(out, "build"):
-        return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start, variant)
+    try:
+        os.makedirs(out, exist_ok=True)
+        with writer_lock(out, "build"):
+            return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start, variant)
+    except OSError as exc:  # a full disk, a folder that cannot be written, ...: a message, not a traceback
+        raise filesystem_error(exc, out, f"every write is atomic, so nothing in {out!r} is torn: fix the "
+                                         "cause and run the same command again to resume") from None
 
 
 def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: ClusterOptions,
                   allow_spec_change: bool, progress, on_start, variant: str | None = None) -> BuildSummary:
     """The build, once this process holds ``out`` (pipeline.store.lock): the folder is
     checked again (another writer may have finished in between), then written."""
-    variant = prepare(out, spec, plans, allow_spec_change, variant)
-    total = sum(s.n_renders for s in plans)
+    counts = shard_counts(plans)
+    total = sum(renders for _sid, renders in counts)
+    variant = prepare(out, spec, plans, allow_spec_change, _planning_ticks(progress, total), variant)
     layout = Layout(out)
-    todo = [s for s in plans if complete_marker(layout, s.shard_id, [x.sample_id for x in s.samples]) is None]
-    already = total - sum(s.n_renders for s in todo)
+    on_disk = set(shard_ids_on_disk(layout))
+    todo = [i for i, (sid, _renders) in enumerate(counts)
+            if sid not in on_disk or complete_marker(layout, sid, shard_sample_ids(plans, i)) is None]
+    already = total - sum(counts[i][1] for i in todo)
     start = time.perf_counter()
     wall_start = time.time()
+    done = DoneCounter(out, plans)
     results: list[dict] = []
     dashboard, recycled = None, 0
     if todo:
@@ -375,20 +486,22 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
             if on_start:
                 on_start("in-process (no dask)", None)
             threads = os.cpu_count() or 1
-            for shard in todo:
-                results.append(run_shard_in_process(out, spec, shard, variant, threads))
-                _report(progress, out, plans, total, already, start)
+            for index in todo:  # one shard planned at a time: a lazy plan is never held whole
+                results.append(run_shard_in_process(out, spec, plans[index], variant, threads))
+                _report(progress, done, total, already, start)
         else:
             def report(status: str = ""):
-                _report(progress, out, plans, total, already, start, status)
+                _report(progress, done, total, already, start, status)
 
-            results, dashboard, recycled = run_shards_on_dask(out, spec, todo, variant, cluster,
-                                                              report, on_start)
+            with workers_ignore_sigint(on_start) as started:
+                results, dashboard, recycled = run_shards_on_dask(out, spec, [plans[i] for i in todo], variant,
+                                                                  cluster, report, started)
     write_manifest(out, plans)
     removed = sweep_temp_files(out, plans, older_than=wall_start)
     seconds = time.perf_counter() - start
-    rendered = renders_written_since(out, todo, wall_start - 1.0)  # mtime granularity
-    _report(progress, out, plans, total, already, start)
+    rendered = renders_written_since(out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo],
+                                     wall_start - 1.0)  # mtime granularity
+    _report(progress, done, total, already, start)
     processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]
     if removed:
@@ -400,10 +513,60 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
                         processes=processes, temp_removed=removed, recycled=recycled)
 
 
-def _report(progress, out, plans, total, already, start, status=""):
+@contextlib.contextmanager
+def workers_ignore_sigint(on_start):
+    """Ctrl-C stops the build's driver only. A Ctrl-C in a terminal reaches the whole process
+    group, local dask workers included: each printed a traceback, and Mitsuba's own SIGINT
+    handler (installed for the length of a render) "winds down" the render it is in. So the
+    local workers are started with SIGINT ignored and blocked, which they inherit across
+    spawn (Python and asyncio then install no handler; a blocked signal never reaches
+    Mitsuba's); the driver closes the cluster. The driver's own mask and handler are back once
+    the workers are up (``on_start``); a Ctrl-C meanwhile waits, blocked, and is seen then."""
+    if threading.current_thread() is not threading.main_thread():
+        yield on_start
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    restored = []
+
+    def restore():
+        if not restored:
+            restored.append(True)
+            signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+    def started(where, dashboard):
+        restore()
+        if on_start:
+            on_start(where, dashboard)
+
+    try:
+        yield started
+    finally:
+        restore()
+
+
+def _planning_ticks(progress, total: int):
+    """A ``tick(shards, of)`` for :func:`prepare` that shows the planning as progress (at
+    once, then about twice a second): a spec of millions of renders takes a while to plan."""
+    if progress is None:
+        return None
+    start, last = time.perf_counter(), [-1.0]
+
+    def tick(shards: int, of: int) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= 0.5 or shards == of:
+            last[0] = now
+            progress(Progress(done=0, total=total, elapsed_s=now - start, rate=0.0, eta_s=None,
+                              message=f"planning: {shards}/{of} shards planned and checked"))
+
+    return tick
+
+
+def _report(progress, counter, total, already, start, status=""):
     if progress is None:
         return
-    done = count_done(out, plans)
+    done = counter()
     elapsed = time.perf_counter() - start
     new = max(0, done - already)
     rate = new / elapsed if elapsed > 0 else 0.0

@@ -46,14 +46,44 @@ def write_bytes_atomic(path: str, data: bytes) -> str:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = path  # a failed write (EFBIG, ENOSPC) names no file: say which
         raise
     fsync_dir(folder)
     return hashlib.sha256(data).hexdigest()
+
+
+def write_chunks_atomic(path: str, chunks) -> str:
+    """:func:`write_bytes_atomic` of the concatenation of ``chunks`` (bytes), written as they
+    come: a large file (a manifest of millions of records) is never held in memory whole."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix="-" + os.path.basename(path), dir=folder)
+    digest = hashlib.sha256()
+    try:
+        os.fchmod(fd, _FILE_MODE)
+        with os.fdopen(fd, "wb") as fh:
+            for chunk in chunks:
+                fh.write(chunk)
+                digest.update(chunk)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = path
+        raise
+    fsync_dir(folder)
+    return digest.hexdigest()
 
 
 def write_text_atomic(path: str, text: str) -> str:

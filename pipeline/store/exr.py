@@ -8,9 +8,12 @@ run-dependent (time, host) goes into a file: the same pixels give the same bytes
 
 from __future__ import annotations
 
+import ctypes
 import io
 import json
 import os
+import sys
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,16 +114,54 @@ def write_exr(path: str, layers: dict[str, np.ndarray], meta: dict | None = None
     return write_bytes_atomic(path, encode_exr(layers, meta, **kwargs))
 
 
+class _StdoutToStderr:
+    """While inside, the process's file descriptor 1 is its stderr. OpenEXR's C++ core prints
+    warnings (``Warning: Exception raised reading pixel data ...``) on stdout when it reads a
+    corrupt file, and stdout carries machine-readable output (``validate --json``): the
+    library's words go to stderr instead. Counted, so threads decoding at once share one
+    redirection; C's stdio buffers are flushed before fd 1 is given back."""
+
+    _lock = threading.Lock()
+    _depth = 0
+    _saved: int | None = None
+
+    def __enter__(self):
+        with self._lock:
+            if _StdoutToStderr._depth == 0:
+                sys.stdout.flush()
+                _StdoutToStderr._saved = os.dup(1)
+                os.dup2(2, 1)
+            _StdoutToStderr._depth += 1
+
+    def __exit__(self, *exc):
+        with self._lock:
+            _StdoutToStderr._depth -= 1
+            if _StdoutToStderr._depth == 0:
+                _flush_c_stdio()
+                os.dup2(_StdoutToStderr._saved, 1)
+                os.close(_StdoutToStderr._saved)
+                _StdoutToStderr._saved = None
+
+
+def _flush_c_stdio() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+
+
 def read_exr(path_or_bytes: str | bytes | os.PathLike) -> ExrImage:
-    """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers."""
+    """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers. What
+    OpenEXR prints while it decodes goes to stderr, never stdout (:class:`_StdoutToStderr`)."""
     import OpenEXR
 
     source = io.BytesIO(path_or_bytes) if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
     label = "<bytes>" if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
     try:
-        handle = OpenEXR.File(source, separate_channels=True)
-        header = handle.header()
-        channels = {name: channel.pixels for name, channel in handle.channels().items()}
+        with _StdoutToStderr():
+            handle = OpenEXR.File(source, separate_channels=True)
+            header = handle.header()
+            channels = {name: channel.pixels for name, channel in handle.channels().items()}
     except Exception as exc:  # the bindings raise plain exceptions for corrupt files
         raise ShaderballError(f"cannot decode EXR {label}: {exc}") from exc
     grouped: dict[str, dict[str, np.ndarray]] = {}
