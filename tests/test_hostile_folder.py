@@ -118,6 +118,7 @@ def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_say
         assert watch.opened() == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("what, spoil", [
     ("a marker [1]", lambda m: [1]),
     ("a record without bytes", lambda m: {**m, "records": [
