@@ -20,6 +20,7 @@ from types import SimpleNamespace
 import pytest
 from conftest import crash_module
 
+from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
 from pipeline.run.cluster import (
     ClusterOptions,
@@ -29,6 +30,7 @@ from pipeline.run.cluster import (
     describe_jobs,
     slurm_job_states,
 )
+from pipeline.store.atomic import TEMP_PREFIX
 
 REPO = Path(__file__).resolve().parents[1]
 crash = crash_module()
@@ -257,3 +259,23 @@ def test_a_scheduler_without_workers_stops_at_the_start_timeout(tmp_path):
     assert "| waiting for a worker (none connected)" in result.stderr
     assert ("error: --start-timeout 10: no worker for 10 s since the build started; the scheduler has no worker. "
             "What was rendered is kept: run the same command again to resume") in result.stderr, result.stderr
+
+
+@pytest.mark.slow
+def test_a_temp_file_a_worker_killed_during_the_build_left_is_swept(tmp_path):
+    """Seen on a real SLURM (a requeued job killed mid-write): the temp file of a write killed
+    during the build, after its start, is gone when the build completes; the dataset validates."""
+    from pipeline.run.build import build
+
+    out = tmp_path / "ds"
+    left = []
+
+    def progress(p):
+        if p.done and not left:
+            left.append(next(out.glob("shards/s*")) / f"{TEMP_PREFIX}killed-m000000_l0.json")
+            left[0].write_text("{")
+
+    summary = build(str(REPO / "manifests" / "smoke.toml"), str(out), workers=0, progress=progress)
+    assert left and not left[0].exists()
+    assert summary.temp_removed == 1
+    assert validate(str(out)).ok

@@ -418,11 +418,12 @@ def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> in
 def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int:
     """Remove temporary files (of writes killed mid-way) last modified before ``older_than``.
 
-    Called once a build is complete, with the build's start time: every write of this build
-    has finished by then, so a temp file older than its start belongs to a killed writer.
-    Removing a live writer's temp file (another build writing into the same directory, a
-    task of a worker wrongly declared dead) cannot corrupt anything: its rename fails, and
-    that task runs again. Return the count removed.
+    Called once a build is complete, with the time then: every write the build waited for
+    has finished, and the folder's writer lock keeps other builds out, so a temp file belongs
+    to a killed writer (of an earlier build, or a worker killed during this one). Removing a
+    live writer's temp file (a task of a worker wrongly declared dead, still running) cannot
+    corrupt anything: its rename fails, and the sample is committed already. Return the
+    count removed.
     """
     return remove_temp_files(Layout(out), [sid for sid, _renders in shard_counts(plans)], older_than)
 
@@ -497,7 +498,9 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
                 results, dashboard, recycled = run_shards_on_dask(out, spec, [plans[i] for i in todo], variant,
                                                                   cluster, report, started)
     write_manifest(out, plans)
-    removed = sweep_temp_files(out, plans, older_than=wall_start)
+    # Every temp file, this build's too: a worker killed mid-write during the build (a SLURM job
+    # cancelled, requeued or at its walltime) leaves one that no later write of it removes.
+    removed = sweep_temp_files(out, plans, older_than=time.time())
     seconds = time.perf_counter() - start
     rendered = renders_written_since(out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo],
                                      wall_start - 1.0)  # mtime granularity

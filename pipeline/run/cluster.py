@@ -477,6 +477,7 @@ def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: Cluste
                    for shard in todo}
         watch = WorkerWatch(lambda: len(client.nthreads()), options, conn.jobqueue)
         results: list[dict] = []
+        next_report = 0.0
         try:
             while pending:
                 try:
@@ -489,7 +490,8 @@ def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: Cluste
                     # results to hand to a peer first (a hung peer stalled that: measured on
                     # SLURM), and a lost worker's finished shards are not run again.
                     future.release()
-                if pending:
+                if pending and time.monotonic() >= next_report:  # about once a second
+                    next_report = time.monotonic() + 1.0
                     watch.poll()
                     report(watch.status())
                     watch.check()
