@@ -353,17 +353,21 @@ def info_cmd(directory, as_json):
 @click.option("--configs", "families", default="all", show_default=True,
               help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, depth, "
                    "rr, sun, clamp, robust, adaptive (the ladder is always measured).")
+@click.option("--only", default="", metavar="NAMES",
+              help="Only these configurations (comma-separated names as the report writes them, e.g. "
+                   "multijitter/64); the spec's recipe is always measured.")
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, no_flip, as_json):
+def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
 
     def progress(p):
         click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {_format_seconds(p['elapsed_s'])}", err=True)
 
     req = StudyRequest(spec=spec, out=out, samples=samples, reference_spp=reference_spp, resolution=resolution,
-                       ladder=parse_ladder(ladder), families=parse_families(families), flip=not no_flip)
+                       ladder=parse_ladder(ladder), families=parse_families(families),
+                       only=tuple(n for n in only.split(",") if n), flip=not no_flip)
     summary = run_study(req, progress=progress)
     if as_json:
         import json
