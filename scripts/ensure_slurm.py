@@ -3,7 +3,7 @@
 Run by `make setup`. Does nothing when `slurmctld`, `slurmd`, `sbatch` and `munged` are
 found. Otherwise, as root with apt-get (Debian/Ubuntu), installs Debian's `slurm-wlm` and
 `munge` without recommended packages. The tests start their own daemons in a temporary
-folder and need none of the machine's (with systemd, Debian enables its munge service;
+folder and need none of the machine's (with systemd, Debian may start its munge service;
 slurmd and slurmctld stay down without /etc/slurm/slurm.conf). Anywhere else, or when
 the install fails, it says so in one line and exits 0: the tests are then skipped, and
 pytest's summary (-ra) gives the reason.
