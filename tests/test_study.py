@@ -249,6 +249,7 @@ def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setu
     (["--ladder", "0,4"], "--ladder"),
     (["--ladder", "a,b"], "--ladder"),
     (["--configs", "ladder,bogus"], "--configs"),
+    (["--only", "independent/3"], "--only"),
 ])
 def test_bad_study_options_exit_2_and_write_nothing(tmp_path, args, option):
     out = tmp_path / "out"

@@ -74,7 +74,7 @@ def study_configs(recipe_spp: int, recipe_sun: str, ladder: tuple[int, ...], fam
         out += [Config(f"rr{d}/{recipe_spp}", "rr", recipe_spp, {"rr_depth": d}) for d in RR_DEPTHS]
     if "sun" in families:
         other = "sunsky" if recipe_sun == "split" else "split"
-        out += [Config(f"{other}/{n}", "sun", n, {"sun": other}) for n in (16, 64, recipe_spp, 256) if n <= top]
+        out += [Config(f"{other}/{n}", "sun", n, {"sun": other}) for n in sorted({16, 64, recipe_spp, 256}) if n <= top]
     if "clamp" in families:
         out += [Config(f"clamp{c:g}/{recipe_spp}", "clamp", recipe_spp, {"clamp": c}) for c in CLAMPS]
     if "robust" in families:

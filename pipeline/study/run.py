@@ -65,6 +65,9 @@ class StudyRequest:
     resolution: int | None = None  # default: the spec's
     ladder: tuple[int, ...] = DEFAULT_LADDER
     families: tuple[str, ...] = FAMILIES
+    #: Only these configurations of the families (names as in the report); the spec's recipe
+    #: is always measured. Empty: all of them.
+    only: tuple[str, ...] = ()
     scan: int = 60  # materials of the plan whose lightings are candidates
     flip: bool = True  # HDR-FLIP (the slowest metric)
 
@@ -124,6 +127,14 @@ def check_request(req: StudyRequest):
     parse_families(",".join(req.families))
     parse_ladder(",".join(map(str, req.ladder)))
     spec = parse_spec(req.spec)
+    if req.only:
+        names = [c.name for c in study_configs(spec.render.spp, spec.lighting.sun, req.ladder, req.families,
+                                               spec.render.max_depth)]
+        unknown = [n for n in req.only if n not in names]
+        if unknown:
+            raise bad_value("--only", ",".join(req.only), "comma-separated configuration names of the chosen "
+                            f"--configs and --ladder (unknown: {', '.join(unknown)}), e.g. "
+                            + ", ".join(names[:4]))
     top = max(*req.ladder, spec.render.spp)
     ref = req.reference_spp
     if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= 65536:
@@ -137,7 +148,8 @@ def check_request(req: StudyRequest):
 def request_record(req: StudyRequest, spec) -> dict:
     return {"spec_digest": spec_digest(spec), "samples": req.samples, "reference_spp": req.reference_spp,
             "resolution": req.resolution or spec.render.resolution, "ladder": list(req.ladder),
-            "families": list(req.families), "scan": req.scan, "flip": req.flip}
+            "families": list(req.families), "scan": req.scan, "flip": req.flip,
+            **({"only": list(req.only)} if req.only else {})}
 
 
 def check_resumable(out: str, record: dict) -> None:
@@ -316,6 +328,8 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     ctx = Context(spec, variant, mi, ball, camera, gbuffer, base, shape_ids, normals)
     selection = select_samples(spec, req.samples, req.scan)
     configs = study_configs(r.spp, spec.lighting.sun, req.ladder, req.families, r.max_depth)
+    if req.only:
+        configs = [c for c in configs if c.name in req.only or c.name == f"independent/{r.spp}"]
     wanted = {s.material_index for s in selection}
     plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials
              if p.material_index in wanted}
