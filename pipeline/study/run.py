@@ -178,8 +178,8 @@ def _finite(value):
     return value
 
 
-class Sampler:
-    """One study sample: its material, light, scene guides; renders it under settings."""
+class SampleScene:
+    """One study sample: its material, light and screen-space maps; renders it under settings."""
 
     def __init__(self, ctx, sample, plan):
         self.ctx, self.sample = ctx, sample
@@ -245,10 +245,10 @@ def robust_combine(passes: list[np.ndarray], post: str) -> np.ndarray:
     raise ValueError(post)
 
 
-def render_reference(sampler: Sampler, ctx: Context, reference_spp: int) -> dict:
+def render_reference(subject: SampleScene, ctx: Context, reference_spp: int) -> dict:
     settings = replace(ctx.base, spp=reference_spp // 2)
-    seed = sampler.sample.render_seed
-    halves = [sampler.render(settings, derived_seed(seed, "reference", h)) for h in (1, 2)]
+    seed = subject.sample.render_seed
+    halves = [subject.render(settings, derived_seed(seed, "reference", h)) for h in (1, 2)]
     image = ((halves[0]["image"].astype(np.float64) + halves[1]["image"]) / 2).astype(np.float32)
     variance = ((halves[0]["variance"].astype(np.float64) + halves[1]["variance"]) / 4).astype(np.float32)
     floor = m.reference_floor(image, variance, halves[0]["image"], halves[1]["image"], ctx.gbuffer.mask)
@@ -275,14 +275,14 @@ def load_reference(path: str) -> dict | None:
     return ref
 
 
-def measure_config(sampler: Sampler, ctx: Context, config: Config, ref: dict, cache: dict, flip: bool) -> dict:
+def measure_config(subject: SampleScene, ctx: Context, config: Config, ref: dict, cache: dict, flip: bool) -> dict:
     key = config.settings_key()
-    seed = derived_seed(sampler.sample.render_seed, repr(key))
+    seed = derived_seed(subject.sample.render_seed, repr(key))
     if key not in cache:
         settings = replace(ctx.base, spp=config.spp, **config.changes).check()
         for old in [k for k, v in cache.items() if "passes" in v]:  # pass stacks are big: keep one
             del cache[old]
-        cache[key] = sampler.render(settings, seed, config.passes)  # denoisers reuse the ladder's renders
+        cache[key] = subject.render(settings, seed, config.passes)  # denoisers reuse the ladder's renders
     r = cache[key]
     post_wall = post_cpu = 0.0
     variance = None
@@ -296,12 +296,12 @@ def measure_config(sampler: Sampler, ctx: Context, config: Config, ref: dict, ca
     elif config.post in ("oidn", "oidn-color"):
         albedo = normal = None
         if config.post == "oidn":
-            albedo, normal = guides(ctx.shape_ids, ctx.normals, sampler.screen)
+            albedo, normal = guides(ctx.shape_ids, ctx.normals, subject.screen)
         image, post_wall, post_cpu = denoise(r["image"], albedo, normal)
     else:
         image, variance = r["image"], r["variance"]
     metrics = m.measure(image, ref, ctx.gbuffer.mask, variance, flip=flip)
-    row = {"sample_id": sampler.sample.sample_id, "material_class": sampler.sample.material_class,
+    row = {"sample_id": subject.sample.sample_id, "material_class": subject.sample.material_class,
            "config": config.name, "family": config.family, "post": config.post, "spp": config.spp,
            "spp_used": r["spp_used"], "seed": seed, **config.changes,
            "error_estimate": r["error_estimate"], "render_wall_s": r["wall_s"], "render_cpu_s": r["cpu_s"],
@@ -347,13 +347,13 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
             elapsed = time.perf_counter() - started
             progress({"done": done, "total": total, "what": what, "elapsed_s": elapsed})
 
-    samplers, references = {}, {}
+    subjects, references = {}, {}
     for s in selection:  # references first: the expensive part, kept by a killed study
-        samplers[s.sample_id] = Sampler(ctx, s, plans[s.material_index])
+        subjects[s.sample_id] = SampleScene(ctx, s, plans[s.material_index])
         path = os.path.join(req.out, "references", f"{s.sample_id}.npz")
         ref = load_reference(path)
         if ref is None:
-            ref = render_reference(samplers[s.sample_id], ctx, req.reference_spp)
+            ref = render_reference(subjects[s.sample_id], ctx, req.reference_spp)
             save_reference(path, ref)
         ref["srgb8"] = hdr_to_srgb8(ref["image"])
         references[s.sample_id] = ref
@@ -372,7 +372,7 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
             if config.name in mine:
                 counts["reused"] += 1
             else:
-                mine[config.name] = measure_config(samplers[s.sample_id], ctx, config, references[s.sample_id],
+                mine[config.name] = measure_config(subjects[s.sample_id], ctx, config, references[s.sample_id],
                                                    cache, req.flip)
                 write_text_atomic(path, json.dumps(mine, indent=0, allow_nan=False) + "\n")
                 counts["rendered"] += 1
