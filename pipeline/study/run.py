@@ -10,9 +10,9 @@ and the spec have been checked.
 Time is that of the render alone, kernels warm: before each timed render the same scene
 is rendered once untimed, which compiles its kernels: at 1 spp for the independent
 sampler (Mitsuba compiles its kernels per scene structure and resolution, not per spp),
-with the same passes for the other samplers, whose kernels depend on the sample count. CPU time is the process's over all
-threads (time.process_time), so it counts both render threads; post-processes (OIDN,
-robust combinations) are timed apart and added.
+with the same passes for the other samplers, whose kernels depend on the sample count.
+CPU time is the process's over all threads (time.process_time), so it counts every render
+thread; post-processes (OIDN, robust combinations) are timed apart and added.
 """
 
 from __future__ import annotations
