@@ -68,7 +68,13 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     assert all(t.identical for t in bench.timings)  # the bare renders are the build's samples
     assert bench.build_s > 0 and bench.bare_s > 0 and bench.ratio == bench.build_s / bench.bare_s
     text = "\n".join(bench.lines())
-    assert "ratio build / bare" in text and "4/4" in text
+    assert "wall ratio build / bare" in text and "CPU ratio build / bare" in text and "4/4" in text
+    assert bench.build_compiled == 0  # warmed kernels, one scene per material moved between lights
+    assert bench.records_render_s > 0 and bench.processes == 1 and "same run, from the records" in text
+    estimate = bench.paper_estimate()
+    assert estimate["scaled_by"] == (400 * 400 * 150) / (64 * 64 * 16)
+    assert estimate["hours_bare"] == pytest.approx(bench.bare_s / 4 * estimate["scaled_by"] * 50_000 / 3600)
+    assert "paper scale: run at 400x400, 150 spp for the estimate" in text
     assert (tmp_path / "ds" / "manifest.jsonl").is_file()  # --out keeps the dataset
 
 

@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from cli import main
 from materials import brdf_ref
 from pipeline.check.validate import validate
+from pipeline.errors import SetupError
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.mitsuba_env import CUDA_VARIANT, WITHIN_NOISE, cuda_works, load_mitsuba, resolve_variant
 from pipeline.run.build import build
@@ -42,7 +43,10 @@ def cuda():
     mi = load_mitsuba(CUDA_VARIANT)
     mitsuba_bsdf.register(variant=CUDA_VARIANT)
     yield mi
-    load_mitsuba(VARIANT)
+    try:
+        load_mitsuba(VARIANT)
+    except SetupError:  # a GPU machine without a usable libLLVM: no CPU test can run after these anyway
+        pass
 
 
 def _spec(tmp_path: Path, variant: str) -> Path:

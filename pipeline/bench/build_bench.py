@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import shutil
@@ -111,6 +112,10 @@ class BuildBench:
     moment: dict | None = None
     compiled: dict | None = None  # kernels compiled during the timed bare renders (should be 0)
     build_compiled: int | None = None  # in-process builds: kernels compiled during the build (warm: 0)
+    #: the records' render times (stats.time_s: scene, render, statistics, in the worker) summed,
+    #: and the worker processes that made them: the same run's split for any kind of workers
+    records_render_s: float = 0.0
+    processes: int = 1
 
     @property
     def bare_s(self) -> float:
@@ -130,23 +135,33 @@ class BuildBench:
         return self.build_cpu_s / self.bare_cpu_s if self.bare_cpu_s > 0 else math.inf
 
     @property
+    def records_ratio(self) -> float:
+        """The build from its first render on over the records' render times per worker process:
+        both taken in the same run, so other load on the machine moves both alike."""
+        per_process = self.records_render_s / max(self.processes, 1)
+        return (self.build_s - self.startup_s) / per_process if per_process > 0 else math.inf
+
+    @property
     def steady_ratio(self) -> float:
         """Build wall time from its first render on, over the bare renders: the ratio a long
         build tends to, where the start-up (spec, plan, cluster) is spread over many renders."""
         return (self.build_s - self.startup_s) / self.bare_s if self.bare_s > 0 else math.inf
 
     def paper_estimate(self) -> dict:
-        """The paper's 50,000 renders on this machine: the mean bare render (one at a time with
-        every render thread of this process: the whole machine, or its GPU), scaled to
-        400x400 and 150 spp by pixels x spp when the run was smaller (rough: a render's fixed
-        costs do not scale), x 50,000, x the build's steady wall ratio. Parallelism is in the
-        per-render time already: a build's workers split the same cores (or share the GPU)."""
+        """The paper's 50,000 renders on this machine, two ways: at this build's own rate (its
+        wall time from the first render on, per render: every worker and render thread it ran,
+        so the machine's parallelism is in the figure, and every overhead) and from the bare
+        renders alone (one at a time with every render thread of this process: the whole
+        machine, or its GPU). Runs smaller than 400x400 at 150 spp are scaled by pixels x spp
+        (rough: a render's fixed costs do not scale)."""
         scale = (PAPER_RESOLUTION ** 2 * PAPER_SPP) / (self.resolution ** 2 * self.spp)
-        per_render = self.bare_s / max(len(self.timings), 1) * scale
-        return {"renders": PAPER_RENDERS, "per_render_s": per_render, "scaled_by": scale,
-                "ratio": self.steady_ratio,
-                "hours": per_render * PAPER_RENDERS * self.steady_ratio / 3600.0,
-                "hours_bare": per_render * PAPER_RENDERS / 3600.0}
+        n = max(self.samples, 1)
+        build_per_render = (self.build_s - self.startup_s) / n * scale
+        bare_per_render = self.bare_s / max(len(self.timings), 1) * scale
+        return {"renders": PAPER_RENDERS, "scaled_by": scale,
+                "build_per_render_s": build_per_render, "bare_per_render_s": bare_per_render,
+                "hours": build_per_render * PAPER_RENDERS / 3600.0,
+                "hours_bare": bare_per_render * PAPER_RENDERS / 3600.0}
 
     def lines(self) -> list[str]:
         n = self.samples
@@ -164,6 +179,9 @@ class BuildBench:
             f"from the first render on: {self.steady_ratio:.3f}",
             f"CPU ratio build / bare:   {self.cpu_ratio:8.3f}   "
             f"(CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s, this process and its reaped children)",
+            *([f"same run, from the records: build {self.build_s - self.startup_s:.2f} s from its first render on "
+               f"over their summed render time {self.records_render_s:.2f} s / {self.processes} process(es) = "
+               f"{self.records_ratio:.3f}"] if self.records_render_s > 0 else []),
             *([f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
                f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
                f"{self.build_s / self.in_build_render_s:.3f}"] if self.in_build_render_s else []),
@@ -198,17 +216,21 @@ class BuildBench:
 
     def _paper_line(self) -> str:
         e = self.paper_estimate()
-        scaled = "" if e["scaled_by"] == 1 else (
-            f", scaled from {self.resolution}x{self.resolution}/{self.spp} spp by pixels x spp (x{e['scaled_by']:.4g}, "
-            "rough)")
-        return (f"paper scale on this machine: {e['renders']:,} renders x {e['per_render_s']:.2f} s "
-                f"(mean bare render, {self.threads} render threads{scaled}) x {e['ratio']:.3f} (steady wall "
-                f"ratio) = {e['hours']:.1f} h ({e['hours'] / 24:.1f} days; renders alone {e['hours_bare']:.1f} h)")
+        if e["scaled_by"] != 1:
+            return (f"paper scale: run at {PAPER_RESOLUTION}x{PAPER_RESOLUTION}, {PAPER_SPP} spp for the estimate "
+                    f"(e.g. --samples 10 of manifests/paper.toml); scaling this {self.resolution}x{self.resolution}, "
+                    f"{self.spp} spp run by pixels x spp gives {e['hours']:.0f} h at the build's rate, "
+                    f"{e['hours_bare']:.0f} h from the bare renders, overestimates: fixed costs scale too")
+        return (f"paper scale on this machine: {e['renders']:,} renders x {e['build_per_render_s']:.2f} s "
+                f"(this build's wall time per render from its first render on, {self.workers}) = "
+                f"{e['hours']:.1f} h ({e['hours'] / 24:.1f} days); bare renders alone x {e['bare_per_render_s']:.2f} s "
+                f"({self.threads} render threads, one render at a time) = {e['hours_bare']:.1f} h")
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio,
-                 steady_ratio=self.steady_ratio, paper_estimate=self.paper_estimate())
+                 steady_ratio=self.steady_ratio, records_ratio=self.records_ratio,
+                 paper_estimate=self.paper_estimate())
         return d
 
 
@@ -418,6 +440,15 @@ class RenderCallTimer:
         self._module.render_scene = self._original
 
 
+def records_render_time(root: str) -> float:
+    """Sum of the manifest's ``stats.time_s`` (each render_sample's wall time, in its worker)."""
+    total = 0.0
+    with open(Layout(root).manifest, encoding="utf-8") as fh:
+        for line in fh:
+            total += float(json.loads(line).get("stats", {}).get("time_s", 0.0))
+    return total
+
+
 def _cpu_with_children() -> float:
     """CPU seconds of this process and of its terminated, reaped children (dask's nannies and
     workers are reaped when the build closes its local cluster)."""
@@ -481,6 +512,7 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
             in_build_render_s=in_build.seconds if in_build.calls else None,
             timings=timings, material_files_s=per_material, render_file_s=per_render)
         bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
+        bench.records_render_s, bench.processes = records_render_time(root), max(summary.processes, 1)
         if in_build.calls:
             bench.build_compiled = build_kernels.compiled
         if profile:

@@ -12,8 +12,9 @@ A shard task may run twice, even at the same time, or be killed at any instant:
 
 Rendering and writing overlap: the maps' raster projection, EXR encoding, SHA-256, fsync
 and records run on one writer thread (:class:`OrderedWriter`), in the order a synchronous
-build would write them, while the next render runs. A material's scene is loaded once and
-moved from lighting to lighting (:class:`pipeline.render.renderer.MaterialScene`).
+build would write them, while the next render runs; the next material's maps are made
+on a thread of their own. A material's scene is loaded once and moved from lighting to
+lighting (:class:`pipeline.render.renderer.MaterialScene`).
 """
 
 from __future__ import annotations
@@ -194,25 +195,31 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
         return {"shard": shard.shard_id, "rendered": 0, "skipped": shard.n_renders, "seconds": 0.0}
     start = time.perf_counter()
     make_shard_dir(layout, shard.shard_id)
-    records, rendered = [], 0
-    ctx = None
+    slots: list[list] = []  # each material's records, in plan order
+    work = []  # (slot, material, verified records or None, records whose render alone verifies)
     checked: dict[str, bool] = {}
-    with OrderedWriter() as writer:
-        for material in shard.materials:
-            existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
-                        for s in material.samples]
-            verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
-            if all(verified):
-                records.extend(existing)
-                continue
-            ctx = ctx or worker_context(spec, variant)
+    for material in shard.materials:
+        existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
+                    for s in material.samples]
+        verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
+        slots.append(existing)
+        if not all(verified):
             render_kept = [r if not ok and sample_verified(root, r, s, checked, render_only=True) else None
                            for r, ok, s in zip(existing, verified, material.samples)]
-            existing = [r if ok else None for r, ok in zip(existing, verified)]
-            new = queue_material(layout, spec, ctx, material, existing, writer, render_kept)
-            rendered += sum(isinstance(r, Future) for r in new)
-            records.extend(new)
-    write_marker(layout, shard, _resolved(records))
+            work.append((len(slots) - 1, material, [r if ok else None for r, ok in zip(existing, verified)],
+                         render_kept))
+    # The next material's maps are made on their own thread while this one renders (numpy:
+    # ~65 ms a material, a tenth of a material's renders on a GPU, issue 11).
+    with OrderedWriter() as writer, ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker:
+        made = [maker.submit(make_material, material, spec) for _slot, material, _e, _r in work[:1]]
+        ctx = worker_context(spec, variant) if work else None
+        for k, (slot, material, existing, render_kept) in enumerate(work):
+            if k + 1 < len(work):
+                made.append(maker.submit(make_material, work[k + 1][1], spec))
+            slots[slot] = queue_material(layout, spec, ctx, material, existing, writer, render_kept, made[k])
+    new = [r for slot in slots for r in slot]
+    rendered = sum(isinstance(r, Future) for r in new)
+    write_marker(layout, shard, _resolved(new))
     return {"shard": shard.shard_id, "rendered": rendered, "skipped": shard.n_renders - rendered,
             "seconds": time.perf_counter() - start}
 
@@ -271,7 +278,7 @@ def build_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, materi
 
 def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
                    existing: list[dict | None], writer: OrderedWriter,
-                   render_kept: list[dict | None] | None = None) -> list[dict | Future]:
+                   render_kept: list[dict | None] | None = None, made: Future | None = None) -> list[dict | Future]:
     """Render every sample of ``material`` that ``existing`` (verified records or None) lacks;
     its files and records are queued on ``writer``. Return the kept records and, for the
     others, futures of their records.
@@ -282,9 +289,10 @@ def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, materi
     whose render verifies but whose material files do not: a lost maps file) keep their
     render when the material files written anew are the ones they list (the maps are a pure
     function of the plan). Otherwise the material files are written before the first
-    render's record.
+    render's record. ``made``: the future of ``make_material(material, spec)``, when it was
+    started ahead.
     """
-    maps, description = make_material(material, spec)
+    maps, description = made.result() if made is not None else make_material(material, spec)
     maps.check()
     kept = [old for old in existing if old is not None]
     if kept:
