@@ -90,6 +90,12 @@ def test_dataset_json_records_the_variant_and_its_guarantee(reference):
     assert description["determinism"] == {"guarantee": BYTE_IDENTICAL, "basis": GUARANTEE_BASIS[BYTE_IDENTICAL]}
 
 
+def test_info_says_the_guarantee(reference):
+    from pipeline.check.info import dataset_info
+
+    assert f"{VARIANT} (byte-identical re-renders)" in dataset_info(str(reference)).lines()[0]
+
+
 def test_the_weakest_guarantee_wins():
     assert weakest_guarantee(BYTE_IDENTICAL, WITHIN_NOISE) == WITHIN_NOISE
     assert weakest_guarantee(BYTE_IDENTICAL, None) == BYTE_IDENTICAL

@@ -95,8 +95,10 @@ class DatasetInfo:
     def lines(self) -> list[str]:
         d = self.description or {}
         libs = _dict(d.get("libraries"))
+        guarantee = _dict(d.get("determinism")).get("guarantee")
         built = (f"; built with shaderball {d.get('shaderball', '?')}, mitsuba {libs.get('mitsuba', '?')} "
-                 f"{d.get('variant', '?')}") if d else "; no dataset.json yet"
+                 f"{d.get('variant', '?')}" + (f" ({guarantee} re-renders)" if isinstance(guarantee, str) else "")
+                 ) if d else "; no dataset.json yet"
         pct = 100.0 * self.recorded / self.total_renders if self.total_renders else 100.0
         state = "complete" if self.complete else "INCOMPLETE (resume with `shaderball build DIR/spec.toml --out DIR`)"
         manifest = ("absent" if self.manifest_records is None else f"{self.manifest_records} records")
