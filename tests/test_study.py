@@ -175,7 +175,7 @@ def test_adaptive_render_stops_at_its_target_and_is_byte_identical(scene_setup):
     totals = [sum(sum(s) for s in adaptive_stages(256)[: i + 1]) for i in range(len(adaptive_stages(256)))]
     assert totals == [16, 32, 64, 128, 256] and adaptive_stages(150)[-1] == [16, 4, 2]
     used = {}
-    for target in (0.3, 0.08, 0.001):
+    for target in (0.3, 0.09, 0.001):
         settings = RenderSettings(resolution=16, spp=256, target_error=target, variant=VARIANT).check()
         a = render_sample(ball, camera, GOLD, LIGHT, settings, 5, mask=gbuffer.mask)
         b = render_sample(ball, camera, GOLD, LIGHT, settings, 5, mask=gbuffer.mask)
@@ -183,10 +183,13 @@ def test_adaptive_render_stops_at_its_target_and_is_byte_identical(scene_setup):
         spp, err = a.stats["spp_used"], a.stats["error_estimate"]
         assert spp in totals and a.stats["target_error"] == target
         assert err <= target or spp == 256
-        if spp > 16:  # it stopped at the first stage that met the target, not later
-            assert err <= target or spp == 256
+        if 16 < spp < 256:  # it stopped at the first stage that met the target: the one before did not
+            capped = RenderSettings(resolution=16, spp=spp // 2, target_error=target, variant=VARIANT)
+            before = render_sample(ball, camera, GOLD, LIGHT, capped, 5, mask=gbuffer.mask)
+            assert before.stats["spp_used"] == spp // 2 and before.stats["error_estimate"] > target
         used[target] = spp
-    assert used[0.3] <= used[0.08] <= used[0.001] == 256
+    assert used[0.3] <= used[0.09] <= used[0.001] == 256
+    assert 16 < used[0.09] < 256  # a stop between the first stage and the cap was exercised
     assert used[0.3] < 256
 
 
