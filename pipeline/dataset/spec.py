@@ -623,7 +623,9 @@ class RenderSection(_Section):
                           doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
                               "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
                               "squared, ldsampler to a power-of-two square): each render records the spp used "
-                              "(docs/accuracy.md compares them).")
+                              "(docs/accuracy.md compares them). Byte-reproducible with several render threads "
+                              "only when every power-of-two pass stays a power of two after rounding (e.g. "
+                              "multijitter or stratified at 64).")
     rr_depth: int = _field(DEFAULT_RR_DEPTH, rule=_Int(*RR_DEPTH_RANGE),
                            doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above "
                                "max_depth there is none.",
