@@ -123,10 +123,10 @@ def _canonical_json(obj) -> str:
 
 def _in_range(name: str, value, lo: float, hi: float, *, integer: bool = False) -> None:
     kind = "an integer" if integer else "a number"
-    ok = isinstance(value, int) and not isinstance(value, bool) if integer else (
-        isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = (
+        isinstance(value, int) and not isinstance(value, bool)
+        if integer
+        else (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value))
     )
     if not ok or not (lo <= value <= hi):
-        raise GeometryError(
-            f"geometry.{name}: {value!r} is not allowed; allowed: {kind} in [{lo:g}, {hi:g}]"
-        )
+        raise GeometryError(f"geometry.{name}: {value!r} is not allowed; allowed: {kind} in [{lo:g}, {hi:g}]")

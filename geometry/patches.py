@@ -238,8 +238,15 @@ def shell_patches(params: ShaderballParams, frame: BandFrame, s: Sampling) -> li
             )
         patches.append(
             sphere_band(
-                frame, radius, th_edge, theta_edge_bottom(th_edge), back_pos, back_unwrapped,
-                inward=inward, name=f"{tag}_back_band", rows=band_rows,
+                frame,
+                radius,
+                th_edge,
+                theta_edge_bottom(th_edge),
+                back_pos,
+                back_unwrapped,
+                inward=inward,
+                name=f"{tag}_back_band",
+                rows=band_rows,
             )
         )
 
@@ -307,8 +314,15 @@ def core_patches(params: ShaderballParams, frame: BandFrame, s: Sampling) -> lis
         sphere_cap(frame, radius, th_edge, phi, bottom=False, name="core_top_cap", **kw),
         sphere_cap(frame, radius, th_edge, phi, bottom=True, name="core_bottom_cap", **kw),
         sphere_band(
-            frame, radius, th_edge, theta_edge_bottom(th_edge), phi_pos, phi_unwrapped,
-            inward=False, name="core_band", rows=band_rows,
+            frame,
+            radius,
+            th_edge,
+            theta_edge_bottom(th_edge),
+            phi_pos,
+            phi_unwrapped,
+            inward=False,
+            name="core_band",
+            rows=band_rows,
         ),
     ]
 
@@ -333,9 +347,7 @@ def neutral_patches(params: ShaderballParams) -> list[Patch]:
     rn = params.neck_radius_m
     zc = params.ball_centre_z_m
     # The neck ends inside the shell's wall, so its end is never seen.
-    z_neck_top = zc - 0.5 * (
-        math.sqrt(params.shell_radius_m**2 - rn**2) + math.sqrt(params.inner_radius_m**2 - rn**2)
-    )
+    z_neck_top = zc - 0.5 * (math.sqrt(params.shell_radius_m**2 - rn**2) + math.sqrt(params.inner_radius_m**2 - rn**2))
 
     def tube(radius_lo, z_lo, radius_hi, z_hi, normal_xy, normal_z, name):
         pos = np.concatenate([ring * radius_lo + z_lo * up, ring * radius_hi + z_hi * up])

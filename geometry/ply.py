@@ -12,8 +12,9 @@ import numpy as np
 from geometry.cachefile import write_cache_file
 
 
-def encode_ply(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,
-               uv: np.ndarray | None = None) -> bytes:
+def encode_ply(
+    positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, uv: np.ndarray | None = None
+) -> bytes:
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if normals is not None:
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]

@@ -142,7 +142,15 @@ def _unit(v):
 
 
 def eval_brdf(
-    wi, wo, n, diffuse, specular, roughness, *, lobes=("diffuse", "specular"), normalize=True,
+    wi,
+    wo,
+    n,
+    diffuse,
+    specular,
+    roughness,
+    *,
+    lobes=("diffuse", "specular"),
+    normalize=True,
     model=DEFAULT_MODEL,
 ):
     """Cosine-weighted BRDF ``f(wi, wo) * max(0, n.wo)``: what Mitsuba's ``BSDF.eval`` returns.
@@ -230,8 +238,7 @@ def eval_normal_mapped(wi, wo, normal, diffuse, specular, roughness, **options):
     return np.where((wo[..., 2] > 0.0)[..., None], value, 0.0)
 
 
-def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_phi=256,
-                           model=DEFAULT_MODEL):
+def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_phi=256, model=DEFAULT_MODEL):
     """Directional albedo of the specular term, ``int F G D / 4 cos_o dwo``, for ``n = z``.
 
     Deterministic quadrature in half-vector space: the midpoint rule on the
@@ -267,8 +274,7 @@ def spec_albedo_quadrature(roughness, cos_theta_i, specular, *, n_theta=768, n_p
     cos_ih = h @ wi
     wo_z = 2.0 * cos_ih * h[..., 2] - cos_i
     ok = (wo_z > 0.0) & (cos_ih > 0.0)
-    base = (g1_divided(cos_i, alpha, model) * np.clip(wo_z, 0, 1) * g1_divided(wo_z, alpha, model)
-            * cos_ih / h[..., 2])
+    base = g1_divided(cos_i, alpha, model) * np.clip(wo_z, 0, 1) * g1_divided(wo_z, alpha, model) * cos_ih / h[..., 2]
     if _floored(model):
         sin2_h, cos2_h = (sin_h * sin_h)[:, None], (cos_h * cos_h)[:, None]
         base = base * ggx_d(sin2_h, cos2_h, alpha, model) / ggx_d(sin2_h, cos2_h, alpha_q)

@@ -143,11 +143,7 @@ def _split_strip(path: Path, image: np.ndarray) -> dict[str, np.ndarray]:
             f"({', '.join(STRIP_PANELS)}), e.g. 1440 x 288"
         )
     panel = width // count
-    return {
-        name: image[:, k * panel : (k + 1) * panel]
-        for k, name in enumerate(STRIP_PANELS)
-        if name != "photo"
-    }
+    return {name: image[:, k * panel : (k + 1) * panel] for k, name in enumerate(STRIP_PANELS) if name != "photo"}
 
 
 def _rgb(name: str, image: np.ndarray, source: str) -> np.ndarray:
@@ -166,13 +162,15 @@ def _to_maps(images: dict[str, np.ndarray], spaces: dict[str, str], source: str)
     specular = decode("specular", _rgb("specular", images["specular"], source))
     roughness_rgb = images["roughness"]
     if roughness_rgb.shape[-1] > 1 and np.ptp(roughness_rgb, axis=-1).max() > 2.0 / 255.0:
-        log.warning("%s: roughness channels differ (up to %.3f); using their mean", source,
-                    float(np.ptp(roughness_rgb, axis=-1).max()))
+        log.warning(
+            "%s: roughness channels differ (up to %.3f); using their mean",
+            source,
+            float(np.ptp(roughness_rgb, axis=-1).max()),
+        )
     roughness = decode("roughness", roughness_rgb.mean(axis=-1))
     normal, repaired = decode_normal_map(_rgb("normal", images["normal"], source))
     if repaired:
-        log.warning("%s: %d normal texels were zero-length or at/below the tangent plane; repaired",
-                    source, repaired)
+        log.warning("%s: %d normal texels were zero-length or at/below the tangent plane; repaired", source, repaired)
     return MaterialMaps(
         diffuse=np.clip(diffuse, 0.0, 1.0),
         specular=np.clip(specular, 0.0, 1.0),

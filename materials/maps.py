@@ -29,9 +29,7 @@ def _as_resolution(resolution) -> tuple[int, int]:
         try:
             height, width = (int(x) for x in resolution)
         except (TypeError, ValueError):
-            raise MaterialError(
-                f"resolution: {resolution!r} is not an int or a (height, width) pair"
-            ) from None
+            raise MaterialError(f"resolution: {resolution!r} is not an int or a (height, width) pair") from None
     if height < 1 or width < 1:
         raise MaterialError(f"resolution: {resolution!r} must be positive")
     return height, width
@@ -68,9 +66,7 @@ class UniformMaterial:
         n = np.asarray(self.normal, dtype=np.float64)
         length = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
         if n.shape != (3,) or not np.isfinite(length) or length == 0.0 or n[2] <= 0.0:
-            raise MaterialError(
-                f"UniformMaterial.normal: {self.normal!r} is not a finite 3-vector with z > 0"
-            )
+            raise MaterialError(f"UniformMaterial.normal: {self.normal!r} is not a finite 3-vector with z > 0")
         object.__setattr__(self, "normal", tuple(float(c) for c in n / length))
         for name in ("diffuse", "specular"):
             value = getattr(self, name)
@@ -157,8 +153,7 @@ class MaterialMaps:
             if bad.any():
                 index = tuple(int(i) for i in np.argwhere(bad)[0])
                 raise MaterialError(
-                    f"material map {name}: value {float(values[index])!r} at {index} "
-                    f"is not finite and in [0, 1]"
+                    f"material map {name}: value {float(values[index])!r} at {index} is not finite and in [0, 1]"
                 )
         n = self.normal
         finite = np.all(np.isfinite(n), axis=-1)

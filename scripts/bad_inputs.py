@@ -51,12 +51,20 @@ SPEC_CASES = [
     ("TOML syntax error", SMOKE.replace("[render]", "[render")),
     ("arrays nested 5,000 deep", spec_with("roughness = [0.05, 1.0]", "roughness = " + "[" * 5000 + "]" * 5000)),
     ("a table name of 3,000 parts", SMOKE + "\n[" + ".".join(["a"] * 3000) + "]\nk = 1\n"),
-    ("10^9 renders (10^6 materials x 1,000 lightings)",
-     spec_with("materials = 8 ", "materials = 1000000 ").replace("lights_per_material = 2", "lights_per_material = 1000")
-     .replace("shard_size = 2 ", "shard_size = 20 ")),
-    ("a shard of 200,000 renders", spec_with("shard_size = 2 ", "shard_size = 100000 ")
-     .replace("materials = 8 ", "materials = 100000 ")),
-    ("storage.layers repeated 20,000 times", spec_with('layers = ["diffuse"', 'layers = [' + '"diffuse", ' * 20000 + '"diffuse"')),
+    (
+        "10^9 renders (10^6 materials x 1,000 lightings)",
+        spec_with("materials = 8 ", "materials = 1000000 ")
+        .replace("lights_per_material = 2", "lights_per_material = 1000")
+        .replace("shard_size = 2 ", "shard_size = 20 "),
+    ),
+    (
+        "a shard of 200,000 renders",
+        spec_with("shard_size = 2 ", "shard_size = 100000 ").replace("materials = 8 ", "materials = 100000 "),
+    ),
+    (
+        "storage.layers repeated 20,000 times",
+        spec_with('layers = ["diffuse"', "layers = [" + '"diffuse", ' * 20000 + '"diffuse"'),
+    ),
     ("a corrupt image in svbrdf_folders", spec_with("svbrdf_folders = []", 'svbrdf_folders = ["badmaps"]')),
 ]
 
@@ -121,8 +129,14 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     if spec_text is not None:
         spec.write_text(spec_text)
         args = ["build", str(spec), "--out", "{out}"]
-    fill = {"dir": str(base), "out": str(base / "out"), "smoke": str(REPO / "manifests" / "smoke.toml"),
-            "file": str(base / "file.txt"), "foreign": str(foreign), "other_dataset": str(other)}
+    fill = {
+        "dir": str(base),
+        "out": str(base / "out"),
+        "smoke": str(REPO / "manifests" / "smoke.toml"),
+        "file": str(base / "file.txt"),
+        "foreign": str(foreign),
+        "other_dataset": str(other),
+    }
     argv = [a.format(**fill) for a in args]
     before = snapshot(base)
     result = CliRunner().invoke(main, argv)

@@ -84,8 +84,7 @@ def install_write_hook(kind: str, nth: int, phase: str, note_path: str | None) -
     def die(where: str) -> None:
         if note_path:
             with open(note_path, "a", encoding="utf-8") as fh:
-                fh.write(json.dumps({"kind": kind, "nth": nth, "phase": where,
-                                     "path": state["path"]}) + "\n")
+                fh.write(json.dumps({"kind": kind, "nth": nth, "phase": where, "path": state["path"]}) + "\n")
                 fh.flush()
                 os.fsync(fh.fileno())
         os.killpg(os.getpgrp(), signal.SIGKILL)
@@ -183,7 +182,7 @@ def group_members(pgid: int) -> list[int]:
                 stat = fh.read()
         except OSError:
             continue
-        fields = stat[stat.rindex(")") + 2:].split()
+        fields = stat[stat.rindex(")") + 2 :].split()
         if int(fields[2]) == pgid and fields[0] != "Z":
             members.append(int(entry))
     return members
@@ -218,8 +217,16 @@ class Attempt:
     group_size: int = 0
 
 
-def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float = 0.0,
-                hook: str | None = None, timeout_s: float = 600.0) -> Attempt:
+def run_attempt(
+    spec: Path,
+    out: Path,
+    mode: str,
+    logs: Path,
+    *,
+    delay_s: float = 0.0,
+    hook: str | None = None,
+    timeout_s: float = 600.0,
+) -> Attempt:
     """One build; killed per ``mode`` ('none' lets it finish). The group is always gone after."""
     logs.mkdir(parents=True, exist_ok=True)
     note = logs / "note.jsonl"
@@ -229,9 +236,15 @@ def run_attempt(spec: Path, out: Path, mode: str, logs: Path, *, delay_s: float 
     log = open(logs / "attempt.log", "ab")
     start = time.monotonic()
     group_size = 0
-    proc = subprocess.Popen(child_command(spec, out, workers, hook if mode == "write" else None),
-                            cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        child_command(spec, out, workers, hook if mode == "write" else None),
+        cwd=REPO,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         if mode == "dask":
             # The delay counts from the moment the worker processes exist (client, resource
@@ -299,8 +312,14 @@ def ensure_reference(dest: Path, spec: Path = SMOKE_SPEC) -> float:
             return float(timing.read_text())
         shutil.rmtree(dest, ignore_errors=True)
         start = time.monotonic()
-        subprocess.run(child_command(spec, dest, 0), cwd=REPO, check=True, stdin=subprocess.DEVNULL,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        subprocess.run(
+            child_command(spec, dest, 0),
+            cwd=REPO,
+            check=True,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         seconds = time.monotonic() - start
         timing.write_text(f"{seconds:.3f}")
         return seconds
@@ -420,8 +439,9 @@ class CampaignResult:
         return Counter(a.mode for a in self.attempts if a.killed)
 
     def write_kinds(self) -> Counter:
-        return Counter(f"{a.note['kind']}@{a.note['phase']}" for a in self.attempts
-                       if a.killed and a.mode == "write" and a.note)
+        return Counter(
+            f"{a.note['kind']}@{a.note['phase']}" for a in self.attempts if a.killed and a.mode == "write" and a.note
+        )
 
     def lines(self) -> list[str]:
         mid_write = sum(1 for a in self.attempts if a.killed and a.temp_files)
@@ -430,11 +450,11 @@ class CampaignResult:
             f"{self.trials_completed} datasets completed, {self.seconds:.0f} s "
             f"(reference build {self.reference_seconds:.1f} s)",
             "kills by mode: " + ", ".join(f"{m} {n}" for m, n in sorted(self.counts().items())),
-            "write kills by file@phase: " + (", ".join(f"{k} {n}" for k, n in sorted(self.write_kinds().items()))
-                                             or "none"),
+            "write kills by file@phase: "
+            + (", ".join(f"{k} {n}" for k, n in sorted(self.write_kinds().items())) or "none"),
             f"kills that left a temporary file (a write cut mid-way): {mid_write}",
-            "processes in the group at dask kills: " + (", ".join(
-                str(a.group_size) for a in self.attempts if a.killed and a.mode == "dask") or "none"),
+            "processes in the group at dask kills: "
+            + (", ".join(str(a.group_size) for a in self.attempts if a.killed and a.mode == "dask") or "none"),
             "result: PASS: every interrupted state consistent; every completed dataset byte-identical "
             "to the reference, no sample lost or duplicated, validate ok",
         ]
@@ -446,12 +466,21 @@ def expected_writes(out: Path, reference: Path) -> Counter:
 
     have = {rel for rel in dataset_files(out) if not is_temp_file(os.path.basename(rel))}
     missing = Counter(file_kind(rel) for rel in dataset_files(reference) if rel not in have)
-    return Counter({"exr": missing["exr"], "record": missing["record"], "marker": missing["marker"],
-                    "spec": missing["spec"], "description": 1, "manifest": 1})
+    return Counter(
+        {
+            "exr": missing["exr"],
+            "record": missing["record"],
+            "marker": missing["marker"],
+            "spec": missing["spec"],
+            "description": 1,
+            "manifest": 1,
+        }
+    )
 
 
-def random_choice(rng: random.Random, dask_due: bool, out: Path, reference: Path, ref_seconds: float,
-                  dask_seconds: float) -> tuple[str, object]:
+def random_choice(
+    rng: random.Random, dask_due: bool, out: Path, reference: Path, ref_seconds: float, dask_seconds: float
+) -> tuple[str, object]:
     """A kill that lands while there is still work to interrupt; a dask one when due and
     a quarter or more of the renders are left (else the cluster never starts)."""
     writes = expected_writes(out, reference)
@@ -469,9 +498,19 @@ def random_choice(rng: random.Random, dask_due: bool, out: Path, reference: Path
     return "write", f"{kind}:{rng.randint(1, writes[kind])}:{rng.choice(PHASES)}"
 
 
-def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_SPEC, seed: int = 0,
-                 plan=None, dask_every: int = 0, log=print, reference_seconds: float | None = None,
-                 dask_seconds: float = 12.0) -> CampaignResult:
+def run_campaign(
+    kills: int,
+    work: Path,
+    reference: Path,
+    *,
+    spec: Path = SMOKE_SPEC,
+    seed: int = 0,
+    plan=None,
+    dask_every: int = 0,
+    log=print,
+    reference_seconds: float | None = None,
+    dask_seconds: float = 12.0,
+) -> CampaignResult:
     """Kill builds until ``kills`` kills happened; finish the last trial; check everything.
 
     ``plan``: explicit (mode, parameter) choices to use first (then random ones). Raises
@@ -493,13 +532,13 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
         else:
             since_dask += 1
             mode, param = next(choices, None) or random_choice(
-                rng, bool(dask_every) and since_dask >= dask_every, out, reference, ref_seconds, dask_seconds)
+                rng, bool(dask_every) and since_dask >= dask_every, out, reference, ref_seconds, dask_seconds
+            )
             if mode == "dask":
                 since_dask = 0
         delay = float(param) if mode in ("timer", "dask") else 0.0
         temps_before = temp_files(out)
-        attempt = run_attempt(spec, out, mode, work / "logs", delay_s=delay,
-                              hook=param if mode == "write" else None)
+        attempt = run_attempt(spec, out, mode, work / "logs", delay_s=delay, hook=param if mode == "write" else None)
         attempts.append(attempt)
         if attempt.killed:
             done_kills += 1
@@ -507,13 +546,17 @@ def run_campaign(kills: int, work: Path, reference: Path, *, spec: Path = SMOKE_
             attempt.temp_files = len(temp_files(out) - temps_before)
             where = f" in {attempt.note['path']} at {attempt.note['phase']}" if attempt.note else ""
             procs = f" ({attempt.group_size} processes)" if attempt.group_size else ""
-            log(f"kill {done_kills:4d}: {mode} {attempt.detail}{where}{procs} after {attempt.seconds:.1f} s; "
-                f"{attempt.temp_files} new temp file(s); state consistent")
+            log(
+                f"kill {done_kills:4d}: {mode} {attempt.detail}{where}{procs} after {attempt.seconds:.1f} s; "
+                f"{attempt.temp_files} new temp file(s); state consistent"
+            )
         elif attempt.returncode == 0:
             check_complete(out, reference)
             trials += 1
-            log(f"trial {trials}: completed by a {mode} attempt that was not killed "
-                f"({done_kills} kills so far); byte-identical to the reference, validate ok")
+            log(
+                f"trial {trials}: completed by a {mode} attempt that was not killed "
+                f"({done_kills} kills so far); byte-identical to the reference, validate ok"
+            )
             out = None
         else:
             tail = (work / "logs" / "attempt.log").read_text(errors="replace")[-3000:]
@@ -529,9 +572,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--kills", type=int, default=100, help="SIGKILLs to deliver (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of kill moments (default 0)")
-    parser.add_argument("--dask-every", type=int, default=10,
-                        help="about every Nth attempt builds on a local dask cluster of 2 workers, when a "
-                             "quarter of the renders or more are left (default 10; 0: never)")
+    parser.add_argument(
+        "--dask-every",
+        type=int,
+        default=10,
+        help="about every Nth attempt builds on a local dask cluster of 2 workers, when a "
+        "quarter of the renders or more are left (default 10; 0: never)",
+    )
     parser.add_argument("--spec", type=Path, default=SMOKE_SPEC, help="spec to build (default: smoke)")
     parser.add_argument("--work", type=Path, default=None, help="work folder (default: a new temp folder)")
     parser.add_argument("--keep", action="store_true", help="keep the work folder")
@@ -544,8 +591,15 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(REPO))
     try:
         print(f"reference build of {args.spec} in {work / 'reference'} ...", flush=True)
-        result = run_campaign(args.kills, work, work / "reference", spec=args.spec, seed=args.seed,
-                              dask_every=args.dask_every, log=lambda line: print(line, flush=True))
+        result = run_campaign(
+            args.kills,
+            work,
+            work / "reference",
+            spec=args.spec,
+            seed=args.seed,
+            dask_every=args.dask_every,
+            log=lambda line: print(line, flush=True),
+        )
     except AssertionError as exc:
         print(f"result: FAIL: {exc}", flush=True)
         print(f"work folder kept: {work}")

@@ -31,18 +31,24 @@ def main() -> int:
         print("slurm: not installed (SHADERBALL_NO_SLURM is set); the real-SLURM tests will be skipped")
         return 0
     if os.geteuid() != 0 or not shutil.which("apt-get"):
-        print(f"slurm: {', '.join(absent)} not found and cannot be installed here (needs root and apt-get); "
-              "the real-SLURM tests will be skipped")
+        print(
+            f"slurm: {', '.join(absent)} not found and cannot be installed here (needs root and apt-get); "
+            "the real-SLURM tests will be skipped"
+        )
         return 0
     print(f"installing {' '.join(PACKAGES)} for the real-SLURM tests ...")
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-    for cmd in (["apt-get", "update", "-qq"],
-                ["apt-get", "install", "-y", "-qq", "--no-install-recommends", *PACKAGES]):
+    for cmd in (
+        ["apt-get", "update", "-qq"],
+        ["apt-get", "install", "-y", "-qq", "--no-install-recommends", *PACKAGES],
+    ):
         run = subprocess.run(cmd, env=env, capture_output=True, text=True)
         if run.returncode != 0:
             tail = (run.stderr or run.stdout).strip().splitlines()[-3:]
-            print(f"slurm: `{' '.join(cmd)}` failed (exit {run.returncode}): {' / '.join(tail)}; "
-                  "the real-SLURM tests will be skipped")
+            print(
+                f"slurm: `{' '.join(cmd)}` failed (exit {run.returncode}): {' / '.join(tail)}; "
+                "the real-SLURM tests will be skipped"
+            )
             return 0
     absent = missing()
     if absent:

@@ -40,7 +40,6 @@ SPLIT_SUN_WEIGHT_RANGE = (0.02, 50.0)
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
 
-
 def check_sun(sun: str) -> None:
     if sun not in SUN_MODES:
         raise SkyError(f"sky.sun = {sun!r} is not allowed: one of {', '.join(SUN_MODES)}")
@@ -74,7 +73,9 @@ def split_sampling_weights(sun_irradiance, sky_power) -> tuple[float, float]:
     """
     sun = float(LUMINANCE_RGB @ np.asarray(sun_irradiance))
     sky = float(LUMINANCE_RGB @ np.asarray(sky_power))
-    ratio = SPLIT_SUN_WEIGHT_FACTOR * (sun / sky) ** SPLIT_SUN_WEIGHT_EXPONENT if sky > 0.0 else SPLIT_SUN_WEIGHT_RANGE[1]
+    ratio = (
+        SPLIT_SUN_WEIGHT_FACTOR * (sun / sky) ** SPLIT_SUN_WEIGHT_EXPONENT if sky > 0.0 else SPLIT_SUN_WEIGHT_RANGE[1]
+    )
     weight = float(np.clip(ratio, *SPLIT_SUN_WEIGHT_RANGE))
     if abs(weight - 1.0) < 1e-3:
         weight = 1.001
@@ -116,4 +117,3 @@ def hemisphere_check_directions(sun_dir: np.ndarray) -> np.ndarray:
     el, az = np.meshgrid(np.radians(elevations), azimuths, indexing="ij")
     dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
     return np.concatenate([dirs, sun_dir[None, :]])
-

@@ -29,7 +29,7 @@ from sky.lighting import TURBIDITY_RANGE, Light
 POLICY_NAME = "elevation-floor"
 POLICY_VERSION = 1
 #: What FLOOR_TABLE was measured on; regenerate with `python -m pipeline.bench.sky_floor --table`.
-FLOOR_MEASURED_ON = "mitsuba 3.9.1, the llvm RGB variant, sunsky albedo 0.3, sun_aperture 0.5358, complex_sun false"
+FLOOR_MEASURED_ON = "mitsuba 3.9.1, llvm_ad_rgb, sunsky albedo 0.3, sun_aperture 0.5358, complex_sun false"
 
 # fmt: off
 #: (turbidity lo, turbidity hi, floor in degrees): over every turbidity in the

@@ -35,8 +35,10 @@ def _files(root: Path) -> dict[str, Path]:
 
 def _snapshot(root: Path) -> dict[str, tuple]:
     """Every file with its bytes' hash, size and modification time."""
-    return {rel: (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_size, p.stat().st_mtime_ns)
-            for rel, p in _files(root).items()}
+    return {
+        rel: (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_size, p.stat().st_mtime_ns)
+        for rel, p in _files(root).items()
+    }
 
 
 def _diff_paths(a, b, prefix="") -> set[str]:
@@ -142,12 +144,15 @@ def _smoke_with(**changes) -> str:
     return "\n".join(lines) + "\n"
 
 
-@pytest.mark.parametrize("key, value, field, allowed", [
-    ("spp", "0", "render.spp", "an integer from 1 to 65536"),
-    ("resolution", "8", "render.resolution", "an integer from 16 to 4096"),
-    ("turbidity", "[0.5, 3.0]", "lighting.turbidity", "1 <= lo <= hi <= 10"),
-    ("compression", '"lzma"', "storage.compression", '"zip"'),
-])
+@pytest.mark.parametrize(
+    "key, value, field, allowed",
+    [
+        ("spp", "0", "render.spp", "an integer from 1 to 65536"),
+        ("resolution", "8", "render.resolution", "an integer from 16 to 4096"),
+        ("turbidity", "[0.5, 3.0]", "lighting.turbidity", "1 <= lo <= hi <= 10"),
+        ("compression", '"lzma"', "storage.compression", '"zip"'),
+    ],
+)
 def test_bad_spec_field_exits_2_naming_it_and_writes_nothing(tmp_path, key, value, field, allowed):
     spec = _write(tmp_path / "bad.toml", _smoke_with(**{key: value}))
     out = tmp_path / "new" / "dataset"

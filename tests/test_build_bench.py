@@ -34,12 +34,15 @@ def test_derive_spec_cuts_whole_materials_and_resizes():
     assert derive_spec(paper) == paper
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--samples", "0"], "--samples: 0 is not allowed; allowed: an integer from 1 to 1000000"),
-    (["--spp", "0"], "--spp: 0 is not allowed"),
-    (["--resolution", "9"], "--resolution: 9 is not allowed; allowed: an integer from 16 to 4096"),
-    (["--workers", "-1"], "--workers: -1 is not allowed"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--samples", "0"], "--samples: 0 is not allowed; allowed: an integer from 1 to 1000000"),
+        (["--spp", "0"], "--spp: 0 is not allowed"),
+        (["--resolution", "9"], "--resolution: 9 is not allowed; allowed: an integer from 16 to 4096"),
+        (["--workers", "-1"], "--workers: -1 is not allowed"),
+    ],
+)
 def test_bench_bad_options_exit_2(args, message):
     result = _cli("bench", SMOKE, *args)
     assert result.exit_code == 2 and message in result.output, result.output
@@ -86,8 +89,13 @@ def test_effects_bench_reports_every_omission(tmp_path):
 
     bench = run_from_args(effects=True, resolution=64, spp=4, repeats=1, json_path=str(tmp_path / "e.json"))
     cases = {c.omission: c for c in bench.cases}
-    assert set(cases) == {"textured -> constant", "normal map -> none", "both -> constant, none",
-                          "diffuse lobe -> none", "specular lobe -> none"}
+    assert set(cases) == {
+        "textured -> constant",
+        "normal map -> none",
+        "both -> constant, none",
+        "diffuse lobe -> none",
+        "specular lobe -> none",
+    }
     for case in bench.cases:
         c = case.comparison
         if case.applied:
@@ -120,8 +128,12 @@ def test_a_scene_moved_to_a_light_renders_the_bytes_of_a_scene_loaded_for_it(mi)
     from pipeline.render.renderer import MaterialScene, RenderSettings, scene_dict
     from sky import Light
 
-    lights = [Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
-              for shard in plan_dataset(parse_spec(SMOKE)) for m in shard.materials for s in m.samples]
+    lights = [
+        Light(s.elevation_deg, s.azimuth_deg, s.turbidity)
+        for shard in plan_dataset(parse_spec(SMOKE))
+        for m in shard.materials
+        for s in m.samples
+    ]
     off_by_rounding = 0
     for light in lights:
         entries, _ = emitter_dicts(light, variant=VARIANT)
@@ -179,8 +191,7 @@ def test_a_single_pass_is_the_pass_the_power_of_two_plan_renders_for_a_power_of_
 
     settings = RenderSettings(resolution=32, spp=8, variant=VARIANT).check()
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
-    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0),
-                                     settings)[0])
+    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0), settings)[0])
     one = render_in_passes(mi, scene, 8, 5, [8])
     raw = np.asarray(mi.render(scene, spp=8, seed=pass_seed(5, 0)), dtype=np.float64)
     assert np.array_equal(one, raw * 8 / 8) and np.array_equal(one, render_in_passes(mi, scene, 8, 5))
@@ -208,8 +219,7 @@ def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts
 
     settings = RenderSettings(resolution=64, spp=150, variant=VARIANT).check()
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
-    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0),
-                                     settings)[0])
+    scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0), settings)[0])
     threads = dr.thread_count()
     try:
         dr.set_thread_count(2)

@@ -33,9 +33,15 @@ crash = crash_module()
 
 
 def _start(cmd: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:
-    return subprocess.Popen(cmd, cwd=REPO, stdin=subprocess.DEVNULL, stdout=open(log, "ab"),
-                            stderr=subprocess.STDOUT, start_new_session=True,
-                            env=dict(os.environ, **(env or {})))
+    return subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        stdout=open(log, "ab"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        env=dict(os.environ, **(env or {})),
+    )
 
 
 @pytest.fixture
@@ -46,8 +52,22 @@ def dask_cluster(tmp_path):
     scheduler_file = tmp_path / "scheduler.json"
     procs = []
     try:
-        procs.append(_start([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                             "--scheduler-file", str(scheduler_file)], tmp_path / "scheduler.log"))
+        procs.append(
+            _start(
+                [
+                    DASK,
+                    "scheduler",
+                    "--host",
+                    "127.0.0.1",
+                    "--port",
+                    "0",
+                    "--no-dashboard",
+                    "--scheduler-file",
+                    str(scheduler_file),
+                ],
+                tmp_path / "scheduler.log",
+            )
+        )
         deadline = time.monotonic() + 60
         while not scheduler_file.exists() or not scheduler_file.read_text().strip():
             assert time.monotonic() < deadline, (tmp_path / "scheduler.log").read_text()
@@ -55,10 +75,29 @@ def dask_cluster(tmp_path):
             time.sleep(0.1)
         address = json.loads(scheduler_file.read_text())["address"]
         for i in range(2):
-            procs.append(_start([DASK, "worker", "--scheduler-file", str(scheduler_file), "--host", "127.0.0.1",
-                                 "--nthreads", "1", "--no-dashboard", "--memory-limit", "4GiB",
-                                 "--death-timeout", "60", "--name", f"w{i}"],
-                                tmp_path / f"worker{i}.log", env={"SHADERBALL_RENDER_THREADS": "1"}))
+            procs.append(
+                _start(
+                    [
+                        DASK,
+                        "worker",
+                        "--scheduler-file",
+                        str(scheduler_file),
+                        "--host",
+                        "127.0.0.1",
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--memory-limit",
+                        "4GiB",
+                        "--death-timeout",
+                        "60",
+                        "--name",
+                        f"w{i}",
+                    ],
+                    tmp_path / f"worker{i}.log",
+                    env={"SHADERBALL_RENDER_THREADS": "1"},
+                )
+            )
         with Client(address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=120)
         yield address, procs
@@ -75,8 +114,11 @@ def _shard_in_progress(out: Path, client) -> tuple[str, str] | None:
             if not match:
                 continue
             folder = out / "shards" / match[1]
-            if folder.is_dir() and not (folder / "COMPLETE.json").exists() and \
-                    any(re.fullmatch(r"m\d+_l\d+\.json", n) for n in os.listdir(folder)):
+            if (
+                folder.is_dir()
+                and not (folder / "COMPLETE.json").exists()
+                and any(re.fullmatch(r"m\d+_l\d+\.json", n) for n in os.listdir(folder))
+            ):
                 return worker, match[1]
     return None
 
@@ -87,8 +129,20 @@ def test_build_on_a_scheduler_survives_a_worker_killed_mid_shard(tmp_path, refer
 
     address, _procs = dask_cluster
     out = tmp_path / "ds"
-    build = _start([sys.executable, "-c", "import cli; cli.main()", "build", str(SMOKE), "--out", str(out),
-                    "--scheduler", address], tmp_path / "build.log")
+    build = _start(
+        [
+            sys.executable,
+            "-c",
+            "import cli; cli.main()",
+            "build",
+            str(SMOKE),
+            "--out",
+            str(out),
+            "--scheduler",
+            address,
+        ],
+        tmp_path / "build.log",
+    )
     try:
         with Client(address, timeout="30s") as client:
             deadline = time.monotonic() + 240

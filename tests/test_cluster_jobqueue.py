@@ -24,16 +24,25 @@ pytest.importorskip("dask_jobqueue")
 
 BACKENDS = {
     # kind: (cores directive, memory directive, walltime directive, queue, account)
-    "slurm": ("#SBATCH --cpus-per-task=32", "#SBATCH --mem=64G", "#SBATCH -t 12:00:00",
-              "#SBATCH -p render", "#SBATCH -A vision"),
-    "pbs": ("#PBS -l select=1:ncpus=32:mem=64GB", "#PBS -l select=1:ncpus=32:mem=64GB",
-            "#PBS -l walltime=12:00:00", "#PBS -q render", "#PBS -A vision"),
+    "slurm": (
+        "#SBATCH --cpus-per-task=32",
+        "#SBATCH --mem=64G",
+        "#SBATCH -t 12:00:00",
+        "#SBATCH -p render",
+        "#SBATCH -A vision",
+    ),
+    "pbs": (
+        "#PBS -l select=1:ncpus=32:mem=64GB",
+        "#PBS -l select=1:ncpus=32:mem=64GB",
+        "#PBS -l walltime=12:00:00",
+        "#PBS -q render",
+        "#PBS -A vision",
+    ),
 }
 
 
 def _options(kind: str, **changes) -> ClusterOptions:
-    base = dict(kind=kind, jobs=100, cores=32, memory="64GiB", walltime="12:00:00", queue="render",
-                account="vision")
+    base = dict(kind=kind, jobs=100, cores=32, memory="64GiB", walltime="12:00:00", queue="render", account="vision")
     base.update(changes)
     return ClusterOptions(**base)
 
@@ -99,31 +108,43 @@ def test_user_prologue_from_dask_config_comes_first():
     assert script.index("module load llvm/19") < script.index("export DRJIT_CACHE_DIR")
 
 
-@pytest.mark.parametrize("changes,message", [
-    ({"memory": None}, "--memory: required with --cluster slurm; for example: --memory 64GiB"),
-    ({"cores": None}, "--cores: required with --cluster slurm; for example: --cores 32"),
-    ({"walltime": None}, "--walltime: required"),
-    ({"walltime": "12h"}, "--walltime: '12h' is not allowed; allowed: HH:MM:SS from 00:01:00"),
-    ({"walltime": "00:00:59"}, "--walltime: '00:00:59' is not allowed"),
-    ({"start_timeout": 9}, r"--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
-    ({"memory": "lots"}, "--memory: 'lots' is not allowed; allowed: an amount from 256MiB to 64TiB"),
-    ({"memory": "100MB"}, "--memory: '100MB' is not allowed"),
-    ({"cores": 0}, r"--cores: 0 is not allowed; allowed: an integer from 1 to 1024"),
-    ({"jobs": 0}, r"--jobs: 0 is not allowed; allowed: an integer from 1 to 10000"),
-    ({"queue": "a b"}, "--queue: 'a b' is not allowed"),
-    ({"account": "x;rm"}, "--account: 'x;rm' is not allowed"),
-    ({"scratch": "/tmp/a b"}, "--scratch: '/tmp/a b' is not allowed"),
-    ({"workers": 4}, "--workers: not allowed with --cluster slurm; use --jobs"),
-    ({"scheduler": "tcp://h:1"}, "--scheduler: not allowed with --cluster slurm"),
-    ({"recycle_after": -1}, r"--recycle-after: -1 is not allowed; allowed: an integer from 0 to 10000000"),
-])
+@pytest.mark.parametrize(
+    "changes,message",
+    [
+        ({"memory": None}, "--memory: required with --cluster slurm; for example: --memory 64GiB"),
+        ({"cores": None}, "--cores: required with --cluster slurm; for example: --cores 32"),
+        ({"walltime": None}, "--walltime: required"),
+        ({"walltime": "12h"}, "--walltime: '12h' is not allowed; allowed: HH:MM:SS from 00:01:00"),
+        ({"walltime": "00:00:59"}, "--walltime: '00:00:59' is not allowed"),
+        ({"start_timeout": 9}, r"--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
+        ({"memory": "lots"}, "--memory: 'lots' is not allowed; allowed: an amount from 256MiB to 64TiB"),
+        ({"memory": "100MB"}, "--memory: '100MB' is not allowed"),
+        ({"cores": 0}, r"--cores: 0 is not allowed; allowed: an integer from 1 to 1024"),
+        ({"jobs": 0}, r"--jobs: 0 is not allowed; allowed: an integer from 1 to 10000"),
+        ({"queue": "a b"}, "--queue: 'a b' is not allowed"),
+        ({"account": "x;rm"}, "--account: 'x;rm' is not allowed"),
+        ({"scratch": "/tmp/a b"}, "--scratch: '/tmp/a b' is not allowed"),
+        ({"workers": 4}, "--workers: not allowed with --cluster slurm; use --jobs"),
+        ({"scheduler": "tcp://h:1"}, "--scheduler: not allowed with --cluster slurm"),
+        ({"recycle_after": -1}, r"--recycle-after: -1 is not allowed; allowed: an integer from 0 to 10000000"),
+    ],
+)
 def test_bad_options_name_option_value_and_range(changes, message):
     with pytest.raises(ShaderballError, match=message):
         _options("slurm", **changes).check()
 
 
-@pytest.mark.parametrize("option", [["--jobs", "2"], ["--cores", "8"], ["--walltime", "01:00:00"],
-                                    ["--queue", "q"], ["--account", "a"], ["--scratch", "/s"]])
+@pytest.mark.parametrize(
+    "option",
+    [
+        ["--jobs", "2"],
+        ["--cores", "8"],
+        ["--walltime", "01:00:00"],
+        ["--queue", "q"],
+        ["--account", "a"],
+        ["--scratch", "/s"],
+    ],
+)
 def test_jobqueue_options_are_refused_on_a_local_cluster(option):
     from pipeline.run.cluster import ClusterOptions
 
@@ -139,8 +160,10 @@ def test_worker_lifetime_leaves_a_margin():
     assert worker_lifetime("00:15:00") == (600, 150)
 
 
-@pytest.mark.parametrize("walltime,expected", [("00:01:00", (30, 15)), ("00:02:00", (60, 30)),
-                                               ("00:09:00", (270, 135)), ("00:10:00", (300, 150))])
+@pytest.mark.parametrize(
+    "walltime,expected",
+    [("00:01:00", (30, 15)), ("00:02:00", (60, 30)), ("00:09:00", (270, 135)), ("00:10:00", (300, 150))],
+)
 def test_short_walltimes_retire_workers_in_the_second_half(walltime, expected):
     """dask staggers a lifetime by +-stagger: a worker retires 0.5 to 1.5 margins before the end."""
     lifetime, stagger = worker_lifetime(walltime)
@@ -156,8 +179,22 @@ def _cli(args, tmp_path):
 
 
 def test_cli_prints_the_job_script_and_writes_nothing(tmp_path):
-    result = _cli(["--cluster", "pbs", "--jobs", "100", "--cores", "32", "--memory", "64GiB",
-                   "--walltime", "12:00:00", "--print-job-script"], tmp_path)
+    result = _cli(
+        [
+            "--cluster",
+            "pbs",
+            "--jobs",
+            "100",
+            "--cores",
+            "32",
+            "--memory",
+            "64GiB",
+            "--walltime",
+            "12:00:00",
+            "--print-job-script",
+        ],
+        tmp_path,
+    )
     assert result.exit_code == 0, result.output
     assert result.output.startswith("#!/usr/bin/env bash") and "#PBS -l walltime=12:00:00" in result.output
     assert not (tmp_path / "ds").exists()
@@ -202,12 +239,34 @@ def test_slurm_build_runs_its_job_scripts_end_to_end(tmp_path):
     for name, text in (("sbatch", FAKE_SBATCH), ("scancel", FAKE_SCANCEL)):
         (bin_dir / name).write_text(text)
         (bin_dir / name).chmod(0o755)
-    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", FAKE_SLURM_DIR=str(slurm_dir),
-               DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}')
+    env = dict(
+        os.environ,
+        PATH=f"{bin_dir}:{os.environ['PATH']}",
+        FAKE_SLURM_DIR=str(slurm_dir),
+        DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}',
+    )
     out = tmp_path / "ds"
-    cmd = [sys.executable, "-c", "import cli; cli.main()", "build", "manifests/smoke.toml", "--out", str(out),
-           "--cluster", "slurm", "--jobs", "2", "--cores", "1", "--memory", "2GiB", "--walltime", "00:30:00",
-           "--scratch", str(scratch)]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import cli; cli.main()",
+        "build",
+        "manifests/smoke.toml",
+        "--out",
+        str(out),
+        "--cluster",
+        "slurm",
+        "--jobs",
+        "2",
+        "--cores",
+        "1",
+        "--memory",
+        "2GiB",
+        "--walltime",
+        "00:30:00",
+        "--scratch",
+        str(scratch),
+    ]
     try:
         result = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=400)
     finally:

@@ -52,15 +52,21 @@ def _slurm(**changes) -> ClusterOptions:
 
 def _jobqueue(*job_ids, refusals=()):
     """What WorkerWatch reads of a dask-jobqueue cluster: its jobs' ids and its job class."""
-    return SimpleNamespace(workers={f"w{i}": SimpleNamespace(job_id=j) for i, j in enumerate(job_ids)},
-                           job_cls=SimpleNamespace(refusals=list(refusals)))
+    return SimpleNamespace(
+        workers={f"w{i}": SimpleNamespace(job_id=j) for i, j in enumerate(job_ids)},
+        job_cls=SimpleNamespace(refusals=list(refusals)),
+    )
 
 
 def _watch(workers, states, options=None, jobqueue=None, clock=None):
     counts = iter(workers) if isinstance(workers, list) else None
-    return WorkerWatch((lambda: next(counts)) if counts else (lambda: workers), options or _slurm(),
-                       jobqueue if jobqueue is not None else _jobqueue("7", "8"), clock=clock or Clock(),
-                       job_states=lambda ids: [s for s in states if s.job_id in ids])
+    return WorkerWatch(
+        (lambda: next(counts)) if counts else (lambda: workers),
+        options or _slurm(),
+        jobqueue if jobqueue is not None else _jobqueue("7", "8"),
+        clock=clock or Clock(),
+        job_states=lambda ids: [s for s in states if s.job_id in ids],
+    )
 
 
 PENDING = [JobState("7", "PENDING", "PartitionDown"), JobState("8", "PENDING", "PartitionDown")]
@@ -93,7 +99,8 @@ def test_the_start_timeout_stops_with_the_jobs_and_their_reasons():
         "--start-timeout 30: no worker for 30 s since the build started; slurm jobs: 2 pending (job 7: "
         "PartitionDown, the partition is down; job 8: PartitionDown, the partition is down). The jobs are "
         "cancelled; what was rendered is kept: run the same command again to resume (a larger "
-        "--start-timeout waits longer)")
+        "--start-timeout waits longer)"
+    )
 
 
 def test_the_clock_runs_only_while_there_is_no_worker():
@@ -114,7 +121,7 @@ def test_the_clock_runs_only_while_there_is_no_worker():
 def test_no_start_timeout_waits_for_ever():
     clock = Clock()
     watch = _watch(0, PENDING, options=_slurm(start_timeout=None), clock=clock)
-    clock.now += 10 ** 7
+    clock.now += 10**7
     watch.poll()
     watch.check()
     assert watch.status().startswith("0 worker(s); slurm jobs: 2 pending (job 7: PartitionDown")
@@ -124,13 +131,19 @@ def test_a_refused_job_stops_the_build_at_once():
     refusal = _refusal_text(
         "Command exited with non-zero exit code.\nExit code: 1\nCommand:\nsbatch /tmp/tmpab12cd.sh\nstdout:\n\n"
         "stderr:\nsbatch: error: invalid partition specified: nosuch\nsbatch: error: Batch job submission "
-        "failed: Invalid partition name specified\n\n")
-    assert refusal == ("`sbatch JOB-SCRIPT` exited 1: sbatch: error: invalid partition specified: nosuch / "
-                       "sbatch: error: Batch job submission failed: Invalid partition name specified")
+        "failed: Invalid partition name specified\n\n"
+    )
+    assert refusal == (
+        "`sbatch JOB-SCRIPT` exited 1: sbatch: error: invalid partition specified: nosuch / "
+        "sbatch: error: Batch job submission failed: Invalid partition name specified"
+    )
     watch = _watch(0, [], jobqueue=_jobqueue(refusals=[refusal]))
     watch.poll()
-    with pytest.raises(ShaderballError, match=r"^--cluster slurm: the batch system refused a job: `sbatch "
-                                              r"JOB-SCRIPT` exited 1: sbatch: error: invalid partition"):
+    with pytest.raises(
+        ShaderballError,
+        match=r"^--cluster slurm: the batch system refused a job: `sbatch "
+        r"JOB-SCRIPT` exited 1: sbatch: error: invalid partition",
+    ):
         watch.check()
 
 
@@ -141,13 +154,20 @@ def test_a_failing_squeue_is_shown_not_fatal():
     watch = WorkerWatch(lambda: 1, _slurm(), _jobqueue("7"), clock=Clock(), job_states=broken)
     watch.poll()
     watch.check()
-    assert watch.status() == ("1 worker(s); slurm jobs unknown: `squeue --noheader` exited 1: slurm_load_jobs "
-                              "error: Unable to contact slurm controller")
+    assert watch.status() == (
+        "1 worker(s); slurm jobs unknown: `squeue --noheader` exited 1: slurm_load_jobs "
+        "error: Unable to contact slurm controller"
+    )
 
 
 def test_pbs_jobs_are_counted_without_reasons():
-    watch = WorkerWatch(lambda: 0, _slurm(kind="pbs"), _jobqueue("12.pbs"), clock=Clock(),
-                        job_states=lambda ids: pytest.fail("no squeue for PBS"))
+    watch = WorkerWatch(
+        lambda: 0,
+        _slurm(kind="pbs"),
+        _jobqueue("12.pbs"),
+        clock=Clock(),
+        job_states=lambda ids: pytest.fail("no squeue for PBS"),
+    )
     watch.poll()
     assert watch.status() == "0 worker(s); pbs jobs: 1 submitted"
 
@@ -160,16 +180,22 @@ def test_a_local_cluster_says_nothing_while_it_has_workers():
 
 def test_describe_jobs_keeps_the_line_short():
     states = [JobState(str(i), "PENDING", "Priority") for i in range(5)] + [JobState("9", "RUNNING")]
-    assert describe_jobs("slurm", states) == ("slurm jobs: 1 running, 5 pending (job 0: Priority; job 1: Priority; "
-                                              "job 2: Priority; and 2 more)")
+    assert describe_jobs("slurm", states) == (
+        "slurm jobs: 1 running, 5 pending (job 0: Priority; job 1: Priority; job 2: Priority; and 2 more)"
+    )
     assert describe_jobs("slurm", []) == "slurm jobs: none in the queue"
 
 
-@pytest.mark.parametrize("changes,message", [
-    ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
-    ({"kind": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
-     "--start-timeout: not allowed with --workers 0"),
-])
+@pytest.mark.parametrize(
+    "changes,message",
+    [
+        ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
+        (
+            {"kind": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
+            "--start-timeout: not allowed with --workers 0",
+        ),
+    ],
+)
 def test_bad_start_timeouts(changes, message):
     base = dict(kind="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
     base.update(changes)
@@ -183,14 +209,21 @@ def _stand_in(folder: Path, name: str, text: str) -> None:
 
 
 def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):
-    _stand_in(tmp_path, "squeue", 'echo "$@" > "$(dirname "$0")/args"\n'
-                                  "printf '7|PENDING|PartitionDown\\n8|RUNNING|None\\n99|PENDING|Priority\\n'\n")
+    _stand_in(
+        tmp_path,
+        "squeue",
+        'echo "$@" > "$(dirname "$0")/args"\n'
+        "printf '7|PENDING|PartitionDown\\n8|RUNNING|None\\n99|PENDING|Priority\\n'\n",
+    )
     monkeypatch.setenv("PATH", f"{tmp_path}:{os.environ['PATH']}")
     assert slurm_job_states(["7", "8"]) == [JobState("7", "PENDING", "PartitionDown"), JobState("8", "RUNNING")]
     assert (tmp_path / "args").read_text().split() == ["--noheader", "--format=%i|%T|%r", f"--user={os.getuid()}"]
     _stand_in(tmp_path, "squeue", "echo 'squeue: error: Unable to contact slurm controller' >&2; exit 1\n")
-    with pytest.raises(ShaderballError, match=r"squeue --noheader --format=%i\|%T\|%r --user=\d+` exited 1: "
-                                              r"squeue: error: Unable to contact slurm controller"):
+    with pytest.raises(
+        ShaderballError,
+        match=r"squeue --noheader --format=%i\|%T\|%r --user=\d+` exited 1: "
+        r"squeue: error: Unable to contact slurm controller",
+    ):
         slurm_job_states(["7"])
 
 
@@ -217,20 +250,44 @@ def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
     for name, text in (("sbatch", PENDING_SBATCH), ("squeue", PENDING_SQUEUE), ("scancel", PENDING_SCANCEL)):
         _stand_in(bin_dir, name, text)
     (tmp_path / "queue").touch()
-    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", FAKE_SLURM_DIR=str(tmp_path),
-               DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}')
+    env = dict(
+        os.environ,
+        PATH=f"{bin_dir}:{os.environ['PATH']}",
+        FAKE_SLURM_DIR=str(tmp_path),
+        DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}',
+    )
     out = tmp_path / "ds"
-    cmd = [sys.executable, "-c", "import cli; cli.main()", "build", "manifests/smoke.toml", "--out", str(out),
-           "--cluster", "slurm", "--jobs", "2", "--cores", "2", "--memory", "2GiB", "--walltime", "00:30:00",
-           "--start-timeout", "10"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import cli; cli.main()",
+        "build",
+        "manifests/smoke.toml",
+        "--out",
+        str(out),
+        "--cluster",
+        "slurm",
+        "--jobs",
+        "2",
+        "--cores",
+        "2",
+        "--memory",
+        "2GiB",
+        "--walltime",
+        "00:30:00",
+        "--start-timeout",
+        "10",
+    ]
     start = time.monotonic()
     result = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
     seconds = time.monotonic() - start
     assert result.returncode == 2, result.stdout + result.stderr
     assert "| 0 worker(s); slurm jobs: 2 pending (job 101: PartitionDown; job 102: PartitionDown)" in result.stderr
-    assert ("error: --start-timeout 10: no worker for 10 s since the build started; slurm jobs: 2 pending (job "
-            "101: PartitionDown, the partition is down; job 102: PartitionDown, the partition is down). The jobs "
-            "are cancelled; what was rendered is kept") in result.stderr, result.stderr
+    assert (
+        "error: --start-timeout 10: no worker for 10 s since the build started; slurm jobs: 2 pending (job "
+        "101: PartitionDown, the partition is down; job 102: PartitionDown, the partition is down). The jobs "
+        "are cancelled; what was rendered is kept"
+    ) in result.stderr, result.stderr
     assert seconds < 40, seconds
     assert (tmp_path / "queue").read_text().split() == []  # both cancelled
     assert sorted((tmp_path / "cancelled").read_text().split()) == ["101", "102"]
@@ -241,24 +298,52 @@ def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
 def test_a_scheduler_without_workers_stops_at_the_start_timeout(tmp_path):
     dask = str(Path(sys.executable).with_name("dask"))
     scheduler_file = tmp_path / "scheduler.json"
-    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                                  "--scheduler-file", str(scheduler_file)], cwd=tmp_path, stdin=subprocess.DEVNULL,
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    scheduler = subprocess.Popen(
+        [
+            dask,
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-dashboard",
+            "--scheduler-file",
+            str(scheduler_file),
+        ],
+        cwd=tmp_path,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while not scheduler_file.exists() or not scheduler_file.read_text().strip():
             assert time.monotonic() < deadline and scheduler.poll() is None, "dask scheduler did not start"
             time.sleep(0.1)
         address = json.loads(scheduler_file.read_text())["address"]
-        cmd = [sys.executable, "-c", "import cli; cli.main()", "build", "manifests/smoke.toml", "--out",
-               str(tmp_path / "ds"), "--scheduler", address, "--start-timeout", "10"]
+        cmd = [
+            sys.executable,
+            "-c",
+            "import cli; cli.main()",
+            "build",
+            "manifests/smoke.toml",
+            "--out",
+            str(tmp_path / "ds"),
+            "--scheduler",
+            address,
+            "--start-timeout",
+            "10",
+        ]
         result = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     finally:
         crash.kill_group(scheduler)
     assert result.returncode == 2, result.stdout + result.stderr
     assert "| waiting for a worker (none connected)" in result.stderr
-    assert ("error: --start-timeout 10: no worker for 10 s since the build started; the scheduler has no worker. "
-            "What was rendered is kept: run the same command again to resume") in result.stderr, result.stderr
+    assert (
+        "error: --start-timeout 10: no worker for 10 s since the build started; the scheduler has no worker. "
+        "What was rendered is kept: run the same command again to resume"
+    ) in result.stderr, result.stderr
 
 
 @pytest.mark.slow

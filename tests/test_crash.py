@@ -21,24 +21,24 @@ crash = crash_module()
 #: Kill points chosen to cover every kind of write at every phase, in a first trial that
 #: starts in an empty directory; random kills follow until there are 20.
 PLAN = [
-    ("write", "spec:1:rename"),          # only a temp file exists: the next run starts anew
+    ("write", "spec:1:rename"),  # only a temp file exists: the next run starts anew
     ("write", "description:1:write"),
-    ("write", "exr:1:write"),            # half an EXR in a temp file
-    ("dask", 3.0),                       # 3 s after a local dask cluster's 2 workers exist
+    ("write", "exr:1:write"),  # half an EXR in a temp file
+    ("dask", 3.0),  # 3 s after a local dask cluster's 2 workers exist
     ("write", "exr:2:fsync"),
-    ("write", "record:1:renamed"),       # record durable, marker not yet
-    ("write", "exr:3:rename"),           # whole EXR in a temp file, not renamed
+    ("write", "record:1:renamed"),  # record durable, marker not yet
+    ("write", "exr:3:rename"),  # whole EXR in a temp file, not renamed
     ("timer", 4.0),
     ("write", "marker:1:write"),
     ("write", "record:1:write"),
     ("write", "marker:1:renamed"),
     ("write", "exr:2:renamed"),
     ("write", "record:2:fsync"),
-    ("write", "manifest:1:write"),       # every shard done, manifest half written
+    ("write", "manifest:1:write"),  # every shard done, manifest half written
     ("write", "manifest:1:rename"),
-    ("none", None),                      # completes the first trial
-    ("write", "spec:1:write"),           # a fresh trial: killed inside its first write
-    ("dask", 2.0),                       # all the work still to do
+    ("none", None),  # completes the first trial
+    ("write", "spec:1:write"),  # a fresh trial: killed inside its first write
+    ("dask", 2.0),  # all the work still to do
     ("timer", 6.0),
     ("write", "exr:5:write"),
     ("write", "marker:1:fsync"),
@@ -53,8 +53,15 @@ def reference(tmp_path_factory):
 @pytest.mark.slow
 def test_twenty_kills_lose_and_duplicate_nothing(tmp_path, reference):
     ref_dir, ref_seconds = reference
-    result = crash.run_campaign(20, tmp_path, ref_dir, plan=PLAN, seed=1, reference_seconds=ref_seconds,
-                                log=lambda line: print(line, flush=True))
+    result = crash.run_campaign(
+        20,
+        tmp_path,
+        ref_dir,
+        plan=PLAN,
+        seed=1,
+        reference_seconds=ref_seconds,
+        log=lambda line: print(line, flush=True),
+    )
     assert result.kills >= 20
     assert result.trials_completed >= 2
     killed_writes = {k.split("@")[0] for k in result.write_kinds()}

@@ -42,8 +42,9 @@ def _copy(reference: Path, tmp_path: Path, guarantee: str | None = None) -> Path
 
 def _files(root: Path) -> dict[str, tuple[int, int]]:
     """(inode, mtime) of every file: a rewrite, even of the same bytes, changes one of them."""
-    return {p.relative_to(root).as_posix(): (p.stat().st_ino, p.stat().st_mtime_ns)
-            for p in root.rglob("*") if p.is_file()}
+    return {
+        p.relative_to(root).as_posix(): (p.stat().st_ino, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()
+    }
 
 
 def _sha(path: Path) -> str:
@@ -59,9 +60,11 @@ def _every_copy(root: Path, sample_id: str) -> list[dict]:
     shard = root / SHARD
     marker = json.loads((shard / "COMPLETE.json").read_text())
     manifest = [json.loads(line) for line in (root / "manifest.jsonl").read_text().splitlines()]
-    return [json.loads((shard / f"{sample_id}.json").read_text()),
-            next(r for r in marker["records"] if r["id"] == sample_id),
-            next(r for r in manifest if r["id"] == sample_id)]
+    return [
+        json.loads((shard / f"{sample_id}.json").read_text()),
+        next(r for r in marker["records"] if r["id"] == sample_id),
+        next(r for r in manifest if r["id"] == sample_id),
+    ]
 
 
 def _give_lost_copy_another_digest(root: Path, sample_id: str) -> None:
@@ -81,7 +84,8 @@ def _give_lost_copy_another_digest(root: Path, sample_id: str) -> None:
     (shard / "COMPLETE.json").write_text(json.dumps(marker))
     lines = [json.loads(line) for line in (root / "manifest.jsonl").read_text().splitlines()]
     (root / "manifest.jsonl").write_text(
-        "".join(json.dumps(fake(r) if r["id"] == sample_id else r) + "\n" for r in lines))
+        "".join(json.dumps(fake(r) if r["id"] == sample_id else r) + "\n" for r in lines)
+    )
 
 
 def test_dataset_json_records_the_variant_and_its_guarantee(reference):
@@ -119,7 +123,11 @@ def test_a_resume_of_a_within_noise_dataset_rewrites_nothing_that_verifies(tmp_p
     rewritten = {rel for rel in before if after.get(rel) != before[rel]}
     assert rewritten == {"dataset.json", f"{SHARD}/{LOST}.json"}, rewritten
     assert {rel for rel in after if rel not in before} == {
-        "manifest.jsonl", f"{SHARD}/COMPLETE.json", f"{SHARD}/{LOST}.render.exr", f"{SHARD}/m000003.maps.exr"}
+        "manifest.jsonl",
+        f"{SHARD}/COMPLETE.json",
+        f"{SHARD}/{LOST}.render.exr",
+        f"{SHARD}/m000003.maps.exr",
+    }
     assert _sha(shard / "m000003.maps.exr") == _sha(reference / SHARD / "m000003.maps.exr")
     description = json.loads((out / "dataset.json").read_text())
     assert description["determinism"]["guarantee"] == WITHIN_NOISE  # the renders kept promise no more
@@ -147,11 +155,18 @@ def test_a_repaired_render_that_differs_from_the_lost_copy_is_recorded_everywher
     if guarantee == WITHIN_NOISE:
         assert "a new render, not the lost copy's bytes (within-noise dataset" in rerender.message
     else:
-        assert "differ from the lost copy's recorded SHA-256 although this dataset's re-renders are " \
-               "byte-identical" in rerender.message
+        assert (
+            "differ from the lost copy's recorded SHA-256 although this dataset's re-renders are "
+            "byte-identical" in rerender.message
+        )
     changed = {rel for rel, stamp in _files(out).items() if before.get(rel) != stamp}
-    assert changed == {"dataset.json", "manifest.jsonl", f"{SHARD}/COMPLETE.json", f"{SHARD}/{LOST}.json",
-                       f"{SHARD}/{LOST}.render.exr"}, changed
+    assert changed == {
+        "dataset.json",
+        "manifest.jsonl",
+        f"{SHARD}/COMPLETE.json",
+        f"{SHARD}/{LOST}.json",
+        f"{SHARD}/{LOST}.render.exr",
+    }, changed
 
 
 @pytest.mark.slow
@@ -179,7 +194,8 @@ def test_repair_renders_with_the_recorded_variant_and_refuses_one_it_cannot_use(
     path.write_text(json.dumps(dict(description, variant="cuda_ad_rgb")))
     (out / SHARD / f"{LOST}.render.exr").unlink()
     before = _files(out)
-    with pytest.raises(SetupError, match="rendered with Mitsuba variant cuda_ad_rgb, which cannot be used here.*"
-                                         "nothing was changed"):
+    with pytest.raises(
+        SetupError, match="rendered with Mitsuba variant cuda_ad_rgb, which cannot be used here.*nothing was changed"
+    ):
         repair(str(out))
     assert _files(out) == before

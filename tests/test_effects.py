@@ -88,7 +88,9 @@ def test_no_normal_map_renders_as_a_flat_normal_map(mi, scene_of):
     plain = _render(mi, scene_of(maps))
     from pipeline.render.bsdf import bsdf_dict
 
-    wrapped = _render(mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps, variant=VARIANT), 4, variant=VARIANT)))
+    wrapped = _render(
+        mi, scene_of(maps, bsdf=flat_normal_map_bsdf(bsdf_dict(maps, variant=VARIANT), 4, variant=VARIANT))
+    )
     c = compare_renders(wrapped, plain)
     assert c["identical"] or c["rounding"], c
     assert c["within_noise"], c
@@ -150,8 +152,10 @@ def _svbrdf_maps() -> MaterialMaps:
 
 CASES = {
     "uniform flat": (DIELECTRIC.to_maps(1), dict(textured=False, normal_map=False, diffuse_lobe=True)),
-    "uniform tilted": (UniformMaterial((0.5,) * 3, (0.04,) * 3, 0.5, tilt_normal(15.0, 40.0)).to_maps(1),
-                       dict(textured=False, normal_map=True, diffuse_lobe=True)),
+    "uniform tilted": (
+        UniformMaterial((0.5,) * 3, (0.04,) * 3, 0.5, tilt_normal(15.0, 40.0)).to_maps(1),
+        dict(textured=False, normal_map=True, diffuse_lobe=True),
+    ),
     "metal": (METAL.to_maps(1), dict(textured=False, normal_map=False, diffuse_lobe=False)),
     "no specular": (NO_SPECULAR.to_maps(1), dict(textured=False, normal_map=False, diffuse_lobe=True)),
     "svbrdf": (None, dict(textured=True, normal_map=True, diffuse_lobe=True)),

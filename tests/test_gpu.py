@@ -33,8 +33,10 @@ SMOKE = REPO / "manifests" / "smoke.toml"
 
 pytestmark = [
     pytest.mark.gpu,
-    pytest.mark.skipif(not cuda_works(), reason="needs a CUDA device for Mitsuba's cuda variant: "
-                                                "drjit.has_backend(drjit.JitBackend.CUDA) is false here"),
+    pytest.mark.skipif(
+        not cuda_works(),
+        reason="needs a CUDA device for Mitsuba's cuda variant: drjit.has_backend(drjit.JitBackend.CUDA) is false here",
+    ),
 ]
 
 
@@ -77,8 +79,9 @@ def test_smoke_build_on_cuda(cuda, tmp_path, variant, workers):
 
 def test_render_command_on_cuda(cuda, tmp_path):
     exr = tmp_path / "ball.exr"
-    result = CliRunner().invoke(main, ["render", "--resolution", "64", "--spp", "16", "--variant", "auto",
-                                       "--out", str(exr)])
+    result = CliRunner().invoke(
+        main, ["render", "--resolution", "64", "--spp", "16", "--variant", "auto", "--out", str(exr)]
+    )
     assert result.exit_code == 0, result.output
     image = read_exr(str(exr))
     assert image.meta["lighting"]["emitter"]["variant"] == CUDA_VARIANT
@@ -101,12 +104,25 @@ def test_scene_command_on_cuda(cuda, tmp_path, monkeypatch):
 def test_chi2_sample_matches_pdf_on_cuda(cuda, model, r, theta):
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
-    params = {"type": "shaderball_ct", "diffuse": {"type": "rgb", "value": [0.5] * 3},
-              "specular": {"type": "rgb", "value": [0.5] * 3}, "roughness": r, "model": model}
+    params = {
+        "type": "shaderball_ct",
+        "diffuse": {"type": "rgb", "value": [0.5] * 3},
+        "specular": {"type": "rgb", "value": [0.5] * 3},
+        "roughness": r,
+        "model": model,
+    }
     t = np.radians(theta)
     sample, pdf = BSDFAdapter("shaderball_ct", params, wi=cuda.Vector3f(float(np.sin(t)), 0.0, float(np.cos(t))))
-    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
-                         sample_count=1_000_000, res=101, ires=32, seed=theta + 7)
+    test = ChiSquareTest(
+        domain=SphericalDomain(),
+        sample_func=sample,
+        pdf_func=pdf,
+        sample_dim=3,
+        sample_count=1_000_000,
+        res=101,
+        ires=32,
+        seed=theta + 7,
+    )
     assert test.run(0.01, test_count=6, quiet=True), test.messages
 
 
@@ -138,19 +154,23 @@ def test_cuda_determinism_measured(cuda, tmp_path, record_property):
         build(str(spec), str(root), workers=0)
     a, b = (_render_layers(root) for root in roots)
     assert a.keys() == b.keys() and len(a) == 16
-    equal_bytes = sum(hashlib.sha256((roots[0] / n).read_bytes()).digest() ==
-                      hashlib.sha256((roots[1] / n).read_bytes()).digest()
-                      for n in [p.relative_to(roots[0]) for p in sorted(roots[0].rglob("*.render.exr"))])
+    equal_bytes = sum(
+        hashlib.sha256((roots[0] / n).read_bytes()).digest() == hashlib.sha256((roots[1] / n).read_bytes()).digest()
+        for n in [p.relative_to(roots[0]) for p in sorted(roots[0].rglob("*.render.exr"))]
+    )
     max_rel = max(float(np.max(np.abs(a[n] - b[n])) / max(float(np.max(np.abs(a[n]))), 1e-30)) for n in a)
-    records = {json.loads(line)["id"]: json.loads(line)
-               for line in (roots[0] / "manifest.jsonl").read_text().splitlines()}
+    records = {
+        json.loads(line)["id"]: json.loads(line) for line in (roots[0] / "manifest.jsonl").read_text().splitlines()
+    }
     worst_z = 0.0
     for name in a:
         noise = records[name.removesuffix(".render.exr")]["stats"]["noise_rmse"]
         diff = np.abs(a[name] - b[name]).mean()
         worst_z = max(worst_z, float(diff / max(noise, 1e-30)))
-    print(f"cuda determinism: {equal_bytes}/16 renders byte-equal; max relative difference {max_rel:.3g}; "
-          f"mean |diff| / recorded noise (RMS std error) at most {worst_z:.3g}")
+    print(
+        f"cuda determinism: {equal_bytes}/16 renders byte-equal; max relative difference {max_rel:.3g}; "
+        f"mean |diff| / recorded noise (RMS std error) at most {worst_z:.3g}"
+    )
     record_property("cuda_equal_bytes", equal_bytes)
     record_property("cuda_max_relative_difference", max_rel)
     assert worst_z < Z_LIMIT

@@ -31,8 +31,7 @@ crash = crash_module()
 def invoke(*args):
     result = CliRunner().invoke(main, [str(a) for a in args])
     if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise AssertionError(f"shaderball {' '.join(map(str, args))} raised {result.exception!r}") \
-            from result.exception
+        raise AssertionError(f"shaderball {' '.join(map(str, args))} raised {result.exception!r}") from result.exception
     return result
 
 
@@ -51,8 +50,9 @@ def validate_json(*args) -> tuple[int, list[dict]]:
 
 def cli_process(*args, timeout: float = 60) -> subprocess.CompletedProcess:
     """The CLI in its own process, for inputs that could hang or exhaust memory."""
-    return subprocess.run([sys.executable, "-m", "cli", *map(str, args)], cwd=REPO, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "cli", *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=timeout
+    )
 
 
 def edit_json(path: Path, change) -> None:
@@ -71,16 +71,19 @@ def outside(tmp_path) -> Path:
 
 
 @pytest.mark.slow
-def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_again(
-        tmp_path, reference, outside):
+def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_again(tmp_path, reference, outside):
     """Issue 15: a record's ../../outside.txt was opened by build's resume and written into
     COMPLETE.json and the manifest."""
     ds = copy_dataset(reference, tmp_path / "ds")
     secret = outside / "secret.txt"
     rel = os.path.relpath(secret, ds)  # ../outside/secret.txt
     record = ds / "shards" / "s00003" / "m000007_l1.json"
-    forged = {"role": "render", "path": rel, "bytes": secret.stat().st_size,
-              "sha256": hashlib.sha256(secret.read_bytes()).hexdigest()}  # verifies, if followed
+    forged = {
+        "role": "render",
+        "path": rel,
+        "bytes": secret.stat().st_size,
+        "sha256": hashlib.sha256(secret.read_bytes()).hexdigest(),
+    }  # verifies, if followed
     edit_json(record, lambda r: {**r, "files": [forged] + r["files"][1:]})
     (ds / "shards" / "s00003" / "COMPLETE.json").unlink()
     (ds / "manifest.jsonl").unlink()
@@ -96,16 +99,26 @@ def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_ag
     crash.check_complete(ds, reference)
 
 
-def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_says_so(
-        tmp_path, reference, outside):
+def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_says_so(tmp_path, reference, outside):
     """Issue 15: preview displayed an outside file named in a marker."""
     ds = copy_dataset(reference, tmp_path / "ds")
     picture = outside / "picture.exr"
     shutil.copy(ds / "shards" / "s00001" / "m000002_l0.render.exr", picture)
     marker = ds / "shards" / "s00000" / "COMPLETE.json"
-    edit_json(marker, lambda m: {**m, "records": [{**m["records"][0], "files": [
-        {**m["records"][0]["files"][0], "path": "../../outside/picture.exr"}] + m["records"][0]["files"][1:]}]
-        + m["records"][1:]})
+    edit_json(
+        marker,
+        lambda m: {
+            **m,
+            "records": [
+                {
+                    **m["records"][0],
+                    "files": [{**m["records"][0]["files"][0], "path": "../../outside/picture.exr"}]
+                    + m["records"][0]["files"][1:],
+                }
+            ]
+            + m["records"][1:],
+        },
+    )
     with watch_opens(outside) as watch:
         code, output = cli("preview", ds, "--out", tmp_path / "sheet.png", "--samples", "16")
         assert code == 0, output
@@ -113,19 +126,36 @@ def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_say
         code, output = cli("info", ds)
         assert code == 0 and "NOT READ" in output and "shards/s00000/COMPLETE.json" in output, output
         code, problems = validate_json(ds)
-        assert code == 1 and any(p["path"] == "shards/s00000/COMPLETE.json" and "m000000_l0" in p["message"]
-                                 for p in problems), problems
+        assert code == 1 and any(
+            p["path"] == "shards/s00000/COMPLETE.json" and "m000000_l0" in p["message"] for p in problems
+        ), problems
         assert watch.opened() == []
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("what, spoil", [
-    ("a marker [1]", lambda m: [1]),
-    ("a record without bytes", lambda m: {**m, "records": [
-        {**m["records"][0], "files": [{k: v for k, v in e.items() if k != "bytes"} for e in m["records"][0]["files"]]}]
-        + m["records"][1:]}),
-    ('a record with "files": []', lambda m: {**m, "records": [{**m["records"][0], "files": []}] + m["records"][1:]}),
-])
+@pytest.mark.parametrize(
+    "what, spoil",
+    [
+        ("a marker [1]", lambda m: [1]),
+        (
+            "a record without bytes",
+            lambda m: {
+                **m,
+                "records": [
+                    {
+                        **m["records"][0],
+                        "files": [{k: v for k, v in e.items() if k != "bytes"} for e in m["records"][0]["files"]],
+                    }
+                ]
+                + m["records"][1:],
+            },
+        ),
+        (
+            'a record with "files": []',
+            lambda m: {**m, "records": [{**m["records"][0], "files": []}] + m["records"][1:]},
+        ),
+    ],
+)
 def test_a_malformed_marker_is_reported_and_treated_as_not_done(tmp_path, reference, what, spoil):
     ds = copy_dataset(reference, tmp_path / "ds")
     marker = ds / "shards" / "s00000" / "COMPLETE.json"
@@ -213,8 +243,9 @@ def test_a_shard_folder_that_is_a_symlink_is_not_written_through(tmp_path, refer
         code, output = cli("build", SMOKE, "--out", ds, "--workers", "0")
         assert code == 2 and "\nerror: " in output and "shards/s00003: a symbolic link" in output, output
         code, problems = validate_json(ds)
-        assert code == 1 and any(p["kind"] == "unsafe_path" and p["path"] == "shards/s00003"
-                                 for p in problems), problems
+        assert code == 1 and any(p["kind"] == "unsafe_path" and p["path"] == "shards/s00003" for p in problems), (
+            problems
+        )
         assert watch.opened() == []
     assert snapshot(outside) == before
 
@@ -252,8 +283,12 @@ def test_a_spec_snapshot_that_is_a_fifo_does_not_hang_and_is_refused(tmp_path, r
     ds = copy_dataset(reference, tmp_path / "ds")
     (ds / "spec.toml").unlink()
     os.mkfifo(ds / "spec.toml")
-    for args, code in ((["validate", ds], 1), (["info", ds], 2), (["build", SMOKE, "--out", ds, "--workers", "0"], 2),
-                       (["preview", ds, "--out", tmp_path / "p.png"], 2)):
+    for args, code in (
+        (["validate", ds], 1),
+        (["info", ds], 2),
+        (["build", SMOKE, "--out", ds, "--workers", "0"], 2),
+        (["preview", ds, "--out", tmp_path / "p.png"], 2),
+    ):
         done = cli_process(*args)
         assert done.returncode == code and "Traceback" not in done.stderr, (args, done.stderr)
         assert "spec.toml" in done.stdout + done.stderr and "FIFO" in done.stdout + done.stderr, (args, done)

@@ -30,8 +30,10 @@ SMOKE = REPO / "manifests" / "smoke.toml"
 PAPER = REPO / "manifests" / "paper.toml"
 crash = crash_module()
 #: plan digests of the planner before planning was made lazy (issue 15): the same plans.
-DIGESTS = {SMOKE: "81d165d9c68a04b0fb1e6f3af6fe20d3643d2b5b622de7ee3f837b45b07a5c79",
-           PAPER: "76eae636da2d4fb3fd20c488f7b9d116ae4280edcf65aeb3f43c5569e483dfe1"}
+DIGESTS = {
+    SMOKE: "81d165d9c68a04b0fb1e6f3af6fe20d3643d2b5b622de7ee3f837b45b07a5c79",
+    PAPER: "76eae636da2d4fb3fd20c488f7b9d116ae4280edcf65aeb3f43c5569e483dfe1",
+}
 
 
 def cli(*args) -> list[str]:
@@ -70,7 +72,7 @@ def test_a_utf8_bom_is_accepted_and_a_latin1_byte_is_named():
 
 
 def test_the_duplicate_check_of_a_list_field_is_linear():
-    text = SMOKE.read_text().replace('layers = ["diffuse"', 'layers = [' + '"diffuse", ' * 200_000 + '"diffuse"')
+    text = SMOKE.read_text().replace('layers = ["diffuse"', "layers = [" + '"diffuse", ' * 200_000 + '"diffuse"')
     start = time.perf_counter()
     with pytest.raises(ShaderballError, match=r'\(repeated: "diffuse"\)'):
         parse_spec_bytes(text.encode(), "many.toml")
@@ -105,15 +107,17 @@ def test_a_shard_folder_that_cannot_be_written_is_a_message_and_the_build_resume
     if not _chattr("+i", shard):
         pytest.skip("chattr +i does not work here (needs root and a filesystem with attributes)")
     try:
-        done = subprocess.run(cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True,
-                              text=True, timeout=300)
+        done = subprocess.run(
+            cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True, text=True, timeout=300
+        )
     finally:
         _chattr("-i", shard)
     assert done.returncode == 4, done.stderr
     line = one_error_line(done.stderr)
     assert str(shard) in line and "Operation not permitted (EPERM)" in line and "run the same command again" in line
-    again = subprocess.run(cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True,
-                           text=True, timeout=300)
+    again = subprocess.run(
+        cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True, text=True, timeout=300
+    )
     assert again.returncode == 0, again.stderr
     crash.check_complete(ds, reference)
 
@@ -132,8 +136,9 @@ def test_a_full_disk_is_a_message_and_the_build_resumes(tmp_path, reference):
     line = one_error_line(done.stderr)
     assert "File too large (EFBIG)" in line and str(ds / "shards") in line, line
     assert not list(ds.rglob(".tmp-*")), "a failed write left its temporary file"
-    again = subprocess.run(cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True,
-                           text=True, timeout=300)
+    again = subprocess.run(
+        cli("build", SMOKE, "--out", ds, "--workers", 0), cwd=REPO, capture_output=True, text=True, timeout=300
+    )
     assert again.returncode == 0, again.stderr
     crash.check_complete(ds, reference)
 
@@ -154,8 +159,10 @@ def _bless(ds: Path, rel: str) -> None:
         return record
 
     manifest = ds / "manifest.jsonl"
-    lines = [json.dumps(fix(json.loads(line)), sort_keys=True, separators=(",", ":"))
-             for line in manifest.read_text().splitlines()]
+    lines = [
+        json.dumps(fix(json.loads(line)), sort_keys=True, separators=(",", ":"))
+        for line in manifest.read_text().splitlines()
+    ]
     manifest.write_text("\n".join(lines) + "\n")
     for marker in ds.glob("shards/*/COMPLETE.json"):
         content = json.loads(marker.read_text())
@@ -170,7 +177,7 @@ def _corrupt(data: bytes, how: str) -> bytes:
     if how == "flipped byte in the pixel data":
         b[len(b) * 3 // 4] ^= 0xFF
     elif how == "zeroed pixel chunks":
-        b[len(b) // 2:] = bytes(len(b) - len(b) // 2)
+        b[len(b) // 2 :] = bytes(len(b) - len(b) // 2)
     elif how == "truncated":
         b = b[: len(b) // 2]
     elif how == "broken header":
@@ -199,8 +206,11 @@ def test_validate_json_prints_json_alone_whatever_the_exr_library_prints(tmp_pat
     done = subprocess.run(cli("validate", ds, "--json"), cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
     report = json.loads(done.stdout)  # nothing but the JSON on stdout
-    named = {p["path"] for p in report["problems"] if p["kind"] in ("undecodable", "bad_layers", "non_finite",
-                                                                     "out_of_range", "stats_mismatch")}
+    named = {
+        p["path"]
+        for p in report["problems"]
+        if p["kind"] in ("undecodable", "bad_layers", "non_finite", "out_of_range", "stats_mismatch")
+    }
     assert set(spoiled) <= named, (spoiled, report["problems"])
     assert "Warning" in done.stderr  # what the library said went to stderr, not away
 
@@ -209,8 +219,15 @@ def test_validate_json_prints_json_alone_whatever_the_exr_library_prints(tmp_pat
 
 
 def _interrupt(command: list[str], ready, delay_s: float) -> subprocess.CompletedProcess:
-    proc = subprocess.Popen(command, cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        command,
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 240
         while not ready() and time.monotonic() < deadline and proc.poll() is None:
@@ -240,9 +257,11 @@ def test_ctrl_c_of_a_build_prints_one_line_and_the_build_resumes(tmp_path, worke
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr + done.stdout, done.stderr
     assert done.stderr.rstrip().splitlines()[-1] == (
-        "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume")
-    again = subprocess.run(cli("build", spec, "--out", out, "--workers", 0), cwd=REPO, capture_output=True,
-                           text=True, timeout=400)
+        "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
+    )
+    again = subprocess.run(
+        cli("build", spec, "--out", out, "--workers", 0), cwd=REPO, capture_output=True, text=True, timeout=400
+    )
     assert again.returncode == 0, again.stderr
     checked = subprocess.run(cli("validate", out), cwd=REPO, capture_output=True, text=True, timeout=300)
     assert checked.returncode == 0, checked.stdout

@@ -199,19 +199,27 @@ def test_models_agree_above_the_floor_roughness():
     wo[:, 2] = np.maximum(wo[:, 2], 2e-3)
     r = rng.uniform(0.001**0.25 + 1e-9, 1.0, 5000)
     d, s = rng.uniform(0, 1, (5000, 3)), rng.uniform(0, 1, (5000, 3))
-    np.testing.assert_array_equal(eval_brdf(wi, wo, Z, d, s, r, model="deschaintre2018"),
-                                  eval_brdf(wi, wo, Z, d, s, r))
+    np.testing.assert_array_equal(eval_brdf(wi, wo, Z, d, s, r, model="deschaintre2018"), eval_brdf(wi, wo, Z, d, s, r))
 
 
 def _a1_normal_incidence(r, model):
     """A1 at normal incidence by a 1D integral over the half-vector angle (independent of the quadrature)."""
     alpha = max(r, 0.001) ** 2
+
     # wi = z: wo = 2 cos_h h - z, cos_o = cos(2 theta_h), dw_o = 4 cos_h dw_h, G1(wi) = 1.
     def integrand(theta_h):
         cos_o = np.cos(2 * theta_h)
         d = ggx_d(np.sin(theta_h) ** 2, np.cos(theta_h) ** 2, alpha, model)
-        return (d * brdf_ref.g1_divided(1.0, alpha, model) * brdf_ref.g1_divided(cos_o, alpha, model)
-                * cos_o * np.cos(theta_h) * 2 * np.pi * np.sin(theta_h))
+        return (
+            d
+            * brdf_ref.g1_divided(1.0, alpha, model)
+            * brdf_ref.g1_divided(cos_o, alpha, model)
+            * cos_o
+            * np.cos(theta_h)
+            * 2
+            * np.pi
+            * np.sin(theta_h)
+        )
 
     kink = np.arcsin(np.sqrt(max(0.0, (0.001 - alpha**2) / (1 - alpha**2))))
     points = [p for p in (alpha, 3 * alpha, kink) if 0 < p < np.pi / 4]
@@ -219,8 +227,10 @@ def _a1_normal_incidence(r, model):
     return total
 
 
-@pytest.mark.parametrize("r, default, floored", [(0.05, 1.000, 0.012), (0.10, 1.00, 0.19),
-                                                  (0.15, 1.00, 0.76), (0.178, None, None), (0.3, None, None)])
+@pytest.mark.parametrize(
+    "r, default, floored",
+    [(0.05, 1.000, 0.012), (0.10, 1.00, 0.19), (0.15, 1.00, 0.76), (0.178, None, None), (0.3, None, None)],
+)
 def test_floored_model_loses_the_light_of_smooth_surfaces(r, default, floored):
     """Issue 17's numbers: A1 (F = 1) at normal incidence, 0.012 / 0.19 / 0.76 against 1, equal from 0.178."""
     exact = {}
@@ -250,12 +260,16 @@ def test_quadrature_of_the_floored_model_at_oblique_incidence():
         value = eval_brdf(wi, wo, Z, 0.0, 1.0, r, model="deschaintre2018")[..., 0]
         brute = np.sum(value * np.sin(tt)) * (np.pi / 2 / n_t) * (2 * np.pi / n_p)
         assert float(spec_albedo_quadrature(r, cos_i, 1.0, model="deschaintre2018")) == pytest.approx(
-            brute, abs=2e-3), (r, theta)
+            brute, abs=2e-3
+        ), (r, theta)
 
 
 def test_unknown_model_is_refused_by_name():
-    with pytest.raises(MaterialError, match=r"model: 'walter2007' is not allowed; allowed: shaderball, "
-                                            r"deschaintre2018"):
+    with pytest.raises(
+        MaterialError,
+        match=r"model: 'walter2007' is not allowed; allowed: shaderball, "
+        r"deschaintre2018",
+    ):
         eval_brdf(Z, Z, Z, 0.5, 0.04, 0.3, model="walter2007")
 
 
@@ -277,8 +291,9 @@ def test_normal_map_seen_from_below_uses_the_mirrored_normal(model):
     # The viewer always sees the front of the normal the BRDF is evaluated with ...
     assert np.all(np.sum(wi * used, axis=1) > 0)
     np.testing.assert_allclose(used[below], normal[below] * [-1, -1, 1], atol=1e-15)
-    np.testing.assert_allclose(used[~below & (np.sum(wi * normal, axis=1) > 0)],
-                               normal[~below & (np.sum(wi * normal, axis=1) > 0)], atol=1e-15)
+    np.testing.assert_allclose(
+        used[~below & (np.sum(wi * normal, axis=1) > 0)], normal[~below & (np.sum(wi * normal, axis=1) > 0)], atol=1e-15
+    )
     value = eval_normal_mapped(wi, wo, normal, d, s, r, model=model)
     mirrored = eval_brdf(wi, wo, normal * [-1, -1, 1], d, s, r, model=model)
     np.testing.assert_allclose(value[below], mirrored[below], rtol=1e-12)

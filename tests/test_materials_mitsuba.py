@@ -123,8 +123,7 @@ def test_eval_matches_reference_random_sweep(mi, dr, model):
     wi, wo = _random_dirs(rng, n), _random_dirs(rng, n)
     bsdf, si = _lanes(mi, dr, d, s, r, wi, model=model)
     value = _np3(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
-    ref = brdf_ref.eval_brdf(wi.astype(np.float64), wo.astype(np.float64), Z, d, s, r, normalize=False,
-                             model=model)
+    ref = brdf_ref.eval_brdf(wi.astype(np.float64), wo.astype(np.float64), Z, d, s, r, normalize=False, model=model)
     assert np.all(ref > 0)
     np.testing.assert_allclose(value, ref, rtol=1e-4, atol=0)
     pdf = bsdf.pdf(mi.BSDFContext(), si, _vec(mi, wo)).numpy()
@@ -146,8 +145,7 @@ def test_eval_matches_reference_at_sampled_directions(mi, dr, model, peak):
     wo = _np3(bs.wo)
     ok = bs.pdf.numpy() > 0
     value = _np3(bsdf.eval(mi.BSDFContext(), si, bs.wo))[ok]
-    ref = brdf_ref.eval_brdf(wi.astype(np.float64), wo.astype(np.float64), Z, d, s, r, normalize=False,
-                             model=model)[ok]
+    ref = brdf_ref.eval_brdf(wi.astype(np.float64), wo.astype(np.float64), Z, d, s, r, normalize=False, model=model)[ok]
     assert ok.mean() > 0.9 and ref.max() > peak  # reached the near-mirror peaks
     np.testing.assert_allclose(value, ref, rtol=1e-4, atol=0)
 
@@ -240,8 +238,14 @@ def test_chi2_sample_matches_pdf(mi, model, r, theta, material):
     # floored model's sampling alpha 0.0316 it needs 64 (so does roughconductor at normal incidence).
     sampling_alpha = float(brdf_ref.sampling_alpha(r * r, model))
     test = ChiSquareTest(
-        domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3, sample_count=1_000_000,
-        res=101, ires=32 if sampling_alpha >= 0.05 else 64, seed=int(r * r * 1000) + theta,
+        domain=SphericalDomain(),
+        sample_func=sample,
+        pdf_func=pdf,
+        sample_dim=3,
+        sample_count=1_000_000,
+        res=101,
+        ires=32 if sampling_alpha >= 0.05 else 64,
+        seed=int(r * r * 1000) + theta,
     )
     assert test.run(0.01, test_count=40, quiet=True), test.messages
 
@@ -267,7 +271,12 @@ WEIGHT_THETA = (0.0, 30.0, 60.0, 80.0, 85.0, 89.0, 89.9)
 @pytest.mark.parametrize("model", MODELS)
 def test_sample_weights_finite_non_negative_and_bounded(mi, dr, record_property, model):
     configs, weight, _ = _weight_sweep(
-        mi, dr, (0.0, 0.5, 1.0), (0.0, 0.04, 0.5, 1.0), HARD_ROUGHNESS + (0.05, 0.1, 0.3, 0.5), WEIGHT_THETA,
+        mi,
+        dr,
+        (0.0, 0.5, 1.0),
+        (0.0, 0.04, 0.5, 1.0),
+        HARD_ROUGHNESS + (0.05, 0.1, 0.3, 0.5),
+        WEIGHT_THETA,
         model=model,
     )
     assert np.all(np.isfinite(weight)) and np.all(weight >= 0)
@@ -285,15 +294,17 @@ def test_sample_weights_finite_non_negative_and_bounded(mi, dr, record_property,
 def test_vndf_specular_weight_at_most_one_when_f_is_one(mi, dr, model, bound):
     # The floored model samples a GGX lobe wider than its alpha (sampling_alpha) whose shape
     # is close to, not equal to, its flat-topped D: its weights reach 1.17 (r = 0.15, 89.9 deg).
-    _, weight, bs = _weight_sweep(mi, dr, (0.0,), (1.0,), HARD_ROUGHNESS + (0.05, 0.1, 0.15, 0.2, 0.5),
-                                  WEIGHT_THETA, model=model)
+    _, weight, bs = _weight_sweep(
+        mi, dr, (0.0,), (1.0,), HARD_ROUGHNESS + (0.05, 0.1, 0.15, 0.2, 0.5), WEIGHT_THETA, model=model
+    )
     assert np.all(bs.sampled_type.numpy() == int(mi.BSDFFlags.GlossyReflection))
     assert np.all(weight >= 0) and weight.max() <= bound
 
 
 @pytest.mark.parametrize("model", MODELS)
-@pytest.mark.parametrize("r, theta", [(0.05, 0.0), (0.2, 60.0), (0.5, 80.0), (1.0, 30.0), (0.1, 85.0),
-                                      (0.15, 0.0), (0.1, 60.0)])
+@pytest.mark.parametrize(
+    "r, theta", [(0.05, 0.0), (0.2, 60.0), (0.5, 80.0), (1.0, 30.0), (0.1, 85.0), (0.15, 0.0), (0.1, 60.0)]
+)
 def test_mean_weight_equals_quadrature_albedo(mi, dr, r, theta, model):
     # White furnace at one point: E[weight] = directional albedo (independent numpy quadrature).
     d, s = np.array([0.0, 0.5, 0.9]), np.array([1.0, 0.3, 0.02])
@@ -302,8 +313,7 @@ def test_mean_weight_equals_quadrature_albedo(mi, dr, r, theta, model):
     bsdf, si = _lanes(mi, dr, np.tile(d, (n, 1)), np.tile(s, (n, 1)), np.full(n, r), wi, model=model)
     _, weight = _sample(mi, bsdf, si, np.random.default_rng(5), n)
     weight = _np3(weight)
-    expected = brdf_ref.directional_albedo(r, np.cos(np.radians(theta)), d, s, n_theta=2048, n_phi=512,
-                                           model=model)
+    expected = brdf_ref.directional_albedo(r, np.cos(np.radians(theta)), d, s, n_theta=2048, n_phi=512, model=model)
     stderr = weight.std(axis=0) / np.sqrt(n)
     np.testing.assert_array_less(np.abs(weight.mean(axis=0) - expected), 5 * stderr + 2e-3)
 
@@ -326,9 +336,7 @@ def test_eval_over_cosine_is_reciprocal(mi, dr, model):
     backward = _np3(bsdf.eval(mi.BSDFContext(), si_back, _vec(mi, wi)))
     ok = (wo[:, 2] > 0) & (forward.min(axis=1) > 0)
     assert ok.mean() > 0.9
-    np.testing.assert_allclose(
-        forward[ok] / wo[ok, 2:3], backward[ok] / wi[ok, 2:3], rtol=1e-4
-    )
+    np.testing.assert_allclose(forward[ok] / wo[ok, 2:3], backward[ok] / wi[ok, 2:3], rtol=1e-4)
 
 
 # ---- hard cases -----------------------------------------------------------------------------------
@@ -348,8 +356,7 @@ def test_hard_case_sweep_never_nan_inf_or_negative(mi, dr, model):
     lane = np.repeat(np.arange(len(configs)), len(wi))
     c = np.array(configs)[lane]
     wi_all, wo_all = np.tile(wi, (len(configs), 1)), np.tile(wo, (len(configs), 1))
-    bsdf, si = _lanes(mi, dr, np.repeat(c[:, 2:3], 3, 1), np.repeat(c[:, 1:2], 3, 1), c[:, 0], wi_all,
-                      model=model)
+    bsdf, si = _lanes(mi, dr, np.repeat(c[:, 2:3], 3, 1), np.repeat(c[:, 1:2], 3, 1), c[:, 0], wi_all, model=model)
     ctx = mi.BSDFContext()
     value, pdf = bsdf.eval_pdf(ctx, si, _vec(mi, wo_all))
     _assert_finite_non_negative(_np3(value), pdf.numpy(), label="eval_pdf")
@@ -379,9 +386,16 @@ def test_hard_normals_through_normalmap_wrapper(mi, dr, model):
     count = len(normals)
     ctx = mi.BSDFContext()
     for r, s in itertools.product((0.0, 1e-4, 1.0), (0.0, 1.0)):
-        bsdf = _normalmap_bsdf(mi, normals, {"diffuse": {"type": "rgb", "value": [1.0] * 3},
-                                             "specular": {"type": "rgb", "value": [s] * 3}, "roughness": r,
-                                             "model": model})
+        bsdf = _normalmap_bsdf(
+            mi,
+            normals,
+            {
+                "diffuse": {"type": "rgb", "value": [1.0] * 3},
+                "specular": {"type": "rgb", "value": [s] * 3},
+                "roughness": r,
+                "model": model,
+            },
+        )
         si = dr.zeros(mi.SurfaceInteraction3f, count)
         si.uv = mi.Point2f(mi.Float((np.arange(count) + 0.5) / count), mi.Float(np.full(count, 0.5)))
         si.wi = _vec(mi, wi_all)
@@ -393,8 +407,7 @@ def test_hard_normals_through_normalmap_wrapper(mi, dr, model):
         _assert_finite_non_negative(_np3(weight), label=f"normalmap sample {r} {s}")
 
 
-@pytest.mark.parametrize("model, roughness", [("shaderball", 0.4), ("deschaintre2018", 0.4),
-                                              ("deschaintre2018", 0.12)])
+@pytest.mark.parametrize("model, roughness", [("shaderball", 0.4), ("deschaintre2018", 0.4), ("deschaintre2018", 0.12)])
 def test_normalmap_wrapper_follows_the_convention_for_normals_seen_from_below(mi, dr, model, roughness):
     """The plugin under Mitsuba's wrapper is brdf_ref.eval_normal_mapped: the map's normal, mirrored
     where the viewer sees its back; viewers anywhere on the sphere, light anywhere."""
@@ -405,8 +418,12 @@ def test_normalmap_wrapper_follows_the_convention_for_normals_seen_from_below(mi
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     wi, wo = _random_dirs(rng, n, upper=False), _random_dirs(rng, n, upper=False)
     wi[: n // 2, 2] = np.abs(wi[: n // 2, 2])  # half the viewers above the surface, as on the ball
-    params = {"diffuse": {"type": "rgb", "value": [0.3, 0.5, 0.7]},
-              "specular": {"type": "rgb", "value": [0.2, 0.1, 0.05]}, "roughness": roughness, "model": model}
+    params = {
+        "diffuse": {"type": "rgb", "value": [0.3, 0.5, 0.7]},
+        "specular": {"type": "rgb", "value": [0.2, 0.1, 0.05]},
+        "roughness": roughness,
+        "model": model,
+    }
     bsdf = _normalmap_bsdf(mi, normals, params)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.uv = mi.Point2f(mi.Float((np.arange(n) + 0.5) / n), mi.Float(np.full(n, 0.5)))
@@ -438,15 +455,21 @@ def test_normal_map_frame_on_a_uv_mapped_quad(mi, dr):
     scene = mi.load_dict({"type": "scene", "quad": mesh})
     si = scene.ray_intersect(mi.Ray3f(mi.Point3f(0.1, 0.2, 1.0), mi.Vector3f(0, 0, -1)))
     ctx = mi.BSDFContext()
-    base = {"diffuse": {"type": "rgb", "value": [0.0] * 3}, "specular": {"type": "rgb", "value": [1.0] * 3},
-            "roughness": 0.3}
+    base = {
+        "diffuse": {"type": "rgb", "value": [0.0] * 3},
+        "specular": {"type": "rgb", "value": [1.0] * 3},
+        "roughness": 0.3,
+    }
     wo_world = np.array([0.3, -0.4, 0.866])
     wo_world /= np.linalg.norm(wo_world)
     wi_world = np.array([0.0, 0.0, 1.0])
     for tangent_normal in ([0.5, 0.0, 0.866], [0.0, 0.5, 0.866]):
         n = np.array(tangent_normal) / np.linalg.norm(tangent_normal)
-        bsdf = mi.load_dict(mitsuba_bsdf.normalmap_dict(
-            {"type": "rgb", "value": ((n + 1) / 2).tolist()}, {"type": "shaderball_ct", **base}))
+        bsdf = mi.load_dict(
+            mitsuba_bsdf.normalmap_dict(
+                {"type": "rgb", "value": ((n + 1) / 2).tolist()}, {"type": "shaderball_ct", **base}
+            )
+        )
         value = _np3(bsdf.eval(ctx, si, si.to_local(mi.Vector3f(*map(float, wo_world)))))[0]
         expected = brdf_ref.eval_brdf(wi_world, wo_world, n, 0.0, 1.0, 0.3)  # n read as world x, y, z
         mirrored = brdf_ref.eval_brdf(wi_world, wo_world, n * [-1, -1, 1], 0.0, 1.0, 0.3)
@@ -462,8 +485,10 @@ def test_lobe_switches_leave_out_a_lobe(mi, dr):
     n = 8000
     d, s, r = _random_params(rng, n)
     wi, wo = _random_dirs(rng, n), _random_dirs(rng, n)
-    for lobe, kept, flag in (("diffuse_lobe", "specular", "GlossyReflection"),
-                             ("specular_lobe", "diffuse", "DiffuseReflection")):
+    for lobe, kept, flag in (
+        ("diffuse_lobe", "specular", "GlossyReflection"),
+        ("specular_lobe", "diffuse", "DiffuseReflection"),
+    ):
         bsdf, si = _lanes(mi, dr, d, s, r, wi, **{lobe: False})
         assert bsdf.component_count() == 1
         assert bsdf.flags() & int(getattr(mi.BSDFFlags, flag))
@@ -526,7 +551,12 @@ def test_bsdf_dict_uniform_and_spatially_varying(mi, dr, model):
     si.dp_du = mi.Vector3f(1, 0, 0)
     value = _np3(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
     ref = brdf_ref.eval_normal_mapped(
-        wi, wo, maps.normal.reshape(-1, 3), maps.diffuse.reshape(-1, 3), maps.specular.reshape(-1, 3),
-        maps.roughness.ravel(), model=model,
+        wi,
+        wo,
+        maps.normal.reshape(-1, 3),
+        maps.diffuse.reshape(-1, 3),
+        maps.specular.reshape(-1, 3),
+        maps.roughness.ravel(),
+        model=model,
     )
     np.testing.assert_allclose(value, ref, rtol=2e-3, atol=1e-5)

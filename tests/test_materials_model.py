@@ -51,7 +51,8 @@ spp = 2
 def test_spec_takes_the_model_and_keeps_old_digests():
     assert spec_digest(parse_spec(SMOKE)) == SMOKE_DIGEST_BEFORE_THE_MODEL, (
         "the default model must not change the digest of a spec that does not name it "
-        "(if manifests/smoke.toml itself changed, update the pinned digest)")
+        "(if manifests/smoke.toml itself changed, update the pinned digest)"
+    )
     plain = parse_spec_text(TINY.format(model=""))
     explicit = parse_spec_text(TINY.format(model='model = "shaderball"'))
     floored = parse_spec_text(TINY.format(model='model = "deschaintre2018"'))
@@ -83,8 +84,11 @@ def test_render_model_option_is_checked_before_anything_is_written(tmp_path):
     assert "--model" in result.output and "floored" in result.output
     assert all(m in result.output for m in MODELS)
     assert not out.exists()
-    with pytest.raises(ShaderballError, match=r"--model: 'floored' is not allowed; allowed: shaderball, "
-                                              r"deschaintre2018") as info:
+    with pytest.raises(
+        ShaderballError,
+        match=r"--model: 'floored' is not allowed; allowed: shaderball, "
+        r"deschaintre2018",
+    ) as info:
         check_request(RenderRequest(model="floored", out=str(out)))
     assert info.value.exit_code == 2 and not out.exists()
 

@@ -33,8 +33,13 @@ def _render(mi, bsdf, *, spp=128, seed=3):
             "sensor": {
                 "type": "orthographic",
                 "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"},
-                         "pixel_format": "rgb"},
+                "film": {
+                    "type": "hdrfilm",
+                    "width": RES,
+                    "height": RES,
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "rgb",
+                },
                 "sampler": {"type": "independent", "sample_count": spp},
             },
             "emitter": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
@@ -45,15 +50,21 @@ def _render(mi, bsdf, *, spp=128, seed=3):
 
 
 def _material(d, s, r, **options):
-    return {"type": "shaderball_ct", "diffuse": {"type": "rgb", "value": [d] * 3},
-            "specular": {"type": "rgb", "value": [s] * 3}, "roughness": r, **options}
+    return {
+        "type": "shaderball_ct",
+        "diffuse": {"type": "rgb", "value": [d] * 3},
+        "specular": {"type": "rgb", "value": [s] * 3},
+        "roughness": r,
+        **options,
+    }
 
 
 def _expected(d, s, r, lobes=("diffuse", "specular"), sub=8, model="shaderball"):
     """Pixel-averaged directional albedo of the sphere image (radially symmetric)."""
     cos_nodes = np.linspace(0.0, 1.0, 65) ** 1.5
-    a0, a1 = np.array([spec_albedo_quadrature(r, c, np.array([0.0, 1.0]), n_theta=512, n_phi=128, model=model)
-                       for c in cos_nodes]).T
+    a0, a1 = np.array(
+        [spec_albedo_quadrature(r, c, np.array([0.0, 1.0]), n_theta=512, n_phi=128, model=model) for c in cos_nodes]
+    ).T
     offsets = (np.arange(sub) + 0.5) / sub
     x = -1.0 + 2.0 * (np.arange(RES)[:, None] + offsets[None, :]).ravel() / RES
     xx, yy = np.meshgrid(x, x)
@@ -67,8 +78,12 @@ def _expected(d, s, r, lobes=("diffuse", "specular"), sub=8, model="shaderball")
         total += s * np.interp(cos, cos_nodes, a1) + (1.0 - s) * np.interp(cos, cos_nodes, a0)
     total = np.where(inside, total, 0.0)
     pixel = total.reshape(RES, sub, RES, sub).mean(axis=(1, 3))
-    ring = np.sqrt(((np.arange(RES) + 0.5) / RES * 2 - 1)[None, :] ** 2
-                   + ((np.arange(RES) + 0.5) / RES * 2 - 1)[:, None] ** 2) / RADIUS
+    ring = (
+        np.sqrt(
+            ((np.arange(RES) + 0.5) / RES * 2 - 1)[None, :] ** 2 + ((np.arange(RES) + 0.5) / RES * 2 - 1)[:, None] ** 2
+        )
+        / RADIUS
+    )
     return pixel, ring
 
 
@@ -120,23 +135,26 @@ def test_render_of_a_normal_map_seen_from_below_follows_the_convention(mi, model
     normal = np.array([-np.sin(tilt), 0.0, np.cos(tilt)])  # tilted away from the viewer
     assert view @ normal < 0 < light @ normal
     diffuse, specular, roughness = 0.05, 0.5, 0.3
-    maps = UniformMaterial(diffuse=(diffuse,) * 3, specular=(specular,) * 3, roughness=roughness,
-                           normal=tuple(normal)).to_maps(1)
+    maps = UniformMaterial(
+        diffuse=(diffuse,) * 3, specular=(specular,) * 3, roughness=roughness, normal=tuple(normal)
+    ).to_maps(1)
     bsdf = mitsuba_bsdf.bsdf_dict(maps, model=model, variant=VARIANT)
     assert bsdf["type"] == "normalmap"
-    scene = mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": 2, "hide_emitters": True},
-        "sensor": {
-            "type": "orthographic",
-            "to_world": mi.ScalarTransform4f().look_at(origin=(5 * view).tolist(), target=[0, 0, 0], up=[0, 1, 0])
-            @ mi.ScalarTransform4f().scale([0.3, 0.3, 1.0]),
-            "film": {"type": "hdrfilm", "width": 4, "height": 4, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-            "sampler": {"type": "independent", "sample_count": 4},
-        },
-        "sun": {"type": "directional", "direction": (-light).tolist(), "irradiance": {"type": "rgb", "value": 1.0}},
-        "plane": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale([10.0, 10.0, 1.0]), "bsdf": bsdf},
-    })
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 2, "hide_emitters": True},
+            "sensor": {
+                "type": "orthographic",
+                "to_world": mi.ScalarTransform4f().look_at(origin=(5 * view).tolist(), target=[0, 0, 0], up=[0, 1, 0])
+                @ mi.ScalarTransform4f().scale([0.3, 0.3, 1.0]),
+                "film": {"type": "hdrfilm", "width": 4, "height": 4, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                "sampler": {"type": "independent", "sample_count": 4},
+            },
+            "sun": {"type": "directional", "direction": (-light).tolist(), "irradiance": {"type": "rgb", "value": 1.0}},
+            "plane": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale([10.0, 10.0, 1.0]), "bsdf": bsdf},
+        }
+    )
     image = np.array(mi.render(scene, seed=1), dtype=np.float64)
     # The rectangle's tangent frame: s = dp/du = +x, n = +z, so the map's normal is world (x, y, z).
     expected = eval_normal_mapped(view, light, normal, diffuse, specular, roughness, model=model)

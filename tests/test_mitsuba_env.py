@@ -54,8 +54,14 @@ def test_fresh_process_renders_with_selected_llvm():
         "img = mi.render(mi.load_dict(mi.cornell_box()), spp=1);"
         "print(mi.variant(), img.shape, os.environ['DRJIT_LIBLLVM_PATH'])"
     )
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         cwd=os.path.dirname(os.path.dirname(__file__)), timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=os.path.dirname(os.path.dirname(__file__)),
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     variant, *_rest = out.stdout.split()
     assert variant == "llvm_ad_rgb"

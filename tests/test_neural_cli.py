@@ -55,8 +55,9 @@ def test_infer_writes_the_estimate_and_says_the_time_split(run, tmp_path):
 @pytest.mark.slow
 def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     json_path = tmp_path / "eval.json"
-    result = _invoke("evaluate", run, reference, "--spp", "1,2", "--limit", 2, "--json", json_path,
-                     "--out", tmp_path / "ev")
+    result = _invoke(
+        "evaluate", run, reference, "--spp", "1,2", "--limit", 2, "--json", json_path, "--out", tmp_path / "ev"
+    )
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     assert len(data["samples"]) == 2
@@ -71,8 +72,11 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
 
 
 def _snapshot(folder):
-    return {p: open(os.path.join(folder, p), "rb").read() for p in sorted(os.listdir(folder))
-            if os.path.isfile(os.path.join(folder, p))}
+    return {
+        p: open(os.path.join(folder, p), "rb").read()
+        for p in sorted(os.listdir(folder))
+        if os.path.isfile(os.path.join(folder, p))
+    }
 
 
 @pytest.mark.slow
@@ -81,8 +85,21 @@ def test_bad_input_exits_2_naming_it_and_writes_nothing(run, reference, tmp_path
         (["train", tmp_path / "nothere", "--out", tmp_path / "r1", *TRAIN], "nothere"),
         (["train", reference, "--out", tmp_path / "r2", "--loss", "l1", "--resolution", "48"], "--resolution: 48"),
         (["train", reference, "--out", tmp_path / "r3", "--resolution", "32"], "--vgg-weights"),
-        (["train", reference, "--out", tmp_path / "r4", "--loss", "l1", "--vgg-weights", tmp_path / "no.pth",
-          "--loss", "l1+vgg"], "no.pth"),
+        (
+            [
+                "train",
+                reference,
+                "--out",
+                tmp_path / "r4",
+                "--loss",
+                "l1",
+                "--vgg-weights",
+                tmp_path / "no.pth",
+                "--loss",
+                "l1+vgg",
+            ],
+            "no.pth",
+        ),
         (["infer", tmp_path / "norun", "--out", tmp_path / "x.exr"], "norun"),
         (["evaluate", run, tmp_path / "nothere"], "nothere"),
         (["evaluate", run, reference, "--spp", "0"], "--spp"),
@@ -102,9 +119,11 @@ def test_a_corrupt_checkpoint_exits_2_and_nothing_is_overwritten(run, reference,
     for name, data in _snapshot(run).items():
         (broken / name).write_bytes(data[: len(data) // 2] if name == "checkpoint.pt" else data)
     before = _snapshot(broken)
-    for args in (["train", reference, "--out", broken, "--epochs", 2, *TRAIN],
-                 ["infer", broken, "--out", tmp_path / "x.exr"],
-                 ["evaluate", broken, reference, "--spp", "none"]):
+    for args in (
+        ["train", reference, "--out", broken, "--epochs", 2, *TRAIN],
+        ["infer", broken, "--out", tmp_path / "x.exr"],
+        ["evaluate", broken, reference, "--spp", "none"],
+    ):
         result = _invoke(*args)
         assert result.exit_code == 2 and "checkpoint.pt: a corrupt checkpoint" in result.output, result.output
     assert _snapshot(broken) == before and not (tmp_path / "x.exr").exists()
@@ -112,8 +131,18 @@ def test_a_corrupt_checkpoint_exits_2_and_nothing_is_overwritten(run, reference,
 
 def _train_process(reference, out, epochs):
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    cmd = [sys.executable, "-c", "import torch; torch.set_num_threads(1); import cli; cli.main()",
-           "train", str(reference), "--out", str(out), "--epochs", str(epochs), *TRAIN]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import torch; torch.set_num_threads(1); import cli; cli.main()",
+        "train",
+        str(reference),
+        "--out",
+        str(out),
+        "--epochs",
+        str(epochs),
+        *TRAIN,
+    ]
     return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 

@@ -60,8 +60,9 @@ def test_a_lower_network_resolution_box_averages(reference):
     record = _records(reference)[3]
     render = read_exr(_file(reference, record, "render")).layers["render"]
     assert half[3]["maps"].shape == (12, 32, 32)
-    assert np.allclose(half[3]["maps"].numpy(), full[3]["maps"].numpy().reshape(12, 32, 2, 32, 2).mean((2, 4)),
-                       atol=1e-6)
+    assert np.allclose(
+        half[3]["maps"].numpy(), full[3]["maps"].numpy().reshape(12, 32, 2, 32, 2).mean((2, 4)), atol=1e-6
+    )
     assert np.array_equal(half[3]["target"].numpy(), tonemap(box_downsample(render, 2)).transpose(2, 0, 1))
 
 

@@ -10,8 +10,10 @@ from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import pick_device
 
-pytestmark = [pytest.mark.gpu,
-              pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device; torch sees none")]
+pytestmark = [
+    pytest.mark.gpu,
+    pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device; torch sees none"),
+]
 
 
 def test_auto_picks_cuda():

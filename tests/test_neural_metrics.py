@@ -19,7 +19,7 @@ def _pair(seed=0, shape=(48, 41, 3), noise=25):
 def _ssim_direct(a, b):
     """Wang et al.'s ssim_index.m: filter2(window, img, 'valid') with an 11x11 Gaussian, sigma 1.5."""
     x = np.arange(-5, 6)
-    g = np.exp(-(x[:, None] ** 2 + x[None, :] ** 2) / (2 * 1.5 ** 2))
+    g = np.exp(-(x[:, None] ** 2 + x[None, :] ** 2) / (2 * 1.5**2))
     g /= g.sum()
     c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
     out = []
@@ -28,19 +28,20 @@ def _ssim_direct(a, b):
         h, w = p.shape
 
         def valid(img, h=h, w=w):
-            return np.array([[np.sum(g * img[i:i + 11, j:j + 11]) for j in range(w - 10)] for i in range(h - 10)])
+            return np.array([[np.sum(g * img[i : i + 11, j : j + 11]) for j in range(w - 10)] for i in range(h - 10)])
 
         mp, mq = valid(p), valid(q)
-        vp, vq, cpq = valid(p * p) - mp ** 2, valid(q * q) - mq ** 2, valid(p * q) - mp * mq
-        out.append(np.mean(((2 * mp * mq + c1) * (2 * cpq + c2)) / ((mp ** 2 + mq ** 2 + c1) * (vp + vq + c2))))
+        vp, vq, cpq = valid(p * p) - mp**2, valid(q * q) - mq**2, valid(p * q) - mp * mq
+        out.append(np.mean(((2 * mp * mq + c1) * (2 * cpq + c2)) / ((mp**2 + mq**2 + c1) * (vp + vq + c2))))
     return float(np.mean(out))
 
 
 def test_ssim_matches_scikit_image_standard_arguments():
     for seed in range(3):
         test, ref = _pair(seed)
-        expected = structural_similarity(test, ref, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                         data_range=255, channel_axis=-1)
+        expected = structural_similarity(
+            test, ref, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=255, channel_axis=-1
+        )
         assert ssim8(test, ref) == pytest.approx(expected, abs=1e-12)
 
 

@@ -42,9 +42,16 @@ def test_shapes_through_the_network():
         out = model(torch.rand(3, 12, 64, 64), torch.rand(3, 4))
     assert out.shape == (3, 3, 64, 64)
     assert seen == {
-        "enc0": (3, 64, 32, 32), "enc1": (3, 128, 16, 16), "enc2": (3, 256, 8, 8), "enc3": (3, 512, 4, 4),
-        "bottleneck_in": (3, 640, 4, 4), "bottleneck": (3, 512, 4, 4),
-        "dec0": (3, 512, 8, 8), "dec1": (3, 256, 16, 16), "dec2": (3, 128, 32, 32), "dec3": (3, 64, 64, 64),
+        "enc0": (3, 64, 32, 32),
+        "enc1": (3, 128, 16, 16),
+        "enc2": (3, 256, 8, 8),
+        "enc3": (3, 512, 4, 4),
+        "bottleneck_in": (3, 640, 4, 4),
+        "bottleneck": (3, 512, 4, 4),
+        "dec0": (3, 512, 8, 8),
+        "dec1": (3, 256, 16, 16),
+        "dec2": (3, 128, 32, 32),
+        "dec3": (3, 64, 64, 64),
     }
     assert float(out.min()) >= 0.0 and float(out.max()) <= 1.0
 

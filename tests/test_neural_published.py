@@ -113,16 +113,29 @@ def test_train_and_evaluate_from_the_publication_match_the_folder(reference, pub
     results = {}
     for name, source in (("folder", reference), ("pub", pub)):  # the folder's run, on either source
         out = tmp_path / f"eval-{name}"
-        result = _invoke("evaluate", runs["folder"], source, "--spp", "1", "--limit", 2, "--out", out,
-                         "--json", tmp_path / f"{name}.json")
+        result = _invoke(
+            "evaluate",
+            runs["folder"],
+            source,
+            "--spp",
+            "1",
+            "--limit",
+            2,
+            "--out",
+            out,
+            "--json",
+            tmp_path / f"{name}.json",
+        )
         assert result.exit_code == 0, result.output
         results[name] = json.loads((tmp_path / f"{name}.json").read_text())
     assert set(results["pub"]["mean"]) == {"network", "pt1", "pt1+oidn", "pt1+oidn-colour"}
     assert "| path tracing, 1 spp + OIDN, colour only |" in (tmp_path / "eval-pub" / "results.md").read_text()
 
     def scores(data):
-        return [{m: ({k: v for k, v in s.items() if k != "time_s"} if isinstance(s, dict) else s)
-                 for m, s in row.items()} for row in data["samples"]]
+        return [
+            {m: ({k: v for k, v in s.items() if k != "time_s"} if isinstance(s, dict) else s) for m, s in row.items()}
+            for row in data["samples"]
+        ]
 
     assert scores(results["pub"]) == scores(results["folder"]) and len(results["pub"]["samples"]) == 2
 
@@ -150,23 +163,29 @@ def _forge_member(pub):
     return member.name
 
 
-@pytest.mark.parametrize("spoil, kind, named", [
-    (_truncate, "bad_index", "shards/shard-000001.tar: 87040 bytes, publication.json says 174080"),
-    (_truncate_resealed, "not_tar", "past the end of the file; truncated"),
-    (_forge_member, "member_checksum", "differs from the manifest's"),
-    (lambda pub: (pub / "notes.txt").write_text("x"), "unlisted_file", "notes.txt"),
-])
-def test_a_publication_that_does_not_verify_exits_2_and_nothing_is_written(reference, pub_copy, tmp_path, spoil,
-                                                                           kind, named):
+@pytest.mark.parametrize(
+    "spoil, kind, named",
+    [
+        (_truncate, "bad_index", "shards/shard-000001.tar: 87040 bytes, publication.json says 174080"),
+        (_truncate_resealed, "not_tar", "past the end of the file; truncated"),
+        (_forge_member, "member_checksum", "differs from the manifest's"),
+        (lambda pub: (pub / "notes.txt").write_text("x"), "unlisted_file", "notes.txt"),
+    ],
+)
+def test_a_publication_that_does_not_verify_exits_2_and_nothing_is_written(
+    reference, pub_copy, tmp_path, spoil, kind, named
+):
     run = tmp_path / "run"
     assert _invoke("train", pub_copy, "--out", run, "--epochs", 1, *TRAIN).exit_code == 0
     before = snapshot(run)
     result = spoil(pub_copy)
-    cases = [["train", pub_copy, "--out", tmp_path / "new", "--epochs", 1, *TRAIN],
-             ["train", pub_copy, "--out", run, "--epochs", 2, *TRAIN],
-             ["evaluate", run, pub_copy, "--spp", "none", "--out", tmp_path / "ev"],
-             ["evaluate", run, pub_copy, "--spp", "none"],
-             ["train", pub_copy, "--benchmark", "--loss", "l1", "--resolution", "32"]]
+    cases = [
+        ["train", pub_copy, "--out", tmp_path / "new", "--epochs", 1, *TRAIN],
+        ["train", pub_copy, "--out", run, "--epochs", 2, *TRAIN],
+        ["evaluate", run, pub_copy, "--spp", "none", "--out", tmp_path / "ev"],
+        ["evaluate", run, pub_copy, "--spp", "none"],
+        ["train", pub_copy, "--benchmark", "--loss", "l1", "--resolution", "32"],
+    ]
     for args in cases:
         done = _invoke(*args)
         assert done.exit_code == 2, (args, done.output)
@@ -220,8 +239,12 @@ def test_aux_buffers_hold_the_first_hits_albedo_and_normal_filtered_as_the_rende
     assert np.array_equal(one.on_ball, gbuffer.mask)
     assert np.array_equal(one.normal[gbuffer.mask], gbuffer.normal[gbuffer.mask])  # the G-buffer's normals
     d, s = (0.6, 0.2, 0.1), (0.05, 0.5, 0.9)
-    maps = MaterialMaps(np.full((8, 8, 3), d, np.float32), np.full((8, 8, 3), s, np.float32),
-                        np.full((8, 8), 0.3, np.float32), np.tile(np.float32([0, 0, 1]), (8, 8, 1)))
+    maps = MaterialMaps(
+        np.full((8, 8, 3), d, np.float32),
+        np.full((8, 8, 3), s, np.float32),
+        np.full((8, 8), 0.3, np.float32),
+        np.tile(np.float32([0, 0, 1]), (8, 8, 1)),
+    )
     want = material_albedo(np.float32(d), np.float32(s))
     aux = AuxBuffers(ball, camera, res, VARIANT)  # 4 x 4 pixel centres per pixel
     albedo = aux.albedo(maps)

@@ -16,8 +16,17 @@ torch.set_num_threads(1)
 
 
 def _config(tmp_path, name="run", **kw):
-    base = dict(dataset="(in memory)", out=str(tmp_path / name), epochs=2, batch_size=2, lr=1e-3, loss="l1",
-                device="cpu", seed=5, test_fraction=0.25)
+    base = dict(
+        dataset="(in memory)",
+        out=str(tmp_path / name),
+        epochs=2,
+        batch_size=2,
+        lr=1e-3,
+        loss="l1",
+        device="cpu",
+        seed=5,
+        test_fraction=0.25,
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -112,9 +121,20 @@ def test_a_folder_with_other_files_is_refused(tmp_path):
     assert os.listdir(tmp_path / "run") == ["notes.txt"]
 
 
-@pytest.mark.parametrize("field,value", [("epochs", 0), ("batch_size", 0), ("lr", 0.0), ("loss", "l2"),
-                                         ("device", "tpu"), ("resolution", 50), ("test_fraction", 1.0),
-                                         ("seed", -1), ("workers", -1)])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("epochs", 0),
+        ("batch_size", 0),
+        ("lr", 0.0),
+        ("loss", "l2"),
+        ("device", "tpu"),
+        ("resolution", 50),
+        ("test_fraction", 1.0),
+        ("seed", -1),
+        ("workers", -1),
+    ],
+)
 def test_bad_options_name_themselves(tmp_path, field, value):
     with pytest.raises(ShaderballError, match="--" + field.replace("_", "-")):
         train(_config(tmp_path, **{field: value}), source=FakeSource())

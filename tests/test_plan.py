@@ -38,7 +38,8 @@ def make_spec(materials=8, lights=2, fraction=0.5, shard_size=2, seed=11, extra=
     return parse_spec_text(
         f'[dataset]\nname = "t"\nseed = {seed}\nmaterials = {materials}\n'
         f"lights_per_material = {lights}\nsvbrdf_fraction = {fraction}\n"
-        f"shard_size = {shard_size}\n" + extra)
+        f"shard_size = {shard_size}\n" + extra
+    )
 
 
 def all_samples(plans):
@@ -106,13 +107,20 @@ def test_same_spec_same_plan():
 
 def test_plan_is_the_same_in_a_fresh_interpreter():
     """No dependence on hash seeds, import order or process state."""
-    code = ("import json, sys; from pipeline.dataset.spec import parse_spec; "
-            "from pipeline.dataset.plan import plan_dataset, iter_samples; "
-            "p = plan_dataset(parse_spec(sys.argv[1])); "
-            "print(json.dumps([s.to_dict() for s in iter_samples(p)]))")
-    out = subprocess.run([sys.executable, "-c", code, SMOKE], check=True, cwd=REPO,
-                         capture_output=True, text=True,
-                         env={**os.environ, "PYTHONHASHSEED": "12345"}).stdout
+    code = (
+        "import json, sys; from pipeline.dataset.spec import parse_spec; "
+        "from pipeline.dataset.plan import plan_dataset, iter_samples; "
+        "p = plan_dataset(parse_spec(sys.argv[1])); "
+        "print(json.dumps([s.to_dict() for s in iter_samples(p)]))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, SMOKE],
+        check=True,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONHASHSEED": "12345"},
+    ).stdout
     here = [s.to_dict() for s in all_samples(plan_dataset(parse_spec(SMOKE)))]
     assert json.loads(out) == here
 
@@ -161,8 +169,18 @@ def test_material_seed_depends_on_seed_and_index_only():
         return [m.material_seed for p in plan_dataset(spec) for m in p.materials]
 
     base = seeds(make_spec(materials=6))
-    assert seeds(make_spec(materials=6, lights=5, fraction=0.0, shard_size=4,
-                           extra="[lighting]\nturbidity = [2, 3]\nscheme = \"stratified\"\n")) == base
+    assert (
+        seeds(
+            make_spec(
+                materials=6,
+                lights=5,
+                fraction=0.0,
+                shard_size=4,
+                extra='[lighting]\nturbidity = [2, 3]\nscheme = "stratified"\n',
+            )
+        )
+        == base
+    )
     assert seeds(make_spec(materials=9))[:6] == base  # more materials keep the first ones
 
 
@@ -176,8 +194,7 @@ def test_render_seeds_are_distinct_across_a_large_grid():
     # The packing m * 1000 + l is injective up to the limits (10^6 materials, 1000 lights),
     # and mix32 is a bijection: check both ends of the index range.
     for first in (0, 999_800):
-        seeds = render_seeds(3, np.arange(first, first + 200)[:, None],
-                             np.arange(1000)[None, :])
+        seeds = render_seeds(3, np.arange(first, first + 200)[:, None], np.arange(1000)[None, :])
         assert seeds.dtype == np.uint32
         assert len(np.unique(seeds)) == seeds.size
 
@@ -191,8 +208,9 @@ def test_seeded_rng_is_pcg64_from_the_seed():
 # --------------------------------------------------------------------------- SVBRDF split
 
 
-@pytest.mark.parametrize("materials,fraction", [
-    (8, 0.5), (7, 0.5), (1, 0.5), (10, 0.3), (10, 0.0), (10, 1.0), (1000, 0.123), (3, 0.25)])
+@pytest.mark.parametrize(
+    "materials,fraction", [(8, 0.5), (7, 0.5), (1, 0.5), (10, 0.3), (10, 0.0), (10, 1.0), (1000, 0.123), (3, 0.25)]
+)
 def test_svbrdf_count_is_exact(materials, fraction):
     spec = make_spec(materials=materials, fraction=fraction, shard_size=5)
     kinds = Counter(m.kind for p in plan_dataset(spec) for m in p.materials)
@@ -215,24 +233,25 @@ def test_sources_are_balanced_and_exclusive():
 
 
 def test_svbrdf_materials_are_spread_not_clustered():
-    kinds = [m.kind for p in plan_dataset(make_spec(materials=400, shard_size=400))
-             for m in p.materials]
+    kinds = [m.kind for p in plan_dataset(make_spec(materials=400, shard_size=400)) for m in p.materials]
     assert 50 <= kinds[:200].count(KIND_SVBRDF) <= 150  # a permutation, not a block
 
 
 def test_raising_the_fraction_only_adds_svbrdf_materials():
     def svbrdf(fraction):
-        return {m.material_index: m.svbrdf_family
-                for p in plan_dataset(make_spec(materials=50, fraction=fraction))
-                for m in p.materials if m.kind == KIND_SVBRDF}
+        return {
+            m.material_index: m.svbrdf_family
+            for p in plan_dataset(make_spec(materials=50, fraction=fraction))
+            for m in p.materials
+            if m.kind == KIND_SVBRDF
+        }
 
     low, high = svbrdf(0.2), svbrdf(0.6)
     assert low.items() <= high.items()
 
 
 def test_chosen_families_only():
-    spec = make_spec(materials=20, fraction=1.0,
-                     extra='[materials]\nsvbrdf_families = ["tiles", "stones"]\n')
+    spec = make_spec(materials=20, fraction=1.0, extra='[materials]\nsvbrdf_families = ["tiles", "stones"]\n')
     families = Counter(m.svbrdf_family for p in plan_dataset(spec) for m in p.materials)
     assert families == {"tiles": 10, "stones": 10}
 
@@ -250,8 +269,9 @@ def map_folder(tmp_path):
 
 
 def test_imported_files_are_each_used_before_any_repeats(map_folder):
-    spec = make_spec(materials=8, fraction=1.0, extra=(
-        f'[materials]\nsvbrdf_families = []\nsvbrdf_folders = ["{map_folder}"]\n'))
+    spec = make_spec(
+        materials=8, fraction=1.0, extra=(f'[materials]\nsvbrdf_families = []\nsvbrdf_folders = ["{map_folder}"]\n')
+    )
     inventory = list_imported_maps(spec)
     assert inventory == {str(map_folder): ("0001;a.png", "0002;c.PNG", "0003;b.png")}
     materials = [m for p in plan_dataset(spec) for m in p.materials]
@@ -263,18 +283,18 @@ def test_imported_files_are_each_used_before_any_repeats(map_folder):
 
 
 def test_families_and_folders_share_svbrdf_materials(map_folder):
-    spec = make_spec(materials=40, fraction=0.75, extra=(
-        f'[materials]\nsvbrdf_families = ["tiles", "stones"]\n'
-        f'svbrdf_folders = ["{map_folder}"]\n'))
+    spec = make_spec(
+        materials=40,
+        fraction=0.75,
+        extra=(f'[materials]\nsvbrdf_families = ["tiles", "stones"]\nsvbrdf_folders = ["{map_folder}"]\n'),
+    )
     summary = plan_summary(plan_dataset(spec))
     assert summary["svbrdf"] == 30
-    assert summary["svbrdf_sources"] == {"family:stones": 10, "family:tiles": 10,
-                                         f"folder:{map_folder}": 10}
+    assert summary["svbrdf_sources"] == {"family:stones": 10, "family:tiles": 10, f"folder:{map_folder}": 10}
 
 
 def test_planning_with_an_empty_inventory_is_refused(map_folder):
-    spec = make_spec(fraction=1.0, extra=(
-        f'[materials]\nsvbrdf_families = []\nsvbrdf_folders = ["{map_folder}"]\n'))
+    spec = make_spec(fraction=1.0, extra=(f'[materials]\nsvbrdf_families = []\nsvbrdf_folders = ["{map_folder}"]\n'))
     with pytest.raises(ShaderballError, match="holds no map file"):
         plan_dataset(spec, imported={str(map_folder): ()})
 
@@ -282,29 +302,39 @@ def test_planning_with_an_empty_inventory_is_refused(map_folder):
 # --------------------------------------------------------------------------- lightings
 
 
-@pytest.mark.parametrize("scheme", ["uniform_hemisphere", "uniform_angles", "stratified",
-                                    "sobol"])
+@pytest.mark.parametrize("scheme", ["uniform_hemisphere", "uniform_angles", "stratified", "sobol"])
 def test_lightings_are_skys_joint_draw_per_material(scheme):
     import sky
 
-    spec = make_spec(materials=12, lights=5, extra=(
-        f'[lighting]\nelevation_deg = [10, 80]\nazimuth_deg = [-90, 180]\n'
-        f'turbidity = [2, 7]\nscheme = "{scheme}"\nturbidity_per = "light"\n'))
+    spec = make_spec(
+        materials=12,
+        lights=5,
+        extra=(
+            f"[lighting]\nelevation_deg = [10, 80]\nazimuth_deg = [-90, 180]\n"
+            f'turbidity = [2, 7]\nscheme = "{scheme}"\nturbidity_per = "light"\n'
+        ),
+    )
     ranges = spec.lighting.to_lighting_ranges()
     for shard in plan_dataset(spec):
         for material in shard.materials:
             lights = sky.sample_lights(seeded_rng(material.light_seed), 5, ranges)
             got = np.array([material.elevation_deg, material.azimuth_deg, material.turbidity])
-            want = np.array([[x.elevation_deg for x in lights], [x.azimuth_deg for x in lights],
-                             [x.turbidity for x in lights]])
+            want = np.array(
+                [[x.elevation_deg for x in lights], [x.azimuth_deg for x in lights], [x.turbidity for x in lights]]
+            )
             # Same arithmetic, vectorised; 1e-12 leaves room for SIMD vs scalar libm.
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
 def test_lightings_are_in_range_and_stratified():
-    spec = make_spec(materials=50, lights=5, shard_size=10, extra=(
-        '[lighting]\nelevation_deg = [5, 90]\nazimuth_deg = [0, 360]\n'
-        'turbidity = [1, 10]\nscheme = "stratified"\n'))
+    spec = make_spec(
+        materials=50,
+        lights=5,
+        shard_size=10,
+        extra=(
+            '[lighting]\nelevation_deg = [5, 90]\nazimuth_deg = [0, 360]\nturbidity = [1, 10]\nscheme = "stratified"\n'
+        ),
+    )
     z_lo = math.sin(math.radians(5.0))
     for shard in plan_dataset(spec):
         for m in shard.materials:
@@ -334,10 +364,12 @@ def test_planning_touches_no_files_without_folders(monkeypatch):
 
 
 def test_plan_module_is_pure():
-    code = ("import sys; from pipeline.dataset.spec import parse_spec; "
-            "from pipeline.dataset.plan import plan_dataset; plan_dataset(parse_spec(%r)); "
-            "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
-            "assert not bad, bad" % SMOKE)
+    code = (
+        "import sys; from pipeline.dataset.spec import parse_spec; "
+        "from pipeline.dataset.plan import plan_dataset; plan_dataset(parse_spec(%r)); "
+        "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
+        "assert not bad, bad" % SMOKE
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)
 
 
@@ -372,8 +404,11 @@ def test_plans_survive_dask_transport():
 def test_turbidity_per_material_is_the_papers_default():
     import sky
 
-    spec = make_spec(materials=12, lights=5, extra=(
-        '[lighting]\nelevation_deg = [10, 80]\nturbidity = [2, 7]\nscheme = "stratified"\n'))
+    spec = make_spec(
+        materials=12,
+        lights=5,
+        extra=('[lighting]\nelevation_deg = [10, 80]\nturbidity = [2, 7]\nscheme = "stratified"\n'),
+    )
     assert spec.lighting.turbidity_per == "material"
     ranges = spec.lighting.to_lighting_ranges()
     turbidities = set()

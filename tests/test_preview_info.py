@@ -110,11 +110,11 @@ def test_preview_shows_each_render_beside_its_four_maps(dataset, tmp_path):
     assert sheet.shape == (HEADER_HEIGHT + 2 * (64 + GAP) + GAP, LABEL_WIDTH + len(COLUMNS) * (64 + GAP) + GAP, 3)
     for row in range(2):
         y = HEADER_HEIGHT + row * (64 + GAP)
-        label = sheet[y:y + 64, :LABEL_WIDTH]
+        label = sheet[y : y + 64, :LABEL_WIDTH]
         assert (label > 150).any()  # text was drawn
         for col in range(len(COLUMNS)):
             x = LABEL_WIDTH + col * (64 + GAP) + GAP
-            tile = sheet[y:y + 64, x:x + 64].astype(int)
+            tile = sheet[y : y + 64, x : x + 64].astype(int)
             assert tile.std() > 3, (row, COLUMNS[col])  # a picture, not a blank tile
 
 
@@ -125,11 +125,17 @@ def test_preview_of_a_partial_dataset_shows_what_is_there(dataset, tmp_path):
     assert "1 samples (1/2 renders recorded)" in result.output
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--out", "{tmp}/sheet.jpg"], "--out: "),
-    (["--out", "{tmp}/sheet.png", "--samples", "0"], "--samples: 0 is not allowed; allowed: an integer from 1 to 200"),
-    (["--out", "{tmp}/sheet.png", "--tile", "8"], "--tile: 8 is not allowed"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--out", "{tmp}/sheet.jpg"], "--out: "),
+        (
+            ["--out", "{tmp}/sheet.png", "--samples", "0"],
+            "--samples: 0 is not allowed; allowed: an integer from 1 to 200",
+        ),
+        (["--out", "{tmp}/sheet.png", "--tile", "8"], "--tile: 8 is not allowed"),
+    ],
+)
 def test_preview_bad_options_exit_2_and_write_nothing(dataset, tmp_path, args, message):
     result = _cli("preview", dataset, *[a.format(tmp=tmp_path) for a in args])
     assert result.exit_code == 2 and message in result.output, result.output
@@ -159,8 +165,14 @@ def test_map_tiles_encode_maps_for_display():
     mask[0, 0] = 0.0
     normal = np.zeros((2, 2, 3), np.float32)
     normal[..., 2] = 1.0
-    tiles = map_tiles({"diffuse": np.full((2, 2, 3), 0.5, np.float32), "roughness": np.full((2, 2, 1), 0.5, np.float32),
-                       "normal": normal, "mask": mask})
+    tiles = map_tiles(
+        {
+            "diffuse": np.full((2, 2, 3), 0.5, np.float32),
+            "roughness": np.full((2, 2, 1), 0.5, np.float32),
+            "normal": normal,
+            "mask": mask,
+        }
+    )
     assert tuple(tiles["normal"][1, 1]) == (128, 128, 255) and tuple(tiles["normal"][0, 0]) == (0, 0, 0)
     assert tuple(tiles["roughness"][0, 0]) == (128, 128, 128)  # raw, not sRGB-encoded
     assert tuple(tiles["diffuse"][0, 0]) == (188, 188, 188)  # linear 0.5 is sRGB 188

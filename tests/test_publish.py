@@ -120,7 +120,7 @@ def test_tars_follow_the_webdataset_convention_deterministically(smoke, publishe
     assert names == expected  # plan order: a material's maps, then each lighting's record and render
     raw = tars[0].read_bytes()
     with tarfile.open(tars[0], "r:") as tar:
-        headers = [raw[i.offset:i.offset + BLOCK] for i in tar.getmembers()]
+        headers = [raw[i.offset : i.offset + BLOCK] for i in tar.getmembers()]
     for header in headers:  # no user or group name, no owner ids, no time
         assert header[265:329] == bytes(64) and header[108:124] == b"0000000\x000000000\x00"
         assert header[136:148] == b"00000000000\x00"
@@ -174,11 +174,14 @@ def test_publish_refuses_an_invalid_dataset_and_writes_nothing(smoke, tmp_path):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--shard-bytes", "100"], "--shard-bytes: 100 is not allowed; allowed: an integer from 65536"),
-    (["--license", "gpl-9"], "Invalid value for '--license'"),
-    (["--url", "ftp://x y"], "--url: 'ftp://x y' is not allowed; allowed: an http(s) URL"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--shard-bytes", "100"], "--shard-bytes: 100 is not allowed; allowed: an integer from 65536"),
+        (["--license", "gpl-9"], "Invalid value for '--license'"),
+        (["--url", "ftp://x y"], "--url: 'ftp://x y' is not allowed; allowed: an http(s) URL"),
+    ],
+)
 def test_publish_usage_errors_exit_2(smoke, tmp_path, args, message):
     result = run("publish", str(smoke), "--out", str(tmp_path / "pub"), *args)
     assert result.exit_code == 2 and message in result.output
@@ -218,8 +221,9 @@ def test_url_and_license_reach_the_metadata(smoke, tmp_path):
 def test_croissant_validates_and_yields_the_samples_without_touching_the_tars(smoke, published, monkeypatch):
     pub, _ = published
     tool = Path(sys.executable).with_name("mlcroissant")
-    checked = subprocess.run([str(tool), "validate", "--jsonld", str(pub / "croissant.json")],
-                             capture_output=True, text=True)
+    checked = subprocess.run(
+        [str(tool), "validate", "--jsonld", str(pub / "croissant.json")], capture_output=True, text=True
+    )
     assert checked.returncode == 0, checked.stderr[-2000:]
     assert "error" not in checked.stderr.lower().replace("0 error", "")
 
@@ -253,17 +257,41 @@ def test_card_has_the_hub_header_and_the_sections_a_reader_needs(smoke, publishe
     pub, _ = published
     card = (pub / "README.md").read_text()
     header = card.split("---\n")[1]
-    for key in ("license: cc-by-4.0", "pretty_name:", "size_categories:\n- n<1K", "task_categories:", "tags:",
-                "configs:\n- config_name: default\n  data_files:\n  - split: train\n    path: samples.jsonl"):
+    for key in (
+        "license: cc-by-4.0",
+        "pretty_name:",
+        "size_categories:\n- n<1K",
+        "task_categories:",
+        "tags:",
+        "configs:\n- config_name: default\n  data_files:\n  - split: train\n    path: samples.jsonl",
+    ):
         assert key in header, key
-    for section in ("## What a sample is", "## How it was made", "## Files", "## How to load it",
-                    "### With shaderball", "### With webdataset", "### With tarfile and OpenEXR", "## Citation"):
+    for section in (
+        "## What a sample is",
+        "## How it was made",
+        "## Files",
+        "## How to load it",
+        "### With shaderball",
+        "### With webdataset",
+        "### With tarfile and OpenEXR",
+        "## Citation",
+    ):
         assert section in card, section
     description = json.loads((smoke / "dataset.json").read_text())
     spec_digest = description["spec_digest"]
-    for fact in (spec_digest, "Mitsuba 3.9", "seed 20191117", "8 materials x 2 lightings = 16 renders",
-                 "4 uniform, 4 spatially varying", "**Flagged renders**", "**Effects left out**",
-                 "samples rendered without it", "arXiv", "![contact sheet", "(preview.png)"):
+    for fact in (
+        spec_digest,
+        "Mitsuba 3.9",
+        "seed 20191117",
+        "8 materials x 2 lightings = 16 renders",
+        "4 uniform, 4 spatially varying",
+        "**Flagged renders**",
+        "**Effects left out**",
+        "samples rendered without it",
+        "arXiv",
+        "![contact sheet",
+        "(preview.png)",
+    ):
         assert fact in card, fact
     textured_off = sum(1 for r in manifest(smoke) if not r["effects"]["textured"])
     assert f"| {textured_off} of 16 |" in card

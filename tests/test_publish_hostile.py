@@ -249,8 +249,12 @@ CASES = [
     (missing_member, "missing_member", f"member(s) {RENDER} missing"),
     (reordered, "member_order", "members in plan order"),
     (edited_record_member, "bad_record", "member 'm000000_l0.json' is not the manifest's record of m000000_l0"),
-    (escaping_manifest, "manifest_path", "render file path '../../../../tmp/shaderball-escape.render.exr' is "
-                                         "not the layout's 'shards/s00000/m000000_l0.render.exr'"),
+    (
+        escaping_manifest,
+        "manifest_path",
+        "render file path '../../../../tmp/shaderball-escape.render.exr' is "
+        "not the layout's 'shards/s00000/m000000_l0.render.exr'",
+    ),
     (unlisted_file, "unlisted_file", "notes.txt: not listed in SHA256SUMS"),
     (linked_file, "link", "samples.jsonl: a symbolic link inside PUB"),
     (edited_table, "bad_table", "samples.jsonl line 2: differs from the row dataset/manifest.jsonl line 2"),
@@ -307,7 +311,7 @@ def absurd_exr(data: bytes) -> bytes:
     key = b"dataWindow\x00box2i\x00" + (16).to_bytes(4, "little")
     at = data.index(key) + len(key)
     big = (2_000_000_000 - 1).to_bytes(4, "little", signed=True)
-    return data[:at + 8] + big + big + data[at + 16:]
+    return data[: at + 8] + big + big + data[at + 16 :]
 
 
 def test_an_exr_with_an_absurd_header_is_refused_before_anything_decodes_it(smoke, tmp_path, monkeypatch):
@@ -326,8 +330,10 @@ def test_an_exr_with_an_absurd_header_is_refused_before_anything_decodes_it(smok
     for args in (["verify", str(pub)], ["unpack", str(pub), "--out", str(out)]):
         result = run(*args)
         assert result.exit_code == 1
-        assert (f"{TAR}: member '{RENDER}': EXR header says its data window is 2000000000 x 2000000000 pixels"
-                in result.output), result.output
+        assert (
+            f"{TAR}: member '{RENDER}': EXR header says its data window is 2000000000 x 2000000000 pixels"
+            in result.output
+        ), result.output
     assert not out.exists()
 
 
@@ -351,14 +357,17 @@ def test_a_consistent_publication_of_an_invalid_dataset_is_unpacked_then_refused
     assert not (tmp_path / "new").exists()  # written, then removed with the parents it made
 
 
-@pytest.mark.parametrize("limits, kind, words", [
-    (Limits(member_bytes=20_000), "member_too_large", "over the cap of 20000 bytes per member"),
-    (Limits(members=30), "too_many_members", "more than 30 members in the publication"),  # 48 members, 16 rows
-    (Limits(total_bytes=100_000), "too_large", "over the cap of 100000"),
-    (Limits(text_bytes=10_000), "too_large", "over the cap of 10000 bytes for a file read into memory"),
-    (Limits(entries=5), "too_many_files", "more than 5 files and folders"),
-    (Limits(exr_side=32), "exr_header", "at most 32 x 32 are accepted"),
-])
+@pytest.mark.parametrize(
+    "limits, kind, words",
+    [
+        (Limits(member_bytes=20_000), "member_too_large", "over the cap of 20000 bytes per member"),
+        (Limits(members=30), "too_many_members", "more than 30 members in the publication"),  # 48 members, 16 rows
+        (Limits(total_bytes=100_000), "too_large", "over the cap of 100000"),
+        (Limits(text_bytes=10_000), "too_large", "over the cap of 10000 bytes for a file read into memory"),
+        (Limits(entries=5), "too_many_files", "more than 5 files and folders"),
+        (Limits(exr_side=32), "exr_header", "at most 32 x 32 are accepted"),
+    ],
+)
 def test_caps_refuse_before_reading(good, limits, kind, words):
     with pytest.raises(Refused) as caught:
         verify(str(good), limits)
@@ -404,8 +413,17 @@ def test_any_changed_byte_of_a_tar_is_refused_even_with_every_checksum_resealed(
     assert {"not_tar", "member_checksum", "trailing_data"} <= kinds  # a header's own checksum breaks first
 
 
-@pytest.mark.parametrize("rel", ["dataset/manifest.jsonl", "samples.jsonl", "publication.json",
-                                 "dataset/markers.jsonl", "croissant.json", "SHA256SUMS"])
+@pytest.mark.parametrize(
+    "rel",
+    [
+        "dataset/manifest.jsonl",
+        "samples.jsonl",
+        "publication.json",
+        "dataset/markers.jsonl",
+        "croissant.json",
+        "SHA256SUMS",
+    ],
+)
 def test_mangled_metadata_is_refused_or_harmless_never_a_crash(good, tmp_path, rel):
     rng = random.Random(rel)
     for attempt in range(15):
@@ -421,10 +439,13 @@ def test_mangled_metadata_is_refused_or_harmless_never_a_crash(good, tmp_path, r
         try:
             reseal(pub)
         except Exception:  # a forger cannot re-seal what no longer parses or names no file; SHA256SUMS alone
-            (pub / "SHA256SUMS").write_text("".join(
-                f"{sha(p.read_bytes())}  {p.relative_to(pub).as_posix()}\n"
-                for p in sorted(pub.rglob("*"), key=lambda p: p.relative_to(pub).as_posix())
-                if p.is_file() and p.name != "SHA256SUMS"))
+            (pub / "SHA256SUMS").write_text(
+                "".join(
+                    f"{sha(p.read_bytes())}  {p.relative_to(pub).as_posix()}\n"
+                    for p in sorted(pub.rglob("*"), key=lambda p: p.relative_to(pub).as_posix())
+                    if p.is_file() and p.name != "SHA256SUMS"
+                )
+            )
         try:
             verify(str(pub))
         except Refused:

@@ -16,9 +16,29 @@ SMALL = ["--resolution", "48", "--spp", "4"]
 def rendered(tmp_path_factory):
     out = tmp_path_factory.mktemp("render")
     exr, png = out / "ball.exr", out / "ball.png"
-    result = CliRunner().invoke(main, ["render", *SMALL, "--diffuse", "0.6,0.3,0.1", "--roughness", "0.2",
-                                       "--elevation", "30", "--azimuth", "0", "--turbidity", "3",
-                                       "--seed", "5", "--out", str(exr), "--png", str(png)])
+    result = CliRunner().invoke(
+        main,
+        [
+            "render",
+            *SMALL,
+            "--diffuse",
+            "0.6,0.3,0.1",
+            "--roughness",
+            "0.2",
+            "--elevation",
+            "30",
+            "--azimuth",
+            "0",
+            "--turbidity",
+            "3",
+            "--seed",
+            "5",
+            "--out",
+            str(exr),
+            "--png",
+            str(png),
+        ],
+    )
     assert result.exit_code == 0, result.output
     return exr, png, result.output
 
@@ -37,8 +57,9 @@ def test_render_writes_layers_and_stats(rendered):
     assert stats["max"] == pytest.approx(float(render.max()))
     assert image.meta["lighting"]["changed"] is False
     mask = image.layers["mask"][..., 0] > 0.5
-    np.testing.assert_allclose(image.layers["diffuse"][mask], np.broadcast_to([0.6, 0.3, 0.1], (mask.sum(), 3)),
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        image.layers["diffuse"][mask], np.broadcast_to([0.6, 0.3, 0.1], (mask.sum(), 3)), atol=1e-3
+    )
     assert "NaN 0, Inf 0, negative 0" in output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -46,8 +67,24 @@ def test_render_writes_layers_and_stats(rendered):
 def test_same_seed_same_bytes(rendered, tmp_path):
     exr, _, _ = rendered
     again = tmp_path / "again.exr"
-    args = ["render", *SMALL, "--diffuse", "0.6,0.3,0.1", "--roughness", "0.2", "--elevation", "30",
-            "--azimuth", "0", "--turbidity", "3", "--seed", "5", "--out", str(again)]
+    args = [
+        "render",
+        *SMALL,
+        "--diffuse",
+        "0.6,0.3,0.1",
+        "--roughness",
+        "0.2",
+        "--elevation",
+        "30",
+        "--azimuth",
+        "0",
+        "--turbidity",
+        "3",
+        "--seed",
+        "5",
+        "--out",
+        str(again),
+    ]
     assert CliRunner().invoke(main, args).exit_code == 0
     first, second = read_exr(str(exr)), read_exr(str(again))
     np.testing.assert_array_equal(first.layers["render"], second.layers["render"])
@@ -65,28 +102,31 @@ def test_low_sun_is_raised_and_recorded(tmp_path):
     assert meta["stats"]["negative"] == 0 and meta["stats"]["nan"] == 0
 
 
-@pytest.mark.parametrize("args, option", [
-    (["--elevation", "90.5"], "--elevation"),
-    (["--elevation", "-5"], "--elevation"),
-    (["--elevation", "nan"], "--elevation"),
-    (["--turbidity", "0.99"], "--turbidity"),
-    (["--turbidity", "10.01"], "--turbidity"),
-    (["--azimuth", "inf"], "--azimuth"),
-    (["--diffuse", "1.5,0,0"], "--diffuse"),
-    (["--diffuse", "0.5,0.5"], "--diffuse"),
-    (["--diffuse", "red"], "--diffuse"),
-    (["--specular", "-0.1,0,0"], "--specular"),
-    (["--roughness", "1.2"], "--roughness"),
-    (["--normal", "0,0,-1"], "--normal"),
-    (["--normal", "0,0,0"], "--normal"),
-    (["--spp", "0"], "--spp"),
-    (["--resolution", "8"], "--resolution"),
-    (["--resolution", "5000"], "--resolution"),
-    (["--max-depth", "0"], "--max-depth"),
-    (["--seed", "-1"], "--seed"),
-    (["--seed", str(2**32)], "--seed"),
-    (["--svbrdf", "/nonexistent/material.png"], "--svbrdf"),
-])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--elevation", "90.5"], "--elevation"),
+        (["--elevation", "-5"], "--elevation"),
+        (["--elevation", "nan"], "--elevation"),
+        (["--turbidity", "0.99"], "--turbidity"),
+        (["--turbidity", "10.01"], "--turbidity"),
+        (["--azimuth", "inf"], "--azimuth"),
+        (["--diffuse", "1.5,0,0"], "--diffuse"),
+        (["--diffuse", "0.5,0.5"], "--diffuse"),
+        (["--diffuse", "red"], "--diffuse"),
+        (["--specular", "-0.1,0,0"], "--specular"),
+        (["--roughness", "1.2"], "--roughness"),
+        (["--normal", "0,0,-1"], "--normal"),
+        (["--normal", "0,0,0"], "--normal"),
+        (["--spp", "0"], "--spp"),
+        (["--resolution", "8"], "--resolution"),
+        (["--resolution", "5000"], "--resolution"),
+        (["--max-depth", "0"], "--max-depth"),
+        (["--seed", "-1"], "--seed"),
+        (["--seed", str(2**32)], "--seed"),
+        (["--svbrdf", "/nonexistent/material.png"], "--svbrdf"),
+    ],
+)
 def test_bad_option_exits_2_names_it_and_writes_nothing(tmp_path, args, option):
     out, png = tmp_path / "x.exr", tmp_path / "x.png"
     result = CliRunner().invoke(main, ["render", "--out", str(out), "--png", str(png), *args])

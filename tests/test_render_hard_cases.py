@@ -40,8 +40,11 @@ def test_lighting_sweep(scene_parts, material):
             accepted = 0 <= elevation <= 90 and 1 <= turbidity <= 10
             if not accepted:
                 bad_elevation, bad_turbidity = not 0 <= elevation <= 90, not 1 <= turbidity <= 10
-                field = "elevation_deg|turbidity" if bad_elevation and bad_turbidity else (
-                    "elevation_deg" if bad_elevation else "turbidity")
+                field = (
+                    "elevation_deg|turbidity"
+                    if bad_elevation and bad_turbidity
+                    else ("elevation_deg" if bad_elevation else "turbidity")
+                )
                 with pytest.raises(USER_ERRORS, match=f"({field}).*allowed"):
                     render_sample(ball, camera, maps, Light(elevation, 30.0, turbidity), SETTINGS, seed=1)
                 rejected += 1

@@ -35,16 +35,18 @@ crash = crash_module()
 def _spec_text(**changes) -> str:
     text = SMOKE.read_text()
     for key, value in changes.items():
-        lines = [f"{key} = {value}" if line.split("=")[0].strip() == key else line
-                 for line in text.splitlines()]
+        lines = [f"{key} = {value}" if line.split("=")[0].strip() == key else line for line in text.splitlines()]
         assert lines != text.splitlines(), key
         text = "\n".join(lines) + "\n"
     return text
 
 
 def _snapshot(folder: Path) -> dict:
-    return {p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
-            for p in folder.rglob("*") if p.is_file()}
+    return {
+        p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in folder.rglob("*")
+        if p.is_file()
+    }
 
 
 def test_other_spec_is_refused_naming_the_fields_and_nothing_is_written(tmp_path):
@@ -59,8 +61,10 @@ def test_other_spec_is_refused_naming_the_fields_and_nothing_is_written(tmp_path
     message = result.output
     assert "different spec" in message and "dataset.seed = 20191117 in the dataset, 7 in the spec" in message
     assert "render.spp = 16 in the dataset, 32 in the spec" in message
-    assert "new directory" in message and "--allow-spec-change accepts a change of dataset.name or " \
-                                          "dataset.version only" in message
+    assert (
+        "new directory" in message
+        and "--allow-spec-change accepts a change of dataset.name or dataset.version only" in message
+    )
     assert _snapshot(out) == before
 
 
@@ -125,19 +129,20 @@ def test_resume_renders_only_missing_or_unverified_samples_and_trusts_markers(tm
     shutil.copytree(reference, out)
     s1, s2 = out / "shards" / "s00001", out / "shards" / "s00002"
     (s1 / "COMPLETE.json").unlink()
-    (s1 / "m000002_l1.render.exr").unlink()                 # file gone: record fails to verify
-    _flip_byte(s1 / "m000003_l0.render.exr")                 # bytes changed: checksum fails
-    (s1 / "m000003_l1.json").unlink()                        # no record: not committed
+    (s1 / "m000002_l1.render.exr").unlink()  # file gone: record fails to verify
+    _flip_byte(s1 / "m000003_l0.render.exr")  # bytes changed: checksum fails
+    (s1 / "m000003_l1.json").unlink()  # no record: not committed
     (out / "manifest.jsonl").unlink()
-    _flip_byte(s2 / "m000004_l0.render.exr")                 # inside a complete shard: trusted
+    _flip_byte(s2 / "m000004_l0.render.exr")  # inside a complete shard: trusted
     summary = build(str(SMOKE), str(out), workers=0)
     assert (summary.rendered, summary.skipped) == (3, 13)
     for name in os.listdir(reference / "shards" / "s00001"):
         if name.endswith(".exr"):
             assert (s1 / name).read_bytes() == (reference / "shards" / "s00001" / name).read_bytes(), name
     # The complete shard was not looked into (its marker is trusted); validate finds the damage.
-    assert (s2 / "m000004_l0.render.exr").read_bytes() != \
-        (reference / "shards" / "s00002" / "m000004_l0.render.exr").read_bytes()
+    assert (s2 / "m000004_l0.render.exr").read_bytes() != (
+        reference / "shards" / "s00002" / "m000004_l0.render.exr"
+    ).read_bytes()
     from pipeline.check.validate import validate
 
     report = validate(str(out))
@@ -158,9 +163,17 @@ def test_two_builds_at_once_on_one_directory_commit_one_copy_of_each_sample(tmp_
     of one shard inside a build (dask's at-least-once execution) are the late-second-run
     tests below."""
     out = tmp_path / "ds"
-    procs = [subprocess.Popen(crash.child_command(SMOKE, out, 0), cwd=REPO, stdin=subprocess.DEVNULL,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-             for _ in range(2)]
+    procs = [
+        subprocess.Popen(
+            crash.child_command(SMOKE, out, 0),
+            cwd=REPO,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        for _ in range(2)
+    ]
     try:
         outputs = [p.communicate(timeout=300)[0].decode(errors="replace") for p in procs]
     finally:
@@ -210,11 +223,14 @@ def test_after_a_late_second_run_validate_passes(tmp_path, reference):
     assert report.ok, [p.message for p in report.problems]
 
 
-@pytest.mark.parametrize("change,message", [
-    ({"plan_digest": "0" * 64}, "this shaderball plans other samples for the same spec"),
-    ({"libraries": {"mitsuba": "3.0.0", "drjit": "1.5.0"}}, "mitsuba 3.0.0 in dataset.json"),
-    ({"variant": "cuda_ad_rgb"}, "Mitsuba variant cuda_ad_rgb in dataset.json"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        ({"plan_digest": "0" * 64}, "this shaderball plans other samples for the same spec"),
+        ({"libraries": {"mitsuba": "3.0.0", "drjit": "1.5.0"}}, "mitsuba 3.0.0 in dataset.json"),
+        ({"variant": "cuda_ad_rgb"}, "Mitsuba variant cuda_ad_rgb in dataset.json"),
+    ],
+)
 def test_resume_by_another_installation_is_refused(tmp_path, reference, change, message):
     """Same spec, but samples would be made differently: resuming would mix two datasets."""
     import json

@@ -126,7 +126,9 @@ def test_update_in_place_matches_a_fresh_scene_without_recompiling(mi, sun):
     assert _render_kernel_hashes(mi, scene) == before
     updated = render(mi, scene, SIDE["spp"], 5)
     entries_b, record_b = emitter_dicts(b, sun=sun, variant=VARIANT)
-    fresh = render(mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", **SIDE, variant=VARIANT)), SIDE["spp"], 5)
+    fresh = render(
+        mi, mi.load_dict(probe_scene_dict(entries_b, material="glossy", **SIDE, variant=VARIANT)), SIDE["spp"], 5
+    )
     assert np.array_equal(updated, fresh)
     assert record == record_b
 

@@ -74,15 +74,37 @@ class Build:
     def __init__(self, slurm: LocalSlurm, tmp_path: Path, out: Path, *options: str):
         self.out, self.cwd = out, tmp_path
         # --scratch: each test's jobs compile their kernels afresh, in a folder pytest removes.
-        self.command = [sys.executable, "-c", "import cli; cli.main()", "build", str(SMOKE), "--out", str(out),
-                        "--cluster", "slurm", "--queue", slurm.partition, "--memory", "2GiB",
-                        "--scratch", str(tmp_path / "scratch"), *options]
+        self.command = [
+            sys.executable,
+            "-c",
+            "import cli; cli.main()",
+            "build",
+            str(SMOKE),
+            "--out",
+            str(out),
+            "--cluster",
+            "slurm",
+            "--queue",
+            slurm.partition,
+            "--memory",
+            "2GiB",
+            "--scratch",
+            str(tmp_path / "scratch"),
+            *options,
+        ]
         self.stdout, self.stderr = tmp_path / "build.out", tmp_path / "build.err"
         self.start = time.monotonic()
         # cwd: the jobs' slurm-<id>.out files land where sbatch runs.
-        self.proc = subprocess.Popen(self.command, cwd=tmp_path, env=slurm.env, stdin=subprocess.DEVNULL,
-                                     stdout=open(self.stdout, "w"), stderr=open(self.stderr, "w"),
-                                     start_new_session=True, preexec_fn=die_with_parent)
+        self.proc = subprocess.Popen(
+            self.command,
+            cwd=tmp_path,
+            env=slurm.env,
+            stdin=subprocess.DEVNULL,
+            stdout=open(self.stdout, "w"),
+            stderr=open(self.stderr, "w"),
+            start_new_session=True,
+            preexec_fn=die_with_parent,
+        )
         self.seconds = None
 
     def wait(self, timeout_s: float = 420.0) -> int:
@@ -98,8 +120,9 @@ class Build:
         return self.stdout.read_text(errors="replace") + self.stderr.read_text(errors="replace")
 
     def job_logs(self) -> str:
-        return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-1500:]}"
-                         for p in sorted(self.cwd.glob("slurm-*.out")))
+        return "\n".join(
+            f"--- {p.name}\n{p.read_text(errors='replace')[-1500:]}" for p in sorted(self.cwd.glob("slurm-*.out"))
+        )
 
     def explain(self, slurm: LocalSlurm) -> str:
         return f"{' '.join(self.command)}\n{self.output()}\n{self.job_logs()}\n{slurm.logs_tail(1500)}"
@@ -152,7 +175,7 @@ def _job_log(folder: Path, job_id: str) -> str:
 
 def _seconds(hhmmss: str) -> int:
     parts = [int(p) for p in hhmmss.split("-")[-1].split(":")]
-    return sum(v * 60 ** i for i, v in enumerate(reversed(parts)))
+    return sum(v * 60**i for i, v in enumerate(reversed(parts)))
 
 
 def test_plain_build_is_identical_to_an_in_process_build(idle, builds, reference, tmp_path):
@@ -208,8 +231,11 @@ def test_walltime_kills_a_hung_job_while_the_other_worker_retires_before_it(idle
     ran_s = _seconds(jobs[hung]["RunTime"])  # the hung job ran its whole time limit
     assert ran_s >= 60 and time.monotonic() - stopped_at > 30, "the build did not wait for the hung job"
     assert "DUE TO TIME LIMIT" in _job_log(tmp_path, hung)
-    retired = [k for k, j in jobs.items() if k != hung and j["JobState"] != "TIMEOUT"
-               and "Reason: worker-lifetime-reached" in _job_log(tmp_path, k)]
+    retired = [
+        k
+        for k, j in jobs.items()
+        if k != hung and j["JobState"] != "TIMEOUT" and "Reason: worker-lifetime-reached" in _job_log(tmp_path, k)
+    ]
     assert retired, f"no worker retired before its walltime: {[(k, j['JobState']) for k, j in jobs.items()]}"
     for job in retired:
         assert _seconds(jobs[job]["RunTime"]) < 60, jobs[job]
@@ -232,13 +258,13 @@ def test_a_node_drained_mid_build_with_its_job_requeued(idle, builds, reference,
     assert build.wait() == 0, build.explain(slurm)
     assert slurm.jobs()[job]["Restarts"] == "1"
     assert slurm.node_state("sb2") == "drained"
-    assert re.search(rf"\| 1 worker\(s\); slurm jobs: 1 running, 1 pending \(job {job}: \w+", build.output()), \
+    assert re.search(rf"\| 1 worker\(s\); slurm jobs: 1 running, 1 pending \(job {job}: \w+", build.output()), (
         build.output()
+    )
     crash.check_complete(build.out, reference)
 
 
-def test_jobs_that_cannot_start_stop_the_build_at_the_start_timeout_and_it_resumes(idle, builds, reference,
-                                                                                   tmp_path):
+def test_jobs_that_cannot_start_stop_the_build_at_the_start_timeout_and_it_resumes(idle, builds, reference, tmp_path):
     slurm = idle
     slurm.scontrol("update", f"PartitionName={slurm.partition}", "State=DOWN")
     options = ("--jobs", "2", "--cores", "2", "--walltime", "00:30:00", "--start-timeout", "15")
@@ -248,12 +274,15 @@ def test_jobs_that_cannot_start_stop_the_build_at_the_start_timeout_and_it_resum
     assert build.seconds < 60, build.seconds
     ids = re.findall(r"job (\d+): PartitionDown, the partition is down", out)
     assert len(ids) == 2, out
-    assert ("error: --start-timeout 15: no worker for 15 s since the build started; slurm jobs: 2 pending "
-            f"(job {ids[0]}: PartitionDown, the partition is down; job {ids[1]}: PartitionDown, the "
-            "partition is down). The jobs are cancelled; what was rendered is kept: run the same command "
-            "again to resume") in out, out
-    assert re.search(r"\| 0 worker\(s\); slurm jobs: 2 pending \(job \d+: PartitionDown; job \d+: PartitionDown\)",
-                     out), out
+    assert (
+        "error: --start-timeout 15: no worker for 15 s since the build started; slurm jobs: 2 pending "
+        f"(job {ids[0]}: PartitionDown, the partition is down; job {ids[1]}: PartitionDown, the "
+        "partition is down). The jobs are cancelled; what was rendered is kept: run the same command "
+        "again to resume"
+    ) in out, out
+    assert re.search(
+        r"\| 0 worker\(s\); slurm jobs: 2 pending \(job \d+: PartitionDown; job \d+: PartitionDown\)", out
+    ), out
     assert "Traceback" not in out
     assert slurm.queue() == [], "the build left its jobs queued"
     assert {p.name for p in build.out.iterdir()} == {"spec.toml", "dataset.json"}
@@ -275,9 +304,12 @@ def test_a_replacement_that_cannot_start_stops_the_build_and_it_resumes(idle, bu
     slurm.run("scancel", *_running(slurm))
     assert build.wait(timeout_s=180) == 2, build.explain(slurm)
     out = build.output()
-    assert re.search(r"error: --start-timeout 20: no worker for 20 s since the last one left; slurm jobs: 1 pending "
-                     r"\(job \d+: PartitionDown, the partition is down\)\. The jobs are cancelled; what was rendered "
-                     r"is kept", out), out
+    assert re.search(
+        r"error: --start-timeout 20: no worker for 20 s since the last one left; slurm jobs: 1 pending "
+        r"\(job \d+: PartitionDown, the partition is down\)\. The jobs are cancelled; what was rendered "
+        r"is kept",
+        out,
+    ), out
     kept = build.records()
     assert 1 <= kept < 16
     assert slurm.queue() == []
@@ -291,11 +323,25 @@ def test_a_replacement_that_cannot_start_stops_the_build_and_it_resumes(idle, bu
 
 def test_a_job_sbatch_refuses_stops_the_build_at_once(idle, builds, tmp_path):
     slurm = idle
-    build = _run(builds, slurm, tmp_path, tmp_path / "ds", "--jobs", "1", "--cores", "2", "--walltime", "00:30:00",
-                 "--queue", "nosuch")
+    build = _run(
+        builds,
+        slurm,
+        tmp_path,
+        tmp_path / "ds",
+        "--jobs",
+        "1",
+        "--cores",
+        "2",
+        "--walltime",
+        "00:30:00",
+        "--queue",
+        "nosuch",
+    )
     assert build.wait(timeout_s=120) == 2, build.explain(slurm)
     out = build.output()
-    assert ("error: --cluster slurm: the batch system refused a job: `sbatch JOB-SCRIPT` exited 1: sbatch: error: "
-            "invalid partition specified: nosuch") in out, out
+    assert (
+        "error: --cluster slurm: the batch system refused a job: `sbatch JOB-SCRIPT` exited 1: sbatch: error: "
+        "invalid partition specified: nosuch"
+    ) in out, out
     assert "Traceback" not in out
     assert build.seconds < 60

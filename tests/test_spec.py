@@ -54,8 +54,7 @@ def spec_with(tmp_path, section: str, key: str, value_toml: str) -> str:
     dataset = {"name": '"tiny"', "seed": "7", "materials": "4"}
     tables: dict[str, dict[str, str]] = {"dataset": dataset}
     tables.setdefault(section, {})[key] = value_toml
-    text = "".join(f"[{s}]\n" + "".join(f"{k} = {v}\n" for k, v in t.items()) + "\n"
-                   for s, t in tables.items())
+    text = "".join(f"[{s}]\n" + "".join(f"{k} = {v}\n" for k, v in t.items()) + "\n" for s, t in tables.items())
     return write_spec(tmp_path, text)
 
 
@@ -91,8 +90,7 @@ def test_minimal_spec_takes_documented_defaults():
     assert spec.dataset.lights_per_material == 5
     assert spec.dataset.svbrdf_fraction == 0.5
     assert spec.dataset.shard_size == 20
-    assert spec.render == RenderSection(resolution=400, spp=150, max_depth=8,
-                                        integrator="path", variant="auto")
+    assert spec.render == RenderSection(resolution=400, spp=150, max_depth=8, integrator="path", variant="auto")
     assert spec.storage.compression == "zip"
     assert spec.storage.layers == MAP_LAYERS
     assert spec.storage.texture_maps is True and spec.storage.maps_half is True
@@ -125,8 +123,7 @@ BAD_FIELDS = [
     ("materials", "metal_saturation", "0.5", "0.5", "a pair [lo, hi]"),
     ("materials", "metal_probability", "-0.1", "-0.1", "a finite number from 0 to 1"),
     ("materials", "normal_tilt_max_deg", "90", "90", "a finite number from 0 to 80"),
-    ("materials", "svbrdf_families", '["no_such_family"]', '["no_such_family"]',
-     'unknown: "no_such_family"'),
+    ("materials", "svbrdf_families", '["no_such_family"]', '["no_such_family"]', 'unknown: "no_such_family"'),
     ("materials", "svbrdf_families", '"tiles"', '"tiles"', "a list of distinct"),
     ("materials", "svbrdf_folders", '["does/not/exist"]', "does/not/exist", "is not a folder"),
     ("materials", "texture_resolution", "8", "8", "an integer from 16 to 4096"),
@@ -155,10 +152,10 @@ BAD_FIELDS = [
 ]
 
 
-@pytest.mark.parametrize("section,key,value,shown,allowed", BAD_FIELDS,
-                         ids=[f"{c[0]}.{c[1]}={c[2]}" for c in BAD_FIELDS])
-def test_bad_field_is_refused_naming_field_value_and_range(tmp_path, section, key, value,
-                                                           shown, allowed):
+@pytest.mark.parametrize(
+    "section,key,value,shown,allowed", BAD_FIELDS, ids=[f"{c[0]}.{c[1]}={c[2]}" for c in BAD_FIELDS]
+)
+def test_bad_field_is_refused_naming_field_value_and_range(tmp_path, section, key, value, shown, allowed):
     path = spec_with(tmp_path, section, key, value)
     with pytest.raises(ShaderballError) as info:
         parse_spec(path)
@@ -174,15 +171,21 @@ def test_bad_field_is_refused_naming_field_value_and_range(tmp_path, section, ke
 
 def test_unknown_key_is_named_with_a_suggestion(tmp_path):
     path = spec_with(tmp_path, "render", "sp", "16")
-    with pytest.raises(SpecError, match=r"render\.sp: unknown key \(value 16\) is not allowed; "
-                                        r"\[render\] takes only: .*spp.*did you mean spp\?"):
+    with pytest.raises(
+        SpecError,
+        match=r"render\.sp: unknown key \(value 16\) is not allowed; "
+        r"\[render\] takes only: .*spp.*did you mean spp\?",
+    ):
         parse_spec(path)
 
 
 def test_unknown_section_is_named(tmp_path):
     path = write_spec(tmp_path, MINIMAL + "[renderer]\nspp = 4\n")
-    with pytest.raises(SpecError, match=r"\[renderer\]: unknown section; sections are "
-                                        r"\[dataset\].*did you mean render\?"):
+    with pytest.raises(
+        SpecError,
+        match=r"\[renderer\]: unknown section; sections are "
+        r"\[dataset\].*did you mean render\?",
+    ):
         parse_spec(path)
 
 
@@ -225,14 +228,18 @@ def test_missing_file(tmp_path):
 
 def test_svbrdf_share_needs_a_source(tmp_path):
     path = write_spec(tmp_path, MINIMAL + "[materials]\nsvbrdf_families = []\n")
-    with pytest.raises(SpecError, match=r"materials\.svbrdf_families: \[\] is not allowed; at "
-                                        r"least one family .* makes 2 of 4 materials SVBRDF"):
+    with pytest.raises(
+        SpecError,
+        match=r"materials\.svbrdf_families: \[\] is not allowed; at "
+        r"least one family .* makes 2 of 4 materials SVBRDF",
+    ):
         parse_spec(path)
 
 
 def test_no_svbrdf_needs_no_source():
-    spec = parse_spec_text(MINIMAL.replace("materials = 4", "materials = 4\nsvbrdf_fraction = 0")
-                           + "[materials]\nsvbrdf_families = []\n")
+    spec = parse_spec_text(
+        MINIMAL.replace("materials = 4", "materials = 4\nsvbrdf_fraction = 0") + "[materials]\nsvbrdf_families = []\n"
+    )
     assert spec.dataset.n_svbrdf == 0
 
 
@@ -334,7 +341,8 @@ def test_same_meaning_same_digest():
     explicit = parse_spec_text(
         MINIMAL + "lights_per_material = 5\n"
         "[lighting]\nturbidity = [1, 10]\n"
-        '[storage]\nlayers = ["mask", "normal", "roughness", "specular", "diffuse"]\n')
+        '[storage]\nlayers = ["mask", "normal", "roughness", "specular", "diffuse"]\n'
+    )
     assert explicit == plain
     assert spec_digest(explicit) == spec_digest(plain)
 
@@ -361,7 +369,8 @@ def test_reference_page_matches_the_code():
     assert reference_markdown() in page, (
         "docs/spec.md is out of date: paste the output of\n  .venv/bin/python -c 'from "
         "pipeline.dataset.spec import reference_markdown; print(reference_markdown())'\nbetween its "
-        "FIELD REFERENCE markers")
+        "FIELD REFERENCE markers"
+    )
     keys = [row[0].strip("`") for row in reference_rows()]
     assert len(keys) == len(set(keys)) >= 25
     for row in reference_rows():
@@ -370,6 +379,7 @@ def test_reference_page_matches_the_code():
 
 def test_fallback_lists_match_sky():
     import sky
+
     assert FALLBACK_LIGHT_SCHEMES == tuple(sky.SCHEMES)
     assert set(SUN_FORMS) == set(sky.SUN_MODES)
     assert LightingSection().sun == sky.DEFAULT_SUN
@@ -383,16 +393,21 @@ def test_fallback_families_match_materials():
 
 def test_to_lighting_ranges_builds_sky_ranges():
     import sky
-    section = LightingSection(elevation_deg=(10, 70), azimuth_deg=(-90, 90),
-                              turbidity=(2, 6), scheme="stratified")
+
+    section = LightingSection(elevation_deg=(10, 70), azimuth_deg=(-90, 90), turbidity=(2, 6), scheme="stratified")
     ranges = section.to_lighting_ranges()
     assert isinstance(ranges, sky.LightingRanges)
     assert (ranges.elevation_deg, ranges.azimuth_deg, ranges.turbidity, ranges.scheme) == (
-        (10.0, 70.0), (-90.0, 90.0), (2.0, 6.0), "stratified")
+        (10.0, 70.0),
+        (-90.0, 90.0),
+        (2.0, 6.0),
+        "stratified",
+    )
 
 
 def test_uniform_fields_mirror_materials_uniform_ranges():
     import materials
+
     names = [f.name for f in dataclasses.fields(materials.UniformRanges)]
     assert list(UNIFORM_FIELDS) == names
     # Same defaults: a spec that leaves [materials] out samples materials' own model.
@@ -406,6 +421,7 @@ def test_uniform_fields_mirror_materials_uniform_ranges():
 def test_uniform_limits_match_materials(name):
     """The spec's bounds are UniformRanges' bounds: the edge passes both, beyond fails both."""
     import materials
+
     rule = {f.name: f.metadata["rule"] for f in dataclasses.fields(MaterialsSection)}[name]
     is_pair = isinstance(getattr(MaterialsSection(), name), tuple)
     edge = (rule.lo, rule.hi) if is_pair else rule.hi
@@ -421,7 +437,9 @@ def test_uniform_limits_match_materials(name):
 
 
 def test_spec_module_is_pure():
-    code = ("import sys; from pipeline.dataset.spec import parse_spec; parse_spec(%r); "
-            "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
-            "assert not bad, bad" % SMOKE)
+    code = (
+        "import sys; from pipeline.dataset.spec import parse_spec; parse_spec(%r); "
+        "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
+        "assert not bad, bad" % SMOKE
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)

@@ -51,8 +51,12 @@ REFERENCE_SPP = 512
 #: Stated range of the log-log slope of relMSE against spp for the independent sampler
 #: (Monte Carlo: -1; fireflies at low spp and the finite reference flatten it a little).
 SLOPE_RANGE = (-1.25, -0.75)
-GOLD = MaterialMaps(np.full((1, 1, 3), 0.05, np.float32), np.full((1, 1, 3), (0.95, 0.7, 0.3), np.float32),
-                    np.full((1, 1), 0.15, np.float32), np.full((1, 1, 3), (0.0, 0.0, 1.0), np.float32))
+GOLD = MaterialMaps(
+    np.full((1, 1, 3), 0.05, np.float32),
+    np.full((1, 1, 3), (0.95, 0.7, 0.3), np.float32),
+    np.full((1, 1), 0.15, np.float32),
+    np.full((1, 1, 3), (0.0, 0.0, 1.0), np.float32),
+)
 LIGHT = Light(35.0, 300.0, 3.0)
 
 
@@ -67,8 +71,17 @@ def tiny_spec(tmp_path) -> str:
 @pytest.fixture(scope="module")
 def tiny_study(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("study")
-    req = StudyRequest(spec=tiny_spec(tmp), out=str(tmp / "out"), samples=3, reference_spp=REFERENCE_SPP,
-                       resolution=32, ladder=LADDER, families=("ladder", "denoise"), flip=False, scan=8)
+    req = StudyRequest(
+        spec=tiny_spec(tmp),
+        out=str(tmp / "out"),
+        samples=3,
+        reference_spp=REFERENCE_SPP,
+        resolution=32,
+        ladder=LADDER,
+        families=("ladder", "denoise"),
+        flip=False,
+        scan=8,
+    )
     summary = run_study(req)
     with open(tmp / "out" / "study.json", encoding="utf-8") as fh:
         return req, summary, json.load(fh)
@@ -150,7 +163,9 @@ def test_configurations_vary_one_thing_from_the_recipe():
     assert "independent/150" in names and len(names) == len(set(names))
     assert {c.changes["sampler"] for c in configs if c.family == "samplers"} == set(SAMPLERS[1:])
     assert all(c.changes["max_depth"] != 8 for c in configs if c.family == "depth")
-    assert {c.spp for c in configs if c.family == "adaptive"} == {150}  # the cap: the largest rung <= 4 x 150 (the recipe is one)
+    assert {c.spp for c in configs if c.family == "adaptive"} == {
+        150
+    }  # the cap: the largest rung <= 4 x 150 (the recipe is one)
 
 
 # --------------------------------------------------------------------------- renderer options
@@ -234,8 +249,9 @@ def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setu
     assert r.stats["spp_used"] == 25  # Mitsuba's orthogonal sampler: a prime squared
     plain = render_sample(ball, camera, GOLD, LIGHT, RenderSettings(resolution=16, spp=16, variant=VARIANT), 3)
     assert "spp_used" not in plain.stats  # default renders keep the stats they always had
-    clamped = render_sample(ball, camera, GOLD, LIGHT,
-                            RenderSettings(resolution=16, spp=16, clamp=0.05, variant=VARIANT), 3)
+    clamped = render_sample(
+        ball, camera, GOLD, LIGHT, RenderSettings(resolution=16, spp=16, clamp=0.05, variant=VARIANT), 3
+    )
     y = clamped.image @ np.array([0.2126, 0.7152, 0.0722])
     assert y.max() <= 0.05 * (1 + 1e-4)  # box filter: a pixel is a mean of clamped paths
     assert (plain.image @ np.array([0.2126, 0.7152, 0.0722])).max() > 0.05
@@ -244,16 +260,19 @@ def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setu
 # --------------------------------------------------------------------------- bad input
 
 
-@pytest.mark.parametrize("args, option", [
-    (["--samples", "0"], "--samples"),
-    (["--reference-spp", "3"], "--reference-spp"),
-    (["--reference-spp", "1000"], "--reference-spp"),  # less than twice the largest spp (1024)
-    (["--resolution", "8"], "--resolution"),
-    (["--ladder", "0,4"], "--ladder"),
-    (["--ladder", "a,b"], "--ladder"),
-    (["--configs", "ladder,bogus"], "--configs"),
-    (["--only", "independent/3"], "--only"),
-])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--samples", "0"], "--samples"),
+        (["--reference-spp", "3"], "--reference-spp"),
+        (["--reference-spp", "1000"], "--reference-spp"),  # less than twice the largest spp (1024)
+        (["--resolution", "8"], "--resolution"),
+        (["--ladder", "0,4"], "--ladder"),
+        (["--ladder", "a,b"], "--ladder"),
+        (["--configs", "ladder,bogus"], "--configs"),
+        (["--only", "independent/3"], "--only"),
+    ],
+)
 def test_bad_study_options_exit_2_and_write_nothing(tmp_path, args, option):
     out = tmp_path / "out"
     result = CliRunner().invoke(cli.main, ["study", tiny_spec(tmp_path), "--out", str(out), *args])
@@ -262,13 +281,16 @@ def test_bad_study_options_exit_2_and_write_nothing(tmp_path, args, option):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("field, value, allowed", [
-    ("sampler", '"sobol"', "independent"),
-    ("rr_depth", "0", "from 1 to 64"),
-    ("clamp", "-1.0", "from 0 to"),
-    ("target_error", "2.0", "from 0 to 1"),
-    ("target_error", "nan", "finite"),
-])
+@pytest.mark.parametrize(
+    "field, value, allowed",
+    [
+        ("sampler", '"sobol"', "independent"),
+        ("rr_depth", "0", "from 1 to 64"),
+        ("clamp", "-1.0", "from 0 to"),
+        ("target_error", "2.0", "from 0 to 1"),
+        ("target_error", "nan", "finite"),
+    ],
+)
 def test_bad_render_fields_are_refused(tmp_path, field, value, allowed):
     text = f'[dataset]\nname = "x"\nseed = 1\nmaterials = 1\n[render]\n{field} = {value}\n'
     with pytest.raises(SpecError, match=re.escape(f"render.{field}")) as err:
@@ -286,5 +308,6 @@ def test_new_fields_at_their_defaults_keep_the_digest():
     base = '[dataset]\nname = "x"\nseed = 1\nmaterials = 1\n'
     explicit = base + '[render]\nsampler = "independent"\nrr_depth = 5\nclamp = 0.0\ntarget_error = 0.0\n'
     assert spec_digest(parse_spec_text(base)) == spec_digest(parse_spec_text(explicit))
-    assert spec_digest(parse_spec_text(base + '[render]\nsampler = "stratified"\n')) != \
-        spec_digest(parse_spec_text(base))
+    assert spec_digest(parse_spec_text(base + '[render]\nsampler = "stratified"\n')) != spec_digest(
+        parse_spec_text(base)
+    )

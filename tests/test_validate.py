@@ -57,8 +57,7 @@ def dataset(smoke_dataset, tmp_path) -> Path:
 
 
 def exr_digests(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*.exr"))}
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*.exr"))}
 
 
 def manifest_lines(root: Path) -> list[dict]:
@@ -67,7 +66,8 @@ def manifest_lines(root: Path) -> list[dict]:
 
 def write_manifest_lines(root: Path, records: list[dict]) -> None:
     (root / "manifest.jsonl").write_text(
-        "".join(json.dumps(r, sort_keys=True, separators=(",", ":")) + "\n" for r in records))
+        "".join(json.dumps(r, sort_keys=True, separators=(",", ":")) + "\n" for r in records)
+    )
 
 
 def invoke(*args: str):
@@ -188,8 +188,9 @@ def test_repair_restores_byte_identical_files(smoke_dataset, dataset, name):
     assert report["problems"] == [] and report["valid"] == 16
     assert len(report["repair"]["before"]["problems"]) == 1 and report["repair"]["actions"]
     assert exr_digests(dataset) == exr_digests(smoke_dataset)
-    assert [without_timings(r) for r in manifest_lines(dataset)] == \
-        [without_timings(r) for r in manifest_lines(smoke_dataset)]
+    assert [without_timings(r) for r in manifest_lines(dataset)] == [
+        without_timings(r) for r in manifest_lines(smoke_dataset)
+    ]
     assert not (dataset / EXTRA).exists()
 
 
@@ -330,18 +331,26 @@ def _maps(n=8):
     mask[2:6, 2:6] = 1
     normal = np.zeros((n, n, 3), np.float32)
     normal[2:6, 2:6] = np.float16([0.6, 0.0, 0.8])  # rounded to half as stored
-    layers = {"diffuse": 0.5 * mask.repeat(3, -1), "specular": 0.04 * mask.repeat(3, -1),
-              "roughness": 0.3 * mask, "normal": normal, "mask": mask}
+    layers = {
+        "diffuse": 0.5 * mask.repeat(3, -1),
+        "specular": 0.04 * mask.repeat(3, -1),
+        "roughness": 0.3 * mask,
+        "normal": normal,
+        "mask": mask,
+    }
     return layers
 
 
-@pytest.mark.parametrize("edit, kind", [
-    (lambda m: m["specular"].__setitem__((3, 3, 1), np.inf), "non_finite"),
-    (lambda m: m["roughness"].__setitem__((3, 3, 0), -0.1), "out_of_range"),
-    (lambda m: m["mask"].__setitem__((0, 0, 0), 0.5), "out_of_range"),
-    (lambda m: m["diffuse"].__setitem__((0, 7, 0), 0.2), "out_of_range"),  # outside the mask
-    (lambda m: m["normal"].__setitem__((4, 4), [0.6, 0.0, 0.81]), "normal_not_unit"),
-])
+@pytest.mark.parametrize(
+    "edit, kind",
+    [
+        (lambda m: m["specular"].__setitem__((3, 3, 1), np.inf), "non_finite"),
+        (lambda m: m["roughness"].__setitem__((3, 3, 0), -0.1), "out_of_range"),
+        (lambda m: m["mask"].__setitem__((0, 0, 0), 0.5), "out_of_range"),
+        (lambda m: m["diffuse"].__setitem__((0, 7, 0), 0.2), "out_of_range"),  # outside the mask
+        (lambda m: m["normal"].__setitem__((4, 4), [0.6, 0.0, 0.81]), "normal_not_unit"),
+    ],
+)
 def test_map_value_checks(edit, kind):
     layers = _maps()
     assert inspect_mod.map_value_issues(layers, screen_space=True) == []

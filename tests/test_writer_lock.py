@@ -21,11 +21,13 @@ from pipeline.store.lock import holds_lock, writer_lock
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
-HOLD = ("import sys, time\n"
-        "from pipeline.store.lock import writer_lock\n"
-        "with writer_lock(sys.argv[1], sys.argv[2]):\n"
-        "    print('held', flush=True)\n"
-        "    time.sleep(600)\n")
+HOLD = (
+    "import sys, time\n"
+    "from pipeline.store.lock import writer_lock\n"
+    "with writer_lock(sys.argv[1], sys.argv[2]):\n"
+    "    print('held', flush=True)\n"
+    "    time.sleep(600)\n"
+)
 
 
 def cli(*args: str) -> list[str]:
@@ -33,8 +35,15 @@ def cli(*args: str) -> list[str]:
 
 
 def start(cmd: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(cmd, cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True, text=True)
+    return subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        text=True,
+    )
 
 
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -69,8 +78,11 @@ def wait_for_lock(folder: Path, proc: subprocess.Popen, timeout_s: float = 120) 
 
 
 def snapshot(folder: Path) -> dict:
-    return {p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(folder).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
@@ -110,8 +122,9 @@ def test_the_lock_is_counted_per_process_so_repair_may_resume_its_build(tmp_path
         with writer_lock(str(folder), "build"):
             pass
         assert holds_lock(str(folder)) and (folder / LOCK_FILE).exists()
-        other = subprocess.run([sys.executable, "-c", HOLD, str(folder), "build"], cwd=REPO,
-                               capture_output=True, text=True, timeout=60)
+        other = subprocess.run(
+            [sys.executable, "-c", HOLD, str(folder), "build"], cwd=REPO, capture_output=True, text=True, timeout=60
+        )
         assert other.returncode != 0 and "FolderBusy" in other.stderr and "validate --repair" in other.stderr
     assert not holds_lock(str(folder))
 
@@ -194,8 +207,9 @@ def test_repair_and_a_second_build_during_a_build_are_refused_and_readers_run_be
         before = snapshot(out)
         repair = run("validate", out, "--repair")
         assert repair.returncode == 3, repair
-        assert repair.stderr.startswith(f"error: DIR: {str(out)!r} is being written by another writer: build, "
-                                        f"pid {build.pid} on host "), repair.stderr
+        assert repair.stderr.startswith(
+            f"error: DIR: {str(out)!r} is being written by another writer: build, pid {build.pid} on host "
+        ), repair.stderr
         assert "Traceback" not in repair.stderr
         other = run("build", _spec_with_seed(tmp_path, 7), "--out", out, "--workers", 0)
         assert other.returncode in (2, 3) and "Traceback" not in other.stderr, other

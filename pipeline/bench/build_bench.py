@@ -61,8 +61,14 @@ from sky import Light
 PAPER_RENDERS, PAPER_RESOLUTION, PAPER_SPP = 50_000, 400, 150
 
 
-def derive_spec(spec, *, samples: int | None = None, resolution: int | None = None, spp: int | None = None,
-                shard_size: int | None = None):
+def derive_spec(
+    spec,
+    *,
+    samples: int | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    shard_size: int | None = None,
+):
     """``spec`` cut to about ``samples`` renders (whole materials) and re-sized; other fields kept."""
     dataset, render = spec.dataset, spec.render
     if shard_size is not None:
@@ -154,14 +160,18 @@ class BuildBench:
         renders alone (one at a time with every render thread of this process: the whole
         machine, or its GPU). Runs smaller than 400x400 at 150 spp are scaled by pixels x spp
         (rough: a render's fixed costs do not scale)."""
-        scale = (PAPER_RESOLUTION ** 2 * PAPER_SPP) / (self.resolution ** 2 * self.spp)
+        scale = (PAPER_RESOLUTION**2 * PAPER_SPP) / (self.resolution**2 * self.spp)
         n = max(self.samples, 1)
         build_per_render = (self.build_s - self.startup_s) / n * scale
         bare_per_render = self.bare_s / max(len(self.timings), 1) * scale
-        return {"renders": PAPER_RENDERS, "scaled_by": scale,
-                "build_per_render_s": build_per_render, "bare_per_render_s": bare_per_render,
-                "hours": build_per_render * PAPER_RENDERS / 3600.0,
-                "hours_bare": bare_per_render * PAPER_RENDERS / 3600.0}
+        return {
+            "renders": PAPER_RENDERS,
+            "scaled_by": scale,
+            "build_per_render_s": build_per_render,
+            "bare_per_render_s": bare_per_render,
+            "hours": build_per_render * PAPER_RENDERS / 3600.0,
+            "hours_bare": bare_per_render * PAPER_RENDERS / 3600.0,
+        }
 
     def lines(self) -> list[str]:
         n = self.samples
@@ -179,16 +189,33 @@ class BuildBench:
             f"from the first render on: {self.steady_ratio:.3f}",
             f"CPU ratio build / bare:   {self.cpu_ratio:8.3f}   "
             f"(CPU time {self.build_cpu_s:.1f} s / {self.bare_cpu_s:.1f} s, this process and its reaped children)",
-            *([f"same run, from the records: build {self.build_s - self.startup_s:.2f} s from its first render on "
-               f"over their summed render time {self.records_render_s:.2f} s / {self.processes} process(es) = "
-               f"{self.records_ratio:.3f}"] if self.records_render_s > 0 else []),
-            *([f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
-               f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
-               f"{self.build_s / self.in_build_render_s:.3f}"] if self.in_build_render_s else []),
-            f"bare renders bit-identical to the build's: "
-            f"{sum(t.identical for t in self.timings)}/{len(self.timings)}",
-            *([f"kernels compiled during the build (in-process; 0 = every scene and light change "
-               f"reused warm kernels): {self.build_compiled}"] if self.build_compiled is not None else []),
+            *(
+                [
+                    f"same run, from the records: build {self.build_s - self.startup_s:.2f} s from its first render on "
+                    f"over their summed render time {self.records_render_s:.2f} s / {self.processes} process(es) = "
+                    f"{self.records_ratio:.3f}"
+                ]
+                if self.records_render_s > 0
+                else []
+            ),
+            *(
+                [
+                    f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
+                    f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
+                    f"{self.build_s / self.in_build_render_s:.3f}"
+                ]
+                if self.in_build_render_s
+                else []
+            ),
+            f"bare renders bit-identical to the build's: {sum(t.identical for t in self.timings)}/{len(self.timings)}",
+            *(
+                [
+                    f"kernels compiled during the build (in-process; 0 = every scene and light change "
+                    f"reused warm kernels): {self.build_compiled}"
+                ]
+                if self.build_compiled is not None
+                else []
+            ),
             self._paper_line(),
             "where the rest goes, per render (measured outside the build): "
             f"scene_dict {mean([t.dict_s for t in self.timings]):.3f} s, "
@@ -197,40 +224,55 @@ class BuildBench:
             f"{self.material_files_s:.3f} s",
         ]
         if self.compiled:
-            out.append("kernels compiled during the timed renders (0 = all warm): "
-                       + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"
-                                   for k, v in self.compiled.items()))
+            out.append(
+                "kernels compiled during the timed renders (0 = all warm): "
+                + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}" for k, v in self.compiled.items())
+            )
         if self.reuse:
             r = self.reuse
-            out.append(f"profile, one loaded scene per material moved in place: {r['seconds']:.2f} s for "
-                       f"{n} renders, {r['seconds'] - r['compile_s']:.2f} s without its {r['compiled']} "
-                       f"kernel compile(s) (vs {r['fresh_seconds']:.2f} s dict+load+render each), "
-                       f"{r['identical']}/{n} bit-identical to the build's")
+            out.append(
+                f"profile, one loaded scene per material moved in place: {r['seconds']:.2f} s for "
+                f"{n} renders, {r['seconds'] - r['compile_s']:.2f} s without its {r['compiled']} "
+                f"kernel compile(s) (vs {r['fresh_seconds']:.2f} s dict+load+render each), "
+                f"{r['identical']}/{n} bit-identical to the build's"
+            )
         if self.moment:
             m = self.moment
-            out.append(f"profile, moment vs plain {m['integrator']} ({m['samples']} renders): "
-                       f"{m['moment_s']:.2f} s vs {m['path_s']:.2f} s "
-                       f"({100 * (m['moment_s'] / m['path_s'] - 1):+.1f}%), RGB "
-                       f"{'bit-identical' if m['identical'] else 'not bit-identical'}")
+            out.append(
+                f"profile, moment vs plain {m['integrator']} ({m['samples']} renders): "
+                f"{m['moment_s']:.2f} s vs {m['path_s']:.2f} s "
+                f"({100 * (m['moment_s'] / m['path_s'] - 1):+.1f}%), RGB "
+                f"{'bit-identical' if m['identical'] else 'not bit-identical'}"
+            )
         return out
 
     def _paper_line(self) -> str:
         e = self.paper_estimate()
         if e["scaled_by"] != 1:
-            return (f"paper scale: run at {PAPER_RESOLUTION}x{PAPER_RESOLUTION}, {PAPER_SPP} spp for the estimate "
-                    f"(e.g. --samples 10 of manifests/paper.toml); scaling this {self.resolution}x{self.resolution}, "
-                    f"{self.spp} spp run by pixels x spp gives {e['hours']:.0f} h at the build's rate, "
-                    f"{e['hours_bare']:.0f} h from the bare renders, overestimates: fixed costs scale too")
-        return (f"paper scale on this machine: {e['renders']:,} renders x {e['build_per_render_s']:.2f} s "
-                f"(this build's wall time per render from its first render on, {self.workers}) = "
-                f"{e['hours']:.1f} h ({e['hours'] / 24:.1f} days); bare renders alone x {e['bare_per_render_s']:.2f} s "
-                f"({self.threads} render threads, one render at a time) = {e['hours_bare']:.1f} h")
+            return (
+                f"paper scale: run at {PAPER_RESOLUTION}x{PAPER_RESOLUTION}, {PAPER_SPP} spp for the estimate "
+                f"(e.g. --samples 10 of manifests/paper.toml); scaling this {self.resolution}x{self.resolution}, "
+                f"{self.spp} spp run by pixels x spp gives {e['hours']:.0f} h at the build's rate, "
+                f"{e['hours_bare']:.0f} h from the bare renders, overestimates: fixed costs scale too"
+            )
+        return (
+            f"paper scale on this machine: {e['renders']:,} renders x {e['build_per_render_s']:.2f} s "
+            f"(this build's wall time per render from its first render on, {self.workers}) = "
+            f"{e['hours']:.1f} h ({e['hours'] / 24:.1f} days); bare renders alone x {e['bare_per_render_s']:.2f} s "
+            f"({self.threads} render threads, one render at a time) = {e['hours_bare']:.1f} h"
+        )
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d.update(bare_s=self.bare_s, ratio=self.ratio, bare_cpu_s=self.bare_cpu_s, cpu_ratio=self.cpu_ratio,
-                 steady_ratio=self.steady_ratio, records_ratio=self.records_ratio,
-                 paper_estimate=self.paper_estimate())
+        d.update(
+            bare_s=self.bare_s,
+            ratio=self.ratio,
+            bare_cpu_s=self.bare_cpu_s,
+            cpu_ratio=self.cpu_ratio,
+            steady_ratio=self.steady_ratio,
+            records_ratio=self.records_ratio,
+            paper_estimate=self.paper_estimate(),
+        )
         return d
 
 
@@ -251,8 +293,9 @@ def warm_kernels(spec, plans, variant: str) -> float:
     for material in _materials_of(plans):
         maps, _ = make_material(material, spec)
         s = material.samples[0]
-        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, Light(s.elevation_deg, s.azimuth_deg, s.turbidity),
-                                ctx.settings)
+        desc, _, _ = scene_dict(
+            ctx.ball, ctx.camera, maps, Light(s.elevation_deg, s.azimuth_deg, s.turbidity), ctx.settings
+        )
         np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
     return time.perf_counter() - start
 
@@ -320,12 +363,21 @@ def measure_bare(spec, plans, root: str, kernels: KernelCounter, variant: str) -
             t2, cpu = time.perf_counter(), time.process_time()
             with kernels:
                 # The build's own passes (pipeline.render.renderer.pass_plan: power-of-two on llvm).
-                out = render_in_passes(mi, scene, ctx.settings.spp, seed,
-                                       pass_plan(ctx.settings.spp, variant)).astype(np.float32)
+                out = render_in_passes(mi, scene, ctx.settings.spp, seed, pass_plan(ctx.settings.spp, variant)).astype(
+                    np.float32
+                )
             t3, cpu = time.perf_counter(), time.process_time() - cpu
             del scene, desc  # one scene alive at a time, as in a build worker
-            timings.append(SampleTiming(s.sample_id, t1 - t0, t2 - t1, t3 - t2, cpu,
-                                        bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))))
+            timings.append(
+                SampleTiming(
+                    s.sample_id,
+                    t1 - t0,
+                    t2 - t1,
+                    t3 - t2,
+                    cpu,
+                    bool(np.array_equal(_stored_render(layout, s), out[..., 0:3])),
+                )
+            )
     return timings
 
 
@@ -345,8 +397,12 @@ def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]
         images = [_stored_render(layout, s) for m in materials for s in m.samples][:8]
         start = time.perf_counter()
         for i, image in enumerate(images):
-            write_exr(os.path.join(scratch, f"r{i}.render.exr"), {"render": image}, {"id": str(i)},
-                      compression=spec.storage.compression)
+            write_exr(
+                os.path.join(scratch, f"r{i}.render.exr"),
+                {"render": image},
+                {"id": str(i)},
+                compression=spec.storage.compression,
+            )
         per_render = (time.perf_counter() - start) / len(images)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
@@ -371,8 +427,9 @@ def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) 
                 t0 = time.perf_counter()
                 scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
                 with kernels:
-                    out = render_in_passes(mi, scene, ctx.settings.spp, seed,
-                                           pass_plan(ctx.settings.spp, variant)).astype(np.float32)
+                    out = render_in_passes(
+                        mi, scene, ctx.settings.spp, seed, pass_plan(ctx.settings.spp, variant)
+                    ).astype(np.float32)
                 seconds += time.perf_counter() - t0
                 identical += bool(np.array_equal(_stored_render(layout, s), out[..., 0:3]))
                 del scene
@@ -399,13 +456,19 @@ def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
             scene = mi.load_dict(d)
             np.asarray(mi.render(scene, spp=1, seed=0))
             t0 = time.perf_counter()
-            images[name] = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed),
-                                      dtype=np.float32)[..., 0:3]
+            images[name] = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed), dtype=np.float32)[
+                ..., 0:3
+            ]
             totals[name] += time.perf_counter() - t0
             del scene
         identical &= bool(np.array_equal(images["path"], images["moment"]))
-    return {"integrator": ctx.settings.integrator, "samples": len(samples), "moment_s": totals["moment"],
-            "path_s": totals["path"], "identical": identical}
+    return {
+        "integrator": ctx.settings.integrator,
+        "samples": len(samples),
+        "moment_s": totals["moment"],
+        "path_s": totals["path"],
+        "identical": identical,
+    }
 
 
 class RenderCallTimer:
@@ -458,9 +521,18 @@ def _cpu_with_children() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | None = None,
-                    resolution: int | None = None, spp: int | None = None, workers: int | None = None,
-                    shard_size: int | None = None, profile: bool = False, progress=None) -> BuildBench:
+def run_build_bench(
+    spec_path: str,
+    *,
+    out: str | None = None,
+    samples: int | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    workers: int | None = None,
+    shard_size: int | None = None,
+    profile: bool = False,
+    progress=None,
+) -> BuildBench:
     """Build a spec and time the same renders bare; see the module docstring."""
 
     samples = check_int("--samples", samples, 1, 1_000_000)
@@ -505,12 +577,23 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
         timings = measure_bare(spec, plans, root, kernels, variant)
         per_material, per_render = measure_storage(spec, plans, root, variant)
         bench = BuildBench(
-            spec_name=spec.dataset.name, samples=summary.total, materials=spec.dataset.materials,
-            resolution=spec.render.resolution, spp=spec.render.spp,
-            workers=marks.get("where", "?"), variant=variant, threads=dr.thread_count(),
-            warmup_s=warmup, build_s=build_s, build_cpu_s=build_cpu, startup_s=first_start,
+            spec_name=spec.dataset.name,
+            samples=summary.total,
+            materials=spec.dataset.materials,
+            resolution=spec.render.resolution,
+            spp=spec.render.spp,
+            workers=marks.get("where", "?"),
+            variant=variant,
+            threads=dr.thread_count(),
+            warmup_s=warmup,
+            build_s=build_s,
+            build_cpu_s=build_cpu,
+            startup_s=first_start,
             in_build_render_s=in_build.seconds if in_build.calls else None,
-            timings=timings, material_files_s=per_material, render_file_s=per_render)
+            timings=timings,
+            material_files_s=per_material,
+            render_file_s=per_render,
+        )
         bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
         bench.records_render_s, bench.processes = records_render_time(root), max(summary.processes, 1)
         if in_build.calls:
@@ -519,8 +602,11 @@ def run_build_bench(spec_path: str, *, out: str | None = None, samples: int | No
             say("profile: one scene per material ...")
             reuse_kernels = KernelCounter()
             bench.reuse = measure_reuse(spec, plans, root, reuse_kernels, variant)
-            bench.reuse.update(fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
-                               compiled=reuse_kernels.compiled, compile_s=reuse_kernels.compile_s)
+            bench.reuse.update(
+                fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
+                compiled=reuse_kernels.compiled,
+                compile_s=reuse_kernels.compile_s,
+            )
             say("profile: moment vs plain integrator ...")
             bench.moment = measure_moment(spec, plans, variant)
         return bench
@@ -547,19 +633,42 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def run_from_args(spec=None, *, effects=False, samples=None, resolution=None, spp=None, workers=None,
-                  shard_size=None, out=None, profile=False, repeats=None, json_path=None, progress=None):
+def run_from_args(
+    spec=None,
+    *,
+    effects=False,
+    samples=None,
+    resolution=None,
+    spp=None,
+    workers=None,
+    shard_size=None,
+    out=None,
+    profile=False,
+    repeats=None,
+    json_path=None,
+    progress=None,
+):
     """What `shaderball bench` and `python -m pipeline.bench.build_bench` do; returns the result object."""
     if effects:
         result = run_effects_bench(resolution=resolution, spp=spp, repeats=repeats, progress=progress)
     else:
         if not spec:
-            raise ShaderballError("SPEC: missing; allowed: a spec file (e.g. manifests/smoke.toml), "
-                                  "or --effects for the effects benchmark")
-        result = run_build_bench(spec, out=out, samples=samples, resolution=resolution, spp=spp,
-                                 workers=workers, shard_size=shard_size, profile=profile, progress=progress)
+            raise ShaderballError(
+                "SPEC: missing; allowed: a spec file (e.g. manifests/smoke.toml), "
+                "or --effects for the effects benchmark"
+            )
+        result = run_build_bench(
+            spec,
+            out=out,
+            samples=samples,
+            resolution=resolution,
+            spp=spp,
+            workers=workers,
+            shard_size=shard_size,
+            profile=profile,
+            progress=progress,
+        )
     if json_path:
-
         write_text_atomic(json_path, dumps(result.to_dict()) + "\n")
     return result
 

@@ -93,5 +93,7 @@ def describe_comparison(c: dict) -> str:
     if c["rounding"]:
         return f"equal to rounding (max |diff| {c['max_abs']:.2g}, {c['max_rel']:.2g} of max)"
     verdict = "within noise" if c["within_noise"] else "DIFFERENT beyond noise"
-    return (f"{verdict}: {100 * c['z_share']:.2f}% of pixels |z| > {Z_LIMIT:g}, "
-            f"summed z {c['z_total']:+.1f}, max |diff| {c['max_abs']:.2g}")
+    return (
+        f"{verdict}: {100 * c['z_share']:.2f}% of pixels |z| > {Z_LIMIT:g}, "
+        f"summed z {c['z_total']:+.1f}, max |diff| {c['max_abs']:.2g}"
+    )

@@ -107,23 +107,29 @@ class EffectsBench:
     cases: list[EffectCase] = field(default_factory=list)
 
     def lines(self) -> list[str]:
-        out = [f"effects benchmark: {self.resolution}x{self.resolution}, {self.spp} spp, {self.repeats} "
-               f"alternating renders of each variant, {self.variant}, {self.threads} render threads; "
-               f"textures {self.texture_size}x{self.texture_size}",
-               "wall: best of the repeats; cpu: median CPU time of the process (all render threads)",
-               f"{'omission':<36} {'material':<32} {'wall with/without':>18} {'saved':>6} "
-               f"{'cpu with/without':>17} {'saved':>6}  images"]
+        out = [
+            f"effects benchmark: {self.resolution}x{self.resolution}, {self.spp} spp, {self.repeats} "
+            f"alternating renders of each variant, {self.variant}, {self.threads} render threads; "
+            f"textures {self.texture_size}x{self.texture_size}",
+            "wall: best of the repeats; cpu: median CPU time of the process (all render threads)",
+            f"{'omission':<36} {'material':<32} {'wall with/without':>18} {'saved':>6} "
+            f"{'cpu with/without':>17} {'saved':>6}  images",
+        ]
         for c in self.cases:
             name = c.omission + ("" if c.applied else " [not applied]")
-            out.append(f"{name:<36} {c.material:<32} {min(c.wall_with):7.3f}/{min(c.wall_without):7.3f}s "
-                       f"{100 * c.saved_wall:5.1f}% {statistics.median(c.cpu_with):7.3f}/"
-                       f"{statistics.median(c.cpu_without):7.3f}s {100 * c.saved_cpu:5.1f}%  "
-                       f"{describe_comparison(c.comparison)}")
+            out.append(
+                f"{name:<36} {c.material:<32} {min(c.wall_with):7.3f}/{min(c.wall_without):7.3f}s "
+                f"{100 * c.saved_wall:5.1f}% {statistics.median(c.cpu_with):7.3f}/"
+                f"{statistics.median(c.cpu_without):7.3f}s {100 * c.saved_cpu:5.1f}%  "
+                f"{describe_comparison(c.comparison)}"
+            )
         return out
 
     def to_dict(self) -> dict:
-        return {**{k: v for k, v in dataclasses.asdict(self).items() if k != "cases"},
-                "cases": [c.to_dict() for c in self.cases]}
+        return {
+            **{k: v for k, v in dataclasses.asdict(self).items() if k != "cases"},
+            "cases": [c.to_dict() for c in self.cases],
+        }
 
 
 def _effect_cases(texture_size: int, variant: str):
@@ -145,26 +151,53 @@ def _effect_cases(texture_size: int, variant: str):
         return lambda base: with_material_bsdf(base(maps, None), make_bsdf())
 
     return [
-        ("textured -> constant", "uniform dielectric, r=0.4", True,
-         swapped(dielectric, lambda: bitmap_bsdf(dielectric, texture_size, variant)), built(dielectric)),
-        ("normal map -> none", "uniform dielectric, flat normal", True,
-         swapped(dielectric, lambda: flat_normal_map_bsdf(bsdf_dict(dielectric, variant=variant), texture_size,
-                                                          variant)),
-         built(dielectric)),
-        ("both -> constant, none", "uniform dielectric, flat normal", True,
-         swapped(dielectric, lambda: flat_normal_map_bsdf(bitmap_bsdf(dielectric, texture_size, variant),
-                                                          texture_size, variant)),
-         built(dielectric)),
-        ("diffuse lobe -> none", "copper-like metal, d=0, r=0.3", True,
-         built(metal, diffuse_lobe=True), built(metal)),
-        ("specular lobe -> none", "dielectric s=0, d=0.5, r=0.2", False,
-         built(no_specular), built(no_specular, specular_lobe=False)),
+        (
+            "textured -> constant",
+            "uniform dielectric, r=0.4",
+            True,
+            swapped(dielectric, lambda: bitmap_bsdf(dielectric, texture_size, variant)),
+            built(dielectric),
+        ),
+        (
+            "normal map -> none",
+            "uniform dielectric, flat normal",
+            True,
+            swapped(
+                dielectric, lambda: flat_normal_map_bsdf(bsdf_dict(dielectric, variant=variant), texture_size, variant)
+            ),
+            built(dielectric),
+        ),
+        (
+            "both -> constant, none",
+            "uniform dielectric, flat normal",
+            True,
+            swapped(
+                dielectric,
+                lambda: flat_normal_map_bsdf(bitmap_bsdf(dielectric, texture_size, variant), texture_size, variant),
+            ),
+            built(dielectric),
+        ),
+        ("diffuse lobe -> none", "copper-like metal, d=0, r=0.3", True, built(metal, diffuse_lobe=True), built(metal)),
+        (
+            "specular lobe -> none",
+            "dielectric s=0, d=0.5, r=0.2",
+            False,
+            built(no_specular),
+            built(no_specular, specular_lobe=False),
+        ),
     ]
 
 
-def run_effects_bench(*, resolution: int | None = None, spp: int | None = None, repeats: int | None = None,
-                      texture_size: int | None = None, seed: int = 1, variant: str = "auto",
-                      progress=None) -> EffectsBench:
+def run_effects_bench(
+    *,
+    resolution: int | None = None,
+    spp: int | None = None,
+    repeats: int | None = None,
+    texture_size: int | None = None,
+    seed: int = 1,
+    variant: str = "auto",
+    progress=None,
+) -> EffectsBench:
     """Render time with and without each omission; see the module docstring."""
 
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or 128
@@ -193,10 +226,16 @@ def run_effects_bench(*, resolution: int | None = None, spp: int | None = None, 
         for r in range(repeats):
             timed_with.append(render_moments(mi, scene_with, spp, seed + 1 + r))
             timed_without.append(render_moments(mi, scene_without, spp, seed + 1 + r))
-        bench.cases.append(EffectCase(
-            omission, label, applied, [t.seconds for t in timed_with], [t.seconds for t in timed_without],
-            [t.cpu_seconds for t in timed_with], [t.cpu_seconds for t in timed_without],
-            compare_renders(first_with, first_without)))
+        bench.cases.append(
+            EffectCase(
+                omission,
+                label,
+                applied,
+                [t.seconds for t in timed_with],
+                [t.seconds for t in timed_without],
+                [t.cpu_seconds for t in timed_with],
+                [t.cpu_seconds for t in timed_without],
+                compare_renders(first_with, first_without),
+            )
+        )
     return bench
-
-

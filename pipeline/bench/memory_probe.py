@@ -81,9 +81,11 @@ def probe_spec(renders: int, resolution: int, spp: int):
     materials = max(1, renders // 2)
     return dataclasses.replace(
         spec,
-        dataset=dataclasses.replace(spec.dataset, name="memory-probe", materials=materials,
-                                    lights_per_material=2, shard_size=1),
-        render=dataclasses.replace(spec.render, resolution=resolution, spp=spp))
+        dataset=dataclasses.replace(
+            spec.dataset, name="memory-probe", materials=materials, lights_per_material=2, shard_size=1
+        ),
+        render=dataclasses.replace(spec.render, resolution=resolution, spp=spp),
+    )
 
 
 def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=None) -> MemoryProbe:
@@ -106,10 +108,16 @@ def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=Non
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench.memory_probe",
-                                     description="Measure a render worker's resident memory.")
-    parser.add_argument("--memory-probe", type=int, metavar="N", required=True,
-                        help="renders to run in one process (2 per material), 2 to 100000")
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.bench.memory_probe", description="Measure a render worker's resident memory."
+    )
+    parser.add_argument(
+        "--memory-probe",
+        type=int,
+        metavar="N",
+        required=True,
+        help="renders to run in one process (2 per material), 2 to 100000",
+    )
     parser.add_argument("--resolution", type=int, default=64, help=f"pixels, {span(RESOLUTION_RANGE)} (default 64)")
     parser.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     parser.add_argument("--every", type=int, default=20, help="print RSS every N renders (default 20)")

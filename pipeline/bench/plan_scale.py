@@ -51,22 +51,35 @@ print(json.dumps(out))
 
 
 def spec_text(materials: int, lights: int, shard_size: int) -> str:
-    return (f'[dataset]\nname = "scale"\nseed = 1\nmaterials = {materials}\nlights_per_material = {lights}\n'
-            f"shard_size = {shard_size}\n\n[render]\nresolution = 32\nspp = 1\n")
+    return (
+        f'[dataset]\nname = "scale"\nseed = 1\nmaterials = {materials}\nlights_per_material = {lights}\n'
+        f"shard_size = {shard_size}\n\n[render]\nresolution = 32\nspp = 1\n"
+    )
 
 
 def measure_plan(spec: Path, digest: bool) -> dict:
-    done = subprocess.run([sys.executable, "-c", _PLAN, str(spec), "digest" if digest else "plan"], cwd=REPO,
-                          capture_output=True, text=True, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", _PLAN, str(spec), "digest" if digest else "plan"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return json.loads(done.stdout)
 
 
 def first_progress(spec: Path, out: Path, timeout_s: float = 120.0) -> tuple[float, str]:
     """Seconds from starting ``shaderball build`` to its first progress line, and the line."""
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "build", str(spec), "--out", str(out), "--workers", "0"],
-                            cwd=REPO, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cli", "build", str(spec), "--out", str(out), "--workers", "0"],
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = start + timeout_s
         while time.perf_counter() < deadline:
@@ -91,13 +104,19 @@ def main(argv: list[str] | None = None) -> None:
         spec = Path(tmp) / "scale.toml"
         spec.write_text(spec_text(args.materials, args.lights, args.shard_size))
         plan = measure_plan(spec, digest=False)
-        print(f"spec: {args.materials} materials x {args.lights} lightings = {plan['renders']} renders in "
-              f"{plan['shards']} shards")
-        print(f"planning (plan_dataset + summary + one shard): {plan['plan_s']:.2f} s, peak RSS of the process "
-              f"{plan['peak_rss_mib']:.0f} MiB (imports included)")
+        print(
+            f"spec: {args.materials} materials x {args.lights} lightings = {plan['renders']} renders in "
+            f"{plan['shards']} shards"
+        )
+        print(
+            f"planning (plan_dataset + summary + one shard): {plan['plan_s']:.2f} s, peak RSS of the process "
+            f"{plan['peak_rss_mib']:.0f} MiB (imports included)"
+        )
         digest = measure_plan(spec, digest=True)
-        print(f"plan digest (every shard planned and hashed, streamed): {digest['digest_s']:.1f} s, peak RSS "
-              f"{digest['peak_rss_mib']:.0f} MiB")
+        print(
+            f"plan digest (every shard planned and hashed, streamed): {digest['digest_s']:.1f} s, peak RSS "
+            f"{digest['peak_rss_mib']:.0f} MiB"
+        )
         seconds, line = first_progress(spec, Path(tmp) / "out")
         print(f"shaderball build: first progress line after {seconds:.1f} s: {line}")
         shutil.rmtree(Path(tmp) / "out", ignore_errors=True)

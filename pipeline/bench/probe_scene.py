@@ -110,6 +110,7 @@ def pixel_rays(mi, scene):
     position = mi.Point2f((j.ravel() + 0.5) / width, (i.ravel() + 0.5) / height)
     n = width * height
     ray, _ = sensor.sample_ray(dr.zeros(mi.Float, n), dr.full(mi.Float, 0.5, n), position, dr.full(mi.Point2f, 0.5, n))
+
     def as_image(v):  # an orthographic camera's directions come back as a single value
         a = np.array(v, dtype=np.float64).reshape(3, -1).T
         return np.broadcast_to(a, (n, 3)).reshape(height, width, 3)

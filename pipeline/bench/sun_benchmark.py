@@ -44,15 +44,18 @@ def _scene(mi, light, material, config, resolution, configs=CONFIGS):
     entries, _ = emitter.emitter_dicts(light, sun=sun, variant=mi.variant())
     if weights is not None:
         entries["sun"]["sampling_weight"], entries["sky"]["sampling_weight"] = weights
-    return mi.load_dict(probe_scene_dict(entries, material=material, resolution=resolution, spp=16,
-                                        variant=mi.variant()))
+    return mi.load_dict(
+        probe_scene_dict(entries, material=material, resolution=resolution, spp=16, variant=mi.variant())
+    )
 
 
 def _render(mi, scene, spp, seed):
     return np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
 
 
-def noise_table(mi, resolution=64, spp_levels=(16, 150), ref_spp=2048, lights=LIGHTS, materials=MATERIALS, configs=CONFIGS):
+def noise_table(
+    mi, resolution=64, spp_levels=(16, 150), ref_spp=2048, lights=LIGHTS, materials=MATERIALS, configs=CONFIGS
+):
     rows = []
     for light in lights:
         for material in materials:
@@ -153,7 +156,6 @@ def main(argv=None) -> int:
     parser.add_argument("--variant", default="auto", choices=VARIANT_CHOICES, help="Mitsuba variant (default auto)")
     parser.add_argument("--skip-time", action="store_true")
     args = parser.parse_args(argv)
-
 
     mi = load_mitsuba(resolve_variant(args.variant))
     sky_emitter.SPLIT_SUN_WEIGHT_FACTOR = args.sun_weight_factor

@@ -73,15 +73,14 @@ class State:
 
 def check_root(root: str) -> Layout:
     if not os.path.exists(root):
-        raise ShaderballError(f"DIR: {root!r} does not exist; give a dataset directory "
-                              "written by `shaderball build`")
+        raise ShaderballError(f"DIR: {root!r} does not exist; give a dataset directory written by `shaderball build`")
     if not os.path.isdir(root):
-        raise ShaderballError(f"DIR: {root!r} is not a directory; give a dataset directory "
-                              "written by `shaderball build`")
+        raise ShaderballError(
+            f"DIR: {root!r} is not a directory; give a dataset directory written by `shaderball build`"
+        )
     layout = Layout(root)
     if not any(os.path.lexists(os.path.join(root, name)) for name in ROOT_FILES):
-        raise ShaderballError(f"DIR: {root!r} is not a shaderball dataset: it holds none of "
-                              f"{', '.join(ROOT_FILES)}")
+        raise ShaderballError(f"DIR: {root!r} is not a shaderball dataset: it holds none of {', '.join(ROOT_FILES)}")
     return layout
 
 
@@ -92,24 +91,37 @@ def load_plan(layout: Layout, problems: Problems):
     description_ok = isinstance(description, dict)
     if not description_ok:
         what = read_json_checked(layout.description)[1] or "not a JSON object"
-        problems.add("spec_snapshot", None, DESCRIPTION_FILE,
-                     f"{DESCRIPTION_FILE}: {what}; it records the spec digest, variant and counts")
+        problems.add(
+            "spec_snapshot",
+            None,
+            DESCRIPTION_FILE,
+            f"{DESCRIPTION_FILE}: {what}; it records the spec digest, variant and counts",
+        )
         description = None
     if not os.path.lexists(layout.spec):
-        problems.add("spec_snapshot", None, SPEC_FILE,
-                     f"{SPEC_FILE}: missing; the dataset cannot be checked against its plan")
+        problems.add(
+            "spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: missing; the dataset cannot be checked against its plan"
+        )
         return None, None, description, False, description_ok
     try:
         spec = read_snapshot(layout.root)
     except USER_ERRORS as exc:
-        problems.add("spec_snapshot", None, SPEC_FILE,
-                     f"{SPEC_FILE}: unreadable ({exc}); the dataset cannot be checked against its plan")
+        problems.add(
+            "spec_snapshot",
+            None,
+            SPEC_FILE,
+            f"{SPEC_FILE}: unreadable ({exc}); the dataset cannot be checked against its plan",
+        )
         return None, None, description, False, description_ok
     if description is not None and description.get("spec_digest") != spec_digest(spec):
-        problems.add("spec_snapshot", None, SPEC_FILE,
-                     f"{SPEC_FILE}: digest {spec_digest(spec)[:12]} differs from "
-                     f"{DESCRIPTION_FILE}'s spec_digest {str(description.get('spec_digest'))[:12]}: "
-                     "the snapshot (or the description) was edited after the build")
+        problems.add(
+            "spec_snapshot",
+            None,
+            SPEC_FILE,
+            f"{SPEC_FILE}: digest {spec_digest(spec)[:12]} differs from "
+            f"{DESCRIPTION_FILE}'s spec_digest {str(description.get('spec_digest'))[:12]}: "
+            "the snapshot (or the description) was edited after the build",
+        )
         spec_ok = False
     else:
         spec_ok = True
@@ -127,13 +139,16 @@ def load_manifest(layout: Layout, problems: Problems, renders: int | None = None
     try:
         data = read_manifest(layout, renders)
     except FileNotFoundError:
-        problems.add("missing_manifest", None, MANIFEST_FILE,
-                     f"{MANIFEST_FILE}: missing (an unfinished build, or deleted); records are "
-                     "taken from the shard markers and per-sample record files")
+        problems.add(
+            "missing_manifest",
+            None,
+            MANIFEST_FILE,
+            f"{MANIFEST_FILE}: missing (an unfinished build, or deleted); records are "
+            "taken from the shard markers and per-sample record files",
+        )
         return None
     except OSError as exc:
-        problems.add("missing_manifest", None, MANIFEST_FILE,
-                     f"{MANIFEST_FILE}: cannot be read ({exc.strerror})")
+        problems.add("missing_manifest", None, MANIFEST_FILE, f"{MANIFEST_FILE}: cannot be read ({exc.strerror})")
         return None
     out = []
     for number, raw in enumerate(data.split(b"\n"), start=1):
@@ -142,16 +157,25 @@ def load_manifest(layout: Layout, problems: Problems, renders: int | None = None
         try:
             record = json.loads(raw)
         except RecursionError:
-            problems.add("edited_record", None, MANIFEST_FILE,
-                         f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)")
+            problems.add(
+                "edited_record",
+                None,
+                MANIFEST_FILE,
+                f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)",
+            )
             continue
         except ValueError as exc:
-            problems.add("edited_record", None, MANIFEST_FILE,
-                         f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})")
+            problems.add(
+                "edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})"
+            )
             continue
         if not isinstance(record, dict) or not isinstance(record.get("id"), str):
-            problems.add("edited_record", None, MANIFEST_FILE,
-                         f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)")
+            problems.add(
+                "edited_record",
+                None,
+                MANIFEST_FILE,
+                f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)",
+            )
             continue
         out.append((Source(MANIFEST_FILE, number), record))
     return out
@@ -165,8 +189,10 @@ def load_markers(layout: Layout, shard_ids, known: dict, renders: dict | None = 
     for sid in shard_ids:
         marker = read_json_in(layout, layout.marker_rel(sid), list_bound((renders or {}).get(sid)))[0]
         if isinstance(marker, dict) and isinstance(marker.get("records"), list):
-            marker["records"] = [known[r["id"]] if isinstance(r, dict) and r.get("id") in known
-                                 and known[r["id"]] == r else r for r in marker["records"]]
+            marker["records"] = [
+                known[r["id"]] if isinstance(r, dict) and r.get("id") in known and known[r["id"]] == r else r
+                for r in marker["records"]
+            ]
         markers[sid] = marker
     return markers
 
@@ -180,16 +206,16 @@ def _safe_rel(rel) -> bool:
 def _file_problems(facts: FileFacts, entry: dict, id_: str, listed_by: str, problems: Problems) -> None:
     rel, recorded = facts.rel, entry.get("bytes")
     if facts.size is None:
-        problems.add("missing_file", id_, rel,
-                     f"{rel}: missing ({listed_by} lists it for {id_}, {recorded} bytes)")
+        problems.add("missing_file", id_, rel, f"{rel}: missing ({listed_by} lists it for {id_}, {recorded} bytes)")
         return
     if facts.unsafe:
         problems.add("unsafe_path", id_, rel, f"{rel}: {facts.error} ({listed_by} lists it for {id_})")
         return
     if facts.size != recorded:
         how = "truncated" if isinstance(recorded, int) and facts.size < recorded else "grown"
-        problems.add("size_mismatch", id_, rel,
-                     f"{rel}: {facts.size} bytes, {listed_by} says {recorded}: the file was {how}")
+        problems.add(
+            "size_mismatch", id_, rel, f"{rel}: {facts.size} bytes, {listed_by} says {recorded}: the file was {how}"
+        )
         return
     if facts.sha256 is None:  # not read: fast mode, or reading failed
         if facts.error:
@@ -197,9 +223,13 @@ def _file_problems(facts: FileFacts, entry: dict, id_: str, listed_by: str, prob
         return
     if facts.sha256 != entry.get("sha256"):
         decodes = "it no longer decodes" if facts.error else "it still decodes"
-        problems.add("checksum_mismatch", id_, rel,
-                     f"{rel}: SHA-256 {facts.sha256[:16]}... differs from {listed_by}'s "
-                     f"{str(entry.get('sha256'))[:16]}...: the bytes changed ({decodes})")
+        problems.add(
+            "checksum_mismatch",
+            id_,
+            rel,
+            f"{rel}: SHA-256 {facts.sha256[:16]}... differs from {listed_by}'s "
+            f"{str(entry.get('sha256'))[:16]}...: the bytes changed ({decodes})",
+        )
         return  # content problems of a changed file are a consequence, not news
     if facts.error:
         problems.add("undecodable", id_, rel, f"{rel}: {facts.error}")
@@ -231,8 +261,10 @@ def _get(record: dict, dotted: str):
 
 
 def expected_files(sample, spec) -> list[tuple[str, str]]:
-    out = [("render", Layout.render_rel(sample.shard_id, sample.sample_id)),
-           ("maps", Layout.maps_rel(sample.shard_id, sample.material_id))]
+    out = [
+        ("render", Layout.render_rel(sample.shard_id, sample.sample_id)),
+        ("maps", Layout.maps_rel(sample.shard_id, sample.material_id)),
+    ]
     if spec is None or spec.storage.texture_maps:
         out.append(("texture", Layout.texture_rel(sample.shard_id, sample.material_id)))
     return out
@@ -242,10 +274,13 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
     """Fields of ``record`` that must equal the plan (and the spec) but do not."""
     spec = state.spec
     wanted = [
-        ("id", sample.sample_id), ("material_id", sample.material_id),
-        ("material_index", sample.material_index), ("light_index", sample.light_index),
+        ("id", sample.sample_id),
+        ("material_id", sample.material_id),
+        ("material_index", sample.material_index),
+        ("light_index", sample.light_index),
         ("shard", sample.shard_id),
-        ("seeds.material", sample.material_seed), ("seeds.light", sample.light_seed),
+        ("seeds.material", sample.material_seed),
+        ("seeds.light", sample.light_seed),
         ("seeds.render", sample.render_seed),
         ("lighting.requested.elevation_deg", sample.elevation_deg),
         ("lighting.requested.azimuth_deg", sample.azimuth_deg),
@@ -258,18 +293,24 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
         wanted.append(("material.file", sample.svbrdf_file))
     if spec is not None:
         r = spec.render
-        wanted += [("render.resolution", r.resolution), ("render.spp", r.spp),
-                   ("render.max_depth", r.max_depth), ("render.integrator", r.integrator),
-                   ("render.sun", spec.lighting.sun),
-                   # absent for the default model (pipeline.render.renderer.model_record)
-                   ("render.model", model_record(spec.materials.model).get("model"))]
+        wanted += [
+            ("render.resolution", r.resolution),
+            ("render.spp", r.spp),
+            ("render.max_depth", r.max_depth),
+            ("render.integrator", r.integrator),
+            ("render.sun", spec.lighting.sun),
+            # absent for the default model (pipeline.render.renderer.model_record)
+            ("render.model", model_record(spec.materials.model).get("model")),
+        ]
     if state.variant:
         wanted.append(("render.variant", state.variant))
-    out = [f"{key} is {_get(record, key)!r}, the plan says {value!r}"
-           for key, value in wanted if not _close(_get(record, key), value)]
+    out = [
+        f"{key} is {_get(record, key)!r}, the plan says {value!r}"
+        for key, value in wanted
+        if not _close(_get(record, key), value)
+    ]
     files = record.get("files")
-    got = [(f.get("role"), f.get("path")) for f in files if isinstance(f, dict)] \
-        if isinstance(files, list) else None
+    got = [(f.get("role"), f.get("path")) for f in files if isinstance(f, dict)] if isinstance(files, list) else None
     expected = expected_files(sample, spec)
     if got != expected:
         out.append(f"files lists {got!r}, the layout says {expected!r}")
@@ -288,15 +329,19 @@ def _lighting_discrepancies(record: dict) -> list[str]:
     direction = lighting.get("direction")
     try:
         if not np.allclose(np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9):
-            out.append(f"lighting.direction {direction!r} does not follow from elevation_deg "
-                       f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}")
+            out.append(
+                f"lighting.direction {direction!r} does not follow from elevation_deg "
+                f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}"
+            )
     except (TypeError, ValueError):
         out.append(f"lighting.direction is {direction!r}, not a 3-vector")
     vector = record.get("lighting_vector")
     try:
         if not np.allclose(np.asarray(vector, np.float64), light.lighting_vector(), rtol=0, atol=1e-6):
-            out.append(f"lighting_vector {vector!r} does not follow from the effective lighting "
-                       f"(direction and turbidity {light.turbidity!r})")
+            out.append(
+                f"lighting_vector {vector!r} does not follow from the effective lighting "
+                f"(direction and turbidity {light.turbidity!r})"
+            )
     except (TypeError, ValueError):
         out.append(f"lighting_vector is {vector!r}, not a 4-vector")
     seeds, stats = record.get("seeds") or {}, record.get("stats") or {}
@@ -313,24 +358,36 @@ def _header_discrepancies(record: dict, render: FileFacts | None, maps: FileFact
         lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
         header_lighting = meta.get("lighting") or {}
         effective = header_lighting.get("effective") or {}
-        checks += [("render", "id", record.get("id"), meta.get("id")),
-                   ("render", "material_id", record.get("material_id"), meta.get("material_id")),
-                   ("render", "effects", record.get("effects"), meta.get("effects")),
-                   ("render", "lighting.requested", lighting.get("requested"), header_lighting.get("requested")),
-                   ("render", "lighting.policy", lighting.get("policy"),
-                    {k: v for k, v in header_lighting.items() if k not in ("requested", "effective")})]
-        checks += [("render", f"lighting.{key}", lighting.get(key), effective.get(key))
-                   for key in ("elevation_deg", "azimuth_deg", "turbidity")]
+        checks += [
+            ("render", "id", record.get("id"), meta.get("id")),
+            ("render", "material_id", record.get("material_id"), meta.get("material_id")),
+            ("render", "effects", record.get("effects"), meta.get("effects")),
+            ("render", "lighting.requested", lighting.get("requested"), header_lighting.get("requested")),
+            (
+                "render",
+                "lighting.policy",
+                lighting.get("policy"),
+                {k: v for k, v in header_lighting.items() if k not in ("requested", "effective")},
+            ),
+        ]
+        checks += [
+            ("render", f"lighting.{key}", lighting.get(key), effective.get(key))
+            for key in ("elevation_deg", "azimuth_deg", "turbidity")
+        ]
     maps_meta = maps.meta if maps is not None else None
     if maps_meta is not None:
-        checks += [("maps", "material_id", record.get("material_id"), maps_meta.get("id")),
-                   ("maps", "material", record.get("material"), maps_meta.get("material"))]
+        checks += [
+            ("maps", "material_id", record.get("material_id"), maps_meta.get("id")),
+            ("maps", "material", record.get("material"), maps_meta.get("material")),
+        ]
     out = []
     for which, key, mine, theirs in checks:
         for sub in _diff_keys(mine, theirs):
             dotted = key if sub == "(record)" else f"{key}.{sub}"
-            out.append(f"{dotted} is {short_repr(_get_path(mine, sub), 123)}, the {which} file's header says "
-                       f"{short_repr(_get_path(theirs, sub), 123)}")
+            out.append(
+                f"{dotted} is {short_repr(_get_path(mine, sub), 123)}, the {which} file's header says "
+                f"{short_repr(_get_path(theirs, sub), 123)}"
+            )
     return out
 
 
@@ -346,20 +403,22 @@ def _stats_discrepancies(record: dict, render: FileFacts) -> list[str]:
     if render.pixel_stats is not None:
         for key in PIXEL_STATS:
             mine, actual = stats.get(key), render.pixel_stats.get(key)
-            if not (_close(mine, actual, STATS_RTOL, 0.0) if mine is not None and actual is not None
-                    else mine == actual):
+            if not (
+                _close(mine, actual, STATS_RTOL, 0.0) if mine is not None and actual is not None else mine == actual
+            ):
                 out.append(f"stats.{key} is {mine!r}, the pixels give {actual!r}")
         if stats.get("flagged") is not None and bool(stats.get("flagged")) != is_bad(render.pixel_stats):
-            out.append(f"stats.flagged is {stats.get('flagged')!r}, but the pixels are "
-                       f"{'bad' if is_bad(render.pixel_stats) else 'clean'}")
+            out.append(
+                f"stats.flagged is {stats.get('flagged')!r}, but the pixels are "
+                f"{'bad' if is_bad(render.pixel_stats) else 'clean'}"
+            )
     meta = render.meta
     if meta is not None and "stats" in meta:
         stored = {k: v for k, v in stats.items() if k not in RUN_DEPENDENT_STATS}
         header = meta["stats"] if isinstance(meta["stats"], dict) else {}
         keys = sorted(k for k in set(stored) | set(header) if stored.get(k) != header.get(k))
         keys = [k for k in keys if not any(line.startswith(f"stats.{k} ") for line in out)]
-        out += [f"stats.{k} is {stored.get(k)!r}, the render file's header says {header.get(k)!r}"
-                for k in keys]
+        out += [f"stats.{k} is {stored.get(k)!r}, the render file's header says {header.get(k)!r}" for k in keys]
     return out
 
 
@@ -370,11 +429,21 @@ def _policy_problems(record: dict, render: FileFacts) -> list[tuple[str, str]]:
         return []
     out = []
     if pixels["nan"] or pixels["inf"]:
-        out.append(("non_finite", f"{pixels['nan']} NaN and {pixels['inf']} infinite value(s) in a "
-                                  "render not flagged by the render policy"))
+        out.append(
+            (
+                "non_finite",
+                f"{pixels['nan']} NaN and {pixels['inf']} infinite value(s) in a "
+                "render not flagged by the render policy",
+            )
+        )
     if pixels["negative"]:
-        out.append(("negative_render", f"{pixels['negative']} negative value(s) (min "
-                                       f"{pixels['min']:.6g}) in a render not flagged by the render policy"))
+        out.append(
+            (
+                "negative_render",
+                f"{pixels['negative']} negative value(s) (min "
+                f"{pixels['min']:.6g}) in a render not flagged by the render policy",
+            )
+        )
     return out
 
 
@@ -403,8 +472,11 @@ def record_ok(record: dict | None, sample, state: State) -> bool:
         return False
     maps = state.facts.get((entries.get("maps") or {}).get("path"))
     maps = maps if maps is not None and maps.content_ok and maps.decoded else None
-    return not (_header_discrepancies(record, render, maps) or _stats_discrepancies(record, render)
-                or _policy_problems(record, render))
+    return not (
+        _header_discrepancies(record, render, maps)
+        or _stats_discrepancies(record, render)
+        or _policy_problems(record, render)
+    )
 
 
 def _copy_faulty(record, sample, state: State, fast: bool) -> bool:
@@ -446,33 +518,38 @@ def check_records_against_plan(records, state: State, problems: Problems, from_m
         if sid in primary:
             first = primary[sid][0]
             same = "identical" if record == primary[sid][1] else "different"
-            problems.add("duplicate_record", sid, source.path,
-                         f"{source}: a second record for {sid} ({same} to the first, at {first})")
+            problems.add(
+                "duplicate_record",
+                sid,
+                source.path,
+                f"{source}: a second record for {sid} ({same} to the first, at {first})",
+            )
             continue
         primary[sid] = (source, record)
         if state.plans is None:
             continue
         if sid not in state.planned:
-            problems.add("extra_sample", sid, source.path,
-                         f"{source}: record for {sid}, which the plan does not have")
+            problems.add("extra_sample", sid, source.path, f"{source}: record for {sid}, which the plan does not have")
             continue
         if from_manifest and plan_order[sid] < last_index and not order_reported:
-            problems.add("edited_record", sid, source.path,
-                         f"{source}: record for {sid} is out of plan order")
+            problems.add("edited_record", sid, source.path, f"{source}: record for {sid} is out of plan order")
             order_reported = True
         last_index = max(last_index, plan_order[sid])
     if state.plans is not None:
         where = MANIFEST_FILE if from_manifest else "the shard markers or record files"
         for sid, sample in state.planned.items():
             if sid not in primary:
-                problems.add("missing_sample", sid, MANIFEST_FILE if from_manifest else None,
-                             f"{sid} (shard {sample.shard_id}): planned, but there is no record of it in {where}")
+                problems.add(
+                    "missing_sample",
+                    sid,
+                    MANIFEST_FILE if from_manifest else None,
+                    f"{sid} (shard {sample.shard_id}): planned, but there is no record of it in {where}",
+                )
     state.manifest = {sid: rec for sid, (src, rec) in primary.items()} if from_manifest else {}
     return primary
 
 
-def check_markers(state: State, primary: dict, problems: Problems, have_manifest: bool,
-                   fast: bool) -> None:
+def check_markers(state: State, primary: dict, problems: Problems, have_manifest: bool, fast: bool) -> None:
     """Each planned shard's marker: present, complete, listing its planned samples, and
     holding the same records as the manifest."""
     if state.plans is None:
@@ -486,34 +563,49 @@ def check_markers(state: State, primary: dict, problems: Problems, have_manifest
             why = read_json_in(layout, rel, list_bound(len(wanted)))[1]
             why = f"unreadable ({why})" if why and why != "missing" else "missing"
             recorded = sum(1 for s in wanted if s in primary)
-            problems.add("incomplete_shard", sid, rel,
-                         f"{rel}: {why}; {recorded} of {len(wanted)} samples of shard {sid} have a record")
+            problems.add(
+                "incomplete_shard",
+                sid,
+                rel,
+                f"{rel}: {why}; {recorded} of {len(wanted)} samples of shard {sid} have a record",
+            )
             continue
-        if not isinstance(marker, dict) or not marker.get("complete") or \
-                not isinstance(marker.get("records"), list):
+        if not isinstance(marker, dict) or not marker.get("complete") or not isinstance(marker.get("records"), list):
             problems.add("incomplete_shard", sid, rel, f"{rel}: does not mark shard {sid} complete")
             continue
         ids = [r.get("id") for r in marker["records"] if isinstance(r, dict)]
         if marker.get("shard") != sid or marker.get("samples") != ids:
-            problems.add("edited_record", sid, rel,
-                         f"{rel}: its shard ({marker.get('shard')!r}) or sample list disagrees with "
-                         "its records")
+            problems.add(
+                "edited_record",
+                sid,
+                rel,
+                f"{rel}: its shard ({marker.get('shard')!r}) or sample list disagrees with its records",
+            )
         lacking = [s for s in wanted if s not in ids]
         if lacking:
-            problems.add("incomplete_shard", sid, rel,
-                         f"{rel}: lacks {len(lacking)} planned sample(s): {', '.join(lacking[:5])}")
+            problems.add(
+                "incomplete_shard", sid, rel, f"{rel}: lacks {len(lacking)} planned sample(s): {', '.join(lacking[:5])}"
+            )
         strays = [s for s in ids if s not in wanted]
         if strays:
-            problems.add("edited_record", sid, rel,
-                         f"{rel}: holds record(s) for {', '.join(map(str, strays[:5]))}, "
-                         f"not planned in {sid}")
+            problems.add(
+                "edited_record",
+                sid,
+                rel,
+                f"{rel}: holds record(s) for {', '.join(map(str, strays[:5]))}, not planned in {sid}",
+            )
         if have_manifest:
-            _compare_copies(state, primary, problems, fast, rel,
-                            [r for r in marker["records"] if isinstance(r, dict) and r.get("id") in wanted])
+            _compare_copies(
+                state,
+                primary,
+                problems,
+                fast,
+                rel,
+                [r for r in marker["records"] if isinstance(r, dict) and r.get("id") in wanted],
+            )
 
 
-def _compare_copies(state: State, primary: dict, problems: Problems, fast: bool, rel: str,
-                    copies: list[dict]) -> None:
+def _compare_copies(state: State, primary: dict, problems: Problems, fast: bool, rel: str, copies: list[dict]) -> None:
     """Copies of records in ``rel`` against the primary ones; a difference is reported on
     the side that is wrong (the primary side's own faults are reported by the record checks)."""
     for copy in copies:
@@ -529,9 +621,13 @@ def _compare_copies(state: State, primary: dict, problems: Problems, fast: bool,
             problems.add("edited_record", sid, rel, f"{rel}: record for {sid} differs from {source} at {keys}")
         elif not _copy_faulty(mine, sample, state, fast):
             # Both copies check out (a field no check covers, or a fast check): name both.
-            problems.add("edited_record", sid, source.path,
-                         f"{source} and {rel} hold different records for {sid}, at {keys}"
-                         + ("; the full check tells which is right" if fast else ""))
+            problems.add(
+                "edited_record",
+                sid,
+                source.path,
+                f"{source} and {rel} hold different records for {sid}, at {keys}"
+                + ("; the full check tells which is right" if fast else ""),
+            )
 
 
 def check_record_files(state: State, primary: dict, problems: Problems) -> None:
@@ -550,16 +646,18 @@ def check_record_files(state: State, primary: dict, problems: Problems) -> None:
         state.record_files[sid] = reference if content == reference else content  # one copy
         if reference is None or content == reference:
             continue
-        if isinstance(content, dict) and isinstance(reference, dict) and \
-                without_timings(content) == without_timings(reference):
+        if (
+            isinstance(content, dict)
+            and isinstance(reference, dict)
+            and without_timings(content) == without_timings(reference)
+        ):
             continue  # two runs of one shard: equal but for the run-dependent render time
         if not isinstance(content, dict):
             problems.add("edited_record", sid, rel, f"{rel}: not a JSON record (torn or edited)")
             continue
         if _copy_faulty(content, sample, state, False) or not _copy_faulty(reference, sample, state, False):
             keys = ", ".join(_diff_keys(content, reference)[:5])
-            problems.add("edited_record", sid, rel,
-                         f"{rel}: differs from the shard's record of {sid} at {keys}")
+            problems.add("edited_record", sid, rel, f"{rel}: differs from the shard's record of {sid} at {keys}")
 
 
 def marker_record(state: State, sample) -> dict | None:
@@ -580,8 +678,7 @@ def referenced_files(primary: dict, state: State) -> dict:
         if not isinstance(entries, list):
             continue
         sample = state.planned.get(sid)
-        expect = expectations(state.spec, sample.kind if sample else None,
-                               sample.svbrdf_family if sample else None)
+        expect = expectations(state.spec, sample.kind if sample else None, sample.svbrdf_family if sample else None)
         for entry in entries:
             if not isinstance(entry, dict) or entry.get("role") not in expect:
                 continue
@@ -595,12 +692,15 @@ def referenced_files(primary: dict, state: State) -> dict:
 
 def _trusted(facts: FileFacts | None, files: dict) -> bool:
     """Read, decoded, and the bytes its (first) record describes."""
-    return facts is not None and facts.decoded and facts.sha256 is not None and \
-        facts.sha256 == files.get(facts.rel, (None, {}))[1].get("sha256")
+    return (
+        facts is not None
+        and facts.decoded
+        and facts.sha256 is not None
+        and facts.sha256 == files.get(facts.rel, (None, {}))[1].get("sha256")
+    )
 
 
-def check_files_and_records(primary: dict, files: dict, state: State, problems: Problems,
-                             fast: bool) -> None:
+def check_files_and_records(primary: dict, files: dict, state: State, problems: Problems, fast: bool) -> None:
     """File problems (once per file) and each record's agreement with plan, headers, stats."""
     for rel, (owner, entry, listed_by, _expect) in files.items():
         _file_problems(state.facts[rel], entry, owner, listed_by, problems)
@@ -608,8 +708,11 @@ def check_files_and_records(primary: dict, files: dict, state: State, problems: 
         sample = state.planned.get(sid)
         if sample is None:
             continue
-        entries = {e.get("role"): e for e in record.get("files", []) if isinstance(e, dict)} \
-            if isinstance(record.get("files"), list) else {}
+        entries = (
+            {e.get("role"): e for e in record.get("files", []) if isinstance(e, dict)}
+            if isinstance(record.get("files"), list)
+            else {}
+        )
         messages = _plan_discrepancies(record, sample, state)
         for role, entry in entries.items():
             rel = entry.get("path")
@@ -617,8 +720,11 @@ def check_files_and_records(primary: dict, files: dict, state: State, problems: 
                 messages.append(f"files[{role}].path {rel!r} is not a path inside the dataset")
                 continue
             first = files.get(rel)
-            if first is not None and first[1] is not entry and \
-                    (first[1].get("bytes"), first[1].get("sha256")) != (entry.get("bytes"), entry.get("sha256")):
+            if (
+                first is not None
+                and first[1] is not entry
+                and (first[1].get("bytes"), first[1].get("sha256")) != (entry.get("bytes"), entry.get("sha256"))
+            ):
                 messages.append(f"files[{role}] of {rel} has size/SHA-256 different from {first[0]}'s record")
         render = state.facts.get((entries.get("render") or {}).get("path"))
         maps = state.facts.get((entries.get("maps") or {}).get("path"))
@@ -626,17 +732,16 @@ def check_files_and_records(primary: dict, files: dict, state: State, problems: 
         maps = maps if _trusted(maps, files) else None
         if not fast:
             said = {m.split(" ", 1)[0] for m in messages}
-            messages += [m for m in _header_discrepancies(record, render, maps)
-                         if m.split(" ", 1)[0] not in said]
+            messages += [m for m in _header_discrepancies(record, render, maps) if m.split(" ", 1)[0] not in said]
         if messages:
-            problems.add("edited_record", sid, source.path,
-                         f"{source} ({sid}): {summarise(messages)}")
+            problems.add("edited_record", sid, source.path, f"{source} ({sid}): {summarise(messages)}")
         if fast or render is None:
             continue
         stats_messages = _stats_discrepancies(record, render)
         if stats_messages:
-            problems.add("stats_mismatch", sid, source.path,
-                         f"{source} ({sid}) vs {render.rel}: {summarise(stats_messages)}")
+            problems.add(
+                "stats_mismatch", sid, source.path, f"{source} ({sid}) vs {render.rel}: {summarise(stats_messages)}"
+            )
         for kind, message in _policy_problems(record, render):
             problems.add(kind, sid, render.rel, f"{render.rel}: {message}")
 
@@ -678,8 +783,12 @@ def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
         if facts is not None and facts.unsafe:
             continue  # a file a record lists: reported with the record's id
         state.extra_files.append(rel)
-        problems.add("unsafe_path", None, rel, f"{rel}: {what}; a dataset folder holds only regular files and "
-                                               "folders: not followed, not read")
+        problems.add(
+            "unsafe_path",
+            None,
+            rel,
+            f"{rel}: {what}; a dataset folder holds only regular files and folders: not followed, not read",
+        )
     for folder, subdirs, names in os.walk(root):
         rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
         rel_dir = "" if rel_dir == "." else rel_dir + "/"
@@ -695,8 +804,11 @@ def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
             rel = rel_dir + name
             if rel in files:
                 continue
-            why = ("a temporary file left by an interrupted write" if is_temp_file(name)
-                   else "no part of the dataset: no planned record or marker refers to it")
+            why = (
+                "a temporary file left by an interrupted write"
+                if is_temp_file(name)
+                else "no part of the dataset: no planned record or marker refers to it"
+            )
             state.extra_files.append(rel)
             problems.add("extra_file", None, rel, f"{rel}: {why}")
 

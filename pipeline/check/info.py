@@ -90,39 +90,60 @@ class DatasetInfo:
 
     @property
     def complete(self) -> bool:
-        return (self.shards_complete == self.total_shards and self.manifest_records == self.total_renders)
+        return self.shards_complete == self.total_shards and self.manifest_records == self.total_renders
 
     def lines(self) -> list[str]:
         d = self.description or {}
         libs = _dict(d.get("libraries"))
         guarantee = _dict(d.get("determinism")).get("guarantee")
-        built = (f"; built with shaderball {d.get('shaderball', '?')}, mitsuba {libs.get('mitsuba', '?')} "
-                 f"{d.get('variant', '?')}" + (f" ({guarantee} re-renders)" if isinstance(guarantee, str) else "")
-                 ) if d else "; no dataset.json yet"
+        built = (
+            (
+                f"; built with shaderball {d.get('shaderball', '?')}, mitsuba {libs.get('mitsuba', '?')} "
+                f"{d.get('variant', '?')}" + (f" ({guarantee} re-renders)" if isinstance(guarantee, str) else "")
+            )
+            if d
+            else "; no dataset.json yet"
+        )
         pct = 100.0 * self.recorded / self.total_renders if self.total_renders else 100.0
         state = "complete" if self.complete else "INCOMPLETE (resume with `shaderball build DIR/spec.toml --out DIR`)"
-        manifest = ("absent" if self.manifest_records is None else f"{self.manifest_records} records")
-        out = [f"dataset {self.root}: {self.name} v{self.version}, spec digest {self.spec_digest[:12]}{built}",
-               *self.spec_lines,
-               f"completion: {state}; {self.recorded}/{self.total_renders} renders recorded ({pct:.1f}%), "
-               f"{self.shards_complete}/{self.total_shards} shards complete, "
-               f"{self.shards_started - self.shards_complete} in progress; manifest.jsonl {manifest}"]
-        parts = [f"{self.files[r]['count']} {r} ({ROLE_NOTES[r]}) {_human_bytes(self.files[r]['bytes'])}"
-                 for r in FILE_ROLES if r in self.files]
-        out.append("files: " + (", ".join(parts) if parts else "none recorded yet")
-                   + f"; {_human_bytes(self.disk_bytes)} on disk in all"
-                   + (f"; {self.temp_files} temporary file(s) of an interrupted write" if self.temp_files else ""))
+        manifest = "absent" if self.manifest_records is None else f"{self.manifest_records} records"
+        out = [
+            f"dataset {self.root}: {self.name} v{self.version}, spec digest {self.spec_digest[:12]}{built}",
+            *self.spec_lines,
+            f"completion: {state}; {self.recorded}/{self.total_renders} renders recorded ({pct:.1f}%), "
+            f"{self.shards_complete}/{self.total_shards} shards complete, "
+            f"{self.shards_started - self.shards_complete} in progress; manifest.jsonl {manifest}",
+        ]
+        parts = [
+            f"{self.files[r]['count']} {r} ({ROLE_NOTES[r]}) {_human_bytes(self.files[r]['bytes'])}"
+            for r in FILE_ROLES
+            if r in self.files
+        ]
+        out.append(
+            "files: "
+            + (", ".join(parts) if parts else "none recorded yet")
+            + f"; {_human_bytes(self.disk_bytes)} on disk in all"
+            + (f"; {self.temp_files} temporary file(s) of an interrupted write" if self.temp_files else "")
+        )
         if self.kinds:
             out.append("materials recorded: " + ", ".join(f"{n} {k}" for k, n in sorted(self.kinds.items())))
         if self.recorded:
-            out.append("effects simulated (renders): " + ", ".join(
-                f"{name.replace('_', ' ')} {n}/{self.recorded}" for name, n in self.effects.items()))
-            noise = (f"; relative noise (RMS standard error / mean) median {self.noise_relative_median:.3f}"
-                     if self.noise_relative_median is not None else "")
+            out.append(
+                "effects simulated (renders): "
+                + ", ".join(f"{name.replace('_', ' ')} {n}/{self.recorded}" for name, n in self.effects.items())
+            )
+            noise = (
+                f"; relative noise (RMS standard error / mean) median {self.noise_relative_median:.3f}"
+                if self.noise_relative_median is not None
+                else ""
+            )
             out.append(f"renders flagged bad: {self.flagged}; re-rendered with a new seed: {self.rerendered}{noise}")
         if self.problems:
-            out.append(f"NOT READ ({len(self.problems)}; run `shaderball validate`): "
-                       + "; ".join(self.problems[:5]) + (" ..." if len(self.problems) > 5 else ""))
+            out.append(
+                f"NOT READ ({len(self.problems)}; run `shaderball validate`): "
+                + "; ".join(self.problems[:5])
+                + (" ..." if len(self.problems) > 5 else "")
+            )
         return out
 
     def to_dict(self) -> dict:
@@ -162,15 +183,23 @@ def dataset_info(root: str) -> DatasetInfo:
     if not os.path.isdir(root):
         raise ShaderballError(f"DIR: {root!r} is not a folder; allowed: a dataset folder made by `shaderball build`")
     if not os.path.lexists(layout.spec):
-        raise ShaderballError(f"DIR: {root!r} holds no spec.toml; allowed: a dataset folder made by "
-                              "`shaderball build` (it writes spec.toml before anything else)")
+        raise ShaderballError(
+            f"DIR: {root!r} holds no spec.toml; allowed: a dataset folder made by "
+            "`shaderball build` (it writes spec.toml before anything else)"
+        )
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     description, why = read_json_checked(layout.description)
-    info = DatasetInfo(root=root, name=spec.dataset.name, version=spec.dataset.version,
-                       spec_digest=spec_digest(spec), description=description if isinstance(description, dict) else None,
-                       spec_lines=spec_summary(spec), total_renders=sum(counts.values()),
-                       total_shards=len(counts))
+    info = DatasetInfo(
+        root=root,
+        name=spec.dataset.name,
+        version=spec.dataset.version,
+        spec_digest=spec_digest(spec),
+        description=description if isinstance(description, dict) else None,
+        spec_lines=spec_summary(spec),
+        total_renders=sum(counts.values()),
+        total_shards=len(counts),
+    )
     if (why is not None and why != "missing") or (why is None and not isinstance(description, dict)):
         info.problems.append(f"{DESCRIPTION_FILE}: {why or 'not a JSON object'}")
     files: dict[str, dict] = {}

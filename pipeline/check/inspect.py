@@ -72,8 +72,11 @@ class Expect:
 def expectations(spec, material_kind: str | None, family: str | None) -> dict[str, Expect]:
     """What each role's EXR must hold, from the spec (None: only what every file needs)."""
     if spec is None:
-        return {"render": Expect("render", {"render": (3, "float32")}, None),
-                "maps": Expect("maps", None, None), "texture": Expect("texture", None, None)}
+        return {
+            "render": Expect("render", {"render": (3, "float32")}, None),
+            "maps": Expect("maps", None, None),
+            "texture": Expect("texture", None, None),
+        }
     res = (spec.render.resolution, spec.render.resolution)
     storage = spec.storage
 
@@ -88,9 +91,11 @@ def expectations(spec, material_kind: str | None, family: str | None) -> dict[st
         texture_shape = (spec.materials.texture_resolution,) * 2
     else:
         texture_shape = None  # imported maps keep their file's size
-    return {"render": Expect("render", {"render": (3, "float32")}, res),
-            "maps": Expect("maps", maps, res),
-            "texture": Expect("texture", texture, texture_shape)}
+    return {
+        "render": Expect("render", {"render": (3, "float32")}, res),
+        "maps": Expect("maps", maps, res),
+        "texture": Expect("texture", texture, texture_shape),
+    }
 
 
 def layer_issues(layers: dict[str, np.ndarray], expect: Expect) -> list[tuple[str, str]]:
@@ -111,8 +116,13 @@ def layer_issues(layers: dict[str, np.ndarray], expect: Expect) -> list[tuple[st
         if arr.shape[2] != channels:
             issues.append(("bad_layers", f"layer {name} has {arr.shape[2]} channel(s), expected {channels}"))
         if expect.shape is not None and tuple(arr.shape[:2]) != expect.shape:
-            issues.append(("bad_layers", f"layer {name} is {arr.shape[1]}x{arr.shape[0]} pixels, "
-                                         f"expected {expect.shape[1]}x{expect.shape[0]}"))
+            issues.append(
+                (
+                    "bad_layers",
+                    f"layer {name} is {arr.shape[1]}x{arr.shape[0]} pixels, "
+                    f"expected {expect.shape[1]}x{expect.shape[0]}",
+                )
+            )
         if arr.dtype.name != dtype:
             issues.append(("bad_layers", f"layer {name} is {arr.dtype.name}, expected {dtype}"))
     return issues
@@ -141,13 +151,21 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
         if name in ("diffuse", "specular", "roughness"):
             bad = (values < 0) | (values > 1)
             if bad.any():
-                issues.append(("out_of_range", f"layer {name} has {int(bad.sum())} value(s) outside "
-                                               f"[0, 1] ({_range_text(values[bad])})"))
+                issues.append(
+                    (
+                        "out_of_range",
+                        f"layer {name} has {int(bad.sum())} value(s) outside [0, 1] ({_range_text(values[bad])})",
+                    )
+                )
         elif name == "mask":
             bad = (values != 0) & (values != 1)
             if bad.any():
-                issues.append(("out_of_range", f"layer mask has {int(bad.sum())} value(s) other than "
-                                               f"0 and 1 ({_range_text(values[bad])})"))
+                issues.append(
+                    (
+                        "out_of_range",
+                        f"layer mask has {int(bad.sum())} value(s) other than 0 and 1 ({_range_text(values[bad])})",
+                    )
+                )
         elif name == "normal" and values.shape[-1] == 3 and (inside is not None or not screen_space):
             length = np.sqrt(np.sum(values.astype(np.float64) ** 2, axis=-1))
             deviation = np.abs(length - 1.0)
@@ -156,15 +174,20 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
             bad = deviation > NORMAL_TOLERANCE
             if bad.any():
                 where = "inside the mask " if inside is not None else ""
-                issues.append(("normal_not_unit",
-                               f"layer normal: {int(bad.sum())} pixel(s) {where}not of unit length "
-                               f"(worst |length - 1| = {float(deviation.max()):.3g}; tolerance "
-                               f"{NORMAL_TOLERANCE:g})"))
+                issues.append(
+                    (
+                        "normal_not_unit",
+                        f"layer normal: {int(bad.sum())} pixel(s) {where}not of unit length "
+                        f"(worst |length - 1| = {float(deviation.max()):.3g}; tolerance "
+                        f"{NORMAL_TOLERANCE:g})",
+                    )
+                )
         if inside is not None and name != "mask" and values.shape[:2] == inside.shape:
             outside = np.any(values[~inside] != 0, axis=-1)
             if outside.any():
-                issues.append(("out_of_range", f"layer {name} is non-zero at {int(outside.sum())} "
-                                               "pixel(s) outside the mask"))
+                issues.append(
+                    ("out_of_range", f"layer {name} is non-zero at {int(outside.sum())} pixel(s) outside the mask")
+                )
     return issues
 
 

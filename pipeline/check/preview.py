@@ -43,12 +43,17 @@ class PreviewSummary:
     problems: tuple[str, ...] = ()
 
     def lines(self) -> list[str]:
-        out = [f"contact sheet {self.out}: {len(self.samples)} samples "
-               f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
-               "samples: " + ", ".join(self.samples)]
+        out = [
+            f"contact sheet {self.out}: {len(self.samples)} samples "
+            f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
+            "samples: " + ", ".join(self.samples),
+        ]
         if self.problems:
-            out.append(f"left out ({len(self.problems)}; run `shaderball validate`): "
-                       + "; ".join(self.problems[:5]) + (" ..." if len(self.problems) > 5 else ""))
+            out.append(
+                f"left out ({len(self.problems)}; run `shaderball validate`): "
+                + "; ".join(self.problems[:5])
+                + (" ..." if len(self.problems) > 5 else "")
+            )
         return out
 
 
@@ -100,10 +105,13 @@ def label_text(record: dict) -> list[str]:
         source = material.get("family") or (os.path.basename(file) if isinstance(file, str) else "") or "?"
         kind = f"SVBRDF {source}"
     lighting = _dict(record.get("lighting"))
-    lines = [str(record["id"]), kind,
-             f"sun elevation {_num(lighting.get('elevation_deg')):.1f} deg",
-             f"sun azimuth {_num(lighting.get('azimuth_deg')):.1f} deg",
-             f"turbidity {_num(lighting.get('turbidity')):.2f}"]
+    lines = [
+        str(record["id"]),
+        kind,
+        f"sun elevation {_num(lighting.get('elevation_deg')):.1f} deg",
+        f"sun azimuth {_num(lighting.get('azimuth_deg')):.1f} deg",
+        f"turbidity {_num(lighting.get('turbidity')):.2f}",
+    ]
     requested = _dict(lighting.get("requested"))
     if requested and abs(_num(requested.get("elevation_deg")) - _num(lighting.get("elevation_deg"))) > 1e-9:
         lines.append(f"(raised from {_num(requested.get('elevation_deg')):.1f} deg)")
@@ -148,7 +156,6 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
     """The sheet as uint8 (H, W, 3): a header, then one row per record."""
     from PIL import Image, ImageDraw
 
-
     width = LABEL_WIDTH + len(COLUMNS) * (tile + GAP) + GAP
     height = HEADER_HEIGHT + len(records) * (tile + GAP) + GAP
     sheet = Image.new("RGB", (width, height), BACKGROUND)
@@ -176,15 +183,18 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
             else:
                 sheet.paste(_fit(pictures[name], tile), (x, y))
         for i, line in enumerate(label_text(record)):
-            draw.text((8, y + 4 + 17 * i), line, fill=(235, 235, 235) if i == 0 else (190, 190, 190),
-                      font=font if i == 0 else small)
+            draw.text(
+                (8, y + 4 + 17 * i),
+                line,
+                fill=(235, 235, 235) if i == 0 else (190, 190, 190),
+                font=font if i == 0 else small,
+            )
     return np.asarray(sheet)
 
 
 def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = None) -> PreviewSummary:
     """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
     from PIL import Image
-
 
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 200:
         raise ShaderballError(f"--samples: {samples!r} is not allowed; allowed: an integer from 1 to 200")
@@ -194,8 +204,9 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
         raise ShaderballError(f"--out: {out!r} is not allowed; allowed: a file name ending in .png")
     layout = Layout(root)
     if not os.path.isdir(root) or not os.path.lexists(layout.spec):
-        raise ShaderballError(f"DIR: {root!r} is not allowed; allowed: a dataset folder made by "
-                              "`shaderball build` (with its spec.toml)")
+        raise ShaderballError(
+            f"DIR: {root!r} is not allowed; allowed: a dataset folder made by `shaderball build` (with its spec.toml)"
+        )
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     records, problems = [], []
@@ -209,8 +220,10 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
             else:
                 records.append(record)
     if not records:
-        raise ShaderballError(f"DIR: {root!r} holds no finished render yet; nothing to preview"
-                              + (f" ({len(problems)} left out: {problems[0]})" if problems else ""))
+        raise ShaderballError(
+            f"DIR: {root!r} holds no finished render yet; nothing to preview"
+            + (f" ({len(problems)} left out: {problems[0]})" if problems else "")
+        )
     chosen = choose_samples(records, samples)
     if tile is None:
         resolution = spec.render.resolution
@@ -223,6 +236,11 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     folder = os.path.dirname(os.path.abspath(out))
     os.makedirs(folder, exist_ok=True)
     write_bytes_atomic(out, buffer.getvalue())
-    return PreviewSummary(out=out, samples=[r["id"] for r in chosen], recorded=len(records),
-                          total=sum(counts.values()), size=(picture.shape[1], picture.shape[0]),
-                          problems=tuple(problems))
+    return PreviewSummary(
+        out=out,
+        samples=[r["id"] for r in chosen],
+        recorded=len(records),
+        total=sum(counts.values()),
+        size=(picture.shape[1], picture.shape[0]),
+        problems=tuple(problems),
+    )

@@ -24,16 +24,23 @@ def restore_spec(state: State, spec_path: str) -> RepairAction:
     description = read_json(state.layout.description)
     recorded = description.get("spec_digest") if isinstance(description, dict) else None
     if not recorded:
-        raise ShaderballError(f"--spec: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
-                              "spec_digest, so no spec can be confirmed as the one it was built from")
+        raise ShaderballError(
+            f"--spec: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
+            "spec_digest, so no spec can be confirmed as the one it was built from"
+        )
     spec = parse_spec(spec_path)
     if spec_digest(spec) != recorded:
-        raise ShaderballError(f"--spec: {spec_path!r} has digest {spec_digest(spec)[:12]}, "
-                              f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: "
-                              "not this dataset's spec")
+        raise ShaderballError(
+            f"--spec: {spec_path!r} has digest {spec_digest(spec)[:12]}, "
+            f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: "
+            "not this dataset's spec"
+        )
     write_text_atomic(state.layout.spec, spec_to_toml(spec))
-    return RepairAction("restore_spec", SPEC_FILE, f"{SPEC_FILE}: restored from {spec_path} (digest "
-                                                   f"{recorded[:12]} matches {DESCRIPTION_FILE})")
+    return RepairAction(
+        "restore_spec",
+        SPEC_FILE,
+        f"{SPEC_FILE}: restored from {spec_path} (digest {recorded[:12]} matches {DESCRIPTION_FILE})",
+    )
 
 
 def remove_file(path: str) -> bool:
@@ -77,8 +84,11 @@ def inspect_unlisted(state: State) -> None:
 def _candidates(state: State, sample) -> list[dict]:
     """The copies of a sample's record, the marker's first (the manifest is made from it)."""
     out = []
-    for record in (marker_record(state, sample), state.record_files.get(sample.sample_id),
-                   state.manifest.get(sample.sample_id)):
+    for record in (
+        marker_record(state, sample),
+        state.record_files.get(sample.sample_id),
+        state.manifest.get(sample.sample_id),
+    ):
         if isinstance(record, dict) and record not in out:
             out.append(record)
     return out
@@ -92,8 +102,12 @@ def chosen_record(state: State, sample) -> dict | None:
     def material_match(record):
         for entry in record.get("files", [])[1:]:
             facts = state.facts.get(entry.get("path"))
-            if facts is not None and facts.content_ok and facts.sha256 is not None and \
-                    (facts.size, facts.sha256) != (entry.get("bytes"), entry.get("sha256")):
+            if (
+                facts is not None
+                and facts.content_ok
+                and facts.sha256 is not None
+                and (facts.size, facts.sha256) != (entry.get("bytes"), entry.get("sha256"))
+            ):
                 return False
         return True
 
@@ -119,10 +133,19 @@ def settle_samples(state: State, chosen: dict, actions: list) -> set:
             kept = [chosen[s.sample_id] for s in material.samples]
             for role, rel in expected_files(material.samples[0], state.spec)[1:]:
                 facts = state.facts.get(rel)
-                entries = {(e.get("bytes"), e.get("sha256")) for r in kept if r
-                           for e in r.get("files", []) if isinstance(e, dict) and e.get("path") == rel}
-                if facts is not None and facts.content_ok and facts.sha256 is not None and \
-                        (facts.size, facts.sha256) in entries:
+                entries = {
+                    (e.get("bytes"), e.get("sha256"))
+                    for r in kept
+                    if r
+                    for e in r.get("files", [])
+                    if isinstance(e, dict) and e.get("path") == rel
+                }
+                if (
+                    facts is not None
+                    and facts.content_ok
+                    and facts.sha256 is not None
+                    and (facts.size, facts.sha256) in entries
+                ):
                     continue
                 affected.add(shard.shard_id)
                 remove_file(layout.path(rel))
@@ -149,8 +172,12 @@ def recorded_variant(state: State) -> str | None:
     record copy names (a lost dataset.json); None when neither says."""
     if state.variant:
         return state.variant
-    named = {r.get("render", {}).get("variant") for sample in state.planned.values()
-             for r in _candidates(state, sample) if isinstance(r.get("render"), dict)}
+    named = {
+        r.get("render", {}).get("variant")
+        for sample in state.planned.values()
+        for r in _candidates(state, sample)
+        if isinstance(r.get("render"), dict)
+    }
     named.discard(None)
     return named.pop() if len(named) == 1 else None
 
@@ -165,9 +192,11 @@ def repair_variant(state: State) -> str | None:
     try:
         return resolve_variant(recorded)
     except SetupError as exc:
-        raise SetupError(f"{DESCRIPTION_FILE}: the dataset was rendered with Mitsuba variant {recorded}, which "
-                         f"cannot be used here ({exc}); a repair re-renders with the dataset's own variant, "
-                         "so run it on a machine where that variant works; nothing was changed") from None
+        raise SetupError(
+            f"{DESCRIPTION_FILE}: the dataset was rendered with Mitsuba variant {recorded}, which "
+            f"cannot be used here ({exc}); a repair re-renders with the dataset's own variant, "
+            "so run it on a machine where that variant works; nothing was changed"
+        ) from None
 
 
 def lost_render_digests(state: State, chosen: dict) -> dict[str, set]:
@@ -175,8 +204,12 @@ def lost_render_digests(state: State, chosen: dict) -> dict[str, set]:
     lost = {}
     for sid, sample in state.planned.items():
         if chosen[sid] is None:
-            lost[sid] = {e.get("sha256") for r in _candidates(state, sample) for e in r.get("files", [])
-                         if isinstance(e, dict) and e.get("role") == "render"}
+            lost[sid] = {
+                e.get("sha256")
+                for r in _candidates(state, sample)
+                for e in r.get("files", [])
+                if isinstance(e, dict) and e.get("role") == "render"
+            }
     return lost
 
 
@@ -204,11 +237,15 @@ def describe_rerenders(state: State, lost: dict[str, set], actions: list) -> lis
         elif digest in lost[sid]:
             note = "byte-identical to the lost copy"
         elif guarantee == BYTE_IDENTICAL:
-            note = ("its bytes differ from the lost copy's recorded SHA-256 although this dataset's re-renders "
-                    "are byte-identical: the lost copy was not this installation's render")
+            note = (
+                "its bytes differ from the lost copy's recorded SHA-256 although this dataset's re-renders "
+                "are byte-identical: the lost copy was not this installation's render"
+            )
         else:
-            note = (f"a new render, not the lost copy's bytes ({guarantee} dataset: equal within noise); "
-                    "its record, the shard marker and the manifest list the new file")
+            note = (
+                f"a new render, not the lost copy's bytes ({guarantee} dataset: equal within noise); "
+                "its record, the shard marker and the manifest list the new file"
+            )
         out.append(RepairAction(action.action, action.path, f"{action.message}: {note}"))
     return out
 

@@ -13,8 +13,7 @@ PROBLEM_KINDS: dict[str, str] = {
     "size_mismatch": "a file's size differs from its record (truncated, or appended to)",
     "checksum_mismatch": "a file's SHA-256 differs from its record (its bytes changed)",
     "undecodable": "a file cannot be read or is not a readable EXR",
-    "bad_layers": "an EXR lacks a layer or has an extra one, or a layer has the wrong "
-                  "channels, size or sample type",
+    "bad_layers": "an EXR lacks a layer or has an extra one, or a layer has the wrong channels, size or sample type",
     "non_finite": "NaN or infinite values in maps, or in a render that is not flagged",
     "out_of_range": "map values outside [0, 1], a mask other than 0/1, maps non-zero outside the mask",
     "normal_not_unit": "normals whose length differs from 1 by more than the half-float tolerance",
@@ -23,11 +22,10 @@ PROBLEM_KINDS: dict[str, str] = {
     "missing_sample": "a planned render has no record",
     "extra_sample": "a record for a render the plan does not have",
     "duplicate_record": "a second record for the same render",
-    "edited_record": "a record disagrees with the plan, with its files' headers or with the "
-                     "shard marker's copy",
+    "edited_record": "a record disagrees with the plan, with its files' headers or with the shard marker's copy",
     "extra_file": "a file under DIR that is no part of the dataset",
     "unsafe_path": "a symbolic link, or something that is not a regular file or folder (a FIFO, a "
-                   "device), under DIR: never followed or read",
+    "device), under DIR: never followed or read",
     "spec_snapshot": "spec.toml unreadable, or its digest differs from dataset.json's",
     "missing_manifest": "no manifest.jsonl (an unfinished build); records come from the shards",
     "incomplete_shard": "a shard without a complete marker, or a marker missing samples",
@@ -116,9 +114,11 @@ class Report:
     def lines(self, limit: int = 50) -> list[str]:
         """A human summary: a head line, one line per problem (at most ``limit``), a tally."""
         mode = "fast check (sizes and markers)" if self.fast else "full check"
-        head = (f"{self.root}: {self.expected} renders expected, {self.present} present, "
-                f"{self.valid} valid; {mode} of {self.files_checked} files, "
-                f"{self.bytes_read / 1e6:.1f} MB read, {self.seconds:.1f} s")
+        head = (
+            f"{self.root}: {self.expected} renders expected, {self.present} present, "
+            f"{self.valid} valid; {mode} of {self.files_checked} files, "
+            f"{self.bytes_read / 1e6:.1f} MB read, {self.seconds:.1f} s"
+        )
         if self.ok:
             return [head, "valid: no problems found"]
         out = [head] + [f"{p.kind}: {p.message}" for p in self.problems[:limit]]

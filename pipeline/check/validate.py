@@ -74,8 +74,9 @@ from pipeline.store.lock import writer_lock
 __all__ = ["PROBLEM_KINDS", "Problem", "Progress", "RepairAction", "Report", "repair", "validate"]
 
 
-def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], None] | None = None,
-             threads: int | None = None) -> Report:
+def validate(
+    root: str, *, fast: bool = False, progress: Callable[[Progress], None] | None = None, threads: int | None = None
+) -> Report:
     """Check the dataset in ``root``; return a :class:`Report` (``report.ok`` when valid).
 
     Raises :class:`ShaderballError` when ``root`` is missing or not a dataset directory.
@@ -90,17 +91,29 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
     if plans is not None:
         planned = {s.sample_id: s for s in iter_samples(plans)}
     shard_ids = [s.shard_id for s in plans] if plans is not None else shard_ids_on_disk(layout)
-    state = State(layout=layout, spec=spec, plans=plans, planned=planned,
-                   variant=(description or {}).get("variant"), spec_ok=spec_ok,
-                   description_ok=description_ok, manifest={}, markers={},
-                   record_files={}, facts={}, extra_files=[], allowed_dirs=set(),
-                   manifest_dirty=False)
+    state = State(
+        layout=layout,
+        spec=spec,
+        plans=plans,
+        planned=planned,
+        variant=(description or {}).get("variant"),
+        spec_ok=spec_ok,
+        description_ok=description_ok,
+        manifest={},
+        markers={},
+        record_files={},
+        facts={},
+        extra_files=[],
+        allowed_dirs=set(),
+        manifest_dirty=False,
+    )
     manifest = load_manifest(layout, problems, len(planned) if plans is not None else None)
     first = {}
     for _source, record in manifest or ():
         first.setdefault(record["id"], record)
-    state.markers = load_markers(layout, shard_ids, first,
-                                 {s.shard_id: s.n_renders for s in plans} if plans is not None else None)
+    state.markers = load_markers(
+        layout, shard_ids, first, {s.shard_id: s.n_renders for s in plans} if plans is not None else None
+    )
     records = manifest if manifest is not None else fallback_records(state)
     primary = check_records_against_plan(records, state, problems, from_manifest=manifest is not None)
     files = referenced_files(primary, state)
@@ -112,8 +125,11 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
     check_extra_files(state, primary, problems)
     state.manifest_dirty = manifest is None or any(p.path == MANIFEST_FILE for p in problems)
 
-    expected = len(planned) if plans is not None else int(
-        ((description or {}).get("counts") or {}).get("renders") or len(primary))
+    expected = (
+        len(planned)
+        if plans is not None
+        else int(((description or {}).get("counts") or {}).get("renders") or len(primary))
+    )
     ids = list(planned) if plans is not None else list(primary)
     present = [i for i in ids if i in primary and render_present(primary[i][1], state)]
     named = {p.id for p in problems if p.id is not None}
@@ -121,13 +137,24 @@ def validate(root: str, *, fast: bool = False, progress: Callable[[Progress], No
     if plans is None:  # nothing is valid against a plan that cannot be made
         valid = []
     flagged = sum(1 for i in present if (primary[i][1].get("stats") or {}).get("flagged"))
-    return Report(root=root, fast=fast, expected=expected, present=len(present), valid=len(valid),
-                  problems=list(problems), flagged=flagged, files_checked=len(files),
-                  bytes_read=bytes_read, seconds=time.perf_counter() - start, _state=state)
+    return Report(
+        root=root,
+        fast=fast,
+        expected=expected,
+        present=len(present),
+        valid=len(valid),
+        problems=list(problems),
+        flagged=flagged,
+        files_checked=len(files),
+        bytes_read=bytes_read,
+        seconds=time.perf_counter() - start,
+        _state=state,
+    )
 
 
-def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None,
-           spec_path: str | None = None) -> tuple[Report, Report, list[RepairAction]]:
+def repair(
+    root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None, spec_path: str | None = None
+) -> tuple[Report, Report, list[RepairAction]]:
     """Fix what :func:`validate` finds; return (report before, report after, actions).
 
     A writer: it holds ``root`` (pipeline.store.lock) from the first check to the last, so
@@ -141,8 +168,9 @@ def repair(root: str, *, workers: int = 0, progress: Callable[[Progress], None] 
         raise filesystem_error(exc, root, "every write is atomic: fix the cause and run the repair again") from None
 
 
-def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], None] | None,
-                   spec_path: str | None) -> tuple[Report, Report, list[RepairAction]]:
+def _repair_locked(
+    root: str, *, workers: int, progress: Callable[[Progress], None] | None, spec_path: str | None
+) -> tuple[Report, Report, list[RepairAction]]:
     """:func:`repair` under the lock.
 
     Deletes extra files; keeps every sample whose best record (the marker's, the record
@@ -168,10 +196,19 @@ def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], No
             return before, current, actions
         state = current._state
     if state.plans is None or not state.spec_ok:
-        return before, before, actions + [RepairAction(
-            "unrepairable", SPEC_FILE,
-            f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
-            "give the spec the dataset was built from (--spec) to restore it; nothing was changed")]
+        return (
+            before,
+            before,
+            actions
+            + [
+                RepairAction(
+                    "unrepairable",
+                    SPEC_FILE,
+                    f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
+                    "give the spec the dataset was built from (--spec) to restore it; nothing was changed",
+                )
+            ],
+        )
     layout = state.layout
     variant = repair_variant(state)  # the dataset's own, or SetupError before anything changes
     delete_extra_files(state, actions)
@@ -181,27 +218,41 @@ def _repair_locked(root: str, *, workers: int, progress: Callable[[Progress], No
     affected = settle_samples(state, chosen, actions)
     for shard in state.plans:
         marker = state.markers.get(shard.shard_id)
-        if not (isinstance(marker, dict) and marker.get("complete")
-                and marker.get("samples") == [s.sample_id for s in shard.samples]
-                and all(marker_record(state, s) == chosen[s.sample_id] for s in shard.samples)):
+        if not (
+            isinstance(marker, dict)
+            and marker.get("complete")
+            and marker.get("samples") == [s.sample_id for s in shard.samples]
+            and all(marker_record(state, s) == chosen[s.sample_id] for s in shard.samples)
+        ):
             affected.add(shard.shard_id)
     write_good_record_files(state, chosen, affected, actions)
     for sid in sorted(affected):
         remove_file(layout.marker(sid))
-        actions.append(RepairAction("rerun_shard", layout.marker_rel(sid),
-                                    f"shard {sid}: marker removed; rebuilt from its verified records"))
+        actions.append(
+            RepairAction(
+                "rerun_shard", layout.marker_rel(sid), f"shard {sid}: marker removed; rebuilt from its verified records"
+            )
+        )
     if affected or not state.description_ok:
         rebuild(root, workers, progress, len(affected), variant)
         actions = describe_rerenders(state, lost, actions)
         if not state.description_ok:
-            actions.append(RepairAction("rewrite_description", DESCRIPTION_FILE,
-                                        f"{DESCRIPTION_FILE}: rewritten from the spec snapshot"))
-        actions.append(RepairAction("rewrite_manifest", MANIFEST_FILE,
-                                    f"{MANIFEST_FILE}: rewritten from the shard markers by the resumed build"))
+            actions.append(
+                RepairAction(
+                    "rewrite_description", DESCRIPTION_FILE, f"{DESCRIPTION_FILE}: rewritten from the spec snapshot"
+                )
+            )
+        actions.append(
+            RepairAction(
+                "rewrite_manifest",
+                MANIFEST_FILE,
+                f"{MANIFEST_FILE}: rewritten from the shard markers by the resumed build",
+            )
+        )
     elif state.manifest_dirty:
-
         write_manifest(layout.root, state.plans)
-        actions.append(RepairAction("rewrite_manifest", MANIFEST_FILE,
-                                    f"{MANIFEST_FILE}: rewritten from the shard markers"))
+        actions.append(
+            RepairAction("rewrite_manifest", MANIFEST_FILE, f"{MANIFEST_FILE}: rewritten from the shard markers")
+        )
     after = validate(root, progress=progress)
     return before, after, actions

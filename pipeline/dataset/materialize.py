@@ -39,7 +39,9 @@ def check_imported_files(plans) -> int:
             try:
                 load_deschaintre(path).check()
             except (MaterialError, ValueError, OSError) as exc:
-                raise ShaderballError(f"materials.svbrdf_folders: {path}: cannot be imported ({exc}); "
-                                      "fix or remove the file (nothing was written)") from None
+                raise ShaderballError(
+                    f"materials.svbrdf_folders: {path}: cannot be imported ({exc}); "
+                    "fix or remove the file (nothing was written)"
+                ) from None
             count += 1
     return count

@@ -119,8 +119,7 @@ def render_seeds(spec_seed: int, material_indices, light_indices) -> np.ndarray:
     mix32(key32 + m * 1000 + l): distinct for every sample of a dataset.
     """
     key = _U32(stream_key(spec_seed, STREAM_RENDER) & 0xFFFFFFFF)
-    packed = (np.asarray(material_indices, dtype=_U32) * _U32(RENDER_STRIDE)
-              + np.asarray(light_indices, dtype=_U32))
+    packed = np.asarray(material_indices, dtype=_U32) * _U32(RENDER_STRIDE) + np.asarray(light_indices, dtype=_U32)
     with np.errstate(over="ignore"):
         return _mix32(packed + key)
 
@@ -186,11 +185,24 @@ class MaterialPlan:
     def samples(self) -> tuple[SamplePlan, ...]:
         m, mid = self.material_index, self.material_id
         return tuple(
-            SamplePlan(m, l, mid, f"{mid}_l{l}", self.shard_index, self.kind,
-                       self.svbrdf_family, self.svbrdf_file, self.material_seed,
-                       self.light_seed, self.render_seeds[l], self.elevation_deg[l],
-                       self.azimuth_deg[l], self.turbidity[l])
-            for l in range(len(self.render_seeds)))
+            SamplePlan(
+                m,
+                l,
+                mid,
+                f"{mid}_l{l}",
+                self.shard_index,
+                self.kind,
+                self.svbrdf_family,
+                self.svbrdf_file,
+                self.material_seed,
+                self.light_seed,
+                self.render_seeds[l],
+                self.elevation_deg[l],
+                self.azimuth_deg[l],
+                self.turbidity[l],
+            )
+            for l in range(len(self.render_seeds))
+        )
 
     def to_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -244,8 +256,7 @@ def _svbrdf_arrays(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
     for i, folder in enumerate(folders):
         names = sorted(imported.get(folder, ()))
         if not names:
-            raise ShaderballError(f"materials.svbrdf_folders: {folder!r} holds no map file "
-                                  "to import")
+            raise ShaderballError(f"materials.svbrdf_folders: {folder!r} holds no map file to import")
         order = seeded_rng(int(index_seeds(seed, STREAM_IMPORT, i))).permutation(len(names))
         file_orders[i] = [os.path.join(folder, names[j]) for j in order.tolist()]
     chosen = seeded_rng(int(index_seeds(seed, STREAM_SVBRDF, 0))).permutation(n)[:k]
@@ -255,8 +266,9 @@ def _svbrdf_arrays(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
     return sources, file_orders, source_of, use_of
 
 
-def _svbrdf_assignment(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
-                       ) -> dict[int, tuple[str | None, str | None]]:
+def _svbrdf_assignment(
+    spec: DatasetSpec, imported: Mapping[str, Sequence[str]]
+) -> dict[int, tuple[str | None, str | None]]:
     """material index -> (family, file) for every SVBRDF material (see module doc)."""
     plan = Plan(spec, imported)
     return {m: plan.svbrdf_source(m) for m in np.flatnonzero(plan.source_of >= 0).tolist()}
@@ -274,8 +286,7 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
     """
     ranges = spec.lighting.to_lighting_ranges()
     n_lights = spec.dataset.lights_per_material
-    u = np.stack([unit_points(seeded_rng(int(s)), n_lights, ranges.scheme)
-                  for s in light_seeds.tolist()])
+    u = np.stack([unit_points(seeded_rng(int(s)), n_lights, ranges.scheme) for s in light_seeds.tolist()])
     el_lo, el_hi = ranges.elevation_deg
     az_lo, az_hi = ranges.azimuth_deg
     t_lo, t_hi = ranges.turbidity
@@ -369,13 +380,15 @@ class Plan(Sequence):
     def summary(self) -> dict:
         """:func:`plan_summary` of this plan, from the arrays."""
         svbrdf = self.source_of >= 0
-        per_source = np.bincount(self.source_of[svbrdf], minlength=len(self.sources)) if svbrdf.any() \
+        per_source = (
+            np.bincount(self.source_of[svbrdf], minlength=len(self.sources))
+            if svbrdf.any()
             else np.zeros(len(self.sources), dtype=np.int64)
+        )
         sources: Counter = Counter()
         for (what, which), count in zip(self.sources, per_source.tolist()):
             if count:
-                key = f"family:{which}" if what == "family" else \
-                    f"folder:{os.path.dirname(self.file_orders[which][0])}"
+                key = f"family:{which}" if what == "family" else f"folder:{os.path.dirname(self.file_orders[which][0])}"
                 sources[key] += count
         n_svbrdf = int(svbrdf.sum())
         return {
@@ -401,14 +414,26 @@ class Plan(Sequence):
         for i, m in enumerate(ms):
             family, file = self.svbrdf_source(m)
             kind = KIND_SVBRDF if self.source_of[m] >= 0 else KIND_UNIFORM
-            materials.append(MaterialPlan(
-                m, material_id(m), index, kind, family, file, material_seeds[i], light_seeds[i],
-                tuple(r_seeds[i]), tuple(elevation[i]), tuple(azimuth[i]), tuple(turbidity[i])))
+            materials.append(
+                MaterialPlan(
+                    m,
+                    material_id(m),
+                    index,
+                    kind,
+                    family,
+                    file,
+                    material_seeds[i],
+                    light_seeds[i],
+                    tuple(r_seeds[i]),
+                    tuple(elevation[i]),
+                    tuple(azimuth[i]),
+                    tuple(turbidity[i]),
+                )
+            )
         return ShardPlan(index, shard_id(index), tuple(materials))
 
 
-def plan_dataset(spec: DatasetSpec,
-                 imported: Mapping[str, Sequence[str]] | None = None) -> Plan:
+def plan_dataset(spec: DatasetSpec, imported: Mapping[str, Sequence[str]] | None = None) -> Plan:
     """Every shard of ``spec``, in order (a :class:`Plan`: shards are made on demand);
     deterministic and pure.
 
@@ -434,9 +459,10 @@ def plan_summary(plans: Sequence[ShardPlan]) -> dict:
         return plans.summary()
     materials = [m for shard in plans for m in shard.materials]
     sources = Counter(
-        f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else
-        f"folder:{os.path.dirname(m.svbrdf_file)}"
-        for m in materials if m.kind == KIND_SVBRDF)
+        f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else f"folder:{os.path.dirname(m.svbrdf_file)}"
+        for m in materials
+        if m.kind == KIND_SVBRDF
+    )
     return {
         "shards": len(plans),
         "materials": len(materials),

@@ -61,8 +61,7 @@ from sky.lighting import SCHEMES, LightingRanges
 
 #: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
 #: Keep in sync with materials/ (a test compares them when materials/ is importable).
-FALLBACK_SVBRDF_FAMILIES: tuple[str, ...] = ("stains", "tiles", "bricks", "brushed_metal",
-                                             "worn_paint", "stones")
+FALLBACK_SVBRDF_FAMILIES: tuple[str, ...] = ("stains", "tiles", "bricks", "brushed_metal", "worn_paint", "stones")
 
 #: File suffixes (lower case) of imported SVBRDF map files, as in Deschaintre et al. 2018's
 #: dataset (one PNG per material with the maps side by side).
@@ -95,8 +94,11 @@ def format_value(value: Any) -> str:
     elif isinstance(value, str):
         text = json.dumps(value, ensure_ascii=False)
     elif isinstance(value, float):
-        text = "nan" if math.isnan(value) else ("inf" if value == math.inf else
-                                                 "-inf" if value == -math.inf else repr(value))
+        text = (
+            "nan"
+            if math.isnan(value)
+            else ("inf" if value == math.inf else "-inf" if value == -math.inf else repr(value))
+        )
     elif isinstance(value, (list, tuple)):
         text = "[" + ", ".join(format_value(v) for v in value) + "]"
     elif isinstance(value, dict):
@@ -109,8 +111,16 @@ def format_value(value: Any) -> str:
 class SpecError(ShaderballError):
     """A bad spec field: names the file, the field, the value and what is allowed."""
 
-    def __init__(self, section: str, field_name: str, value: Any, allowed: str,
-                 source: str | None = None, *, what: str | None = None):
+    def __init__(
+        self,
+        section: str,
+        field_name: str,
+        value: Any,
+        allowed: str,
+        source: str | None = None,
+        *,
+        what: str | None = None,
+    ):
         self.section = section
         self.field_name = field_name
         self.value = value
@@ -124,8 +134,7 @@ class SpecError(ShaderballError):
         super().__init__(f"{prefix}{where}: {what}; {allowed}")
 
     def with_source(self, source: str) -> SpecError:
-        return SpecError(self.section, self.field_name, self.value, self.allowed, source,
-                         what=self.what)
+        return SpecError(self.section, self.field_name, self.value, self.allowed, source, what=self.what)
 
 
 class _Reject(Exception):
@@ -295,9 +304,11 @@ class _StrList(_Rule):
 
 class _Folders(_StrList):
     def __init__(self):
-        super().__init__(None, "existing folders (relative paths are taken from the spec "
-                               "file's folder), each holding at least one "
-                               + "/".join(SVBRDF_IMPORT_SUFFIXES) + " map file")
+        super().__init__(
+            None,
+            "existing folders (relative paths are taken from the spec "
+            "file's folder), each holding at least one " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " map file",
+        )
 
     def check(self, value):
         value = super().check(value)
@@ -305,8 +316,7 @@ class _Folders(_StrList):
             if not folder or not os.path.isdir(folder):
                 raise _Reject(f"({json.dumps(folder)} is not a folder)")
             if not list_map_files(folder):
-                raise _Reject(f"({json.dumps(folder)} holds no "
-                              + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
+                raise _Reject(f"({json.dumps(folder)} holds no " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
         return value
 
 
@@ -316,10 +326,15 @@ def list_map_files(folder: str) -> tuple[str, ...]:
         names = os.listdir(folder)
     except OSError:
         return ()
-    return tuple(sorted(
-        n for n in names
-        if not n.startswith(".") and os.path.splitext(n)[1].lower() in SVBRDF_IMPORT_SUFFIXES
-        and os.path.isfile(os.path.join(folder, n))))
+    return tuple(
+        sorted(
+            n
+            for n in names
+            if not n.startswith(".")
+            and os.path.splitext(n)[1].lower() in SVBRDF_IMPORT_SUFFIXES
+            and os.path.isfile(os.path.join(folder, n))
+        )
+    )
 
 
 def svbrdf_family_names() -> tuple[str, ...]:
@@ -327,8 +342,15 @@ def svbrdf_family_names() -> tuple[str, ...]:
     return tuple(SVBRDF_FAMILIES)
 
 
-def _field(default: Any = _MISSING, *, rule: _Rule, doc: str, unit: str = "",
-           factory: Any = None, doc_default: str | None = None):
+def _field(
+    default: Any = _MISSING,
+    *,
+    rule: _Rule,
+    doc: str,
+    unit: str = "",
+    factory: Any = None,
+    doc_default: str | None = None,
+):
     meta = {"rule": rule, "doc": doc, "unit": unit, "doc_default": doc_default}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
@@ -370,32 +392,45 @@ class DatasetSection(_Section):
 
     SECTION: ClassVar[str] = "dataset"
 
-    name: str = _field(rule=_Text(r"[a-z0-9_-]{1,64}",
-                                  "1 to 64 characters from a-z, 0-9, _ and -"),
-                       doc="Dataset name; used in file names and the published description.")
-    seed: int = _field(rule=_Int(0, SEED_MAX),
-                       doc="Root of every random stream of the dataset (see the seed "
-                           "derivation below).")
-    materials: int = _field(rule=_Int(1, MAX_MATERIALS),
-                            doc="Number of materials; ids m000000 to m(materials-1).",
-                            unit="materials")
-    version: str = _field("1", rule=_Text(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,31}",
-                                          "1 to 32 characters from A-Z, a-z, 0-9, . _ + -, "
-                                          "starting with a letter or digit"),
-                          doc="Version of the dataset, recorded in its description.")
-    lights_per_material: int = _field(5, rule=_Int(1, 1000),
-                                      doc="Lightings (sun direction + turbidity) rendered per "
-                                          "material; the paper uses 5.",
-                                      unit="lightings")
-    svbrdf_fraction: float = _field(0.5, rule=_Float(0.0, 1.0),
-                                    doc="Share of materials that are spatially varying; "
-                                        "exactly floor(fraction x materials + 0.5) of them. "
-                                        "The paper: 0.5.")
-    shard_size: int = _field(20, rule=_Int(1, MAX_MATERIALS),
-                             doc="Materials per shard, the unit of work; all lightings of a "
-                                 "material are in its shard. Changes grouping only, never "
-                                 "seeds. At most 100000 shards.",
-                             unit="materials")
+    name: str = _field(
+        rule=_Text(r"[a-z0-9_-]{1,64}", "1 to 64 characters from a-z, 0-9, _ and -"),
+        doc="Dataset name; used in file names and the published description.",
+    )
+    seed: int = _field(
+        rule=_Int(0, SEED_MAX), doc="Root of every random stream of the dataset (see the seed derivation below)."
+    )
+    materials: int = _field(
+        rule=_Int(1, MAX_MATERIALS), doc="Number of materials; ids m000000 to m(materials-1).", unit="materials"
+    )
+    version: str = _field(
+        "1",
+        rule=_Text(
+            r"[A-Za-z0-9][A-Za-z0-9._+-]{0,31}",
+            "1 to 32 characters from A-Z, a-z, 0-9, . _ + -, starting with a letter or digit",
+        ),
+        doc="Version of the dataset, recorded in its description.",
+    )
+    lights_per_material: int = _field(
+        5,
+        rule=_Int(1, 1000),
+        doc="Lightings (sun direction + turbidity) rendered per material; the paper uses 5.",
+        unit="lightings",
+    )
+    svbrdf_fraction: float = _field(
+        0.5,
+        rule=_Float(0.0, 1.0),
+        doc="Share of materials that are spatially varying; "
+        "exactly floor(fraction x materials + 0.5) of them. "
+        "The paper: 0.5.",
+    )
+    shard_size: int = _field(
+        20,
+        rule=_Int(1, MAX_MATERIALS),
+        doc="Materials per shard, the unit of work; all lightings of a "
+        "material are in its shard. Changes grouping only, never "
+        "seeds. At most 100000 shards.",
+        unit="materials",
+    )
 
     @property
     def n_svbrdf(self) -> int:
@@ -413,20 +448,31 @@ class DatasetSection(_Section):
     def _check_section(self):
         if self.n_shards > MAX_SHARDS:
             need = -(-self.materials // MAX_SHARDS)
-            raise SpecError("dataset", "shard_size", self.shard_size,
-                            f"at least {need} with {self.materials} materials "
-                            f"(at most {MAX_SHARDS} shards)")
+            raise SpecError(
+                "dataset",
+                "shard_size",
+                self.shard_size,
+                f"at least {need} with {self.materials} materials (at most {MAX_SHARDS} shards)",
+            )
         if self.n_renders > MAX_RENDERS:
-            raise SpecError("dataset", "lights_per_material", self.lights_per_material,
-                            f"at most {MAX_RENDERS // self.materials} with {self.materials} materials: "
-                            f"materials x lights_per_material = {self.n_renders} renders, and a dataset "
-                            f"holds at most {MAX_RENDERS} (its manifest alone would be "
-                            f"~{self.n_renders * 3000 // 10**9} GB)")
+            raise SpecError(
+                "dataset",
+                "lights_per_material",
+                self.lights_per_material,
+                f"at most {MAX_RENDERS // self.materials} with {self.materials} materials: "
+                f"materials x lights_per_material = {self.n_renders} renders, and a dataset "
+                f"holds at most {MAX_RENDERS} (its manifest alone would be "
+                f"~{self.n_renders * 3000 // 10**9} GB)",
+            )
         if self.shard_size * self.lights_per_material > MAX_SHARD_RENDERS:
-            raise SpecError("dataset", "shard_size", self.shard_size,
-                            f"at most {MAX_SHARD_RENDERS // self.lights_per_material} with "
-                            f"{self.lights_per_material} lightings per material: a shard holds at most "
-                            f"{MAX_SHARD_RENDERS} renders (its marker is read whole)")
+            raise SpecError(
+                "dataset",
+                "shard_size",
+                self.shard_size,
+                f"at most {MAX_SHARD_RENDERS // self.lights_per_material} with "
+                f"{self.lights_per_material} lightings per material: a shard holds at most "
+                f"{MAX_SHARD_RENDERS} renders (its marker is read whole)",
+            )
 
 
 @dataclass(frozen=True)
@@ -440,73 +486,99 @@ class MaterialsSection(_Section):
     # coloured diffuse) or, with probability metal_probability, a metal (coloured
     # specular, almost no diffuse); colours drawn in HSV with V in sRGB-encoded units.
     roughness: tuple[float, float] = _field(
-        (0.05, 1.0), rule=_Pair(0.0, 1.0),
+        (0.05, 1.0),
+        rule=_Pair(0.0, 1.0),
         doc="Range of a uniform material's roughness r, drawn uniformly (GGX alpha = r^2). "
-            "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.")
+        "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.",
+    )
     metal_probability: float = _field(
-        0.3, rule=_Float(0.0, 1.0),
+        0.3,
+        rule=_Float(0.0, 1.0),
         doc="Probability that a uniform material is a metal (coloured specular, ~no diffuse).",
-        unit="probability")
+        unit="probability",
+    )
     dielectric_specular: tuple[float, float] = _field(
-        (0.02, 0.08), rule=_Pair(0.0, 1.0),
-        doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, "
-            "gems ~0.08+).",
-        unit="linear albedo")
+        (0.02, 0.08),
+        rule=_Pair(0.0, 1.0),
+        doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, gems ~0.08+).",
+        unit="linear albedo",
+    )
     diffuse_value_srgb: tuple[float, float] = _field(
-        (0.15, 0.95), rule=_Pair(0.0, 1.0),
+        (0.15, 0.95),
+        rule=_Pair(0.0, 1.0),
         doc="Range of a dielectric's diffuse brightness, HSV value in sRGB-encoded units "
-            "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
-        unit="sRGB-encoded value")
+        "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
+        unit="sRGB-encoded value",
+    )
     diffuse_saturation: tuple[float, float] = _field(
-        (0.0, 0.85), rule=_Pair(0.0, 1.0),
-        doc="Range of a dielectric's diffuse saturation (HSV).")
+        (0.0, 0.85), rule=_Pair(0.0, 1.0), doc="Range of a dielectric's diffuse saturation (HSV)."
+    )
     metal_value_srgb: tuple[float, float] = _field(
-        (0.55, 1.0), rule=_Pair(0.0, 1.0),
+        (0.55, 1.0),
+        rule=_Pair(0.0, 1.0),
         doc="Range of a metal's specular brightness, HSV value in sRGB-encoded units "
-            "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
-        unit="sRGB-encoded value")
+        "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
+        unit="sRGB-encoded value",
+    )
     metal_saturation: tuple[float, float] = _field(
-        (0.0, 0.5), rule=_Pair(0.0, 1.0),
-        doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.")
+        (0.0, 0.5),
+        rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.",
+    )
     metal_hue: tuple[float, float] = _field(
-        (0.0, 0.17), rule=_Pair(0.0, 1.0),
+        (0.0, 0.17),
+        rule=_Pair(0.0, 1.0),
         doc="Range of a metal's specular hue (HSV, 0 = red, 1/6 = yellow): copper, gold and "
-            "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.")
+        "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.",
+    )
     metal_diffuse_fraction: tuple[float, float] = _field(
-        (0.0, 0.1), rule=_Pair(0.0, 1.0),
-        doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular "
-            "(dirt, oxide).")
+        (0.0, 0.1),
+        rule=_Pair(0.0, 1.0),
+        doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular (dirt, oxide).",
+    )
     flat_normal_probability: float = _field(
-        0.5, rule=_Float(0.0, 1.0),
+        0.5,
+        rule=_Float(0.0, 1.0),
         doc="Probability that a uniform material's normal is flat, (0, 0, 1).",
-        unit="probability")
+        unit="probability",
+    )
     normal_tilt_max_deg: float = _field(
-        20.0, rule=_Float(0.0, 80.0),
+        20.0,
+        rule=_Float(0.0, 80.0),
         doc="Largest tilt from (0, 0, 1) of a non-flat uniform normal; the tilt is uniform in "
-            "solid angle, towards a uniform azimuth.",
-        unit="degrees")
+        "solid angle, towards a uniform azimuth.",
+        unit="degrees",
+    )
     svbrdf_families: tuple[str, ...] = _field(
-        rule=_StrList(svbrdf_family_names, "procedural family names",
-                      doc_allowed="a list of distinct names from materials.SVBRDF_FAMILIES"),
-        factory=svbrdf_family_names, doc_default="all of materials.SVBRDF_FAMILIES",
+        rule=_StrList(
+            svbrdf_family_names,
+            "procedural family names",
+            doc_allowed="a list of distinct names from materials.SVBRDF_FAMILIES",
+        ),
+        factory=svbrdf_family_names,
+        doc_default="all of materials.SVBRDF_FAMILIES",
         doc="Procedural SVBRDF families SVBRDF materials are drawn from (default: all). "
-            "May be empty when svbrdf_folders is not.")
+        "May be empty when svbrdf_folders is not.",
+    )
     svbrdf_folders: tuple[str, ...] = _field(
-        (), rule=_Folders(),
+        (),
+        rule=_Folders(),
         doc="Folders of imported SVBRDF maps in Deschaintre et al. 2018's layout "
-            "(one .png per material), checked when the spec is read. Stored as "
-            "absolute paths in the canonical form.")
+        "(one .png per material), checked when the spec is read. Stored as "
+        "absolute paths in the canonical form.",
+    )
     texture_resolution: int = _field(
-        256, rule=_Int(16, 4096),
-        doc="Width and height of a material's texture-space (UV) maps.",
-        unit="texels")
+        256, rule=_Int(16, 4096), doc="Width and height of a material's texture-space (UV) maps.", unit="texels"
+    )
     model: str = _field(
-        DEFAULT_MODEL, rule=_Choice(MODELS),
+        DEFAULT_MODEL,
+        rule=_Choice(MODELS),
         doc="The BRDF every material is rendered with: shaderball (Cook-Torrance as "
-            "published, GGX normalised, energy-conserving) or deschaintre2018 (the same with "
-            "the two floors of Deschaintre et al.'s code on GGX D and Smith G1, to match data "
-            "rendered by that code; it darkens surfaces with roughness below 0.178, "
-            "docs/materials.md). Recorded in each sample's record when not the default.")
+        "published, GGX normalised, energy-conserving) or deschaintre2018 (the same with "
+        "the two floors of Deschaintre et al.'s code on GGX D and Smith G1, to match data "
+        "rendered by that code; it darkens surfaces with roughness below 0.178, "
+        "docs/materials.md). Recorded in each sample's record when not the default.",
+    )
 
     @property
     def has_svbrdf_source(self) -> bool:
@@ -519,15 +591,22 @@ class MaterialsSection(_Section):
 
 #: The fields of MaterialsSection passed to materials.UniformRanges.
 UNIFORM_FIELDS: tuple[str, ...] = (
-    "roughness", "metal_probability", "dielectric_specular", "diffuse_value_srgb",
-    "diffuse_saturation", "metal_value_srgb", "metal_saturation", "metal_hue",
+    "roughness",
+    "metal_probability",
+    "dielectric_specular",
+    "diffuse_value_srgb",
+    "diffuse_saturation",
+    "metal_value_srgb",
+    "metal_saturation",
+    "metal_hue",
     "metal_diffuse_fraction",
-    "flat_normal_probability", "normal_tilt_max_deg")
+    "flat_normal_probability",
+    "normal_tilt_max_deg",
+)
 
 
 #: Sun-direction sampling schemes, as the spec reference words them (a test keeps them equal to sky's).
-FALLBACK_LIGHT_SCHEMES: tuple[str, ...] = ("uniform_hemisphere", "uniform_angles", "stratified",
-                                           "sobol")
+FALLBACK_LIGHT_SCHEMES: tuple[str, ...] = ("uniform_hemisphere", "uniform_angles", "stratified", "sobol")
 
 
 def light_scheme_names() -> tuple[str, ...]:
@@ -546,39 +625,52 @@ class LightingSection(_Section):
     SECTION: ClassVar[str] = "lighting"
 
     elevation_deg: tuple[float, float] = _field(
-        (5.0, 90.0), rule=_Pair(0.0, 90.0),
+        (5.0, 90.0),
+        rule=_Pair(0.0, 90.0),
         doc="Range of the sun's elevation above the horizon. Mitsuba's RGB sunsky is black at "
-            "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
-            "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
-            "(2.5 to 7.0 by turbidity; docs/sky.md) are raised to it, and the move is recorded.",
-        unit="degrees")
+        "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
+        "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
+        "(2.5 to 7.0 by turbidity; docs/sky.md) are raised to it, and the move is recorded.",
+        unit="degrees",
+    )
     azimuth_deg: tuple[float, float] = _field(
-        (0.0, 360.0), rule=_Pair(-360.0, 360.0, max_span=360.0),
+        (0.0, 360.0),
+        rule=_Pair(-360.0, 360.0, max_span=360.0),
         doc="Range of the sun's azimuth, counter-clockwise from +x seen from above "
-            "(0: from the image's right, 90: from behind, 270: from the camera's side).",
-        unit="degrees")
+        "(0: from the image's right, 90: from behind, 270: from the camera's side).",
+        unit="degrees",
+    )
     turbidity: tuple[float, float] = _field(
-        (1.0, 10.0), rule=_Pair(1.0, 10.0),
-        doc="Range of the atmosphere's turbidity (Hosek-Wilkie; Mitsuba accepts 1 to 10).")
+        (1.0, 10.0),
+        rule=_Pair(1.0, 10.0),
+        doc="Range of the atmosphere's turbidity (Hosek-Wilkie; Mitsuba accepts 1 to 10).",
+    )
     scheme: str = _field(
-        "uniform_hemisphere", rule=_Choice(light_scheme_names, doc_allowed="one of "
-                                           + ", ".join(f'"{x}"' for x in FALLBACK_LIGHT_SCHEMES)
-                                           + " (sky.SCHEMES)"),
+        "uniform_hemisphere",
+        rule=_Choice(
+            light_scheme_names,
+            doc_allowed="one of " + ", ".join(f'"{x}"' for x in FALLBACK_LIGHT_SCHEMES) + " (sky.SCHEMES)",
+        ),
         doc="How the lightings of a material are drawn (all of them jointly, see below): "
-            "uniform_hemisphere (uniform in solid angle over the band; the paper), "
-            "uniform_angles (uniform in elevation and azimuth degrees), stratified (Latin "
-            "hypercube over sin(elevation), azimuth and turbidity), sobol (scrambled Sobol' "
-            "points). Turbidity is uniform in every scheme.")
+        "uniform_hemisphere (uniform in solid angle over the band; the paper), "
+        "uniform_angles (uniform in elevation and azimuth degrees), stratified (Latin "
+        "hypercube over sin(elevation), azimuth and turbidity), sobol (scrambled Sobol' "
+        "points). Turbidity is uniform in every scheme.",
+    )
     turbidity_per: str = _field(
-        "material", rule=_Choice(("material", "light")),
+        "material",
+        rule=_Choice(("material", "light")),
         doc="material: one turbidity per material, shared by all its lightings (the paper: "
-            "'a random turbidity per material'; drawn with its first lighting); light: a "
-            "turbidity drawn for every lighting.")
+        "'a random turbidity per material'; drawn with its first lighting); light: a "
+        "turbidity drawn for every lighting.",
+    )
     sun: str = _field(
-        "split", rule=_Choice(SUN_FORMS),
+        "split",
+        rule=_Choice(SUN_FORMS),
         doc="Sun representation (pipeline.render.emitter): split (a sky-only sunsky plus a directional "
-            "sun of the same irradiance; sky's measured default) or sunsky (one Mitsuba "
-            "sunsky emitter, its sun an area light of 0.5358 degrees).")
+        "sun of the same irradiance; sky's measured default) or sunsky (one Mitsuba "
+        "sunsky emitter, its sun an area light of 0.5358 degrees).",
+    )
 
     def to_lighting_ranges(self):
         """The ranges as ``sky.LightingRanges``."""
@@ -590,7 +682,6 @@ class LightingSection(_Section):
         )
 
 
-
 VARIANTS: tuple[str, ...] = VARIANT_CHOICES
 
 
@@ -600,47 +691,63 @@ class RenderSection(_Section):
 
     SECTION: ClassVar[str] = "render"
 
-    resolution: int = _field(400, rule=_Int(*RESOLUTION_RANGE),
-                             doc="Width and height of renders and screen-space maps; the "
-                                 "paper: 400.",
-                             unit="pixels")
-    spp: int = _field(150, rule=_Int(*SPP_RANGE),
-                      doc="Samples per pixel of each render; the paper: 150.",
-                      unit="samples per pixel")
-    max_depth: int = _field(8, rule=_Int(*MAX_DEPTH_RANGE, also=(-1,), also_text="-1 (unlimited, "
-                                                                        "Russian roulette ends "
-                                                                        "paths)"),
-                            doc="Longest light path, in Mitsuba's convention (1: emitters "
-                                "seen directly only, 2: direct lighting, ...). -1: no limit.",
-                            unit="path vertices")
-    integrator: str = _field("path", rule=_Choice(INTEGRATORS),
-                             doc="Mitsuba integrator.")
-    variant: str = _field("auto", rule=_Choice(VARIANTS),
-                          doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
-                              + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
-                              + ". Renders are reproducible for one backend and machine only.")
-    sampler: str = _field("independent", rule=_Choice(SAMPLERS),
-                          doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
-                              "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
-                              "squared, ldsampler to a power-of-two square): each render records the spp used "
-                              "(docs/accuracy.md compares them). Byte-reproducible with several render threads "
-                              "only when every power-of-two pass stays a power of two after rounding (e.g. "
-                              "multijitter or stratified at 64).")
-    rr_depth: int = _field(DEFAULT_RR_DEPTH, rule=_Int(*RR_DEPTH_RANGE),
-                           doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above "
-                               "max_depth there is none.",
-                           unit="path vertices")
-    clamp: float = _field(0.0, rule=_Float(*CLAMP_RANGE),
-                          doc="Firefly clamp: each camera path's radiance is scaled down to this luminance "
-                              "when brighter (pipeline.render.clamp); 0: off. Biased: it removes real light "
-                              "(docs/accuracy.md measures how much).",
-                          unit="radiance (W m^-2 sr^-1)")
-    target_error: float = _field(0.0, rule=_Float(*TARGET_ERROR_RANGE),
-                                 doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
-                                     "the moment integrator's estimate of the relative RMS error of the luminance on "
-                                     "the ball, sqrt(mean(var / (Y^2 + 0.01))), the square root of the relMSE the "
-                                     "study ranks by, is at most this, or spp (then the cap) is reached; each "
-                                     "render records the spp used. 0: off, every render takes spp.")
+    resolution: int = _field(
+        400,
+        rule=_Int(*RESOLUTION_RANGE),
+        doc="Width and height of renders and screen-space maps; the paper: 400.",
+        unit="pixels",
+    )
+    spp: int = _field(
+        150, rule=_Int(*SPP_RANGE), doc="Samples per pixel of each render; the paper: 150.", unit="samples per pixel"
+    )
+    max_depth: int = _field(
+        8,
+        rule=_Int(*MAX_DEPTH_RANGE, also=(-1,), also_text="-1 (unlimited, Russian roulette ends paths)"),
+        doc="Longest light path, in Mitsuba's convention (1: emitters "
+        "seen directly only, 2: direct lighting, ...). -1: no limit.",
+        unit="path vertices",
+    )
+    integrator: str = _field("path", rule=_Choice(INTEGRATORS), doc="Mitsuba integrator.")
+    variant: str = _field(
+        "auto",
+        rule=_Choice(VARIANTS),
+        doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
+        + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
+        + ". Renders are reproducible for one backend and machine only.",
+    )
+    sampler: str = _field(
+        "independent",
+        rule=_Choice(SAMPLERS),
+        doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
+        "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
+        "squared, ldsampler to a power-of-two square): each render records the spp used "
+        "(docs/accuracy.md compares them). Byte-reproducible with several render threads "
+        "only when every power-of-two pass stays a power of two after rounding (e.g. "
+        "multijitter or stratified at 64).",
+    )
+    rr_depth: int = _field(
+        DEFAULT_RR_DEPTH,
+        rule=_Int(*RR_DEPTH_RANGE),
+        doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above max_depth there is none.",
+        unit="path vertices",
+    )
+    clamp: float = _field(
+        0.0,
+        rule=_Float(*CLAMP_RANGE),
+        doc="Firefly clamp: each camera path's radiance is scaled down to this luminance "
+        "when brighter (pipeline.render.clamp); 0: off. Biased: it removes real light "
+        "(docs/accuracy.md measures how much).",
+        unit="radiance (W m^-2 sr^-1)",
+    )
+    target_error: float = _field(
+        0.0,
+        rule=_Float(*TARGET_ERROR_RANGE),
+        doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
+        "the moment integrator's estimate of the relative RMS error of the luminance on "
+        "the ball, sqrt(mean(var / (Y^2 + 0.01))), the square root of the relMSE the "
+        "study ranks by, is at most this, or spp (then the cap) is reached; each "
+        "render records the spp used. 0: off, every render takes spp.",
+    )
 
 
 @dataclass(frozen=True)
@@ -649,15 +756,16 @@ class StorageSection(_Section):
 
     SECTION: ClassVar[str] = "storage"
 
-    compression: str = _field("zip", rule=_Choice(tuple(COMPRESSIONS)),
-                              doc="EXR compression of every file (all lossless).")
-    layers: tuple[str, ...] = _field(MAP_LAYERS, rule=_StrList(MAP_LAYERS, "map layer names"),
-                                     doc="Screen-space maps stored per material (renders are "
-                                         "always stored). Canonical order: as listed here.")
-    texture_maps: bool = _field(True, rule=_Bool(),
-                                doc="Also store each material's texture-space (UV) maps.")
-    maps_half: bool = _field(True, rule=_Bool(),
-                             doc="Store maps as half floats (renders are always float32).")
+    compression: str = _field(
+        "zip", rule=_Choice(tuple(COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
+    )
+    layers: tuple[str, ...] = _field(
+        MAP_LAYERS,
+        rule=_StrList(MAP_LAYERS, "map layer names"),
+        doc="Screen-space maps stored per material (renders are always stored). Canonical order: as listed here.",
+    )
+    texture_maps: bool = _field(True, rule=_Bool(), doc="Also store each material's texture-space (UV) maps.")
+    maps_half: bool = _field(True, rule=_Bool(), doc="Store maps as half floats (renders are always float32).")
 
     def _check_section(self):
         # One canonical order, so ["normal", "diffuse"] and ["diffuse", "normal"] are the
@@ -691,10 +799,13 @@ class DatasetSpec:
         n_svbrdf = self.dataset.n_svbrdf
         if n_svbrdf and not self.materials.has_svbrdf_source:
             raise SpecError(
-                "materials", "svbrdf_families", list(self.materials.svbrdf_families),
+                "materials",
+                "svbrdf_families",
+                list(self.materials.svbrdf_families),
                 f"at least one family (or a folder in materials.svbrdf_folders) when "
                 f"dataset.svbrdf_fraction = {self.dataset.svbrdf_fraction:g} makes "
-                f"{n_svbrdf} of {self.dataset.materials} materials SVBRDF")
+                f"{n_svbrdf} of {self.dataset.materials} materials SVBRDF",
+            )
 
 
 # --------------------------------------------------------------------------- parsing
@@ -719,27 +830,28 @@ def read_spec_bytes(path: str | os.PathLike) -> bytes:
     except OSError as exc:
         raise ShaderballError(f"spec file {path}: cannot be read ({exc.strerror})") from None
     if len(data) > MAX_SPEC_BYTES:
-        raise ShaderballError(f"spec file {path}: larger than {MAX_SPEC_BYTES} bytes; a spec is a short "
-                              "TOML file (docs/spec.md)")
+        raise ShaderballError(
+            f"spec file {path}: larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
+        )
     return data
 
 
 def parse_spec(path: str | os.PathLike) -> DatasetSpec:
     """Read (once) and check the spec file at ``path``."""
     path = os.fspath(path)
-    return parse_spec_bytes(read_spec_bytes(path), source=path,
-                            base_dir=os.path.dirname(os.path.abspath(path)))
+    return parse_spec_bytes(read_spec_bytes(path), source=path, base_dir=os.path.dirname(os.path.abspath(path)))
 
 
 def parse_spec_bytes(data: bytes, source: str = "<bytes>", base_dir: str | None = None) -> DatasetSpec:
     """Decode (UTF-8; a leading byte-order mark is accepted and dropped) and check spec bytes."""
     if data.startswith(_UTF8_BOM):
-        data = data[len(_UTF8_BOM):]
+        data = data[len(_UTF8_BOM) :]
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ShaderballError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start}); "
-                              "save the spec as UTF-8") from None
+        raise ShaderballError(
+            f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the spec as UTF-8"
+        ) from None
     return parse_spec_text(text, source=source, base_dir=base_dir)
 
 
@@ -755,15 +867,16 @@ def _nesting_depth(value) -> int:
     return worst
 
 
-def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = None
-                    ) -> DatasetSpec:
+def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = None) -> DatasetSpec:
     """Parse and check spec TOML ``text``; ``source`` names it in error messages.
 
     Relative ``materials.svbrdf_folders`` are taken from ``base_dir`` (default: the
     current folder) and stored absolute.
     """
-    too_deep = ShaderballError(f"{source}: arrays or tables nested more than {MAX_SPEC_NESTING} levels deep "
-                               "(a spec needs 3: [section], key, [lo, hi]); docs/spec.md")
+    too_deep = ShaderballError(
+        f"{source}: arrays or tables nested more than {MAX_SPEC_NESTING} levels deep "
+        "(a spec needs 3: [section], key, [lo, hi]); docs/spec.md"
+    )
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -781,22 +894,33 @@ def parse_spec_text(text: str, source: str = "<string>", base_dir: str | None = 
 def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
     for name, value in table.items():
         if name not in SECTIONS:
-            raise SpecError(name, "", value, "sections are " + ", ".join(f"[{s}]" for s in SECTIONS)
-                            + _did_you_mean(name, SECTIONS), what="unknown section")
+            raise SpecError(
+                name,
+                "",
+                value,
+                "sections are " + ", ".join(f"[{s}]" for s in SECTIONS) + _did_you_mean(name, SECTIONS),
+                what="unknown section",
+            )
         if not isinstance(value, dict):
-            raise SpecError(name, "", value, f"[{name}] must be a table of keys",
-                            what=f"{format_value(value)} is not a table")
+            raise SpecError(
+                name, "", value, f"[{name}] must be a table of keys", what=f"{format_value(value)} is not a table"
+            )
     if "dataset" not in table:
-        raise SpecError("dataset", "", _MISSING, "a [dataset] section with at least name, seed "
-                        "and materials is required", what="missing")
+        raise SpecError(
+            "dataset",
+            "",
+            _MISSING,
+            "a [dataset] section with at least name, seed and materials is required",
+            what="missing",
+        )
     sections = {}
     for name, cls in SECTIONS.items():
         raw = dict(table.get(name, {}))
         if name == "materials" and isinstance(raw.get("svbrdf_folders"), list):
             raw["svbrdf_folders"] = [
-                os.path.normpath(os.path.join(base_dir, os.path.expanduser(f)))
-                if isinstance(f, str) and f else f
-                for f in raw["svbrdf_folders"]]
+                os.path.normpath(os.path.join(base_dir, os.path.expanduser(f))) if isinstance(f, str) and f else f
+                for f in raw["svbrdf_folders"]
+            ]
         sections[name] = _section_from_table(cls, raw)
     return DatasetSpec(**sections)
 
@@ -805,15 +929,16 @@ def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
     known = {f.name: f for f in fields(cls)}
     for key, value in raw.items():
         if key not in known:
-            raise SpecError(cls.SECTION, key, value,
-                            f"[{cls.SECTION}] takes only: " + ", ".join(known)
-                            + _did_you_mean(key, known),
-                            what=f"unknown key (value {format_value(value)}) is not allowed")
+            raise SpecError(
+                cls.SECTION,
+                key,
+                value,
+                f"[{cls.SECTION}] takes only: " + ", ".join(known) + _did_you_mean(key, known),
+                what=f"unknown key (value {format_value(value)}) is not allowed",
+            )
     for name, f in known.items():
-        if name not in raw and f.default is dataclasses.MISSING \
-                and f.default_factory is dataclasses.MISSING:
-            raise SpecError(cls.SECTION, name, _MISSING, "required: " + f.metadata["rule"].allowed,
-                            what="missing")
+        if name not in raw and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise SpecError(cls.SECTION, name, _MISSING, "required: " + f.metadata["rule"].allowed, what="missing")
     return cls(**raw)
 
 
@@ -871,8 +996,7 @@ def spec_digest(spec: DatasetSpec) -> str:
     table = spec_to_dict(spec)
     for section, defaults in DIGEST_OMITS_AT_DEFAULT.items():
         table[section] = {k: v for k, v in table[section].items() if not (k in defaults and v == defaults[k])}
-    canonical = json.dumps(table, sort_keys=True, separators=(",", ":"),
-                           ensure_ascii=True, allow_nan=False)
+    canonical = json.dumps(table, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
     return hashlib.sha256(canonical.encode("ascii")).hexdigest()
 
 
@@ -895,8 +1019,15 @@ def reference_rows() -> list[tuple[str, str, str, str, str]]:
                 default = f"`{format_value(rule.plain(f.default))}`"
             else:
                 default = "**required**"
-            rows.append((f"`{name}.{f.name}`", f.metadata["doc"], f.metadata["unit"] or "-",
-                         default, rule.doc_allowed or rule.allowed))
+            rows.append(
+                (
+                    f"`{name}.{f.name}`",
+                    f.metadata["doc"],
+                    f.metadata["unit"] or "-",
+                    default,
+                    rule.doc_allowed or rule.allowed,
+                )
+            )
     return rows
 
 

@@ -59,8 +59,9 @@ class AlbedoLUT:
         return d * (1.0 - s) + s * a1[..., None] + (1.0 - s) * a0[..., None]
 
 
-def build_lut(roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi=128,
-              model: str = DEFAULT_MODEL) -> AlbedoLUT:
+def build_lut(
+    roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi=128, model: str = DEFAULT_MODEL
+) -> AlbedoLUT:
     """Tabulate A0 and A1 of ``model`` (default roughness grid: 0.02 to 1 in 0.02 steps plus the table's values)."""
     if roughness is None:
         roughness = np.unique(np.concatenate([np.arange(0.02, 1.0001, 0.02), ROUGHNESS]))
@@ -70,7 +71,11 @@ def build_lut(roughness=None, incidence_deg=INCIDENCE_DEG, *, n_theta=512, n_phi
     for i, r in enumerate(roughness):
         for t, theta in enumerate(incidence_deg):
             a0[i, t], a1[i, t] = spec_albedo_quadrature(
-                r, np.cos(np.radians(theta)), np.array([0.0, 1.0]), n_theta=n_theta, n_phi=n_phi,
+                r,
+                np.cos(np.radians(theta)),
+                np.array([0.0, 1.0]),
+                n_theta=n_theta,
+                n_phi=n_phi,
                 model=model,
             )
     return AlbedoLUT(roughness, np.asarray(incidence_deg, dtype=np.float64), a0, a1)
@@ -90,8 +95,9 @@ def _rows(lut: AlbedoLUT, array: np.ndarray) -> np.ndarray:
     return array[index]
 
 
-def sampler_exceedance(lut: AlbedoLUT, *, uniform_count: int = 4000, svbrdf_per_family: int = 3,
-                       svbrdf_resolution: int = 64, seed: int = 7) -> dict[str, np.ndarray]:
+def sampler_exceedance(
+    lut: AlbedoLUT, *, uniform_count: int = 4000, svbrdf_per_family: int = 3, svbrdf_resolution: int = 64, seed: int = 7
+) -> dict[str, np.ndarray]:
     """Per incidence: fraction of materials (texels) whose total albedo exceeds 1 in any channel, and the max."""
 
     rng = np.random.default_rng(seed)
@@ -123,8 +129,7 @@ def _texels(maps_list):
 
 def model_comparison(roughness=MODEL_ROUGHNESS, *, n_theta=512, n_phi=128) -> dict[str, np.ndarray]:
     """A1 at normal incidence (specular albedo with F = 1, the white furnace of a mirror-like metal) per model."""
-    return {model: build_lut(roughness, (0.0,), n_theta=n_theta, n_phi=n_phi, model=model).a1[:, 0]
-            for model in MODELS}
+    return {model: build_lut(roughness, (0.0,), n_theta=n_theta, n_phi=n_phi, model=model).a1[:, 0] for model in MODELS}
 
 
 def floor_share(*, svbrdf_per_family: int = 100, svbrdf_resolution: int = 32, seed: int = 7) -> dict[str, float]:
@@ -154,8 +159,11 @@ def models_markdown() -> str:
     ]
     for i, r in enumerate(MODEL_ROUGHNESS):
         base, floored = a1[DEFAULT_MODEL][i], a1["deschaintre2018"][i]
-        lines.append(f"| {r:.4g} | " + " | ".join(f"{a1[m][i]:.3f}" for m in MODELS)
-                     + f" | {round(100 * (1 - floored / base), 1) + 0.0:.1f}% |")  # + 0.0: no "-0.0"
+        lines.append(
+            f"| {r:.4g} | "
+            + " | ".join(f"{a1[m][i]:.3f}" for m in MODELS)
+            + f" | {round(100 * (1 - floored / base), 1) + 0.0:.1f}% |"
+        )  # + 0.0: no "-0.0"
     shares = floor_share()
     lines += [
         "",
@@ -205,8 +213,9 @@ def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--no-samplers", action="store_true", help="skip the sampler statistics")
-    parser.add_argument("--models", action="store_true",
-                        help="print only the comparison of the material models (a few seconds)")
+    parser.add_argument(
+        "--models", action="store_true", help="print only the comparison of the material models (a few seconds)"
+    )
     args = parser.parse_args(argv)
     print(models_markdown() if args.models else markdown(with_samplers=not args.no_samplers))
     return 0

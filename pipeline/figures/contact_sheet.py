@@ -43,9 +43,7 @@ def flash_preview(maps: MaterialMaps, *, tiles: int = 2, light_intensity: float 
     to_light = light - p
     dist2 = np.sum(to_light * to_light, axis=-1, keepdims=True)
     tile = lambda m: np.tile(m, (tiles, tiles) + (1,) * (m.ndim - 2))  # noqa: E731
-    radiance = eval_brdf(
-        wi, to_light, tile(maps.normal), tile(maps.diffuse), tile(maps.specular), tile(maps.roughness)
-    )
+    radiance = eval_brdf(wi, to_light, tile(maps.normal), tile(maps.diffuse), tile(maps.specular), tile(maps.roughness))
     return radiance * light_intensity / dist2
 
 

@@ -1,6 +1,6 @@
 """The README's figure of one material under three suns.
 
-    python -m pipeline.figures sun-positions --out docs/img/sun_positions.png
+python -m pipeline.figures sun-positions --out docs/img/sun_positions.png
 """
 
 from __future__ import annotations
@@ -39,11 +39,14 @@ def sun_positions(out: str, resolution: int = 240, spp: int = 128, variant: str 
     ball, camera = build_shaderball(), default_camera()
     maps = UniformMaterial((0.35, 0.12, 0.05), (0.25, 0.15, 0.1), 0.3).to_maps(1)
     settings = RenderSettings(resolution=resolution, spp=spp, variant=resolve_variant(variant))
-    images = [render_sample(ball, camera, maps, Light(*sun), settings, seed=i).image
-              for i, sun in enumerate(SUN_POSITIONS)]
+    images = [
+        render_sample(ball, camera, maps, Light(*sun), settings, seed=i).image for i, sun in enumerate(SUN_POSITIONS)
+    ]
     exposure = exposure_for(images[1])
-    tiles = [label(tonemap(img, exposure), f"elev {e:g}  azim {a:g}  turb {t:g}")
-             for img, (e, a, t) in zip(images, SUN_POSITIONS)]
+    tiles = [
+        label(tonemap(img, exposure), f"elev {e:g}  azim {a:g}  turb {t:g}")
+        for img, (e, a, t) in zip(images, SUN_POSITIONS)
+    ]
     buffer = io.BytesIO()
     Image.fromarray(np.concatenate(tiles, axis=1)).save(buffer, format="PNG")
     write_bytes_atomic(out, buffer.getvalue())

@@ -87,12 +87,14 @@ class LoaderRate:
 
 
 def loader_rate(config: TrainConfig) -> LoaderRate:
-    return measure_loader(config.dataset, config.resolution, config.exposure, config.check_hashes,
-                          config.batch_size, config.workers)
+    return measure_loader(
+        config.dataset, config.resolution, config.exposure, config.check_hashes, config.batch_size, config.workers
+    )
 
 
-def measure_loader(root: str, resolution: int | None, exposure: float, check_hashes: bool, batch_size: int,
-                   workers: int) -> LoaderRate:
+def measure_loader(
+    root: str, resolution: int | None, exposure: float, check_hashes: bool, batch_size: int, workers: int
+) -> LoaderRate:
     """Open ``root`` afresh and read every sample through a DataLoader."""
     started = time.perf_counter()
     dataset = open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=check_hashes)
@@ -102,8 +104,9 @@ def measure_loader(root: str, resolution: int | None, exposure: float, check_has
     for batch in loader:
         count += batch["maps"].shape[0]
         ids += batch["id"]
-    return LoaderRate(dataset.files.kind, open_s, count, count / (time.perf_counter() - started),
-                      dataset.resolution, ids)
+    return LoaderRate(
+        dataset.files.kind, open_s, count, count / (time.perf_counter() - started), dataset.resolution, ids
+    )
 
 
 def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
@@ -115,8 +118,13 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
     model = NeuralRenderer(resolution).to(device)
     if config.loss == "l1+vgg":
         vgg = vgg16_features(upto=RELU3_3)
-        vgg.load_state_dict({k.removeprefix("features."): v for k, v in random_vgg16_state_dict(0).items()
-                             if int(k.split(".")[1]) <= RELU3_3})
+        vgg.load_state_dict(
+            {
+                k.removeprefix("features."): v
+                for k, v in random_vgg16_state_dict(0).items()
+                if int(k.split(".")[1]) <= RELU3_3
+            }
+        )
         loss_fn = RenderLoss("l1+vgg", vgg.eval().requires_grad_(False), config.vgg_weight).to(device)
     else:
         loss_fn = RenderLoss("l1").to(device)
@@ -148,13 +156,33 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
             model(one, one_light)
         _sync(device)
         infer_ms = (time.perf_counter() - started) / infer_repeats * 1000
-    return BenchResult(resolution, str(device), config.workers, loaded.samples, loaded.samples_per_s,
-                       config.check_hashes, config.batch_size, train_rate, config.loss, infer_ms,
-                       torch.get_num_threads(), loaded.source, loaded.open_s)
+    return BenchResult(
+        resolution,
+        str(device),
+        config.workers,
+        loaded.samples,
+        loaded.samples_per_s,
+        config.check_hashes,
+        config.batch_size,
+        train_rate,
+        config.loss,
+        infer_ms,
+        torch.get_num_threads(),
+        loaded.source,
+        loaded.open_s,
+    )
 
 
-def compare_loaders(folder: str, pub: str, resolution: int | None = None, batch_size: int = 6, workers: int = 0,
-                    repeats: int = 3, check_hashes: bool = True, exposure: float = DEFAULT_EXPOSURE) -> dict:
+def compare_loaders(
+    folder: str,
+    pub: str,
+    resolution: int | None = None,
+    batch_size: int = 6,
+    workers: int = 0,
+    repeats: int = 3,
+    check_hashes: bool = True,
+    exposure: float = DEFAULT_EXPOSURE,
+) -> dict:
     """The loader's samples/s on a dataset folder and on its publication, passes alternated,
     best of ``repeats`` each (a shared machine's load only slows a pass); the publication's
     opening (every tar checked) is reported apart. Both must yield the same sample ids."""
@@ -166,13 +194,21 @@ def compare_loaders(folder: str, pub: str, resolution: int | None = None, batch_
         raise ShaderballError("compare_loaders: name a dataset folder, then its publication")
     if runs["folder"][0].ids != runs["publication"][0].ids:
         raise ShaderballError(f"compare_loaders: {pub!r} does not hold the samples of {folder!r}")
-    out = {"samples": runs["folder"][0].samples, "resolution": runs["folder"][0].resolution, "workers": workers,
-           "batch_size": batch_size, "sha256_checked": check_hashes, "repeats": repeats,
-           "torch_threads": torch.get_num_threads()}
+    out = {
+        "samples": runs["folder"][0].samples,
+        "resolution": runs["folder"][0].resolution,
+        "workers": workers,
+        "batch_size": batch_size,
+        "sha256_checked": check_hashes,
+        "repeats": repeats,
+        "torch_threads": torch.get_num_threads(),
+    }
     for name, rates in runs.items():
-        out[name] = {"samples_per_s": max(r.samples_per_s for r in rates),
-                     "samples_per_s_all": [round(r.samples_per_s, 2) for r in rates],
-                     "open_s": min(r.open_s for r in rates)}
+        out[name] = {
+            "samples_per_s": max(r.samples_per_s for r in rates),
+            "samples_per_s_all": [round(r.samples_per_s, 2) for r in rates],
+            "open_s": min(r.open_s for r in rates),
+        }
     return out
 
 
@@ -187,16 +223,18 @@ DENOISE_VARIANTS = {
 }
 
 
-def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_spp: int = 256,
-                      progress=None) -> dict:
+def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_spp: int = 256, progress=None) -> dict:
     """Mean PSNR, SSIM (8-bit sRGB) and relMSE of OIDN's output against ``reference_spp`` renders
     of ``samples`` samples spread over the dataset (which must store texture maps), for each
     row of :data:`DENOISE_VARIANTS` and each spp."""
     dataset = open_dataset(root)
     variant = resolve_variant(dataset_variant(dataset.records))
     tracer = PathTracer(dataset, variant)
-    auxes = {name: AuxBuffers(tracer.ball, tracer.camera, dataset.resolution, variant, **options)
-             for name, options in DENOISE_VARIANTS.items() if options is not None}
+    auxes = {
+        name: AuxBuffers(tracer.ball, tracer.camera, dataset.resolution, variant, **options)
+        for name, options in DENOISE_VARIANTS.items()
+        if options is not None
+    }
     picked = sorted({int(i) for i in np.linspace(0, len(dataset) - 1, min(samples, len(dataset))).round()})
     scores: dict[tuple[int, str], list] = {}
     for n, index in enumerate(picked, start=1):
@@ -214,14 +252,27 @@ def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_s
                 out = denoise(noisy)[0] if aux is None else denoise(noisy, aux.albedo(maps), aux.normal)[0]
                 out8 = hdr_to_srgb8(out, dataset.exposure)
                 scores.setdefault((spp, name), []).append(
-                    (metrics.psnr8(out8, truth8), metrics.ssim8(out8, truth8), metrics.relmse(out, truth)))
+                    (metrics.psnr8(out8, truth8), metrics.ssim8(out8, truth8), metrics.relmse(out, truth))
+                )
         if progress is not None:
             progress(f"sample {n}/{len(picked)} {sample.id}")
-    rows = [{"spp": spp, "fed": name, "psnr": float(np.mean([v[0] for v in values])),
-             "ssim": float(np.mean([v[1] for v in values])), "relmse": float(np.mean([v[2] for v in values]))}
-            for (spp, name), values in scores.items()]
-    return {"dataset": root, "samples": [dataset.samples[i].id for i in picked], "reference_spp": reference_spp,
-            "resolution": dataset.resolution, "rows": rows}
+    rows = [
+        {
+            "spp": spp,
+            "fed": name,
+            "psnr": float(np.mean([v[0] for v in values])),
+            "ssim": float(np.mean([v[1] for v in values])),
+            "relmse": float(np.mean([v[2] for v in values])),
+        }
+        for (spp, name), values in scores.items()
+    ]
+    return {
+        "dataset": root,
+        "samples": [dataset.samples[i].id for i in picked],
+        "reference_spp": reference_spp,
+        "resolution": dataset.resolution,
+        "rows": rows,
+    }
 
 
 def denoise_table(result: dict) -> str:
@@ -232,9 +283,10 @@ def denoise_table(result: dict) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.bench",
-                                     description="The loader on a dataset folder and on its publication; "
-                                                 "what OIDN is fed.")
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.neural.bench",
+        description="The loader on a dataset folder and on its publication; what OIDN is fed.",
+    )
     commands = parser.add_subparsers(dest="command", required=True)
     loaders = commands.add_parser("loaders", help="loader samples/s on a dataset folder and on its publication")
     loaders.add_argument("folder")
@@ -251,12 +303,18 @@ def main(argv=None) -> None:
     denoising.add_argument("--reference-spp", type=int, default=256)
     args = parser.parse_args(argv)
     if args.command == "loaders":
-        result = compare_loaders(args.folder, args.pub, args.resolution, args.batch_size, args.workers,
-                                 args.repeats, not args.no_hash_check)
+        result = compare_loaders(
+            args.folder, args.pub, args.resolution, args.batch_size, args.workers, args.repeats, not args.no_hash_check
+        )
         print(json.dumps(result, indent=1, sort_keys=True))
         return
-    result = compare_denoisers(args.dataset, args.samples, tuple(int(x) for x in args.spp.split(",")),
-                               args.reference_spp, progress=lambda line: print(line, file=sys.stderr))
+    result = compare_denoisers(
+        args.dataset,
+        args.samples,
+        tuple(int(x) for x in args.spp.split(",")),
+        args.reference_spp,
+        progress=lambda line: print(line, file=sys.stderr),
+    )
     print(json.dumps(result, indent=1, sort_keys=True))
     print(denoise_table(result), end="")
 

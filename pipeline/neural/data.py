@@ -66,8 +66,10 @@ def safe_path(root: str, rel: str) -> str:
     try:
         return resolve_inside(root, rel)
     except UnsafePath as exc:
-        raise ShaderballError(f"manifest: file path {rel!r} is refused: {exc.strerror} (the dataset folder "
-                              f"{root!r} must hold it; check it with `shaderball validate`)") from None
+        raise ShaderballError(
+            f"manifest: file path {rel!r} is refused: {exc.strerror} (the dataset folder "
+            f"{root!r} must hold it; check it with `shaderball validate`)"
+        ) from None
 
 
 def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
@@ -75,8 +77,11 @@ def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
     if factor == 1:
         return image
     h, w, c = image.shape
-    return image.reshape(h // factor, factor, w // factor, factor, c).mean(axis=(1, 3), dtype=np.float64) \
+    return (
+        image.reshape(h // factor, factor, w // factor, factor, c)
+        .mean(axis=(1, 3), dtype=np.float64)
         .astype(np.float32)
+    )
 
 
 def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -90,8 +95,11 @@ def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.nd
     chw[9:12] = layers["roughness"][..., 0]
     chw[12] = mask
     if factor > 1:
-        chw = chw.reshape(13, h // factor, factor, w // factor, factor).mean(axis=(2, 4), dtype=np.float64) \
+        chw = (
+            chw.reshape(13, h // factor, factor, w // factor, factor)
+            .mean(axis=(2, 4), dtype=np.float64)
             .astype(np.float32)
+        )
     return chw[:12], chw[12:]
 
 
@@ -109,22 +117,27 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
     """dataset.json and the manifest's records of a complete dataset folder."""
     layout = Layout(root)
     if not os.path.isdir(root):
-        raise bad_value("DATASET", root, "a dataset folder written by `shaderball build`, or its publication "
-                        "(`shaderball publish`)")
+        raise bad_value(
+            "DATASET", root, "a dataset folder written by `shaderball build`, or its publication (`shaderball publish`)"
+        )
     description = read_json_file(layout.description, "DATASET")
     if not isinstance(description, dict):
-        raise ShaderballError(f"DATASET: {layout.description} is not a JSON object; check the folder with "
-                              "`shaderball validate`")
+        raise ShaderballError(
+            f"DATASET: {layout.description} is not a JSON object; check the folder with `shaderball validate`"
+        )
     if not os.path.lexists(layout.manifest):
-        raise ShaderballError(f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
-                              "when a build completes); finish it with `shaderball build SPEC --out DIR`")
+        raise ShaderballError(
+            f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
+            "when a build completes); finish it with `shaderball build SPEC --out DIR`"
+        )
     counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
     expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
     try:
         data = folder_read_manifest(layout, expected)
     except OSError as exc:
-        raise ShaderballError(f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder "
-                              "with `shaderball validate`") from None
+        raise ShaderballError(
+            f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
+        ) from None
     return description, parse_records(data, description, root, layout.manifest, "`shaderball validate`")
 
 
@@ -146,8 +159,10 @@ def parse_records(data: bytes, description: dict, root: str, where: str, checker
             raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
         records.append(record)
     if expected is not None and len(records) != expected:
-        raise ShaderballError(f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
-                              f"{expected} renders; finish it with `shaderball build`")
+        raise ShaderballError(
+            f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
+            f"{expected} renders; finish it with `shaderball build`"
+        )
     if not records:
         raise ShaderballError(f"DATASET: {root!r} has no renders")
     return records
@@ -168,15 +183,18 @@ class FolderFiles:
         try:
             return read_bytes(key)
         except OSError as exc:
-            raise ShaderballError(f"DATASET: cannot read {key} ({exc.strerror}); check the folder with "
-                                  "`shaderball validate`") from None
+            raise ShaderballError(
+                f"DATASET: cannot read {key} ({exc.strerror}); check the folder with `shaderball validate`"
+            ) from None
 
     def label(self, key: str) -> str:
         return key
 
     def changed(self, key: str) -> ShaderballError:
-        return ShaderballError(f"DATASET: {key} does not match its SHA-256 in the manifest; repair the folder with "
-                               "`shaderball validate --repair`")
+        return ShaderballError(
+            f"DATASET: {key} does not match its SHA-256 in the manifest; repair the folder with "
+            "`shaderball validate --repair`"
+        )
 
 
 class PublishedFiles:
@@ -200,16 +218,20 @@ class PublishedFiles:
         except Refused as exc:
             raise refused(self.root, exc) from None
         except OSError as exc:
-            raise ShaderballError(f"DATASET: cannot read {self.label(key)} ({exc.strerror}); check the "
-                                  "publication with `shaderball verify`") from None
+            raise ShaderballError(
+                f"DATASET: cannot read {self.label(key)} ({exc.strerror}); check the "
+                "publication with `shaderball verify`"
+            ) from None
 
     def label(self, key: str) -> str:
         at = self.located[key]
         return f"{os.path.join(self.root, at.tar)}: member {at.name}"
 
     def changed(self, key: str) -> ShaderballError:
-        return ShaderballError(f"DATASET: {self.label(key)} does not match its SHA-256 in the manifest: the "
-                               "publication changed since it was verified; check it with `shaderball verify`")
+        return ShaderballError(
+            f"DATASET: {self.label(key)} does not match its SHA-256 in the manifest: the "
+            "publication changed since it was verified; check it with `shaderball verify`"
+        )
 
 
 def refused(root: str, exc: Refused) -> ShaderballError:
@@ -243,8 +265,14 @@ def sample_files(files, record: dict) -> SampleFiles:
     vector = record.get("lighting_vector")
     if not (isinstance(vector, list) and len(vector) == 4 and all(isinstance(v, (int, float)) for v in vector)):
         raise ShaderballError(f"manifest: record {record.get('id')!r} has no 4-value lighting_vector")
-    return SampleFiles(record["id"], record["material_id"], refs["render"], refs["maps"],
-                       tuple(float(v) for v in vector), refs.get("texture"))
+    return SampleFiles(
+        record["id"],
+        record["material_id"],
+        refs["render"],
+        refs["maps"],
+        tuple(float(v) for v in vector),
+        refs.get("texture"),
+    )
 
 
 class ShaderballDataset(Dataset):
@@ -252,10 +280,19 @@ class ShaderballDataset(Dataset):
     :func:`open_dataset`. ``files`` reads them (default: the folder ``root``); ``records``
     maps each sample id to its manifest record."""
 
-    def __init__(self, root: str, samples: list[SampleFiles], resolution: int, factor: int,
-                 exposure: float = DEFAULT_EXPOSURE, check_hashes: bool = True,
-                 cache_materials: int = DEFAULT_CACHE_MATERIALS, identity: dict | None = None,
-                 files=None, records: dict[str, dict] | None = None):
+    def __init__(
+        self,
+        root: str,
+        samples: list[SampleFiles],
+        resolution: int,
+        factor: int,
+        exposure: float = DEFAULT_EXPOSURE,
+        check_hashes: bool = True,
+        cache_materials: int = DEFAULT_CACHE_MATERIALS,
+        identity: dict | None = None,
+        files=None,
+        records: dict[str, dict] | None = None,
+    ):
         self.root = root
         self.samples = samples
         self.resolution = resolution
@@ -276,9 +313,18 @@ class ShaderballDataset(Dataset):
 
     def subset(self, material_ids) -> ShaderballDataset:
         keep = set(material_ids)
-        return ShaderballDataset(self.root, [s for s in self.samples if s.material_id in keep], self.resolution,
-                                 self.factor, self.exposure, self.check_hashes, self.cache_materials, self.identity,
-                                 self.files, self.records)
+        return ShaderballDataset(
+            self.root,
+            [s for s in self.samples if s.material_id in keep],
+            self.resolution,
+            self.factor,
+            self.exposure,
+            self.check_hashes,
+            self.cache_materials,
+            self.identity,
+            self.files,
+            self.records,
+        )
 
     def read_layers(self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False) -> dict[str, np.ndarray]:
         """The decoded layers of the file ``ref`` (key, sha256), which must hold ``layers``;
@@ -293,12 +339,15 @@ class ShaderballDataset(Dataset):
         label = self.files.label(key)
         absent = [name for name in layers if name not in decoded]
         if absent:
-            raise ShaderballError(f"DATASET: {label} has no {', '.join(absent)} layer (the network needs "
-                                  f"{', '.join(layers)}; build with storage.layers naming them)")
+            raise ShaderballError(
+                f"DATASET: {label} has no {', '.join(absent)} layer (the network needs "
+                f"{', '.join(layers)}; build with storage.layers naming them)"
+            )
         shape = decoded[layers[0]].shape[:2]
         if screen and shape != (self.resolution * self.factor,) * 2:
-            raise ShaderballError(f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says "
-                                  f"{self.resolution * self.factor}")
+            raise ShaderballError(
+                f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says {self.resolution * self.factor}"
+            )
         return decoded
 
     def _read(self, key: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -347,8 +396,12 @@ def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
     """(network resolution, box factor) for a dataset of ``native`` pixels."""
     if requested is None:
         if native % 16:
-            raise bad_value("--resolution", None, f"a multiple of 16 that divides the dataset's {native} "
-                            f"(the network needs a multiple of 16; {native} is not)")
+            raise bad_value(
+                "--resolution",
+                None,
+                f"a multiple of 16 that divides the dataset's {native} "
+                f"(the network needs a multiple of 16; {native} is not)",
+            )
         return native, 1
     check_network_resolution(requested, "--resolution")
     if native % requested:
@@ -364,14 +417,21 @@ def is_publication(root: str) -> bool:
     published = [n for n in (INDEX_FILE, SUMS_FILE) if os.path.lexists(os.path.join(root, n))]
     folder = [n for n in (DESCRIPTION_FILE, MANIFEST_FILE) if os.path.lexists(os.path.join(root, n))]
     if published and folder:
-        raise ShaderballError(f"DATASET: {root!r} holds both a dataset folder's {folder[0]} and a publication's "
-                              f"{published[0]}; it is neither (name a folder `shaderball build` or `shaderball "
-                              "publish` wrote)")
+        raise ShaderballError(
+            f"DATASET: {root!r} holds both a dataset folder's {folder[0]} and a publication's "
+            f"{published[0]}; it is neither (name a folder `shaderball build` or `shaderball "
+            "publish` wrote)"
+        )
     return bool(published)
 
 
-def open_dataset(root: str, resolution: int | None = None, exposure: float = DEFAULT_EXPOSURE,
-                 check_hashes: bool = True, cache_materials: int = DEFAULT_CACHE_MATERIALS) -> ShaderballDataset:
+def open_dataset(
+    root: str,
+    resolution: int | None = None,
+    exposure: float = DEFAULT_EXPOSURE,
+    check_hashes: bool = True,
+    cache_materials: int = DEFAULT_CACHE_MATERIALS,
+) -> ShaderballDataset:
     """A complete dataset folder, or a publication of one, as a :class:`ShaderballDataset`
     (all samples, in manifest order; see the module's docstring)."""
     if is_publication(root):
@@ -379,12 +439,18 @@ def open_dataset(root: str, resolution: int | None = None, exposure: float = DEF
     layout = Layout(root)
     description, records = read_manifest(root)
     manifest = folder_read_manifest(layout, len(records))
-    return _make(root, description, records, manifest, FolderFiles(root), resolution, exposure, check_hashes,
-                 cache_materials)
+    return _make(
+        root, description, records, manifest, FolderFiles(root), resolution, exposure, check_hashes, cache_materials
+    )
 
 
-def open_published(root: str, resolution: int | None = None, exposure: float = DEFAULT_EXPOSURE,
-                   check_hashes: bool = True, cache_materials: int = DEFAULT_CACHE_MATERIALS) -> ShaderballDataset:
+def open_published(
+    root: str,
+    resolution: int | None = None,
+    exposure: float = DEFAULT_EXPOSURE,
+    check_hashes: bool = True,
+    cache_materials: int = DEFAULT_CACHE_MATERIALS,
+) -> ShaderballDataset:
     """A publication as a :class:`ShaderballDataset`: checked whole first (every tar streamed
     through the reader), then read member by member at the checked offsets."""
     try:
@@ -396,19 +462,44 @@ def open_published(root: str, resolution: int | None = None, exposure: float = D
     if not isinstance(description, dict):
         raise ShaderballError(f"DATASET: {root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object")
     manifest = publication.source_files[MANIFEST_FILE]
-    records = parse_records(manifest, description, root, os.path.join(root, "dataset", MANIFEST_FILE),
-                            "`shaderball verify`")
+    records = parse_records(
+        manifest, description, root, os.path.join(root, "dataset", MANIFEST_FILE), "`shaderball verify`"
+    )
     keep = {entry["path"] for record in records for entry in record["files"]}
     files = PublishedFiles(root, {path: at for path, at in located.items() if path in keep})
     return _make(root, description, records, manifest, files, resolution, exposure, check_hashes, cache_materials)
 
 
-def _make(root: str, description: dict, records: list[dict], manifest: bytes, files, resolution, exposure,
-          check_hashes, cache_materials) -> ShaderballDataset:
+def _make(
+    root: str,
+    description: dict,
+    records: list[dict],
+    manifest: bytes,
+    files,
+    resolution,
+    exposure,
+    check_hashes,
+    cache_materials,
+) -> ShaderballDataset:
     native = dataset_resolution(records)
     net_res, factor = network_resolution(native, resolution)
     samples = [sample_files(files, r) for r in records]
-    identity = {"spec_digest": description.get("spec_digest"), "manifest_sha256": hashlib.sha256(manifest).hexdigest(),
-                "name": description.get("name"), "resolution": native, "variant": description.get("variant")}
-    return ShaderballDataset(root, samples, net_res, factor, exposure, check_hashes, cache_materials, identity,
-                             files=files, records={r["id"]: r for r in records})
+    identity = {
+        "spec_digest": description.get("spec_digest"),
+        "manifest_sha256": hashlib.sha256(manifest).hexdigest(),
+        "name": description.get("name"),
+        "resolution": native,
+        "variant": description.get("variant"),
+    }
+    return ShaderballDataset(
+        root,
+        samples,
+        net_res,
+        factor,
+        exposure,
+        check_hashes,
+        cache_materials,
+        identity,
+        files=files,
+        records={r["id"]: r for r in records},
+    )

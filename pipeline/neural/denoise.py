@@ -59,8 +59,17 @@ class AuxBuffers:
     (albedo and normal 0 off the material, like the G-buffer), ``albedo="diffuse"`` (``d``).
     """
 
-    def __init__(self, ball: Shaderball, camera: Camera, resolution: int, variant: str, factor: int = 1,
-                 supersample: int = SUPERSAMPLE, surroundings: bool = True, albedo: str = "lobes"):
+    def __init__(
+        self,
+        ball: Shaderball,
+        camera: Camera,
+        resolution: int,
+        variant: str,
+        factor: int = 1,
+        supersample: int = SUPERSAMPLE,
+        surroundings: bool = True,
+        albedo: str = "lobes",
+    ):
         if albedo not in ALBEDOS:
             raise ValueError(f"albedo: {albedo!r}; allowed: {', '.join(ALBEDOS)}")
         self.supersample = max(1, min(supersample, RESOLUTION_RANGE[1] // resolution))
@@ -90,8 +99,9 @@ class AuxBuffers:
         return np.ascontiguousarray(box_downsample(albedo, self.block), np.float32)
 
 
-def denoise(image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
-            ) -> tuple[np.ndarray, float]:
+def denoise(
+    image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """OIDN's RT filter in HDR mode: colour alone, or with noise-free albedo and normal
     (``clean_aux``); returns the image and the seconds the filter took."""
     import pyoidn

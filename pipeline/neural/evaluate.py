@@ -42,9 +42,11 @@ DEFAULT_SPP = (1, 2, 4, 16)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
-DENOISER = ("Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
-            "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
-            "pixel centres per pixel and box-averaged, clean_aux; '+ OIDN, colour only': the colour alone")
+DENOISER = (
+    "Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
+    "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
+    "pixel centres per pixel and box-averaged, clean_aux; '+ OIDN, colour only': the colour alone"
+)
 
 
 @dataclass(frozen=True)
@@ -71,13 +73,21 @@ class EvaluateSummary:
     table: str = ""
 
     def lines(self) -> list[str]:
-        return [f"evaluated {self.samples} samples; wrote {self.out_dir}/results.md, results.json, grid.png",
-                *self.table.splitlines(), *self.notes]
+        return [
+            f"evaluated {self.samples} samples; wrote {self.out_dir}/results.md, results.json, grid.png",
+            *self.table.splitlines(),
+            *self.notes,
+        ]
 
 
 def _scores(hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float) -> dict:
-    return {"psnr": metrics.psnr8(srgb8, ref8), "ssim": metrics.ssim8(srgb8, ref8),
-            "relmse": metrics.relmse(hdr, ref_hdr), "flip": metrics.hdr_flip(hdr, ref_hdr), "time_s": time_s}
+    return {
+        "psnr": metrics.psnr8(srgb8, ref8),
+        "ssim": metrics.ssim8(srgb8, ref8),
+        "relmse": metrics.relmse(hdr, ref_hdr),
+        "flip": metrics.hdr_flip(hdr, ref_hdr),
+        "time_s": time_s,
+    }
 
 
 TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
@@ -101,11 +111,17 @@ class PathTracer:
 
     def render(self, record: dict, maps, spp: int) -> tuple[np.ndarray, float]:
         r = record["render"]
-        settings = RenderSettings(resolution=r["resolution"], spp=spp, max_depth=r["max_depth"],
-                                  integrator=r["integrator"], sun=r["sun"], variant=self.variant,
-                                  model=r.get("model", DEFAULT_MODEL))  # absent: the default model
+        settings = RenderSettings(
+            resolution=r["resolution"],
+            spp=spp,
+            max_depth=r["max_depth"],
+            integrator=r["integrator"],
+            sun=r["sun"],
+            variant=self.variant,
+            model=r.get("model", DEFAULT_MODEL),
+        )  # absent: the default model
         light = Light.from_dict(record["lighting"]["requested"])
-        seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2 ** 32
+        seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2**32
         if not self.warm:  # the first render compiles kernels: keep that out of the timings
             render_sample(self.ball, self.camera, maps, light, settings, seed)
             self.warm = True
@@ -135,8 +151,11 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     same = source.identity == config["identity"]["dataset"]
     if req.split != "all":
         if not same:
-            raise bad_value("--split", req.split, "all: DATASET is not the dataset the run was trained on, so "
-                            "the run's split does not apply")
+            raise bad_value(
+                "--split",
+                req.split,
+                "all: DATASET is not the dataset the run was trained on, so the run's split does not apply",
+            )
         dataset = source.subset(config["split"][req.split])
     else:
         dataset = source
@@ -161,8 +180,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         variant = resolve_variant(dataset_variant(records))  # once; every render and buffer takes it
         tracer = PathTracer(dataset, variant)
         if want_denoise:
-            aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant,
-                             dataset.factor)
+            aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant, dataset.factor)
     rows, grid = [], []
     aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
     for n, index in enumerate(indices, start=1):
@@ -174,8 +192,11 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         started = time.perf_counter()
         pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
         net_s = time.perf_counter() - started
-        row = {"id": sample.id, "material_id": sample.material_id,
-               "network": _scores(inverse_tonemap(pred, exposure), to_srgb8(pred), ref_hdr, ref8, net_s)}
+        row = {
+            "id": sample.id,
+            "material_id": sample.material_id,
+            "network": _scores(inverse_tonemap(pred, exposure), to_srgb8(pred), ref_hdr, ref8, net_s),
+        }
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
         maps = tracer.material(sample) if tracer else None
         if tracer and maps is None and "no texture" not in " ".join(notes):
@@ -191,8 +212,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 clean, t_dn = denoise(image, aux_albedo[1], aux.normal)
                 row[f"pt{spp}+oidn"] = _scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
                 alone, t_alone = denoise(image)
-                row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8,
-                                                      t + t_alone)
+                row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
         rows.append(row)
@@ -203,11 +223,19 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
 
     methods = [k for k in rows[0] if k not in ("id", "material_id")]
     means = {m: {k: _mean([r[m][k] for r in rows if m in r]) for k in rows[0][m]} for m in methods}
-    result = {"run": os.path.abspath(req.run), "dataset": os.path.abspath(req.dataset), "split": req.split,
-              "resolution": model.resolution, "device": str(device), "samples": rows, "mean": means,
-              "notes": notes, "tonemap": config["tonemap"],
-              "denoiser": DENOISER if want_denoise else None,
-              "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR"}
+    result = {
+        "run": os.path.abspath(req.run),
+        "dataset": os.path.abspath(req.dataset),
+        "split": req.split,
+        "resolution": model.resolution,
+        "device": str(device),
+        "samples": rows,
+        "mean": means,
+        "notes": notes,
+        "tonemap": config["tonemap"],
+        "denoiser": DENOISER if want_denoise else None,
+        "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR",
+    }
     table = markdown_table(means, len(rows), model.resolution)
     os.makedirs(out_dir, exist_ok=True)
     runfiles.write_json(os.path.join(out_dir, "results.json"), result)
@@ -245,12 +273,18 @@ def markdown_table(means: dict, samples: int, resolution: int) -> str:
     def fmt(v, spec):
         return "-" if v is None else format(v, spec)
 
-    lines = [f"{samples} samples at {resolution}x{resolution}; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on "
-             "linear HDR; time per image", "",
-             "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"{samples} samples at {resolution}x{resolution}; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on "
+        "linear HDR; time per image",
+        "",
+        "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) |",
+        "|---|---|---|---|---|---|",
+    ]
     for method, m in means.items():
-        lines.append(f"| {_label(method)} | {fmt(m['psnr'], '.2f')} | {fmt(m['ssim'], '.4f')} | "
-                     f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} |")
+        lines.append(
+            f"| {_label(method)} | {fmt(m['psnr'], '.2f')} | {fmt(m['ssim'], '.4f')} | "
+            f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} |"
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -78,8 +78,9 @@ def load_run_model(run_dir: str, device: torch.device) -> tuple[NeuralRenderer, 
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as exc:
-        raise ShaderballError(f"{run_dir}: the checkpoint's weights do not fit the network of its config "
-                              f"({str(exc).splitlines()[0]})") from None
+        raise ShaderballError(
+            f"{run_dir}: the checkpoint's weights do not fit the network of its config ({str(exc).splitlines()[0]})"
+        ) from None
     return model.to(device).eval(), config
 
 
@@ -102,10 +103,20 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     model, config = load_run_model(req.run, device)
     load_s = time.perf_counter() - started
     resolution = model.resolution
-    render_req = RenderRequest(diffuse=req.diffuse, specular=req.specular, roughness=req.roughness,
-                               normal=req.normal, svbrdf=req.svbrdf, svbrdf_colorspace=req.svbrdf_colorspace,
-                               elevation_deg=req.elevation_deg, azimuth_deg=req.azimuth_deg,
-                               turbidity=req.turbidity, resolution=resolution, out=req.out, png=req.png)
+    render_req = RenderRequest(
+        diffuse=req.diffuse,
+        specular=req.specular,
+        roughness=req.roughness,
+        normal=req.normal,
+        svbrdf=req.svbrdf,
+        svbrdf_colorspace=req.svbrdf_colorspace,
+        elevation_deg=req.elevation_deg,
+        azimuth_deg=req.azimuth_deg,
+        turbidity=req.turbidity,
+        resolution=resolution,
+        out=req.out,
+        png=req.png,
+    )
     check_request(render_req)
     material = load_material(render_req)
     material.check()
@@ -128,10 +139,19 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     network_s = time.perf_counter() - started
 
     exposure = float(config["tonemap"]["exposure"])
-    meta = {"estimate": "neural renderer (KT et al. 2019)", "run": req.run, "lighting_vector": vector,
-            "tonemap": config["tonemap"], "colorspace": "linear Rec.709 (sRGB primaries, D65)"}
-    write_exr(req.out, {"render": inverse_tonemap(output, exposure), **screen}, meta,
-              half=("diffuse", "specular", "roughness", "normal", "mask"))
+    meta = {
+        "estimate": "neural renderer (KT et al. 2019)",
+        "run": req.run,
+        "lighting_vector": vector,
+        "tonemap": config["tonemap"],
+        "colorspace": "linear Rec.709 (sRGB primaries, D65)",
+    }
+    write_exr(
+        req.out,
+        {"render": inverse_tonemap(output, exposure), **screen},
+        meta,
+        half=("diffuse", "specular", "roughness", "normal", "mask"),
+    )
     if req.png:
         buffer = io.BytesIO()
         Image.fromarray(to_srgb8(output)).save(buffer, format="PNG")

@@ -36,7 +36,7 @@ def psnr8(test: np.ndarray, reference: np.ndarray) -> float:
     """PSNR in dB of two uint8 images of the same shape; inf when they are equal."""
     a, b = _as_float_u8(test, "test"), _as_float_u8(reference, "reference")
     mse = float(np.mean((a - b) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(255.0 ** 2 / mse)
+    return math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
 
 
 def _gaussian_window() -> np.ndarray:

@@ -37,8 +37,13 @@ PAPER_PARAMETERS = 11_752_404
 
 def check_network_resolution(resolution, field: str = "resolution") -> int:
     """Resolutions the network accepts: multiples of 16 from 16 to 4096."""
-    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 16 \
-            or resolution > 4096 or resolution % 16:
+    if (
+        isinstance(resolution, bool)
+        or not isinstance(resolution, int)
+        or resolution < 16
+        or resolution > 4096
+        or resolution % 16
+    ):
         raise bad_value(field, resolution, "an integer multiple of 16 from 16 to 4096 (the encoder halves it 4 times)")
     return resolution
 
@@ -49,8 +54,7 @@ def light_input(lighting_vector: torch.Tensor) -> torch.Tensor:
     As the released demo: the direction scaled to length 3, turbidity raw (1 to 10).
     Works on (..., 4) tensors; the dataset's stored ``lighting_vector`` is the only source.
     """
-    scale = torch.tensor([SUN_DIRECTION_SCALE] * 3 + [1.0], dtype=lighting_vector.dtype,
-                         device=lighting_vector.device)
+    scale = torch.tensor([SUN_DIRECTION_SCALE] * 3 + [1.0], dtype=lighting_vector.dtype, device=lighting_vector.device)
     return lighting_vector * scale
 
 
@@ -84,24 +88,32 @@ class NeuralRenderer(nn.Module):
         self.bottleneck_size = resolution // 16
         e1, e2, e3, e4 = ENCODER_CHANNELS
         self.light = nn.Sequential(
-            nn.Linear(LIGHT_CHANNELS, 32), nn.Tanh(),
-            nn.Linear(32, 128), nn.Tanh(),
-            nn.Linear(128, 256), nn.Tanh(),
-            nn.Linear(256, self.bottleneck_size ** 2), nn.Tanh(),
+            nn.Linear(LIGHT_CHANNELS, 32),
+            nn.Tanh(),
+            nn.Linear(32, 128),
+            nn.Tanh(),
+            nn.Linear(128, 256),
+            nn.Tanh(),
+            nn.Linear(256, self.bottleneck_size**2),
+            nn.Tanh(),
         )
-        self.encoder = nn.ModuleList([
-            _conv_bn_relu(INPUT_CHANNELS, e1, stride=2),
-            _conv_bn_relu(e1, e2, stride=2),
-            _conv_bn_relu(e2, e3, stride=2),
-            _conv_bn_relu(e3, e4, stride=2),
-        ])
+        self.encoder = nn.ModuleList(
+            [
+                _conv_bn_relu(INPUT_CHANNELS, e1, stride=2),
+                _conv_bn_relu(e1, e2, stride=2),
+                _conv_bn_relu(e2, e3, stride=2),
+                _conv_bn_relu(e3, e4, stride=2),
+            ]
+        )
         self.bottleneck = _conv_bn_relu(e4 + LIGHT_MAP_CHANNELS, e4)
-        self.decoder = nn.ModuleList([
-            DecoderBlock(e4, e4, e4),
-            DecoderBlock(e4, e3, e3),
-            DecoderBlock(e3, e2, e2),
-            DecoderBlock(e2, e1, e1),
-        ])
+        self.decoder = nn.ModuleList(
+            [
+                DecoderBlock(e4, e4, e4),
+                DecoderBlock(e4, e3, e3),
+                DecoderBlock(e3, e2, e2),
+                DecoderBlock(e2, e1, e1),
+            ]
+        )
         self.output = nn.Conv2d(e1, 3, kernel_size=3, padding=1)
         self.reset_parameters()
 

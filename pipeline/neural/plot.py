@@ -32,8 +32,9 @@ def loss_curve_png(history: list[dict], width: int = 640, height: int = 400) -> 
     draw.rectangle([x0, y0, x1, y1], outline="black")
     draw.text((x0, 8), "loss per epoch (log scale)", fill="black", font=font)
     draw.text(((x0 + x1) // 2 - 15, height - 18), "epoch", fill="black", font=font)
-    points = {key: [(h["epoch"], h[key]) for h in history if h.get(key) is not None and h[key] > 0]
-              for key, _, _ in SERIES}
+    points = {
+        key: [(h["epoch"], h[key]) for h in history if h.get(key) is not None and h[key] > 0] for key, _, _ in SERIES
+    }
     values = [v for pts in points.values() for _, v in pts]
     if not values:
         draw.text((x0 + 10, y0 + 10), "no finished epoch yet", fill="black", font=font)
@@ -50,12 +51,12 @@ def loss_curve_png(history: list[dict], width: int = 640, height: int = 400) -> 
             return x, y
 
         for t in _nice_ticks(l_lo, l_hi):
-            _, y = xy(e_lo, 10 ** t)
+            _, y = xy(e_lo, 10**t)
             draw.line([x0 - 4, y, x0, y], fill="black")
-            draw.text((5, y - 6), f"{10 ** t:.3g}", fill="black", font=font)
+            draw.text((5, y - 6), f"{10**t:.3g}", fill="black", font=font)
         for t in _nice_ticks(e_lo, e_hi):
             if float(t).is_integer():
-                x, _ = xy(t, 10 ** l_lo)
+                x, _ = xy(t, 10**l_lo)
                 draw.line([x, y1, x, y1 + 4], fill="black")
                 draw.text((x - 4, y1 + 6), str(int(t)), fill="black", font=font)
         for i, (key, label, colour) in enumerate(SERIES):

@@ -56,8 +56,9 @@ def write_log(path: str, history: list[dict]) -> None:
 def read_config(run_dir: str) -> dict:
     path = os.path.join(run_dir, CONFIG)
     if not os.path.isfile(path):
-        raise ShaderballError(f"RUN: {run_dir!r} is not a training run (no {CONFIG}); "
-                              "make one with `shaderball train DATASET --out RUN`")
+        raise ShaderballError(
+            f"RUN: {run_dir!r} is not a training run (no {CONFIG}); make one with `shaderball train DATASET --out RUN`"
+        )
     try:
         with open(path, encoding="utf-8") as f:
             config = json.load(f)
@@ -68,18 +69,22 @@ def read_config(run_dir: str) -> dict:
     return config
 
 
-def save_checkpoint(run_dir: str, *, epoch: int, model_state: dict, optimizer_state: dict,
-                    history: list[dict], identity_digest: str) -> None:
+def save_checkpoint(
+    run_dir: str, *, epoch: int, model_state: dict, optimizer_state: dict, history: list[dict], identity_digest: str
+) -> None:
     buffer = io.BytesIO()
-    torch.save({
-        "format": CHECKPOINT_FORMAT,
-        "version": CHECKPOINT_VERSION,
-        "epoch": int(epoch),
-        "identity_digest": identity_digest,
-        "model": {k: v.detach().cpu() for k, v in model_state.items()},
-        "optimizer": optimizer_state,
-        "history": history,
-    }, buffer)
+    torch.save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "version": CHECKPOINT_VERSION,
+            "epoch": int(epoch),
+            "identity_digest": identity_digest,
+            "model": {k: v.detach().cpu() for k, v in model_state.items()},
+            "optimizer": optimizer_state,
+            "history": history,
+        },
+        buffer,
+    )
     write_bytes_atomic(os.path.join(run_dir, CHECKPOINT), buffer.getvalue())
 
 
@@ -92,14 +97,18 @@ def load_checkpoint(run_dir: str, identity_digest: str | None = None) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated or foreign file raises any of several types
-        raise ShaderballError(f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); "
-                              "restore it, or remove it to train again from the start") from exc
+        raise ShaderballError(
+            f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); "
+            "restore it, or remove it to train again from the start"
+        ) from exc
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ShaderballError(f"{path}: not a shaderball checkpoint")
     if ckpt.get("version") != CHECKPOINT_VERSION:
-        raise ShaderballError(f"{path}: checkpoint version {ckpt.get('version')!r}; this shaderball reads "
-                              f"version {CHECKPOINT_VERSION}")
+        raise ShaderballError(
+            f"{path}: checkpoint version {ckpt.get('version')!r}; this shaderball reads version {CHECKPOINT_VERSION}"
+        )
     if identity_digest is not None and ckpt.get("identity_digest") != identity_digest:
-        raise ShaderballError(f"{path}: the checkpoint belongs to another configuration than "
-                              f"{os.path.join(run_dir, CONFIG)}")
+        raise ShaderballError(
+            f"{path}: the checkpoint belongs to another configuration than {os.path.join(run_dir, CONFIG)}"
+        )
     return ckpt

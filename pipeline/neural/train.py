@@ -69,15 +69,20 @@ class TrainConfig:
 
         def number(name, lo, hi, lo_open=False):
             v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
-                and (v > lo if lo_open else v >= lo) and v <= hi
+            ok = (
+                isinstance(v, (int, float))
+                and not isinstance(v, bool)
+                and math.isfinite(v)
+                and (v > lo if lo_open else v >= lo)
+                and v <= hi
+            )
             if not ok:
                 raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
 
         integer("epochs", 1, 100_000)
         integer("batch_size", 1, 4096)
         integer("workers", 0, 64)
-        integer("seed", 0, 2 ** 63 - 1)
+        integer("seed", 0, 2**63 - 1)
         number("lr", 0.0, 10.0, lo_open=True)
         number("vgg_weight", 0.0, 1e6)
         number("exposure", 0.0, 1e6, lo_open=True)
@@ -111,9 +116,14 @@ class TrainSummary:
             out.append(f"resumed after epoch {self.resumed_from}")
         if self.history:
             last = self.history[-1]
-            out.append(f"epoch {last['epoch']}: train loss {last['train_loss']:.4f}"
-                       + (f", held-out loss {last['test_loss']:.4f}, PSNR {last['test_psnr']:.2f} dB"
-                          if last.get("test_loss") is not None else ""))
+            out.append(
+                f"epoch {last['epoch']}: train loss {last['train_loss']:.4f}"
+                + (
+                    f", held-out loss {last['test_loss']:.4f}, PSNR {last['test_psnr']:.2f} dB"
+                    if last.get("test_loss") is not None
+                    else ""
+                )
+            )
         if self.baseline_psnr is not None:
             out.append(f"baseline (training-set mean image) PSNR on held-out: {self.baseline_psnr:.2f} dB")
         return out
@@ -176,8 +186,11 @@ def baseline_psnr(mean_target: np.ndarray, test_set, workers: int) -> float | No
     if test_set is None or len(test_set) == 0:
         return None
     guess = to_srgb8(mean_target)
-    values = [psnr8(guess, to_srgb8(t.permute(1, 2, 0).numpy()))
-              for batch in DataLoader(test_set, batch_size=16, num_workers=workers) for t in batch["target"]]
+    values = [
+        psnr8(guess, to_srgb8(t.permute(1, 2, 0).numpy()))
+        for batch in DataLoader(test_set, batch_size=16, num_workers=workers)
+        for t in batch["target"]
+    ]
     return float(np.mean(values))
 
 
@@ -200,8 +213,11 @@ def _check_run_dir(run_dir: str) -> None:
     if os.path.exists(run_dir) and not os.path.isdir(run_dir):
         raise bad_value("--out", run_dir, "a folder (this is a file)")
     if os.path.isdir(run_dir) and os.listdir(run_dir) and not os.path.isfile(os.path.join(run_dir, runfiles.CONFIG)):
-        raise bad_value("--out", run_dir, f"a new or empty folder, or a run folder (with {runfiles.CONFIG}); "
-                        "this one holds other files")
+        raise bad_value(
+            "--out",
+            run_dir,
+            f"a new or empty folder, or a run folder (with {runfiles.CONFIG}); this one holds other files",
+        )
 
 
 def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg_sha256, params) -> dict:
@@ -215,8 +231,12 @@ def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg
         "options": asdict(config),
         "dataset_path": os.path.abspath(config.dataset),
         "split": {"train": train_ids, "test": test_ids},
-        "network": {"name": "NeuralRenderer (KT et al. 2019)", "resolution": resolution, "parameters": params,
-                    "light_input": "(3 d_x, 3 d_y, 3 d_z, turbidity) from the record's lighting_vector"},
+        "network": {
+            "name": "NeuralRenderer (KT et al. 2019)",
+            "resolution": resolution,
+            "parameters": params,
+            "light_input": "(3 d_x, 3 d_y, 3 d_z, turbidity) from the record's lighting_vector",
+        },
         "tonemap": {"name": "reinhard+srgb", "exposure": config.exposure},
         "optimizer": {"name": "Adam", "lr": config.lr, "betas": [0.9, 0.999]},
         "torch": torch.__version__,
@@ -233,8 +253,9 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     _check_run_dir(config.out)
     device = pick_device(config.device)
     if source is None:
-        source = open_dataset(config.dataset, resolution=config.resolution, exposure=config.exposure,
-                              check_hashes=config.check_hashes)
+        source = open_dataset(
+            config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.check_hashes
+        )
     resolution = source.resolution
     train_ids, test_ids = split_materials(source.material_ids, config.test_fraction, config.seed)
     loss_fn, vgg_sha = make_loss(config)
@@ -247,10 +268,15 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     if os.path.isfile(config_path):
         old = runfiles.read_config(config.out)
         if old["identity_digest"] != fresh["identity_digest"]:
-            changed = sorted(k for k in set(old["identity"]) | set(fresh["identity"])
-                             if old["identity"].get(k) != fresh["identity"].get(k))
-            raise ShaderballError(f"--out: {config.out!r} is a run of another configuration (differs in: "
-                                  f"{', '.join(changed)}); use a new --out folder or the same options")
+            changed = sorted(
+                k
+                for k in set(old["identity"]) | set(fresh["identity"])
+                if old["identity"].get(k) != fresh["identity"].get(k)
+            )
+            raise ShaderballError(
+                f"--out: {config.out!r} is a run of another configuration (differs in: "
+                f"{', '.join(changed)}); use a new --out folder or the same options"
+            )
         if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
             ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"])
         fresh["baseline"] = old.get("baseline")
@@ -267,8 +293,10 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     test_set = source.subset(test_ids) if test_ids else None
     if not fresh.get("baseline"):
         mean_target = mean_image(train_set, config.workers)
-        fresh["baseline"] = {"kind": "training-set mean image",
-                             "test_psnr": baseline_psnr(mean_target, test_set, config.workers)}
+        fresh["baseline"] = {
+            "kind": "training-set mean image",
+            "test_psnr": baseline_psnr(mean_target, test_set, config.workers),
+        }
     os.makedirs(config.out, exist_ok=True)
     runfiles.write_json(config_path, fresh)
 
@@ -279,23 +307,38 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
                 held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
                 entry.update(test_loss=held_out["loss"], test_psnr=held_out["psnr"])
             history.append(entry)
-            runfiles.save_checkpoint(config.out, epoch=epoch, model_state=model.state_dict(),
-                                     optimizer_state=optimizer.state_dict(), history=history,
-                                     identity_digest=fresh["identity_digest"])
+            runfiles.save_checkpoint(
+                config.out,
+                epoch=epoch,
+                model_state=model.state_dict(),
+                optimizer_state=optimizer.state_dict(),
+                history=history,
+                identity_digest=fresh["identity_digest"],
+            )
             runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
             runfiles.write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
-    return TrainSummary(run_dir=config.out, epochs_done=max(start_epoch, config.epochs if history else 0),
-                        resumed_from=start_epoch, history=history,
-                        baseline_psnr=fresh["baseline"]["test_psnr"], device=str(device),
-                        parameters=parameter_count(model))
+    return TrainSummary(
+        run_dir=config.out,
+        epochs_done=max(start_epoch, config.epochs if history else 0),
+        resumed_from=start_epoch,
+        history=history,
+        baseline_psnr=fresh["baseline"]["test_psnr"],
+        device=str(device),
+        parameters=parameter_count(model),
+    )
 
 
 def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress) -> dict:
     model.train()
     loss_fn.train()
     order = epoch_order(len(train_set), config.seed, epoch)
-    loader = DataLoader(Subset(train_set, order), batch_size=config.batch_size, shuffle=False,
-                        num_workers=config.workers, pin_memory=device.type == "cuda")
+    loader = DataLoader(
+        Subset(train_set, order),
+        batch_size=config.batch_size,
+        shuffle=False,
+        num_workers=config.workers,
+        pin_memory=device.type == "cuda",
+    )
     batches = len(loader)
     sums: dict[str, float] = {}
     seen, started = 0, time.perf_counter()
@@ -313,12 +356,25 @@ def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfi
             elapsed = time.perf_counter() - started
             rate = seen / elapsed if elapsed > 0 else 0.0
             left = (batches - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
-            progress({"epoch": epoch, "epochs": config.epochs, "batch": index, "batches": batches,
-                      "loss": float(parts["total"].detach()), "samples_per_s": rate,
-                      "eta_s": left / rate if rate > 0 else None})
+            progress(
+                {
+                    "epoch": epoch,
+                    "epochs": config.epochs,
+                    "batch": index,
+                    "batches": batches,
+                    "loss": float(parts["total"].detach()),
+                    "samples_per_s": rate,
+                    "eta_s": left / rate if rate > 0 else None,
+                }
+            )
     elapsed = time.perf_counter() - started
-    entry = {"epoch": epoch, "train_loss": sums["total"] / seen, "train_l1": sums["l1"] / seen,
-             "time_s": elapsed, "samples_per_s": seen / elapsed if elapsed > 0 else None}
+    entry = {
+        "epoch": epoch,
+        "train_loss": sums["total"] / seen,
+        "train_l1": sums["l1"] / seen,
+        "time_s": elapsed,
+        "samples_per_s": seen / elapsed if elapsed > 0 else None,
+    }
     if "vgg" in sums:
         entry["train_vgg"] = sums["vgg"] / seen
     return entry

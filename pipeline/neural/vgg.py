@@ -94,8 +94,9 @@ def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None
     if path is not None:
         source = "--vgg-weights"
         if not os.path.isfile(path):
-            raise ShaderballError(f"--vgg-weights: {path!r} is not a file; give torchvision's vgg16 "
-                                  f"state dict ({HUB_FILENAME})")
+            raise ShaderballError(
+                f"--vgg-weights: {path!r} is not a file; give torchvision's vgg16 state dict ({HUB_FILENAME})"
+            )
     else:
         source = "torch hub cache"
         path = hub_cache_path()
@@ -104,13 +105,15 @@ def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None
                 "the VGG16 loss needs torchvision's ImageNet VGG16 weights and none were found "
                 f"(they cannot be downloaded here): pass --vgg-weights FILE, or put {HUB_FILENAME} "
                 f"in torch hub's cache at {path} ($TORCH_HOME/hub/checkpoints/); or train with "
-                "--loss l1")
+                "--loss l1"
+            )
     digest = sha256_of(path)
     if digest != expected:
         raise ShaderballError(
             f"{source}: {path!r} has SHA-256 {digest}, not the expected {expected}"
             + ("" if expected_sha256 else f" of torchvision's {HUB_FILENAME}")
-            + "; pass --vgg-sha256 with the file's digest to use other VGG16 weights on purpose")
+            + "; pass --vgg-sha256 with the file's digest to use other VGG16 weights on purpose"
+        )
     return VggWeights(path=path, sha256=digest, source=source)
 
 
@@ -129,8 +132,10 @@ def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
         value = state.get(key)
         if not isinstance(value, torch.Tensor) or value.shape != ref.shape:
             got = None if value is None else tuple(getattr(value, "shape", ()))
-            raise ShaderballError(f"{weights.source}: {weights.path!r} is not torchvision's vgg16 state dict: "
-                                  f"{key} is {got}, expected shape {tuple(ref.shape)}")
+            raise ShaderballError(
+                f"{weights.source}: {weights.path!r} is not torchvision's vgg16 state dict: "
+                f"{key} is {got}, expected shape {tuple(ref.shape)}"
+            )
         picked[key.removeprefix("features.")] = value.float()
     features.load_state_dict(picked)
     features.eval()

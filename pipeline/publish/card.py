@@ -24,15 +24,22 @@ from pipeline.publish.names import (
 from pipeline.publish.table import COLUMN_DOCS
 from pipeline.store.records import dumps
 
-EFFECTS = (("textured", "textures (every map holds one value: constants instead)"),
-           ("normal_map", "the normal map (every normal is (0, 0, 1))"),
-           ("diffuse_lobe", "the diffuse lobe (d (1 - s) = 0 everywhere)"),
-           ("specular_lobe", "the specular lobe"))
+EFFECTS = (
+    ("textured", "textures (every map holds one value: constants instead)"),
+    ("normal_map", "the normal map (every normal is (0, 0, 1))"),
+    ("diffuse_lobe", "the diffuse lobe (d (1 - s) = 0 everywhere)"),
+    ("specular_lobe", "the specular lobe"),
+)
 
-SIZE_CATEGORIES = ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M"),
-                   (10_000_000, "1M<n<10M"))
+SIZE_CATEGORIES = (
+    (1_000, "n<1K"),
+    (10_000, "1K<n<10K"),
+    (100_000, "10K<n<100K"),
+    (1_000_000, "100K<n<1M"),
+    (10_000_000, "1M<n<10M"),
+)
 
-LOAD_WITH_SHADERBALL = '''from pipeline.publish import iter_samples
+LOAD_WITH_SHADERBALL = """from pipeline.publish import iter_samples
 from pipeline.store.exr import read_exr
 
 root = "."  # the folder holding this card
@@ -42,7 +49,7 @@ for sample in iter_samples(root):  # checks every SHA-256 and member as it strea
     render = read_exr(sample["files"]["render"]).layers["render"]  # (H, W, 3) float32
     maps = read_exr(sample["files"]["maps"]).layers  # diffuse, specular, roughness, normal, mask
     n += 1
-'''
+"""
 
 LOAD_WITH_WEBDATASET = '''import io
 import json
@@ -79,7 +86,7 @@ for sample in dataset:  # shuffle shards before tarfile_to_samples, samples afte
     n += 1
 '''
 
-LOAD_WITH_TARFILE = '''import io
+LOAD_WITH_TARFILE = """import io
 import json
 import tarfile
 
@@ -111,7 +118,7 @@ for path in shards:
                 render = layers(files["render.exr"])
                 maps = layers(files["maps.exr"])
                 n += 1
-'''
+"""
 
 
 def size_category(count: int) -> str:
@@ -131,8 +138,21 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
         "task_categories:",
         "- image-to-image",
         "tags:",
-        *(f"- {tag}" for tag in ("rendering", "path-tracing", "materials", "svbrdf", "shaderball", "hdr", "exr",
-                                 "webdataset", "croissant", "mitsuba")),
+        *(
+            f"- {tag}"
+            for tag in (
+                "rendering",
+                "path-tracing",
+                "materials",
+                "svbrdf",
+                "shaderball",
+                "hdr",
+                "exr",
+                "webdataset",
+                "croissant",
+                "mitsuba",
+            )
+        ),
         "configs:",
         "- config_name: default",
         "  data_files:",
@@ -175,8 +195,10 @@ def sample_section(facts: PublicationFacts) -> list[str]:
         f"pixel sees the material) in float32; {res}x{res} |",
     ]
     if texture:
-        lines.append(f"| `m000012.texture.exr` | the material's maps in texture (UV) space, {tex}x{tex} "
-                     "(1x1 for a uniform material) |")
+        lines.append(
+            f"| `m000012.texture.exr` | the material's maps in texture (UV) space, {tex}x{tex} "
+            "(1x1 for a uniform material) |"
+        )
     lines += [
         "",
         "A material's maps are identical under all its lightings, so they are stored **once per material**, "
@@ -223,11 +245,13 @@ def made_section(facts: PublicationFacts) -> list[str]:
         f"- **Counts**: {counts.get('materials', facts.materials)} materials x "
         f"{spec.dataset.lights_per_material} lightings = {len(records)} renders in {counts.get('shards', '?')} "
         f"source shards; {counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying"
-        + (" (" + ", ".join(f"{k} {v}" for k, v in sorted(families.items())) + ")" if families else "") + ".",
+        + (" (" + ", ".join(f"{k} {v}" for k, v in sorted(families.items())) + ")" if families else "")
+        + ".",
         f"- **Renders**: {spec.render.resolution}x{spec.render.resolution}, {spec.render.spp} spp, "
         f"`{spec.render.integrator}` integrator, max depth {spec.render.max_depth}, box filter, sun mode "
         f"`{spec.lighting.sun}`; mean relative noise (standard error / mean over the ball) "
-        + (f"{statistics.fmean(noise):.3f}" if noise else "unknown") + ".",
+        + (f"{statistics.fmean(noise):.3f}" if noise else "unknown")
+        + ".",
         f"- **Lighting**: sun scheme `{spec.lighting.scheme}`, elevation {spec.lighting.elevation_deg[0]:g} to "
         f"{spec.lighting.elevation_deg[1]:g} deg, azimuth {spec.lighting.azimuth_deg[0]:g} to "
         f"{spec.lighting.azimuth_deg[1]:g} deg, turbidity {spec.lighting.turbidity[0]:g} to "
@@ -242,8 +266,10 @@ def made_section(facts: PublicationFacts) -> list[str]:
         + (f" and {len(spec.materials.svbrdf_folders)} imported folder(s)" if spec.materials.svbrdf_folders else "")
         + ".",
         f"- **Flagged renders** (NaN, infinite or negative pixels after every retry, kept and flagged): "
-        f"{len(flagged)}" + (": " + ", ".join(f"`{i}`" for i in flagged[:20]) if flagged else "")
-        + (" ..." if len(flagged) > 20 else "") + ".",
+        f"{len(flagged)}"
+        + (": " + ", ".join(f"`{i}`" for i in flagged[:20]) if flagged else "")
+        + (" ..." if len(flagged) > 20 else "")
+        + ".",
         "",
         "**Effects left out** of a scene where the material does not need them (the image is the same to "
         "float32 rounding or bit for bit; the specular lobe is never left out):",
@@ -270,8 +296,10 @@ def _spec_lines(facts: PublicationFacts) -> list[str]:
 
 def files_section(facts: PublicationFacts) -> list[str]:
     tar_total = sum(t.bytes for t in facts.tars)
-    rows = [f"| `{t.path}` | {_mb(t.bytes)} | samples `{t.first}` to `{t.last}` ({t.samples}), {t.members} "
-            "members |" for t in facts.tars]
+    rows = [
+        f"| `{t.path}` | {_mb(t.bytes)} | samples `{t.first}` to `{t.last}` ({t.samples}), {t.members} members |"
+        for t in facts.tars
+    ]
     return [
         "## Files",
         "",
@@ -285,8 +313,11 @@ def files_section(facts: PublicationFacts) -> list[str]:
         "spec, description, manifest and shard markers, byte for byte |",
         f"| `{INDEX_FILE}` | {_mb(facts.sizes[INDEX_FILE])} | publication format and the tar shards |",
         f"| `{CROISSANT_FILE}` | {_mb(facts.sizes[CROISSANT_FILE])} | Croissant 1.1 metadata |",
-        *([f"| `{PREVIEW_FILE}` | {_mb(facts.sizes[PREVIEW_FILE])} | the contact sheet |"]
-          if facts.has_preview else []),
+        *(
+            [f"| `{PREVIEW_FILE}` | {_mb(facts.sizes[PREVIEW_FILE])} | the contact sheet |"]
+            if facts.has_preview
+            else []
+        ),
         f"| `{SUMS_FILE}` | | SHA-256 of every other file: `sha256sum -c {SUMS_FILE}` |",
         "",
         f"Tars: {_mb(tar_total)} for {_mb(facts.member_bytes)} of members (ustar headers and padding: "
@@ -345,10 +376,18 @@ def dataset_card(facts: PublicationFacts) -> str:
         "",
     ]
     if facts.has_preview:
-        intro += [f"![contact sheet: renders beside their diffuse, specular, roughness and normal maps]"
-                  f"({PREVIEW_FILE})", ""]
+        intro += [
+            f"![contact sheet: renders beside their diffuse, specular, roughness and normal maps]({PREVIEW_FILE})",
+            "",
+        ]
     citation = ["## Citation", "", "```bibtex", CITATION, "```", ""]
-    lines = (yaml_header(facts) + intro + sample_section(facts) + made_section(facts) + files_section(facts)
-             + load_section() + citation)
+    lines = (
+        yaml_header(facts)
+        + intro
+        + sample_section(facts)
+        + made_section(facts)
+        + files_section(facts)
+        + load_section()
+        + citation
+    )
     return "\n".join(lines)
-

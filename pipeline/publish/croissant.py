@@ -18,19 +18,47 @@ RECORD_SET = "samples"
 
 #: The JSON-LD context of Croissant 1.1 (as its reference datasets write it).
 CONTEXT = {
-    "@language": "en", "@vocab": "https://schema.org/", "arrayShape": "cr:arrayShape", "citeAs": "cr:citeAs",
-    "column": "cr:column", "conformsTo": "dct:conformsTo", "containedIn": "cr:containedIn",
-    "cr": "http://mlcommons.org/croissant/", "rai": "http://mlcommons.org/croissant/RAI/",
-    "data": {"@id": "cr:data", "@type": "@json"}, "dataType": {"@id": "cr:dataType", "@type": "@vocab"},
-    "dct": "http://purl.org/dc/terms/", "description": {"@container": "@language"},
-    "equivalentProperty": "cr:equivalentProperty", "examples": {"@id": "cr:examples", "@type": "@json"},
-    "extract": "cr:extract", "field": "cr:field", "fileProperty": "cr:fileProperty",
-    "fileObject": "cr:fileObject", "fileSet": "cr:fileSet", "format": "cr:format", "includes": "cr:includes",
-    "isArray": "cr:isArray", "isLiveDataset": "cr:isLiveDataset", "jsonPath": "cr:jsonPath", "key": "cr:key",
-    "md5": "cr:md5", "name": {"@container": "@language"}, "parentField": "cr:parentField", "path": "cr:path",
-    "recordSet": "cr:recordSet", "references": "cr:references", "regex": "cr:regex", "repeated": "cr:repeated",
-    "replace": "cr:replace", "samplingRate": "cr:samplingRate", "sc": "https://schema.org/",
-    "separator": "cr:separator", "source": "cr:source", "subField": "cr:subField", "transform": "cr:transform",
+    "@language": "en",
+    "@vocab": "https://schema.org/",
+    "arrayShape": "cr:arrayShape",
+    "citeAs": "cr:citeAs",
+    "column": "cr:column",
+    "conformsTo": "dct:conformsTo",
+    "containedIn": "cr:containedIn",
+    "cr": "http://mlcommons.org/croissant/",
+    "rai": "http://mlcommons.org/croissant/RAI/",
+    "data": {"@id": "cr:data", "@type": "@json"},
+    "dataType": {"@id": "cr:dataType", "@type": "@vocab"},
+    "dct": "http://purl.org/dc/terms/",
+    "description": {"@container": "@language"},
+    "equivalentProperty": "cr:equivalentProperty",
+    "examples": {"@id": "cr:examples", "@type": "@json"},
+    "extract": "cr:extract",
+    "field": "cr:field",
+    "fileProperty": "cr:fileProperty",
+    "fileObject": "cr:fileObject",
+    "fileSet": "cr:fileSet",
+    "format": "cr:format",
+    "includes": "cr:includes",
+    "isArray": "cr:isArray",
+    "isLiveDataset": "cr:isLiveDataset",
+    "jsonPath": "cr:jsonPath",
+    "key": "cr:key",
+    "md5": "cr:md5",
+    "name": {"@container": "@language"},
+    "parentField": "cr:parentField",
+    "path": "cr:path",
+    "recordSet": "cr:recordSet",
+    "references": "cr:references",
+    "regex": "cr:regex",
+    "repeated": "cr:repeated",
+    "replace": "cr:replace",
+    "samplingRate": "cr:samplingRate",
+    "sc": "https://schema.org/",
+    "separator": "cr:separator",
+    "source": "cr:source",
+    "subField": "cr:subField",
+    "transform": "cr:transform",
 }
 
 #: Columns read as one field with sub-fields (a vector).
@@ -49,26 +77,48 @@ VECTOR_DOCS = {
 
 MEMBER_SETS = (
     ("render-exr", "*.render.exr", "image/x-exr", "renders: render.R/G/B, linear HDR float32"),
-    ("maps-exr", "*.maps.exr", "image/x-exr",
-     "screen-space maps of a material: diffuse, specular, roughness, normal, mask"),
+    (
+        "maps-exr",
+        "*.maps.exr",
+        "image/x-exr",
+        "screen-space maps of a material: diffuse, specular, roughness, normal, mask",
+    ),
     ("texture-exr", "*.texture.exr", "image/x-exr", "texture-space (UV) maps of a material"),
     ("record-json", "*.json", "application/json", "per-sample records (docs/manifest.md)"),
 )
 
-FORMATS = {".tar": "application/x-tar", ".jsonl": "application/jsonlines", ".json": "application/json",
-           ".toml": "application/toml", ".png": "image/png"}
+FORMATS = {
+    ".tar": "application/x-tar",
+    ".jsonl": "application/jsonlines",
+    ".json": "application/json",
+    ".toml": "application/toml",
+    ".png": "image/png",
+}
 
 
 def _file_object(rel: str, facts: PublicationFacts, description: str) -> dict:
-    suffix = rel[rel.rfind("."):]
-    return {"@type": "cr:FileObject", "@id": rel, "name": rel, "description": description, "contentUrl": rel,
-            "contentSize": f"{facts.sizes[rel]} B", "encodingFormat": FORMATS[suffix], "sha256": facts.files[rel]}
+    suffix = rel[rel.rfind(".") :]
+    return {
+        "@type": "cr:FileObject",
+        "@id": rel,
+        "name": rel,
+        "description": description,
+        "contentUrl": rel,
+        "contentSize": f"{facts.sizes[rel]} B",
+        "encodingFormat": FORMATS[suffix],
+        "sha256": facts.files[rel],
+    }
 
 
 def _field(column: str, data_type: str, description: str, field_id: str) -> dict:
-    return {"@type": "cr:Field", "@id": field_id, "name": field_id.rsplit("/", 1)[-1], "description": description,
-            "dataType": data_type,
-            "source": {"fileObject": {"@id": SAMPLES_FILE}, "extract": {"column": column}}}
+    return {
+        "@type": "cr:Field",
+        "@id": field_id,
+        "name": field_id.rsplit("/", 1)[-1],
+        "description": description,
+        "dataType": data_type,
+        "source": {"fileObject": {"@id": SAMPLES_FILE}, "extract": {"column": column}},
+    }
 
 
 def record_set_fields() -> list[dict]:
@@ -81,25 +131,40 @@ def record_set_fields() -> list[dict]:
             fields.append(_field(column, data_type, description, f"{RECORD_SET}/{column}"))
         elif vector not in done:
             done.add(vector)
-            fields.append({"@type": "cr:Field", "@id": f"{RECORD_SET}/{vector}", "name": vector,
-                           "description": VECTOR_DOCS[vector],
-                           "subField": [_field(c, docs[c][0], docs[c][1], f"{RECORD_SET}/{vector}/{axis}")
-                                        for c, axis in VECTORS[vector]]})
+            fields.append(
+                {
+                    "@type": "cr:Field",
+                    "@id": f"{RECORD_SET}/{vector}",
+                    "name": vector,
+                    "description": VECTOR_DOCS[vector],
+                    "subField": [
+                        _field(c, docs[c][0], docs[c][1], f"{RECORD_SET}/{vector}/{axis}")
+                        for c, axis in VECTORS[vector]
+                    ],
+                }
+            )
     return fields
 
 
 def croissant_metadata(facts: PublicationFacts) -> dict:
     counts = facts.description.get("counts") or {}
     resolution = facts.spec.render.resolution
-    distribution = [_file_object(t.path, facts, f"tar shard (WebDataset convention): samples {t.first} to "
-                                                f"{t.last}, {t.members} members") for t in facts.tars]
-    distribution.append(_file_object(SAMPLES_FILE, facts, "one row per sample: lighting, material, members "
-                                                          "and their SHA-256"))
-    for rel, what in ((SOURCE_FILES["spec.toml"], "the spec the dataset was built from"),
-                      (SOURCE_FILES["dataset.json"], "the source dataset's description: versions, counts"),
-                      (SOURCE_FILES["manifest.jsonl"], "every sample's full record (docs/manifest.md)"),
-                      (MARKERS_REL, "the source shards' completion markers"),
-                      (INDEX_FILE, "publication format, source dataset, tar shards")):
+    distribution = [
+        _file_object(
+            t.path, facts, f"tar shard (WebDataset convention): samples {t.first} to {t.last}, {t.members} members"
+        )
+        for t in facts.tars
+    ]
+    distribution.append(
+        _file_object(SAMPLES_FILE, facts, "one row per sample: lighting, material, members and their SHA-256")
+    )
+    for rel, what in (
+        (SOURCE_FILES["spec.toml"], "the spec the dataset was built from"),
+        (SOURCE_FILES["dataset.json"], "the source dataset's description: versions, counts"),
+        (SOURCE_FILES["manifest.jsonl"], "every sample's full record (docs/manifest.md)"),
+        (MARKERS_REL, "the source shards' completion markers"),
+        (INDEX_FILE, "publication format, source dataset, tar shards"),
+    ):
         distribution.append(_file_object(rel, facts, what))
     if facts.has_preview:
         distribution.append(_file_object(PREVIEW_FILE, facts, "contact sheet: renders beside their maps"))
@@ -107,8 +172,17 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
     for set_id, pattern, encoding, what in MEMBER_SETS:
         if set_id == "texture-exr" and not any(r.get("texture") for r in facts.rows):
             continue
-        distribution.append({"@type": "cr:FileSet", "@id": set_id, "name": set_id, "description": what,
-                             "containedIn": tar_ids, "encodingFormat": encoding, "includes": pattern})
+        distribution.append(
+            {
+                "@type": "cr:FileSet",
+                "@id": set_id,
+                "name": set_id,
+                "description": what,
+                "containedIn": tar_ids,
+                "encodingFormat": encoding,
+                "includes": pattern,
+            }
+        )
     metadata = {
         "@context": CONTEXT,
         "@type": "sc:Dataset",
@@ -119,17 +193,25 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
             f"({counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying) under a "
             "Hosek-Wilkie sun and sky, each with its material's screen-space maps (diffuse, specular, roughness, "
             "normal) and lighting vector (sun direction, turbidity): the data of 'A Flexible Neural Renderer "
-            "for Material Visualization' (SIGGRAPH Asia 2019), made with shaderball."),
+            "for Material Visualization' (SIGGRAPH Asia 2019), made with shaderball."
+        ),
         "conformsTo": CONFORMS_TO,
         "license": LICENSES[facts.license_id],
         "version": _semver(facts.description.get("version")),
         "citeAs": CITATION,
         "keywords": ["rendering", "path tracing", "materials", "SVBRDF", "neural rendering", "HDR", "EXR"],
         "distribution": distribution,
-        "recordSet": [{"@type": "cr:RecordSet", "@id": RECORD_SET, "name": RECORD_SET,
-                       "description": "one record per sample (render); its EXR files are the tar members it "
-                                      "names, in the tar it names",
-                       "key": {"@id": f"{RECORD_SET}/id"}, "field": record_set_fields()}],
+        "recordSet": [
+            {
+                "@type": "cr:RecordSet",
+                "@id": RECORD_SET,
+                "name": RECORD_SET,
+                "description": "one record per sample (render); its EXR files are the tar members it "
+                "names, in the tar it names",
+                "key": {"@id": f"{RECORD_SET}/id"},
+                "field": record_set_fields(),
+            }
+        ],
     }
     if facts.url:
         metadata["url"] = facts.url

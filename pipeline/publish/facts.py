@@ -41,8 +41,15 @@ class TarFacts:
     last: str
 
     def to_dict(self) -> dict:
-        return {"path": self.path, "bytes": self.bytes, "members": self.members, "samples": self.samples,
-                "materials": self.materials, "first": self.first, "last": self.last}
+        return {
+            "path": self.path,
+            "bytes": self.bytes,
+            "members": self.members,
+            "samples": self.samples,
+            "materials": self.materials,
+            "first": self.first,
+            "last": self.last,
+        }
 
 
 @dataclass

@@ -40,14 +40,17 @@ SHARDS_DIR = "shards"
 MARKERS_FILE = "markers.jsonl"
 
 #: The source folder's root files and where they are published.
-SOURCE_FILES = {SPEC_FILE: f"{DATASET_DIR}/{SPEC_FILE}",
-                DESCRIPTION_FILE: f"{DATASET_DIR}/{DESCRIPTION_FILE}",
-                MANIFEST_FILE: f"{DATASET_DIR}/{MANIFEST_FILE}"}
+SOURCE_FILES = {
+    SPEC_FILE: f"{DATASET_DIR}/{SPEC_FILE}",
+    DESCRIPTION_FILE: f"{DATASET_DIR}/{DESCRIPTION_FILE}",
+    MANIFEST_FILE: f"{DATASET_DIR}/{MANIFEST_FILE}",
+}
 MARKERS_REL = f"{DATASET_DIR}/{MARKERS_FILE}"
 
 #: Files of PUB other than the tar shards, in the order SHA256SUMS lists them (sorted).
-PLAIN_FILES = tuple(sorted([CARD_FILE, CROISSANT_FILE, INDEX_FILE, SAMPLES_FILE, PREVIEW_FILE, MARKERS_REL,
-                            *SOURCE_FILES.values()]))
+PLAIN_FILES = tuple(
+    sorted([CARD_FILE, CROISSANT_FILE, INDEX_FILE, SAMPLES_FILE, PREVIEW_FILE, MARKERS_REL, *SOURCE_FILES.values()])
+)
 #: Files that may be absent (a publication written without a contact sheet).
 OPTIONAL_FILES = (PREVIEW_FILE,)
 

@@ -18,8 +18,12 @@ def check_out(out: str, source: str | None = None) -> None:
     if source is not None:
         inner, outer = os.path.realpath(out), os.path.realpath(source)
         if os.path.commonpath([inner, outer]) in (inner, outer):
-            raise bad_value("--out", out, f"a folder outside {source!r} and not containing it (files written "
-                                          "there would make it fail its own checks)")
+            raise bad_value(
+                "--out",
+                out,
+                f"a folder outside {source!r} and not containing it (files written "
+                "there would make it fail its own checks)",
+            )
 
 
 class Output:

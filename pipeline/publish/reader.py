@@ -123,8 +123,11 @@ class Publication:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 digest.update(block)
             if digest.hexdigest() != tar.sha256:
-                raise Refused("checksum", f"{label}: SHA-256 {digest.hexdigest()[:16]}... differs from {SUMS_FILE}'s "
-                                          f"{tar.sha256[:16]}...: the file changed or is corrupt; nothing of it is read")
+                raise Refused(
+                    "checksum",
+                    f"{label}: SHA-256 {digest.hexdigest()[:16]}... differs from {SUMS_FILE}'s "
+                    f"{tar.sha256[:16]}...: the file changed or is corrupt; nothing of it is read",
+                )
             scanned = scan_tar(fh, label, self.limits, before)
             _compare_members(label, scanned, tar.expected)
             for (member, data), expected in zip(read_members(fh, label, scanned), tar.expected):
@@ -140,8 +143,9 @@ class Publication:
             if progress:
                 progress(tar.rel)
             for expected, member, _data in self.checked_members(tar, before):
-                found[expected.path] = Located(tar.rel, tar.size, member.name, member.offset, member.size,
-                                               expected.sha256)
+                found[expected.path] = Located(
+                    tar.rel, tar.size, member.name, member.offset, member.size, expected.sha256
+                )
             before += len(tar.expected)
         return found
 
@@ -156,8 +160,7 @@ def _open_regular(path: str, label: str):
     except FileNotFoundError:
         raise Refused("missing_file", f"{label}: missing") from None
     except OSError as exc:
-        raise Refused("not_regular", f"{label}: cannot be opened as a regular file ({exc.strerror}); refused") \
-            from None
+        raise Refused("not_regular", f"{label}: cannot be opened as a regular file ({exc.strerror}); refused") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
         raise Refused("not_regular", f"{label}: not a regular file; refused")
@@ -212,8 +215,7 @@ def _parse_sums(data: bytes) -> dict[str, str]:
         if not sep or len(sha) != 64 or not set(sha) <= HEX:
             raise Refused("bad_sums", f"{SUMS_FILE} line {number}: not 'SHA256  PATH' ({line[:80]!r}); refused")
         if not allowed_file(rel):
-            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is not a file a publication holds; "
-                                      "refused")
+            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is not a file a publication holds; refused")
         if rel in sums:
             raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is listed twice; refused")
         sums[rel] = sha
@@ -268,8 +270,17 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     markers = _markers(texts[MARKERS_REL], records)
     source = {name: texts[rel] for name, rel in SOURCE_FILES.items()}
     _json(source[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE])
-    return Publication(root=root, limits=limits, sums=sums, sizes=files, source_files=source, markers=markers,
-                       records=records, tars=tars, index=index)
+    return Publication(
+        root=root,
+        limits=limits,
+        sums=sums,
+        sizes=files,
+        source_files=source,
+        markers=markers,
+        records=records,
+        tars=tars,
+        index=index,
+    )
 
 
 def _manifest(data: bytes, limits: Limits) -> list[dict]:
@@ -317,20 +328,36 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
     manifest = SOURCE_FILES[MANIFEST_FILE]
     for number, (record, line) in enumerate(zip(records, rows), start=1):
         row = _json(line, f"{SAMPLES_FILE} line {number}")
-        tar_rel, sha, size = (row.get("shard"), row.get("record_sha256"), row.get("record_bytes")) \
-            if isinstance(row, dict) else (None, None, None)
-        if not isinstance(tar_rel, str) or tar_rel not in by_rel or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX) \
-                or isinstance(size, bool) or not isinstance(size, int) or not 0 <= size <= limits.member_bytes:
-            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and "
-                                       "record_bytes; refused")
+        tar_rel, sha, size = (
+            (row.get("shard"), row.get("record_sha256"), row.get("record_bytes"))
+            if isinstance(row, dict)
+            else (None, None, None)
+        )
+        if (
+            not isinstance(tar_rel, str)
+            or tar_rel not in by_rel
+            or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX)
+            or isinstance(size, bool)
+            or not isinstance(size, int)
+            or not 0 <= size <= limits.member_bytes
+        ):
+            raise Refused(
+                "bad_table", f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes; refused"
+            )
         if dumps(sample_row(record, tar_rel, sha, size)).encode("utf-8") != line:
-            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line "
-                                       f"{number} ({record['id']}) gives; refused")
+            raise Refused(
+                "bad_table",
+                f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line "
+                f"{number} ({record['id']}) gives; refused",
+            )
         tar = by_rel[tar_rel]
         position = tars.index(tar)
         if position < last_tar:
-            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: {record['id']} is in {tar_rel}, before "
-                                       "the tar of the sample above it; refused")
+            raise Refused(
+                "bad_table",
+                f"{SAMPLES_FILE} line {number}: {record['id']} is in {tar_rel}, before "
+                "the tar of the sample above it; refused",
+            )
         last_tar = position
         refs = file_refs(record, f"{manifest} line {number}")
         material = record["material_id"]
@@ -339,18 +366,26 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
             material_tar[material] = (tar_rel, shared)
             tar.expected += [_shared(refs[role], material) for role in ("maps", "texture") if role in refs]
         elif material_tar[material][0] != tar_rel:
-            raise Refused("bad_table", f"{SAMPLES_FILE} line {number}: material {material} is split across "
-                                       f"{material_tar[material][0]} and {tar_rel}; refused")
+            raise Refused(
+                "bad_table",
+                f"{SAMPLES_FILE} line {number}: material {material} is split across "
+                f"{material_tar[material][0]} and {tar_rel}; refused",
+            )
         elif material_tar[material][1] != shared or tar.expected[-1].material_id != material:
-            raise Refused("bad_record", f"{manifest} line {number} ({record['id']}): its material's maps differ "
-                                        "from its other lightings', or its lightings are not adjacent; refused")
+            raise Refused(
+                "bad_record",
+                f"{manifest} line {number} ({record['id']}): its material's maps differ "
+                "from its other lightings', or its lightings are not adjacent; refused",
+            )
         sample = record["id"]
         shard = record["shard"]
-        tar.expected.append(Expected(record_member(sample), "record", size, sha, Layout.record_rel(shard, sample),
-                                     sample, material))
+        tar.expected.append(
+            Expected(record_member(sample), "record", size, sha, Layout.record_rel(shard, sample), sample, material)
+        )
         render = refs["render"]
-        tar.expected.append(Expected(render.member, "render", render.bytes, render.sha256, render.path, sample,
-                                     material))
+        tar.expected.append(
+            Expected(render.member, "render", render.bytes, render.sha256, render.path, sample, material)
+        )
 
 
 def _shared(ref: FileRef, material: str) -> Expected:
@@ -367,8 +402,11 @@ def _check_croissant(texts: dict[str, bytes], sums: dict[str, str]) -> None:
         if isinstance(entry, dict) and entry.get("@type") == "cr:FileObject":
             rel = entry.get("contentUrl")
             if not isinstance(rel, str) or rel not in sums or entry.get("sha256") != sums[rel]:
-                raise Refused("bad_croissant", f"{CROISSANT_FILE}: FileObject {rel!r} has a SHA-256 that is not "
-                                               f"{SUMS_FILE}'s (or names no file of PUB); refused")
+                raise Refused(
+                    "bad_croissant",
+                    f"{CROISSANT_FILE}: FileObject {rel!r} has a SHA-256 that is not "
+                    f"{SUMS_FILE}'s (or names no file of PUB); refused",
+                )
 
 
 def _markers(data: bytes, records: list[dict]) -> list[tuple[str, bytes]]:
@@ -383,11 +421,22 @@ def _markers(data: bytes, records: list[dict]) -> list[tuple[str, bytes]]:
             raise Refused("bad_marker", f"{MARKERS_REL} line {number}: not the complete marker of shard {shard}")
         mine = [r for r in records if r["shard"] == shard]
         theirs = marker.get("records")
-        if not isinstance(theirs, list) or len(theirs) != len(mine) or marker.get("samples") != [r["id"] for r in mine] \
-                or any(not isinstance(t, dict) or not isinstance(t.get("stats", {}), dict)
-                       or without_timings(t) != without_timings(r) for t, r in zip(theirs, mine)):
-            raise Refused("bad_marker", f"{MARKERS_REL} line {number}: the marker of shard {shard} does not hold "
-                                        f"the manifest's records of that shard; refused")
+        if (
+            not isinstance(theirs, list)
+            or len(theirs) != len(mine)
+            or marker.get("samples") != [r["id"] for r in mine]
+            or any(
+                not isinstance(t, dict)
+                or not isinstance(t.get("stats", {}), dict)
+                or without_timings(t) != without_timings(r)
+                for t, r in zip(theirs, mine)
+            )
+        ):
+            raise Refused(
+                "bad_marker",
+                f"{MARKERS_REL} line {number}: the marker of shard {shard} does not hold "
+                f"the manifest's records of that shard; refused",
+            )
         out.append((shard, line))
     return out
 
@@ -408,24 +457,31 @@ def _compare_members(label: str, scanned: list[Member], expected: list[Expected]
     if extra:
         raise Refused("extra_member", f"{label}: member(s) {', '.join(extra[:5])} are no part of this tar; refused")
     first = next(i for i, (a, b) in enumerate(zip(names, wanted)) if a != b)
-    raise Refused("member_order", f"{label}: member {first} is {names[first]!r}, expected {wanted[first]!r} "
-                                  "(members in plan order); refused")
+    raise Refused(
+        "member_order",
+        f"{label}: member {first} is {names[first]!r}, expected {wanted[first]!r} (members in plan order); refused",
+    )
 
 
-def _check_member(label: str, member: Member, data: bytes, expected: Expected, records: dict[str, dict],
-                  limits: Limits) -> None:
+def _check_member(
+    label: str, member: Member, data: bytes, expected: Expected, records: dict[str, dict], limits: Limits
+) -> None:
     where = f"{label}: member {member.name!r}"
     if member.size != expected.size:
-        raise Refused("member_checksum", f"{where} is {member.size} bytes, the manifest says {expected.size}; "
-                                         "refused")
+        raise Refused("member_checksum", f"{where} is {member.size} bytes, the manifest says {expected.size}; refused")
     digest = hashlib.sha256(data).hexdigest()
     if digest != expected.sha256:
-        raise Refused("member_checksum", f"{where}: SHA-256 {digest[:16]}... differs from the manifest's "
-                                         f"{expected.sha256[:16]}...; refused")
+        raise Refused(
+            "member_checksum",
+            f"{where}: SHA-256 {digest[:16]}... differs from the manifest's {expected.sha256[:16]}...; refused",
+        )
     if expected.role == "record":
         record = _json(data, where)
-        if not isinstance(record, dict) or not isinstance(record.get("stats", {}), dict) \
-                or without_timings(record) != without_timings(records[expected.sample_id]):
+        if (
+            not isinstance(record, dict)
+            or not isinstance(record.get("stats", {}), dict)
+            or without_timings(record) != without_timings(records[expected.sample_id])
+        ):
             raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
     else:
         check_exr_header(data, where, limits)
@@ -437,12 +493,18 @@ def _check_member(label: str, member: Member, data: bytes, expected: Expected, r
 def sample_dict(record: dict, files: dict[str, bytes]) -> dict:
     """The sample :func:`iter_samples` and :func:`iter_folder_samples` yield."""
     paths = {entry["role"]: entry["path"] for entry in record["files"]}
-    return {"id": record["id"], "material_id": record["material_id"], "record": record,
-            "files": {role: files[role] for role in paths}, "paths": paths}
+    return {
+        "id": record["id"],
+        "material_id": record["material_id"],
+        "record": record,
+        "files": {role: files[role] for role in paths},
+        "paths": paths,
+    }
 
 
-def iter_samples(pub: str, limits: Limits = DEFAULT_LIMITS,
-                 progress: Callable[[str], None] | None = None) -> Iterator[dict]:
+def iter_samples(
+    pub: str, limits: Limits = DEFAULT_LIMITS, progress: Callable[[str], None] | None = None
+) -> Iterator[dict]:
     """Every sample of the publication at ``pub``, in plan order, checked as it streams.
 
     Each sample is ``{"id", "material_id", "record", "files", "paths"}``: ``record`` is its
@@ -494,10 +556,10 @@ def _read_verified(layout: Layout, ref: FileRef) -> bytes:
     with open(layout.path(ref.path), "rb") as fh:
         data = fh.read()
     if hashlib.sha256(data).hexdigest() != ref.sha256:
-        raise Refused("checksum", f"{ref.path}: SHA-256 differs from the manifest's; check the folder with "
-                                  "`shaderball validate`")
+        raise Refused(
+            "checksum", f"{ref.path}: SHA-256 differs from the manifest's; check the folder with `shaderball validate`"
+        )
     return data
-
 
 
 def read_located(root: str, at: Located, check_sha256: bool = True) -> bytes:
@@ -508,16 +570,24 @@ def read_located(root: str, at: Located, check_sha256: bool = True) -> bytes:
     with _open_regular(os.path.join(root, *at.tar.split("/")), at.tar) as fh:
         size = os.fstat(fh.fileno()).st_size
         if size != at.tar_size:
-            raise Refused("changed", f"{at.tar}: {size} bytes, {at.tar_size} when it was verified: the publication "
-                                     "changed since; check it with `shaderball verify`")
+            raise Refused(
+                "changed",
+                f"{at.tar}: {size} bytes, {at.tar_size} when it was verified: the publication "
+                "changed since; check it with `shaderball verify`",
+            )
         data = os.pread(fh.fileno(), at.size, at.offset)
     if len(data) != at.size:
-        raise Refused("changed", f"{label} is cut short: the publication changed since it was verified; check it "
-                                 "with `shaderball verify`")
+        raise Refused(
+            "changed",
+            f"{label} is cut short: the publication changed since it was verified; check it with `shaderball verify`",
+        )
     if check_sha256:
         digest = hashlib.sha256(data).hexdigest()
         if digest != at.sha256:
-            raise Refused("member_checksum", f"{label}: SHA-256 {digest[:16]}... differs from the manifest's "
-                                             f"{at.sha256[:16]}...: the publication changed since it was verified; "
-                                             "check it with `shaderball verify`")
+            raise Refused(
+                "member_checksum",
+                f"{label}: SHA-256 {digest[:16]}... differs from the manifest's "
+                f"{at.sha256[:16]}...: the publication changed since it was verified; "
+                "check it with `shaderball verify`",
+            )
     return data

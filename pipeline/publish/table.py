@@ -95,14 +95,20 @@ def file_refs(record, source: str) -> dict[str, FileRef]:
     if not isinstance(record, dict):
         raise Refused("bad_record", f"{source}: not a JSON object")
     sample, material, shard = record.get("id"), record.get("material_id"), record.get("shard")
-    for field, value, pattern in (("id", sample, SAMPLE_ID), ("material_id", material, MATERIAL_ID),
-                                  ("shard", shard, SHARD_ID)):
+    for field, value, pattern in (
+        ("id", sample, SAMPLE_ID),
+        ("material_id", material, MATERIAL_ID),
+        ("shard", shard, SHARD_ID),
+    ):
         if not isinstance(value, str) or pattern.match(value) is None:
             raise Refused("bad_record", f"{where}: {field} {value!r} does not fit the layout; refused")
     if not sample.startswith(material + "_l"):
         raise Refused("bad_record", f"{where}: id {sample!r} is not a lighting of material {material!r}")
-    expected = {"render": Layout.render_rel(shard, sample), "maps": Layout.maps_rel(shard, material),
-                "texture": Layout.texture_rel(shard, material)}
+    expected = {
+        "render": Layout.render_rel(shard, sample),
+        "maps": Layout.maps_rel(shard, material),
+        "texture": Layout.texture_rel(shard, material),
+    }
     files = record.get("files")
     if not isinstance(files, list):
         raise Refused("bad_record", f"{where}: files is not a list")
@@ -114,8 +120,11 @@ def file_refs(record, source: str) -> dict[str, FileRef]:
         if not isinstance(role, str) or role not in expected or role in refs:
             raise Refused("bad_record", f"{where}: file role {role!r} is unknown or repeated")
         if path != expected[role]:
-            raise Refused("manifest_path", f"{where}: {role} file path {path!r} is not the layout's "
-                                           f"{expected[role]!r} (it could point outside the dataset); refused")
+            raise Refused(
+                "manifest_path",
+                f"{where}: {role} file path {path!r} is not the layout's "
+                f"{expected[role]!r} (it could point outside the dataset); refused",
+            )
         sha, size = entry.get("sha256"), entry.get("bytes")
         if not (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)):
             raise Refused("bad_record", f"{where}: {role} file sha256 {sha!r} is not 64 hex digits")
@@ -151,26 +160,41 @@ def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) ->
     seeds = _object(record.get("seeds"))
     texture = refs.get("texture")
     row = {
-        "id": record["id"], "material_id": record["material_id"],
-        "material_index": record.get("material_index"), "light_index": record.get("light_index"),
-        "source_shard": record["shard"], "shard": tar,
-        "sun_x": _triple(direction, 0), "sun_y": _triple(direction, 1), "sun_z": _triple(direction, 2),
-        "elevation_deg": lighting.get("elevation_deg"), "azimuth_deg": lighting.get("azimuth_deg"),
+        "id": record["id"],
+        "material_id": record["material_id"],
+        "material_index": record.get("material_index"),
+        "light_index": record.get("light_index"),
+        "source_shard": record["shard"],
+        "shard": tar,
+        "sun_x": _triple(direction, 0),
+        "sun_y": _triple(direction, 1),
+        "sun_z": _triple(direction, 2),
+        "elevation_deg": lighting.get("elevation_deg"),
+        "azimuth_deg": lighting.get("azimuth_deg"),
         "turbidity": lighting.get("turbidity"),
-        "material_kind": material.get("kind"), "svbrdf_family": material.get("family"),
+        "material_kind": material.get("kind"),
+        "svbrdf_family": material.get("family"),
         "svbrdf_file": material.get("file"),
-        "diffuse_r": _triple(values.get("diffuse"), 0), "diffuse_g": _triple(values.get("diffuse"), 1),
+        "diffuse_r": _triple(values.get("diffuse"), 0),
+        "diffuse_g": _triple(values.get("diffuse"), 1),
         "diffuse_b": _triple(values.get("diffuse"), 2),
-        "specular_r": _triple(values.get("specular"), 0), "specular_g": _triple(values.get("specular"), 1),
+        "specular_r": _triple(values.get("specular"), 0),
+        "specular_g": _triple(values.get("specular"), 1),
         "specular_b": _triple(values.get("specular"), 2),
         "roughness": values.get("roughness"),
-        "normal_x": _triple(values.get("normal"), 0), "normal_y": _triple(values.get("normal"), 1),
+        "normal_x": _triple(values.get("normal"), 0),
+        "normal_y": _triple(values.get("normal"), 1),
         "normal_z": _triple(values.get("normal"), 2),
         "flagged": bool(_object(record.get("stats")).get("flagged")),
-        "seed_material": seeds.get("material"), "seed_light": seeds.get("light"),
+        "seed_material": seeds.get("material"),
+        "seed_light": seeds.get("light"),
         "seed_render": seeds.get("render_used"),
-        "record": record_member(record["id"]), "record_sha256": record_sha256, "record_bytes": record_bytes,
-        "texture": None, "texture_sha256": None, "texture_bytes": None,
+        "record": record_member(record["id"]),
+        "record_sha256": record_sha256,
+        "record_bytes": record_bytes,
+        "texture": None,
+        "texture_sha256": None,
+        "texture_bytes": None,
     }
     for role in ("render", "maps") + (("texture",) if texture else ()):
         ref = refs[role]

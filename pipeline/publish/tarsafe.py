@@ -28,18 +28,29 @@ MEMBER_MODE = 0o644
 
 #: First bytes of compressed files (gzip, bzip2, xz, zstd, lz4, zip, lzma).
 COMPRESSED_MAGIC = {
-    b"\x1f\x8b": "gzip", b"BZh": "bzip2", b"\xfd7zXZ\x00": "xz", b"\x28\xb5\x2f\xfd": "zstd",
-    b"\x04\x22\x4d\x18": "lz4", b"PK\x03\x04": "zip", b"\x5d\x00\x00": "lzma",
+    b"\x1f\x8b": "gzip",
+    b"BZh": "bzip2",
+    b"\xfd7zXZ\x00": "xz",
+    b"\x28\xb5\x2f\xfd": "zstd",
+    b"\x04\x22\x4d\x18": "lz4",
+    b"PK\x03\x04": "zip",
+    b"\x5d\x00\x00": "lzma",
 }
 
 #: Header type flags that are not a regular file, and what each is.
 OTHER_TYPES = {
-    b"1": ("hardlink", "a hard link"), b"2": ("symlink", "a symbolic link"),
-    b"3": ("device", "a character device"), b"4": ("device", "a block device"),
-    b"5": ("directory", "a directory"), b"6": ("fifo", "a FIFO (named pipe)"),
-    b"7": ("contiguous", "a contiguous file"), b"S": ("sparse", "a GNU sparse file"),
-    b"x": ("pax_header", "a pax extended header"), b"g": ("pax_header", "a pax global header"),
-    b"L": ("gnu_longname", "a GNU long-name header"), b"K": ("gnu_longname", "a GNU long-link header"),
+    b"1": ("hardlink", "a hard link"),
+    b"2": ("symlink", "a symbolic link"),
+    b"3": ("device", "a character device"),
+    b"4": ("device", "a block device"),
+    b"5": ("directory", "a directory"),
+    b"6": ("fifo", "a FIFO (named pipe)"),
+    b"7": ("contiguous", "a contiguous file"),
+    b"S": ("sparse", "a GNU sparse file"),
+    b"x": ("pax_header", "a pax extended header"),
+    b"g": ("pax_header", "a pax global header"),
+    b"L": ("gnu_longname", "a GNU long-name header"),
+    b"K": ("gnu_longname", "a GNU long-link header"),
 }
 
 
@@ -116,9 +127,12 @@ def check_member_name(label: str, name: str) -> None:
     if ".." in name.split("/"):
         raise Refused("dotdot", f"{label}: member {name!r} climbs out with '..'; refused")
     if MEMBER_NAME.match(name) is None:
-        raise Refused("bad_name", f"{label}: member {name!r} does not fit the layout (KEY.FIELD with KEY "
-                                  "mNNNNNN or mNNNNNN_lK and FIELD maps.exr, texture.exr, json or render.exr); "
-                                  "refused")
+        raise Refused(
+            "bad_name",
+            f"{label}: member {name!r} does not fit the layout (KEY.FIELD with KEY "
+            "mNNNNNN or mNNNNNN_lK and FIELD maps.exr, texture.exr, json or render.exr); "
+            "refused",
+        )
 
 
 def _header_name(label: str, header: bytes, position: int) -> str:
@@ -129,8 +143,9 @@ def _header_name(label: str, header: bytes, position: int) -> str:
     try:
         return raw.decode("ascii")
     except UnicodeDecodeError:
-        raise Refused("bad_name", f"{label}: the member at byte {position} has a name that is not ASCII "
-                                  f"({raw[:60]!r}); refused") from None
+        raise Refused(
+            "bad_name", f"{label}: the member at byte {position} has a name that is not ASCII ({raw[:60]!r}); refused"
+        ) from None
 
 
 def _refuse_type(label: str, fh, header: bytes, position: int, name: str, size: int | None) -> None:
@@ -156,11 +171,15 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
     head = fh.read(8)
     compression = compression_of(head)
     if compression:
-        raise Refused("compressed", f"{label}: a {compression}-compressed file, not a plain tar; compressed "
-                                    "shards are refused (publish writes uncompressed ustar)")
+        raise Refused(
+            "compressed",
+            f"{label}: a {compression}-compressed file, not a plain tar; compressed "
+            "shards are refused (publish writes uncompressed ustar)",
+        )
     if length % BLOCK or length < 2 * BLOCK:
-        raise Refused("not_tar", f"{label}: {length} bytes, not a whole number of 512-byte tar blocks; "
-                                 "truncated or not a tar")
+        raise Refused(
+            "not_tar", f"{label}: {length} bytes, not a whole number of 512-byte tar blocks; truncated or not a tar"
+        )
     members: list[Member] = []
     names: set[str] = set()
     position = 0
@@ -173,39 +192,50 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
         stored = _octal(header[148:156])
         computed = sum(header[:148]) + 8 * 32 + sum(header[156:])
         if stored is None or stored != computed:
-            raise Refused("not_tar", f"{label}: the block at byte {position} is not a tar header (its checksum "
-                                     "is wrong); corrupted or not a tar")
+            raise Refused(
+                "not_tar",
+                f"{label}: the block at byte {position} is not a tar header (its checksum "
+                "is wrong); corrupted or not a tar",
+            )
         name = _header_name(label, header, position)
         size = _octal(header[124:136])
         if header[156:157] not in (b"0", b"\x00"):
             _refuse_type(label, fh, header, position, name, size)
         if header[257:263] != b"ustar\x00" or header[263:265] != b"00":
-            raise Refused("not_ustar", f"{label}: member {name!r} has a {header[257:265]!r} header, not POSIX "
-                                       "ustar; publish writes only ustar")
+            raise Refused(
+                "not_ustar",
+                f"{label}: member {name!r} has a {header[257:265]!r} header, not POSIX "
+                "ustar; publish writes only ustar",
+            )
         check_member_name(label, name)
         if _cstring(header[157:257]):
-            raise Refused("hardlink", f"{label}: member {name!r} names a link target; only regular files are "
-                                      "accepted")
+            raise Refused("hardlink", f"{label}: member {name!r} names a link target; only regular files are accepted")
         if size is None:
-            raise Refused("not_tar", f"{label}: member {name!r} has a size field that is not octal "
-                                     f"({header[124:136]!r}); refused")
+            raise Refused(
+                "not_tar", f"{label}: member {name!r} has a size field that is not octal ({header[124:136]!r}); refused"
+            )
         if size > limits.member_bytes:
-            raise Refused("member_too_large", f"{label}: member {name!r} is {size} bytes, over the cap of "
-                                              f"{limits.member_bytes} bytes per member")
+            raise Refused(
+                "member_too_large",
+                f"{label}: member {name!r} is {size} bytes, over the cap of {limits.member_bytes} bytes per member",
+            )
         if position + BLOCK + padded(size) > length:
-            raise Refused("not_tar", f"{label}: member {name!r} says {size} bytes, past the end of the file; "
-                                     "truncated")
+            raise Refused("not_tar", f"{label}: member {name!r} says {size} bytes, past the end of the file; truncated")
         if header != member_header(name, size):
-            raise Refused("header_fields", f"{label}: member {name!r} has a header other than the one publish "
-                                           "writes (mode, owner, time or unused fields differ); refused")
+            raise Refused(
+                "header_fields",
+                f"{label}: member {name!r} has a header other than the one publish "
+                "writes (mode, owner, time or unused fields differ); refused",
+            )
         fh.seek(position + BLOCK + size)
         if any(fh.read(padded(size) - size)):
             raise Refused("not_tar", f"{label}: member {name!r} is followed by non-zero padding; refused")
         if name in names:
             raise Refused("duplicate", f"{label}: member {name!r} appears twice; refused")
         if members_before + len(members) + 1 > limits.members:
-            raise Refused("too_many_members", f"{label}: more than {limits.members} members in the publication; "
-                                              "refused")
+            raise Refused(
+                "too_many_members", f"{label}: more than {limits.members} members in the publication; refused"
+            )
         names.add(name)
         members.append(Member(name=name, offset=position + BLOCK, size=size))
         position += BLOCK + padded(size)
@@ -222,8 +252,7 @@ def _check_end(fh, label: str, position: int, length: int) -> None:
         if not chunk:
             raise Refused("not_tar", f"{label}: ends early at byte {length - remaining}")
         if chunk.count(0) != len(chunk):
-            raise Refused("trailing_data", f"{label}: data after the end of the archive (byte {position}); "
-                                           "refused")
+            raise Refused("trailing_data", f"{label}: data after the end of the archive (byte {position}); refused")
         remaining -= len(chunk)
 
 
@@ -233,11 +262,17 @@ def read_members(fh, label: str, members: list[Member]) -> Iterator[tuple[Member
     with tarfile.open(fileobj=fh, mode="r:") as tar:
         for expected in members:
             info = tar.next()
-            if (info is None or info.name != expected.name or info.size != expected.size
-                    or info.offset_data != expected.offset or not info.isreg()):
+            if (
+                info is None
+                or info.name != expected.name
+                or info.size != expected.size
+                or info.offset_data != expected.offset
+                or not info.isreg()
+            ):
                 seen = "nothing" if info is None else repr(info.name)
-                raise Refused("not_tar", f"{label}: tarfile reads {seen} where the header scan found "
-                                         f"{expected.name!r}; refused")
+                raise Refused(
+                    "not_tar", f"{label}: tarfile reads {seen} where the header scan found {expected.name!r}; refused"
+                )
             stream = tar.extractfile(info)
             data = stream.read(expected.size)
             if len(data) != expected.size:

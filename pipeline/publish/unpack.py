@@ -38,17 +38,32 @@ class UnpackSummary:
     seconds: float
 
     def to_dict(self) -> dict:
-        return {"pub": self.pub, "out": self.out, "files": self.files, "samples": self.samples,
-                "bytes_written": self.bytes_written, "validated": self.validated, "seconds": round(self.seconds, 3)}
+        return {
+            "pub": self.pub,
+            "out": self.out,
+            "files": self.files,
+            "samples": self.samples,
+            "bytes_written": self.bytes_written,
+            "validated": self.validated,
+            "seconds": round(self.seconds, 3),
+        }
 
     def lines(self) -> list[str]:
         check = "valid (`shaderball validate`)" if self.validated else "not validated (--no-validate)"
-        return [f"unpacked {self.pub} into {self.out}: {self.samples} samples, {self.files} files, "
-                f"{self.bytes_written / 1e6:.1f} MB in {self.seconds:.1f} s; {check}"]
+        return [
+            f"unpacked {self.pub} into {self.out}: {self.samples} samples, {self.files} files, "
+            f"{self.bytes_written / 1e6:.1f} MB in {self.seconds:.1f} s; {check}"
+        ]
 
 
-def unpack(pub: str, out: str, *, limits: Limits = DEFAULT_LIMITS, validate_after: bool = True,
-           progress: Callable[[str], None] | None = None) -> UnpackSummary:
+def unpack(
+    pub: str,
+    out: str,
+    *,
+    limits: Limits = DEFAULT_LIMITS,
+    validate_after: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> UnpackSummary:
     """Restore the dataset folder of the publication ``pub`` into ``out`` (new or empty)."""
     start = time.perf_counter()
     check_out(out, pub)
@@ -66,8 +81,9 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
     """Write the folder while this process holds it (pipeline.store.lock): a build or a second
     unpack started meanwhile is refused, and one that got there first is not written over."""
     if not only_temp_files(os.listdir(out)):
-        raise bad_value("--out", out, "a new or empty folder (another writer filled it meanwhile; "
-                                      "nothing in it is overwritten)")
+        raise bad_value(
+            "--out", out, "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
+        )
     try:
         for name, data in publication.source_files.items():
             output.write(name, data)
@@ -86,11 +102,20 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
             report = validate(out)
             if not report.ok:
                 first = "; ".join(p.message for p in report.problems[:3])
-                raise Refused("invalid_dataset", f"the unpacked folder does not pass `shaderball validate` "
-                                                 f"({len(report.problems)} problem(s): {first}); nothing was kept")
+                raise Refused(
+                    "invalid_dataset",
+                    f"the unpacked folder does not pass `shaderball validate` "
+                    f"({len(report.problems)} problem(s): {first}); nothing was kept",
+                )
     except BaseException:
         output.discard()
         raise
-    return UnpackSummary(pub=pub, out=out, files=len(output.sums), samples=len(publication.records),
-                         bytes_written=sum(output.sizes.values()), validated=validate_after,
-                         seconds=time.perf_counter() - start)
+    return UnpackSummary(
+        pub=pub,
+        out=out,
+        files=len(output.sums),
+        samples=len(publication.records),
+        bytes_written=sum(output.sizes.values()),
+        validated=validate_after,
+        seconds=time.perf_counter() - start,
+    )

@@ -23,15 +23,25 @@ class VerifyReport:
     seconds: float
 
     def to_dict(self) -> dict:
-        return {"pub": self.pub, "ok": True, "files": self.files, "tars": self.tars, "members": self.members,
-                "samples": self.samples, "materials": self.materials, "bytes_checked": self.bytes_checked,
-                "seconds": round(self.seconds, 3)}
+        return {
+            "pub": self.pub,
+            "ok": True,
+            "files": self.files,
+            "tars": self.tars,
+            "members": self.members,
+            "samples": self.samples,
+            "materials": self.materials,
+            "bytes_checked": self.bytes_checked,
+            "seconds": round(self.seconds, 3),
+        }
 
     def lines(self) -> list[str]:
-        return [f"{self.pub}: {self.files} files and {self.members} members of {self.tars} tar(s) checked "
-                f"({self.bytes_checked / 1e6:.1f} MB, {self.seconds:.1f} s)",
-                f"verified: {self.samples} samples of {self.materials} materials, every SHA-256 as listed, "
-                "every member as the manifest says"]
+        return [
+            f"{self.pub}: {self.files} files and {self.members} members of {self.tars} tar(s) checked "
+            f"({self.bytes_checked / 1e6:.1f} MB, {self.seconds:.1f} s)",
+            f"verified: {self.samples} samples of {self.materials} materials, every SHA-256 as listed, "
+            "every member as the manifest says",
+        ]
 
 
 def verify_publication(publication: Publication, progress: Callable[[str], None] | None = None) -> VerifyReport:
@@ -43,10 +53,16 @@ def verify_publication(publication: Publication, progress: Callable[[str], None]
             progress(f"checking {tar.rel}")
         for _expected, _data in publication.members(tar, members):
             members += 1
-    return VerifyReport(pub=publication.root, files=len(publication.sums) + 1, tars=len(publication.tars),
-                        members=members, samples=len(publication.records),
-                        materials=len({r["material_id"] for r in publication.records}),
-                        bytes_checked=sum(publication.sizes.values()), seconds=time.perf_counter() - start)
+    return VerifyReport(
+        pub=publication.root,
+        files=len(publication.sums) + 1,
+        tars=len(publication.tars),
+        members=members,
+        samples=len(publication.records),
+        materials=len({r["material_id"] for r in publication.records}),
+        bytes_checked=sum(publication.sizes.values()),
+        seconds=time.perf_counter() - start,
+    )
 
 
 def verify(pub: str, limits: Limits = DEFAULT_LIMITS, progress: Callable[[str], None] | None = None) -> VerifyReport:

@@ -91,20 +91,29 @@ class PublishSummary:
     seconds: float
 
     def to_dict(self) -> dict:
-        return {"out": self.out, "samples": self.samples, "materials": self.materials,
-                "shards": [t.to_dict() for t in self.tars], "published_bytes": self.published_bytes,
-                "source_bytes": self.source_bytes, "member_bytes": self.member_bytes,
-                "repeated_maps_extra_bytes": self.repeated_maps_extra_bytes,
-                "validation_s": round(self.validation_s, 3), "seconds": round(self.seconds, 3)}
+        return {
+            "out": self.out,
+            "samples": self.samples,
+            "materials": self.materials,
+            "shards": [t.to_dict() for t in self.tars],
+            "published_bytes": self.published_bytes,
+            "source_bytes": self.source_bytes,
+            "member_bytes": self.member_bytes,
+            "repeated_maps_extra_bytes": self.repeated_maps_extra_bytes,
+            "validation_s": round(self.validation_s, 3),
+            "seconds": round(self.seconds, 3),
+        }
 
     def lines(self) -> list[str]:
-        return [f"published {self.out}: {self.samples} samples ({self.materials} materials) in "
-                f"{len(self.tars)} tar shard(s), {self.published_bytes / 1e6:.2f} MB "
-                f"(source folder {self.source_bytes / 1e6:.2f} MB)",
-                f"maps stored once per material; repeating them per sample would add "
-                f"{self.repeated_maps_extra_bytes / 1e6:.2f} MB",
-                f"validated in {self.validation_s:.1f} s, published in {self.seconds:.1f} s; "
-                f"check with `shaderball verify {self.out}`"]
+        return [
+            f"published {self.out}: {self.samples} samples ({self.materials} materials) in "
+            f"{len(self.tars)} tar shard(s), {self.published_bytes / 1e6:.2f} MB "
+            f"(source folder {self.source_bytes / 1e6:.2f} MB)",
+            f"maps stored once per material; repeating them per sample would add "
+            f"{self.repeated_maps_extra_bytes / 1e6:.2f} MB",
+            f"validated in {self.validation_s:.1f} s, published in {self.seconds:.1f} s; "
+            f"check with `shaderball verify {self.out}`",
+        ]
 
 
 def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> None:
@@ -115,8 +124,15 @@ def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> 
         raise bad_value("--url", url, "an http(s) URL without spaces, where the publication will live")
 
 
-def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, license_id: str = DEFAULT_LICENSE,
-            url: str | None = None, progress: Callable[[str], None] | None = None) -> PublishSummary:
+def publish(
+    root: str,
+    out: str,
+    *,
+    shard_bytes: int = DEFAULT_SHARD_BYTES,
+    license_id: str = DEFAULT_LICENSE,
+    url: str | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> PublishSummary:
     """Validate the dataset at ``root`` fully, then publish it to ``out``.
 
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
@@ -129,11 +145,15 @@ def publish(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES, lice
     report = validate(root)
     if not report.ok:
         first = "; ".join(p.message for p in report.problems[:3])
-        raise Refused("invalid_dataset", f"DIR: {root!r} does not pass `shaderball validate` "
-                                         f"({len(report.problems)} problem(s): {first}); nothing was published")
+        raise Refused(
+            "invalid_dataset",
+            f"DIR: {root!r} does not pass `shaderball validate` "
+            f"({len(report.problems)} problem(s): {first}); nothing was published",
+        )
     validation_s = time.perf_counter() - start
-    return write_publication(root, out, shard_bytes=shard_bytes, license_id=license_id, url=url,
-                             validation_s=validation_s, progress=progress)
+    return write_publication(
+        root, out, shard_bytes=shard_bytes, license_id=license_id, url=url, validation_s=validation_s, progress=progress
+    )
 
 
 # --------------------------------------------------------------------------- planning
@@ -159,8 +179,9 @@ def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
             groups.append(group)
         group = groups[-1]
         record_rel = Layout.record_rel(record["shard"], record["id"])
-        group.members.append(PackedMember(record_member(record["id"]), record_rel,
-                                          os.path.getsize(layout.path(record_rel)), None))
+        group.members.append(
+            PackedMember(record_member(record["id"]), record_rel, os.path.getsize(layout.path(record_rel)), None)
+        )
         render = refs["render"]
         group.members.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
         group.records.append(record)
@@ -190,16 +211,23 @@ def _read_checked(layout: Layout, member: PackedMember) -> bytes:
     try:  # inside the folder, through no link, a regular file (pipeline.store.folder)
         data = read_bytes(resolve_inside(layout.root, member.source), member.size)
     except OSError as exc:
-        raise Refused("changed", f"{member.source}: cannot be read ({exc.strerror}): the folder changed while "
-                                 "it was published; publish again") from None
+        raise Refused(
+            "changed",
+            f"{member.source}: cannot be read ({exc.strerror}): the folder changed while "
+            "it was published; publish again",
+        ) from None
     if len(data) != member.size or (member.sha256 and hashlib.sha256(data).hexdigest() != member.sha256):
-        raise Refused("changed", f"{member.source}: {len(data)} bytes whose SHA-256 differs from the manifest's: "
-                                 "the folder changed while it was published; publish again")
+        raise Refused(
+            "changed",
+            f"{member.source}: {len(data)} bytes whose SHA-256 differs from the manifest's: "
+            "the folder changed while it was published; publish again",
+        )
     return data
 
 
-def _write_tar(output: Output, layout: Layout, rel: str, groups: list[MaterialGroup],
-               record_sums: dict[str, tuple[str, int]]) -> TarFacts:
+def _write_tar(
+    output: Output, layout: Layout, rel: str, groups: list[MaterialGroup], record_sums: dict[str, tuple[str, int]]
+) -> TarFacts:
     final = output.path(rel)
     folder = os.path.dirname(final)
     os.makedirs(folder, exist_ok=True)
@@ -228,8 +256,16 @@ def _write_tar(output: Output, layout: Layout, rel: str, groups: list[MaterialGr
     assert size == expected, (size, expected)
     output.adopt(rel, digest, size)
     records = [r for g in groups for r in g.records]
-    return TarFacts(path=rel, bytes=size, sha256=digest, members=sum(len(g.members) for g in groups),
-                    samples=len(records), materials=len(groups), first=records[0]["id"], last=records[-1]["id"])
+    return TarFacts(
+        path=rel,
+        bytes=size,
+        sha256=digest,
+        members=sum(len(g.members) for g in groups),
+        samples=len(records),
+        materials=len(groups),
+        first=records[0]["id"],
+        last=records[-1]["id"],
+    )
 
 
 def _markers(layout: Layout, records: list[dict]) -> bytes:
@@ -238,15 +274,26 @@ def _markers(layout: Layout, records: list[dict]) -> bytes:
     for shard in dict.fromkeys(r["shard"] for r in records):
         data = read_bytes(resolve_inside(layout.root, Layout.marker_rel(shard)), list_bound(None))
         if not data.endswith(b"\n") or data.count(b"\n") != 1:
-            raise Refused("invalid_dataset", f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
-                                             "`shaderball build` writes it; cannot publish it byte for byte")
+            raise Refused(
+                "invalid_dataset",
+                f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
+                "`shaderball build` writes it; cannot publish it byte for byte",
+            )
         lines.append(data)
     return b"".join(lines)
 
 
-def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_BYTES,
-                      license_id: str = DEFAULT_LICENSE, url: str | None = None, contact_sheet: bool = True,
-                      validation_s: float = 0.0, progress: Callable[[str], None] | None = None) -> PublishSummary:
+def write_publication(
+    root: str,
+    out: str,
+    *,
+    shard_bytes: int = DEFAULT_SHARD_BYTES,
+    license_id: str = DEFAULT_LICENSE,
+    url: str | None = None,
+    contact_sheet: bool = True,
+    validation_s: float = 0.0,
+    progress: Callable[[str], None] | None = None,
+) -> PublishSummary:
     """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
     does; tests use this to build hostile publications)."""
     check_options(shard_bytes, license_id, url)
@@ -273,8 +320,12 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
                 for record in group.records:
                     rows.append(sample_row(record, rel, *record_sums[record_member(record["id"])]))
         for source, rel in SOURCE_FILES.items():
-            output.write(rel, read_bytes(layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE
-                                         else list_bound(len(records))))
+            output.write(
+                rel,
+                read_bytes(
+                    layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE else list_bound(len(records))
+                ),
+            )
         output.write(MARKERS_REL, _markers(layout, records))
         output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
         if contact_sheet:
@@ -282,47 +333,76 @@ def write_publication(root: str, out: str, *, shard_bytes: int = DEFAULT_SHARD_B
                 progress("drawing the contact sheet")
             write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
             with open(output.path(PREVIEW_FILE), "rb") as fh:
-                output.adopt(PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(),
-                             os.path.getsize(output.path(PREVIEW_FILE)))
+                output.adopt(
+                    PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
+                )
         description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
-        source_bytes = sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.members) \
-            + sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
+        source_bytes = (
+            sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.members)
+            + sum(output.sizes[rel] for rel in SOURCE_FILES.values())
+            + output.sizes[MARKERS_REL]
+        )
         facts = PublicationFacts(
-            spec=spec, description=description, records=records, rows=rows, tars=tars, license_id=license_id,
-            url=url, shard_bytes=shard_bytes, files=dict(output.sums), sizes=dict(output.sizes),
-            source_bytes=source_bytes, member_bytes=sum(m.size for g in groups for m in g.members),
+            spec=spec,
+            description=description,
+            records=records,
+            rows=rows,
+            tars=tars,
+            license_id=license_id,
+            url=url,
+            shard_bytes=shard_bytes,
+            files=dict(output.sums),
+            sizes=dict(output.sizes),
+            source_bytes=source_bytes,
+            member_bytes=sum(m.size for g in groups for m in g.members),
             repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
-            materials=len(groups), has_preview=contact_sheet)
-        output.write(INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n")
-                     .encode("utf-8"))
+            materials=len(groups),
+            has_preview=contact_sheet,
+        )
+        output.write(
+            INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8")
+        )
         facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
         facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
-        output.write(CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n")
-                     .encode("utf-8"))
+        output.write(
+            CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
+        )
         facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
         output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
-        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items()))
-                     .encode("utf-8"))
+        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
     except BaseException:
         output.discard()
         raise
     published = sum(output.sizes.values())
-    return PublishSummary(out=out, samples=len(records), materials=len(groups), tars=tars,
-                          published_bytes=published, source_bytes=facts.source_bytes,
-                          member_bytes=facts.member_bytes, repeated_maps_extra_bytes=facts.repeated_maps_extra_bytes,
-                          validation_s=validation_s, seconds=time.perf_counter() - start)
+    return PublishSummary(
+        out=out,
+        samples=len(records),
+        materials=len(groups),
+        tars=tars,
+        published_bytes=published,
+        source_bytes=facts.source_bytes,
+        member_bytes=facts.member_bytes,
+        repeated_maps_extra_bytes=facts.repeated_maps_extra_bytes,
+        validation_s=validation_s,
+        seconds=time.perf_counter() - start,
+    )
 
 
 def publication_index(facts: PublicationFacts) -> dict:
     """``publication.json``: what a reader checks the rest against."""
     description = facts.description
     return {
-        "format": FORMAT, "format_version": FORMAT_VERSION,
-        "maps": "once per material: MATERIAL.maps.exr (and MATERIAL.texture.exr) before its lightings, "
-                "in the same tar",
-        "source": {"name": description.get("name"), "version": description.get("version"),
-                   "spec_digest": description.get("spec_digest"), "plan_digest": description.get("plan_digest"),
-                   "renders": len(facts.records), "materials": facts.materials},
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "maps": "once per material: MATERIAL.maps.exr (and MATERIAL.texture.exr) before its lightings, in the same tar",
+        "source": {
+            "name": description.get("name"),
+            "version": description.get("version"),
+            "spec_digest": description.get("spec_digest"),
+            "plan_digest": description.get("plan_digest"),
+            "renders": len(facts.records),
+            "materials": facts.materials,
+        },
         "shard_bytes": facts.shard_bytes,
         "shards": [t.to_dict() for t in facts.tars],
     }

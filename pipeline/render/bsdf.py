@@ -197,13 +197,11 @@ def _define_class(mi):
             self.specular_on = bool(props.get("specular_lobe", True))
             self.model = props.get("model", DEFAULT_MODEL)
             if self.model not in MODELS:
-                raise ValueError(f"{PLUGIN_NAME}: model {self.model!r} is not allowed; allowed: "
-                                 + ", ".join(MODELS))
+                raise ValueError(f"{PLUGIN_NAME}: model {self.model!r} is not allowed; allowed: " + ", ".join(MODELS))
             self.floored = self.model == "deschaintre2018"
             if not (self.diffuse_on or self.specular_on):
                 raise ValueError(
-                    f"{PLUGIN_NAME}: diffuse_lobe and specular_lobe are both false; "
-                    "at least one lobe must be on"
+                    f"{PLUGIN_NAME}: diffuse_lobe and specular_lobe are both false; at least one lobe must be on"
                 )
             varying = mi.BSDFFlags.Empty
             for texture in (self.diffuse, self.specular, self.roughness):

@@ -28,7 +28,6 @@ from sky import Light
 SEED_RANGE = (0, 2**32 - 1)
 
 
-
 def parse_triple(option: str, text: str, lo: float | None = 0.0, hi: float | None = 1.0) -> tuple[float, ...]:
     """'R,G,B' -> three finite floats within [lo, hi] (None: unbounded)."""
     allowed = "three comma-separated numbers" + (f" in [{lo}, {hi}]" if lo is not None else "")
@@ -105,10 +104,17 @@ class RenderSummary:
             f"noise (RMS std. error) {s['noise_rmse']:.3g}",
             f"NaN {s['nan']}, Inf {s['inf']}, negative {s['negative']}"
             + (" -- FLAGGED: every attempt had bad pixels" if s["flagged"] else ""),
-            "lighting policy: " + ("; ".join(f"{a['field']} {a['from']:g} -> {a['to']:g}" for a in light["actions"])
-                                   if light.get("changed") else "nothing changed")
-            + (", sun irradiance desaturated to non-negative RGB"
-               if (light.get("emitter") or {}).get("sun_irradiance_adjusted") else ""),
+            "lighting policy: "
+            + (
+                "; ".join(f"{a['field']} {a['from']:g} -> {a['to']:g}" for a in light["actions"])
+                if light.get("changed")
+                else "nothing changed"
+            )
+            + (
+                ", sun irradiance desaturated to non-negative RGB"
+                if (light.get("emitter") or {}).get("sun_irradiance_adjusted")
+                else ""
+            ),
             f"effects: {', '.join(k for k, v in self.effects.items() if v) or 'none'}",
         ]
         return lines + self.extra
@@ -140,8 +146,14 @@ def check_request(req: RenderRequest) -> None:
     check_int("--seed", req.seed, *SEED_RANGE)
     if req.variant not in VARIANT_CHOICES:
         raise bad_value("--variant", req.variant, ", ".join(VARIANT_CHOICES))
-    RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
-                   variant=req.variant, sun=req.sun, model=req.model).check(lambda name: "--" + name.replace("_", "-"))
+    RenderSettings(
+        resolution=req.resolution,
+        spp=req.spp,
+        max_depth=req.max_depth,
+        variant=req.variant,
+        sun=req.sun,
+        model=req.model,
+    ).check(lambda name: "--" + name.replace("_", "-"))
     Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     check_output("--out", req.out, ".exr")
     if req.png is not None:
@@ -154,12 +166,12 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
     maps = load_material(req)  # may raise on a bad SVBRDF file: still nothing written
     maps.check()
 
-
     variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
-    settings = RenderSettings(resolution=req.resolution, spp=req.spp, max_depth=req.max_depth,
-                              variant=variant, sun=req.sun, model=req.model)
+    settings = RenderSettings(
+        resolution=req.resolution, spp=req.spp, max_depth=req.max_depth, variant=variant, sun=req.sun, model=req.model
+    )
     light = Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     result = render_sample(ball, camera, maps, light, settings, req.seed, mask=gbuffer.mask)
     screen = project_material(maps, gbuffer)
@@ -172,19 +184,25 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
         "lighting_vector": [float(x) for x in Light.from_dict(result.lighting["effective"]).lighting_vector()],
         "colorspace": "linear Rec.709 (sRGB primaries, D65)",
     }
-    write_exr(req.out, {"render": result.image, **screen}, meta,
-              half=("diffuse", "specular", "roughness", "normal", "mask"))
+    write_exr(
+        req.out, {"render": result.image, **screen}, meta, half=("diffuse", "specular", "roughness", "normal", "mask")
+    )
     if req.png:
         write_png(req.png, result.image, gbuffer.mask)
-    return RenderSummary(req.out, req.png, result.stats, result.lighting, result.effects.to_dict(),
-                         extra=[f"material model: {req.model}"])
+    return RenderSummary(
+        req.out,
+        req.png,
+        result.stats,
+        result.lighting,
+        result.effects.to_dict(),
+        extra=[f"material model: {req.model}"],
+    )
 
 
 def write_png(path: str, image: np.ndarray, mask: np.ndarray | None = None, exposure: float | None = None) -> None:
     import io
 
     from PIL import Image
-
 
     buffer = io.BytesIO()
     Image.fromarray(tonemap(image, exposure, mask)).save(buffer, format="PNG")

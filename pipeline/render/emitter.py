@@ -47,8 +47,6 @@ def directional_to_world(direction: np.ndarray, variant: str):
     return mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, 0.0], target=travel.tolist(), up=up)
 
 
-
-
 def loaded_sun_direction(direction, variant: str):
     """The float32 sun direction Mitsuba's ``sunsky`` loader makes of ``direction`` (a Vector3f).
 

@@ -189,8 +189,9 @@ def gbuffer_path(ball: Shaderball, camera: Camera, resolution: int, variant: str
     return os.path.join(cache_dir or default_cache_dir(), "gbuffer", key + ".exr")
 
 
-def load_gbuffer(ball: Shaderball, camera: Camera, resolution: int, variant: str,
-                 cache_dir: str | None = None) -> GBuffer:
+def load_gbuffer(
+    ball: Shaderball, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None
+) -> GBuffer:
     """The G-buffer from the cache, or computed, stored (atomically) and returned.
 
     ``variant``: the render's (resolved) Mitsuba variant; the G-buffer is taken with it,
@@ -230,8 +231,9 @@ def gbuffer_from_exr(path: str, ball: Shaderball, camera: Camera, resolution: in
 # --------------------------------------------------------------------------- seams
 
 
-def visible_seam_points(gbuffer: GBuffer, ball: Shaderball, *, include_creases: bool = True,
-                        spacing_px: float = 0.25) -> np.ndarray:
+def visible_seam_points(
+    gbuffer: GBuffer, ball: Shaderball, *, include_creases: bool = True, spacing_px: float = 0.25
+) -> np.ndarray:
     """Pixel coordinates (N, 2) of seam points the camera sees, every ``spacing_px``."""
     mi = load_mitsuba(gbuffer.variant)
     camera, res = gbuffer.camera, gbuffer.resolution

@@ -15,6 +15,7 @@ def span(bounds: tuple[int, int]) -> str:
     """``"16 to 4096"``: a range as the CLI help words it."""
     return f"{bounds[0]} to {bounds[1]}"
 
+
 #: Mitsuba samplers a spec may name. Mitsuba rounds some sample counts (stratified: a square,
 #: multijitter: a product of two near-equal factors, orthogonal: a prime squared, ldsampler:
 #: a power-of-two square); renders record the spp actually used.

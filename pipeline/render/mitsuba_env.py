@@ -119,8 +119,10 @@ def resolve_variant(requested: str = "auto") -> str:
             f"or one of {', '.join(mi.variants())}"
         )
     if name.startswith("cuda_") and not cuda_works():
-        raise SetupError(f"render.variant: {requested!r} needs a CUDA device and none works here "
-                         "(drjit.has_backend(drjit.JitBackend.CUDA) is false)")
+        raise SetupError(
+            f"render.variant: {requested!r} needs a CUDA device and none works here "
+            "(drjit.has_backend(drjit.JitBackend.CUDA) is false)"
+        )
     return name
 
 
@@ -162,9 +164,8 @@ WITHIN_NOISE = "within-noise"
 GUARANTEES = (BYTE_IDENTICAL, WITHIN_NOISE)
 GUARANTEE_BASIS = {
     BYTE_IDENTICAL: "llvm variant, spp rendered as power-of-two passes: byte-identical re-renders, "
-                    "tested (tests/test_build.py)",
-    WITHIN_NOISE: "not bit-stable on this backend (mitsuba3#1938): a re-render agrees within noise, "
-                  "not byte for byte",
+    "tested (tests/test_build.py)",
+    WITHIN_NOISE: "not bit-stable on this backend (mitsuba3#1938): a re-render agrees within noise, not byte for byte",
 }
 
 

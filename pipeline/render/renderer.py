@@ -61,7 +61,6 @@ ADAPTIVE_FIRST_SPP = 16
 RELMSE_EPS = 0.01
 
 
-
 @dataclass(frozen=True)
 class RenderSettings:
     """How a sample is rendered. Field names are the spec's `render` section's."""
@@ -155,16 +154,19 @@ def material_bsdf(maps, effects: EffectPlan, variant: str, model: str = DEFAULT_
     """The Mitsuba dict of the material in ``model``, honouring ``effects``."""
     mitsuba_bsdf.register(variant)
     bsdf = mitsuba_bsdf.bsdf_dict(
-        maps, lobes={"diffuse_lobe": effects.diffuse_lobe, "specular_lobe": effects.specular_lobe},
-        model=model, variant=variant,
+        maps,
+        lobes={"diffuse_lobe": effects.diffuse_lobe, "specular_lobe": effects.specular_lobe},
+        model=model,
+        variant=variant,
     )
     if effects.normal_map != (bsdf["type"] == "normalmap"):
         raise AssertionError("effect plan and BSDF disagree about the normal map")
     return bsdf
 
 
-def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: EffectPlan | None = None,
-               *, seed: int = 0) -> tuple[dict, dict, EffectPlan]:
+def scene_dict(
+    ball, camera, maps, light, settings: RenderSettings, effects: EffectPlan | None = None, *, seed: int = 0
+) -> tuple[dict, dict, EffectPlan]:
     """The whole Mitsuba scene dict for one sample; also the lighting record and effects."""
     effects = effects or plan_effects(maps)
     emitters, lighting_record = emitter_dicts(light, sun=settings.sun, variant=settings.variant)
@@ -177,8 +179,9 @@ def scene_dict(ball, camera, maps, light, settings: RenderSettings, effects: Eff
     scene = {
         "type": "scene",
         "integrator": {"type": "moment", "nested": nested},
-        "sensor": sensor_dict(camera, settings.resolution, settings.spp, sampler=settings.sampler, seed=seed,
-                              variant=settings.variant),
+        "sensor": sensor_dict(
+            camera, settings.resolution, settings.spp, sampler=settings.sampler, seed=seed, variant=settings.variant
+        ),
         **shape_dicts(ball, material_bsdf(maps, effects, settings.variant, settings.model)),
         **emitters,
     }
@@ -351,8 +354,17 @@ class RenderOutput(NamedTuple):
     error_estimate: float  # relative_error of the result (over ``mask``)
 
 
-def render_scene(mi, scene, spp: int, seed: int, *, sampler: str = "independent", target_error: float = 0.0,
-                 mask: np.ndarray | None = None, single_pass: bool = False) -> RenderOutput:
+def render_scene(
+    mi,
+    scene,
+    spp: int,
+    seed: int,
+    *,
+    sampler: str = "independent",
+    target_error: float = 0.0,
+    mask: np.ndarray | None = None,
+    single_pass: bool = False,
+) -> RenderOutput:
     """Render a loaded scene (moment integrator): image, luminance variance, spp used, error.
 
     The moment integrator's extra channels are the first and second moments of the nested
@@ -426,8 +438,16 @@ class MaterialScene:
         self.release()
 
 
-def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int,
-                  mask: np.ndarray | None = None, scene: MaterialScene | None = None) -> RenderResult:
+def render_sample(
+    ball,
+    camera,
+    maps,
+    light,
+    settings: RenderSettings,
+    seed: int,
+    mask: np.ndarray | None = None,
+    scene: MaterialScene | None = None,
+) -> RenderResult:
     """Render one material under one light, re-rendering bad (NaN/Inf/negative) results.
 
     ``scene``: the material's :class:`MaterialScene`, kept across its lightings (a build
@@ -442,11 +462,17 @@ def render_sample(ball, camera, maps, light, settings: RenderSettings, seed: int
     for attempt in range(MAX_RENDER_ATTEMPTS):
         attempt_seed = derived_seed(seed, attempt)
         image, variance, spp_used, error_estimate = render_scene(
-            mi, loaded, settings.spp, attempt_seed, sampler=settings.sampler, target_error=settings.target_error,
-            mask=mask, single_pass=single_pass)
+            mi,
+            loaded,
+            settings.spp,
+            attempt_seed,
+            sampler=settings.sampler,
+            target_error=settings.target_error,
+            mask=mask,
+            single_pass=single_pass,
+        )
         stats = render_stats(image, variance, mask)
-        attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"],
-                         "negative": stats["negative"]})
+        attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"], "negative": stats["negative"]})
         if not is_bad(stats):
             break
     stats.update(

@@ -104,9 +104,7 @@ def sensor_dict(
 
 def _look_at(camera: Camera, variant: str):
     mi = load_mitsuba(variant)
-    return mi.ScalarTransform4f().look_at(
-        origin=list(camera.origin), target=list(camera.target), up=list(camera.up)
-    )
+    return mi.ScalarTransform4f().look_at(origin=list(camera.origin), target=list(camera.target), up=list(camera.up))
 
 
 def bitmap_texture(texture: np.ndarray, *, variant: str, filter_type: str = "bilinear") -> dict:

@@ -66,12 +66,15 @@ def checker_texture(squares: int = CHECKER_SQUARES) -> np.ndarray:
     return tex
 
 
-def render_preview(ball, camera, resolution: int, variant: str, spp: int = PREVIEW_SPP,
-                   seed: int = PREVIEW_SEED) -> np.ndarray:
+def render_preview(
+    ball, camera, resolution: int, variant: str, spp: int = PREVIEW_SPP, seed: int = PREVIEW_SEED
+) -> np.ndarray:
     """(H, W, 3) linear RGB: the ball with a checker through its atlas, under simple light."""
     mi = load_mitsuba(variant)
-    material = {"type": "diffuse",
-                "reflectance": bitmap_texture(checker_texture(), filter_type="nearest", variant=variant)}
+    material = {
+        "type": "diffuse",
+        "reflectance": bitmap_texture(checker_texture(), filter_type="nearest", variant=variant),
+    }
     to_light = np.array([-0.55, -0.75, 0.9])
     to_light /= np.linalg.norm(to_light)
     scene = {

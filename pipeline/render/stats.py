@@ -26,7 +26,11 @@ def render_stats(image: np.ndarray, variance: np.ndarray | None = None, mask: np
     }
     if variance is not None:
         var = np.clip(np.asarray(variance, dtype=np.float64), 0.0, None)
-        var = var[np.isfinite(var)] if mask is None else var[np.asarray(mask, bool)][np.isfinite(var[np.asarray(mask, bool)])]
+        var = (
+            var[np.isfinite(var)]
+            if mask is None
+            else var[np.asarray(mask, bool)][np.isfinite(var[np.asarray(mask, bool)])]
+        )
         rmse = float(np.sqrt(var.mean())) if var.size else 0.0
         mean = stats["mean"] or 0.0
         stats["noise_rmse"] = rmse

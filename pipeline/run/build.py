@@ -97,8 +97,7 @@ class BuildSummary:
         rate = self.rendered / self.seconds if self.seconds > 0 else 0.0
         return [
             f"dataset {self.out}: {self.total} renders in {self.shards} shards, complete",
-            f"rendered {self.rendered}, already present {self.skipped}, "
-            f"{self.seconds:.1f} s ({rate:.2f} renders/s)",
+            f"rendered {self.rendered}, already present {self.skipped}, {self.seconds:.1f} s ({rate:.2f} renders/s)",
             f"manifest: {os.path.join(self.out, 'manifest.jsonl')}",
         ] + self.notes
 
@@ -114,8 +113,9 @@ def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
     except OSError as exc:
         raise ShaderballError(f"SPEC: cannot read {spec_path!r}: {exc.strerror}") from None
     if len(data) > MAX_SPEC_BYTES:
-        raise ShaderballError(f"SPEC: {spec_path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a "
-                              "short TOML file (docs/spec.md)")
+        raise ShaderballError(
+            f"SPEC: {spec_path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
+        )
     base_dir = os.path.dirname(os.path.abspath(spec_path)) if regular else os.getcwd()
     spec = parse_spec_bytes(data, source=spec_path, base_dir=base_dir)
     return spec, data.decode("utf-8-sig")
@@ -137,8 +137,12 @@ def read_snapshot(root: str) -> DatasetSpec:
 def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
     """(section, key, old value, new value) for every field that differs."""
     a, b = spec_to_dict(old), spec_to_dict(new)
-    return [(section, key, a[section].get(key), b[section].get(key))
-            for section in a for key in a[section] if a[section].get(key) != b[section].get(key)]
+    return [
+        (section, key, a[section].get(key), b[section].get(key))
+        for section in a
+        for key in a[section]
+        if a[section].get(key) != b[section].get(key)
+    ]
 
 
 def _describe_differences(diffs, limit: int = 4) -> str:
@@ -157,8 +161,10 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     layout = Layout(out)
     check_path_lengths(out)
     if os.path.lexists(out) and not os.path.exists(out):
-        raise ShaderballError(f"--out: {out!r} is a symbolic link to {os.readlink(out)!r}, which does not exist "
-                              "or is a loop of links; give a folder")
+        raise ShaderballError(
+            f"--out: {out!r} is a symbolic link to {os.readlink(out)!r}, which does not exist "
+            "or is a loop of links; give a folder"
+        )
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
     try:
@@ -178,26 +184,32 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     if not os.path.lexists(layout.spec):
         raise ShaderballError(
             f"--out: {out!r} is not empty and holds no {os.path.basename(layout.spec)}: "
-            "not a shaderball dataset; choose an empty or new directory")
+            "not a shaderball dataset; choose an empty or new directory"
+        )
     try:
         existing = read_snapshot(out)
     except USER_ERRORS as exc:
-        raise ShaderballError(f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
-                              "run `shaderball validate --repair` or choose another directory") from None
+        raise ShaderballError(
+            f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
+            "run `shaderball validate --repair` or choose another directory"
+        ) from None
     mode = "resume"
     if spec_digest(existing) != spec_digest(spec):
         diffs = spec_differences(existing, spec)
         blocking = [d for d in diffs if (d[0], d[1]) not in SPEC_FIELDS_FREE_TO_CHANGE]
         if blocking or not allow_spec_change:
             free = " or ".join(f"{s}.{k}" for s, k in SPEC_FIELDS_FREE_TO_CHANGE)
-            hint = (f"--allow-spec-change accepts a change of {free} only, which no sample "
-                    "depends on" if blocking else
-                    "these fields change no sample: pass --allow-spec-change to accept them")
+            hint = (
+                f"--allow-spec-change accepts a change of {free} only, which no sample depends on"
+                if blocking
+                else "these fields change no sample: pass --allow-spec-change to accept them"
+            )
             raise ShaderballError(
                 f"--out: {out!r} holds dataset {existing.dataset.name!r} built from a different spec "
                 f"(digest {spec_digest(existing)[:12]} vs {spec_digest(spec)[:12]}): "
                 f"{_describe_differences(blocking or diffs)}. Resume it with its own spec "
-                f"({layout.spec}) or build into a new directory; {hint}")
+                f"({layout.spec}) or build into a new directory; {hint}"
+            )
         mode = "respec"
     if not os.access(out, os.W_OK):
         raise ShaderballError(f"--out: {out!r} is not writable")
@@ -222,11 +234,15 @@ def check_path_lengths(out: str) -> None:
         name_max, path_max = 255, 4096
     long_part = next((part for part in full.split(os.sep) if len(os.fsencode(part)) > name_max), None)
     if long_part is not None:
-        raise ShaderballError(f"--out: {out!r} is not allowed; a folder name there is "
-                              f"{len(os.fsencode(long_part))} bytes long, the filesystem allows {name_max}")
+        raise ShaderballError(
+            f"--out: {out!r} is not allowed; a folder name there is "
+            f"{len(os.fsencode(long_part))} bytes long, the filesystem allows {name_max}"
+        )
     if len(os.fsencode(full)) >= path_max:
-        raise ShaderballError(f"--out: {out!r} is not allowed; the dataset's files would have paths of "
-                              f"{len(os.fsencode(full))} bytes, the filesystem allows {path_max - 1}")
+        raise ShaderballError(
+            f"--out: {out!r} is not allowed; the dataset's files would have paths of "
+            f"{len(os.fsencode(full))} bytes, the filesystem allows {path_max - 1}"
+        )
 
 
 def plan_digest(plans: list[ShardPlan], tick: Callable[[int, int], None] | None = None) -> str:
@@ -256,8 +272,10 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str, dige
     differences = []
     digest = digest or plan_digest(plans)
     if old.get("plan_digest") and old["plan_digest"] != digest:
-        differences.append(f"this shaderball plans other samples for the same spec (plan digest "
-                           f"{str(old['plan_digest'])[:12]} in dataset.json, {digest[:12]} now)")
+        differences.append(
+            f"this shaderball plans other samples for the same spec (plan digest "
+            f"{str(old['plan_digest'])[:12]} in dataset.json, {digest[:12]} now)"
+        )
     libraries = library_versions()
     for name in ("mitsuba", "drjit"):
         was = (old.get("libraries") or {}).get(name)
@@ -269,11 +287,13 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str, dige
         raise ShaderballError(
             f"--out: {out!r} was built by another installation: {'; '.join(differences)}. Resuming "
             "would mix samples made two ways; finish it with the installation that started it, "
-            "or build into a new directory")
+            "or build into a new directory"
+        )
 
 
-def description(spec: DatasetSpec, plans: list[ShardPlan], variant: str, digest: str | None = None,
-                guarantee: str | None = None) -> dict:
+def description(
+    spec: DatasetSpec, plans: list[ShardPlan], variant: str, digest: str | None = None, guarantee: str | None = None
+) -> dict:
     """dataset.json; ``guarantee``: the dataset's determinism (default: the variant's)."""
     guarantee = guarantee or determinism(variant)
     return {
@@ -298,8 +318,14 @@ def recorded_guarantee(out: str) -> str | None:
     return recorded.get("guarantee") if isinstance(recorded, dict) else None
 
 
-def prepare(out: str, spec: DatasetSpec, plans: list[ShardPlan], allow_spec_change: bool = False,
-            tick: Callable[[int, int], None] | None = None, variant: str | None = None) -> str:
+def prepare(
+    out: str,
+    spec: DatasetSpec,
+    plans: list[ShardPlan],
+    allow_spec_change: bool = False,
+    tick: Callable[[int, int], None] | None = None,
+    variant: str | None = None,
+) -> str:
     """Create ``out`` with the spec snapshot and description; return the Mitsuba variant.
 
     The variant is resolved here, once, from the spec (or ``variant``: validate --repair
@@ -404,8 +430,9 @@ def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> in
     layout = Layout(out)
     count = 0
     for shard in shards:
-        sid, ids = (shard.shard_id, [s.sample_id for s in shard.samples]) if isinstance(shard, ShardPlan) \
-            else shard  # (shard id, sample ids): a lazy plan's, without planning it
+        sid, ids = (
+            (shard.shard_id, [s.sample_id for s in shard.samples]) if isinstance(shard, ShardPlan) else shard
+        )  # (shard id, sample ids): a lazy plan's, without planning it
         for sample in ids:
             try:
                 if os.stat(layout.path(layout.record_rel(sid, sample))).st_mtime >= since:
@@ -428,10 +455,18 @@ def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int
     return remove_temp_files(Layout(out), [sid for sid, _renders in shard_counts(plans)], older_than)
 
 
-def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: str | None = None,
-          cluster: ClusterOptions | None = None, allow_spec_change: bool = False,
-          progress: Callable[[Progress], None] | None = None,
-          on_start: Callable[[str, str | None], None] | None = None, variant: str | None = None) -> BuildSummary:
+def build(
+    spec_path: str,
+    out: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cluster: ClusterOptions | None = None,
+    allow_spec_change: bool = False,
+    progress: Callable[[Progress], None] | None = None,
+    on_start: Callable[[str, str | None], None] | None = None,
+    variant: str | None = None,
+) -> BuildSummary:
     """Build (or resume) the dataset of ``spec_path`` into ``out``.
 
     ``workers``: local worker processes (default: one per 2 cores); 0 runs the shards in
@@ -459,12 +494,24 @@ def build(spec_path: str, out: str, *, workers: int | None = None, scheduler: st
         with writer_lock(out, "build"):
             return _build_locked(out, spec, plans, cluster, allow_spec_change, progress, on_start, variant)
     except OSError as exc:  # a full disk, a folder that cannot be written, ...: a message, not a traceback
-        raise filesystem_error(exc, out, f"every write is atomic, so nothing in {out!r} is torn: fix the "
-                                         "cause and run the same command again to resume") from None
+        raise filesystem_error(
+            exc,
+            out,
+            f"every write is atomic, so nothing in {out!r} is torn: fix the "
+            "cause and run the same command again to resume",
+        ) from None
 
 
-def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: ClusterOptions,
-                  allow_spec_change: bool, progress, on_start, variant: str | None = None) -> BuildSummary:
+def _build_locked(
+    out: str,
+    spec: DatasetSpec,
+    plans: list[ShardPlan],
+    cluster: ClusterOptions,
+    allow_spec_change: bool,
+    progress,
+    on_start,
+    variant: str | None = None,
+) -> BuildSummary:
     """The build, once this process holds ``out`` (pipeline.store.lock): the folder is
     checked again (another writer may have finished in between), then written."""
     counts = shard_counts(plans)
@@ -472,8 +519,11 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
     variant = prepare(out, spec, plans, allow_spec_change, _planning_ticks(progress, total), variant)
     layout = Layout(out)
     on_disk = set(shard_ids_on_disk(layout))
-    todo = [i for i, (sid, _renders) in enumerate(counts)
-            if sid not in on_disk or complete_marker(layout, sid, shard_sample_ids(plans, i)) is None]
+    todo = [
+        i
+        for i, (sid, _renders) in enumerate(counts)
+        if sid not in on_disk or complete_marker(layout, sid, shard_sample_ids(plans, i)) is None
+    ]
     already = total - sum(counts[i][1] for i in todo)
     start = time.perf_counter()
     wall_start = time.time()
@@ -489,19 +539,22 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
                 results.append(run_shard_in_process(out, spec, plans[index], variant, threads))
                 _report(progress, done, total, already, start)
         else:
+
             def report(status: str = ""):
                 _report(progress, done, total, already, start, status)
 
             with workers_ignore_sigint(on_start) as started:
-                results, dashboard, recycled = run_shards_on_dask(out, spec, [plans[i] for i in todo], variant,
-                                                                  cluster, report, started)
+                results, dashboard, recycled = run_shards_on_dask(
+                    out, spec, [plans[i] for i in todo], variant, cluster, report, started
+                )
     write_manifest(out, plans)
     # Every temp file, this build's too: a worker killed mid-write during the build (a SLURM job
     # cancelled, requeued or at its walltime) leaves one that no later write of it removes.
     removed = sweep_temp_files(out, plans, older_than=time.time())
     seconds = time.perf_counter() - start
-    rendered = renders_written_since(out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo],
-                                     wall_start - 1.0)  # mtime granularity
+    rendered = renders_written_since(
+        out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo], wall_start - 1.0
+    )  # mtime granularity
     _report(progress, done, total, already, start)
     processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]
@@ -509,9 +562,19 @@ def _build_locked(out: str, spec: DatasetSpec, plans: list[ShardPlan], cluster: 
         notes.append(f"removed {removed} temporary file(s) left by interrupted writes")
     if recycled:
         notes.append(f"{recycled} worker process restart(s) to bound memory (--recycle-after)")
-    return BuildSummary(out=out, total=total, rendered=rendered, skipped=total - rendered,
-                        seconds=seconds, shards=len(plans), dashboard=dashboard, notes=notes,
-                        processes=processes, temp_removed=removed, recycled=recycled)
+    return BuildSummary(
+        out=out,
+        total=total,
+        rendered=rendered,
+        skipped=total - rendered,
+        seconds=seconds,
+        shards=len(plans),
+        dashboard=dashboard,
+        notes=notes,
+        processes=processes,
+        temp_removed=removed,
+        recycled=recycled,
+    )
 
 
 @contextlib.contextmanager
@@ -558,8 +621,16 @@ def _planning_ticks(progress, total: int):
         now = time.perf_counter()
         if now - last[0] >= 0.5 or shards == of:
             last[0] = now
-            progress(Progress(done=0, total=total, elapsed_s=now - start, rate=0.0, eta_s=None,
-                              message=f"planning: {shards}/{of} shards planned and checked"))
+            progress(
+                Progress(
+                    done=0,
+                    total=total,
+                    elapsed_s=now - start,
+                    rate=0.0,
+                    eta_s=None,
+                    message=f"planning: {shards}/{of} shards planned and checked",
+                )
+            )
 
     return tick
 

@@ -115,36 +115,46 @@ class ClusterOptions:
             walltime_seconds(self.walltime)
         for option, value in (("--queue", self.queue), ("--account", self.account)):
             if value is not None and not _SHELL_WORD.match(value):
-                raise ShaderballError(f"{option}: {value!r} is not allowed; allowed: 1 to 128 "
-                                      "characters from A-Z a-z 0-9 _ . @ : + -")
+                raise ShaderballError(
+                    f"{option}: {value!r} is not allowed; allowed: 1 to 128 characters from A-Z a-z 0-9 _ . @ : + -"
+                )
         if self.scratch is not None and not _SCRATCH.match(self.scratch):
-            raise ShaderballError(f"--scratch: {self.scratch!r} is not allowed; allowed: a path of "
-                                  "1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
-                                  "(shell variables such as $TMPDIR are expanded on the node)")
+            raise ShaderballError(
+                f"--scratch: {self.scratch!r} is not allowed; allowed: a path of "
+                "1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
+                "(shell variables such as $TMPDIR are expanded on the node)"
+            )
         if self.scheduler is not None:
             if self.kind != "local":
-                raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; "
-                                      "use one or the other")
+                raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; use one or the other")
             scheduler_host_port(self.scheduler)
         if self.is_jobqueue:
             if self.workers is not None:
-                raise ShaderballError(f"--workers: not allowed with --cluster {self.kind}; "
-                                      "use --jobs (one worker process per job)")
-            for option, value, example in (("--cores", self.cores, "--cores 32"),
-                                           ("--memory", self.memory, "--memory 64GiB"),
-                                           ("--walltime", self.walltime, "--walltime 12:00:00")):
+                raise ShaderballError(
+                    f"--workers: not allowed with --cluster {self.kind}; use --jobs (one worker process per job)"
+                )
+            for option, value, example in (
+                ("--cores", self.cores, "--cores 32"),
+                ("--memory", self.memory, "--memory 64GiB"),
+                ("--walltime", self.walltime, "--walltime 12:00:00"),
+            ):
                 if value is None:
-                    raise ShaderballError(f"{option}: required with --cluster {self.kind}; "
-                                          f"for example: {example}")
+                    raise ShaderballError(f"{option}: required with --cluster {self.kind}; for example: {example}")
         else:
-            for option, value in (("--jobs", self.jobs), ("--cores", self.cores),
-                                  ("--walltime", self.walltime), ("--queue", self.queue),
-                                  ("--account", self.account), ("--scratch", self.scratch)):
+            for option, value in (
+                ("--jobs", self.jobs),
+                ("--cores", self.cores),
+                ("--walltime", self.walltime),
+                ("--queue", self.queue),
+                ("--account", self.account),
+                ("--scratch", self.scratch),
+            ):
                 if value is not None:
                     raise ShaderballError(f"{option}: only with --cluster slurm or --cluster pbs")
             if self.scheduler is not None and self.memory is not None:
-                raise ShaderballError("--memory: not allowed with --scheduler; "
-                                      "give --memory-limit to `dask worker` instead")
+                raise ShaderballError(
+                    "--memory: not allowed with --scheduler; give --memory-limit to `dask worker` instead"
+                )
         return self
 
 
@@ -157,8 +167,10 @@ def memory_bytes(text: str) -> int:
     except (ValueError, TypeError):
         value = None
     if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
-        raise ShaderballError(f"--memory: {text!r} is not allowed; allowed: an amount from 256MiB to "
-                              "64TiB with a unit, e.g. 16GiB or 64GB")
+        raise ShaderballError(
+            f"--memory: {text!r} is not allowed; allowed: an amount from 256MiB to "
+            "64TiB with a unit, e.g. 16GiB or 64GB"
+        )
     return int(value)
 
 
@@ -166,8 +178,7 @@ def walltime_seconds(text: str) -> int:
     match = _WALLTIME.match(text)
     seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
     if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:01:00 "
-                              "to 9999:59:59")
+        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:01:00 to 9999:59:59")
     return seconds
 
 
@@ -188,8 +199,10 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
 def scheduler_host_port(address: str) -> tuple[str, int]:
     match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$", address)
     if match is None or not 0 < int(match[2]) < 65536:
-        raise ShaderballError(f"--scheduler: {address!r} is not allowed; allowed: tcp://HOST:PORT or "
-                              "tls://HOST:PORT, e.g. tcp://10.0.0.1:8786")
+        raise ShaderballError(
+            f"--scheduler: {address!r} is not allowed; allowed: tcp://HOST:PORT or "
+            "tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
+        )
     return match[1].strip("[]"), int(match[2])
 
 
@@ -200,8 +213,9 @@ def check_scheduler_reachable(address: str, timeout_s: float = 5.0) -> None:
         with socket.create_connection((host, port), timeout=timeout_s):
             pass
     except OSError as exc:
-        raise ShaderballError(f"--scheduler: cannot reach {address!r} ({exc.strerror or exc}); "
-                              "is `dask scheduler` running there?") from None
+        raise ShaderballError(
+            f"--scheduler: cannot reach {address!r} ({exc.strerror or exc}); is `dask scheduler` running there?"
+        ) from None
 
 
 # --------------------------------------------------------------------------- jobqueue
@@ -215,8 +229,9 @@ def _jobqueue_job_class(kind: str):
         else:
             from dask_jobqueue.pbs import PBSJob as base
     except ImportError:
-        raise ShaderballError(f"--cluster {kind}: needs dask-jobqueue; install it with "
-                              "`pip install dask-jobqueue`") from None
+        raise ShaderballError(
+            f"--cluster {kind}: needs dask-jobqueue; install it with `pip install dask-jobqueue`"
+        ) from None
 
     class ShaderballJob(base):
         #: Submissions the batch system refused (sbatch/qsub's exit code and output), read by
@@ -256,8 +271,13 @@ def _jobqueue_job_class(kind: str):
 
 def _refusal_text(error: str) -> str:
     """dask-jobqueue's error for a failed submit command, on one line: command, exit code, output."""
-    parts = dict(re.findall(r"(Exit code|Command|stdout|stderr):[ \t]*\n?(.*?)(?=\n(?:Exit code|Command|stdout|stderr):|\Z)",
-                            error, re.S))
+    parts = dict(
+        re.findall(
+            r"(Exit code|Command|stdout|stderr):[ \t]*\n?(.*?)(?=\n(?:Exit code|Command|stdout|stderr):|\Z)",
+            error,
+            re.S,
+        )
+    )
     if not parts:
         return " ".join(error.split())[:800]
     output = (parts.get("stderr") or "").strip() or (parts.get("stdout") or "").strip() or "no output"
@@ -308,8 +328,7 @@ def jobqueue_kwargs(options: ClusterOptions) -> dict:
 def job_script(options: ClusterOptions, scheduler_address: str = "tcp://SCHEDULER-HOST:PORT") -> str:
     """The batch script each job of ``options`` runs, without submitting or starting anything."""
     job_class = _jobqueue_job_class(options.kind)
-    return job_class(scheduler=scheduler_address, name="shaderball-worker",
-                     **jobqueue_kwargs(options)).job_script()
+    return job_class(scheduler=scheduler_address, name="shaderball-worker", **jobqueue_kwargs(options)).job_script()
 
 
 def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
@@ -324,8 +343,10 @@ def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
     cluster_class = type(f"Shaderball{base.__name__}", (base,), {"job_cls": job_class})
     import dask
 
-    scheduler_options = {"dashboard_address": ":0",
-                         **(dask.config.get(f"jobqueue.{options.kind}.scheduler-options", None) or {})}
+    scheduler_options = {
+        "dashboard_address": ":0",
+        **(dask.config.get(f"jobqueue.{options.kind}.scheduler-options", None) or {}),
+    }
     cluster = cluster_class(scheduler_options=scheduler_options, **jobqueue_kwargs(options))
     if adapt:
         # adapt(), not scale(): a job that ends (walltime, preemption) is replaced.
@@ -359,9 +380,11 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
     from distributed import Client, LocalCluster
 
     options.check()
-    config = {"distributed.worker.multiprocessing-method": "spawn",  # LLVM JIT and fork() don't mix
-              "distributed.worker.daemon": False,
-              "distributed.scheduler.allowed-failures": 5}
+    config = {
+        "distributed.worker.multiprocessing-method": "spawn",  # LLVM JIT and fork() don't mix
+        "distributed.worker.daemon": False,
+        "distributed.scheduler.allowed-failures": 5,
+    }
     if not options.scheduler and not options.is_jobqueue:
         # A LocalCluster closes a nanny for good when its worker is absent 15 s after any
         # earlier removal of it, as happens when restarts (recycling, memory limit) come a
@@ -383,18 +406,27 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
-            yield Connection(client, f"{options.kind} cluster, {options.jobs or 1} job(s) of "
-                                     f"{options.cores} cores, {options.memory}", None, cluster)
+            yield Connection(
+                client,
+                f"{options.kind} cluster, {options.jobs or 1} job(s) of {options.cores} cores, {options.memory}",
+                None,
+                cluster,
+            )
         else:
             n = local_workers(options.workers)
             memory = memory_bytes(options.memory) if options.memory else "auto"
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=40, memory_limit=memory)
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=40,
+                memory_limit=memory,
+            )
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
-            yield Connection(client, f"local cluster, {n} worker process(es)",
-                             max(1, (os.cpu_count() or 1) // n))
+            yield Connection(client, f"local cluster, {n} worker process(es)", max(1, (os.cpu_count() or 1) // n))
 
 
 # --------------------------------------------------------------------------- in the worker
@@ -451,8 +483,9 @@ def shard_task(out: str, spec, shard, variant: str, threads: int | None, recycle
     return result
 
 
-def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: ClusterOptions,
-                       report: Callable[[str], None], on_start=None) -> tuple[list[dict], str | None, int]:
+def run_shards_on_dask(
+    out: str, spec, todo: list, variant: str, options: ClusterOptions, report: Callable[[str], None], on_start=None
+) -> tuple[list[dict], str | None, int]:
     """Run the shards ``todo`` on the workers ``options`` describe.
 
     ``report(status)`` is called about every second; ``status`` says what the build waits on
@@ -472,9 +505,20 @@ def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: Cluste
         dashboard = client.dashboard_link if _has_dashboard() else None
         if on_start:
             on_start(conn.where, dashboard)
-        pending = {client.submit(shard_task, out_abs, spec, shard, variant, conn.render_threads,
-                                 options.recycle_after, key=f"shard-{shard.shard_id}-{token}", pure=False)
-                   for shard in todo}
+        pending = {
+            client.submit(
+                shard_task,
+                out_abs,
+                spec,
+                shard,
+                variant,
+                conn.render_threads,
+                options.recycle_after,
+                key=f"shard-{shard.shard_id}-{token}",
+                pure=False,
+            )
+            for shard in todo
+        }
         watch = WorkerWatch(lambda: len(client.nthreads()), options, conn.jobqueue)
         results: list[dict] = []
         next_report = 0.0
@@ -500,7 +544,8 @@ def run_shards_on_dask(out: str, spec, todo: list, variant: str, options: Cluste
             raise ShaderballError(
                 f"build: a shard's worker died too often ({exc}); see the workers' logs (memory "
                 "limit? a crash in Mitsuba?). What was rendered is kept: run the same command "
-                "again to resume") from None
+                "again to resume"
+            ) from None
     return results, dashboard, recycled
 
 
@@ -564,9 +609,12 @@ def describe_jobs(kind: str, states: list[JobState], limit: int = 3, explain: bo
     for job in sorted(states, key=lambda job: (job.state != "RUNNING", job.state != "PENDING", job.state)):
         counts[job.state.lower()] = counts.get(job.state.lower(), 0) + 1
     text = f"{kind} jobs: " + ", ".join(f"{n} {state}" for state, n in counts.items())
-    waiting = [f"job {job.job_id}: {job.reason}" + (f", {SLURM_REASONS[job.reason]}"
-                                                     if explain and job.reason in SLURM_REASONS else "")
-               for job in states if job.reason]
+    waiting = [
+        f"job {job.job_id}: {job.reason}"
+        + (f", {SLURM_REASONS[job.reason]}" if explain and job.reason in SLURM_REASONS else "")
+        for job in states
+        if job.reason
+    ]
     if waiting:
         more = f"; and {len(waiting) - limit} more" if len(waiting) > limit else ""
         text += f" ({'; '.join(waiting[:limit])}{more})"
@@ -585,8 +633,14 @@ class WorkerWatch:
     never submit it again).
     """
 
-    def __init__(self, workers: Callable[[], int], options: ClusterOptions, jobqueue=None,
-                 clock: Callable[[], float] = time.monotonic, job_states=slurm_job_states):
+    def __init__(
+        self,
+        workers: Callable[[], int],
+        options: ClusterOptions,
+        jobqueue=None,
+        clock: Callable[[], float] = time.monotonic,
+        job_states=slurm_job_states,
+    ):
         self._workers, self.options, self.jobqueue = workers, options, jobqueue
         self.clock, self.job_states = clock, job_states
         self.workers = 0
@@ -602,8 +656,7 @@ class WorkerWatch:
             return []
         for _ in range(3):  # the cluster's event loop may change the dict meanwhile
             try:
-                return [str(job.job_id) for job in list(self.jobqueue.workers.values())
-                        if getattr(job, "job_id", None)]
+                return [str(job.job_id) for job in list(self.jobqueue.workers.values()) if getattr(job, "job_id", None)]
             except RuntimeError:
                 continue
         return []
@@ -653,7 +706,8 @@ class WorkerWatch:
                 f"--cluster {self.options.kind}: the batch system refused a job: {refused[0]} "
                 "(JOB-SCRIPT is what --print-job-script prints). Check --queue, --account, --cores, "
                 "--memory and --walltime against the cluster's limits; what was rendered is kept: "
-                "run the same command again to resume")
+                "run the same command again to resume"
+            )
         limit = self.options.start_timeout
         if limit is None or self.without_since is None or self.clock() - self.without_since < limit:
             return
@@ -670,7 +724,8 @@ class WorkerWatch:
             then = "What"
         raise ShaderballError(
             f"--start-timeout {limit}: no worker for {limit} s {since}; {why}. {then} was rendered "
-            "is kept: run the same command again to resume (a larger --start-timeout waits longer)")
+            "is kept: run the same command again to resume (a larger --start-timeout waits longer)"
+        )
 
 
 def _has_dashboard() -> bool:

@@ -62,17 +62,38 @@ _CONTEXTS: dict[tuple, WorkerContext] = {}
 def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
     """This process's context for ``spec``; ``variant`` is the one the build's driver resolved."""
     r = spec.render
-    key = (r.resolution, r.spp, r.max_depth, r.integrator, variant, spec.lighting.sun, r.sampler, r.rr_depth,
-           r.clamp, r.target_error, spec.materials.model)
+    key = (
+        r.resolution,
+        r.spp,
+        r.max_depth,
+        r.integrator,
+        variant,
+        spec.lighting.sun,
+        r.sampler,
+        r.rr_depth,
+        r.clamp,
+        r.target_error,
+        spec.materials.model,
+    )
     if key not in _CONTEXTS:
         load_mitsuba(variant)
         ball, camera = build_shaderball(), default_camera()
-        settings = RenderSettings(resolution=r.resolution, spp=r.spp, max_depth=r.max_depth,
-                                  integrator=r.integrator, variant=variant, sun=spec.lighting.sun,
-                                  sampler=r.sampler, rr_depth=r.rr_depth, clamp=r.clamp,
-                                  target_error=r.target_error, model=spec.materials.model)
-        _CONTEXTS[key] = WorkerContext(ball, camera, load_gbuffer(ball, camera, r.resolution, variant),
-                                       settings.check(), variant)
+        settings = RenderSettings(
+            resolution=r.resolution,
+            spp=r.spp,
+            max_depth=r.max_depth,
+            integrator=r.integrator,
+            variant=variant,
+            sun=spec.lighting.sun,
+            sampler=r.sampler,
+            rr_depth=r.rr_depth,
+            clamp=r.clamp,
+            target_error=r.target_error,
+            model=spec.materials.model,
+        )
+        _CONTEXTS[key] = WorkerContext(
+            ball, camera, load_gbuffer(ball, camera, r.resolution, variant), settings.check(), variant
+        )
     return _CONTEXTS[key]
 
 
@@ -143,13 +164,18 @@ def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
     try:
         requested = record["lighting"]["requested"]
         seeds = record["seeds"]
-        return (record["id"] == sample.sample_id and record["material_index"] == sample.material_index
-                and record["light_index"] == sample.light_index and record["shard"] == sample.shard_id
-                and seeds["material"] == sample.material_seed and seeds["light"] == sample.light_seed
-                and seeds["render"] == sample.render_seed
-                and requested["elevation_deg"] == sample.elevation_deg
-                and requested["azimuth_deg"] == sample.azimuth_deg
-                and requested["turbidity"] == sample.turbidity)
+        return (
+            record["id"] == sample.sample_id
+            and record["material_index"] == sample.material_index
+            and record["light_index"] == sample.light_index
+            and record["shard"] == sample.shard_id
+            and seeds["material"] == sample.material_seed
+            and seeds["light"] == sample.light_seed
+            and seeds["render"] == sample.render_seed
+            and requested["elevation_deg"] == sample.elevation_deg
+            and requested["azimuth_deg"] == sample.azimuth_deg
+            and requested["turbidity"] == sample.turbidity
+        )
     except (KeyError, TypeError):
         return False
 
@@ -161,16 +187,27 @@ def files_where_the_layout_says(record: dict, sample: SamplePlan) -> bool:
     files = record.get("files")
     if not isinstance(files, list) or not files or record_problem(record, sample.shard_id):
         return False
-    where = {"render": Layout.render_rel(sample.shard_id, sample.sample_id),
-             "maps": Layout.maps_rel(sample.shard_id, sample.material_id),
-             "texture": Layout.texture_rel(sample.shard_id, sample.material_id)}
+    where = {
+        "render": Layout.render_rel(sample.shard_id, sample.sample_id),
+        "maps": Layout.maps_rel(sample.shard_id, sample.material_id),
+        "texture": Layout.texture_rel(sample.shard_id, sample.material_id),
+    }
     roles = [entry["role"] for entry in files]
-    return roles[0] == "render" and len(set(roles)) == len(roles) and \
-        all(where.get(entry["role"]) == entry["path"] for entry in files)
+    return (
+        roles[0] == "render"
+        and len(set(roles)) == len(roles)
+        and all(where.get(entry["role"]) == entry["path"] for entry in files)
+    )
 
 
-def sample_verified(root: str, record: dict | None, sample: SamplePlan,
-                    checked: dict[str, bool] | None = None, *, render_only: bool = False) -> bool:
+def sample_verified(
+    root: str,
+    record: dict | None,
+    sample: SamplePlan,
+    checked: dict[str, bool] | None = None,
+    *,
+    render_only: bool = False,
+) -> bool:
     """``record`` is the plan's and its files are present with their recorded size and SHA-256.
 
     ``checked`` memoises file checks: a material's maps are shared by its lightings.
@@ -199,15 +236,17 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
     work = []  # (slot, material, verified records or None, records whose render alone verifies)
     checked: dict[str, bool] = {}
     for material in shard.materials:
-        existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id)))
-                    for s in material.samples]
+        existing = [read_json(layout.path(layout.record_rel(shard.shard_id, s.sample_id))) for s in material.samples]
         verified = [sample_verified(root, r, s, checked) for r, s in zip(existing, material.samples)]
         slots.append(existing)
         if not all(verified):
-            render_kept = [r if not ok and sample_verified(root, r, s, checked, render_only=True) else None
-                           for r, ok, s in zip(existing, verified, material.samples)]
-            work.append((len(slots) - 1, material, [r if ok else None for r, ok in zip(existing, verified)],
-                         render_kept))
+            render_kept = [
+                r if not ok and sample_verified(root, r, s, checked, render_only=True) else None
+                for r, ok, s in zip(existing, verified, material.samples)
+            ]
+            work.append(
+                (len(slots) - 1, material, [r if ok else None for r, ok in zip(existing, verified)], render_kept)
+            )
     # The next material's maps are made on their own thread while this one renders (numpy:
     # ~65 ms a material, a tenth of a material's renders on a GPU, issue 11).
     with OrderedWriter() as writer, ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker:
@@ -220,8 +259,12 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
     new = [r for slot in slots for r in slot]
     rendered = sum(isinstance(r, Future) for r in new)
     write_marker(layout, shard, _resolved(new))
-    return {"shard": shard.shard_id, "rendered": rendered, "skipped": shard.n_renders - rendered,
-            "seconds": time.perf_counter() - start}
+    return {
+        "shard": shard.shard_id,
+        "rendered": rendered,
+        "skipped": shard.n_renders - rendered,
+        "seconds": time.perf_counter() - start,
+    }
 
 
 def make_shard_dir(layout: Layout, shard_id: str) -> None:
@@ -235,11 +278,11 @@ def make_shard_dir(layout: Layout, shard_id: str) -> None:
                 raise ShaderballError(
                     f"{path}: a symbolic link or not a folder where the dataset's shard folder belongs; "
                     "nothing is written through it: remove it (`shaderball validate --repair` does) "
-                    "and run the build again") from None
+                    "and run the build again"
+                ) from None
 
 
-def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant: str,
-                         threads: int) -> dict:
+def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant: str, threads: int) -> dict:
     """Run one shard in this process with ``threads`` Mitsuba threads (a worker's task).
 
     Refuses to start where the dataset folder is not visible: a worker without the shared
@@ -248,7 +291,8 @@ def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant:
     if not os.path.isfile(Layout(out).spec):
         raise ShaderballError(
             f"worker on {socket.gethostname()}: the dataset directory {out!r} is not visible "
-            "here (no spec.toml); every worker needs it at the same path on a shared filesystem")
+            "here (no spec.toml); every worker needs it at the same path on a shared filesystem"
+        )
     load_mitsuba(variant)
     import drjit as dr
 
@@ -268,17 +312,25 @@ def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
     write_text_atomic(layout.marker(shard.shard_id), dumps(marker) + "\n")
 
 
-def build_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
-                   existing: list[dict | None]) -> list[dict]:
+def build_material(
+    layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan, existing: list[dict | None]
+) -> list[dict]:
     """Write a material's maps (once) and every render it lacks; return all its records."""
     with OrderedWriter() as writer:
         records = queue_material(layout, spec, ctx, material, existing, writer)
     return _resolved(records)
 
 
-def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan,
-                   existing: list[dict | None], writer: OrderedWriter,
-                   render_kept: list[dict | None] | None = None, made: Future | None = None) -> list[dict | Future]:
+def queue_material(
+    layout: Layout,
+    spec: DatasetSpec,
+    ctx: WorkerContext,
+    material: MaterialPlan,
+    existing: list[dict | None],
+    writer: OrderedWriter,
+    render_kept: list[dict | None] | None = None,
+    made: Future | None = None,
+) -> list[dict | Future]:
     """Render every sample of ``material`` that ``existing`` (verified records or None) lacks;
     its files and records are queued on ``writer``. Return the kept records and, for the
     others, futures of their records.
@@ -300,8 +352,9 @@ def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, materi
     elif any(r is not None for r in render_kept or ()):
         listed = next(r for r in render_kept if r is not None)["files"][1:]
         intact = [entry for entry in listed if file_ok(layout.root, entry)]
-        material_files = writer.submit(write_material_files, layout, spec, ctx, material, maps,
-                                       description, intact).result()
+        material_files = writer.submit(
+            write_material_files, layout, spec, ctx, material, maps, description, intact
+        ).result()
         existing = [r if r is not None and r["files"][1:] == material_files else None for r in render_kept]
     else:
         material_files = writer.submit(write_material_files, layout, spec, ctx, material, maps, description)
@@ -311,8 +364,9 @@ def queue_material(layout: Layout, spec: DatasetSpec, ctx: WorkerContext, materi
             if old is not None and old.get("files", [])[1:] == material_files:
                 records.append(old)
                 continue
-            records.append(render_and_queue(layout, spec, ctx, sample, maps, description, material_files,
-                                            writer, scene))
+            records.append(
+                render_and_queue(layout, spec, ctx, sample, maps, description, material_files, writer, scene)
+            )
     return records
 
 
@@ -325,22 +379,35 @@ def write_material_files(layout, spec, ctx, material, maps, description, intact=
     storage = spec.storage
     intact = {entry["role"]: entry for entry in intact}
     half = ("diffuse", "specular", "roughness", "normal") if storage.maps_half else ()
-    meta = {"id": material.material_id, "material": description,
-            "colorspace": "linear Rec.709 (sRGB primaries, D65) for diffuse and specular"}
+    meta = {
+        "id": material.material_id,
+        "material": description,
+        "colorspace": "linear Rec.709 (sRGB primaries, D65) for diffuse and specular",
+    }
     rel = layout.maps_rel(material.shard_id, material.material_id)
     if "maps" in intact:
         files = [intact["maps"]]
     else:
         screen = project_material(maps, ctx.gbuffer)
         layers = {name: screen[name] for name in storage.layers}
-        files = [file_entry(layout.root, rel, "maps",
-                            write_exr(layout.path(rel), layers, meta, half=half, compression=storage.compression))]
+        files = [
+            file_entry(
+                layout.root,
+                rel,
+                "maps",
+                write_exr(layout.path(rel), layers, meta, half=half, compression=storage.compression),
+            )
+        ]
     if storage.texture_maps and "texture" in intact:
         files.append(intact["texture"])
     elif storage.texture_maps:
         rel = layout.texture_rel(material.shard_id, material.material_id)
-        texture = {"diffuse": maps.diffuse, "specular": maps.specular,
-                   "roughness": maps.roughness, "normal": maps.normal}
+        texture = {
+            "diffuse": maps.diffuse,
+            "specular": maps.specular,
+            "roughness": maps.roughness,
+            "normal": maps.normal,
+        }
         digest = write_exr(layout.path(rel), texture, meta, half=half, compression=storage.compression)
         files.append(file_entry(layout.root, rel, "texture", digest))
     return files
@@ -349,17 +416,30 @@ def write_material_files(layout, spec, ctx, material, maps, description, intact=
 def non_default_render_options(settings) -> dict:
     """Sampler, Russian roulette, clamp and adaptive target where a spec changed them (what was applied)."""
     defaults = RenderSettings(variant=settings.variant)
-    return {name: getattr(settings, name) for name in ("sampler", "rr_depth", "clamp", "target_error")
-            if getattr(settings, name) != getattr(defaults, name)}
+    return {
+        name: getattr(settings, name)
+        for name in ("sampler", "rr_depth", "clamp", "target_error")
+        if getattr(settings, name) != getattr(defaults, name)
+    }
 
 
-def render_and_queue(layout, spec, ctx, sample: SamplePlan, maps, description, material_files,
-                     writer: OrderedWriter, scene: MaterialScene | None = None) -> Future:
+def render_and_queue(
+    layout,
+    spec,
+    ctx,
+    sample: SamplePlan,
+    maps,
+    description,
+    material_files,
+    writer: OrderedWriter,
+    scene: MaterialScene | None = None,
+) -> Future:
     """Render one sample here; queue its EXR and record on ``writer``. ``material_files``: the
     material's file entries, or the future of the job writing them (queued before)."""
     light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
-    result = render_sample(ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed,
-                           mask=ctx.gbuffer.mask, scene=scene)
+    result = render_sample(
+        ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed, mask=ctx.gbuffer.mask, scene=scene
+    )
     return writer.submit(write_render_and_record, layout, spec, ctx, sample, description, material_files, result)
 
 
@@ -370,12 +450,17 @@ def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, 
     effective = Light.from_dict(result.lighting["effective"])
     stats = dict(result.stats)
     stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
-    meta = {"id": sample.sample_id, "material_id": sample.material_id, "lighting": result.lighting,
-            "effects": result.effects.to_dict(), "stats": stored_stats,
-            "colorspace": "linear Rec.709 (sRGB primaries, D65)", **model_record(ctx.settings.model)}
+    meta = {
+        "id": sample.sample_id,
+        "material_id": sample.material_id,
+        "lighting": result.lighting,
+        "effects": result.effects.to_dict(),
+        "stats": stored_stats,
+        "colorspace": "linear Rec.709 (sRGB primaries, D65)",
+        **model_record(ctx.settings.model),
+    }
     rel = layout.render_rel(sample.shard_id, sample.sample_id)
-    digest = write_exr(layout.path(rel), {"render": result.image}, meta,
-                       compression=spec.storage.compression)
+    digest = write_exr(layout.path(rel), {"render": result.image}, meta, compression=spec.storage.compression)
     record = {
         "schema": SCHEMA_VERSION,
         "id": sample.sample_id,
@@ -393,13 +478,23 @@ def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, 
             "policy": {k: v for k, v in result.lighting.items() if k not in ("requested", "effective")},
         },
         "lighting_vector": [float(x) for x in effective.lighting_vector()],
-        "seeds": {"material": sample.material_seed, "light": sample.light_seed,
-                  "render": sample.render_seed, "render_used": stats["seed"]},
+        "seeds": {
+            "material": sample.material_seed,
+            "light": sample.light_seed,
+            "render": sample.render_seed,
+            "render_used": stats["seed"],
+        },
         "effects": result.effects.to_dict(),
-        "render": {"resolution": ctx.settings.resolution, "spp": ctx.settings.spp,
-                   "max_depth": ctx.settings.max_depth, "integrator": ctx.settings.integrator,
-                   "variant": ctx.variant, "sun": ctx.settings.sun, **non_default_render_options(ctx.settings),
-                   **model_record(ctx.settings.model)},
+        "render": {
+            "resolution": ctx.settings.resolution,
+            "spp": ctx.settings.spp,
+            "max_depth": ctx.settings.max_depth,
+            "integrator": ctx.settings.integrator,
+            "variant": ctx.variant,
+            "sun": ctx.settings.sun,
+            **non_default_render_options(ctx.settings),
+            **model_record(ctx.settings.model),
+        },
         # The render's wall time (`time_s`) is the one run-dependent value of a record: it is
         # kept out of the EXR header (files are a pure function of the plan) and ignored
         # wherever records are compared (pipeline.store.records.RUN_DEPENDENT_STATS).

@@ -40,12 +40,41 @@ from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
 
 __all__ = [
-    "LOCK_FILE", "MANIFEST_FILE", "MARKER_FILE", "MAX_JSON_BYTES", "RECORD_NAME", "SHARD_NAME", "TEMP_PREFIX",
-    "UnsafePath", "complete_marker", "disk_usage", "file_digest", "is_lock_file", "is_record_file", "is_temp_file",
-    "manifest_record_count", "only_temp_files", "read_bytes", "read_json", "read_json_checked", "read_json_in", "read_manifest",
-    "read_spec_snapshot", "record_file_names", "record_problem", "recorded_count", "rel_problem",
-    "real_dir", "remove_temp_files", "resolve_inside", "shard_ids_on_disk", "shard_records",
-    "symlinks_and_odd_files", "unsafe_entry", "list_bound", "marker_records",
+    "LOCK_FILE",
+    "MANIFEST_FILE",
+    "MARKER_FILE",
+    "MAX_JSON_BYTES",
+    "RECORD_NAME",
+    "SHARD_NAME",
+    "TEMP_PREFIX",
+    "UnsafePath",
+    "complete_marker",
+    "disk_usage",
+    "file_digest",
+    "is_lock_file",
+    "is_record_file",
+    "is_temp_file",
+    "manifest_record_count",
+    "only_temp_files",
+    "read_bytes",
+    "read_json",
+    "read_json_checked",
+    "read_json_in",
+    "read_manifest",
+    "read_spec_snapshot",
+    "record_file_names",
+    "record_problem",
+    "recorded_count",
+    "rel_problem",
+    "real_dir",
+    "remove_temp_files",
+    "resolve_inside",
+    "shard_ids_on_disk",
+    "shard_records",
+    "symlinks_and_odd_files",
+    "unsafe_entry",
+    "list_bound",
+    "marker_records",
 ]
 
 #: Largest record file, description or spec read from a folder (a record is ~3 kB).
@@ -81,9 +110,14 @@ def rel_problem(rel) -> str | None:
 
 
 def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISDIR, "a directory")):
+    for test, name in (
+        (stat.S_ISLNK, "a symbolic link"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISDIR, "a directory"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -229,8 +263,11 @@ def record_problem(record, shard_id: str | None = None) -> str | None:
     for entry in files:
         if not isinstance(entry, dict):
             return f"record {record['id']}: a file entry that is not an object"
-        missing = [key for key, kind in (("role", str), ("path", str), ("bytes", int), ("sha256", str))
-                   if not isinstance(entry.get(key), kind) or isinstance(entry.get(key), bool)]
+        missing = [
+            key
+            for key, kind in (("role", str), ("path", str), ("bytes", int), ("sha256", str))
+            if not isinstance(entry.get(key), kind) or isinstance(entry.get(key), bool)
+        ]
         if missing:
             return f"record {record['id']}: a file entry without {', '.join(missing)}"
         problem = rel_problem(entry["path"])
@@ -243,8 +280,9 @@ def record_problem(record, shard_id: str | None = None) -> str | None:
     return None
 
 
-def complete_marker(layout: Layout, shard_id: str, sample_ids: list[str] | None = None,
-                    renders: int | None = None) -> list[dict] | None:
+def complete_marker(
+    layout: Layout, shard_id: str, sample_ids: list[str] | None = None, renders: int | None = None
+) -> list[dict] | None:
     """The records of ``shard_id``'s marker when it marks the shard complete and is
     well-formed (:func:`marker_records`); else None: a build then runs the shard again,
     verifying each sample."""
@@ -275,6 +313,7 @@ def is_temp_file(name: str) -> bool:
 def is_record_file(name: str) -> bool:
     """A sample's record file (not the marker, not a temporary file)."""
     return RECORD_NAME.match(name) is not None
+
 
 #: A sample's record file, ``Layout.record_rel``: ``m<6-digit material>_l<light>.json``
 #: (MAX_MATERIALS is 1,000,000, so a material index has 6 digits).
@@ -345,8 +384,9 @@ def recorded_count(layout: Layout, shard_id: str, planned: int) -> int:
     return sum(1 for n in names if is_record_file(n))
 
 
-def shard_records(layout: Layout, shard_id: str, renders: int | None = None
-                  ) -> tuple[list[dict], bool, bool, list[str]]:
+def shard_records(
+    layout: Layout, shard_id: str, renders: int | None = None
+) -> tuple[list[dict], bool, bool, list[str]]:
     """(records, complete, started, problems) of one shard: the marker's records when it is
     complete and well-formed, else the usable record files'. ``problems`` says, one line
     each, what was left out and why (a torn or malformed marker, a record without files, a

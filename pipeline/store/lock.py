@@ -63,8 +63,10 @@ def holder_text(info: dict | None) -> str:
     if not isinstance(info, dict) or not info:
         return "a writer that is just starting (it has not yet said who it is)"
     command = info.get("command")
-    return (f"{info.get('purpose', '?')}, pid {info.get('pid', '?')} on host {info.get('host', '?')}, "
-            f"since {info.get('since', '?')}" + (f" (`{command}`)" if command else ""))
+    return (
+        f"{info.get('purpose', '?')}, pid {info.get('pid', '?')} on host {info.get('host', '?')}, "
+        f"since {info.get('since', '?')}" + (f" (`{command}`)" if command else "")
+    )
 
 
 def _read_holder(fd: int) -> dict | None:
@@ -83,8 +85,10 @@ def _open_lock_file(root: str) -> int:
         fd = os.open(path, flags, 0o666)
     except OSError as exc:
         if exc.errno == errno.ELOOP:
-            raise ShaderballError(f"DIR: {path!r} is a symbolic link; a dataset folder holds none "
-                                  "(`shaderball validate` reports it); remove it") from None
+            raise ShaderballError(
+                f"DIR: {path!r} is a symbolic link; a dataset folder holds none "
+                "(`shaderball validate` reports it); remove it"
+            ) from None
         raise FilesystemError(f"DIR: cannot create the writer lock {path!r}: {exc.strerror}") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
@@ -109,23 +113,30 @@ def _acquire(root: str, purpose: str) -> int:
         except BlockingIOError:
             holder = _read_holder(fd)
             os.close(fd)
-            raise FolderBusy(f"DIR: {root!r} is being written by another writer: {holder_text(holder)}. "
-                             "One writer at a time (build, validate --repair, unpack): wait for it to "
-                             "finish, or stop it (a writer that is killed releases the folder at once); "
-                             "readers (validate, info, preview, publish, train) may run beside it") from None
+            raise FolderBusy(
+                f"DIR: {root!r} is being written by another writer: {holder_text(holder)}. "
+                "One writer at a time (build, validate --repair, unpack): wait for it to "
+                "finish, or stop it (a writer that is killed releases the folder at once); "
+                "readers (validate, info, preview, publish, train) may run beside it"
+            ) from None
         except OSError as exc:
             os.close(fd)
             raise FilesystemError(
                 f"DIR: the filesystem of {root!r} refuses file locks ({exc.strerror}), so two writers "
-                "could not be kept apart; use a filesystem (or mount option) with flock support") from None
+                "could not be kept apart; use a filesystem (or mount option) with flock support"
+            ) from None
         if _same_file(fd, path):
             break
         os.close(fd)  # its holder unlinked it as we locked it: take the new one
     else:
         raise FolderBusy(f"DIR: {root!r}: the writer lock {path!r} kept changing hands; try again")
-    info = {"purpose": purpose, "pid": os.getpid(), "host": socket.gethostname(),
-            "since": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "command": shlex.join(sys.argv)}
+    info = {
+        "purpose": purpose,
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "since": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": shlex.join(sys.argv),
+    }
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, (json.dumps(info, sort_keys=True) + "\n").encode("utf-8"), 0)

@@ -8,8 +8,7 @@ import os
 from pipeline.store.atomic import sha256_file
 from pipeline.store.folder import file_digest, read_json, resolve_inside
 
-__all__ = ["RUN_DEPENDENT_STATS", "SCHEMA_VERSION", "dumps", "file_entry", "file_ok", "read_json",
-           "without_timings"]
+__all__ = ["RUN_DEPENDENT_STATS", "SCHEMA_VERSION", "dumps", "file_entry", "file_ok", "read_json", "without_timings"]
 
 SCHEMA_VERSION = 1
 #: Keys of a render's statistics that depend on the run (timings), not on the data.
@@ -30,8 +29,11 @@ def file_ok(root: str, entry, hash_check: bool = True) -> bool:
     """The file of a record's entry is inside ``root`` (pipeline.store.folder.resolve_inside:
     no ``..``, not absolute, through no symbolic link), a regular file with the recorded
     size (and SHA-256). A malformed entry is simply not ok."""
-    if not isinstance(entry, dict) or not isinstance(entry.get("bytes"), int) or \
-            not isinstance(entry.get("sha256"), str):
+    if (
+        not isinstance(entry, dict)
+        or not isinstance(entry.get("bytes"), int)
+        or not isinstance(entry.get("sha256"), str)
+    ):
         return False
     try:
         path = resolve_inside(root, entry.get("path"))

@@ -47,16 +47,23 @@ class Config:
         return (self.spp, tuple(sorted(self.changes.items())), self.passes)
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "family": self.family, "spp": self.spp, "changes": dict(self.changes),
-                "post": self.post, "passes": list(self.passes)}
+        return {
+            "name": self.name,
+            "family": self.family,
+            "spp": self.spp,
+            "changes": dict(self.changes),
+            "post": self.post,
+            "passes": list(self.passes),
+        }
 
 
 def paper_name(spp: int) -> str:
     return f"independent/{spp}"
 
 
-def study_configs(recipe_spp: int, recipe_sun: str, ladder: tuple[int, ...], families: tuple[str, ...],
-                  recipe_max_depth: int = 8) -> list[Config]:
+def study_configs(
+    recipe_spp: int, recipe_sun: str, ladder: tuple[int, ...], families: tuple[str, ...], recipe_max_depth: int = 8
+) -> list[Config]:
     """Every configuration of the study, the spec's recipe (independent/recipe_spp) included."""
     ladder = tuple(sorted(set(ladder) | {recipe_spp}))
     top = max(ladder)
@@ -68,8 +75,11 @@ def study_configs(recipe_spp: int, recipe_sun: str, ladder: tuple[int, ...], fam
         for sampler in SAMPLERS[1:]:
             out += [Config(f"{sampler}/{n}", "samplers", n, {"sampler": sampler}) for n in SAMPLER_SPP if n <= top]
     if "depth" in families:
-        out += [Config(f"depth{d}/{recipe_spp}", "depth", recipe_spp, {"max_depth": d})
-                for d in DEPTHS if d != recipe_max_depth]
+        out += [
+            Config(f"depth{d}/{recipe_spp}", "depth", recipe_spp, {"max_depth": d})
+            for d in DEPTHS
+            if d != recipe_max_depth
+        ]
     if "rr" in families:
         out += [Config(f"rr{d}/{recipe_spp}", "rr", recipe_spp, {"rr_depth": d}) for d in RR_DEPTHS]
     if "sun" in families:
@@ -80,8 +90,16 @@ def study_configs(recipe_spp: int, recipe_sun: str, ladder: tuple[int, ...], fam
     if "robust" in families:
         for p in ROBUST_PASS_SPP:
             if p * ROBUST_PASSES <= top:
-                out += [Config(f"{post}{ROBUST_PASSES}x{p}", "robust", p * ROBUST_PASSES, post=post,
-                               passes=(p,) * ROBUST_PASSES) for post in ("mean", "trim", "mom")]
+                out += [
+                    Config(
+                        f"{post}{ROBUST_PASSES}x{p}",
+                        "robust",
+                        p * ROBUST_PASSES,
+                        post=post,
+                        passes=(p,) * ROBUST_PASSES,
+                    )
+                    for post in ("mean", "trim", "mom")
+                ]
     if "adaptive" in families:
         cap = max([n for n in ladder if n <= 4 * recipe_spp] or [top])
         out += [Config(f"adaptive{t:g}/{cap}", "adaptive", cap, {"target_error": t}) for t in ADAPTIVE_TARGETS]

@@ -35,8 +35,7 @@ def shape_ids_and_normals(ball, camera, resolution: int, variant: str) -> tuple[
     """Per pixel: the id of the shape hit at the pixel centre ("" for none) and its shading normal."""
     mi = load_mitsuba(variant)
     scene = intersection_scene(ball, camera, resolution, variant)
-    si = scene.ray_intersect(pixel_centre_rays(scene, resolution, variant), ray_flags=mi.RayFlags.All,
-                             coherent=True)
+    si = scene.ray_intersect(pixel_centre_rays(scene, resolution, variant), ray_flags=mi.RayFlags.All, coherent=True)
     valid = np.array(si.is_valid(), dtype=bool)
     ids = np.full(resolution * resolution, "", dtype=object)
     for shape in scene.shapes():
@@ -59,8 +58,9 @@ def guides(shape_ids: np.ndarray, normals: np.ndarray, screen_maps: dict) -> tup
     return albedo, np.clip(normals, -1.0, 1.0).astype(np.float32)
 
 
-def denoise(image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
-            ) -> tuple[np.ndarray, float, float]:
+def denoise(
+    image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
+) -> tuple[np.ndarray, float, float]:
     """(denoised HDR image, wall seconds, CPU seconds) of OIDN on ``image``, guided when given."""
     import pyoidn
 

@@ -51,8 +51,9 @@ def relmse(test, reference, mask=None) -> float:
     return float(relmse_terms(test, reference, mask).mean())
 
 
-def reference_floor(reference: np.ndarray, variance_y: np.ndarray, half1: np.ndarray, half2: np.ndarray,
-                    mask: np.ndarray) -> dict:
+def reference_floor(
+    reference: np.ndarray, variance_y: np.ndarray, half1: np.ndarray, half2: np.ndarray, mask: np.ndarray
+) -> dict:
     """The reference's own relMSE, two ways, on the ball and the frame; ``floor_*`` the larger."""
     y = luminance(reference)
     moment = np.asarray(variance_y, dtype=np.float64) / (y * y + RELMSE_EPS)
@@ -77,8 +78,13 @@ def firefly_free_relmse(test: np.ndarray, reference: np.ndarray, mask: np.ndarra
     return float(terms[keep].mean()) if keep.size else 0.0
 
 
-def ball_bias(test: np.ndarray, reference: np.ndarray, mask: np.ndarray, test_variance_y: np.ndarray | None,
-              reference_variance_y: np.ndarray) -> tuple[float, float | None]:
+def ball_bias(
+    test: np.ndarray,
+    reference: np.ndarray,
+    mask: np.ndarray,
+    test_variance_y: np.ndarray | None,
+    reference_variance_y: np.ndarray,
+) -> tuple[float, float | None]:
     """(relative difference of the ball's mean luminance, its z score or None)."""
     sel = np.asarray(mask, bool)
     mt, mr = luminance(test)[sel].mean(), luminance(reference)[sel].mean()
@@ -86,13 +92,21 @@ def ball_bias(test: np.ndarray, reference: np.ndarray, mask: np.ndarray, test_va
     if test_variance_y is None:
         return bias, None
     n = sel.sum()
-    se = math.sqrt(float(np.asarray(test_variance_y, np.float64)[sel].sum()
-                         + np.asarray(reference_variance_y, np.float64)[sel].sum())) / n
+    se = (
+        math.sqrt(
+            float(
+                np.asarray(test_variance_y, np.float64)[sel].sum()
+                + np.asarray(reference_variance_y, np.float64)[sel].sum()
+            )
+        )
+        / n
+    )
     return bias, float((mt - mr) / se) if se > 0 else None
 
 
-def measure(test: np.ndarray, reference: dict, mask: np.ndarray, test_variance_y: np.ndarray | None = None,
-            flip: bool = True) -> dict:
+def measure(
+    test: np.ndarray, reference: dict, mask: np.ndarray, test_variance_y: np.ndarray | None = None, flip: bool = True
+) -> dict:
     """Every metric of ``test`` against ``reference`` (a dict: image, variance, floor: reference_floor)."""
     ref = reference["image"]
     ball = relmse(test, ref, mask)

@@ -84,9 +84,11 @@ class StudySummary:
     recommendations: dict = field(default_factory=dict)
 
     def lines(self) -> list[str]:
-        out = [f"study: {self.samples} samples x {self.configs} configurations = {self.rows} rows "
-               f"({self.rendered} measured now, {self.reused} kept) in {self.seconds:.0f} s",
-               f"wrote {self.out}/study.json, study.csv, pareto.png, report.md"]
+        out = [
+            f"study: {self.samples} samples x {self.configs} configurations = {self.rows} rows "
+            f"({self.rendered} measured now, {self.reused} kept) in {self.seconds:.0f} s",
+            f"wrote {self.out}/study.json, study.csv, pareto.png, report.md",
+        ]
         for key, rec in self.recommendations.items():
             if rec:
                 out.append(f"{key}: {rec['config']} ({rec['note']})")
@@ -128,28 +130,43 @@ def check_request(req: StudyRequest):
     parse_ladder(",".join(map(str, req.ladder)))
     spec = parse_spec(req.spec)
     if req.only:
-        names = [c.name for c in study_configs(spec.render.spp, spec.lighting.sun, req.ladder, req.families,
-                                               spec.render.max_depth)]
+        names = [
+            c.name
+            for c in study_configs(spec.render.spp, spec.lighting.sun, req.ladder, req.families, spec.render.max_depth)
+        ]
         unknown = [n for n in req.only if n not in names]
         if unknown:
-            raise bad_value("--only", ",".join(req.only), "comma-separated configuration names of the chosen "
-                            f"--configs and --ladder (unknown: {', '.join(unknown)}), e.g. "
-                            + ", ".join(names[:4]))
+            raise bad_value(
+                "--only",
+                ",".join(req.only),
+                "comma-separated configuration names of the chosen "
+                f"--configs and --ladder (unknown: {', '.join(unknown)}), e.g. " + ", ".join(names[:4]),
+            )
     top = max(*req.ladder, spec.render.spp)
     ref = req.reference_spp
     if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= 65536:
-        raise bad_value("--reference-spp", ref, f"an even integer from {2 * top} to 65536 (at least twice the "
-                                                f"largest spp studied, {top})")
+        raise bad_value(
+            "--reference-spp",
+            ref,
+            f"an even integer from {2 * top} to 65536 (at least twice the largest spp studied, {top})",
+        )
     if os.path.exists(req.out) and not os.path.isdir(req.out):
         raise bad_value("--out", req.out, "a folder (new, or a study folder of this same request)")
     return spec
 
 
 def request_record(req: StudyRequest, spec) -> dict:
-    return {"spec_digest": spec_digest(spec), "samples": req.samples, "reference_spp": req.reference_spp,
-            "resolution": req.resolution or spec.render.resolution, "ladder": list(req.ladder),
-            "families": list(req.families), "scan": req.scan, "flip": req.flip,
-            **({"only": list(req.only)} if req.only else {})}
+    return {
+        "spec_digest": spec_digest(spec),
+        "samples": req.samples,
+        "reference_spp": req.reference_spp,
+        "resolution": req.resolution or spec.render.resolution,
+        "ladder": list(req.ladder),
+        "families": list(req.families),
+        "scan": req.scan,
+        "flip": req.flip,
+        **({"only": list(req.only)} if req.only else {}),
+    }
 
 
 def check_resumable(out: str, record: dict) -> None:
@@ -162,8 +179,10 @@ def check_resumable(out: str, record: dict) -> None:
         old = json.load(fh)
     diff = sorted(k for k in set(old) | set(record) if old.get(k) != record.get(k))
     if diff:
-        raise ShaderballError(f"--out {out}: holds a study of another request (differs in {', '.join(diff)}); "
-                              "use a new folder, or the same spec and options to resume")
+        raise ShaderballError(
+            f"--out {out}: holds a study of another request (differs in {', '.join(diff)}); "
+            "use a new folder, or the same spec and options to resume"
+        )
 
 
 def derived_seed(*keys) -> int:
@@ -188,8 +207,7 @@ class SampleScene:
         self.screen = project_material(self.maps, ctx.gbuffer)
 
     def scene(self, settings):
-        loaded, _, _ = MaterialScene().lit(self.ctx.mi, self.ctx.ball, self.ctx.camera, self.maps, self.light,
-                                           settings)
+        loaded, _, _ = MaterialScene().lit(self.ctx.mi, self.ctx.ball, self.ctx.camera, self.maps, self.light, settings)
         return loaded
 
     def render(self, settings: RenderSettings, seed: int, passes: tuple[int, ...] = ()) -> dict:
@@ -199,17 +217,29 @@ class SampleScene:
         # other samplers' do (measured: ~0.8 s per new sample count at 80x80), so they are
         # warmed with the very passes they are timed with.
         warm_spp = 1 if settings.sampler == "independent" else settings.spp
-        render_scene(mi, scene, warm_spp, derived_seed(seed, "warm"), sampler=settings.sampler,
-                     target_error=settings.target_error, mask=mask)
+        render_scene(
+            mi,
+            scene,
+            warm_spp,
+            derived_seed(seed, "warm"),
+            sampler=settings.sampler,
+            target_error=settings.target_error,
+            mask=mask,
+        )
         wall, cpu = time.perf_counter(), time.process_time()
         if passes:
             images = [render_pass(mi, scene, p, seed, k)[0] for k, p in enumerate(passes)]
             result = {"passes": images, "spp_used": int(sum(passes)), "error_estimate": None}
         else:
-            out = render_scene(mi, scene, settings.spp, seed, sampler=settings.sampler,
-                               target_error=settings.target_error, mask=mask)
-            result = {"image": out.image, "variance": out.variance, "spp_used": out.spp_used,
-                      "error_estimate": out.error_estimate}
+            out = render_scene(
+                mi, scene, settings.spp, seed, sampler=settings.sampler, target_error=settings.target_error, mask=mask
+            )
+            result = {
+                "image": out.image,
+                "variance": out.variance,
+                "spp_used": out.spp_used,
+                "error_estimate": out.error_estimate,
+            }
         result.update(wall_s=time.perf_counter() - wall, cpu_s=time.process_time() - cpu)
         del scene
         return result
@@ -252,16 +282,29 @@ def render_reference(subject: SampleScene, ctx: Context, reference_spp: int) -> 
     image = ((halves[0]["image"].astype(np.float64) + halves[1]["image"]) / 2).astype(np.float32)
     variance = ((halves[0]["variance"].astype(np.float64) + halves[1]["variance"]) / 4).astype(np.float32)
     floor = m.reference_floor(image, variance, halves[0]["image"], halves[1]["image"], ctx.gbuffer.mask)
-    return {"image": image, "variance": variance, "half1": halves[0]["image"], "half2": halves[1]["image"],
-            "floor": floor, "cpu_s": halves[0]["cpu_s"] + halves[1]["cpu_s"],
-            "wall_s": halves[0]["wall_s"] + halves[1]["wall_s"]}
+    return {
+        "image": image,
+        "variance": variance,
+        "half1": halves[0]["image"],
+        "half2": halves[1]["image"],
+        "floor": floor,
+        "cpu_s": halves[0]["cpu_s"] + halves[1]["cpu_s"],
+        "wall_s": halves[0]["wall_s"] + halves[1]["wall_s"],
+    }
 
 
 def save_reference(path: str, ref: dict) -> None:
     buf = io.BytesIO()
-    np.savez(buf, image=ref["image"], variance=ref["variance"], half1=ref["half1"], half2=ref["half2"],
-             meta=np.frombuffer(json.dumps({"floor": ref["floor"], "cpu_s": ref["cpu_s"],
-                                            "wall_s": ref["wall_s"]}).encode(), dtype=np.uint8))
+    np.savez(
+        buf,
+        image=ref["image"],
+        variance=ref["variance"],
+        half1=ref["half1"],
+        half2=ref["half2"],
+        meta=np.frombuffer(
+            json.dumps({"floor": ref["floor"], "cpu_s": ref["cpu_s"], "wall_s": ref["wall_s"]}).encode(), dtype=np.uint8
+        ),
+    )
     write_bytes_atomic(path, buf.getvalue())
 
 
@@ -301,12 +344,26 @@ def measure_config(subject: SampleScene, ctx: Context, config: Config, ref: dict
     else:
         image, variance = r["image"], r["variance"]
     metrics = m.measure(image, ref, ctx.gbuffer.mask, variance, flip=flip)
-    row = {"sample_id": subject.sample.sample_id, "material_class": subject.sample.material_class,
-           "config": config.name, "family": config.family, "post": config.post, "spp": config.spp,
-           "spp_used": r["spp_used"], "seed": seed, **config.changes,
-           "error_estimate": r["error_estimate"], "render_wall_s": r["wall_s"], "render_cpu_s": r["cpu_s"],
-           "post_wall_s": post_wall, "post_cpu_s": post_cpu, "wall_s": r["wall_s"] + post_wall,
-           "cpu_s": r["cpu_s"] + post_cpu, "floor_ball": ref["floor"]["floor_ball"], **metrics}
+    row = {
+        "sample_id": subject.sample.sample_id,
+        "material_class": subject.sample.material_class,
+        "config": config.name,
+        "family": config.family,
+        "post": config.post,
+        "spp": config.spp,
+        "spp_used": r["spp_used"],
+        "seed": seed,
+        **config.changes,
+        "error_estimate": r["error_estimate"],
+        "render_wall_s": r["wall_s"],
+        "render_cpu_s": r["cpu_s"],
+        "post_wall_s": post_wall,
+        "post_cpu_s": post_cpu,
+        "wall_s": r["wall_s"] + post_wall,
+        "cpu_s": r["cpu_s"] + post_cpu,
+        "floor_ball": ref["floor"]["floor_ball"],
+        **metrics,
+    }
     return {k: _finite(v) for k, v in row.items()}
 
 
@@ -322,8 +379,14 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     resolution = record["resolution"]
     gbuffer = load_gbuffer(ball, camera, resolution, variant)
     r = spec.render
-    base = RenderSettings(resolution=resolution, spp=r.spp, max_depth=r.max_depth, integrator=r.integrator,
-                          sun=spec.lighting.sun, variant=variant).check()
+    base = RenderSettings(
+        resolution=resolution,
+        spp=r.spp,
+        max_depth=r.max_depth,
+        integrator=r.integrator,
+        sun=spec.lighting.sun,
+        variant=variant,
+    ).check()
     shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
     ctx = Context(spec, variant, mi, ball, camera, gbuffer, base, shape_ids, normals)
     selection = select_samples(spec, req.samples, req.scan)
@@ -331,8 +394,7 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     if req.only:
         configs = [c for c in configs if c.name in req.only or c.name == f"independent/{r.spp}"]
     wanted = {s.material_index for s in selection}
-    plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials
-             if p.material_index in wanted}
+    plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials if p.material_index in wanted}
 
     os.makedirs(os.path.join(req.out, "references"), exist_ok=True)
     os.makedirs(os.path.join(req.out, "rows"), exist_ok=True)
@@ -372,21 +434,38 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
             if config.name in mine:
                 counts["reused"] += 1
             else:
-                mine[config.name] = measure_config(subjects[s.sample_id], ctx, config, references[s.sample_id],
-                                                   cache, req.flip)
+                mine[config.name] = measure_config(
+                    subjects[s.sample_id], ctx, config, references[s.sample_id], cache, req.flip
+                )
                 write_text_atomic(path, json.dumps(mine, indent=0, allow_nan=False) + "\n")
                 counts["rendered"] += 1
             rows.append(mine[config.name])
             tick(f"{s.sample_id} {config.name}")
 
-    meta = {"request": record, "spec": os.path.abspath(req.spec), "variant": variant, "resolution": resolution,
-            "recipe": {"spp": r.spp, "max_depth": r.max_depth, "sun": spec.lighting.sun,
-                       "sampler": "independent"},
-            "selection": [s.to_dict() for s in selection], "configs": [c.to_dict() for c in configs],
-            "references": {sid: {**ref["floor"], "cpu_s": ref["cpu_s"], "wall_s": ref["wall_s"]}
-                           for sid, ref in references.items()},
-            "cpu_count": os.cpu_count(), "relmse_eps": m.RELMSE_EPS, "floor_factor": m.FLOOR_FACTOR,
-            "firefly_share": m.FIREFLY_SHARE}
+    meta = {
+        "request": record,
+        "spec": os.path.abspath(req.spec),
+        "variant": variant,
+        "resolution": resolution,
+        "recipe": {"spp": r.spp, "max_depth": r.max_depth, "sun": spec.lighting.sun, "sampler": "independent"},
+        "selection": [s.to_dict() for s in selection],
+        "configs": [c.to_dict() for c in configs],
+        "references": {
+            sid: {**ref["floor"], "cpu_s": ref["cpu_s"], "wall_s": ref["wall_s"]} for sid, ref in references.items()
+        },
+        "cpu_count": os.cpu_count(),
+        "relmse_eps": m.RELMSE_EPS,
+        "floor_factor": m.FLOOR_FACTOR,
+        "firefly_share": m.FIREFLY_SHARE,
+    }
     recommendations = write_outputs(req.out, meta, rows, configs)
-    return StudySummary(req.out, len(selection), len(configs), len(rows), counts["rendered"], counts["reused"],
-                        time.perf_counter() - started, recommendations)
+    return StudySummary(
+        req.out,
+        len(selection),
+        len(configs),
+        len(rows),
+        counts["rendered"],
+        counts["reused"],
+        time.perf_counter() - started,
+        recommendations,
+    )

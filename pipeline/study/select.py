@@ -80,7 +80,8 @@ def select_samples(spec: DatasetSpec, n: int, scan: int = 60) -> list[StudySampl
 
     found = {c for _, c, _ in pool}
     classes = [c for c in ("uniform_dielectric", "uniform_metal") if c in found] + sorted(
-        c for c in found if c.startswith("svbrdf:"))
+        c for c in found if c.startswith("svbrdf:")
+    )
     by_class = {c: [item for item in pool if item[1] == c] for c in classes}
     picks: list[StudySample] = []
     used_ids, used_materials = set(), set()
@@ -98,11 +99,20 @@ def select_samples(spec: DatasetSpec, n: int, scan: int = 60) -> list[StudySampl
             best = min(fresh, key=lambda it: (float(np.abs(features(it) - corner).sum()), it[0].sample_id))
             s, _, rough = best
             f = features(best)
-            picks.append(StudySample(
-                sample_id=s.sample_id, material_index=s.material_index, light_index=s.light_index,
-                material_class=c, elevation_deg=float(s.elevation_deg), azimuth_deg=float(s.azimuth_deg),
-                turbidity=float(s.turbidity), roughness=rough, render_seed=int(s.render_seed),
-                corner=tuple("high" if v >= 0.5 else "low" for v in f)))
+            picks.append(
+                StudySample(
+                    sample_id=s.sample_id,
+                    material_index=s.material_index,
+                    light_index=s.light_index,
+                    material_class=c,
+                    elevation_deg=float(s.elevation_deg),
+                    azimuth_deg=float(s.azimuth_deg),
+                    turbidity=float(s.turbidity),
+                    roughness=rough,
+                    render_seed=int(s.render_seed),
+                    corner=tuple("high" if v >= 0.5 else "low" for v in f),
+                )
+            )
             used_ids.add(s.sample_id)
             used_materials.add(s.material_index)
             turn[c] += 1

@@ -41,7 +41,7 @@ class OpenWatch:
             offset = 0
             while offset < len(data):
                 _wd, _mask, _cookie, length = _EVENT.unpack_from(data, offset)
-                name = data[offset + _EVENT.size: offset + _EVENT.size + length].rstrip(b"\0")
+                name = data[offset + _EVENT.size : offset + _EVENT.size + length].rstrip(b"\0")
                 self._seen.append(os.fsdecode(name) or ".")
                 offset += _EVENT.size + length
         return list(self._seen)

@@ -40,14 +40,16 @@ class FakeSource:
                 light = np.array([*d, rng.uniform(1, 10)], dtype=np.float32)
                 shade = np.linspace(0.2, 1.0, resolution)[None, :, None] * d[2]
                 target = np.clip(diffuse * shade, 0, 1).astype(np.float32)
-                self.items.append({
-                    "maps": torch.from_numpy(maps.copy()),
-                    "light": torch.from_numpy(light),
-                    "target": torch.from_numpy(target),
-                    "mask": torch.ones(1, resolution, resolution),
-                    "id": f"m{m:06d}_l{l}",
-                    "material_id": f"m{m:06d}",
-                })
+                self.items.append(
+                    {
+                        "maps": torch.from_numpy(maps.copy()),
+                        "light": torch.from_numpy(light),
+                        "target": torch.from_numpy(target),
+                        "mask": torch.ones(1, resolution, resolution),
+                        "id": f"m{m:06d}_l{l}",
+                        "material_id": f"m{m:06d}",
+                    }
+                )
         self.material_ids = sorted({it["material_id"] for it in self.items})
 
     def subset(self, material_ids):

@@ -37,18 +37,24 @@ def files_of(root: Path) -> dict[str, bytes]:
 # --------------------------------------------------------------------------- raw tars
 
 
-def raw_header(name: bytes, size: int, typeflag: bytes = b"0", linkname: bytes = b"",
-               magic: bytes = b"ustar\x00", version: bytes = b"00") -> bytes:
+def raw_header(
+    name: bytes,
+    size: int,
+    typeflag: bytes = b"0",
+    linkname: bytes = b"",
+    magic: bytes = b"ustar\x00",
+    version: bytes = b"00",
+) -> bytes:
     """A 512-byte tar header written by hand (what a hostile tool could write)."""
     header = bytearray(512)
-    header[0:len(name)] = name
+    header[0 : len(name)] = name
     header[100:108] = b"0000644\x00"
     header[108:116] = b"0000000\x00"
     header[116:124] = b"0000000\x00"
     header[124:136] = b"%011o\x00" % size
     header[136:148] = b"%011o\x00" % 0
     header[156:157] = typeflag
-    header[157:157 + len(linkname)] = linkname
+    header[157 : 157 + len(linkname)] = linkname
     header[257:263] = magic
     header[263:265] = version
     header[148:156] = b" " * 8

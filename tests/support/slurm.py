@@ -42,8 +42,10 @@ def unavailable_reason() -> str | None:
         return "real SLURM tests turned off: SHADERBALL_NO_SLURM is set"
     missing = [name for name in DAEMONS + CLIENTS if which(name) is None]
     if missing:
-        return (f"real SLURM not available: {', '.join(missing)} not found (`make slurm`, part of `make test`, "
-                "installs Debian's slurm-wlm and munge as root with apt-get)")
+        return (
+            f"real SLURM not available: {', '.join(missing)} not found (`make slurm`, part of `make test`, "
+            "installs Debian's slurm-wlm and munge as root with apt-get)"
+        )
     if os.geteuid() != 0:
         return "real SLURM not available: starting slurmd needs root"
     return None
@@ -79,8 +81,9 @@ class LocalSlurm:
     @property
     def env(self) -> dict:
         """The environment for client commands (sbatch, squeue, ...) and builds."""
-        return dict(os.environ, SLURM_CONF=str(self.root / "slurm.conf"),
-                    PATH=os.environ.get("PATH", "") + os.pathsep + SBIN)
+        return dict(
+            os.environ, SLURM_CONF=str(self.root / "slurm.conf"), PATH=os.environ.get("PATH", "") + os.pathsep + SBIN
+        )
 
     # ------------------------------------------------------------------ start and stop
 
@@ -95,13 +98,24 @@ class LocalSlurm:
         os.chmod(key, 0o400)
         (self.root / "slurm.conf").write_text(self.config())
         try:
-            self._daemon([which("munged"), "--foreground", "--force", f"--key-file={key}",
-                          f"--socket={self.munge_socket}", f"--pid-file={self.root / 'munge' / 'munged.pid'}",
-                          f"--log-file={self.root / 'log' / 'munged.log'}",
-                          f"--seed-file={self.root / 'munge' / 'munged.seed'}"], "munged")
+            self._daemon(
+                [
+                    which("munged"),
+                    "--foreground",
+                    "--force",
+                    f"--key-file={key}",
+                    f"--socket={self.munge_socket}",
+                    f"--pid-file={self.root / 'munge' / 'munged.pid'}",
+                    f"--log-file={self.root / 'log' / 'munged.log'}",
+                    f"--seed-file={self.root / 'munge' / 'munged.seed'}",
+                ],
+                "munged",
+            )
             self._wait(lambda: self.munge_socket.exists(), timeout_s, "munged made no socket")
             self._daemon([which("slurmctld"), "-D", "-i", "-f", str(self.root / "slurm.conf")], "slurmctld")
-            self._wait(lambda: self.scontrol("ping", check=False).returncode == 0, timeout_s, "slurmctld does not answer")
+            self._wait(
+                lambda: self.scontrol("ping", check=False).returncode == 0, timeout_s, "slurmctld does not answer"
+            )
             for name in self.node_names:
                 self._daemon([which("slurmd"), "-D", "-N", name, "-f", str(self.root / "slurm.conf")], f"slurmd-{name}")
             self._wait(self._nodes_idle, timeout_s, "nodes did not come up idle")
@@ -211,17 +225,21 @@ class LocalSlurm:
             "SlurmdDebug=info",
         ]
         for name in self.node_names:
-            lines.append(f"NodeName={name} NodeHostname={host} NodeAddr=127.0.0.1 Port={free_port()} "
-                         f"CPUs={self.cpus} RealMemory={self.memory_mb} State=UNKNOWN")
-        lines.append(f"PartitionName={self.partition} Nodes={','.join(self.node_names)} Default=YES "
-                     "MaxTime=INFINITE State=UP")
+            lines.append(
+                f"NodeName={name} NodeHostname={host} NodeAddr=127.0.0.1 Port={free_port()} "
+                f"CPUs={self.cpus} RealMemory={self.memory_mb} State=UNKNOWN"
+            )
+        lines.append(
+            f"PartitionName={self.partition} Nodes={','.join(self.node_names)} Default=YES MaxTime=INFINITE State=UP"
+        )
         return "\n".join(lines) + "\n"
 
     # ------------------------------------------------------------------ commands
 
     def run(self, *argv: str, check: bool = True, timeout_s: float = 30.0) -> subprocess.CompletedProcess:
-        result = subprocess.run([which(argv[0]) or argv[0], *argv[1:]], env=self.env, capture_output=True,
-                                text=True, timeout=timeout_s)
+        result = subprocess.run(
+            [which(argv[0]) or argv[0], *argv[1:]], env=self.env, capture_output=True, text=True, timeout=timeout_s
+        )
         if check and result.returncode != 0:
             raise AssertionError(f"`{' '.join(argv)}` exited {result.returncode}:\n{result.stdout}{result.stderr}")
         return result
@@ -252,16 +270,25 @@ class LocalSlurm:
         return path.read_text(errors="replace") if path.exists() else ""
 
     def logs_tail(self, chars: int = 3000) -> str:
-        return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-chars:]}"
-                         for p in sorted((self.root / "log").glob("*.log")))
+        return "\n".join(
+            f"--- {p.name}\n{p.read_text(errors='replace')[-chars:]}" for p in sorted((self.root / "log").glob("*.log"))
+        )
 
     # ------------------------------------------------------------------ internals
 
     def _daemon(self, argv: list[str], name: str) -> None:
         log = open(self.root / "log" / f"{name}.out", "ab")
-        self.procs.append(subprocess.Popen(argv, env=self.env, stdin=subprocess.DEVNULL, stdout=log,
-                                           stderr=subprocess.STDOUT, start_new_session=True,
-                                           preexec_fn=die_with_parent))
+        self.procs.append(
+            subprocess.Popen(
+                argv,
+                env=self.env,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                preexec_fn=die_with_parent,
+            )
+        )
 
     def _nodes_idle(self) -> bool:
         for proc in self.procs:
