@@ -50,6 +50,7 @@ from pipeline.store.folder import (
     complete_marker,
     only_temp_files,
     read_spec_snapshot,
+    record_stamps,
     recorded_count,
     remove_temp_files,
     shard_ids_on_disk,
@@ -420,25 +421,25 @@ def plan_summary_renders(plans) -> int:
     return sum(renders for _sid, renders in shard_counts(plans))
 
 
-def renders_written_since(out: str, shards: list[ShardPlan], since: float) -> int:
-    """Samples of ``shards`` whose record was written at or after ``since`` (wall clock).
+def renders_written(out: str, shards, before: dict[str, tuple[int, int]]) -> int:
+    """Samples of ``shards`` ((shard id, sample ids) pairs) whose record this build wrote.
 
     Counted on disk, not from task results: under at-least-once execution a task's result
     can be lost (its worker died or was recycled after the shard was done) and the re-run
-    reports nothing rendered.
+    reports nothing rendered. A record counts when it is new or its (inode, mtime) differs
+    from ``before`` (:func:`pipeline.store.folder.record_stamps`, taken before the build).
     """
     layout = Layout(out)
     count = 0
-    for shard in shards:
-        sid, ids = (
-            (shard.shard_id, [s.sample_id for s in shard.samples]) if isinstance(shard, ShardPlan) else shard
-        )  # (shard id, sample ids): a lazy plan's, without planning it
+    for sid, ids in shards:
         for sample in ids:
+            path = layout.path(layout.record_rel(sid, sample))
             try:
-                if os.stat(layout.path(layout.record_rel(sid, sample))).st_mtime >= since:
-                    count += 1
+                st = os.stat(path, follow_symlinks=False)
             except FileNotFoundError:
-                pass
+                continue
+            if before.get(path) != (st.st_ino, st.st_mtime_ns):
+                count += 1
     return count
 
 
@@ -526,7 +527,7 @@ def _build_locked(
     ]
     already = total - sum(counts[i][1] for i in todo)
     start = time.perf_counter()
-    wall_start = time.time()
+    stamps = record_stamps(layout, [counts[i][0] for i in todo if counts[i][0] in on_disk])
     done = DoneCounter(out, plans)
     results: list[dict] = []
     dashboard, recycled = None, 0
@@ -552,9 +553,7 @@ def _build_locked(
     # cancelled, requeued or at its walltime) leaves one that no later write of it removes.
     removed = sweep_temp_files(out, plans, older_than=time.time())
     seconds = time.perf_counter() - start
-    rendered = renders_written_since(
-        out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo], wall_start - 1.0
-    )  # mtime granularity
+    rendered = renders_written(out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo], stamps)
     _report(progress, done, total, already, start)
     processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]

@@ -509,3 +509,22 @@ def remove_temp_files(layout: Layout, shard_ids, older_than: float) -> int:
             except FileNotFoundError:
                 pass
     return removed
+
+
+def record_stamps(layout: Layout, shard_ids) -> dict[str, tuple[int, int]]:
+    """(inode, mtime in ns) of every record file now in the shards ``shard_ids`` (absent: none).
+
+    A build compares them afterwards to count the records it wrote: an atomic write makes a
+    new inode, whatever the clock says, so a copy made a second before the build (a fresh
+    mtime) is not mistaken for a render of this build.
+    """
+    stamps = {}
+    for shard_id in shard_ids:
+        for name in record_file_names(layout, shard_id) or []:
+            path = os.path.join(layout.shard_dir(shard_id), name)
+            try:
+                st = os.stat(path, follow_symlinks=False)
+            except FileNotFoundError:
+                continue
+            stamps[path] = (st.st_ino, st.st_mtime_ns)
+    return stamps
