@@ -17,7 +17,7 @@ from pipeline.bench.build_bench import run_from_args
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import repair, validate
-from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error
+from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -34,6 +34,14 @@ from sky.emitter import DEFAULT_SUN, SUN_MODES
 
 #: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
 INTERRUPTED_EXIT = 130
+
+
+def _interrupted():
+    click.echo(
+        "\ninterrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume",
+        err=True,
+    )
+    sys.exit(INTERRUPTED_EXIT)
 
 
 def _friendly_errors(func):
@@ -53,11 +61,11 @@ def _friendly_errors(func):
             click.echo(f"error: {error}", err=True)
             sys.exit(error.exit_code)
         except KeyboardInterrupt:
-            click.echo(
-                "\ninterrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume",
-                err=True,
-            )
-            sys.exit(INTERRUPTED_EXIT)
+            _interrupted()
+        except RuntimeError as exc:  # Ctrl-C inside a callback of Mitsuba's, wrapped by drjit
+            if not caused_by_interrupt(exc):
+                raise
+            _interrupted()
 
     return wrapper
 

@@ -76,3 +76,18 @@ def short_repr(value, limit: int = 60) -> str:
     """``repr(value)`` cut to ``limit`` characters, for messages that quote user data."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is, or was caused by, a KeyboardInterrupt.
+
+    Ctrl-C can land inside a Python callback Mitsuba calls (the BSDF plugin); drjit then
+    raises a RuntimeError whose cause is the KeyboardInterrupt.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
-from pipeline.errors import bad_value, check_int
+from pipeline.errors import bad_value, caused_by_interrupt, check_int
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
@@ -248,7 +248,12 @@ def render_whole(mi, scene, spp: int, seed: int):
     build's driver handles Ctrl-C, pipeline.run.build.workers_ignore_sigint) it is rendered
     again, to the same bytes (same seed); elsewhere KeyboardInterrupt is raised."""
     while True:
-        image = mi.render(scene, spp=spp, seed=seed)
+        try:
+            image = mi.render(scene, spp=spp, seed=seed)
+        except RuntimeError as exc:  # Ctrl-C inside a Python plugin's callback, wrapped by drjit
+            if caused_by_interrupt(exc):
+                raise KeyboardInterrupt("a render was interrupted by SIGINT; it is not stored") from None
+            raise
         if not scene.integrator().should_stop():
             return image
         if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
