@@ -1,15 +1,22 @@
 """Install libLLVM 19 for drjit when no usable libLLVM is on the machine (Debian/Ubuntu).
 
-Run by `make setup`; does nothing when a usable libLLVM (major >= 16) exists.
+Run by `make setup` with the machine's python3 before the virtual environment exists, so it
+uses the standard library only; does nothing when a usable libLLVM (major >= 16) exists.
 """
 
+import importlib.util
 import os
 import shutil
 import subprocess
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from pipeline.render.mitsuba_env import INSTALL_HINT, find_libllvm  # noqa: E402
+# Loaded by path, not as `pipeline.render.libllvm`: importing the package would run its
+# `__init__`s, which need numpy, and this runs before the virtual environment exists.
+_LIBLLVM = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "pipeline", "render", "libllvm.py")
+_spec = importlib.util.spec_from_file_location("shaderball_libllvm", _LIBLLVM)
+_libllvm = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_libllvm)
+INSTALL_HINT, find_libllvm = _libllvm.INSTALL_HINT, _libllvm.find_libllvm
 
 
 def main() -> int:

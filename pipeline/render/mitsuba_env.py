@@ -16,15 +16,12 @@ one that names a variant or calls ``set_variant`` (tests/test_architecture.py).
 
 from __future__ import annotations
 
-import glob
 import os
-import re
 import sys
 
 from pipeline.errors import SetupError
+from pipeline.render.libllvm import INSTALL_HINT, MIN_LLVM_MAJOR, find_libllvm  # noqa: F401 (re-exported)
 
-#: libLLVM majors below this crash drjit 1.5's LLVM backend (15 measured here).
-MIN_LLVM_MAJOR = 16
 #: The CPU variant: RGB, with the AD types the Python BSDF needs.
 LLVM_VARIANT = "llvm_ad_rgb"
 #: The GPU variant, chosen by ``auto`` when a CUDA device works.
@@ -33,41 +30,6 @@ CUDA_VARIANT = "cuda_ad_rgb"
 VARIANT_CHOICES = ("auto", "llvm", "cuda", "scalar")
 #: Short names of the variants.
 SHORT_VARIANTS = {"llvm": LLVM_VARIANT, "cuda": CUDA_VARIANT, "scalar": "scalar_rgb"}
-
-_SEARCH_GLOBS = (
-    "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
-    "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
-    "/usr/lib/llvm-*/lib/libLLVM*.so*",
-    "/usr/local/lib/libLLVM*.so*",
-    "/usr/lib64/libLLVM*.so*",
-    "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
-    "/usr/local/opt/llvm/lib/libLLVM*.dylib",
-)
-
-INSTALL_HINT = (
-    f"drjit's LLVM backend needs libLLVM >= {MIN_LLVM_MAJOR} (19 is tested). On Debian 12: "
-    "`sudo apt-get install libllvm19`; elsewhere install LLVM 16-19 and set "
-    "DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so"
-)
-
-
-def _llvm_major(path: str) -> int | None:
-    name = os.path.basename(path)
-    match = re.search(r"libLLVM[-.]?(?:so\.)?(\d+)", name)
-    return int(match.group(1)) if match else None
-
-
-def find_libllvm(globs: tuple[str, ...] = _SEARCH_GLOBS) -> str | None:
-    """Return the path of the newest libLLVM with major >= MIN_LLVM_MAJOR, or None."""
-    best: tuple[int, str] | None = None
-    for pattern in globs:
-        for path in sorted(glob.glob(pattern)):
-            major = _llvm_major(path)
-            if major is None or major < MIN_LLVM_MAJOR or not os.path.isfile(path):
-                continue
-            if best is None or major > best[0]:
-                best = (major, os.path.realpath(path))
-    return best[1] if best else None
 
 
 def select_libllvm() -> str:
