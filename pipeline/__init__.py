@@ -7,4 +7,4 @@ preview), ``bench`` (measurements), ``figures`` (the docs' figures), ``neural`` 
 Mitsuba or dask at import time.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

@@ -15,6 +15,7 @@ import warnings
 import numpy as np
 
 from sky.lighting import Light, LightingRanges
+from sky.portable import asin_deg, sin_deg
 
 
 def sample_lights(rng: np.random.Generator, n: int, ranges: LightingRanges) -> list[Light]:
@@ -68,9 +69,11 @@ def lights_from_unit_cube(u: np.ndarray, ranges: LightingRanges) -> list[Light]:
     if ranges.scheme == "uniform_angles":
         elevation = el_lo + u[:, 0] * (el_hi - el_lo)
     else:
-        z_lo, z_hi = math.sin(math.radians(el_lo)), math.sin(math.radians(el_hi))
+        # sin and arcsin with the same bits on every machine (sky.portable): a plan's
+        # elevations must not depend on the CPU's SIMD kernels.
+        z_lo, z_hi = sin_deg(float(el_lo)), sin_deg(float(el_hi))
         z = z_lo + u[:, 0] * (z_hi - z_lo)
-        elevation = np.degrees(np.arcsin(np.clip(z, -1.0, 1.0)))
+        elevation = asin_deg(np.clip(z, -1.0, 1.0))
         # arcsin(sin(x)) can round a hair outside [lo, hi]; the range is a contract.
         elevation = np.clip(elevation, el_lo, el_hi)
     azimuth = az_lo + u[:, 1] * (az_hi - az_lo)

@@ -245,3 +245,32 @@ def test_resume_by_another_installation_is_refused(tmp_path, reference, change, 
     with pytest.raises(ShaderballError, match=f"built by another installation: .*{message}.*new directory"):
         build(str(SMOKE), str(out), workers=0)
     assert _snapshot(out) == before
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        ({"plan_format": 1, "shaderball": "0.1.0"}, r"planned with plan format 1 \(by shaderball 0\.1\.0\)"),
+        ({"plan_format": None}, r"planned with plan format None \(by shaderball"),
+        # a dataset.json from before plan formats were recorded: format 1
+        ({"plan_format": "<drop>"}, r"planned with plan format 1 \(by shaderball"),
+    ],
+)
+def test_resume_of_a_dataset_of_another_plan_format_is_refused(tmp_path, reference, change, message):
+    """Plan format 1 planned CPU-dependent elevations: never mixed with format 2's (issue 20)."""
+    import json
+
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    description = json.loads((out / "dataset.json").read_text())
+    for key, value in change.items():
+        if value == "<drop>":
+            description.pop(key, None)
+        else:
+            description[key] = value
+    (out / "dataset.json").write_text(json.dumps(description))
+    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
+    before = _snapshot(out)
+    with pytest.raises(ShaderballError, match=f"{message}.*plans format 2.*build into a new directory"):
+        build(str(SMOKE), str(out), workers=0)
+    assert _snapshot(out) == before

@@ -37,7 +37,6 @@ Use :func:`seeded_rng` to turn any of these seeds into a ``numpy.random.Generato
 
 from __future__ import annotations
 
-import math
 import os
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -48,7 +47,14 @@ import numpy as np
 
 from pipeline.dataset.spec import DatasetSpec, list_map_files
 from pipeline.errors import ShaderballError
+from sky.portable import asin_deg, sin_deg
 from sky.sampling import unit_points
+
+#: The plan format: what a plan digest is a digest of. 2 (shaderball 0.2.0): sun elevations
+#: come from :mod:`sky.portable`'s sin and arcsin, the same bits on every machine. 1 (0.1.0)
+#: used numpy's vectorised arcsin, whose last bits depend on the CPU: a format-1 dataset
+#: is refused on resume rather than mixed (pipeline.run.build.check_same_installation).
+PLAN_FORMAT = 2
 
 STREAM_MATERIAL = 1
 STREAM_LIGHTS = 2
@@ -293,9 +299,9 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
     if ranges.scheme == "uniform_angles":
         elevation = el_lo + u[..., 0] * (el_hi - el_lo)
     else:
-        z_lo, z_hi = math.sin(math.radians(el_lo)), math.sin(math.radians(el_hi))
+        z_lo, z_hi = sin_deg(float(el_lo)), sin_deg(float(el_hi))
         z = z_lo + u[..., 0] * (z_hi - z_lo)
-        elevation = np.clip(np.degrees(np.arcsin(np.clip(z, -1.0, 1.0))), el_lo, el_hi)
+        elevation = np.clip(asin_deg(np.clip(z, -1.0, 1.0)), el_lo, el_hi)
     azimuth = az_lo + u[..., 1] * (az_hi - az_lo)
     turbidity = np.clip(t_lo + u[..., 2] * (t_hi - t_lo), t_lo, t_hi)
     if spec.lighting.turbidity_per == "material":

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 from pipeline import __version__
 from pipeline.dataset.materialize import check_imported_files
-from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset, plan_summary
+from pipeline.dataset.plan import PLAN_FORMAT, Plan, ShardPlan, plan_dataset, plan_summary
 from pipeline.dataset.spec import (
     MAX_SPEC_BYTES,
     DatasetSpec,
@@ -272,6 +272,16 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str, dige
         return  # a build killed before its first description: nothing rendered to compare
     differences = []
     digest = digest or plan_digest(plans)
+    old_format = old.get("plan_format", 1)
+    if old.get("plan_digest") and old_format != PLAN_FORMAT:
+        raise ShaderballError(
+            f"--out: {out!r} was planned with plan format {short_repr(old_format)} "
+            f"(by shaderball {old.get('shaderball') if isinstance(old.get('shaderball'), str) else 'unknown'}); "
+            f"this shaderball ({__version__}) plans format {PLAN_FORMAT} "
+            "(sun elevations with the same bits on every machine; docs/spec.md, 'The same plan on every "
+            "machine'). Resuming would mix two plans of the spec: build into a new directory, or finish "
+            "this one with the shaderball that started it"
+        )
     if old.get("plan_digest") and old["plan_digest"] != digest:
         differences.append(
             f"this shaderball plans other samples for the same spec (plan digest "
@@ -302,6 +312,7 @@ def description(
         "version": spec.dataset.version,
         "layout_version": LAYOUT_VERSION,
         "spec_digest": spec_digest(spec),
+        "plan_format": PLAN_FORMAT,
         "plan_digest": digest or plan_digest(plans),
         "shaderball": __version__,
         "libraries": library_versions(),
