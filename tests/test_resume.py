@@ -274,3 +274,20 @@ def test_resume_of_a_dataset_of_another_plan_format_is_refused(tmp_path, referen
     with pytest.raises(ShaderballError, match=f"{message}.*plans format 2.*build into a new directory"):
         build(str(SMOKE), str(out), workers=0)
     assert _snapshot(out) == before
+
+
+def test_validate_names_another_plan_format_instead_of_every_record(tmp_path, reference):
+    import json
+
+    from pipeline.check.validate import validate
+
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    description = json.loads((out / "dataset.json").read_text())
+    description.pop("plan_format")
+    (out / "dataset.json").write_text(json.dumps(description))
+    report = validate(str(out))
+    assert not report.ok
+    messages = [p.message for p in report.problems]
+    assert any("planned with plan format 1; this shaderball plans format 2" in m for m in messages), messages
+    assert len(messages) <= 2, messages  # one clear problem, not one per record

@@ -12,7 +12,7 @@ import numpy as np
 
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.report import Problems, summarise
-from pipeline.dataset.plan import plan_dataset
+from pipeline.dataset.plan import PLAN_FORMAT, plan_dataset
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.render.renderer import model_record
@@ -125,6 +125,17 @@ def load_plan(layout: Layout, problems: Problems):
         spec_ok = False
     else:
         spec_ok = True
+    plan_format = description.get("plan_format", 1) if description is not None else PLAN_FORMAT
+    if plan_format != PLAN_FORMAT:
+        problems.add(
+            "spec_snapshot",
+            None,
+            DESCRIPTION_FILE,
+            f"{DESCRIPTION_FILE}: planned with plan format {short_repr(plan_format)}; this shaderball plans "
+            f"format {PLAN_FORMAT} (docs/spec.md, 'The same plan on every machine') and cannot check its "
+            "records against their plan: validate it with the shaderball that built it",
+        )
+        return spec, None, description, False, description_ok
     try:
         plans = list(plan_dataset(spec))  # validate holds every record anyway: plan each shard once
     except USER_ERRORS as exc:
