@@ -5,8 +5,11 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_OUT ?= demo-out
+PIP_VERSION   := 26.3
+TORCH_VERSION := 2.13.0
+UV_VERSION    := 0.13.9
 
-.PHONY: setup llvm slurm demo test lint test-all bench clean
+.PHONY: setup llvm slurm demo test lint test-all bench clean lock
 
 setup: llvm $(STAMP)
 
@@ -19,16 +22,29 @@ llvm:
 slurm:
 	@$(PYTHON) scripts/ensure_slurm.py
 
-$(STAMP): pyproject.toml
+# Installs exactly what requirements.lock pins, each file checked against its SHA-256 (the
+# versions CI tested); then torch, pinned to this machine's local CPU wheel where it lies (an
+# unpinned torch pulls gigabytes of CUDA packages; PyPI's 2.13.0 elsewhere); then the package
+# itself, editable, with no further dependency. `pip check` proves nothing is missing.
+$(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
-	@# torch first, pinned to this machine's local CPU wheel (an unpinned torch pulls gigabytes
-	@# of CUDA packages); then the train extra (torch>=2.4,<3, already met) for the neural stage.
-	@if [ -f /opt/wheels/torch-2.13.0+cpu-cp311-cp311-manylinux_2_28_x86_64.whl ] || [ -n "$$SHADERBALL_TORCH" ]; then \
-		$(PY) -m pip install -q 'torch==2.13.0'; fi
-	$(PY) -m pip install -q -e '.[dev,train]'
+	$(PY) -m pip install -q --disable-pip-version-check 'pip==$(PIP_VERSION)'
+	$(PY) -m pip install -q --require-hashes --no-deps -r requirements.lock
+	$(PY) -m pip install -q --no-deps 'torch==$(TORCH_VERSION)'
+	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
+	$(PY) -m pip check
 	touch $(STAMP)
+
+# Re-resolve requirements.lock from pyproject.toml and requirements.in (newest versions the
+# ranges allow), with hashes for every platform; review the diff, run `make test`, commit.
+lock:
+	$(PYTHON) -m venv .lock-venv
+	.lock-venv/bin/python -m pip install -q 'uv==$(UV_VERSION)'
+	.lock-venv/bin/uv pip compile pyproject.toml requirements.in --extra dev --universal \
+		--python-version 3.11 --generate-hashes --no-header -o .lock-venv/body.txt
+	@{ awk '/^[^#]/ {exit} {print}' requirements.lock; cat .lock-venv/body.txt; } > requirements.lock.new
+	mv requirements.lock.new requirements.lock
+	rm -rf .lock-venv
 
 demo: setup
 	$(VENV)/bin/shaderball build manifests/smoke.toml --out $(DEMO_OUT)/smoke
