@@ -217,3 +217,42 @@ def test_memory_probe_reports_growth(capsys):
     assert main(["--memory-probe", "4", "--resolution", "16", "--spp", "1", "--every", "2"]) == 0
     out = capsys.readouterr().out
     assert "memory probe: 4 renders at 16x16" in out and "MiB per 100 renders" in out
+
+
+def _logging_disabled_level() -> int:
+    import logging
+
+    return logging.root.manager.disable
+
+
+def test_an_interrupted_local_cluster_is_silenced_on_every_worker_and_this_process_is_restored():
+    """Ctrl-C: workers and this process stop logging before the cluster closes (their heartbeat
+    errors buried the one-line message on a loaded machine); afterwards logging is back."""
+    import logging
+
+    from pipeline.run.cluster import connect
+
+    with pytest.raises(KeyboardInterrupt):
+        with connect(ClusterOptions(workers=2, start_timeout=120)) as conn:
+            assert set(conn.client.run(_logging_disabled_level).values()) == {logging.NOTSET}
+            raise KeyboardInterrupt
+
+    assert _logging_disabled_level() == logging.NOTSET  # restored once the cluster closed
+
+
+def test_quiet_for_shutdown_reaches_the_workers_of_a_local_cluster():
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    from pipeline.run.cluster import quiet_for_shutdown
+
+    before = _logging_disabled_level()
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        with Client(cluster) as client:
+            try:
+                quiet_for_shutdown(client, workers_too=True)
+                assert _logging_disabled_level() == logging.CRITICAL
+                assert set(client.run(_logging_disabled_level).values()) == {logging.CRITICAL}
+            finally:
+                logging.disable(before)

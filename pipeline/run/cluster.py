@@ -21,18 +21,20 @@ because shard tasks are idempotent (:mod:`pipeline.run.shard`).
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import shutil
 import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from pipeline.errors import ShaderballError, check_int
+from pipeline.errors import ShaderballError, caused_by_interrupt, check_int
 from pipeline.run.shard import run_shard_in_process
 
 KINDS = ("local", "slurm", "pbs")
@@ -369,6 +371,41 @@ class Connection:
     jobqueue: object | None = None
 
 
+#: How long a Ctrl-C waits for the workers to silence their logs before closing them anyway.
+QUIET_TIMEOUT_S = 5.0
+
+
+def quiet_for_shutdown(client, workers_too: bool) -> None:
+    """Silence dask's logging in this process and (``workers_too``: a local cluster's, whose
+    output is this terminal's) on every worker, before an interrupted build closes its cluster. Closing mid-work makes workers and nannies log errors (a heartbeat
+    to a scheduler that is going away, with a 30-line traceback; seen on a loaded machine),
+    which would bury the one line a Ctrl-C prints. Only for an interrupt: a failure's logs
+    are kept. The workers' switch is bounded in time: a busy or stuck worker is closed anyway.
+    """
+    logging.disable(logging.CRITICAL)  # this process: the scheduler, nannies and client of a local cluster
+    if not workers_too:
+        return  # a scheduler's own workers outlive this build and log to their own files
+    done = threading.Event()
+
+    def run():
+        with contextlib.suppress(Exception):
+            client.run(logging.disable, logging.CRITICAL, on_error="ignore")
+        done.set()
+
+    threading.Thread(target=run, name="shaderball-quiet", daemon=True).start()
+    done.wait(QUIET_TIMEOUT_S)
+
+
+def _interruptible(conn: Connection, local: bool = False) -> Iterator[Connection]:
+    """Yield ``conn``; on a Ctrl-C (or an error it caused) silence the cluster's logs first."""
+    try:
+        yield conn
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt) or caused_by_interrupt(exc):
+            quiet_for_shutdown(conn.client, workers_too=local)
+        raise
+
+
 def local_workers(workers: int | None) -> int:
     return workers or max(1, (os.cpu_count() or 1) // 2)
 
@@ -392,6 +429,7 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
         # Local nannies restart their own workers; never close them.
         config["distributed.deploy.lost-worker-timeout"] = "3650 days"
     with dask.config.set(config), contextlib.ExitStack() as stack:
+        stack.callback(logging.disable, logging.root.manager.disable)  # last: undo quiet_for_shutdown
         if options.scheduler:
             check_scheduler_reachable(options.scheduler)
             try:
@@ -400,17 +438,19 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
                 raise ShaderballError(f"--scheduler: cannot connect to {options.scheduler!r}: {exc}") from None
             stack.callback(client.close)
             n = len(client.scheduler_info().get("workers", {}))
-            yield Connection(client, f"scheduler {options.scheduler} ({n} worker(s) now)", None)
+            yield from _interruptible(Connection(client, f"scheduler {options.scheduler} ({n} worker(s) now)", None))
         elif options.is_jobqueue:
             cluster = jobqueue_cluster(options)
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
-            yield Connection(
-                client,
-                f"{options.kind} cluster, {options.jobs or 1} job(s) of {options.cores} cores, {options.memory}",
-                None,
-                cluster,
+            yield from _interruptible(
+                Connection(
+                    client,
+                    f"{options.kind} cluster, {options.jobs or 1} job(s) of {options.cores} cores, {options.memory}",
+                    None,
+                    cluster,
+                )
             )
         else:
             n = local_workers(options.workers)
@@ -426,7 +466,10 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
-            yield Connection(client, f"local cluster, {n} worker process(es)", max(1, (os.cpu_count() or 1) // n))
+            yield from _interruptible(
+                Connection(client, f"local cluster, {n} worker process(es)", max(1, (os.cpu_count() or 1) // n)),
+                local=True,
+            )
 
 
 # --------------------------------------------------------------------------- in the worker
