@@ -291,3 +291,20 @@ def test_validate_names_another_plan_format_instead_of_every_record(tmp_path, re
     messages = [p.message for p in report.problems]
     assert any("planned with plan format 1; this shaderball plans format 2" in m for m in messages), messages
     assert len(messages) <= 2, messages  # one clear problem, not one per record
+
+
+def test_a_dataset_started_on_another_cpu_resumes(tmp_path, reference):
+    """Renders of one plan from two CPU types are equally valid samples (issue 20): the
+    machine is recorded (dataset.json, each marker), never a reason to refuse a resume."""
+    import json
+
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    description = json.loads((out / "dataset.json").read_text())
+    assert {"arch", "cpu_model", "llvm_target_cpu", "llvm_vector_width", "numpy_simd"} <= set(description["machine"])
+    description["machine"] = {"arch": "aarch64", "cpu_model": "Neoverse-V2", "llvm_target_cpu": "neoverse-v2"}
+    (out / "dataset.json").write_text(json.dumps(description))
+    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
+    build(str(SMOKE), str(out), workers=0)
+    marker = json.loads((out / "shards" / "s00003" / "COMPLETE.json").read_text())
+    assert marker["machine"]["arch"] and marker["machine"]["numpy"]

@@ -154,3 +154,64 @@ def library_versions() -> dict[str, str]:
         "drjit": dr.__version__,
         "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH", ""),
     }
+
+
+def _llvm_target() -> tuple[str | None, int | None]:
+    """drjit's LLVM target CPU and vector width in this process (its JIT targets the host).
+
+    drjit's Python API does not expose them; its core library exports them as C++ functions
+    (``jit_llvm_target_cpu``, ``jit_llvm_vector_width``), read here with ctypes. (None, None)
+    when the library or the symbols are not there (another drjit, no llvm backend)."""
+    if "drjit" not in sys.modules:
+        return None, None  # importing drjit here would load it before select_libllvm chose a libLLVM
+    try:
+        import ctypes
+
+        import drjit as dr
+
+        lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+        cpu = lib._Z19jit_llvm_target_cpuv
+        cpu.restype = ctypes.c_char_p
+        width = lib._Z21jit_llvm_vector_widthv
+        width.restype = ctypes.c_uint32
+        name = cpu()
+        return (name.decode() if name else None), int(width()) or None
+    except (OSError, AttributeError, ImportError):
+        return None, None
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.lower().startswith(("model name", "cpu model", "hardware")):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or "unknown"
+
+
+def machine_fingerprint() -> dict:
+    """What of this machine can change the last bits of a render or a material's maps.
+
+    Recorded, never compared on resume: renders of one plan made on two CPU types are equally
+    valid samples (docs/build.md, "What is reproducible where"). ``llvm_target_cpu`` and
+    ``llvm_vector_width`` are what drjit's JIT compiles kernels for; ``numpy_simd`` the SIMD
+    kernels numpy dispatches to (its transcendental functions' last bits depend on them).
+    """
+    import platform
+
+    import numpy as np
+    import numpy._core._multiarray_umath as umath
+
+    target, width = _llvm_target()
+    return {
+        "arch": platform.machine(),
+        "cpu_model": _cpu_model(),
+        "llvm_target_cpu": target,
+        "llvm_vector_width": width,
+        "numpy": np.__version__,
+        "numpy_simd": [name for name in umath.__cpu_dispatch__ if umath.__cpu_features__.get(name)],
+    }

@@ -40,6 +40,7 @@ from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,
     library_versions,
+    machine_fingerprint,
     resolve_variant,
     weakest_guarantee,
 )
@@ -316,6 +317,7 @@ def description(
         "plan_digest": digest or plan_digest(plans),
         "shaderball": __version__,
         "libraries": library_versions(),
+        "machine": machine_fingerprint(),
         "variant": variant,
         "determinism": {"guarantee": guarantee, "basis": GUARANTEE_BASIS[guarantee]},
         "counts": plan_summary(plans),

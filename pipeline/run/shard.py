@@ -32,7 +32,7 @@ from pipeline.dataset.plan import MaterialPlan, SamplePlan, ShardPlan
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError
 from pipeline.render.gbuffer import load_gbuffer
-from pipeline.render.mitsuba_env import load_mitsuba
+from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import MaterialScene, RenderSettings, model_record, render_sample
 from pipeline.store.atomic import write_text_atomic
@@ -306,6 +306,9 @@ def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
         "schema": SCHEMA_VERSION,
         "shard": shard.shard_id,
         "complete": True,
+        # the CPU that rendered the shard: recorded, not compared (docs/build.md, "What is
+        # reproducible where"); a heterogeneous cluster's shards say which machine made them
+        "machine": machine_fingerprint(),
         "samples": [r["id"] for r in records],
         "records": records,
     }
