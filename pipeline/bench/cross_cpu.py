@@ -27,6 +27,7 @@ import ctypes
 import json
 import math
 import os
+import platform
 import subprocess
 import sys
 import time
@@ -34,6 +35,14 @@ import time
 import numpy as np
 
 from pipeline.errors import ShaderballError
+from pipeline.render.mitsuba_env import (
+    LLVM_VARIANT,
+    llvm_target,
+    load_mitsuba,
+    machine_fingerprint,
+    numpy_dispatch_targets,
+)
+from pipeline.run.build import build
 from pipeline.store.exr import read_exr
 from pipeline.store.layout import Layout
 
@@ -51,8 +60,6 @@ AVX2_WIDTH = 8
 def emulations() -> dict[str, tuple[bool, bool]]:
     """The emulations this machine can run: retargeting the JIT to an AVX2 CPU needs x86-64
     (elsewhere the numpy one only, which switches off whatever SIMD kernels numpy has)."""
-    import platform
-
     if platform.machine() in ("x86_64", "AMD64"):
         return dict(EMULATIONS)
     return {"native": (False, False), "numpy-avx2": (True, False)}
@@ -61,13 +68,10 @@ def emulations() -> dict[str, tuple[bool, bool]]:
 def numpy_without_avx512() -> str:
     """The value of NPY_DISABLE_CPU_FEATURES that leaves numpy its AVX2 kernels at most (on a
     machine of another architecture: every dispatched kernel off, its baseline only)."""
-    import platform
-
-    import numpy._core._multiarray_umath as umath
-
+    targets = numpy_dispatch_targets()
     if platform.machine() not in ("x86_64", "AMD64"):
-        return " ".join(umath.__cpu_dispatch__)
-    return " ".join(name for name in umath.__cpu_dispatch__ if name.startswith(("AVX512", "X86_V4")))
+        return " ".join(targets)
+    return " ".join(name for name in targets if name.startswith(("AVX512", "X86_V4")))
 
 
 def set_llvm_avx2_target() -> tuple[str, int]:
@@ -86,16 +90,11 @@ def set_llvm_avx2_target() -> tuple[str, int]:
     )
     lib._Z19jit_llvm_set_targetPKcS0_j.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
     lib._Z19jit_llvm_set_targetPKcS0_j(AVX2_CPU.encode(), avx2.encode(), AVX2_WIDTH)
-    from pipeline.render.mitsuba_env import _llvm_target
-
-    return _llvm_target()
+    return llvm_target()
 
 
 def child(spec: str, out: str, llvm_avx2: bool) -> None:
     """One build in this process (``--workers 0``), the JIT retargeted first if asked."""
-    from pipeline.render.mitsuba_env import LLVM_VARIANT, load_mitsuba
-    from pipeline.run.build import build
-
     load_mitsuba(LLVM_VARIANT)
     if llvm_avx2:
         set_llvm_avx2_target()
@@ -254,8 +253,6 @@ def main(argv: list[str] | None = None) -> int:
     if os.path.exists(out):
         parser.error(f"--out: {out!r} exists; give a new folder")
     os.makedirs(out)
-    from pipeline.render.mitsuba_env import LLVM_VARIANT, load_mitsuba, machine_fingerprint
-
     load_mitsuba(LLVM_VARIANT)
     seconds = {name: run_emulation(args.spec, out, name) for name in emulations()}
     native = os.path.join(out, "native")

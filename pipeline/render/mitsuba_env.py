@@ -16,8 +16,12 @@ one that names a variant or calls ``set_variant`` (tests/test_architecture.py).
 
 from __future__ import annotations
 
+import ctypes
 import os
+import platform
 import sys
+
+import numpy as np
 
 from pipeline.errors import SetupError
 from pipeline.render.libllvm import INSTALL_HINT, MIN_LLVM_MAJOR, find_libllvm  # noqa: F401 (re-exported)
@@ -156,7 +160,7 @@ def library_versions() -> dict[str, str]:
     }
 
 
-def _llvm_target() -> tuple[str | None, int | None]:
+def llvm_target() -> tuple[str | None, int | None]:
     """drjit's LLVM target CPU and vector width in this process (its JIT targets the host).
 
     drjit's Python API does not expose them; its core library exports them as C++ functions
@@ -165,8 +169,6 @@ def _llvm_target() -> tuple[str | None, int | None]:
     if "drjit" not in sys.modules:
         return None, None  # importing drjit here would load it before select_libllvm chose a libLLVM
     try:
-        import ctypes
-
         import drjit as dr
 
         lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
@@ -188,8 +190,6 @@ def _cpu_model() -> str:
                     return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    import platform
-
     return platform.processor() or "unknown"
 
 
@@ -201,17 +201,28 @@ def machine_fingerprint() -> dict:
     ``llvm_vector_width`` are what drjit's JIT compiles kernels for; ``numpy_simd`` the SIMD
     kernels numpy dispatches to (its transcendental functions' last bits depend on them).
     """
-    import platform
-
-    import numpy as np
-    import numpy._core._multiarray_umath as umath
-
-    target, width = _llvm_target()
+    target, width = llvm_target()
     return {
         "arch": platform.machine(),
         "cpu_model": _cpu_model(),
         "llvm_target_cpu": target,
         "llvm_vector_width": width,
         "numpy": np.__version__,
-        "numpy_simd": [name for name in umath.__cpu_dispatch__ if umath.__cpu_features__.get(name)],
+        "numpy_simd": numpy_simd(),
     }
+
+
+def _numpy_umath():
+    core = getattr(np, "_core", None) or np.core  # numpy 2 / numpy 1
+    return core._multiarray_umath
+
+
+def numpy_dispatch_targets() -> list[str]:
+    """The SIMD targets this numpy build can dispatch to (the names NPY_DISABLE_CPU_FEATURES takes)."""
+    return list(_numpy_umath().__cpu_dispatch__)
+
+
+def numpy_simd() -> list[str]:
+    """The dispatch targets numpy uses in this process (this CPU has them, none is disabled)."""
+    features = _numpy_umath().__cpu_features__
+    return [name for name in numpy_dispatch_targets() if features.get(name)]
