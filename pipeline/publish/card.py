@@ -12,6 +12,7 @@ import statistics
 
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.publish.facts import CITATION, PublicationFacts
+from pipeline.publish.hub import yaml_configs
 from pipeline.publish.names import (
     CROISSANT_FILE,
     INDEX_FILE,
@@ -153,11 +154,7 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
                 "mitsuba",
             )
         ),
-        "configs:",
-        "- config_name: default",
-        "  data_files:",
-        "  - split: train",
-        f"    path: {SAMPLES_FILE}",
+        *yaml_configs(facts.spec.storage.texture_maps),
         "---",
     ]
 
