@@ -241,5 +241,8 @@ def sample_row(
 
 def material_row(row: dict) -> dict:
     """The row of a sample's material (its ``MATERIAL.json`` member): the material's columns
-    of any of its lightings' ``samples.jsonl`` rows."""
-    return {column: row[column] for column in MATERIAL_COLUMNS}
+    of any of its lightings' ``samples.jsonl`` rows, but for nulls (a column absent is null:
+    the card's features type it; a loader that guesses types from the first rows, such as
+    ``load_dataset("webdataset")`` without features, then never sees a null-typed column
+    meet a value)."""
+    return {column: row[column] for column in MATERIAL_COLUMNS if row[column] is not None}
