@@ -244,10 +244,11 @@ def draw_previews(layout: Layout, group: MaterialGroup, side: int) -> None:
         group.render_previews.append(derived(member_name(record["id"], PREVIEW_FIELDS["render_preview"]), preview))
 
 
-def fits(pair: list[MaterialGroup], group: MaterialGroup, shard_bytes: int) -> bool:
-    """Whether ``group`` joins the tar pair ``pair`` with both tars at most ``shard_bytes``."""
-    sizes = [g.sizes() for g in pair + [group]]
-    return all(tar_bytes([n for s in sizes for n in s[kind]]) <= shard_bytes for kind in (0, 1))
+def fits(pair_sizes: list[tuple[list[int], list[int]]], sizes: tuple[list[int], list[int]], shard_bytes: int) -> bool:
+    """Whether a material whose members have ``sizes`` (MaterialGroup.sizes) joins a tar pair
+    whose materials have ``pair_sizes`` with both tars at most ``shard_bytes``."""
+    every = pair_sizes + [sizes]
+    return all(tar_bytes([n for s in every for n in s[kind]]) <= shard_bytes for kind in (0, 1))
 
 
 # --------------------------------------------------------------------------- writing
@@ -375,19 +376,22 @@ def write_publication(
     try:
         tars, rows = [], []
         pair: list[MaterialGroup] = []
+        pair_sizes: list[tuple[list[int], list[int]]] = []
         for number, group in enumerate(groups, start=1):
             if progress:
                 progress(f"previews of {group.material_id} ({number}/{len(groups)})")
             draw_previews(layout, group, side)
-            if pair and not fits(pair, group, shard_bytes):
+            sizes = group.sizes()
+            if pair and not fits(pair_sizes, sizes, shard_bytes):
                 index = len(tars) // 2
                 if progress:
                     progress(f"writing {tar_rel(index, MATERIALS)} and {tar_rel(index, RENDERS)}")
                 written, pair_rows = _write_pair(output, layout, index, pair)
                 tars += written
                 rows += pair_rows
-                pair = []
+                pair, pair_sizes = [], []
             pair.append(group)
+            pair_sizes.append(sizes)
         written, pair_rows = _write_pair(output, layout, len(tars) // 2, pair)
         tars += written
         rows += pair_rows
