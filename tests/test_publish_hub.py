@@ -117,7 +117,8 @@ def rows(pub: Path) -> list[dict]:
 # --------------------------------------------------------------------------- the clients
 
 
-def test_the_card_parses_with_huggingface_hub_and_declares_two_configs(seen):
+def test_the_card_parses_with_huggingface_hub_and_declares_two_configs(pub, seen):
+    assert EXR_TWO_LINES.rstrip("\n") in (pub / "README.md").read_text()  # the lines the tests run
     assert [(c["config_name"], c.get("default", False)) for c in seen["configs"]] == [
         ("renders", True),
         ("materials", False),
