@@ -140,7 +140,7 @@ def test_train_and_evaluate_from_the_publication_match_the_folder(reference, pub
     assert scores(results["pub"]) == scores(results["folder"]) and len(results["pub"]["samples"]) == 2
 
 
-def _truncate(pub, tar="shards/shard-000001.tar"):
+def _truncate(pub, tar="shards/renders-000001.tar"):
     path = pub / tar
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2 // 512 * 512])  # cut inside a member
@@ -153,7 +153,7 @@ def _truncate_resealed(pub):
 
 def _forge_member(pub):
     """A byte of a render changed inside its tar, every checksum re-sealed (a forger's copy)."""
-    path = pub / "shards" / "shard-000000.tar"
+    path = pub / "shards" / "renders-000000.tar"
     data = bytearray(path.read_bytes())
     with tarfile.open(path, "r:") as tar:
         member = next(m for m in tar.getmembers() if m.name.endswith(".render.exr"))
@@ -166,7 +166,7 @@ def _forge_member(pub):
 @pytest.mark.parametrize(
     "spoil, kind, named",
     [
-        (_truncate, "bad_index", "shards/shard-000001.tar: 87040 bytes, publication.json says 174080"),
+        (_truncate, "bad_index", "shards/renders-000001.tar: 133120 bytes, publication.json says 266240"),
         (_truncate_resealed, "not_tar", "past the end of the file; truncated"),
         (_forge_member, "member_checksum", "differs from the manifest's"),
         (lambda pub: (pub / "notes.txt").write_text("x"), "unlisted_file", "notes.txt"),

@@ -29,7 +29,7 @@ from support.publishing import entry, files_of, members, rerecord, reseal, rewri
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
-TAR = "shards/shard-000000.tar"
+TAR = "shards/renders-000000.tar"
 RENDER = "m000000_l0.render.exr"
 
 
@@ -380,7 +380,7 @@ def test_the_shard_checksum_is_checked_before_the_tar_is_parsed(pub, monkeypatch
     monkeypatch.setattr("pipeline.publish.reader.scan_tar", lambda *a, **k: scanned.append(a) or [])
     publication = open_publication(str(pub))
     with pytest.raises(Refused) as caught:
-        list(publication.members(publication.tars[0]))
+        list(publication.members(next(t for t in publication.tars if t.rel == TAR)))
     assert caught.value.kind == "checksum" and scanned == []
 
 
@@ -394,7 +394,7 @@ def test_the_untouched_copy_verifies(pub, good):
 
 def test_any_changed_byte_of_a_tar_is_refused_even_with_every_checksum_resealed(good, tmp_path):
     size = (good / TAR).stat().st_size
-    first_padding = 512 + (len(dict(members(good / TAR))["m000000.maps.exr"]))  # inside the first pad
+    first_padding = 512 + (len(dict(members(good / TAR))["m000000_l0.json"]))  # inside the first pad
     rng = random.Random(14)
     positions = [0, 100, 108, 124, 136, 148, 156, 257, 265, 345, first_padding, size - 1]  # header fields,
     positions += rng.sample(range(size), 40)  # padding, the end; and anywhere

@@ -12,6 +12,7 @@ import statistics
 
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.publish.facts import CITATION, PublicationFacts
+from pipeline.publish.hub import yaml_configs
 from pipeline.publish.names import (
     CROISSANT_FILE,
     INDEX_FILE,
@@ -21,6 +22,7 @@ from pipeline.publish.names import (
     SOURCE_FILES,
     SUMS_FILE,
 )
+from pipeline.publish.previews import preview_factor
 from pipeline.publish.table import COLUMN_DOCS
 from pipeline.store.records import dumps
 
@@ -51,6 +53,30 @@ for sample in iter_samples(root):  # checks every SHA-256 and member as it strea
     n += 1
 """
 
+LOAD_WITH_DATASETS = """import io
+import os
+
+import datasets
+import OpenEXR
+
+root = os.path.abspath(".")  # the folder holding this card (or the Hub's repository id)
+renders = datasets.load_dataset(root, "renders", split="train")  # the default config
+materials = datasets.load_dataset(root, "materials", split="train")
+row_of_material = {key: i for i, key in enumerate(materials["__key__"])}
+n = 0
+for row in renders:  # __key__, render.png (a PIL image), render.exr (bytes), json (the record), __url__
+    record = row["json"]  # typed: seeds int64, lighting_vector float32, nulls typed
+    material = materials[row_of_material[record["material_id"]]]  # __key__, maps.png, maps.exr, json, ...
+    render = OpenEXR.File(io.BytesIO(row["render.exr"])).channels()["render"].pixels  # (H, W, 3) float32
+    maps = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(material["maps.exr"])).channels().items()}
+    n += 1
+"""
+
+#: The two lines the card shows for turning a row's EXR bytes into float arrays.
+EXR_TWO_LINES = """import io, OpenEXR
+layers = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(row["render.exr"])).channels().items()}
+"""
+
 LOAD_WITH_WEBDATASET = '''import io
 import json
 
@@ -59,7 +85,7 @@ import webdataset as wds
 
 root = "."  # the folder holding this card
 with open(f"{root}/publication.json") as fh:
-    shards = [f"{root}/{shard['path']}" for shard in json.load(fh)["shards"]]
+    shards = [f"{root}/{shard['path']}" for shard in json.load(fh)["shards"] if shard["kind"] == "renders"]
 
 
 def layers(data):
@@ -68,13 +94,18 @@ def layers(data):
 
 
 def attach_maps(samples):
-    """A material's maps come first, under the material's key: add them to its lightings."""
-    maps = {}
+    """Add to each sample its material's files, read from the materials tar of the same number
+    (materials come in the order of their lightings)."""
+    url = None
     for sample in samples:
-        if "_l" not in sample["__key__"]:
-            maps = {field: data for field, data in sample.items() if field.endswith(".exr")}
-            continue
-        yield {**sample, **maps}
+        if sample["__url__"] != url:
+            url = sample["__url__"]
+            materials = iter(wds.DataPipeline(wds.SimpleShardList([url.replace("/renders-", "/materials-")]),
+                                              wds.tarfile_to_samples()))
+            material = {"__key__": None}
+        while material["__key__"] != sample["__key__"].split("_l")[0]:
+            material = next(materials)
+        yield {**sample, "maps.exr": material["maps.exr"], "material.json": material["json"]}
 
 
 dataset = wds.DataPipeline(wds.SimpleShardList(shards), wds.tarfile_to_samples(), attach_maps)
@@ -100,24 +131,35 @@ def layers(data):
     return {name: channel.pixels for name, channel in exr.channels().items()}
 
 
-with open(f"{root}/publication.json") as fh:
-    shards = [shard["path"] for shard in json.load(fh)["shards"]]
-n = 0
-for path in shards:
+def members(path):
     with tarfile.open(f"{root}/{path}", mode="r:") as tar:  # stream members; never extractall
-        files = {}
         for member in tar:
             if not member.isfile():
                 raise ValueError(f"{path}: {member.name} is not a regular file")
             key, field = member.name.split(".", 1)
-            if field == "maps.exr":  # a new material: its maps come first
-                files = {}
-            files[field] = tar.extractfile(member).read()
-            if field == "render.exr":  # a sample is complete: record, render, its material's maps
-                record = json.loads(files["json"])
-                render = layers(files["render.exr"])
-                maps = layers(files["maps.exr"])
-                n += 1
+            yield key, field, tar.extractfile(member).read()
+
+
+with open(f"{root}/publication.json") as fh:
+    shards = [shard["path"] for shard in json.load(fh)["shards"] if shard["kind"] == "renders"]
+n = 0
+for path in shards:
+    materials = members(path.replace("/renders-", "/materials-"))  # the same materials, in order
+    files, maps = {}, {"key": None}
+    for key, field, data in members(path):
+        files[field] = data
+        if field == "render.png":  # a sample's last member: record, render, preview
+            while maps["key"] != key.split("_l")[0]:  # read on to its material's files
+                maps = {"key": None}
+                for material, kind, blob in materials:
+                    maps["key"], maps[kind] = material, blob
+                    if kind == "maps.png":  # a material's last member
+                        break
+            record = json.loads(files["json"])
+            render = layers(files["render.exr"])
+            maps_layers = layers(maps["maps.exr"])
+            n += 1
+maps = maps_layers
 """
 
 
@@ -153,11 +195,7 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
                 "mitsuba",
             )
         ),
-        "configs:",
-        "- config_name: default",
-        "  data_files:",
-        "  - split: train",
-        f"    path: {SAMPLES_FILE}",
+        *yaml_configs(facts.spec.storage.texture_maps),
         "---",
     ]
 
@@ -176,35 +214,43 @@ def sample_section(facts: PublicationFacts) -> list[str]:
     res, tex = spec.render.resolution, spec.materials.texture_resolution
     maps_type = "half" if spec.storage.maps_half else "float32"
     texture = spec.storage.texture_maps
+    preview = res // preview_factor(res)
     lines = [
         "## What a sample is",
         "",
         "One sample pairs a material's four screen-space maps and a lighting vector with a path-traced render "
-        "of the shaderball (the paper's input and target). Its files are tar members named `KEY.FIELD` "
-        "(the WebDataset convention; a key never holds a dot):",
+        "of the shaderball (the paper's input and target). Its files are members of uncompressed tars, named "
+        "`KEY.FIELD` (the WebDataset convention; a key never holds a dot), in pairs: `shards/materials-N.tar` "
+        "holds whole materials, `shards/renders-N.tar` (the same N) their lightings. Every key of a tar has "
+        "the same fields, so the Hub's WebDataset loader reads each kind as a config (`renders`, the default, "
+        "and `materials`; join a render to its maps by `material_id` = the material's `__key__`):",
         "",
-        "| member | what |",
-        "|---|---|",
-        "| `m000012_l3.json` | the sample's record: lighting (sun elevation, azimuth, direction, turbidity, "
-        "low-sun policy), the network's lighting vector, material, seeds, render settings, statistics, its "
-        "files with SHA-256 (docs/manifest.md of shaderball) |",
-        f"| `m000012_l3.render.exr` | the render: layers `render.R/G/B`, {res}x{res}, float32, linear Rec.709, "
-        "physical radiance (a direct view of the sun is about 2e4) |",
-        f"| `m000012.maps.exr` | the material's screen-space maps, what the renderer saw: `diffuse.R/G/B`, "
-        f"`specular.R/G/B`, `roughness.Y`, `normal.X/Y/Z` (tangent space) in {maps_type}, `mask.Y` (1 where a "
-        f"pixel sees the material) in float32; {res}x{res} |",
+        "| tar | member | what |",
+        "|---|---|---|",
+        "| renders | `m000012_l3.json` | the sample's record: lighting (sun elevation, azimuth, direction, "
+        "turbidity, low-sun policy), the network's lighting vector, material, seeds, render settings, "
+        "statistics, its files with SHA-256 (docs/manifest.md of shaderball) |",
+        f"| renders | `m000012_l3.render.exr` | the render: layers `render.R/G/B`, {res}x{res}, float32, linear "
+        "Rec.709, physical radiance (a direct view of the sun is about 2e4) |",
+        f"| renders | `m000012_l3.render.png` | its preview, {preview}x{preview}: tone-mapped (exposure from the "
+        "ball's pixels, Reinhard, sRGB), 8-bit; for people and the viewer, not for training |",
+        "| materials | `m000012.json` | the material's row: the material columns of the table below |",
+        f"| materials | `m000012.maps.exr` | the material's screen-space maps, what the renderer saw: "
+        f"`diffuse.R/G/B`, `specular.R/G/B`, `roughness.Y`, `normal.X/Y/Z` (tangent space) in {maps_type}, "
+        f"`mask.Y` (1 where a pixel sees the material) in float32; {res}x{res} |",
     ]
     if texture:
         lines.append(
-            f"| `m000012.texture.exr` | the material's maps in texture (UV) space, {tex}x{tex} "
+            f"| materials | `m000012.texture.exr` | the material's maps in texture (UV) space, {tex}x{tex} "
             "(1x1 for a uniform material) |"
         )
     lines += [
+        f"| materials | `m000012.maps.png` | a preview strip, {4 * preview}x{preview}: diffuse and specular "
+        "(sRGB-encoded), roughness (grey), normal ((n + 1) / 2) |",
         "",
-        "A material's maps are identical under all its lightings, so they are stored **once per material**, "
-        "under the material's key, just before its lightings and in the same tar; a reader keeps the last "
-        "maps it saw (see *How to load it*). `samples.jsonl` lists every sample with its tar, members and "
-        "their SHA-256, and the columns below (Croissant's record set reads it):",
+        "A material's maps are identical under all its lightings, so they are stored **once per material**. "
+        "`samples.jsonl` lists every sample with its tars, members and their SHA-256, and the columns below "
+        "(Croissant's record set reads it):",
         "",
         "| column | type | meaning |",
         "|---|---|---|",
@@ -342,6 +388,24 @@ def load_section() -> list[str]:
         "```python",
         LOAD_WITH_SHADERBALL.rstrip("\n"),
         "```",
+        "",
+        "### With Hugging Face `datasets`",
+        "",
+        "The card's `configs` declare each column's type: the previews are `Image` columns (what the Hub's "
+        "viewer shows), the EXR files bytes, the record and the material's row typed structs. A row's EXR "
+        "bytes become float arrays in two lines (OpenEXR's Python package groups `render.R/G/B` into one "
+        "(H, W, 3) array named `render`):",
+        "",
+        "```py",
+        EXR_TWO_LINES.rstrip("\n"),
+        "```",
+        "",
+        "```python",
+        LOAD_WITH_DATASETS.rstrip("\n"),
+        "```",
+        "",
+        '`datasets.load_dataset("webdataset", data_files=...)` on the tars of one kind works too, with types '
+        "guessed from the first rows (a field null in all of them is dropped: use the card's configs).",
         "",
         "### With webdataset",
         "",

@@ -1,7 +1,8 @@
 """``croissant.json``: Croissant 1.1 metadata of a publication (http://mlcommons.org/croissant/1.1).
 
-Every file of PUB but the card and SHA256SUMS is a FileObject with its SHA-256; the EXR
-and JSON members of the tars are FileSets ``containedIn`` them. Croissant's reader cannot
+Every file of PUB but the card and SHA256SUMS is a FileObject with its SHA-256; the EXR,
+PNG and JSON members of the tars are FileSets ``containedIn`` the tars of their kind
+(materials, renders). Croissant's reader cannot
 decode EXR, and its extractor unpacks archives with ``extractall``; so the record set
 ``samples`` reads only ``samples.jsonl`` (one row per sample, naming its members, their
 checksums and the tar that holds them), never the tars.
@@ -10,7 +11,15 @@ checksums and the tar that holds them), never the tars.
 from __future__ import annotations
 
 from pipeline.publish.facts import CITATION, LICENSES, PublicationFacts
-from pipeline.publish.names import INDEX_FILE, MARKERS_REL, PREVIEW_FILE, SAMPLES_FILE, SOURCE_FILES
+from pipeline.publish.names import (
+    INDEX_FILE,
+    MARKERS_REL,
+    MATERIALS,
+    PREVIEW_FILE,
+    RENDERS,
+    SAMPLES_FILE,
+    SOURCE_FILES,
+)
 from pipeline.publish.table import COLUMN_DOCS
 
 CONFORMS_TO = "http://mlcommons.org/croissant/1.1"
@@ -76,15 +85,31 @@ VECTOR_DOCS = {
 }
 
 MEMBER_SETS = (
-    ("render-exr", "*.render.exr", "image/x-exr", "renders: render.R/G/B, linear HDR float32"),
+    ("render-exr", RENDERS, "*.render.exr", "image/x-exr", "renders: render.R/G/B, linear HDR float32"),
+    ("render-png", RENDERS, "*.render.png", "image/png", "render previews: tone-mapped, 8-bit sRGB (not data)"),
+    ("record-json", RENDERS, "*.json", "application/json", "per-sample records (docs/manifest.md)"),
     (
         "maps-exr",
+        MATERIALS,
         "*.maps.exr",
         "image/x-exr",
         "screen-space maps of a material: diffuse, specular, roughness, normal, mask",
     ),
-    ("texture-exr", "*.texture.exr", "image/x-exr", "texture-space (UV) maps of a material"),
-    ("record-json", "*.json", "application/json", "per-sample records (docs/manifest.md)"),
+    ("texture-exr", MATERIALS, "*.texture.exr", "image/x-exr", "texture-space (UV) maps of a material"),
+    (
+        "maps-png",
+        MATERIALS,
+        "*.maps.png",
+        "image/png",
+        "map previews: diffuse, specular, roughness, normal side by side, 8-bit (not data)",
+    ),
+    (
+        "material-json",
+        MATERIALS,
+        "*.json",
+        "application/json",
+        "per-material rows: the samples table's material columns",
+    ),
 )
 
 FORMATS = {
@@ -151,7 +176,11 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
     resolution = facts.spec.render.resolution
     distribution = [
         _file_object(
-            t.path, facts, f"tar shard (WebDataset convention): samples {t.first} to {t.last}, {t.members} members"
+            t.path,
+            facts,
+            f"tar shard (WebDataset convention), {t.kind}: "
+            + (f"materials {t.first} to {t.last}" if t.kind == MATERIALS else f"samples {t.first} to {t.last}")
+            + f", {t.members} members",
         )
         for t in facts.tars
     ]
@@ -168,8 +197,7 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
         distribution.append(_file_object(rel, facts, what))
     if facts.has_preview:
         distribution.append(_file_object(PREVIEW_FILE, facts, "contact sheet: renders beside their maps"))
-    tar_ids = [{"@id": t.path} for t in facts.tars]
-    for set_id, pattern, encoding, what in MEMBER_SETS:
+    for set_id, kind, pattern, encoding, what in MEMBER_SETS:
         if set_id == "texture-exr" and not any(r.get("texture") for r in facts.rows):
             continue
         distribution.append(
@@ -178,7 +206,7 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
                 "@id": set_id,
                 "name": set_id,
                 "description": what,
-                "containedIn": tar_ids,
+                "containedIn": [{"@id": t.path} for t in facts.tars if t.kind == kind],
                 "encodingFormat": encoding,
                 "includes": pattern,
             }

@@ -32,6 +32,7 @@ CITATION = """@inproceedings{kt2019flexible,
 @dataclass(frozen=True)
 class TarFacts:
     path: str
+    kind: str  # materials or renders (pipeline.publish.names)
     bytes: int
     sha256: str
     members: int
@@ -43,6 +44,7 @@ class TarFacts:
     def to_dict(self) -> dict:
         return {
             "path": self.path,
+            "kind": self.kind,
             "bytes": self.bytes,
             "members": self.members,
             "samples": self.samples,

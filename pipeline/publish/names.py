@@ -12,12 +12,17 @@ its tar members (docs/publish.md).
       dataset/dataset.json
       dataset/manifest.jsonl
       dataset/markers.jsonl          every shard's COMPLETE.json, one per line, in shard order
-      shards/shard-000000.tar        WebDataset-convention tar shards (uncompressed USTAR)
+      shards/materials-000000.tar    WebDataset tars (uncompressed USTAR), in pairs: the maps of
+      shards/renders-000000.tar        some whole materials, and the renders of their lightings
 
-Inside a tar, for each material in plan order: ``m000012.maps.exr``,
-``m000012.texture.exr`` (if stored), then for each of its lightings ``m000012_l0.json``
-(the sample's record file) and ``m000012_l0.render.exr``. A key (the part before the
-first dot) never holds a dot; a material is never split across tars.
+A materials tar holds, for each of its materials in plan order, ``m000012.json`` (the
+material's row, pipeline.publish.table.material_row), ``m000012.maps.exr``,
+``m000012.texture.exr`` (if the spec stores them) and ``m000012.maps.png`` (a preview
+strip of the maps). The renders tar of the same number holds, for each lighting of those
+materials, ``m000012_l0.json`` (the sample's record file), ``m000012_l0.render.exr`` and
+``m000012_l0.render.png`` (the render tone-mapped). Every key of a tar has the same fields
+(what the Hugging Face WebDataset loader requires); a key (the part before the first dot)
+never holds a dot; a material and its lightings are in tars of the same number.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import re
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
 
 FORMAT = "shaderball-publish"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 CARD_FILE = "README.md"
 CROISSANT_FILE = "croissant.json"
@@ -54,20 +59,33 @@ PLAIN_FILES = tuple(
 #: Files that may be absent (a publication written without a contact sheet).
 OPTIONAL_FILES = (PREVIEW_FILE,)
 
-TAR_NAME = re.compile(r"^shards/shard-(\d{6})\.tar$")
+#: The two kinds of tar: a material's files, and a lighting's.
+MATERIALS, RENDERS = "materials", "renders"
+TAR_KINDS = (MATERIALS, RENDERS)
+TAR_NAME = re.compile(r"^shards/(materials|renders)-(\d{6})\.tar$")
 SAMPLE_ID = re.compile(r"^m\d{6}_l\d{1,3}$")
 MATERIAL_ID = re.compile(r"^m\d{6}$")
 SHARD_ID = re.compile(r"^s\d{5}$")
 #: A member name: a key without a dot, then its field.
-MEMBER_NAME = re.compile(r"^(m\d{6})\.(maps\.exr|texture\.exr)$|^(m\d{6}_l\d{1,3})\.(json|render\.exr)$")
+MEMBER_NAME = re.compile(
+    r"^(m\d{6})\.(json|maps\.exr|texture\.exr|maps\.png)$|^(m\d{6}_l\d{1,3})\.(json|render\.exr|render\.png)$"
+)
 
 #: Record roles (docs/manifest.md) -> member field.
 ROLE_FIELDS = {"render": "render.exr", "maps": "maps.exr", "texture": "texture.exr"}
 RECORD_FIELD = "json"
+MATERIAL_FIELD = "json"
+#: Previews (pipeline.publish.previews): role -> member field.
+PREVIEW_FIELDS = {"render_preview": "render.png", "maps_preview": "maps.png"}
 
 
-def tar_rel(index: int) -> str:
-    return f"{SHARDS_DIR}/shard-{index:06d}.tar"
+def tar_rel(index: int, kind: str = RENDERS) -> str:
+    return f"{SHARDS_DIR}/{kind}-{index:06d}.tar"
+
+
+def paired_tar(rel: str, kind: str) -> str:
+    """The tar of kind ``kind`` with the number of the tar ``rel`` (a TAR_NAME)."""
+    return tar_rel(int(TAR_NAME.match(rel).group(2)), kind)
 
 
 def member_name(key: str, field: str) -> str:

@@ -32,17 +32,31 @@ from pipeline.publish.names import (
     FORMAT_VERSION,
     INDEX_FILE,
     MARKERS_REL,
+    MATERIALS,
     OPTIONAL_FILES,
     PLAIN_FILES,
+    RENDERS,
     SAMPLES_FILE,
     SHARDS_DIR,
     SOURCE_FILES,
     SUMS_FILE,
+    TAR_KINDS,
     TAR_NAME,
     allowed_file,
+    paired_tar,
 )
+from pipeline.publish.previews import png_size
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
-from pipeline.publish.table import FileRef, file_refs, record_member, sample_row
+from pipeline.publish.table import (
+    PREVIEW_ROLES,
+    FileRef,
+    file_refs,
+    material_member,
+    material_row,
+    preview_member,
+    record_member,
+    sample_row,
+)
 from pipeline.publish.tarsafe import Member, read_members, scan_tar
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 from pipeline.store.records import dumps, without_timings
@@ -59,7 +73,7 @@ class Expected:
     role: str  # maps, texture, record, render
     size: int
     sha256: str
-    path: str
+    path: str | None  # None for a member derived by publish (a preview, a material's row)
     sample_id: str | None
     material_id: str
 
@@ -143,6 +157,8 @@ class Publication:
             if progress:
                 progress(tar.rel)
             for expected, member, _data in self.checked_members(tar, before):
+                if expected.path is None:  # a preview or a material's row: no file of the dataset
+                    continue
                 found[expected.path] = Located(
                     tar.rel, tar.size, member.name, member.offset, member.size, expected.sha256
                 )
@@ -306,17 +322,40 @@ def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
     listed = sorted(r for r in sums if TAR_NAME.match(r))
     if not isinstance(shards, list) or [s.get("path") if isinstance(s, dict) else None for s in shards] != listed:
         raise Refused("bad_index", f"{INDEX_FILE}: its shards are not the tars {SUMS_FILE} lists ({len(listed)})")
+    numbers = {
+        kind: [TAR_NAME.match(r).group(2) for r in listed if TAR_NAME.match(r).group(1) == kind] for kind in TAR_KINDS
+    }
+    for kind in TAR_KINDS:
+        if numbers[kind] != [f"{n:06d}" for n in range(len(numbers[MATERIALS]))]:
+            raise Refused(
+                "bad_index",
+                f"{SHARDS_DIR}/{kind}-*.tar: tars must be numbered from 000000 without gaps, "
+                "a materials tar and a renders tar for each number",
+            )
     for number, rel in enumerate(listed):
-        if TAR_NAME.match(rel).group(1) != f"{number:06d}":
-            raise Refused("bad_index", f"{rel}: tars must be numbered from 000000 without gaps")
         if shards[number].get("bytes") != files[rel]:
             raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {shards[number].get('bytes')}")
     return [TarEntry(rel=rel, sha256=sums[rel], size=files[rel]) for rel in listed]
 
 
+def _sum_and_size(row: dict, column: str, limits: Limits) -> tuple[str, int] | None:
+    """A row's (SHA-256, size) of a member it names (``column``_sha256, ``column``_bytes), or None."""
+    sha, size = row.get(f"{column}_sha256"), row.get(f"{column}_bytes")
+    if (
+        not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX)
+        or isinstance(size, bool)
+        or not isinstance(size, int)
+        or not 0 <= size <= limits.member_bytes
+    ):
+        return None
+    return sha, size
+
+
 def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, limits: Limits) -> None:
     """Fill each tar's expected members from the manifest and the samples table, refusing any
-    disagreement between the two."""
+    disagreement between the two: a materials tar holds each of its materials' row, maps
+    (and texture) and maps preview; the renders tar of its number, each of their lightings'
+    record, render and render preview."""
     rows = table.split(b"\n")
     if rows and rows[-1] == b"":
         rows.pop()
@@ -328,29 +367,31 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
     manifest = SOURCE_FILES[MANIFEST_FILE]
     for number, (record, line) in enumerate(zip(records, rows), start=1):
         row = _json(line, f"{SAMPLES_FILE} line {number}")
-        tar_rel, sha, size = (
-            (row.get("shard"), row.get("record_sha256"), row.get("record_bytes"))
-            if isinstance(row, dict)
-            else (None, None, None)
-        )
+        tar_rel = row.get("shard") if isinstance(row, dict) else None
+        sums = {c: _sum_and_size(row, c, limits) for c in ("record", *PREVIEW_ROLES)} if isinstance(row, dict) else {}
         if (
             not isinstance(tar_rel, str)
             or tar_rel not in by_rel
-            or not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX)
-            or isinstance(size, bool)
-            or not isinstance(size, int)
-            or not 0 <= size <= limits.member_bytes
+            or TAR_NAME.match(tar_rel).group(1) != RENDERS
+            or not sums
+            or None in sums.values()
         ):
             raise Refused(
-                "bad_table", f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes; refused"
+                "bad_table",
+                f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes "
+                "(or preview SHA-256 and size); refused",
             )
-        if dumps(sample_row(record, tar_rel, sha, size)).encode("utf-8") != line:
+        sha, size = sums["record"]
+        previews = {role: sums[role] for role in PREVIEW_ROLES}
+        expected_row = sample_row(record, tar_rel, sha, size, previews)
+        if dumps(expected_row).encode("utf-8") != line:
             raise Refused(
                 "bad_table",
                 f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line "
                 f"{number} ({record['id']}) gives; refused",
             )
         tar = by_rel[tar_rel]
+        materials = by_rel[expected_row["material_shard"]]
         position = tars.index(tar)
         if position < last_tar:
             raise Refused(
@@ -362,9 +403,23 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
         refs = file_refs(record, f"{manifest} line {number}")
         material = record["material_id"]
         shared = {r: (refs[r].sha256, refs[r].bytes) for r in ("maps", "texture") if r in refs}
+        shared["maps_preview"] = previews["maps_preview"]
         if material not in material_tar:
             material_tar[material] = (tar_rel, shared)
-            tar.expected += [_shared(refs[role], material) for role in ("maps", "texture") if role in refs]
+            data = (dumps(material_row(expected_row)) + "\n").encode("utf-8")
+            materials.expected.append(
+                Expected(
+                    material_member(material),
+                    "material",
+                    len(data),
+                    hashlib.sha256(data).hexdigest(),
+                    None,
+                    None,
+                    material,
+                )
+            )
+            materials.expected += [_shared(refs[role], material) for role in ("maps", "texture") if role in refs]
+            materials.expected.append(_preview(record, "maps_preview", previews, None))
         elif material_tar[material][0] != tar_rel:
             raise Refused(
                 "bad_table",
@@ -386,6 +441,12 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
         tar.expected.append(
             Expected(render.member, "render", render.bytes, render.sha256, render.path, sample, material)
         )
+        tar.expected.append(_preview(record, "render_preview", previews, sample))
+
+
+def _preview(record: dict, role: str, previews: dict[str, tuple[str, int]], sample: str | None) -> Expected:
+    sha, size = previews[role]
+    return Expected(preview_member(record, role), "preview", size, sha, None, sample, record["material_id"])
 
 
 def _shared(ref: FileRef, material: str) -> Expected:
@@ -483,7 +544,13 @@ def _check_member(
             or without_timings(record) != without_timings(records[expected.sample_id])
         ):
             raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
-    else:
+    elif expected.role == "preview":
+        size = png_size(data)
+        if size is None or not (0 < size[0] <= 4 * limits.exr_side and 0 < size[1] <= limits.exr_side):
+            raise Refused(
+                "preview", f"{where}: not a PNG of at most {4 * limits.exr_side} x {limits.exr_side}; refused"
+            )
+    elif expected.role != "material":  # a material's row: its bytes are the table's (checked above)
         check_exr_header(data, where, limits)
 
 
@@ -520,20 +587,36 @@ def iter_samples(
 
 
 def publication_samples(publication: Publication, progress: Callable[[str], None] | None = None) -> Iterator[dict]:
+    """The samples of each tar pair: its renders tar streamed, its materials tar streamed
+    alongside (a material's maps are read when its first lighting comes)."""
     records = {r["id"]: r for r in publication.records}
-    before = 0
+    before = {t.rel: 0 for t in publication.tars}
+    count = 0
     for tar in publication.tars:
+        before[tar.rel] = count
+        count += len(tar.expected)
+    by_rel = {t.rel: t for t in publication.tars}
+    for tar in publication.tars:
+        if TAR_NAME.match(tar.rel).group(1) != RENDERS:
+            continue
         if progress:
             progress(tar.rel)
-        shared: dict[str, bytes] = {}
-        for expected, data in publication.members(tar, before):
-            if expected.role in ("maps", "texture"):
-                if expected.role == "maps":
-                    shared = {}
-                shared[expected.role] = data
-            elif expected.role == "render":
-                yield sample_dict(records[expected.sample_id], {**shared, "render": data})
-        before += len(tar.expected)
+        materials = by_rel[paired_tar(tar.rel, MATERIALS)]
+        maps_members = publication.members(materials, before[materials.rel])
+        material, shared = None, {}
+        for expected, data in publication.members(tar, before[tar.rel]):
+            if expected.role != "render":
+                continue
+            if expected.material_id != material:
+                material, shared = expected.material_id, {}
+                for got, got_data in maps_members:
+                    if got.role in ("maps", "texture"):
+                        shared[got.role] = got_data
+                    if got.role == "preview":  # the material's last member
+                        break
+            yield sample_dict(records[expected.sample_id], {**shared, "render": data})
+        for _rest in maps_members:  # the materials tar is checked to its end
+            pass
 
 
 def iter_folder_samples(root: str) -> Iterator[dict]:

@@ -12,12 +12,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.publish.names import (
+    MATERIAL_FIELD,
     MATERIAL_ID,
+    MATERIALS,
+    PREVIEW_FIELDS,
     RECORD_FIELD,
     ROLE_FIELDS,
     SAMPLE_ID,
     SHARD_ID,
     member_name,
+    paired_tar,
 )
 from pipeline.publish.refusal import Refused
 from pipeline.store.layout import Layout
@@ -30,7 +34,8 @@ COLUMN_DOCS = (
     ("material_index", "sc:Integer", "index of the material in the plan"),
     ("light_index", "sc:Integer", "index of the lighting among the material's lightings"),
     ("source_shard", "sc:Text", "shard of the source dataset, sNNNNN (its folder shards/sNNNNN)"),
-    ("shard", "sc:Text", "the tar file of PUB holding the sample's members"),
+    ("shard", "sc:Text", "the renders tar of PUB holding the sample's record, render and render preview"),
+    ("material_shard", "sc:Text", "the materials tar of PUB holding its material's maps (the same number)"),
     ("sun_x", "sc:Float", "unit vector towards the sun, x (world frame, z up)"),
     ("sun_y", "sc:Float", "unit vector towards the sun, y"),
     ("sun_z", "sc:Float", "unit vector towards the sun, z (up)"),
@@ -60,14 +65,29 @@ COLUMN_DOCS = (
     ("render", "sc:Text", "tar member: the path-traced render (EXR, render.R/G/B float32)"),
     ("render_sha256", "sc:Text", "SHA-256 of the render member"),
     ("render_bytes", "sc:Integer", "size of the render member"),
+    ("render_preview", "sc:Text", "tar member: the render tone-mapped, 8-bit sRGB PNG (for people, not data)"),
+    ("render_preview_sha256", "sc:Text", "SHA-256 of the render preview member"),
+    ("render_preview_bytes", "sc:Integer", "size of the render preview member"),
     ("maps", "sc:Text", "tar member: the material's screen-space maps (EXR), shared by its lightings"),
     ("maps_sha256", "sc:Text", "SHA-256 of the maps member"),
     ("maps_bytes", "sc:Integer", "size of the maps member"),
+    ("maps_preview", "sc:Text", "tar member: a strip of the maps (diffuse, specular, roughness, normal), PNG"),
+    ("maps_preview_sha256", "sc:Text", "SHA-256 of the maps preview member"),
+    ("maps_preview_bytes", "sc:Integer", "size of the maps preview member"),
     ("texture", "sc:Text", "tar member: the material's texture-space maps (EXR), if stored"),
     ("texture_sha256", "sc:Text", "SHA-256 of the texture member"),
     ("texture_bytes", "sc:Integer", "size of the texture member"),
 )
 COLUMNS = tuple(c for c, _t, _d in COLUMN_DOCS)
+#: The columns of a material's row (its ``MATERIAL.json`` member in the materials tar).
+MATERIAL_COLUMNS = tuple(
+    c
+    for c in COLUMNS
+    if c in ("material_id", "material_index", "source_shard", "material_shard", "material_kind", "seed_material")
+    or c.startswith(("svbrdf_", "diffuse_", "specular_", "roughness", "normal_", "maps", "texture"))
+)
+#: Preview roles -> the samples table's columns of their SHA-256 and size.
+PREVIEW_ROLES = ("render_preview", "maps_preview")
 
 
 @dataclass(frozen=True)
@@ -150,8 +170,20 @@ def _object(value) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) -> dict:
-    """The ``samples.jsonl`` row of a (checked) manifest record in the tar ``tar``."""
+def material_member(material_id: str) -> str:
+    return member_name(material_id, MATERIAL_FIELD)
+
+
+def preview_member(record: dict, role: str) -> str:
+    key = record["id"] if role == "render_preview" else record["material_id"]
+    return member_name(key, PREVIEW_FIELDS[role])
+
+
+def sample_row(
+    record: dict, tar: str, record_sha256: str, record_bytes: int, previews: dict[str, tuple[str, int]]
+) -> dict:
+    """The ``samples.jsonl`` row of a (checked) manifest record in the renders tar ``tar``;
+    ``previews``: role (render_preview, maps_preview) -> (SHA-256, size) of its PNG member."""
     refs = file_refs(record, "manifest")
     lighting = _object(record.get("lighting"))
     direction = lighting.get("direction")
@@ -166,6 +198,7 @@ def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) ->
         "light_index": record.get("light_index"),
         "source_shard": record["shard"],
         "shard": tar,
+        "material_shard": paired_tar(tar, MATERIALS),
         "sun_x": _triple(direction, 0),
         "sun_y": _triple(direction, 1),
         "sun_z": _triple(direction, 2),
@@ -199,5 +232,17 @@ def sample_row(record: dict, tar: str, record_sha256: str, record_bytes: int) ->
     for role in ("render", "maps") + (("texture",) if texture else ()):
         ref = refs[role]
         row[role], row[f"{role}_sha256"], row[f"{role}_bytes"] = ref.member, ref.sha256, ref.bytes
+    for role in PREVIEW_ROLES:
+        sha, size = previews[role]
+        row[role], row[f"{role}_sha256"], row[f"{role}_bytes"] = preview_member(record, role), sha, size
     assert set(row) == set(COLUMNS)
     return row
+
+
+def material_row(row: dict) -> dict:
+    """The row of a sample's material (its ``MATERIAL.json`` member): the material's columns
+    of any of its lightings' ``samples.jsonl`` rows, but for nulls (a column absent is null:
+    the card's features type it; a loader that guesses types from the first rows, such as
+    ``load_dataset("webdataset")`` without features, then never sees a null-typed column
+    meet a value)."""
+    return {column: row[column] for column in MATERIAL_COLUMNS if row[column] is not None}

@@ -130,8 +130,8 @@ def check_member_name(label: str, name: str) -> None:
         raise Refused(
             "bad_name",
             f"{label}: member {name!r} does not fit the layout (KEY.FIELD with KEY "
-            "mNNNNNN or mNNNNNN_lK and FIELD maps.exr, texture.exr, json or render.exr); "
-            "refused",
+            "mNNNNNN or mNNNNNN_lK and FIELD json, maps.exr, texture.exr, maps.png, render.exr "
+            "or render.png); refused",
         )
 
 

@@ -94,7 +94,8 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
             if progress:
                 progress(f"unpacking {tar.rel}")
             for expected, data in publication.members(tar, before):
-                output.write(expected.path, data)
+                if expected.path is not None:  # previews and material rows are the publication's own
+                    output.write(expected.path, data)
             before += len(tar.expected)
         if validate_after:
             if progress:

@@ -15,7 +15,7 @@ import os
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from pipeline.check.preview import write_preview
 from pipeline.check.validate import validate
@@ -31,15 +31,20 @@ from pipeline.publish.names import (
     FORMAT_VERSION,
     INDEX_FILE,
     MARKERS_REL,
+    MATERIALS,
+    PREVIEW_FIELDS,
     PREVIEW_FILE,
+    RENDERS,
     SAMPLES_FILE,
     SOURCE_FILES,
     SUMS_FILE,
+    member_name,
     tar_rel,
 )
 from pipeline.publish.output import Output, check_out
+from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
-from pipeline.publish.table import file_refs, record_member, sample_row
+from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
 from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import fsync_dir, sha256_file
@@ -55,26 +60,58 @@ PREVIEW_SAMPLES = 8
 
 @dataclass(frozen=True)
 class PackedMember:
-    """A member to write: its name, the source file, its size and (for EXR files) its SHA-256."""
+    """A member to write: its name, the source file (None for a derived member: a preview or
+    a material's row, whose bytes are ``data``), its size and its SHA-256."""
 
     name: str
-    source: str
+    source: str | None
     size: int
     sha256: str | None
+    data: bytes | None = None
+
+
+def derived(name: str, data: bytes) -> PackedMember:
+    return PackedMember(name, None, len(data), hashlib.sha256(data).hexdigest(), data)
 
 
 @dataclass
 class MaterialGroup:
-    """A material's members: its maps (and texture), then each lighting's record and render."""
+    """A material's members: its maps (and texture) and their preview for the materials tar,
+    then each lighting's record, render and render preview for the renders tar."""
 
     material_id: str
-    members: list[PackedMember] = field(default_factory=list)
+    shared: list[PackedMember] = field(default_factory=list)  # maps, texture (source files)
+    lightings: list[PackedMember] = field(default_factory=list)  # record, render per lighting
     records: list[dict] = field(default_factory=list)
     shared_bytes: int = 0  # tar bytes of the maps and texture members
+    maps_preview: PackedMember | None = None
+    render_previews: list[PackedMember] = field(default_factory=list)
+    record_sums: list[tuple[str, int]] = field(default_factory=list)
 
-    @property
-    def tar_bytes(self) -> int:
-        return sum(BLOCK + padded(m.size) for m in self.members)
+    def rows(self, index: int) -> list[dict]:
+        """The samples table's rows of the material's lightings, in the tar pair ``index``."""
+        maps = (self.maps_preview.sha256, self.maps_preview.size)
+        return [
+            sample_row(
+                record, tar_rel(index, RENDERS), *sums, {"render_preview": (p.sha256, p.size), "maps_preview": maps}
+            )
+            for record, sums, p in zip(self.records, self.record_sums, self.render_previews)
+        ]
+
+    def materials_members(self, index: int) -> list[PackedMember]:
+        row = derived(material_member(self.material_id), (dumps(material_row(self.rows(index)[0])) + "\n").encode())
+        return [row, *self.shared, self.maps_preview]
+
+    def renders_members(self) -> list[PackedMember]:
+        out = []
+        for i, preview in enumerate(self.render_previews):
+            out += [*self.lightings[2 * i : 2 * i + 2], preview]
+        return out
+
+    def sizes(self) -> tuple[list[int], list[int]]:
+        """Member sizes in its materials tar and its renders tar (a row's size does not depend
+        on the tar's number: six digits always)."""
+        return [m.size for m in self.materials_members(0)], [m.size for m in self.renders_members()]
 
 
 @dataclass(frozen=True)
@@ -165,7 +202,7 @@ def _read_manifest(layout: Layout) -> list[dict]:
 
 
 def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
-    """Members of each material in plan order (the manifest's)."""
+    """Members of each material in plan order (the manifest's); previews not yet drawn."""
     groups: list[MaterialGroup] = []
     for number, record in enumerate(records, start=1):
         refs = file_refs(record, f"manifest.jsonl line {number}")
@@ -174,34 +211,44 @@ def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
             for role in ("maps", "texture"):
                 if role in refs:
                     ref = refs[role]
-                    group.members.append(PackedMember(ref.member, ref.path, ref.bytes, ref.sha256))
+                    group.shared.append(PackedMember(ref.member, ref.path, ref.bytes, ref.sha256))
                     group.shared_bytes += BLOCK + padded(ref.bytes)
             groups.append(group)
         group = groups[-1]
         record_rel = Layout.record_rel(record["shard"], record["id"])
-        group.members.append(
+        group.lightings.append(
             PackedMember(record_member(record["id"]), record_rel, os.path.getsize(layout.path(record_rel)), None)
         )
         render = refs["render"]
-        group.members.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
+        group.lightings.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
         group.records.append(record)
     return groups
 
 
-def assign_tars(groups: list[MaterialGroup], shard_bytes: int) -> list[list[MaterialGroup]]:
-    """Whole materials, in order, into tars of at most ``shard_bytes`` (a material larger than
-    that gets a tar of its own)."""
-    tars: list[list[MaterialGroup]] = []
-    current: list[MaterialGroup] = []
-    for group in groups:
-        sizes = [m.size for g in current + [group] for m in g.members]
-        if current and tar_bytes(sizes) > shard_bytes:
-            tars.append(current)
-            current = []
-        current.append(group)
-    if current:
-        tars.append(current)
-    return tars
+def draw_previews(layout: Layout, group: MaterialGroup, side: int) -> None:
+    """Read the material's files once (each checked against the manifest): the records'
+    SHA-256, and the previews of its maps and renders (pipeline.publish.previews)."""
+    maps = _read_checked(layout, group.shared[0])
+    group.maps_preview = derived(
+        member_name(group.material_id, PREVIEW_FIELDS["maps_preview"]), maps_preview(maps, side)
+    )
+    group.render_previews, group.record_sums = [], []
+    for i, record in enumerate(group.records):
+        record_member_, render_member = group.lightings[2 * i : 2 * i + 2]
+        data = _read_checked(layout, record_member_)
+        group.record_sums.append((hashlib.sha256(data).hexdigest(), len(data)))
+        group.lightings[2 * i] = PackedMember(
+            record_member_.name, record_member_.source, len(data), hashlib.sha256(data).hexdigest()
+        )
+        preview = render_preview(_read_checked(layout, render_member), maps, side)
+        group.render_previews.append(derived(member_name(record["id"], PREVIEW_FIELDS["render_preview"]), preview))
+
+
+def fits(pair_sizes: list[tuple[list[int], list[int]]], sizes: tuple[list[int], list[int]], shard_bytes: int) -> bool:
+    """Whether a material whose members have ``sizes`` (MaterialGroup.sizes) joins a tar pair
+    whose materials have ``pair_sizes`` with both tars at most ``shard_bytes``."""
+    every = pair_sizes + [sizes]
+    return all(tar_bytes([n for s in every for n in s[kind]]) <= shard_bytes for kind in (0, 1))
 
 
 # --------------------------------------------------------------------------- writing
@@ -225,9 +272,8 @@ def _read_checked(layout: Layout, member: PackedMember) -> bytes:
     return data
 
 
-def _write_tar(
-    output: Output, layout: Layout, rel: str, groups: list[MaterialGroup], record_sums: dict[str, tuple[str, int]]
-) -> TarFacts:
+def _write_tar(output: Output, layout: Layout, rel: str, members: list[PackedMember]) -> tuple[int, str]:
+    """Write the tar ``rel`` of ``members`` atomically; its size and SHA-256."""
     final = output.path(rel)
     folder = os.path.dirname(final)
     os.makedirs(folder, exist_ok=True)
@@ -235,12 +281,10 @@ def _write_tar(
     try:
         with os.fdopen(fd, "w+b") as fh:
             with open_writer(fh) as tar:
-                for group in groups:
-                    for member in group.members:
-                        data = _read_checked(layout, member)
-                        if member.sha256 is None:
-                            record_sums[member.name] = (hashlib.sha256(data).hexdigest(), len(data))
-                        write_member(tar, member.name, data)
+                for member in members:
+                    write_member(
+                        tar, member.name, member.data if member.source is None else _read_checked(layout, member)
+                    )
             fh.flush()
             os.fsync(fh.fileno())
             size = fh.tell()
@@ -252,20 +296,42 @@ def _write_tar(
             os.unlink(tmp)
         raise
     fsync_dir(folder)
-    expected = tar_bytes([m.size for g in groups for m in g.members])
+    expected = tar_bytes([m.size for m in members])
     assert size == expected, (size, expected)
     output.adopt(rel, digest, size)
-    records = [r for g in groups for r in g.records]
-    return TarFacts(
-        path=rel,
-        bytes=size,
-        sha256=digest,
-        members=sum(len(g.members) for g in groups),
-        samples=len(records),
-        materials=len(groups),
-        first=records[0]["id"],
-        last=records[-1]["id"],
-    )
+    return size, digest
+
+
+def _write_pair(
+    output: Output, layout: Layout, index: int, pair: list[MaterialGroup]
+) -> tuple[list[TarFacts], list[dict]]:
+    """The materials tar and the renders tar of number ``index``; their facts and the rows."""
+    rows = [row for group in pair for row in group.rows(index)]
+    facts = []
+    for kind in (MATERIALS, RENDERS):
+        rel = tar_rel(index, kind)
+        members = [m for g in pair for m in (g.materials_members(index) if kind == MATERIALS else g.renders_members())]
+        size, digest = _write_tar(output, layout, rel, members)
+        first, last = (
+            (pair[0].material_id, pair[-1].material_id) if kind == MATERIALS else (rows[0]["id"], rows[-1]["id"])
+        )
+        facts.append(
+            TarFacts(
+                path=rel,
+                kind=kind,
+                bytes=size,
+                sha256=digest,
+                members=len(members),
+                samples=len(rows),
+                materials=len(pair),
+                first=first,
+                last=last,
+            )
+        )
+    for group in pair:  # the previews are written: keep their sums, not their bytes
+        group.maps_preview = replace(group.maps_preview, data=b"")
+        group.render_previews = [replace(p, data=b"") for p in group.render_previews]
+    return facts, rows
 
 
 def _markers(layout: Layout, records: list[dict]) -> bytes:
@@ -305,20 +371,31 @@ def write_publication(
     if not records:
         raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
     groups = material_groups(layout, records)
-    assignment = assign_tars(groups, shard_bytes)
+    side = spec.render.resolution
     output = Output(out)
     try:
-        record_sums: dict[str, tuple[str, int]] = {}
         tars, rows = [], []
-        for index, tar_groups in enumerate(assignment):
-            rel = tar_rel(index)
+        pair: list[MaterialGroup] = []
+        pair_sizes: list[tuple[list[int], list[int]]] = []
+        for number, group in enumerate(groups, start=1):
             if progress:
-                progress(f"writing {rel} ({index + 1}/{len(assignment)})")
-            facts = _write_tar(output, layout, rel, tar_groups, record_sums)
-            tars.append(facts)
-            for group in tar_groups:
-                for record in group.records:
-                    rows.append(sample_row(record, rel, *record_sums[record_member(record["id"])]))
+                progress(f"previews of {group.material_id} ({number}/{len(groups)})")
+            draw_previews(layout, group, side)
+            sizes = group.sizes()
+            if pair and not fits(pair_sizes, sizes, shard_bytes):
+                index = len(tars) // 2
+                if progress:
+                    progress(f"writing {tar_rel(index, MATERIALS)} and {tar_rel(index, RENDERS)}")
+                written, pair_rows = _write_pair(output, layout, index, pair)
+                tars += written
+                rows += pair_rows
+                pair, pair_sizes = [], []
+            pair.append(group)
+            pair_sizes.append(sizes)
+        written, pair_rows = _write_pair(output, layout, len(tars) // 2, pair)
+        tars += written
+        rows += pair_rows
+        tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
         for source, rel in SOURCE_FILES.items():
             output.write(
                 rel,
@@ -338,7 +415,7 @@ def write_publication(
                 )
         description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
         source_bytes = (
-            sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.members)
+            sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.shared + g.lightings)
             + sum(output.sizes[rel] for rel in SOURCE_FILES.values())
             + output.sizes[MARKERS_REL]
         )
@@ -354,7 +431,7 @@ def write_publication(
             files=dict(output.sums),
             sizes=dict(output.sizes),
             source_bytes=source_bytes,
-            member_bytes=sum(m.size for g in groups for m in g.members),
+            member_bytes=sum(sum(a) + sum(b) for a, b in (g.sizes() for g in groups)),
             repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
             materials=len(groups),
             has_preview=contact_sheet,
@@ -394,7 +471,8 @@ def publication_index(facts: PublicationFacts) -> dict:
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "maps": "once per material: MATERIAL.maps.exr (and MATERIAL.texture.exr) before its lightings, in the same tar",
+        "maps": "once per material: MATERIAL.maps.exr (and MATERIAL.texture.exr) in materials-N.tar, "
+        "its lightings in renders-N.tar of the same number",
         "source": {
             "name": description.get("name"),
             "version": description.get("version"),

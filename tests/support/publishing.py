@@ -30,6 +30,21 @@ def smoke_build(tmp_path_factory) -> Path:
     return target
 
 
+def hf_env(tmp_path: Path) -> dict[str, str]:
+    """The environment of a process that runs Hugging Face's clients offline, with every cache
+    under ``tmp_path`` (nothing downloaded, nothing written to the user's cache)."""
+    home = tmp_path / "hf-home"
+    return {
+        **os.environ,
+        "HF_HOME": str(home),
+        "HF_DATASETS_CACHE": str(home / "datasets"),
+        "HF_HUB_CACHE": str(home / "hub"),
+        "HF_DATASETS_OFFLINE": "1",
+        "HF_HUB_OFFLINE": "1",
+        "HF_HUB_DISABLE_TELEMETRY": "1",
+    }
+
+
 def files_of(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
