@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.neural.tonemap import (
+from pipeline.image.tonemap import (
     DEFAULT_EXPOSURE,
     hdr_to_srgb8,
     inverse_tonemap,

@@ -15,8 +15,8 @@ from pipeline.check.report import Problems, summarise
 from pipeline.dataset.plan import PLAN_FORMAT, plan_dataset
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.image.stats import is_bad
 from pipeline.render.renderer import model_record
-from pipeline.render.stats import is_bad
 from pipeline.run.build import read_snapshot
 from pipeline.store.folder import (
     is_temp_file,
@@ -34,7 +34,7 @@ from sky import Light
 
 #: Relative tolerance for recomputed float statistics (same pixels, same float64 sums).
 STATS_RTOL = 1e-6
-#: Keys of a render's statistics recomputed from its pixels (pipeline.render.stats.render_stats).
+#: Keys of a render's statistics recomputed from its pixels (pipeline.image.stats.render_stats).
 PIXEL_STATS = ("min", "max", "mean", "nan", "inf", "negative")
 #: Files at the top of DIR that belong to the dataset.
 ROOT_FILES = (SPEC_FILE, DESCRIPTION_FILE, MANIFEST_FILE)

@@ -1,7 +1,7 @@
 """`shaderball preview DIR --out FILE.png`: a contact sheet of a dataset, for people.
 
 One row per chosen sample: its label (id, material, sun elevation / azimuth, turbidity),
-its render tone-mapped (pipeline.render.tonemap: exposure from the ball's pixels, Reinhard,
+its render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, Reinhard,
 sRGB), then its four screen-space maps as the network sees them: diffuse and specular
 albedo (sRGB-encoded for display), roughness (grey, raw) and the tangent-space normal
 ((n + 1) / 2, raw). Samples are spread evenly over the renders recorded so far, so it
@@ -17,7 +17,7 @@ import numpy as np
 
 from pipeline.check.info import shard_render_counts
 from pipeline.errors import ShaderballError
-from pipeline.render.tonemap import to_uint8, tonemap
+from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
@@ -74,16 +74,16 @@ def map_tiles(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray | None]:
 
     out: dict[str, np.ndarray | None] = {}
     for name in ("diffuse", "specular"):
-        out[name] = to_uint8(layers[name].astype(np.float32), srgb=True) if name in layers else None
+        out[name] = map_srgb8(layers[name].astype(np.float32), srgb=True) if name in layers else None
     rough = layers.get("roughness")
-    out["roughness"] = grey(to_uint8(rough.astype(np.float32), srgb=False)) if rough is not None else None
+    out["roughness"] = grey(map_srgb8(rough.astype(np.float32), srgb=False)) if rough is not None else None
     normal = layers.get("normal")
     if normal is not None:
         encoded = (normal.astype(np.float32) + 1.0) * 0.5
         mask = layers.get("mask")
         if mask is not None:
             encoded = np.where(mask.reshape(mask.shape[0], mask.shape[1], 1) > 0.5, encoded, 0.0)
-        out["normal"] = to_uint8(encoded, srgb=False)
+        out["normal"] = map_srgb8(encoded, srgb=False)
     else:
         out["normal"] = None
     return out
@@ -174,7 +174,7 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
         layers = cache[maps_rel]
         mask = layers.get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None
-        pictures = {"render": tonemap(render, mask=mask), **map_tiles(layers)}
+        pictures = {"render": preview_srgb8(render, mask=mask), **map_tiles(layers)}
         for c, name in enumerate(COLUMNS):
             x = LABEL_WIDTH + c * (tile + GAP) + GAP
             if pictures.get(name) is None:

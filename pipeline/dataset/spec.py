@@ -41,6 +41,7 @@ import tomllib
 from materials import SVBRDF_FAMILIES, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError
+from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.render.limits import (
     CLAMP_RANGE,
     DEFAULT_RR_DEPTH,
@@ -53,9 +54,6 @@ from pipeline.render.limits import (
     TARGET_ERROR_RANGE,
 )
 from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
-
-# pipeline.store.exr loads only numpy at import time; its table is the one list of compressions.
-from pipeline.store.exr import COMPRESSIONS
 from sky.emitter import SUN_MODES
 from sky.lighting import SCHEMES, LightingRanges
 
@@ -757,7 +755,7 @@ class StorageSection(_Section):
     SECTION: ClassVar[str] = "storage"
 
     compression: str = _field(
-        "zip", rule=_Choice(tuple(COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
+        "zip", rule=_Choice(tuple(EXR_COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
     )
     layers: tuple[str, ...] = _field(
         MAP_LAYERS,

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from materials.brdf_ref import eval_brdf
-from materials.colorspace import srgb_encode
 from materials.maps import MaterialMaps, encode_normal_map
 from materials.svbrdf import SVBRDF_FAMILIES, sample_svbrdf
+from pipeline.image.srgb import srgb_encode
 
 #: Seed of example k of family f: SeedSequence([SHEET_SEED, f, k]).
 SHEET_SEED = 2019

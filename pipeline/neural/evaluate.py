@@ -2,7 +2,7 @@
 beside it path tracing at low spp, alone and denoised (the paper's Table 1 comparison).
 
 Per sample and on average: PSNR and SSIM on 8-bit sRGB (both images through
-:mod:`pipeline.neural.tonemap`; SSIM in its standard form, :mod:`pipeline.neural.metrics`),
+:mod:`pipeline.image.tonemap`; SSIM in its standard form, :mod:`pipeline.image.metrics`),
 relMSE and HDR-FLIP on linear HDR (the network's HDR is the inverse tone map of its
 output), and the time per image. Low-spp renders use the sample's own material (its
 texture-space maps file), lighting, settings and a seed of their own; denoising is Intel
@@ -27,11 +27,13 @@ from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError, bad_value
-from pipeline.neural import metrics, runfiles
+from pipeline.image import metrics
+from pipeline.image.denoise import denoise
+from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
+from pipeline.neural import runfiles
 from pipeline.neural.data import box_downsample, open_dataset
-from pipeline.neural.denoise import AuxBuffers, denoise
+from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
-from pipeline.neural.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural.train import pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
@@ -209,9 +211,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             if want_denoise:
                 if aux_albedo[0] != sample.material_id:
                     aux_albedo = (sample.material_id, aux.albedo(maps))
-                clean, t_dn = denoise(image, aux_albedo[1], aux.normal)
+                clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
                 row[f"pt{spp}+oidn"] = _scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
-                alone, t_alone = denoise(image)
+                alone, t_alone, _cpu = denoise(image)
                 row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)

@@ -23,14 +23,14 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from pipeline.errors import ShaderballError, bad_value
+from pipeline.image.metrics import psnr8
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.data import open_dataset
 from pipeline.neural.loss import LOSSES, RenderLoss
-from pipeline.neural.metrics import psnr8
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
-from pipeline.neural.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
 
 DEVICES = ("auto", "cpu", "cuda")
@@ -58,7 +58,7 @@ class TrainConfig:
     seed: int = 0  # seeds the weights, the per-epoch order and the split
     resolution: int | None = None  # network resolution; default the dataset's; must divide it
     test_fraction: float = 0.2  # fraction of materials held out for testing
-    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.neural.tonemap)
+    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
 
     def check(self) -> TrainConfig:

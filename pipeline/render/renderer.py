@@ -29,6 +29,7 @@ import numpy as np
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import bad_value, caused_by_interrupt, check_int
+from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
@@ -46,7 +47,6 @@ from pipeline.render.limits import (
 )
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import sensor_dict, shape_dicts
-from pipeline.render.stats import is_bad, render_stats
 from sky.emitter import SUN_MODES
 
 #: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
@@ -192,7 +192,7 @@ def scene_dict(
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear Rec.709
     variance: np.ndarray  # (H, W) float32, variance of each pixel's luminance estimate
-    stats: dict  # pipeline.render.stats.render_stats + time, spp, seed, attempts, flagged
+    stats: dict  # pipeline.image.stats.render_stats + time, spp, seed, attempts, flagged
     lighting: dict  # the lighting policy's record
     effects: EffectPlan
 

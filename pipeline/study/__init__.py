@@ -9,8 +9,7 @@ Denoise and its guide buffers (``denoise``), the run with its resume and progres
 May import the domain packages (materials, sky, geometry), ``pipeline.errors``,
 ``pipeline.dataset`` (spec, plan, materials), ``pipeline.render`` (the renderer, through
 which alone Mitsuba is used; the variant is resolved once, at the study's edge),
-``pipeline.store`` (atomic writes, EXR) and the neural stage's tone map and image metrics
-(``pipeline.neural.tonemap``, ``pipeline.neural.metrics``: the study's LDR metrics are
-those of the images the network is trained on). Never dask, ``pipeline.run`` or
-``pipeline.check``.
+``pipeline.store`` (atomic writes, EXR) and ``pipeline.image`` (the tone map and image
+metrics of the images the network is trained on, OIDN). Never dask, ``pipeline.run``,
+``pipeline.check`` or ``pipeline.neural``.
 """

@@ -1,0 +1,6 @@
+"""Pixels: the sRGB transfer function (``srgb``), the tone maps (``tonemap``: the network's
+images and people's pictures), image metrics (``metrics``: PSNR, SSIM, relMSE, HDR-FLIP),
+a render's statistics (``stats``), denoising (``denoise``: Intel Open Image Denoise) and the
+EXR format's choices (``formats``). Functions of arrays: no file, no renderer, no dataset;
+imports nothing of the project.
+"""
