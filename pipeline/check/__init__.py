@@ -1,10 +1,10 @@
 """Checking a dataset folder: ``validate`` (and ``--repair``), ``info``, ``preview``.
 
 ``validate`` is split by concern: ``report`` (problem kinds, report types, output),
-``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan),
-``repair``; ``validate`` keeps the entry points.
+``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan);
+``validate`` keeps the entry point. ``snapshot`` reads the spec a folder was built from.
 
-Readers of a dataset, never writers, except ``validate --repair``, which re-renders through
-``pipeline.run``. May import ``pipeline.store``, ``pipeline.dataset``, ``pipeline.render``
-(tone map, stats), ``pipeline.run`` (repair) and ``pipeline.errors``.
+Readers of a dataset, never writers: ``validate --repair`` re-renders, so it is a step of the
+build (``pipeline.run.repair``). May import ``pipeline.store``, ``pipeline.dataset``,
+``pipeline.image`` (tone map, stats) and ``pipeline.errors``.
 """

@@ -8,16 +8,14 @@ import math
 import os
 from dataclasses import dataclass
 
-import numpy as np
-
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.report import Problems, summarise
+from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, plan_dataset
+from pipeline.dataset.record import lighting_discrepancies, model_record
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.image.stats import is_bad
-from pipeline.render.renderer import model_record
-from pipeline.run.build import read_snapshot
 from pipeline.store.folder import (
     is_temp_file,
     list_bound,
@@ -30,7 +28,6 @@ from pipeline.store.folder import (
 )
 from pipeline.store.layout import DESCRIPTION_FILE, LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
-from sky import Light
 
 #: Relative tolerance for recomputed float statistics (same pixels, same float64 sums).
 STATS_RTOL = 1e-6
@@ -310,7 +307,7 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
             ("render.max_depth", r.max_depth),
             ("render.integrator", r.integrator),
             ("render.sun", spec.lighting.sun),
-            # absent for the default model (pipeline.render.renderer.model_record)
+            # absent for the default model (pipeline.dataset.record.model_record)
             ("render.model", model_record(spec.materials.model).get("model")),
         ]
     if state.variant:
@@ -325,40 +322,7 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
     expected = expected_files(sample, spec)
     if got != expected:
         out.append(f"files lists {got!r}, the layout says {expected!r}")
-    return out + _lighting_discrepancies(record)
-
-
-def _lighting_discrepancies(record: dict) -> list[str]:
-    """The effective lighting's direction and lighting vector follow from its angles."""
-
-    lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
-    try:
-        light = Light.from_dict(lighting)
-    except Exception as exc:  # missing keys, out-of-range values: the message says which
-        return [f"lighting is not a valid light ({exc})"]
-    out = []
-    direction = lighting.get("direction")
-    try:
-        if not np.allclose(np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9):
-            out.append(
-                f"lighting.direction {direction!r} does not follow from elevation_deg "
-                f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}"
-            )
-    except (TypeError, ValueError):
-        out.append(f"lighting.direction is {direction!r}, not a 3-vector")
-    vector = record.get("lighting_vector")
-    try:
-        if not np.allclose(np.asarray(vector, np.float64), light.lighting_vector(), rtol=0, atol=1e-6):
-            out.append(
-                f"lighting_vector {vector!r} does not follow from the effective lighting "
-                f"(direction and turbidity {light.turbidity!r})"
-            )
-    except (TypeError, ValueError):
-        out.append(f"lighting_vector is {vector!r}, not a 4-vector")
-    seeds, stats = record.get("seeds") or {}, record.get("stats") or {}
-    if isinstance(seeds, dict) and isinstance(stats, dict) and seeds.get("render_used") != stats.get("seed"):
-        out.append(f"seeds.render_used is {seeds.get('render_used')!r}, stats.seed is {stats.get('seed')!r}")
-    return out
+    return out + lighting_discrepancies(record)
 
 
 def _header_discrepancies(record: dict, render: FileFacts | None, maps: FileFacts | None) -> list[str]:

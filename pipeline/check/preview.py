@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.check.info import shard_render_counts
+from pipeline.check.snapshot import read_snapshot
 from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
-from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import read_bytes, resolve_inside, shard_records, unsafe_entry

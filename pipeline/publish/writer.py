@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from pipeline.check.preview import write_preview
+from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError, bad_value, check_int
@@ -46,7 +47,6 @@ from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
-from pipeline.run.build import read_snapshot
 from pipeline.store.atomic import fsync_dir, sha256_file
 from pipeline.store.folder import MAX_JSON_BYTES, list_bound, read_bytes, read_manifest, resolve_inside
 from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout

@@ -113,15 +113,6 @@ class RenderSettings:
         return self.target_error > 0
 
 
-def model_record(model: str) -> dict:
-    """What records and render files say about the material model: nothing for the default.
-
-    Absent means "shaderball", so the files and records of the default model are
-    the bytes they were before the model could be chosen.
-    """
-    return {} if model == DEFAULT_MODEL else {"model": model}
-
-
 @dataclass(frozen=True)
 class EffectPlan:
     """What a sample's scene simulates; recorded per sample."""

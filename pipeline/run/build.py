@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pipeline import __version__
+from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.materialize import check_imported_files
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, ShardPlan, plan_dataset, plan_summary
 from pipeline.dataset.spec import (
@@ -50,7 +51,6 @@ from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write
 from pipeline.store.folder import (
     complete_marker,
     only_temp_files,
-    read_spec_snapshot,
     record_stamps,
     recorded_count,
     remove_temp_files,
@@ -121,19 +121,6 @@ def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
     base_dir = os.path.dirname(os.path.abspath(spec_path)) if regular else os.getcwd()
     spec = parse_spec_bytes(data, source=spec_path, base_dir=base_dir)
     return spec, data.decode("utf-8-sig")
-
-
-def read_snapshot(root: str) -> DatasetSpec:
-    """The spec snapshot ``DIR/spec.toml`` of a dataset folder: a regular file (not a link, a
-    FIFO or a device; pipeline.store.folder), bounded, parsed; ShaderballError if not."""
-    layout = Layout(root)
-    try:
-        data = read_spec_snapshot(layout)
-    except FileNotFoundError:
-        raise ShaderballError(f"{layout.spec}: missing") from None
-    except OSError as exc:
-        raise ShaderballError(f"{layout.spec}: cannot be read ({exc.strerror})") from None
-    return parse_spec_bytes(data, source=layout.spec, base_dir=os.path.abspath(root))
 
 
 def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
