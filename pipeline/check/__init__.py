@@ -5,6 +5,9 @@
 ``validate`` keeps the entry point. ``snapshot`` reads the spec a folder was built from.
 
 Readers of a dataset, never writers: ``validate --repair`` re-renders, so it is a step of the
-build (``pipeline.run.repair``). May import ``pipeline.store``, ``pipeline.dataset``,
-``pipeline.image`` (tone map, stats) and ``pipeline.errors``.
+build (``pipeline.run.repair``). Never Mitsuba or dask.
+
+Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``, ``pipeline.image``, ``pipeline.store``, ``pipeline.dataset``; nothing
+else of the project.
 """

@@ -6,4 +6,8 @@ and ``record`` (what a sample's record says that follows from the spec and the p
 import the domain packages, ``pipeline.errors``, ``pipeline.image`` (EXR compressions) and
 the render *limits and choices* (``pipeline.render.limits``, ``pipeline.render.mitsuba_env``
 constants); never Mitsuba, dask or the on-disk layout.
+
+Layer 5 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``materials``, ``sky``, ``pipeline.errors``, ``pipeline.image``, ``pipeline.render.limits``,
+``pipeline.render.mitsuba_env``; nothing else of the project.
 """

@@ -3,7 +3,10 @@
 ``cluster`` is the only module that knows dask (local cluster, a scheduler, SLURM/PBS
 through dask-jobqueue, worker recycling). ``shard`` renders one shard in this process;
 ``build`` plans, prepares the folder, runs the shards and writes the manifest; ``repair``
-(``validate --repair``) deletes what validation finds bad and resumes the build. May import
-``pipeline.check`` (the spec snapshot, validation for repair), ``pipeline.dataset``,
-``pipeline.render``, ``pipeline.store``, ``pipeline.errors`` and the domain packages.
+(``validate --repair``) deletes what validation finds bad and resumes the build. It stands
+above ``pipeline.check``: a resumed build reads the spec snapshot, and a repair validates.
+
+Layer 7 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.store``,
+``pipeline.render``, ``pipeline.dataset``, ``pipeline.check``; nothing else of the project.
 """
