@@ -459,21 +459,6 @@ def iter_samples(plans: Sequence[ShardPlan]):
             yield from material.samples
 
 
-def plan_summary(plans: Sequence[ShardPlan]) -> dict:
+def plan_summary(plans: Plan) -> dict:
     """Counts: shards, materials, renders, uniform and SVBRDF materials, SVBRDF sources."""
-    if isinstance(plans, Plan):
-        return plans.summary()
-    materials = [m for shard in plans for m in shard.materials]
-    sources = Counter(
-        f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else f"folder:{os.path.dirname(m.svbrdf_file)}"
-        for m in materials
-        if m.kind == KIND_SVBRDF
-    )
-    return {
-        "shards": len(plans),
-        "materials": len(materials),
-        "renders": sum(m.n_lights for m in materials),
-        "uniform": sum(m.kind == KIND_UNIFORM for m in materials),
-        "svbrdf": sum(m.kind == KIND_SVBRDF for m in materials),
-        "svbrdf_sources": dict(sorted(sources.items())),
-    }
+    return plans.summary()

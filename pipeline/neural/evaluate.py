@@ -37,6 +37,7 @@ from pipeline.neural.infer import load_run_model, run_network
 from pipeline.neural.train import pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
+from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
 
 SPLITS = ("test", "train", "all")
@@ -241,8 +242,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     table = markdown_table(means, len(rows), model.resolution)
     os.makedirs(out_dir, exist_ok=True)
     runfiles.write_json(os.path.join(out_dir, "results.json"), result)
-    runfiles.write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
-    runfiles.write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
+    write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
+    write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)

@@ -32,6 +32,7 @@ from pipeline.neural.network import NeuralRenderer, check_network_resolution, li
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
 from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
+from pipeline.store.atomic import write_bytes_atomic
 
 DEVICES = ("auto", "cpu", "cuda")
 #: Config fields that change what a run computes: a resume must match them.
@@ -316,7 +317,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
                 identity_digest=fresh["identity_digest"],
             )
             runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
-            runfiles.write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
+            write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
     return TrainSummary(
         run_dir=config.out,
         epochs_done=max(start_epoch, config.epochs if history else 0),
