@@ -51,6 +51,7 @@ from pipeline.run.build import build, read_spec_text
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr, write_exr
+from pipeline.store.folder import folder_names, read_manifest
 from pipeline.store.layout import Layout
 from pipeline.store.records import dumps, read_json
 from sky import Light
@@ -506,8 +507,8 @@ class RenderCallTimer:
 def records_render_time(root: str) -> float:
     """Sum of the manifest's ``stats.time_s`` (each render_sample's wall time, in its worker)."""
     total = 0.0
-    with open(Layout(root).manifest, encoding="utf-8") as fh:
-        for line in fh:
+    for line in read_manifest(Layout(root)).split(b"\n"):
+        if line.strip():
             total += float(json.loads(line).get("stats", {}).get("time_s", 0.0))
     return total
 
@@ -542,7 +543,7 @@ def run_build_bench(
     shard_size = check_int("--shard-size", shard_size, 1, 1_000_000)
     spec, _ = read_spec_text(spec_path)
     spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
-    if out is not None and os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+    if out is not None and os.path.exists(out) and folder_names(out) != []:
         raise bad_value("--out", out, "a new or empty folder (the benchmark builds from scratch)")
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-")
     root = out or os.path.join(scratch, "dataset")

@@ -11,12 +11,13 @@ from dataclasses import dataclass
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.report import Problems, summarise
 from pipeline.check.snapshot import read_snapshot
-from pipeline.dataset.plan import PLAN_FORMAT, plan_dataset
+from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
 from pipeline.dataset.record import lighting_discrepancies, model_record
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.image.stats import is_bad
 from pipeline.store.folder import (
+    is_empty_folder,
     is_temp_file,
     list_bound,
     read_json_checked,
@@ -25,6 +26,7 @@ from pipeline.store.folder import (
     record_file_names,
     shard_ids_on_disk,
     symlinks_and_odd_files,
+    walk_folder,
 )
 from pipeline.store.layout import DESCRIPTION_FILE, LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
@@ -54,7 +56,7 @@ class State:
 
     layout: Layout
     spec: object | None
-    plans: list | None
+    plans: Plan | None
     planned: dict  # sample id -> SamplePlan, plan order
     variant: str | None
     spec_ok: bool
@@ -134,7 +136,7 @@ def load_plan(layout: Layout, problems: Problems):
         )
         return spec, None, description, False, description_ok
     try:
-        plans = list(plan_dataset(spec))  # validate holds every record anyway: plan each shard once
+        plans = plan_dataset(spec).kept()  # validate holds every record anyway: plan each shard once
     except USER_ERRORS as exc:
         problems.add("spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: cannot be planned ({exc})")
         return spec, None, description, False, description_ok
@@ -764,18 +766,13 @@ def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
             rel,
             f"{rel}: {what}; a dataset folder holds only regular files and folders: not followed, not read",
         )
-    for folder, subdirs, names in os.walk(root):
-        rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
-        rel_dir = "" if rel_dir == "." else rel_dir + "/"
-        subdirs[:] = [name for name in subdirs if rel_dir + name not in odd]  # links: never entered
-        names = [name for name in names if rel_dir + name not in odd]
-        for name in sorted(subdirs):
+    for rel_dir, subdirs, names in walk_folder(root, skip=odd):  # links: never entered
+        for name in subdirs:
             rel = rel_dir + name
-            if rel not in dirs and not os.listdir(os.path.join(folder, name)):
+            if rel not in dirs and is_empty_folder(root, rel):
                 state.extra_files.append(rel)
                 problems.add("extra_file", None, rel, f"{rel}/: an empty directory that is no part of the dataset")
-        subdirs.sort()
-        for name in sorted(names):
+        for name in names:
             rel = rel_dir + name
             if rel in files:
                 continue

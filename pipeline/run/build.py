@@ -49,6 +49,7 @@ from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
     complete_marker,
+    folder_names,
     only_temp_files,
     record_stamps,
     recorded_count,
@@ -146,7 +147,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
     try:
-        names = os.listdir(out) if os.path.isdir(out) else None
+        names = folder_names(out)
     except OSError as exc:
         raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
