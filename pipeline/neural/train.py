@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles
@@ -63,11 +63,6 @@ class TrainConfig:
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
 
     def check(self) -> TrainConfig:
-        def integer(name, lo, hi):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise bad_value(f"--{name.replace('_', '-')}", v, f"an integer from {lo} to {hi}")
-
         def number(name, lo, hi, lo_open=False):
             v = getattr(self, name)
             ok = (
@@ -80,10 +75,13 @@ class TrainConfig:
             if not ok:
                 raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
 
-        integer("epochs", 1, 100_000)
-        integer("batch_size", 1, 4096)
-        integer("workers", 0, 64)
-        integer("seed", 0, 2**63 - 1)
+        for name, lo, hi in (
+            ("epochs", 1, 100_000),
+            ("batch_size", 1, 4096),
+            ("workers", 0, 64),
+            ("seed", 0, 2**63 - 1),
+        ):
+            check_int(f"--{name.replace('_', '-')}", getattr(self, name), lo, hi)
         number("lr", 0.0, 10.0, lo_open=True)
         number("vgg_weight", 0.0, 1e6)
         number("exposure", 0.0, 1e6, lo_open=True)

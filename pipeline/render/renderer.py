@@ -87,12 +87,8 @@ class RenderSettings:
     def check(self, field_name=lambda name: f"render.{name}") -> RenderSettings:
         """Raise naming the field as ``field_name(name)`` says (a spec field, a CLI option); else self."""
 
-        def integer(name, lo, hi):
+        for name, (lo, hi) in (("resolution", RESOLUTION_RANGE), ("spp", SPP_RANGE), ("max_depth", MAX_DEPTH_RANGE)):
             check_int(field_name(name), getattr(self, name), lo, hi)
-
-        integer("resolution", *RESOLUTION_RANGE)
-        integer("spp", *SPP_RANGE)
-        integer("max_depth", *MAX_DEPTH_RANGE)
         if self.integrator not in INTEGRATORS:
             raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
@@ -101,7 +97,7 @@ class RenderSettings:
             raise bad_value(field_name("model"), self.model, ", ".join(MODELS))
         if self.sampler not in SAMPLERS:
             raise bad_value(field_name("sampler"), self.sampler, ", ".join(SAMPLERS))
-        integer("rr_depth", *RR_DEPTH_RANGE)
+        check_int(field_name("rr_depth"), self.rr_depth, *RR_DEPTH_RANGE)
         for name, (lo, hi) in (("clamp", CLAMP_RANGE), ("target_error", TARGET_ERROR_RANGE)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
