@@ -28,7 +28,8 @@ from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE,
 from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
-from pipeline.run.cluster import ClusterOptions, job_script
+from pipeline.run.cluster.connection import job_script
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.repair import repair
 from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
 from sky.emitter import DEFAULT_SUN, SUN_MODES

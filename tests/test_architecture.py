@@ -200,7 +200,9 @@ def test_lazy_imports_are_heavy_libraries_only():
     assert not offenders, "\n".join(offenders)
 
 
-def test_dask_is_known_to_one_module():
+def test_dask_is_known_to_one_place():
+    """pipeline.run.cluster: its connection runs dask; its options parse --memory with dask's
+    own unit parser (the value goes to dask); its watch knows none."""
     users = sorted(
         {
             name
@@ -209,7 +211,13 @@ def test_dask_is_known_to_one_module():
             if root(imported) in ("dask", "distributed", "dask_jobqueue")
         }
     )
-    assert users == ["pipeline.run.cluster"], users
+    assert users == ["pipeline.run.cluster.connection", "pipeline.run.cluster.options"], users
+    options = [
+        imported
+        for imported, _top, _line in imports(MODULES["pipeline.run.cluster.options"])
+        if root(imported) in ("dask", "distributed", "dask_jobqueue")
+    ]
+    assert options == ["dask.utils"], options
 
 
 def test_every_pipeline_sub_package_says_what_it_owns():

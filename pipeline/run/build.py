@@ -44,7 +44,8 @@ from pipeline.render.mitsuba_env import (
     resolve_variant,
     weakest_guarantee,
 )
-from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
+from pipeline.run.cluster.connection import run_shards_on_dask
+from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
