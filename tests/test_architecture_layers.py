@@ -9,6 +9,7 @@ contract says (re-run ``python scripts/layers.py --write``).
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -65,3 +66,31 @@ def test_the_docstrings_and_the_diagram_say_what_the_contract_says():
 def test_the_check_refuses_what_the_contract_forbids(importer, imported, allowed):
     units, rules = layers.layer_of(CONTRACT), layers.may_import(CONTRACT)
     assert layers.allows(rules[layers.unit_of(importer, units)], imported, units) is allowed
+
+
+def test_the_docs_name_every_package_and_a_sample_path_that_exists():
+    """docs/architecture.md has a row for every package of the contract, and every
+    ``pipeline.x.y.name`` its sample's path names is a module, or a name one defines."""
+    page = layers.ARCHITECTURE_DOC.read_text(encoding="utf-8")
+    tree = page.split("## The tree", 1)[1].split("\n## ", 1)[0]
+    for unit in layers.layer_of(CONTRACT):
+        row = (
+            "cli.py"
+            if unit == "cli"
+            else unit.replace(".", "/") + ("/" if layers.unit_file(unit).name == "__init__.py" else ".py")
+        )
+        row = "pipeline/` (the root" if unit == "pipeline" else row
+        assert f"| `{row}" in tree, f"docs/architecture.md: no row for {unit}"
+    path = page.split("## One sample's path through the code", 1)[1].split("\n## ", 1)[0]
+    modules = layers.project_modules()
+    missing = []
+    for dotted in sorted(set(re.findall(r"`((?:pipeline|cli)(?:\.\w+)+)", path))):
+        if dotted in modules:
+            continue
+        module, _, name = dotted.rpartition(".")
+        defined = module in modules and re.search(
+            rf"^(?:def|class) {name}\b|^{name}\s*[:=]|^    def {name}\b", modules[module].read_text(), re.M
+        )
+        if not defined:
+            missing.append(dotted)
+    assert not missing, f"docs/architecture.md names what does not exist: {missing}"
