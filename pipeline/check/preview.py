@@ -17,7 +17,7 @@ import numpy as np
 
 from pipeline.check.info import shard_render_counts
 from pipeline.check.snapshot import read_snapshot
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
@@ -197,16 +197,14 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     from PIL import Image
 
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 200:
-        raise ShaderballError(f"--samples: {samples!r} is not allowed; allowed: an integer from 1 to 200")
+        raise bad_value("--samples", samples, "an integer from 1 to 200")
     if tile is not None and (isinstance(tile, bool) or not isinstance(tile, int) or not 32 <= tile <= 1024):
-        raise ShaderballError(f"--tile: {tile!r} is not allowed; allowed: an integer from 32 to 1024 (pixels)")
+        raise bad_value("--tile", tile, "an integer from 32 to 1024 (pixels)")
     if not out.lower().endswith(".png"):
-        raise ShaderballError(f"--out: {out!r} is not allowed; allowed: a file name ending in .png")
+        raise bad_value("--out", out, "a file name ending in .png")
     layout = Layout(root)
     if not os.path.isdir(root) or not os.path.lexists(layout.spec):
-        raise ShaderballError(
-            f"DIR: {root!r} is not allowed; allowed: a dataset folder made by `shaderball build` (with its spec.toml)"
-        )
+        raise bad_value("DIR", root, "a dataset folder made by `shaderball build` (with its spec.toml)")
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     records, problems = [], []

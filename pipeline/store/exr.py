@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
 
@@ -73,9 +73,7 @@ def encode_exr(
     import OpenEXR
 
     if compression not in EXR_COMPRESSIONS:
-        raise ShaderballError(
-            f"storage.compression: {compression!r} is not allowed; allowed: {', '.join(EXR_COMPRESSIONS)}"
-        )
+        raise bad_value("storage.compression", compression, ", ".join(EXR_COMPRESSIONS))
     channels: dict[str, np.ndarray] = {}
     shape = None
     for layer, array in layers.items():

@@ -12,7 +12,7 @@ import re
 import socket
 from dataclasses import dataclass
 
-from pipeline.errors import ShaderballError, check_int
+from pipeline.errors import ShaderballError, bad_value, check_int
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
@@ -69,7 +69,7 @@ class ClusterOptions:
     def check(self) -> ClusterOptions:
         """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
         if self.kind not in KINDS:
-            raise ShaderballError(f"--cluster: {self.kind!r} is not allowed; allowed: {', '.join(KINDS)}")
+            raise bad_value("--cluster", self.kind, ", ".join(KINDS))
         check_int("--workers", self.workers, 0, 1024)
         check_int("--jobs", self.jobs, 1, 10000)
         check_int("--cores", self.cores, 1, 1024)
@@ -83,14 +83,13 @@ class ClusterOptions:
             walltime_seconds(self.walltime)
         for option, value in (("--queue", self.queue), ("--account", self.account)):
             if value is not None and not _SHELL_WORD.match(value):
-                raise ShaderballError(
-                    f"{option}: {value!r} is not allowed; allowed: 1 to 128 characters from A-Z a-z 0-9 _ . @ : + -"
-                )
+                raise bad_value(option, value, "1 to 128 characters from A-Z a-z 0-9 _ . @ : + -")
         if self.scratch is not None and not _SCRATCH.match(self.scratch):
-            raise ShaderballError(
-                f"--scratch: {self.scratch!r} is not allowed; allowed: a path of "
-                "1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
-                "(shell variables such as $TMPDIR are expanded on the node)"
+            raise bad_value(
+                "--scratch",
+                self.scratch,
+                "a path of 1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
+                "(shell variables such as $TMPDIR are expanded on the node)",
             )
         if self.scheduler is not None:
             if self.kind != "local":
@@ -135,10 +134,7 @@ def memory_bytes(text: str) -> int:
     except (ValueError, TypeError):
         value = None
     if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
-        raise ShaderballError(
-            f"--memory: {text!r} is not allowed; allowed: an amount from 256MiB to "
-            "64TiB with a unit, e.g. 16GiB or 64GB"
-        )
+        raise bad_value("--memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB")
     return int(value)
 
 
@@ -146,7 +142,7 @@ def walltime_seconds(text: str) -> int:
     match = _WALLTIME.match(text)
     seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
     if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise ShaderballError(f"--walltime: {text!r} is not allowed; allowed: HH:MM:SS from 00:01:00 to 9999:59:59")
+        raise bad_value("--walltime", text, "HH:MM:SS from 00:01:00 to 9999:59:59")
     return seconds
 
 
@@ -167,10 +163,7 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
 def scheduler_host_port(address: str) -> tuple[str, int]:
     match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$", address)
     if match is None or not 0 < int(match[2]) < 65536:
-        raise ShaderballError(
-            f"--scheduler: {address!r} is not allowed; allowed: tcp://HOST:PORT or "
-            "tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
-        )
+        raise bad_value("--scheduler", address, "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786")
     return match[1].strip("[]"), int(match[2])
 
 
