@@ -42,12 +42,13 @@ import pipeline.render.renderer as render
 from pipeline.bench.effects import run_effects_bench
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import spec_to_toml
+from pipeline.dataset.spec import MAX_MATERIALS, spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run.build import build, read_spec_text
+from pipeline.run.cluster.options import WORKERS_RANGE
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr, write_exr
@@ -539,8 +540,8 @@ def run_build_bench(
     samples = check_int("--samples", samples, 1, 1_000_000)
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE)
     spp = check_int("--spp", spp, *SPP_RANGE)
-    workers = check_int("--workers", workers, 0, 1024)
-    shard_size = check_int("--shard-size", shard_size, 1, 1_000_000)
+    workers = check_int("--workers", workers, *WORKERS_RANGE)
+    shard_size = check_int("--shard-size", shard_size, 1, MAX_MATERIALS)
     spec, _ = read_spec_text(spec_path)
     spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
     if out is not None and os.path.exists(out) and folder_names(out) != []:

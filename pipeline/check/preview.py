@@ -25,6 +25,9 @@ from pipeline.store.folder import read_bytes, resolve_inside, shard_records, uns
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
+#: Rows (--samples) and picture size in pixels (--tile), defined once (checks; the CLI help).
+SAMPLES_RANGE = (1, 200)
+TILE_RANGE = (32, 1024)
 LABEL_WIDTH = 190
 HEADER_HEIGHT = 22
 GAP = 4
@@ -196,10 +199,12 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
     from PIL import Image
 
-    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 200:
-        raise bad_value("--samples", samples, "an integer from 1 to 200")
-    if tile is not None and (isinstance(tile, bool) or not isinstance(tile, int) or not 32 <= tile <= 1024):
-        raise bad_value("--tile", tile, "an integer from 32 to 1024 (pixels)")
+    if isinstance(samples, bool) or not isinstance(samples, int) or not SAMPLES_RANGE[0] <= samples <= SAMPLES_RANGE[1]:
+        raise bad_value("--samples", samples, f"an integer from {SAMPLES_RANGE[0]} to {SAMPLES_RANGE[1]}")
+    if tile is not None and (
+        isinstance(tile, bool) or not isinstance(tile, int) or not TILE_RANGE[0] <= tile <= TILE_RANGE[1]
+    ):
+        raise bad_value("--tile", tile, f"an integer from {TILE_RANGE[0]} to {TILE_RANGE[1]} (pixels)")
     if not out.lower().endswith(".png"):
         raise bad_value("--out", out, "a file name ending in .png")
     layout = Layout(root)

@@ -42,6 +42,8 @@ from sky import Light
 
 SPLITS = ("test", "train", "all")
 DEFAULT_SPP = (1, 2, 4, 16)
+#: Each low spp of the path tracing compared with (--spp), defined once (check; the CLI help).
+SPP_LADDER_RANGE = (1, 4096)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
@@ -136,8 +138,9 @@ class PathTracer:
 def _check(req: EvaluateRequest) -> None:
     if req.split not in SPLITS:
         raise bad_value("--split", req.split, ", ".join(SPLITS))
-    if any(isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= 4096 for s in req.spp):
-        raise bad_value("--spp", ",".join(map(str, req.spp)), "comma-separated integers from 1 to 4096")
+    lo, hi = SPP_LADDER_RANGE
+    if any(isinstance(s, bool) or not isinstance(s, int) or not lo <= s <= hi for s in req.spp):
+        raise bad_value("--spp", ",".join(map(str, req.spp)), f"comma-separated integers from {lo} to {hi}")
     if req.limit is not None and (isinstance(req.limit, bool) or not isinstance(req.limit, int) or req.limit < 1):
         raise bad_value("--limit", req.limit, "an integer >= 1")
     if req.json_path is not None and not req.json_path.lower().endswith(".json"):

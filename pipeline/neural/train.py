@@ -41,6 +41,10 @@ IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution
 ORDER_STREAM = 0x0DE5
 
 
+#: The ranges of the integer options of `shaderball train`, defined once (checks; the CLI help).
+INTEGER_RANGES = {"epochs": (1, 100_000), "batch_size": (1, 4096), "workers": (0, 64), "seed": (0, 2**63 - 1)}
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Options of `shaderball train`; each field's comment is its help text."""
@@ -75,12 +79,7 @@ class TrainConfig:
             if not ok:
                 raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
 
-        for name, lo, hi in (
-            ("epochs", 1, 100_000),
-            ("batch_size", 1, 4096),
-            ("workers", 0, 64),
-            ("seed", 0, 2**63 - 1),
-        ):
+        for name, (lo, hi) in INTEGER_RANGES.items():
             check_int(f"--{name.replace('_', '-')}", getattr(self, name), lo, hi)
         number("lr", 0.0, 10.0, lo_open=True)
         number("vgg_weight", 0.0, 1e6)

@@ -27,6 +27,11 @@ _WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)$")
 _SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}$")
 _SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}$")
 _MIN_WALLTIME_S = 60
+#: The ranges of the integer options, defined once (the checks below; the CLI help).
+WORKERS_RANGE = (0, 1024)
+JOBS_RANGE = (1, 10000)
+CORES_RANGE = (1, 1024)
+RECYCLE_AFTER_RANGE = (0, 10_000_000)
 #: --start-timeout's range in seconds: below 10 s not even a local worker process starts.
 START_TIMEOUT_RANGE = (10, 10_000_000)
 _MIN_MEMORY, _MAX_MEMORY = 256 * 2**20, 64 * 2**40
@@ -70,10 +75,10 @@ class ClusterOptions:
         """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
         if self.kind not in KINDS:
             raise bad_value("--cluster", self.kind, ", ".join(KINDS))
-        check_int("--workers", self.workers, 0, 1024)
-        check_int("--jobs", self.jobs, 1, 10000)
-        check_int("--cores", self.cores, 1, 1024)
-        check_int("--recycle-after", self.recycle_after, 0, 10_000_000)
+        check_int("--workers", self.workers, *WORKERS_RANGE)
+        check_int("--jobs", self.jobs, *JOBS_RANGE)
+        check_int("--cores", self.cores, *CORES_RANGE)
+        check_int("--recycle-after", self.recycle_after, *RECYCLE_AFTER_RANGE)
         check_int("--start-timeout", self.start_timeout, *START_TIMEOUT_RANGE)
         if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
             raise ShaderballError("--start-timeout: not allowed with --workers 0 (no workers to wait for)")
