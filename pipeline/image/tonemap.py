@@ -33,15 +33,22 @@ DEFAULT_EXPOSURE = 4.0
 Y_MAX = 1.0 - 1e-6
 
 
+def reinhard(v: np.ndarray) -> np.ndarray:
+    """The curve of both tone maps: ``v / (1 + v)`` for ``v >= 0``, in ``v``'s float type; 1
+    where ``v`` is +inf (its limit)."""
+    one = v.dtype.type(1.0)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isinf(v), one, v / (one + v))
+
+
 def tonemap(hdr: np.ndarray, exposure: float = DEFAULT_EXPOSURE) -> np.ndarray:
     """Linear HDR radiance (any shape) -> [0, 1] network target, float32. NaN and
     negative values count as 0 (renders flagged in the manifest may hold them)."""
     # float32 throughout: this runs on every training target (the data loader's hot path)
     x = np.nan_to_num(np.asarray(hdr, dtype=np.float32), nan=0.0, posinf=np.finfo(np.float32).max)
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore"):
         v = np.maximum(x, np.float32(0.0)) * np.float32(exposure)
-        mapped = np.where(np.isinf(v), np.float32(1.0), v / (np.float32(1.0) + v))
-    return srgb_encode(mapped).astype(np.float32)
+    return srgb_encode(reinhard(v)).astype(np.float32)
 
 
 def inverse_tonemap(y: np.ndarray, exposure: float = DEFAULT_EXPOSURE) -> np.ndarray:
@@ -78,9 +85,7 @@ def preview_srgb8(image: np.ndarray, exposure: float | None = None, mask: np.nda
     image = np.maximum(image, 0.0)
     if exposure is None:
         exposure = exposure_for(image, mask)
-    x = image * exposure
-    mapped = x / (1.0 + x)
-    return (srgb_encode(mapped) * 255.0 + 0.5).astype(np.uint8)
+    return (srgb_encode(reinhard(image * exposure)) * 255.0 + 0.5).astype(np.uint8)
 
 
 def map_srgb8(linear01: np.ndarray, srgb: bool = True) -> np.ndarray:
