@@ -4,8 +4,8 @@ Sub-packages by role (docs/architecture.md, in the layer order of pyproject.toml
 ``image`` (pixels), ``errors`` (shared by all), ``store`` (the on-disk layout), ``render``
 (Mitsuba), ``dataset`` (spec, plan), ``check`` (validate, info, preview), ``study`` (the
 accuracy study), ``run`` (build, shards, dask, repair), ``publish`` (publications),
-``neural`` (the network), ``bench`` (measurements), ``figures`` (the docs' figures). Importing this package is cheap: nothing here imports
-Mitsuba or dask at import time.
+``neural`` (the network), ``bench`` (measurements), ``figures`` (the docs' figures).
+Importing this package is cheap: nothing here imports Mitsuba or dask at import time.
 
 Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.

@@ -1,4 +1,4 @@
-"""Checking a dataset folder: ``validate`` (and ``--repair``), ``info``, ``preview``.
+"""Checking a dataset folder: ``validate``, ``info``, ``preview``.
 
 ``validate`` is split by concern: ``report`` (problem kinds, report types, output),
 ``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan);
