@@ -48,7 +48,9 @@ def flash_preview(maps: MaterialMaps, *, tiles: int = 2, light_intensity: float 
 
 
 def _to_8bit(linear: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(srgb_encode(np.clip(linear, 0.0, 1.0)), 0.0, 1.0) * 255.0).astype(np.uint8)
+    # in float64, as the figure was first drawn (colour-science's encoding): its bytes are the docs'
+    linear = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.round(np.clip(srgb_encode(linear), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def material_tile(maps: MaterialMaps) -> np.ndarray:
