@@ -16,7 +16,7 @@ from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
-from pipeline.check.validate import repair, validate
+from pipeline.check.validate import validate
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
@@ -28,7 +28,9 @@ from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE,
 from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
-from pipeline.run.cluster import ClusterOptions, job_script
+from pipeline.run.cluster.connection import job_script
+from pipeline.run.cluster.options import ClusterOptions
+from pipeline.run.repair import repair
 from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
 from sky.emitter import DEFAULT_SUN, SUN_MODES
 

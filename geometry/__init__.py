@@ -2,6 +2,9 @@
 
 See docs/geometry.md for the parameters, the material-bearing surfaces, the seams and
 the cache.
+
+Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+nothing of the project.
 """
 
 from geometry.camera import Camera, default_camera

@@ -7,6 +7,9 @@ from :func:`sample_svbrdf`, files in Deschaintre et al.'s layout from
 the Mitsuba plugin that renders it is :mod:`pipeline.render.bsdf` (the only
 module here that loads Mitsuba, and only when called). docs/materials.md has
 the details.
+
+Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+nothing of the project.
 """
 
 from materials.deschaintre import load_deschaintre

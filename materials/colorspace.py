@@ -1,4 +1,4 @@
-"""Colour helpers (sRGB transfer function via colour-science, HSV), imported lazily.
+"""Colour helpers (sRGB decoding via colour-science, HSV), imported lazily.
 
 colour-science warns at import when matplotlib is missing; that warning is
 irrelevant here and is silenced.
@@ -28,11 +28,6 @@ def _colour():
 def srgb_decode(values) -> np.ndarray:
     """sRGB-encoded values in [0, 1] to linear (IEC 61966-2-1 EOTF), float64."""
     return np.asarray(_colour().cctf_decoding(np.asarray(values, dtype=np.float64), function="sRGB"))
-
-
-def srgb_encode(values) -> np.ndarray:
-    """Linear values in [0, 1] to sRGB-encoded (inverse EOTF), float64."""
-    return np.asarray(_colour().cctf_encoding(np.asarray(values, dtype=np.float64), function="sRGB"))
 
 
 def hsv_to_rgb(hsv) -> np.ndarray:

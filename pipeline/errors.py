@@ -5,6 +5,9 @@ The domain packages (``materials``, ``sky``, ``geometry``) import nothing of
 the one list of every type that means "the user's input was refused". Code that
 reports a user error catches ``USER_ERRORS``, never ``ShaderballError`` alone, so a
 domain error reaches the user as the same clear message and exit code.
+
+Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``materials``, ``sky``, ``geometry``; nothing else of the project.
 """
 
 import errno

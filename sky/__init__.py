@@ -4,6 +4,9 @@ A domain package: it imports neither Mitsuba nor anything of ``pipeline``. The
 emitter's Mitsuba side (:func:`pipeline.render.emitter.emitter_dicts`,
 :func:`pipeline.render.emitter.update_emitter_params`) builds on :mod:`sky.emitter`.
 See docs/sky.md.
+
+Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+nothing of the project.
 """
 
 from sky.directions import normalize_azimuth, sun_angles, sun_direction

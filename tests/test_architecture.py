@@ -1,6 +1,7 @@
 """The shape of the code: pure domain packages, one owner of the Mitsuba variant, no import cycles.
 
-docs/architecture.md states these rules; this file is what keeps them true. Every check
+docs/architecture.md states these rules; this file is what keeps them true (the layer
+contract itself: tests/test_architecture_layers.py). Every check
 reads the source with ``ast`` (no module is imported), except the purity check, which
 imports the domain packages in a fresh interpreter and looks at ``sys.modules``.
 """
@@ -199,7 +200,9 @@ def test_lazy_imports_are_heavy_libraries_only():
     assert not offenders, "\n".join(offenders)
 
 
-def test_dask_is_known_to_one_module():
+def test_dask_is_known_to_one_place():
+    """pipeline.run.cluster: its connection runs dask; its options parse --memory with dask's
+    own unit parser (the value goes to dask); its watch knows none."""
     users = sorted(
         {
             name
@@ -208,10 +211,37 @@ def test_dask_is_known_to_one_module():
             if root(imported) in ("dask", "distributed", "dask_jobqueue")
         }
     )
-    assert users == ["pipeline.run.cluster"], users
+    assert users == ["pipeline.run.cluster.connection", "pipeline.run.cluster.options"], users
+    options = [
+        imported
+        for imported, _top, _line in imports(MODULES["pipeline.run.cluster.options"])
+        if root(imported) in ("dask", "distributed", "dask_jobqueue")
+    ]
+    assert options == ["dask.utils"], options
 
 
 def test_every_pipeline_sub_package_says_what_it_owns():
+    """What it may import is the generated last paragraph (tests/test_architecture_layers.py);
+    what it owns is the prose above it."""
     for init in sorted((REPO / "pipeline").glob("*/__init__.py")):
         doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8")))
-        assert doc and "import" in doc, f"{init.relative_to(REPO)}: docstring must say what it owns and may import"
+        paragraphs = (doc or "").split("\n\n")
+        assert len(paragraphs) >= 2 and paragraphs[-1].startswith("Layer "), (
+            f"{init.relative_to(REPO)}: docstring must say what it owns, then its layer (scripts/layers.py --write)"
+        )
+
+
+@pytest.mark.parametrize(
+    "module, never",
+    [
+        ("pipeline.publish.reader", ("torch", "pipeline.neural", "pipeline.run", "mitsuba", "dask")),
+        ("pipeline.image.tonemap", ("torch", "pipeline.neural", "pipeline.render", "mitsuba")),
+        ("pipeline.check.validate", ("pipeline.run", "pipeline.render.renderer", "pipeline.neural", "mitsuba", "dask")),
+    ],
+)
+def test_readers_load_neither_training_code_nor_the_build(module, never):
+    """Reading a publication, tone-mapping an image or validating a folder loads no torch, no
+    training stage, no build and no renderer (issue 21: readers low in the layers)."""
+    code = f"import sys, {module}\nprint(' '.join(sorted(m for m in sys.modules if m.startswith({never!r}))))\n"
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"importing {module} loaded: {out.stdout}"

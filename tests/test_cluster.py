@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.errors import ShaderballError
-from pipeline.run.cluster import ClusterOptions
+from pipeline.run.cluster.options import ClusterOptions
 from support import VARIANT
 
 REPO = Path(__file__).resolve().parents[1]
@@ -230,7 +230,7 @@ def test_an_interrupted_local_cluster_is_silenced_on_every_worker_and_this_proce
     errors buried the one-line message on a loaded machine); afterwards logging is back."""
     import logging
 
-    from pipeline.run.cluster import connect
+    from pipeline.run.cluster.connection import connect
 
     with pytest.raises(KeyboardInterrupt):
         with connect(ClusterOptions(workers=2, start_timeout=120)) as conn:
@@ -245,7 +245,7 @@ def test_quiet_for_shutdown_reaches_the_workers_of_a_local_cluster():
 
     from distributed import Client, LocalCluster
 
-    from pipeline.run.cluster import quiet_for_shutdown
+    from pipeline.run.cluster.connection import quiet_for_shutdown
 
     before = _logging_disabled_level()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:

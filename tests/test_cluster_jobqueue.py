@@ -11,14 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.errors import ShaderballError
-from pipeline.run.cluster import (
-    WORKER_MEMORY_SHARE,
-    ClusterOptions,
-    job_script,
-    jobqueue_cluster,
-    walltime_seconds,
-    worker_lifetime,
-)
+from pipeline.run.cluster.connection import WORKER_MEMORY_SHARE, job_script, jobqueue_cluster
+from pipeline.run.cluster.options import ClusterOptions, walltime_seconds, worker_lifetime
 
 pytest.importorskip("dask_jobqueue")
 
@@ -146,7 +140,7 @@ def test_bad_options_name_option_value_and_range(changes, message):
     ],
 )
 def test_jobqueue_options_are_refused_on_a_local_cluster(option):
-    from pipeline.run.cluster import ClusterOptions
+    from pipeline.run.cluster.options import ClusterOptions
 
     name = option[0].lstrip("-").replace("-", "_")
     value = int(option[1]) if option[1].isdigit() else option[1]

@@ -1,6 +1,6 @@
 """A build waiting on workers says so, and --start-timeout bounds the wait (docs/cluster.md).
 
-Unit tests of pipeline.run.cluster.WorkerWatch with a fake clock and a fake queue; squeue's
+Unit tests of pipeline.run.cluster.watch.WorkerWatch with a fake clock and a fake queue; squeue's
 output parsed through a stand-in `squeue`; and two builds end to end without a batch system:
 `--cluster slurm` with stand-ins whose jobs stay pending (PartitionDown) for ever, and
 `--scheduler` pointing at a dask scheduler without workers. The same against a real SLURM:
@@ -22,14 +22,9 @@ from conftest import crash_module
 
 from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
-from pipeline.run.cluster import (
-    ClusterOptions,
-    JobState,
-    WorkerWatch,
-    _refusal_text,
-    describe_jobs,
-    slurm_job_states,
-)
+from pipeline.run.cluster.connection import _refusal_text
+from pipeline.run.cluster.options import ClusterOptions
+from pipeline.run.cluster.watch import JobState, WorkerWatch, describe_jobs, slurm_job_states
 from pipeline.store.atomic import TEMP_PREFIX
 
 REPO = Path(__file__).resolve().parents[1]

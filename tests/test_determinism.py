@@ -16,10 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.check.validate import repair, validate
+from pipeline.check.validate import validate
 from pipeline.errors import SetupError
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, GUARANTEE_BASIS, WITHIN_NOISE, weakest_guarantee
 from pipeline.run.build import build
+from pipeline.run.repair import repair
 from support import VARIANT
 
 REPO = Path(__file__).resolve().parents[1]

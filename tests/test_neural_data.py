@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.image.tonemap import tonemap
 from pipeline.neural.data import box_downsample, open_dataset
-from pipeline.neural.tonemap import tonemap
 from pipeline.store.exr import read_exr
 
 torch.set_num_threads(1)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from pipeline.neural.metrics import hdr_flip, psnr8, relmse, ssim8
+from pipeline.image.metrics import hdr_flip, psnr8, relmse, ssim8
 
 
 def _pair(seed=0, shape=(48, 41, 3), noise=25):

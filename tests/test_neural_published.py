@@ -18,14 +18,15 @@ from cli import main
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from pipeline.errors import ShaderballError
+from pipeline.image.denoise import denoise
+from pipeline.image.metrics import psnr8
+from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.bench import compare_loaders
 from pipeline.neural.data import PublishedFiles, is_publication, open_dataset
-from pipeline.neural.denoise import AuxBuffers, denoise, material_albedo
+from pipeline.neural.denoise import AuxBuffers, material_albedo
 from pipeline.neural.evaluate import PathTracer
-from pipeline.neural.metrics import psnr8
 from pipeline.neural.splits import split_materials
-from pipeline.neural.tonemap import hdr_to_srgb8
 from pipeline.publish.writer import publish
 from pipeline.render.gbuffer import SURFACES, load_gbuffer
 from pipeline.render.scene import GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID
@@ -274,7 +275,7 @@ def test_the_auxiliary_buffers_help_oidn_at_1_spp(reference):
         record, maps = ds.records[sample.id], tracer.material(sample)
         truth8 = hdr_to_srgb8(tracer.render(record, maps, 256)[0], ds.exposure)
         noisy, _ = tracer.render(record, maps, 1)
-        with_aux, _ = denoise(noisy, aux.albedo(maps), aux.normal)
-        alone, _ = denoise(noisy)
+        with_aux, _, _ = denoise(noisy, aux.albedo(maps), aux.normal)
+        alone, _, _ = denoise(noisy)
         gain = psnr8(hdr_to_srgb8(with_aux, ds.exposure), truth8) - psnr8(hdr_to_srgb8(alone, ds.exposure), truth8)
         assert gain > 0.3, (sample.id, gain)

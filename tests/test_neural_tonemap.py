@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.neural.tonemap import (
+from pipeline.image.tonemap import (
     DEFAULT_EXPOSURE,
     hdr_to_srgb8,
     inverse_tonemap,
@@ -48,3 +48,14 @@ def test_negative_nan_count_as_zero_and_one_stays_finite():
 def test_eight_bit_rounds_half_up_and_clamps():
     assert list(to_srgb8(np.array([0.0, 0.5 / 255, 1.0, 1.5, -1.0]))) == [0, 1, 255, 255, 0]
     assert hdr_to_srgb8(np.array([[[0.25, 0.0, 1e9]]])).tolist() == [[[188, 0, 255]]]
+
+
+def test_both_tone_maps_share_one_curve_and_overflow_to_white():
+    from pipeline.image.tonemap import preview_srgb8, reinhard
+
+    v = np.array([0.0, 1.0, 3.0, np.inf], np.float32)
+    assert reinhard(v).tolist() == [0.0, 0.5, 0.75, 1.0] and reinhard(v).dtype == np.float32
+    # a pixel whose exposed value overflows float32 is white, not an undefined cast of NaN
+    image = np.full((2, 2, 3), 3e38, np.float32)
+    assert preview_srgb8(image, exposure=4.0).tolist() == np.full((2, 2, 3), 255).tolist()
+    assert tonemap(image).max() == pytest.approx(1.0)

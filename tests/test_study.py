@@ -24,7 +24,7 @@ from geometry import build_shaderball, default_camera
 from materials.maps import MaterialMaps
 from pipeline.dataset.spec import SpecError, parse_spec_text, spec_digest
 from pipeline.errors import ShaderballError
-from pipeline.neural.metrics import RELMSE_EPS as NEURAL_EPS
+from pipeline.image.metrics import RELMSE_EPS as NEURAL_EPS
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.limits import SAMPLERS
 from pipeline.render.mitsuba_env import SHORT_VARIANTS

@@ -21,7 +21,8 @@ from click.testing import CliRunner
 
 from cli import main
 from pipeline.check import inspect as inspect_mod
-from pipeline.check.validate import PROBLEM_KINDS, repair, validate
+from pipeline.check.validate import PROBLEM_KINDS, validate
+from pipeline.run.repair import repair
 from pipeline.store.records import without_timings
 
 REPO = Path(__file__).resolve().parents[1]

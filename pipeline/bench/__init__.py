@@ -3,6 +3,11 @@
 ``build_bench`` (``shaderball bench``: a build against bare renders), ``effects`` (what the
 effects a build leaves out would cost), ``compare`` (two renders equal within noise),
 ``memory_probe`` (worker memory over many renders), ``sun_benchmark``, ``sky_floor`` and
-``probe_scene`` (the sky's measurements). May import anything in the project; nothing in
-the project imports it except the CLI and tests.
+``probe_scene`` (the sky's measurements). Nothing in the project imports it except the CLI
+and tests.
+
+Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.image``, ``pipeline.errors``,
+``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``, ``pipeline.check``,
+``pipeline.study``, ``pipeline.run``, ``pipeline.publish``; nothing else of the project.
 """

@@ -42,15 +42,17 @@ import pipeline.render.renderer as render
 from pipeline.bench.effects import run_effects_bench
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import spec_to_toml
+from pipeline.dataset.spec import MAX_MATERIALS, spec_to_toml
 from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run.build import build, read_spec_text
+from pipeline.run.cluster.options import WORKERS_RANGE
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr, write_exr
+from pipeline.store.folder import folder_names, read_manifest
 from pipeline.store.layout import Layout
 from pipeline.store.records import dumps, read_json
 from sky import Light
@@ -506,8 +508,8 @@ class RenderCallTimer:
 def records_render_time(root: str) -> float:
     """Sum of the manifest's ``stats.time_s`` (each render_sample's wall time, in its worker)."""
     total = 0.0
-    with open(Layout(root).manifest, encoding="utf-8") as fh:
-        for line in fh:
+    for line in read_manifest(Layout(root)).split(b"\n"):
+        if line.strip():
             total += float(json.loads(line).get("stats", {}).get("time_s", 0.0))
     return total
 
@@ -538,11 +540,11 @@ def run_build_bench(
     samples = check_int("--samples", samples, 1, 1_000_000)
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE)
     spp = check_int("--spp", spp, *SPP_RANGE)
-    workers = check_int("--workers", workers, 0, 1024)
-    shard_size = check_int("--shard-size", shard_size, 1, 1_000_000)
+    workers = check_int("--workers", workers, *WORKERS_RANGE)
+    shard_size = check_int("--shard-size", shard_size, 1, MAX_MATERIALS)
     spec, _ = read_spec_text(spec_path)
     spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
-    if out is not None and os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+    if out is not None and os.path.exists(out) and folder_names(out) != []:
         raise bad_value("--out", out, "a new or empty folder (the benchmark builds from scratch)")
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-")
     root = out or os.path.join(scratch, "dataset")

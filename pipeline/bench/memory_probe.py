@@ -19,10 +19,9 @@ from pathlib import Path
 
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
-from pipeline.errors import USER_ERRORS
+from pipeline.errors import USER_ERRORS, check_int
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE, span
 from pipeline.run.build import prepare
-from pipeline.run.cluster import check_int
 from pipeline.run.shard import run_shard_in_process
 
 

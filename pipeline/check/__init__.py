@@ -1,10 +1,13 @@
-"""Checking a dataset folder: ``validate`` (and ``--repair``), ``info``, ``preview``.
+"""Checking a dataset folder: ``validate``, ``info``, ``preview``.
 
 ``validate`` is split by concern: ``report`` (problem kinds, report types, output),
-``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan),
-``repair``; ``validate`` keeps the entry points.
+``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan);
+``validate`` keeps the entry point. ``snapshot`` reads the spec a folder was built from.
 
-Readers of a dataset, never writers, except ``validate --repair``, which re-renders through
-``pipeline.run``. May import ``pipeline.store``, ``pipeline.dataset``, ``pipeline.render``
-(tone map, stats), ``pipeline.run`` (repair) and ``pipeline.errors``.
+Readers of a dataset, never writers: ``validate --repair`` re-renders, so it is a step of the
+build (``pipeline.run.repair``). Never Mitsuba or dask.
+
+Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``, ``pipeline.image``, ``pipeline.store``, ``pipeline.dataset``; nothing
+else of the project.
 """

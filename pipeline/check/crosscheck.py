@@ -8,17 +8,16 @@ import math
 import os
 from dataclasses import dataclass
 
-import numpy as np
-
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.report import Problems, summarise
-from pipeline.dataset.plan import PLAN_FORMAT, plan_dataset
+from pipeline.check.snapshot import read_snapshot
+from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
+from pipeline.dataset.record import lighting_discrepancies, model_record
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
-from pipeline.render.renderer import model_record
-from pipeline.render.stats import is_bad
-from pipeline.run.build import read_snapshot
+from pipeline.image.stats import is_bad
 from pipeline.store.folder import (
+    is_empty_folder,
     is_temp_file,
     list_bound,
     read_json_checked,
@@ -27,14 +26,14 @@ from pipeline.store.folder import (
     record_file_names,
     shard_ids_on_disk,
     symlinks_and_odd_files,
+    walk_folder,
 )
 from pipeline.store.layout import DESCRIPTION_FILE, LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE, Layout
 from pipeline.store.records import RUN_DEPENDENT_STATS, read_json, without_timings
-from sky import Light
 
 #: Relative tolerance for recomputed float statistics (same pixels, same float64 sums).
 STATS_RTOL = 1e-6
-#: Keys of a render's statistics recomputed from its pixels (pipeline.render.stats.render_stats).
+#: Keys of a render's statistics recomputed from its pixels (pipeline.image.stats.render_stats).
 PIXEL_STATS = ("min", "max", "mean", "nan", "inf", "negative")
 #: Files at the top of DIR that belong to the dataset.
 ROOT_FILES = (SPEC_FILE, DESCRIPTION_FILE, MANIFEST_FILE)
@@ -57,7 +56,7 @@ class State:
 
     layout: Layout
     spec: object | None
-    plans: list | None
+    plans: Plan | None
     planned: dict  # sample id -> SamplePlan, plan order
     variant: str | None
     spec_ok: bool
@@ -137,7 +136,7 @@ def load_plan(layout: Layout, problems: Problems):
         )
         return spec, None, description, False, description_ok
     try:
-        plans = list(plan_dataset(spec))  # validate holds every record anyway: plan each shard once
+        plans = plan_dataset(spec).kept()  # validate holds every record anyway: plan each shard once
     except USER_ERRORS as exc:
         problems.add("spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: cannot be planned ({exc})")
         return spec, None, description, False, description_ok
@@ -310,7 +309,7 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
             ("render.max_depth", r.max_depth),
             ("render.integrator", r.integrator),
             ("render.sun", spec.lighting.sun),
-            # absent for the default model (pipeline.render.renderer.model_record)
+            # absent for the default model (pipeline.dataset.record.model_record)
             ("render.model", model_record(spec.materials.model).get("model")),
         ]
     if state.variant:
@@ -325,40 +324,7 @@ def _plan_discrepancies(record: dict, sample, state: State) -> list[str]:
     expected = expected_files(sample, spec)
     if got != expected:
         out.append(f"files lists {got!r}, the layout says {expected!r}")
-    return out + _lighting_discrepancies(record)
-
-
-def _lighting_discrepancies(record: dict) -> list[str]:
-    """The effective lighting's direction and lighting vector follow from its angles."""
-
-    lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
-    try:
-        light = Light.from_dict(lighting)
-    except Exception as exc:  # missing keys, out-of-range values: the message says which
-        return [f"lighting is not a valid light ({exc})"]
-    out = []
-    direction = lighting.get("direction")
-    try:
-        if not np.allclose(np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9):
-            out.append(
-                f"lighting.direction {direction!r} does not follow from elevation_deg "
-                f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}"
-            )
-    except (TypeError, ValueError):
-        out.append(f"lighting.direction is {direction!r}, not a 3-vector")
-    vector = record.get("lighting_vector")
-    try:
-        if not np.allclose(np.asarray(vector, np.float64), light.lighting_vector(), rtol=0, atol=1e-6):
-            out.append(
-                f"lighting_vector {vector!r} does not follow from the effective lighting "
-                f"(direction and turbidity {light.turbidity!r})"
-            )
-    except (TypeError, ValueError):
-        out.append(f"lighting_vector is {vector!r}, not a 4-vector")
-    seeds, stats = record.get("seeds") or {}, record.get("stats") or {}
-    if isinstance(seeds, dict) and isinstance(stats, dict) and seeds.get("render_used") != stats.get("seed"):
-        out.append(f"seeds.render_used is {seeds.get('render_used')!r}, stats.seed is {stats.get('seed')!r}")
-    return out
+    return out + lighting_discrepancies(record)
 
 
 def _header_discrepancies(record: dict, render: FileFacts | None, maps: FileFacts | None) -> list[str]:
@@ -800,18 +766,13 @@ def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
             rel,
             f"{rel}: {what}; a dataset folder holds only regular files and folders: not followed, not read",
         )
-    for folder, subdirs, names in os.walk(root):
-        rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
-        rel_dir = "" if rel_dir == "." else rel_dir + "/"
-        subdirs[:] = [name for name in subdirs if rel_dir + name not in odd]  # links: never entered
-        names = [name for name in names if rel_dir + name not in odd]
-        for name in sorted(subdirs):
+    for rel_dir, subdirs, names in walk_folder(root, skip=odd):  # links: never entered
+        for name in subdirs:
             rel = rel_dir + name
-            if rel not in dirs and not os.listdir(os.path.join(folder, name)):
+            if rel not in dirs and is_empty_folder(root, rel):
                 state.extra_files.append(rel)
                 problems.add("extra_file", None, rel, f"{rel}/: an empty directory that is no part of the dataset")
-        subdirs.sort()
-        for name in sorted(names):
+        for name in names:
             rel = rel_dir + name
             if rel in files:
                 continue

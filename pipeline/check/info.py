@@ -14,10 +14,10 @@ import statistics
 from collections import Counter
 from dataclasses import dataclass, field
 
+from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import shard_id
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import ShaderballError
-from pipeline.run.build import read_snapshot
 from pipeline.store.folder import (
     disk_usage,
     manifest_record_count,

@@ -15,7 +15,7 @@ import numpy as np
 
 from pipeline.check.report import Progress
 from pipeline.errors import USER_ERRORS
-from pipeline.render.stats import render_stats
+from pipeline.image.stats import render_stats
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import UnsafePath, read_bytes, resolve_inside
 

@@ -1,7 +1,7 @@
 """`shaderball preview DIR --out FILE.png`: a contact sheet of a dataset, for people.
 
 One row per chosen sample: its label (id, material, sun elevation / azimuth, turbidity),
-its render tone-mapped (pipeline.render.tonemap: exposure from the ball's pixels, Reinhard,
+its render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, Reinhard,
 sRGB), then its four screen-space maps as the network sees them: diffuse and specular
 albedo (sRGB-encoded for display), roughness (grey, raw) and the tangent-space normal
 ((n + 1) / 2, raw). Samples are spread evenly over the renders recorded so far, so it
@@ -16,15 +16,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.check.info import shard_render_counts
-from pipeline.errors import ShaderballError
-from pipeline.render.tonemap import to_uint8, tonemap
-from pipeline.run.build import read_snapshot
+from pipeline.check.snapshot import read_snapshot
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import read_bytes, resolve_inside, shard_records, unsafe_entry
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
+#: Rows (--samples) and picture size in pixels (--tile), defined once (checks; the CLI help).
+SAMPLES_RANGE = (1, 200)
+TILE_RANGE = (32, 1024)
 LABEL_WIDTH = 190
 HEADER_HEIGHT = 22
 GAP = 4
@@ -74,16 +77,16 @@ def map_tiles(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray | None]:
 
     out: dict[str, np.ndarray | None] = {}
     for name in ("diffuse", "specular"):
-        out[name] = to_uint8(layers[name].astype(np.float32), srgb=True) if name in layers else None
+        out[name] = map_srgb8(layers[name].astype(np.float32), srgb=True) if name in layers else None
     rough = layers.get("roughness")
-    out["roughness"] = grey(to_uint8(rough.astype(np.float32), srgb=False)) if rough is not None else None
+    out["roughness"] = grey(map_srgb8(rough.astype(np.float32), srgb=False)) if rough is not None else None
     normal = layers.get("normal")
     if normal is not None:
         encoded = (normal.astype(np.float32) + 1.0) * 0.5
         mask = layers.get("mask")
         if mask is not None:
             encoded = np.where(mask.reshape(mask.shape[0], mask.shape[1], 1) > 0.5, encoded, 0.0)
-        out["normal"] = to_uint8(encoded, srgb=False)
+        out["normal"] = map_srgb8(encoded, srgb=False)
     else:
         out["normal"] = None
     return out
@@ -174,7 +177,7 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
         layers = cache[maps_rel]
         mask = layers.get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None
-        pictures = {"render": tonemap(render, mask=mask), **map_tiles(layers)}
+        pictures = {"render": preview_srgb8(render, mask=mask), **map_tiles(layers)}
         for c, name in enumerate(COLUMNS):
             x = LABEL_WIDTH + c * (tile + GAP) + GAP
             if pictures.get(name) is None:
@@ -196,17 +199,17 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
     from PIL import Image
 
-    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 200:
-        raise ShaderballError(f"--samples: {samples!r} is not allowed; allowed: an integer from 1 to 200")
-    if tile is not None and (isinstance(tile, bool) or not isinstance(tile, int) or not 32 <= tile <= 1024):
-        raise ShaderballError(f"--tile: {tile!r} is not allowed; allowed: an integer from 32 to 1024 (pixels)")
+    if isinstance(samples, bool) or not isinstance(samples, int) or not SAMPLES_RANGE[0] <= samples <= SAMPLES_RANGE[1]:
+        raise bad_value("--samples", samples, f"an integer from {SAMPLES_RANGE[0]} to {SAMPLES_RANGE[1]}")
+    if tile is not None and (
+        isinstance(tile, bool) or not isinstance(tile, int) or not TILE_RANGE[0] <= tile <= TILE_RANGE[1]
+    ):
+        raise bad_value("--tile", tile, f"an integer from {TILE_RANGE[0]} to {TILE_RANGE[1]} (pixels)")
     if not out.lower().endswith(".png"):
-        raise ShaderballError(f"--out: {out!r} is not allowed; allowed: a file name ending in .png")
+        raise bad_value("--out", out, "a file name ending in .png")
     layout = Layout(root)
     if not os.path.isdir(root) or not os.path.lexists(layout.spec):
-        raise ShaderballError(
-            f"DIR: {root!r} is not allowed; allowed: a dataset folder made by `shaderball build` (with its spec.toml)"
-        )
+        raise bad_value("DIR", root, "a dataset folder made by `shaderball build` (with its spec.toml)")
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     records, problems = [], []

@@ -27,12 +27,10 @@ def make_material(plan: MaterialPlan, spec: DatasetSpec):
     return maps, {"kind": "svbrdf", "file": plan.svbrdf_file}
 
 
-def check_imported_files(plans) -> int:
+def check_imported_files(plans: Plan) -> int:
     """Import every map file of the spec's ``svbrdf_folders`` once, before anything is
     written: a file that cannot be imported refuses the build up front instead of stopping
     it half-way. Returns the count of files checked."""
-    if not isinstance(plans, Plan):
-        return 0
     count = 0
     for files in plans.file_orders.values():
         for path in files:

@@ -37,6 +37,7 @@ Use :func:`seeded_rng` to turn any of these seeds into a ``numpy.random.Generato
 
 from __future__ import annotations
 
+import copy
 import os
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -328,6 +329,14 @@ class Plan(Sequence):
     def __init__(self, spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
         self.spec = spec
         self.sources, self.file_orders, self.source_of, self.use_of = _svbrdf_arrays(spec, imported)
+        self._kept: list[ShardPlan] | None = None
+
+    def kept(self) -> Plan:
+        """This plan with every shard made now, once, and kept: for a reader that visits every
+        shard more than once (validate holds every record anyway)."""
+        kept = copy.copy(self)
+        kept._kept = [self.shard(i) for i in range(len(self))]
+        return kept
 
     # -- Sequence
     def __len__(self) -> int:
@@ -408,6 +417,8 @@ class Plan(Sequence):
 
     # -- one shard
     def shard(self, index: int) -> ShardPlan:
+        if self._kept is not None:
+            return self._kept[index]
         ds = self.spec.dataset
         ms = self.material_range(index)
         m_all = np.arange(ms.start, ms.stop)
@@ -459,21 +470,6 @@ def iter_samples(plans: Sequence[ShardPlan]):
             yield from material.samples
 
 
-def plan_summary(plans: Sequence[ShardPlan]) -> dict:
+def plan_summary(plans: Plan) -> dict:
     """Counts: shards, materials, renders, uniform and SVBRDF materials, SVBRDF sources."""
-    if isinstance(plans, Plan):
-        return plans.summary()
-    materials = [m for shard in plans for m in shard.materials]
-    sources = Counter(
-        f"family:{m.svbrdf_family}" if m.svbrdf_family is not None else f"folder:{os.path.dirname(m.svbrdf_file)}"
-        for m in materials
-        if m.kind == KIND_SVBRDF
-    )
-    return {
-        "shards": len(plans),
-        "materials": len(materials),
-        "renders": sum(m.n_lights for m in materials),
-        "uniform": sum(m.kind == KIND_UNIFORM for m in materials),
-        "svbrdf": sum(m.kind == KIND_SVBRDF for m in materials),
-        "svbrdf_sources": dict(sorted(sources.items())),
-    }
+    return plans.summary()

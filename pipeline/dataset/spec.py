@@ -33,6 +33,7 @@ import math
 import numbers
 import os
 import re
+import stat
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -41,6 +42,7 @@ import tomllib
 from materials import SVBRDF_FAMILIES, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError
+from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.render.limits import (
     CLAMP_RANGE,
     DEFAULT_RR_DEPTH,
@@ -53,9 +55,6 @@ from pipeline.render.limits import (
     TARGET_ERROR_RANGE,
 )
 from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
-
-# pipeline.store.exr loads only numpy at import time; its table is the one list of compressions.
-from pipeline.store.exr import COMPRESSIONS
 from sky.emitter import SUN_MODES
 from sky.lighting import SCHEMES, LightingRanges
 
@@ -757,7 +756,7 @@ class StorageSection(_Section):
     SECTION: ClassVar[str] = "storage"
 
     compression: str = _field(
-        "zip", rule=_Choice(tuple(COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
+        "zip", rule=_Choice(tuple(EXR_COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
     )
     layers: tuple[str, ...] = _field(
         MAP_LAYERS,
@@ -818,28 +817,29 @@ MAX_SPEC_NESTING = 32
 _UTF8_BOM = b"\xef\xbb\xbf"
 
 
-def read_spec_bytes(path: str | os.PathLike) -> bytes:
-    """A spec file's bytes, read once (a pipe such as ``<(cat spec.toml)`` or /dev/stdin can
-    be read only once), at most MAX_SPEC_BYTES."""
+def read_spec_file(path: str | os.PathLike, name: str = "spec file") -> tuple[bytes, str]:
+    """The one reader of a spec file: its bytes, read once (a pipe such as ``<(cat spec.toml)``
+    or /dev/stdin can be read only once), at most MAX_SPEC_BYTES, and the folder its relative
+    ``svbrdf_folders`` are taken from (the file's own; the current folder for a pipe).
+    ``name`` is what a refusal calls the file (``SPEC``: the command's argument)."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as fh:
+            regular = stat.S_ISREG(os.fstat(fh.fileno()).st_mode)
             data = fh.read(MAX_SPEC_BYTES + 1)
-    except FileNotFoundError:
-        raise ShaderballError(f"spec file {path}: not found") from None
     except OSError as exc:
-        raise ShaderballError(f"spec file {path}: cannot be read ({exc.strerror})") from None
+        raise ShaderballError(f"{name}: cannot read {path!r}: {exc.strerror}") from None
     if len(data) > MAX_SPEC_BYTES:
         raise ShaderballError(
-            f"spec file {path}: larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
+            f"{name}: {path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
         )
-    return data
+    return data, os.path.dirname(os.path.abspath(path)) if regular else os.getcwd()
 
 
 def parse_spec(path: str | os.PathLike) -> DatasetSpec:
-    """Read (once) and check the spec file at ``path``."""
-    path = os.fspath(path)
-    return parse_spec_bytes(read_spec_bytes(path), source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+    """Read (once, :func:`read_spec_file`) and check the spec file at ``path``."""
+    data, base_dir = read_spec_file(path)
+    return parse_spec_bytes(data, source=os.fspath(path), base_dir=base_dir)
 
 
 def parse_spec_bytes(data: bytes, source: str = "<bytes>", base_dir: str | None = None) -> DatasetSpec:

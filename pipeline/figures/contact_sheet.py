@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from materials.brdf_ref import eval_brdf
-from materials.colorspace import srgb_encode
 from materials.maps import MaterialMaps, encode_normal_map
 from materials.svbrdf import SVBRDF_FAMILIES, sample_svbrdf
+from pipeline.image.srgb import srgb_encode
 
 #: Seed of example k of family f: SeedSequence([SHEET_SEED, f, k]).
 SHEET_SEED = 2019
@@ -48,7 +48,9 @@ def flash_preview(maps: MaterialMaps, *, tiles: int = 2, light_intensity: float 
 
 
 def _to_8bit(linear: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(srgb_encode(np.clip(linear, 0.0, 1.0)), 0.0, 1.0) * 255.0).astype(np.uint8)
+    # in float64, as the figure was first drawn (colour-science's encoding): its bytes are the docs'
+    linear = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.round(np.clip(srgb_encode(linear), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def material_tile(maps: MaterialMaps) -> np.ndarray:

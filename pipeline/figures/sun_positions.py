@@ -12,9 +12,9 @@ import numpy as np
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial
+from pipeline.image.tonemap import exposure_for, preview_srgb8
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
-from pipeline.render.tonemap import exposure_for, tonemap
 from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
 
@@ -44,7 +44,7 @@ def sun_positions(out: str, resolution: int = 240, spp: int = 128, variant: str 
     ]
     exposure = exposure_for(images[1])
     tiles = [
-        label(tonemap(img, exposure), f"elev {e:g}  azim {a:g}  turb {t:g}")
+        label(preview_srgb8(img, exposure), f"elev {e:g}  azim {a:g}  turb {t:g}")
         for img, (e, a, t) in zip(images, SUN_POSITIONS)
     ]
     buffer = io.BytesIO()

@@ -3,4 +3,8 @@ Visualization" (KT et al. 2019), its loss, tone map, metrics, training, inferenc
 evaluation over a dataset folder or its publication (docs/neural.md).
 
 Importing this package does not import torch; its modules do.
+
+Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
+``pipeline.store``, ``pipeline.render``, ``pipeline.publish``; nothing else of the project.
 """

@@ -28,13 +28,14 @@ import torch
 from torch.utils.data import DataLoader
 
 from pipeline.errors import ShaderballError
-from pipeline.neural import metrics
+from pipeline.image import metrics
+from pipeline.image.denoise import denoise
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
 from pipeline.neural.data import open_dataset
-from pipeline.neural.denoise import AuxBuffers, denoise
+from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
-from pipeline.neural.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
 from pipeline.neural.train import TrainConfig, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
 from pipeline.render.mitsuba_env import resolve_variant

@@ -9,7 +9,7 @@ A sample is a plain dict of tensors (``maps`` (12, R, R), ``light`` (4,), ``targ
   maps), roughness repeated 3 times; each in [0, 1].
 - ``light``: the record's ``lighting_vector`` as stored (unit sun direction, turbidity);
   the network's encoding of it is :func:`pipeline.neural.network.light_input`.
-- ``target``: the render through :func:`pipeline.neural.tonemap.tonemap`.
+- ``target``: the render through :func:`pipeline.image.tonemap.tonemap`.
 - ``mask``: 1 where a pixel centre sees the material.
 
 At a network resolution R below the dataset's D (D a multiple of R), every image is
@@ -45,8 +45,8 @@ from torch.utils.data import Dataset
 
 from materials import encode_normal_map
 from pipeline.errors import ShaderballError, bad_value
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.neural.network import check_network_resolution
-from pipeline.neural.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
 from pipeline.publish.refusal import Refused

@@ -21,8 +21,6 @@ hit (docs/neural.md, "Denoising").
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from geometry import Camera, Shaderball
@@ -97,19 +95,3 @@ class AuxBuffers:
         else:
             albedo[self.on_ball] = material_albedo(diffuse, bilinear_lookup(maps.specular, self.uv))
         return np.ascontiguousarray(box_downsample(albedo, self.block), np.float32)
-
-
-def denoise(
-    image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
-) -> tuple[np.ndarray, float]:
-    """OIDN's RT filter in HDR mode: colour alone, or with noise-free albedo and normal
-    (``clean_aux``); returns the image and the seconds the filter took."""
-    import pyoidn
-
-    colour = np.ascontiguousarray(np.maximum(image, 0.0), dtype=np.float32)
-    started = time.perf_counter()
-    if albedo is None:
-        out = pyoidn.denoise(colour, hdr=True)
-    else:
-        out = pyoidn.denoise(colour, albedo, normal, hdr=True, clean_aux=True)
-    return np.asarray(out, dtype=np.float32), time.perf_counter() - started

@@ -2,7 +2,7 @@
 beside it path tracing at low spp, alone and denoised (the paper's Table 1 comparison).
 
 Per sample and on average: PSNR and SSIM on 8-bit sRGB (both images through
-:mod:`pipeline.neural.tonemap`; SSIM in its standard form, :mod:`pipeline.neural.metrics`),
+:mod:`pipeline.image.tonemap`; SSIM in its standard form, :mod:`pipeline.image.metrics`),
 relMSE and HDR-FLIP on linear HDR (the network's HDR is the inverse tone map of its
 output), and the time per image. Low-spp renders use the sample's own material (its
 texture-space maps file), lighting, settings and a seed of their own; denoising is Intel
@@ -27,18 +27,23 @@ from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError, bad_value
-from pipeline.neural import metrics, runfiles
+from pipeline.image import metrics
+from pipeline.image.denoise import denoise
+from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
+from pipeline.neural import runfiles
 from pipeline.neural.data import box_downsample, open_dataset
-from pipeline.neural.denoise import AuxBuffers, denoise
+from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
-from pipeline.neural.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural.train import pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
+from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
 
 SPLITS = ("test", "train", "all")
 DEFAULT_SPP = (1, 2, 4, 16)
+#: Each low spp of the path tracing compared with (--spp), defined once (check; the CLI help).
+SPP_LADDER_RANGE = (1, 4096)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
@@ -133,8 +138,9 @@ class PathTracer:
 def _check(req: EvaluateRequest) -> None:
     if req.split not in SPLITS:
         raise bad_value("--split", req.split, ", ".join(SPLITS))
-    if any(isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= 4096 for s in req.spp):
-        raise bad_value("--spp", ",".join(map(str, req.spp)), "comma-separated integers from 1 to 4096")
+    lo, hi = SPP_LADDER_RANGE
+    if any(isinstance(s, bool) or not isinstance(s, int) or not lo <= s <= hi for s in req.spp):
+        raise bad_value("--spp", ",".join(map(str, req.spp)), f"comma-separated integers from {lo} to {hi}")
     if req.limit is not None and (isinstance(req.limit, bool) or not isinstance(req.limit, int) or req.limit < 1):
         raise bad_value("--limit", req.limit, "an integer >= 1")
     if req.json_path is not None and not req.json_path.lower().endswith(".json"):
@@ -209,9 +215,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             if want_denoise:
                 if aux_albedo[0] != sample.material_id:
                     aux_albedo = (sample.material_id, aux.albedo(maps))
-                clean, t_dn = denoise(image, aux_albedo[1], aux.normal)
+                clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
                 row[f"pt{spp}+oidn"] = _scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
-                alone, t_alone = denoise(image)
+                alone, t_alone, _cpu = denoise(image)
                 row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
@@ -239,8 +245,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     table = markdown_table(means, len(rows), model.resolution)
     os.makedirs(out_dir, exist_ok=True)
     runfiles.write_json(os.path.join(out_dir, "results.json"), result)
-    runfiles.write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
-    runfiles.write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
+    write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
+    write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)

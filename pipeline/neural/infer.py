@@ -18,10 +18,10 @@ from PIL import Image
 
 from geometry import build_shaderball, default_camera
 from pipeline.errors import ShaderballError
+from pipeline.image.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.data import assemble_maps
 from pipeline.neural.network import NeuralRenderer, light_input
-from pipeline.neural.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural.train import pick_device
 from pipeline.render.command import RenderRequest, check_request, load_material
 from pipeline.render.gbuffer import load_gbuffer

@@ -1,7 +1,7 @@
 """A training run's folder: config.json, log.jsonl, checkpoint.pt, loss.png.
 
-Every file is replaced atomically (temporary file in the same folder, fsync, rename), so
-a kill at any instant leaves the previous complete file or the new one.
+Every file is replaced atomically (:mod:`pipeline.store.atomic`: temporary file in the same
+folder, fsync, rename), so a kill at any instant leaves the previous complete file or the new one.
 """
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
 
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.store.atomic import write_bytes_atomic
 
 CONFIG = "config.json"
 LOG = "log.jsonl"
@@ -21,27 +21,6 @@ CHECKPOINT = "checkpoint.pt"
 LOSS_PNG = "loss.png"
 CHECKPOINT_FORMAT = "shaderball-neural-checkpoint"
 CHECKPOINT_VERSION = 1
-
-
-def write_bytes_atomic(path: str, data: bytes) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    dir_fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
 
 
 def write_json(path: str, obj) -> None:

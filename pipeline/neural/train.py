@@ -22,22 +22,27 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.image.metrics import psnr8
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.data import open_dataset
 from pipeline.neural.loss import LOSSES, RenderLoss
-from pipeline.neural.metrics import psnr8
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
-from pipeline.neural.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
+from pipeline.store.atomic import write_bytes_atomic
 
 DEVICES = ("auto", "cpu", "cuda")
 #: Config fields that change what a run computes: a resume must match them.
 IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
+
+
+#: The ranges of the integer options of `shaderball train`, defined once (checks; the CLI help).
+INTEGER_RANGES = {"epochs": (1, 100_000), "batch_size": (1, 4096), "workers": (0, 64), "seed": (0, 2**63 - 1)}
 
 
 @dataclass(frozen=True)
@@ -58,15 +63,10 @@ class TrainConfig:
     seed: int = 0  # seeds the weights, the per-epoch order and the split
     resolution: int | None = None  # network resolution; default the dataset's; must divide it
     test_fraction: float = 0.2  # fraction of materials held out for testing
-    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.neural.tonemap)
+    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
 
     def check(self) -> TrainConfig:
-        def integer(name, lo, hi):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise bad_value(f"--{name.replace('_', '-')}", v, f"an integer from {lo} to {hi}")
-
         def number(name, lo, hi, lo_open=False):
             v = getattr(self, name)
             ok = (
@@ -79,10 +79,8 @@ class TrainConfig:
             if not ok:
                 raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
 
-        integer("epochs", 1, 100_000)
-        integer("batch_size", 1, 4096)
-        integer("workers", 0, 64)
-        integer("seed", 0, 2**63 - 1)
+        for name, (lo, hi) in INTEGER_RANGES.items():
+            check_int(f"--{name.replace('_', '-')}", getattr(self, name), lo, hi)
         number("lr", 0.0, 10.0, lo_open=True)
         number("vgg_weight", 0.0, 1e6)
         number("exposure", 0.0, 1e6, lo_open=True)
@@ -316,7 +314,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
                 identity_digest=fresh["identity_digest"],
             )
             runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
-            runfiles.write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
+            write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
     return TrainSummary(
         run_dir=config.out,
         epochs_done=max(start_epoch, config.epochs if history else 0),

@@ -4,8 +4,11 @@ Owns the published layout (``names``: tar shards, samples table, card, Croissant
 checksums), writing it (``writer``: `shaderball publish`), and reading it back
 (``reader``: `shaderball verify`, `shaderball unpack` and :func:`iter_samples` for the
 training stage), with the archive checks that make reading a received copy safe
-(``tarsafe``, ``exrcheck``). May import ``pipeline.store``, ``pipeline.check``,
-``pipeline.dataset`` and ``pipeline.errors``; never Mitsuba, dask or torch.
+(``tarsafe``, ``exrcheck``). Never Mitsuba, dask or torch, nor the build (``pipeline.run``).
+
+Layer 7 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``, ``pipeline.image``, ``pipeline.store``, ``pipeline.dataset``,
+``pipeline.check``; nothing else of the project.
 """
 
 from pipeline.publish.reader import iter_folder_samples, iter_samples, open_publication

@@ -17,9 +17,9 @@ import zlib
 import numpy as np
 
 from pipeline.check.preview import map_tiles
+from pipeline.image.tonemap import preview_srgb8
 from pipeline.publish.exrcheck import check_exr_header
 from pipeline.publish.refusal import DEFAULT_LIMITS, Refused
-from pipeline.render.tonemap import tonemap
 from pipeline.store.exr import read_exr
 
 #: The largest side of a preview tile, in pixels (a 400x400 render gets a 200x200 preview).
@@ -86,7 +86,7 @@ def _placeholder(side: int, tiles: int = 1) -> np.ndarray:
 
 
 def render_preview(render_exr: bytes, maps_exr: bytes | None, side: int) -> bytes:
-    """The render tone-mapped (pipeline.render.tonemap: exposure from the ball's pixels, the
+    """The render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, the
     maps' mask; Reinhard; sRGB), as a PNG of ``side // preview_factor(side)`` pixels a side."""
     factor = preview_factor(side)
     render = _layers(render_exr, "render")
@@ -95,7 +95,7 @@ def render_preview(render_exr: bytes, maps_exr: bytes | None, side: int) -> byte
     maps = _layers(maps_exr, "maps") or {}
     mask = maps.get("mask")
     mask = mask[..., 0] > 0.5 if mask is not None and mask.shape[:2] == render["render"].shape[:2] else None
-    return encode_png(shrink(tonemap(render["render"], mask=mask), factor))
+    return encode_png(shrink(preview_srgb8(render["render"], mask=mask), factor))
 
 
 def maps_preview(maps_exr: bytes, side: int) -> bytes:

@@ -58,6 +58,7 @@ from pipeline.publish.table import (
     sample_row,
 )
 from pipeline.publish.tarsafe import Member, read_members, scan_tar
+from pipeline.store.folder import read_bytes, read_manifest, resolve_inside
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 from pipeline.store.records import dumps, without_timings
 
@@ -623,8 +624,7 @@ def iter_folder_samples(root: str) -> Iterator[dict]:
     """The samples of a complete dataset folder, as :func:`iter_samples` yields them from its
     publication (each file's SHA-256 checked against the manifest)."""
     layout = Layout(root)
-    with open(layout.manifest, encoding="utf-8") as fh:
-        records = [json.loads(line) for line in fh if line.strip()]
+    records = [json.loads(line) for line in read_manifest(layout).split(b"\n") if line.strip()]
     shared: dict[str, bytes] = {}
     material = None
     for number, record in enumerate(records, start=1):
@@ -636,8 +636,7 @@ def iter_folder_samples(root: str) -> Iterator[dict]:
 
 
 def _read_verified(layout: Layout, ref: FileRef) -> bytes:
-    with open(layout.path(ref.path), "rb") as fh:
-        data = fh.read()
+    data = read_bytes(resolve_inside(layout.root, ref.path))
     if hashlib.sha256(data).hexdigest() != ref.sha256:
         raise Refused(
             "checksum", f"{ref.path}: SHA-256 differs from the manifest's; check the folder with `shaderball validate`"

@@ -12,12 +12,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from pipeline.check.preview import write_preview
+from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError, bad_value, check_int
@@ -46,8 +46,7 @@ from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
-from pipeline.run.build import read_snapshot
-from pipeline.store.atomic import fsync_dir, sha256_file
+from pipeline.store.atomic import atomic_file, sha256_file
 from pipeline.store.folder import MAX_JSON_BYTES, list_bound, read_bytes, read_manifest, resolve_inside
 from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.records import dumps
@@ -275,27 +274,12 @@ def _read_checked(layout: Layout, member: PackedMember) -> bytes:
 def _write_tar(output: Output, layout: Layout, rel: str, members: list[PackedMember]) -> tuple[int, str]:
     """Write the tar ``rel`` of ``members`` atomically; its size and SHA-256."""
     final = output.path(rel)
-    folder = os.path.dirname(final)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".tar", dir=folder)
-    try:
-        with os.fdopen(fd, "w+b") as fh:
-            with open_writer(fh) as tar:
-                for member in members:
-                    write_member(
-                        tar, member.name, member.data if member.source is None else _read_checked(layout, member)
-                    )
-            fh.flush()
-            os.fsync(fh.fileno())
-            size = fh.tell()
-        digest = sha256_file(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, final)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    fsync_dir(folder)
+    with atomic_file(final) as fh:
+        with open_writer(fh) as tar:
+            for member in members:
+                write_member(tar, member.name, member.data if member.source is None else _read_checked(layout, member))
+        size = fh.tell()
+    digest = sha256_file(final)
     expected = tar_bytes([m.size for m in members])
     assert size == expected, (size, expected)
     output.adopt(rel, digest, size)

@@ -16,11 +16,11 @@ from geometry import build_shaderball, default_camera
 from materials import UniformMaterial, load_deschaintre
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import bad_value, check_int
+from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import RenderSettings, render_sample
-from pipeline.render.tonemap import tonemap
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
@@ -205,5 +205,5 @@ def write_png(path: str, image: np.ndarray, mask: np.ndarray | None = None, expo
     from PIL import Image
 
     buffer = io.BytesIO()
-    Image.fromarray(tonemap(image, exposure, mask)).save(buffer, format="PNG")
+    Image.fromarray(preview_srgb8(image, exposure, mask)).save(buffer, format="PNG")
     write_bytes_atomic(path, buffer.getvalue())

@@ -29,6 +29,7 @@ import numpy as np
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import bad_value, caused_by_interrupt, check_int
+from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
@@ -46,7 +47,6 @@ from pipeline.render.limits import (
 )
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import sensor_dict, shape_dicts
-from pipeline.render.stats import is_bad, render_stats
 from sky.emitter import SUN_MODES
 
 #: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
@@ -87,12 +87,8 @@ class RenderSettings:
     def check(self, field_name=lambda name: f"render.{name}") -> RenderSettings:
         """Raise naming the field as ``field_name(name)`` says (a spec field, a CLI option); else self."""
 
-        def integer(name, lo, hi):
+        for name, (lo, hi) in (("resolution", RESOLUTION_RANGE), ("spp", SPP_RANGE), ("max_depth", MAX_DEPTH_RANGE)):
             check_int(field_name(name), getattr(self, name), lo, hi)
-
-        integer("resolution", *RESOLUTION_RANGE)
-        integer("spp", *SPP_RANGE)
-        integer("max_depth", *MAX_DEPTH_RANGE)
         if self.integrator not in INTEGRATORS:
             raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
         if self.sun not in SUN_MODES:
@@ -101,7 +97,7 @@ class RenderSettings:
             raise bad_value(field_name("model"), self.model, ", ".join(MODELS))
         if self.sampler not in SAMPLERS:
             raise bad_value(field_name("sampler"), self.sampler, ", ".join(SAMPLERS))
-        integer("rr_depth", *RR_DEPTH_RANGE)
+        check_int(field_name("rr_depth"), self.rr_depth, *RR_DEPTH_RANGE)
         for name, (lo, hi) in (("clamp", CLAMP_RANGE), ("target_error", TARGET_ERROR_RANGE)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
@@ -111,15 +107,6 @@ class RenderSettings:
     @property
     def adaptive(self) -> bool:
         return self.target_error > 0
-
-
-def model_record(model: str) -> dict:
-    """What records and render files say about the material model: nothing for the default.
-
-    Absent means "shaderball", so the files and records of the default model are
-    the bytes they were before the model could be chosen.
-    """
-    return {} if model == DEFAULT_MODEL else {"model": model}
 
 
 @dataclass(frozen=True)
@@ -192,7 +179,7 @@ def scene_dict(
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear Rec.709
     variance: np.ndarray  # (H, W) float32, variance of each pixel's luminance estimate
-    stats: dict  # pipeline.render.stats.render_stats + time, spp, seed, attempts, flagged
+    stats: dict  # pipeline.image.stats.render_stats + time, spp, seed, attempts, flagged
     lighting: dict  # the lighting policy's record
     effects: EffectPlan
 

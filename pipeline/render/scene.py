@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from geometry import Camera, Shaderball
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
 from pipeline.render.limits import SAMPLERS as RENDER_SAMPLERS
 from pipeline.render.mitsuba_env import load_mitsuba
 
@@ -77,9 +77,9 @@ def sensor_dict(
     :data:`pipeline.render.limits.SAMPLERS` with its defaults (Mitsuba may round ``spp``).
     """
     if sampler not in SAMPLERS:
-        raise ShaderballError(f"sampler: {sampler!r} is not allowed; allowed: {', '.join(SAMPLERS)}")
+        raise bad_value("sampler", sampler, ", ".join(SAMPLERS))
     if not isinstance(spp, int) or spp < 1:
-        raise ShaderballError(f"spp: {spp!r} is not allowed; allowed: an integer >= 1")
+        raise bad_value("spp", spp, "an integer >= 1")
     if sampler == "stratified-centres":
         if math.isqrt(spp) ** 2 != spp:
             raise ShaderballError(f"spp: {spp} is not allowed with stratified-centres; allowed: a square number")

@@ -17,6 +17,7 @@ import numpy as np
 
 from geometry import build_shaderball, default_camera
 from pipeline.errors import bad_value
+from pipeline.image.srgb import srgb_encode
 from pipeline.render.gbuffer import check_resolution, gbuffer_key_inputs, load_gbuffer, seam_band
 from pipeline.render.mitsuba_env import VARIANT_CHOICES, load_mitsuba, resolve_variant
 from pipeline.render.scene import bitmap_texture, sensor_dict, shape_dicts
@@ -93,9 +94,7 @@ def render_preview(
 
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
-    x = np.clip(linear, 0.0, 1.0)
-    encoded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-    return np.round(encoded * 255.0).astype(np.uint8)
+    return np.round(srgb_encode(linear) * 255.0).astype(np.uint8)
 
 
 def mask_panel(mask: np.ndarray, seams_smooth: np.ndarray, seams_crease: np.ndarray) -> np.ndarray:

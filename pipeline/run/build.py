@@ -18,19 +18,19 @@ import contextlib
 import hashlib
 import os
 import signal
-import stat
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pipeline import __version__
+from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.materialize import check_imported_files
-from pipeline.dataset.plan import PLAN_FORMAT, Plan, ShardPlan, plan_dataset, plan_summary
+from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset, plan_summary
 from pipeline.dataset.spec import (
-    MAX_SPEC_BYTES,
     DatasetSpec,
     parse_spec_bytes,
+    read_spec_file,
     spec_digest,
     spec_to_dict,
     spec_to_toml,
@@ -44,13 +44,14 @@ from pipeline.render.mitsuba_env import (
     resolve_variant,
     weakest_guarantee,
 )
-from pipeline.run.cluster import ClusterOptions, check_scheduler_reachable, run_shards_on_dask
+from pipeline.run.cluster.connection import run_shards_on_dask
+from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
     complete_marker,
+    folder_names,
     only_temp_files,
-    read_spec_snapshot,
     record_stamps,
     recorded_count,
     remove_temp_files,
@@ -108,32 +109,9 @@ def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
     """The spec at ``spec_path`` and its text, read once: a pipe (``<(cat spec.toml)``,
     /dev/stdin) can be read only once. Relative ``svbrdf_folders`` are taken from the
     spec file's folder, or from the current folder for a pipe."""
-    try:
-        with open(spec_path, "rb") as fh:
-            regular = stat.S_ISREG(os.fstat(fh.fileno()).st_mode)
-            data = fh.read(MAX_SPEC_BYTES + 1)
-    except OSError as exc:
-        raise ShaderballError(f"SPEC: cannot read {spec_path!r}: {exc.strerror}") from None
-    if len(data) > MAX_SPEC_BYTES:
-        raise ShaderballError(
-            f"SPEC: {spec_path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
-        )
-    base_dir = os.path.dirname(os.path.abspath(spec_path)) if regular else os.getcwd()
+    data, base_dir = read_spec_file(spec_path, "SPEC")
     spec = parse_spec_bytes(data, source=spec_path, base_dir=base_dir)
     return spec, data.decode("utf-8-sig")
-
-
-def read_snapshot(root: str) -> DatasetSpec:
-    """The spec snapshot ``DIR/spec.toml`` of a dataset folder: a regular file (not a link, a
-    FIFO or a device; pipeline.store.folder), bounded, parsed; ShaderballError if not."""
-    layout = Layout(root)
-    try:
-        data = read_spec_snapshot(layout)
-    except FileNotFoundError:
-        raise ShaderballError(f"{layout.spec}: missing") from None
-    except OSError as exc:
-        raise ShaderballError(f"{layout.spec}: cannot be read ({exc.strerror})") from None
-    return parse_spec_bytes(data, source=layout.spec, base_dir=os.path.abspath(root))
 
 
 def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
@@ -170,7 +148,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     if os.path.exists(out) and not os.path.isdir(out):
         raise ShaderballError(f"--out: {out!r} exists and is not a directory")
     try:
-        names = os.listdir(out) if os.path.isdir(out) else None
+        names = folder_names(out)
     except OSError as exc:
         raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
@@ -247,7 +225,7 @@ def check_path_lengths(out: str) -> None:
         )
 
 
-def plan_digest(plans: list[ShardPlan], tick: Callable[[int, int], None] | None = None) -> str:
+def plan_digest(plans: Plan, tick: Callable[[int, int], None] | None = None) -> str:
     """SHA-256 of every planned material and lighting (ids, seeds, angles, sources).
 
     Streamed: each shard is planned, hashed and dropped (a lazy plan is never held whole);
@@ -261,7 +239,7 @@ def plan_digest(plans: list[ShardPlan], tick: Callable[[int, int], None] | None 
     return digest.hexdigest()
 
 
-def check_same_installation(out: str, plans: list[ShardPlan], variant: str, digest: str | None = None) -> None:
+def check_same_installation(out: str, plans: Plan, variant: str, digest: str | None = None) -> None:
     """Refuse to resume ``out`` when this installation would make its samples differently.
 
     The spec snapshot alone cannot tell: a newer shaderball may plan other seeds or angles
@@ -304,7 +282,7 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str, dige
 
 
 def description(
-    spec: DatasetSpec, plans: list[ShardPlan], variant: str, digest: str | None = None, guarantee: str | None = None
+    spec: DatasetSpec, plans: Plan, variant: str, digest: str | None = None, guarantee: str | None = None
 ) -> dict:
     """dataset.json; ``guarantee``: the dataset's determinism (default: the variant's)."""
     guarantee = guarantee or determinism(variant)
@@ -335,7 +313,7 @@ def recorded_guarantee(out: str) -> str | None:
 def prepare(
     out: str,
     spec: DatasetSpec,
-    plans: list[ShardPlan],
+    plans: Plan,
     allow_spec_change: bool = False,
     tick: Callable[[int, int], None] | None = None,
     variant: str | None = None,
@@ -364,7 +342,7 @@ def prepare(
     return variant
 
 
-def count_done(out: str, plans: list[ShardPlan]) -> int:
+def count_done(out: str, plans: Plan) -> int:
     """Renders with a record on disk (progress; cheap: one listing per shard)."""
     return DoneCounter(out, plans)()
 
@@ -374,9 +352,9 @@ class DoneCounter:
     ``shards/``, then one of each shard folder not yet seen complete (a complete shard is
     remembered), so a report costs the shards in progress, not all of them."""
 
-    def __init__(self, out: str, plans):
+    def __init__(self, out: str, plans: Plan):
         self.layout = Layout(out)
-        self.counts = dict(shard_counts(plans))
+        self.counts = dict(plans.shard_counts())
         self.complete: set[str] = set()
 
     def __call__(self) -> int:
@@ -391,47 +369,30 @@ class DoneCounter:
         return done
 
 
-def shard_counts(plans) -> list[tuple[str, int]]:
-    """(shard id, renders) of every shard: from arithmetic for a lazy Plan."""
-    if isinstance(plans, Plan):
-        return plans.shard_counts()
-    return [(shard.shard_id, shard.n_renders) for shard in plans]
-
-
-def shard_sample_ids(plans, index: int) -> list[str]:
-    if isinstance(plans, Plan):
-        return plans.shard_sample_ids(index)
-    return [sample.sample_id for sample in plans[index].samples]
-
-
 #: A manifest up to this size is written in one piece (write_bytes_atomic, which the crash
 #: harness interrupts); a larger one is streamed, one shard's lines at a time.
 MANIFEST_IN_MEMORY_BYTES = 256 << 20
 
 
-def write_manifest(out: str, plans: list[ShardPlan]) -> int:
+def write_manifest(out: str, plans: Plan) -> int:
     """manifest.jsonl from the shard markers, in plan order; return the record count."""
     layout = Layout(out)
     count = 0
 
     def shard_lines():
         nonlocal count
-        for index, (sid, _renders) in enumerate(shard_counts(plans)):
-            records = complete_marker(layout, sid, shard_sample_ids(plans, index))
+        for index, (sid, _renders) in enumerate(plans.shard_counts()):
+            records = complete_marker(layout, sid, plans.shard_sample_ids(index))
             if records is None:
                 raise ShaderballError(f"shard {sid} is not complete; cannot write the manifest")
             count += len(records)
             yield "".join(dumps(record) + "\n" for record in records).encode("utf-8")
 
-    if plan_summary_renders(plans) * 4096 <= MANIFEST_IN_MEMORY_BYTES:
+    if plans.n_renders * 4096 <= MANIFEST_IN_MEMORY_BYTES:
         write_bytes_atomic(layout.manifest, b"".join(shard_lines()))
     else:
         write_chunks_atomic(layout.manifest, shard_lines())
     return count
-
-
-def plan_summary_renders(plans) -> int:
-    return sum(renders for _sid, renders in shard_counts(plans))
 
 
 def renders_written(out: str, shards, before: dict[str, tuple[int, int]]) -> int:
@@ -456,7 +417,7 @@ def renders_written(out: str, shards, before: dict[str, tuple[int, int]]) -> int
     return count
 
 
-def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int:
+def sweep_temp_files(out: str, plans: Plan, older_than: float) -> int:
     """Remove temporary files (of writes killed mid-way) last modified before ``older_than``.
 
     Called once a build is complete, with the time then: every write the build waited for
@@ -466,7 +427,7 @@ def sweep_temp_files(out: str, plans: list[ShardPlan], older_than: float) -> int
     corrupt anything: its rename fails, and the sample is committed already. Return the
     count removed.
     """
-    return remove_temp_files(Layout(out), [sid for sid, _renders in shard_counts(plans)], older_than)
+    return remove_temp_files(Layout(out), [sid for sid, _renders in plans.shard_counts()], older_than)
 
 
 def build(
@@ -519,7 +480,7 @@ def build(
 def _build_locked(
     out: str,
     spec: DatasetSpec,
-    plans: list[ShardPlan],
+    plans: Plan,
     cluster: ClusterOptions,
     allow_spec_change: bool,
     progress,
@@ -528,7 +489,7 @@ def _build_locked(
 ) -> BuildSummary:
     """The build, once this process holds ``out`` (pipeline.store.lock): the folder is
     checked again (another writer may have finished in between), then written."""
-    counts = shard_counts(plans)
+    counts = plans.shard_counts()
     total = sum(renders for _sid, renders in counts)
     variant = prepare(out, spec, plans, allow_spec_change, _planning_ticks(progress, total), variant)
     layout = Layout(out)
@@ -536,7 +497,7 @@ def _build_locked(
     todo = [
         i
         for i, (sid, _renders) in enumerate(counts)
-        if sid not in on_disk or complete_marker(layout, sid, shard_sample_ids(plans, i)) is None
+        if sid not in on_disk or complete_marker(layout, sid, plans.shard_sample_ids(i)) is None
     ]
     already = total - sum(counts[i][1] for i in todo)
     start = time.perf_counter()
@@ -566,7 +527,7 @@ def _build_locked(
     # cancelled, requeued or at its walltime) leaves one that no later write of it removes.
     removed = sweep_temp_files(out, plans, older_than=time.time())
     seconds = time.perf_counter() - start
-    rendered = renders_written(out, [(counts[i][0], shard_sample_ids(plans, i)) for i in todo], stamps)
+    rendered = renders_written(out, [(counts[i][0], plans.shard_sample_ids(i)) for i in todo], stamps)
     _report(progress, done, total, already, start)
     processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]

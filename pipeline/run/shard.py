@@ -29,12 +29,13 @@ from dataclasses import dataclass
 from geometry import build_shaderball, default_camera
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import MaterialPlan, SamplePlan, ShardPlan
+from pipeline.dataset.record import model_record
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import MaterialScene, RenderSettings, model_record, render_sample
+from pipeline.render.renderer import MaterialScene, RenderSettings, render_sample
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import write_exr
 from pipeline.store.folder import complete_marker, real_dir, record_problem

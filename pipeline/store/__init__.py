@@ -3,5 +3,9 @@
 Owns ``layout`` (paths of shards, records, maps, renders), ``folder`` (the one reader of
 a dataset folder: record files, markers, the manifest, temporary files), ``exr`` (EXR
 encoding with OpenEXR's layer naming), ``records`` (sample records, file entries, the
-manifest lines), ``atomic`` (temp file, fsync, rename) and ``lock`` (one writer per folder). May import ``pipeline.errors`` only.
+manifest lines), ``atomic`` (temp file, fsync, rename: the one atomic writer) and ``lock``
+(one writer per folder).
+
+Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``, ``pipeline.image``; nothing else of the project.
 """

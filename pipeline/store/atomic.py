@@ -6,6 +6,7 @@ file, never a torn one, whatever instant the writer is killed at.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
@@ -34,15 +35,19 @@ def fsync_dir(path: str) -> None:
         os.close(fd)
 
 
-def write_bytes_atomic(path: str, data: bytes) -> str:
-    """Write ``data`` to ``path`` atomically and durably; return its SHA-256 hex digest."""
+@contextlib.contextmanager
+def atomic_file(path: str):
+    """The one atomic writer: an open binary file (``w+b``) whose content replaces ``path``
+    when the block ends, durably (fsync of the file, rename, fsync of the folder), with the
+    mode a plain ``open`` gives (0666 less the umask). An exception, or a kill, leaves the
+    old file whole; the temporary file (:data:`TEMP_PREFIX`) is removed or left to sweep."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix="-" + os.path.basename(path), dir=folder)
     try:
         os.fchmod(fd, _FILE_MODE)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+        with os.fdopen(fd, "w+b") as fh:
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -55,34 +60,23 @@ def write_bytes_atomic(path: str, data: bytes) -> str:
             exc.filename = path  # a failed write (EFBIG, ENOSPC) names no file: say which
         raise
     fsync_dir(folder)
+
+
+def write_bytes_atomic(path: str, data: bytes) -> str:
+    """Write ``data`` to ``path`` atomically and durably; return its SHA-256 hex digest."""
+    with atomic_file(path) as fh:
+        fh.write(data)
     return hashlib.sha256(data).hexdigest()
 
 
 def write_chunks_atomic(path: str, chunks) -> str:
     """:func:`write_bytes_atomic` of the concatenation of ``chunks`` (bytes), written as they
     come: a large file (a manifest of millions of records) is never held in memory whole."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix="-" + os.path.basename(path), dir=folder)
     digest = hashlib.sha256()
-    try:
-        os.fchmod(fd, _FILE_MODE)
-        with os.fdopen(fd, "wb") as fh:
-            for chunk in chunks:
-                fh.write(chunk)
-                digest.update(chunk)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        if isinstance(exc, OSError) and exc.filename is None:
-            exc.filename = path
-        raise
-    fsync_dir(folder)
+    with atomic_file(path) as fh:
+        for chunk in chunks:
+            fh.write(chunk)
+            digest.update(chunk)
     return digest.hexdigest()
 
 

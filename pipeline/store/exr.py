@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
 
 #: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
@@ -35,14 +36,6 @@ LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
 
 #: Linear Rec.709 / sRGB primaries and D65 white: red xy, green xy, blue xy, white xy.
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
-
-COMPRESSIONS = {
-    "none": "NO_COMPRESSION",
-    "zip": "ZIP_COMPRESSION",
-    "zips": "ZIPS_COMPRESSION",
-    "piz": "PIZ_COMPRESSION",
-    "rle": "RLE_COMPRESSION",
-}
 
 #: Header attribute holding JSON metadata written by shaderball.
 META_KEY = "shaderball"
@@ -79,10 +72,8 @@ def encode_exr(
     """
     import OpenEXR
 
-    if compression not in COMPRESSIONS:
-        raise ShaderballError(
-            f"storage.compression: {compression!r} is not allowed; allowed: {', '.join(COMPRESSIONS)}"
-        )
+    if compression not in EXR_COMPRESSIONS:
+        raise bad_value("storage.compression", compression, ", ".join(EXR_COMPRESSIONS))
     channels: dict[str, np.ndarray] = {}
     shape = None
     for layer, array in layers.items():
@@ -99,7 +90,7 @@ def encode_exr(
         for i, suffix in enumerate(channel_names(layer, arr.shape[2])):
             channels[f"{layer}.{suffix}"] = np.ascontiguousarray(arr[:, :, i], dtype=dtype)
     header = {
-        "compression": getattr(OpenEXR, COMPRESSIONS[compression]),
+        "compression": getattr(OpenEXR, EXR_COMPRESSIONS[compression]),
         "type": OpenEXR.scanlineimage,
         "chromaticities": REC709_CHROMATICITIES,
         META_KEY: json.dumps(meta or {}, sort_keys=True, separators=(",", ":")),

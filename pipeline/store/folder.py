@@ -35,6 +35,7 @@ import json
 import os
 import re
 import stat
+from collections.abc import Iterator
 
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
@@ -72,6 +73,9 @@ __all__ = [
     "shard_ids_on_disk",
     "shard_records",
     "symlinks_and_odd_files",
+    "folder_names",
+    "walk_folder",
+    "is_empty_folder",
     "unsafe_entry",
     "list_bound",
     "marker_records",
@@ -460,6 +464,29 @@ def disk_usage(root: str) -> tuple[int, int]:
                 continue
             temps += is_temp_file(name)
     return total, temps
+
+
+def folder_names(path: str) -> list[str] | None:
+    """The names in the folder ``path``; None when it is not a folder (OSError when it cannot
+    be listed)."""
+    return os.listdir(path) if os.path.isdir(path) else None
+
+
+def walk_folder(root: str, skip=frozenset()) -> Iterator[tuple[str, list[str], list[str]]]:
+    """(folder relative to ``root``, "" or ending in "/"; its sub-folders; its other entries),
+    names sorted, for every folder under ``root``, top down. Entries whose relative path is in
+    ``skip`` (the links and odd entries of :func:`symlinks_and_odd_files`) are left out and
+    never entered."""
+    for folder, subdirs, names in os.walk(root):
+        rel_dir = os.path.relpath(folder, root).replace(os.sep, "/")
+        rel_dir = "" if rel_dir == "." else rel_dir + "/"
+        subdirs[:] = sorted(name for name in subdirs if rel_dir + name not in skip)
+        yield rel_dir, list(subdirs), sorted(name for name in names if rel_dir + name not in skip)
+
+
+def is_empty_folder(root: str, rel: str) -> bool:
+    """Whether the folder ``rel`` (as :func:`walk_folder` names it) under ``root`` holds nothing."""
+    return not os.listdir(os.path.join(root, *rel.split("/")))
 
 
 def symlinks_and_odd_files(root: str) -> list[tuple[str, str]]:

@@ -6,11 +6,11 @@ references and the reference's error floor (``measure``), denoising with Intel O
 Denoise and its guide buffers (``denoise``), the run with its resume and progress
 (``run``), and the tables, Pareto plot and recommended recipes (``report``).
 
-May import the domain packages (materials, sky, geometry), ``pipeline.errors``,
-``pipeline.dataset`` (spec, plan, materials), ``pipeline.render`` (the renderer, through
-which alone Mitsuba is used; the variant is resolved once, at the study's edge),
-``pipeline.store`` (atomic writes, EXR) and the neural stage's tone map and image metrics
-(``pipeline.neural.tonemap``, ``pipeline.neural.metrics``: the study's LDR metrics are
-those of the images the network is trained on). Never dask, ``pipeline.run`` or
-``pipeline.check``.
+Mitsuba is used only through ``pipeline.render`` (the variant is resolved once, at the
+study's edge); its LDR metrics are those of the images the network is trained on
+(``pipeline.image``). Never dask, ``pipeline.run``, ``pipeline.check`` or ``pipeline.neural``.
+
+Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
+``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``; nothing else of the project.
 """

@@ -22,8 +22,6 @@ negatives clipped to 0. OIDN is biased: its error against the reference is what 
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from pipeline.render.gbuffer import intersection_scene, pixel_centre_rays
@@ -56,21 +54,3 @@ def guides(shape_ids: np.ndarray, normals: np.ndarray, screen_maps: dict) -> tup
     d, s = screen_maps["diffuse"], screen_maps["specular"]
     albedo[ball] = np.clip(d * (1.0 - s) + s, 0.0, 1.0)[ball]
     return albedo, np.clip(normals, -1.0, 1.0).astype(np.float32)
-
-
-def denoise(
-    image: np.ndarray, albedo: np.ndarray | None = None, normal: np.ndarray | None = None
-) -> tuple[np.ndarray, float, float]:
-    """(denoised HDR image, wall seconds, CPU seconds) of OIDN on ``image``, guided when given."""
-    import pyoidn
-
-    colour = np.ascontiguousarray(np.maximum(np.nan_to_num(image), 0.0), dtype=np.float32)
-    kwargs = {}
-    if albedo is not None:
-        kwargs["albedo"] = np.ascontiguousarray(albedo, dtype=np.float32)
-        if normal is not None:
-            kwargs["normal"] = np.ascontiguousarray(normal, dtype=np.float32)
-        kwargs["clean_aux"] = True
-    wall, cpu = time.perf_counter(), time.process_time()
-    out = pyoidn.denoise(colour, hdr=True, **kwargs)
-    return np.asarray(out, dtype=np.float32), time.perf_counter() - wall, time.process_time() - cpu

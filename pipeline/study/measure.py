@@ -1,10 +1,10 @@
 """Error of a render against its sample's reference, and the reference's own error floor.
 
 - relMSE on linear HDR: mean over pixels and channels of (x - r)^2 / (r^2 + eps),
-  eps = 0.01 (:data:`pipeline.neural.metrics.RELMSE_EPS`), on the ball (the G-buffer's
+  eps = 0.01 (:data:`pipeline.image.metrics.RELMSE_EPS`), on the ball (the G-buffer's
   mask) and on the whole frame.
 - PSNR and SSIM (Gaussian 11x11, sigma 1.5) of the 8-bit sRGB pictures the network is
-  trained on (:mod:`pipeline.neural.tonemap`, fixed exposure); HDR-FLIP on linear HDR.
+  trained on (:mod:`pipeline.image.tonemap`, fixed exposure); HDR-FLIP on linear HDR.
 - Fireflies: relMSE on the ball without its brightest 0.1% of pixels (by the render's
   luminance); their share of the error is 1 - that / relMSE.
 - Bias: the ball's mean luminance against the reference's, relative, with a z score
@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
-from pipeline.neural import metrics
-from pipeline.neural.tonemap import hdr_to_srgb8
+from pipeline.image import metrics
+from pipeline.image.tonemap import hdr_to_srgb8
 
 RELMSE_EPS = metrics.RELMSE_EPS
 FLOOR_FACTOR = 10.0

@@ -32,7 +32,8 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest
 from pipeline.errors import ShaderballError, bad_value, check_int
-from pipeline.neural.tonemap import hdr_to_srgb8
+from pipeline.image.denoise import denoise
+from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
@@ -47,7 +48,7 @@ from pipeline.render.renderer import (
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.study import measure as m
 from pipeline.study.configs import DEFAULT_LADDER, FAMILIES, Config, study_configs
-from pipeline.study.denoise import denoise, guides, shape_ids_and_normals
+from pipeline.study.denoise import guides, shape_ids_and_normals
 from pipeline.study.report import write_outputs
 from pipeline.study.select import select_samples
 from sky import Light

@@ -1,20 +1,24 @@
-"""The steps of :func:`pipeline.check.validate.repair`: settle which record each sample
-keeps, delete what is bad, and resume the build for the shards this touches."""
+"""`shaderball validate --repair`: :func:`repair` fixes what :func:`pipeline.check.validate.validate`
+finds. Its steps: settle which record each sample keeps, delete what is bad, and resume the
+build for the shards this touches. A writer, so it lives with the build, above the checks."""
 
 from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Callable
 
-from pipeline.check.crosscheck import State, expected_files, marker_record, record_ok
+from pipeline.check.crosscheck import State, check_root, expected_files, marker_record, record_ok
 from pipeline.check.inspect import expectations, inspect_file
-from pipeline.check.report import Progress, RepairAction
+from pipeline.check.report import Progress, RepairAction, Report
+from pipeline.check.validate import validate
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
-from pipeline.errors import SetupError, ShaderballError
+from pipeline.errors import SetupError, ShaderballError, filesystem_error
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
-from pipeline.run.build import build, recorded_guarantee
+from pipeline.run.build import build, recorded_guarantee, write_manifest
 from pipeline.store.atomic import write_text_atomic
-from pipeline.store.layout import DESCRIPTION_FILE, SPEC_FILE, Layout
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
+from pipeline.store.lock import writer_lock
 from pipeline.store.records import dumps, read_json
 
 
@@ -259,3 +263,109 @@ def rebuild(root: str, workers: int, progress, n_shards: int, variant: str | Non
             progress(Progress("repair", p.done, p.total, f"{n_shards} shard(s)", 0, p.elapsed_s))
 
     build(Layout(root).spec, root, workers=workers, progress=forward, variant=variant)
+
+
+def repair(
+    root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None, spec_path: str | None = None
+) -> tuple[Report, Report, list[RepairAction]]:
+    """Fix what :func:`validate` finds; return (report before, report after, actions).
+
+    A writer: it holds ``root`` (pipeline.store.lock) from the first check to the last, so
+    it never runs beside a build (FolderBusy, exit code 3, names the build that holds it).
+    """
+    check_root(root)
+    try:
+        with writer_lock(root, "validate --repair"):
+            return _repair_locked(root, workers=workers, progress=progress, spec_path=spec_path)
+    except OSError as exc:
+        raise filesystem_error(exc, root, "every write is atomic: fix the cause and run the repair again") from None
+
+
+def _repair_locked(
+    root: str, *, workers: int, progress: Callable[[Progress], None] | None, spec_path: str | None
+) -> tuple[Report, Report, list[RepairAction]]:
+    """:func:`repair` under the lock.
+
+    Deletes extra files; keeps every sample whose best record (the marker's, the record
+    file's, or the manifest's copy) agrees with the plan and with its intact render; deletes
+    the other renders and records and every bad material file; re-runs the affected shards
+    through the resumable build (``workers`` as for ``shaderball build``), which regenerates
+    deleted maps and re-renders only samples left without a verified record; rewrites the
+    manifest from the shard markers; validates again.
+
+    A spec snapshot that is unreadable or does not match dataset.json's digest is restored
+    from ``spec_path`` when that spec's digest is dataset.json's (else ShaderballError);
+    without ``spec_path`` it is not repaired (which side is right is unknown): the actions
+    say so and nothing is changed.
+    """
+    before = validate(root, progress=progress)
+    if before.ok:
+        return before, before, []
+    state, actions = before._state, []
+    if (state.plans is None or not state.spec_ok) and spec_path is not None:
+        actions.append(restore_spec(state, spec_path))
+        current = validate(root, progress=progress)
+        if current.ok:
+            return before, current, actions
+        state = current._state
+    if state.plans is None or not state.spec_ok:
+        return (
+            before,
+            before,
+            actions
+            + [
+                RepairAction(
+                    "unrepairable",
+                    SPEC_FILE,
+                    f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
+                    "give the spec the dataset was built from (--spec) to restore it; nothing was changed",
+                )
+            ],
+        )
+    layout = state.layout
+    variant = repair_variant(state)  # the dataset's own, or SetupError before anything changes
+    delete_extra_files(state, actions)
+    inspect_unlisted(state)
+    chosen = {sid: chosen_record(state, sample) for sid, sample in state.planned.items()}
+    lost = lost_render_digests(state, chosen)
+    affected = settle_samples(state, chosen, actions)
+    for shard in state.plans:
+        marker = state.markers.get(shard.shard_id)
+        if not (
+            isinstance(marker, dict)
+            and marker.get("complete")
+            and marker.get("samples") == [s.sample_id for s in shard.samples]
+            and all(marker_record(state, s) == chosen[s.sample_id] for s in shard.samples)
+        ):
+            affected.add(shard.shard_id)
+    write_good_record_files(state, chosen, affected, actions)
+    for sid in sorted(affected):
+        remove_file(layout.marker(sid))
+        actions.append(
+            RepairAction(
+                "rerun_shard", layout.marker_rel(sid), f"shard {sid}: marker removed; rebuilt from its verified records"
+            )
+        )
+    if affected or not state.description_ok:
+        rebuild(root, workers, progress, len(affected), variant)
+        actions = describe_rerenders(state, lost, actions)
+        if not state.description_ok:
+            actions.append(
+                RepairAction(
+                    "rewrite_description", DESCRIPTION_FILE, f"{DESCRIPTION_FILE}: rewritten from the spec snapshot"
+                )
+            )
+        actions.append(
+            RepairAction(
+                "rewrite_manifest",
+                MANIFEST_FILE,
+                f"{MANIFEST_FILE}: rewritten from the shard markers by the resumed build",
+            )
+        )
+    elif state.manifest_dirty:
+        write_manifest(layout.root, state.plans)
+        actions.append(
+            RepairAction("rewrite_manifest", MANIFEST_FILE, f"{MANIFEST_FILE}: rewritten from the shard markers")
+        )
+    after = validate(root, progress=progress)
+    return before, after, actions

@@ -1,0 +1,25 @@
+"""The spec a dataset folder was built from: its snapshot ``DIR/spec.toml``, read through
+:mod:`pipeline.store.folder` and checked by :mod:`pipeline.dataset.spec`. Read by the checks,
+by a resumed build (:mod:`pipeline.run.build`) and by the publisher."""
+
+from __future__ import annotations
+
+import os
+
+from pipeline.dataset.spec import DatasetSpec, parse_spec_bytes
+from pipeline.errors import ShaderballError
+from pipeline.store.folder import read_spec_snapshot
+from pipeline.store.layout import Layout
+
+
+def read_snapshot(root: str) -> DatasetSpec:
+    """The spec snapshot ``DIR/spec.toml`` of a dataset folder: a regular file (not a link, a
+    FIFO or a device; pipeline.store.folder), bounded, parsed; ShaderballError if not."""
+    layout = Layout(root)
+    try:
+        data = read_spec_snapshot(layout)
+    except FileNotFoundError:
+        raise ShaderballError(f"{layout.spec}: missing") from None
+    except OSError as exc:
+        raise ShaderballError(f"{layout.spec}: cannot be read ({exc.strerror})") from None
+    return parse_spec_bytes(data, source=layout.spec, base_dir=os.path.abspath(root))
