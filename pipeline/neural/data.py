@@ -335,8 +335,8 @@ class ShaderballDataset(Dataset):
             if hashlib.sha256(data).hexdigest() != sha256:
                 raise self.files.changed(key)
             self._verified.add(key)
-        decoded = read_exr(data).layers
         label = self.files.label(key)
+        decoded = read_exr(data, label).layers
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(

@@ -55,9 +55,9 @@ DEFAULT_SCRATCH = "${TMPDIR:-/tmp}"
 #: The job id in each batch system's environment (for per-job scratch folders).
 JOB_ID_VARIABLE = {"slurm": "${SLURM_JOB_ID:-$$}", "pbs": "${PBS_JOBID:-$$}"}
 
-_WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)$")
-_SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}$")
-_SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}$")
+_WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)\Z", re.ASCII)
+_SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}\Z", re.ASCII)
+_SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}\Z", re.ASCII)
 _MIN_WALLTIME_S = 60
 #: --start-timeout's range in seconds: below 10 s not even a local worker process starts.
 START_TIMEOUT_RANGE = (10, 10_000_000)
@@ -199,7 +199,7 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
 
 
 def scheduler_host_port(address: str) -> tuple[str, int]:
-    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$", address)
+    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z", address, re.ASCII)
     if match is None or not 0 < int(match[2]) < 65536:
         raise ShaderballError(
             f"--scheduler: {address!r} is not allowed; allowed: tcp://HOST:PORT or "

@@ -317,9 +317,9 @@ def is_record_file(name: str) -> bool:
 
 #: A sample's record file, ``Layout.record_rel``: ``m<6-digit material>_l<light>.json``
 #: (MAX_MATERIALS is 1,000,000, so a material index has 6 digits).
-RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json$")
+RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json\Z", re.ASCII)
 #: A shard folder, ``pipeline.dataset.plan.shard_id``: ``s<5-digit index>`` (MAX_SHARDS 100,000).
-SHARD_NAME = re.compile(r"^s\d{5}$")
+SHARD_NAME = re.compile(r"^s\d{5}\Z", re.ASCII)
 
 
 def is_lock_file(name: str) -> bool:
