@@ -174,14 +174,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     except OSError as exc:
         raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
-        probe = os.path.abspath(out)
-        while not os.path.lexists(probe):
-            probe = os.path.dirname(probe)
-        if not os.path.isdir(probe):
-            what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
-            raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
-        if not os.access(probe, os.W_OK):
-            raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
+        check_creatable(out)
         return "new"
     if not os.path.lexists(layout.spec):
         raise ShaderballError(
@@ -221,6 +214,19 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
 #: The longest name a build writes below DIR: a texture file's temporary file
 #: (pipeline.store.atomic: prefix, 8 random characters, "-", the file's name).
 LONGEST_REL = f"shards/s00000/.tmp-xxxxxxxx-{Layout.texture_rel('s00000', 'm000000').rsplit('/', 1)[1]}"
+
+
+def check_creatable(out: str) -> None:
+    """Refuse (exit 2) an output folder that cannot be made: below a file or a dangling
+    link, or in a folder this process cannot write (build, publish and unpack alike)."""
+    probe = os.path.abspath(out)
+    while not os.path.lexists(probe):
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
+        raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
+    if not os.access(probe, os.W_OK):
+        raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
 
 
 def check_path_lengths(out: str) -> None:
