@@ -295,8 +295,9 @@ def check_same_installation(out: str, plans: list[ShardPlan], variant: str, dige
             f"{str(old['plan_digest'])[:12]} in dataset.json, {digest[:12]} now)"
         )
     libraries = library_versions()
+    recorded = old.get("libraries") if isinstance(old.get("libraries"), dict) else {}  # dataset.json: any type
     for name in ("mitsuba", "drjit"):
-        was = (old.get("libraries") or {}).get(name)
+        was = recorded.get(name)
         if was and was != libraries.get(name):
             differences.append(f"{name} {was} in dataset.json, {libraries.get(name)} now")
     if old.get("variant") and old["variant"] != variant:
