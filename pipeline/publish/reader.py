@@ -59,7 +59,7 @@ from pipeline.publish.table import (
     sample_row,
 )
 from pipeline.publish.tarsafe import Member, read_members, scan_tar
-from pipeline.store.folder import field_type_problem, json_type_name, short_json
+from pipeline.store.folder import field_type_problem, json_type_name, short_json, structure_problem
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 from pipeline.store.records import dumps, without_timings
 
@@ -752,8 +752,14 @@ def iter_folder_samples(root: str) -> Iterator[dict]:
     """The samples of a complete dataset folder, as :func:`iter_samples` yields them from its
     publication (each file's SHA-256 checked against the manifest)."""
     layout = Layout(root)
-    with open(layout.manifest, encoding="utf-8") as fh:
-        records = [json.loads(line) for line in fh if line.strip()]
+    records = []
+    with open(layout.manifest, "rb") as fh:
+        for number, line in enumerate(fh, start=1):
+            too_much = structure_problem(line) if line.strip() else None
+            if too_much:
+                raise Refused("too_complex", f"{MANIFEST_FILE} line {number}: {too_much}")
+            if line.strip():
+                records.append(json.loads(line))
     shared: dict[str, bytes] = {}
     material = None
     for number, record in enumerate(records, start=1):
