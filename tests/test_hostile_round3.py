@@ -188,6 +188,28 @@ def test_every_field_of_dataset_json_and_a_marker_of_any_type_is_never_a_crash(s
     assert not crashes, "\n".join(crashes[:20])
 
 
+@pytest.mark.parametrize(
+    "path, value, words",
+    [
+        (("counts",), "x", 'counts is a string ("x"), not an object'),
+        (("libraries",), 1.5, "libraries is a number (1.5), not an object"),
+        (("counts", "svbrdf_sources"), "x", 'counts.svbrdf_sources is a string ("x"), not an object'),
+    ],
+)
+def test_a_dataset_json_field_of_another_type_fails_validation_and_publish(smoke, tmp_path, path, value, words):
+    """These crashed the dataset card and Croissant writers; validate now names them."""
+    ds = tmp_path / "ds"
+    shutil.copytree(smoke, ds)
+    description = json.loads((ds / "dataset.json").read_text())
+    _set(description, path, value)
+    (ds / "dataset.json").write_text(dumps(description) + "\n")
+    validated = run("validate", str(ds), "--fast")
+    assert validated.exit_code == 1 and f"dataset.json: {words}" in validated.output, validated.output
+    published = run("publish", str(ds), "--out", str(tmp_path / "pub"), "--json")
+    assert published.exit_code == 1 and words in json.loads(published.stdout)["error"]
+    assert not (tmp_path / "pub").exists()
+
+
 def test_build_resumes_over_a_dataset_json_field_of_another_type(smoke, tmp_path):
     ds = tmp_path / "ds"
     shutil.copytree(smoke, ds)

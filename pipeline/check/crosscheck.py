@@ -19,6 +19,7 @@ from pipeline.render.renderer import model_record
 from pipeline.render.stats import is_bad
 from pipeline.run.build import read_snapshot
 from pipeline.store.folder import (
+    description_problem,
     field_type_problem,
     is_temp_file,
     list_bound,
@@ -91,7 +92,16 @@ def load_plan(layout: Layout, problems: Problems):
 
     description = read_json(layout.description)
     description_ok = isinstance(description, dict)
-    if not description_ok:
+    typed = description_problem(description) if description_ok else None
+    if typed:
+        problems.add(
+            "spec_snapshot",
+            None,
+            DESCRIPTION_FILE,
+            f"{DESCRIPTION_FILE}: {typed}; it records the spec digest, variant and counts",
+        )
+        description, description_ok = None, False
+    elif not description_ok:
         what = read_json_checked(layout.description)[1] or "not a JSON object"
         problems.add(
             "spec_snapshot",

@@ -362,6 +362,52 @@ def field_type_problem(record) -> str | None:
     return None
 
 
+#: The type of every field ``dataset.json`` carries (docs/manifest.md); absent is allowed.
+DESCRIPTION_FIELDS = {
+    "name": str,
+    "version": str,
+    "shaderball": str,
+    "spec_digest": str,
+    "plan_digest": str,
+    "plan_format": int,
+    "layout_version": int,
+    "variant": str,
+    "colorspace": str,
+    "counts": dict,
+    "determinism": dict,
+    "libraries": dict,
+    "machine": dict,
+}
+DESCRIPTION_SUBFIELDS = {
+    "counts": {
+        "materials": int,
+        "renders": int,
+        "shards": int,
+        "svbrdf": int,
+        "uniform": int,
+        "svbrdf_sources": dict,
+    },
+}
+
+
+def description_problem(description) -> str | None:
+    """Why ``dataset.json``'s fields cannot be used as their types, or None."""
+    if not isinstance(description, dict):
+        return f"not a JSON object (a JSON {json_type_name(description)})"
+    for key, kind in DESCRIPTION_FIELDS.items():
+        if key in description:
+            problem = _type_problem(key, description[key], kind)
+            if problem:
+                return problem
+    for key, fields in DESCRIPTION_SUBFIELDS.items():
+        for name, kind in fields.items():
+            if name in description.get(key, {}):
+                problem = _type_problem(f"{key}.{name}", description[key][name], kind)
+                if problem:
+                    return problem
+    return None
+
+
 def record_problem(record, shard_id: str | None = None) -> str | None:
     """Why ``record`` (from a marker or a record file) cannot be used, or None: a JSON
     object with a string ``id`` and a list ``files`` of entries, each a ``role``, a plain
