@@ -145,6 +145,8 @@ def _friendly_errors(func):
                 code = 0
             except SystemExit as exc:
                 code = _exit_code(exc.code)
+            except click.exceptions.Exit as exc:  # ctx.exit(N)
+                code = exc.exit_code
             except BaseException as exc:  # noqa: BLE001 - mapped to a message; re-raised where it is a bug
                 code, message, extra = _failure(exc, as_json)
                 click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
