@@ -7,8 +7,12 @@ to a message on stderr and exit code 2. Logic lives in the packages.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
+import os
 import sys
+import traceback
 
 import click
 
@@ -38,41 +42,157 @@ from sky.emitter import DEFAULT_SUN, SUN_MODES
 INTERRUPTED_EXIT = 130
 
 
-def _interrupted():
-    click.echo(
-        "\ninterrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume",
-        err=True,
-    )
-    sys.exit(INTERRUPTED_EXIT)
+#: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
+#: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
+INTERNAL_EXIT = 70
+INTERRUPTED_MESSAGE = (
+    "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
+)
+#: Where a --json command leaves its one document (click's context meta).
+_JSON_DOC = "shaderball.json_doc"
+
+
+def _emit_json(doc: dict) -> None:
+    """The document a --json command prints on stdout once it returns (:func:`_friendly_errors`)."""
+    click.get_current_context().meta[_JSON_DOC] = doc
+
+
+def _write_json(doc: dict) -> None:
+    import json
+
+    click.echo(json.dumps(doc, indent=1, sort_keys=True))
+
+
+@contextlib.contextmanager
+def _library_output_to_stderr(active: bool):
+    """While a --json command runs, the process's file descriptor 1 is its stderr: whatever a
+    library prints (OpenEXR's C++ warnings, Mitsuba's, a stray print) cannot reach stdout,
+    which then carries the command's one JSON document alone. Only where sys.stdout is fd 1
+    (click's test runner replaces it with a buffer: nothing to redirect)."""
+    try:
+        fd = sys.stdout.fileno() if active else None
+    except (AttributeError, OSError, ValueError):
+        fd = None
+    if fd != 1:
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        _flush_c_stdio()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def _flush_c_stdio() -> None:
+    """Flush C's stdio buffers (a library's printf) before fd 1 is given back."""
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+
+
+def _failure(exc: BaseException, as_json: bool) -> tuple[int, str, dict]:
+    """(exit code, one-line message, extra JSON fields) of an exception that ends a command;
+    the exception itself is re-raised where the non-JSON CLI lets it through."""
+    if isinstance(exc, Refused):
+        return exc.exit_code, str(exc), exc.to_dict()
+    if isinstance(exc, USER_ERRORS):
+        return exc.exit_code, str(exc), {}
+    if isinstance(exc, click.ClickException):
+        if not as_json:
+            raise exc
+        return exc.exit_code, exc.format_message(), {}
+    if isinstance(exc, OSError):
+        error = filesystem_error(exc, "?", "fix the cause and run the same command again")
+        return error.exit_code, str(error), {}
+    if isinstance(exc, KeyboardInterrupt) or (isinstance(exc, RuntimeError) and caused_by_interrupt(exc)):
+        click.echo("", err=True)
+        return INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, {}
+    if not as_json or not isinstance(exc, Exception):
+        raise exc
+    click.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
+    message = f"internal error (a bug; traceback on stderr): {type(exc).__name__}: {exc}"
+    return INTERNAL_EXIT, " ".join(message.split())[:2000], {}
+
+
+def _exit_code(code) -> int:
+    if code is None:
+        return 0
+    return code if isinstance(code, int) else 1
 
 
 def _friendly_errors(func):
     """Turn a user error (pipeline.errors.USER_ERRORS) into `error: ...` on stderr and its exit
     code; an OSError the library did not name (a file system refusing a write) into one line
-    and exit code 4; Ctrl-C into one line saying how to go on, exit code 130. No traceback."""
+    and exit code 4; Ctrl-C into one line saying how to go on, exit code 130. No traceback.
+
+    With --json (a command's ``as_json``), stdout carries exactly one JSON document whatever
+    happens: the command's result, or ``{"ok": false, "exit": N, "error": "..."}`` (plus
+    ``kind`` and ``message`` for a refusal) for every failure, an internal error included
+    (exit code 70, its traceback on stderr); library output goes to stderr meanwhile."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        try:
-            return func(*args, **kwargs)
-        except USER_ERRORS as exc:
-            click.echo(f"error: {exc}", err=True)
-            sys.exit(exc.exit_code)
-        except OSError as exc:
-            error = filesystem_error(exc, "?", "fix the cause and run the same command again")
-            click.echo(f"error: {error}", err=True)
-            sys.exit(error.exit_code)
-        except KeyboardInterrupt:
-            _interrupted()
-        except RuntimeError as exc:  # Ctrl-C inside a callback of Mitsuba's, wrapped by drjit
-            if not caused_by_interrupt(exc):
-                raise
-            _interrupted()
+        as_json = bool(kwargs.get("as_json"))
+        ctx = click.get_current_context()
+        failed = None
+        with _library_output_to_stderr(as_json):
+            try:
+                func(*args, **kwargs)
+                code = 0
+            except SystemExit as exc:
+                code = _exit_code(exc.code)
+            except click.exceptions.Exit as exc:  # ctx.exit(N)
+                code = exc.exit_code
+            except BaseException as exc:  # noqa: BLE001 - mapped to a message; re-raised where it is a bug
+                code, message, extra = _failure(exc, as_json)
+                click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
+                failed = {"ok": False, "exit": code, "error": message, **extra}
+        if as_json:
+            doc = failed or ctx.meta.get(_JSON_DOC)
+            if doc is None:
+                doc = {
+                    "ok": code == 0,
+                    "exit": code,
+                    "error": None if code == 0 else "the command stopped with no result",
+                }
+            _write_json(doc)
+        if code:
+            sys.exit(code)
 
     return wrapper
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class _Command(click.Command):
+    """A command whose --json holds for its own usage errors too (a bad option value, a
+    missing argument: click refuses them before the command runs): stdout gets the failure
+    document, stderr click's usage message, exit code 2."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        wants_json = (
+            any(p.name == "as_json" for p in self.params)
+            and "--json" in args[: args.index("--") if "--" in args else len(args)]
+        )
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.ClickException as exc:
+            if not wants_json:
+                raise
+            exc.show()
+            _write_json({"ok": False, "exit": exc.exit_code, "error": exc.format_message()})
+            sys.exit(exc.exit_code)
+
+
+class _Group(click.Group):
+    command_class = _Command
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="shaderball")
 def main():
     """Build, validate and train from datasets of path-traced material renders on a shaderball.
@@ -496,7 +616,6 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
     Progress goes to stderr.
     """
-    import json
     import time
 
     if fast and fix:
@@ -519,9 +638,10 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
         before, report, actions = None, validate(directory, fast=fast, progress=show), []
     if as_json:
         out = report.to_dict()
+        out["exit"] = 0 if report.ok else 1
         if fix:
             out["repair"] = {"before": before.to_dict(), "actions": [a.to_dict() for a in actions]}
-        click.echo(json.dumps(out, indent=2))
+        _emit_json(out)
     else:
         if fix:
             click.echo(f"before repair: {len(before.problems)} problem(s); {len(actions)} action(s)")
@@ -572,9 +692,7 @@ def info_cmd(directory, as_json):
 
     info = dataset_info(directory)
     if as_json:
-        import json
-
-        click.echo(json.dumps(info.to_dict(), sort_keys=True, indent=1))
+        _emit_json(info.to_dict())
         return
     for line in info.lines():
         click.echo(line)
@@ -654,9 +772,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     )
     summary = run_study(req, progress=progress)
     if as_json:
-        import json
-
-        click.echo(json.dumps(summary.to_dict(), sort_keys=True, indent=1))
+        _emit_json(summary.to_dict())
         return
     for line in summary.lines():
         click.echo(line)
@@ -738,29 +854,9 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
         click.echo(line)
 
 
-def _refusals_as_json(as_json: bool):
-    """With --json, a refused dataset or publication is printed as JSON on stdout (exit 1)."""
-    import contextlib
-    import json
-
-    @contextlib.contextmanager
-    def guard():
-        try:
-            yield
-        except Refused as exc:
-            if not as_json:
-                raise
-            click.echo(json.dumps({"ok": False, **exc.to_dict()}, indent=1, sort_keys=True))
-            sys.exit(exc.exit_code)
-
-    return guard()
-
-
 def _print_result(result, as_json: bool) -> None:
     if as_json:
-        import json
-
-        click.echo(json.dumps(result.to_dict(), indent=1, sort_keys=True))
+        _emit_json(result.to_dict())
         return
     for line in result.lines():
         click.echo(line)
@@ -806,15 +902,14 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
     Deterministic WebDataset-convention tar shards, a samples table, a dataset card with a
     contact sheet, Croissant metadata and SHA256SUMS; the same folder publishes to the same bytes.
     """
-    with _refusals_as_json(as_json):
-        summary = publish(
-            directory,
-            out,
-            shard_bytes=shard_bytes,
-            license_id=license_id,
-            url=url,
-            progress=lambda message: click.echo(message, err=True),
-        )
+    summary = publish(
+        directory,
+        out,
+        shard_bytes=shard_bytes,
+        license_id=license_id,
+        url=url,
+        progress=lambda message: click.echo(message, err=True),
+    )
     _print_result(summary, as_json)
 
 
@@ -827,8 +922,7 @@ def verify_cmd(pub, as_json):
 
     Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
     """
-    with _refusals_as_json(as_json):
-        report = verify(pub, progress=lambda message: click.echo(message, err=True))
+    report = verify(pub, progress=lambda message: click.echo(message, err=True))
     _print_result(report, as_json)
 
 
@@ -850,10 +944,7 @@ def verify_cmd(pub, as_json):
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
     """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
-    with _refusals_as_json(as_json):
-        summary = unpack(
-            pub, out, validate_after=not no_validate, progress=lambda message: click.echo(message, err=True)
-        )
+    summary = unpack(pub, out, validate_after=not no_validate, progress=lambda message: click.echo(message, err=True))
     _print_result(summary, as_json)
 
 
@@ -1010,9 +1101,7 @@ def train_cmd(
         summary = train(config, progress=None if as_json else _training_progress())
         lines, data = summary.lines(), summary.to_dict()
     if as_json:
-        import json
-
-        click.echo(json.dumps(data, sort_keys=True, indent=1))
+        _emit_json(data)
         return
     for line in lines:
         click.echo(line)
@@ -1109,9 +1198,7 @@ def infer_cmd(
     )
     summary = infer_to_files(request)
     if as_json:
-        import json
-
-        click.echo(json.dumps(summary.__dict__, sort_keys=True, indent=1))
+        _emit_json(dict(summary.__dict__))
         return
     for line in summary.lines():
         click.echo(line)

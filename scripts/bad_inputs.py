@@ -9,6 +9,7 @@ records the exit code, the message, and whether any file was created or changed.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sys
@@ -93,6 +94,16 @@ COMMAND_CASES = [
     ("validate: not a dataset", ["validate", "{foreign}"]),
     ("info: not a dataset", ["info", "{foreign}"]),
     ("preview: not a dataset", ["preview", "{foreign}", "--out", "{out}/p.png"]),
+    ("unpack: --out under a regular file", ["unpack", "{foreign}", "--out", "{file}/sub"]),
+    ("publish: --out under a regular file", ["publish", "{foreign}", "--out", "{file}/sub"]),
+    ("validate --json: folder missing", ["validate", "{dir}/nope", "--json"]),
+    ("info --json: not a dataset", ["info", "{foreign}", "--json"]),
+    ("verify --json: PUB missing", ["verify", "{dir}/nope", "--json"]),
+    ("unpack --json: --out not empty", ["unpack", "{foreign}", "--out", "{other_dataset}", "--json"]),
+    (
+        "publish --json: --shard-bytes not a number",
+        ["publish", "{foreign}", "--out", "{out}", "--shard-bytes", "x", "--json"],
+    ),
 ]
 
 
@@ -142,11 +153,18 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     result = CliRunner().invoke(main, argv)
     after = snapshot(base)
     message = " ".join(result.output.split())
+    doc = None
+    if "--json" in argv:  # stdout is one JSON document, whatever happens: shown instead
+        try:
+            doc = json.loads(result.stdout)
+            message = "stdout: " + json.dumps(doc, sort_keys=True)
+        except ValueError:
+            message = f"NOT JSON on stdout: {result.stdout!r}"
     if result.exception is not None and not isinstance(result.exception, SystemExit):
         message = f"UNCAUGHT {type(result.exception).__name__}: {result.exception}"
     message = message.replace(str(base), "DIR").replace(str(REPO), ".")
     message = re.sub(r"x{300}", "<300 x's>", message)
-    return {"argv": argv, "exit_code": result.exit_code, "message": message, "wrote": before != after}
+    return {"argv": argv, "exit_code": result.exit_code, "message": message, "wrote": before != after, "json": doc}
 
 
 def all_cases():

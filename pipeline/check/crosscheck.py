@@ -17,6 +17,8 @@ from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
 from pipeline.image.stats import is_bad
 from pipeline.store.folder import (
+    description_problem,
+    field_type_problem,
     is_empty_folder,
     is_temp_file,
     list_bound,
@@ -25,6 +27,7 @@ from pipeline.store.folder import (
     read_manifest,
     record_file_names,
     shard_ids_on_disk,
+    structure_problem,
     symlinks_and_odd_files,
     walk_folder,
 )
@@ -88,7 +91,16 @@ def load_plan(layout: Layout, problems: Problems):
 
     description = read_json(layout.description)
     description_ok = isinstance(description, dict)
-    if not description_ok:
+    typed = description_problem(description) if description_ok else None
+    if typed:
+        problems.add(
+            "spec_snapshot",
+            None,
+            DESCRIPTION_FILE,
+            f"{DESCRIPTION_FILE}: {typed}; it records the spec digest, variant and counts",
+        )
+        description, description_ok = None, False
+    elif not description_ok:
         what = read_json_checked(layout.description)[1] or "not a JSON object"
         problems.add(
             "spec_snapshot",
@@ -164,6 +176,10 @@ def load_manifest(layout: Layout, problems: Problems, renders: int | None = None
     for number, raw in enumerate(data.split(b"\n"), start=1):
         if not raw.strip():
             continue
+        too_much = structure_problem(raw)
+        if too_much:
+            problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: {too_much}")
+            continue
         try:
             record = json.loads(raw)
         except RecursionError:
@@ -187,6 +203,12 @@ def load_manifest(layout: Layout, problems: Problems, renders: int | None = None
                 f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)",
             )
             continue
+        why = field_type_problem(record)
+        if why:
+            problems.add(
+                "edited_record", record["id"], MANIFEST_FILE, f"{MANIFEST_FILE} line {number} ({record['id']}): {why}"
+            )
+            continue
         out.append((Source(MANIFEST_FILE, number), record))
     return out
 
@@ -200,7 +222,9 @@ def load_markers(layout: Layout, shard_ids, known: dict, renders: dict | None = 
         marker = read_json_in(layout, layout.marker_rel(sid), list_bound((renders or {}).get(sid)))[0]
         if isinstance(marker, dict) and isinstance(marker.get("records"), list):
             marker["records"] = [
-                known[r["id"]] if isinstance(r, dict) and r.get("id") in known and known[r["id"]] == r else r
+                known[r["id"]]
+                if isinstance(r, dict) and isinstance(r.get("id"), str) and known.get(r["id"]) == r
+                else r
                 for r in marker["records"]
             ]
         markers[sid] = marker
@@ -436,7 +460,7 @@ def _diff_keys(a, b, prefix: str = "") -> list[str]:
 
 def record_ok(record: dict | None, sample, state: State) -> bool:
     """A record repair may keep: plan, headers, stats and its render file all agree."""
-    if not isinstance(record, dict):
+    if not isinstance(record, dict) or field_type_problem(record):
         return False
     entries = {e.get("role"): e for e in record.get("files", []) if isinstance(e, dict)}
     render_entry = entries.get("render")
@@ -465,12 +489,18 @@ def _copy_faulty(record, sample, state: State, fast: bool) -> bool:
     return not record_ok(record, sample, state)
 
 
+def _usable(record) -> bool:
+    """A record with an id whose fields have their types (what else is wrong with it, the
+    record checks report)."""
+    return isinstance(record, dict) and isinstance(record.get("id"), str) and not field_type_problem(record)
+
+
 def fallback_records(state: State) -> list:
     """Without a manifest: complete markers' records, else each sample's record file."""
     layout, out = state.layout, []
     for sid, marker in state.markers.items():
         if isinstance(marker, dict) and marker.get("complete") and isinstance(marker.get("records"), list):
-            out += [(Source(layout.marker_rel(sid)), r) for r in marker["records"] if isinstance(r, dict)]
+            out += [(Source(layout.marker_rel(sid)), r) for r in marker["records"] if _usable(r)]
             continue
         try:
             names = record_file_names(layout, sid) or []
@@ -479,7 +509,7 @@ def fallback_records(state: State) -> list:
         for name in names:
             rel = f"{SHARDS_DIR}/{sid}/{name}"
             record = read_json_in(layout, rel)[0]
-            if isinstance(record, dict) and isinstance(record.get("id"), str):
+            if _usable(record):
                 out.append((Source(rel), record))
     return out
 
@@ -587,7 +617,11 @@ def _compare_copies(state: State, primary: dict, problems: Problems, fast: bool,
     the side that is wrong (the primary side's own faults are reported by the record checks)."""
     for copy in copies:
         sid = copy.get("id")
-        if sid not in primary or primary[sid][1] is copy or primary[sid][1] == copy:
+        if not isinstance(sid, str) or sid not in primary or primary[sid][1] is copy or primary[sid][1] == copy:
+            continue
+        why = field_type_problem(copy)
+        if why:
+            problems.add("edited_record", sid, rel, f"{rel}: record for {sid}: {why}")
             continue
         if without_timings(primary[sid][1]) == without_timings(copy):
             continue  # two runs of one shard: equal but for the run-dependent render time
@@ -626,11 +660,16 @@ def check_record_files(state: State, primary: dict, problems: Problems) -> None:
         if (
             isinstance(content, dict)
             and isinstance(reference, dict)
+            and not field_type_problem(content)
             and without_timings(content) == without_timings(reference)
         ):
             continue  # two runs of one shard: equal but for the run-dependent render time
         if not isinstance(content, dict):
             problems.add("edited_record", sid, rel, f"{rel}: not a JSON record (torn or edited)")
+            continue
+        why = field_type_problem(content)
+        if why:
+            problems.add("edited_record", sid, rel, f"{rel}: {why}")
             continue
         if _copy_faulty(content, sample, state, False) or not _copy_faulty(reference, sample, state, False):
             keys = ", ".join(_diff_keys(content, reference)[:5])
@@ -643,7 +682,7 @@ def marker_record(state: State, sample) -> dict | None:
         return None
     for record in marker["records"]:
         if isinstance(record, dict) and record.get("id") == sample.sample_id:
-            return record
+            return None if field_type_problem(record) else record  # reported by check_markers
     return None
 
 

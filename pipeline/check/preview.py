@@ -21,7 +21,7 @@ from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import read_exr
-from pipeline.store.folder import read_bytes, resolve_inside, shard_records, unsafe_entry
+from pipeline.store.folder import manifest_record_count, read_bytes, resolve_inside, shard_records, unsafe_entry
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
@@ -44,11 +44,25 @@ class PreviewSummary:
     size: tuple[int, int]
     #: records left out, and why (malformed, or naming a path that leaves the folder)
     problems: tuple[str, ...] = ()
+    #: shards whose marker marks them complete, of all planned, and the manifest's records
+    shards_complete: int = 0
+    shards: int = 0
+    manifest_records: int | None = None
+
+    @property
+    def complete(self) -> bool:
+        return self.shards_complete == self.shards and self.manifest_records == self.total
 
     def lines(self) -> list[str]:
+        state = (
+            ""
+            if self.complete
+            else f"; INCOMPLETE: {self.shards_complete}/{self.shards} shards complete, manifest.jsonl "
+            + ("absent" if self.manifest_records is None else f"{self.manifest_records} records")
+        )
         out = [
             f"contact sheet {self.out}: {len(self.samples)} samples "
-            f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px",
+            f"({self.recorded}/{self.total} renders recorded), {self.size[0]}x{self.size[1]} px{state}",
             "samples: " + ", ".join(self.samples),
         ]
         if self.problems:
@@ -130,7 +144,7 @@ def _read_layers(root: str, rel: str, layer: str | None = None) -> dict:
         data = read_bytes(resolve_inside(root, rel))
     except OSError as exc:
         raise ShaderballError(f"DIR: {rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
-    layers = read_exr(data).layers
+    layers = read_exr(data, rel).layers
     if layer is not None and layer not in layers:
         raise ShaderballError(f"DIR: {rel}: holds no {layer} layer; run `shaderball validate`")
     return layers
@@ -155,8 +169,28 @@ def _fit(picture: np.ndarray, tile: int):
     return image.resize((tile, tile), Image.NEAREST if upscale else Image.LANCZOS)
 
 
-def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
-    """The sheet as uint8 (H, W, 3): a header, then one row per record."""
+def _tile_layers(root: str, rel: str | None, layer: str | None, problems: list[str]) -> dict | None:
+    """The layers of one tile's file, or None (the tile is marked unreadable and the reason
+    added to ``problems``) when it cannot be read or decoded: one bad file spoils one tile,
+    not the sheet."""
+    if rel is None:
+        return {}
+    try:
+        return _read_layers(root, rel, layer)
+    except ShaderballError as exc:
+        problems.append(str(exc).removeprefix("DIR: "))
+        return None
+
+
+def _unreadable(draw, x: int, y: int, tile: int, text: str, font) -> None:
+    draw.rectangle([x, y, x + tile - 1, y + tile - 1], fill=MISSING_TILE)
+    draw.text((x + 6, y + 6), text, fill=(200, 200, 200), font=font)
+
+
+def contact_sheet(root: str, records: list[dict], tile: int, problems: list[str] | None = None) -> np.ndarray:
+    """The sheet as uint8 (H, W, 3): a header, then one row per record. A file that cannot
+    be read or decoded gets an "unreadable" tile, and why goes to ``problems``."""
+    problems = [] if problems is None else problems
     from PIL import Image, ImageDraw
 
     width = LABEL_WIDTH + len(COLUMNS) * (tile + GAP) + GAP
@@ -170,19 +204,20 @@ def contact_sheet(root: str, records: list[dict], tile: int) -> np.ndarray:
     for r, record in enumerate(records):
         y = HEADER_HEIGHT + r * (tile + GAP)
         files = {entry["role"]: entry["path"] for entry in record["files"]}
-        render = _read_layers(root, files["render"], "render")["render"]
+        render = _tile_layers(root, files["render"], "render", problems)
         maps_rel = files.get("maps")
         if maps_rel not in cache:
-            cache[maps_rel] = _read_layers(root, maps_rel) if maps_rel else {}
+            cache[maps_rel] = _tile_layers(root, maps_rel, None, problems)
         layers = cache[maps_rel]
-        mask = layers.get("mask")
+        mask = (layers or {}).get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None
-        pictures = {"render": preview_srgb8(render, mask=mask), **map_tiles(layers)}
+        pictures = {"render": None if render is None else preview_srgb8(render["render"], mask=mask)}
+        pictures.update(map_tiles(layers) if layers is not None else {})
         for c, name in enumerate(COLUMNS):
             x = LABEL_WIDTH + c * (tile + GAP) + GAP
             if pictures.get(name) is None:
-                draw.rectangle([x, y, x + tile - 1, y + tile - 1], fill=MISSING_TILE)
-                draw.text((x + 6, y + 6), "not stored", fill=(200, 200, 200), font=small)
+                broken = (render is None) if name == "render" else (layers is None)
+                _unreadable(draw, x, y, tile, "unreadable" if broken else "not stored", small)
             else:
                 sheet.paste(_fit(pictures[name], tile), (x, y))
         for i, line in enumerate(label_text(record)):
@@ -212,9 +247,10 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
         raise bad_value("DIR", root, "a dataset folder made by `shaderball build` (with its spec.toml)")
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
-    records, problems = [], []
+    records, problems, complete = [], [], 0
     for shard, renders in counts.items():
-        found, _complete, _started, left_out = shard_records(layout, shard, renders)
+        found, shard_complete, _started, left_out = shard_records(layout, shard, renders)
+        complete += shard_complete
         problems += left_out
         for record in found:
             unsafe = next((why for e in record["files"] if (why := unsafe_entry(root, e["path"]))), None)
@@ -231,7 +267,7 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     if tile is None:
         resolution = spec.render.resolution
         tile = resolution * max(1, -(-128 // resolution)) if resolution < 128 else min(resolution, 256)
-    picture = contact_sheet(root, chosen, tile)
+    picture = contact_sheet(root, chosen, tile, problems)
     import io
 
     buffer = io.BytesIO()
@@ -246,4 +282,7 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
         total=sum(counts.values()),
         size=(picture.shape[1], picture.shape[0]),
         problems=tuple(problems),
+        shards_complete=complete,
+        shards=len(counts),
+        manifest_records=manifest_record_count(layout, sum(counts.values())),
     )

@@ -107,10 +107,14 @@ def validate(
     check_extra_files(state, primary, problems)
     state.manifest_dirty = manifest is None or any(p.path == MANIFEST_FILE for p in problems)
 
+    counts = (description or {}).get("counts")
+    recorded = counts.get("renders") if isinstance(counts, dict) else None  # dataset.json: any type
     expected = (
         len(planned)
         if plans is not None
-        else int(((description or {}).get("counts") or {}).get("renders") or len(primary))
+        else recorded
+        if isinstance(recorded, int) and not isinstance(recorded, bool) and recorded >= 0
+        else len(primary)
     )
     ids = list(planned) if plans is not None else list(primary)
     present = [i for i in ids if i in primary and render_present(primary[i][1], state)]

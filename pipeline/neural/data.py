@@ -51,7 +51,14 @@ from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
 from pipeline.publish.refusal import Refused
 from pipeline.store.exr import read_exr
-from pipeline.store.folder import UnsafePath, read_bytes, read_json_checked, record_problem, resolve_inside
+from pipeline.store.folder import (
+    UnsafePath,
+    read_bytes,
+    read_json_checked,
+    record_problem,
+    resolve_inside,
+    structure_problem,
+)
 from pipeline.store.folder import read_manifest as folder_read_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 
@@ -150,6 +157,9 @@ def parse_records(data: bytes, description: dict, root: str, where: str, checker
     for number, line in enumerate(data.split(b"\n"), start=1):
         if not line.strip():
             continue
+        too_much = structure_problem(line)
+        if too_much:
+            raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
         try:
             record = json.loads(line)
         except (ValueError, RecursionError):
@@ -335,8 +345,8 @@ class ShaderballDataset(Dataset):
             if hashlib.sha256(data).hexdigest() != sha256:
                 raise self.files.changed(key)
             self._verified.add(key)
-        decoded = read_exr(data).layers
         label = self.files.label(key)
+        decoded = read_exr(data, label).layers
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(

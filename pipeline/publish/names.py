@@ -59,16 +59,19 @@ PLAIN_FILES = tuple(
 #: Files that may be absent (a publication written without a contact sheet).
 OPTIONAL_FILES = (PREVIEW_FILE,)
 
-#: The two kinds of tar: a material's files, and a lighting's.
+#: The two kinds of tar: a material's files, and a lighting's. Every name pattern ends with
+#: ``\Z``, not ``$`` (which also matches before a final newline), and is ASCII-only (``\d``
+#: would otherwise match any Unicode digit): a name is accepted only as the layout spells it.
 MATERIALS, RENDERS = "materials", "renders"
 TAR_KINDS = (MATERIALS, RENDERS)
-TAR_NAME = re.compile(r"^shards/(materials|renders)-(\d{6})\.tar$")
-SAMPLE_ID = re.compile(r"^m\d{6}_l\d{1,3}$")
-MATERIAL_ID = re.compile(r"^m\d{6}$")
-SHARD_ID = re.compile(r"^s\d{5}$")
+TAR_NAME = re.compile(r"^shards/(materials|renders)-(\d{6})\.tar\Z", re.ASCII)
+SAMPLE_ID = re.compile(r"^m\d{6}_l\d{1,3}\Z", re.ASCII)
+MATERIAL_ID = re.compile(r"^m\d{6}\Z", re.ASCII)
+SHARD_ID = re.compile(r"^s\d{5}\Z", re.ASCII)
 #: A member name: a key without a dot, then its field.
 MEMBER_NAME = re.compile(
-    r"^(m\d{6})\.(json|maps\.exr|texture\.exr|maps\.png)$|^(m\d{6}_l\d{1,3})\.(json|render\.exr|render\.png)$"
+    r"^(m\d{6})\.(json|maps\.exr|texture\.exr|maps\.png)\Z|^(m\d{6}_l\d{1,3})\.(json|render\.exr|render\.png)\Z",
+    re.ASCII,
 )
 
 #: Record roles (docs/manifest.md) -> member field.

@@ -8,6 +8,7 @@ import shutil
 
 from pipeline.errors import bad_value
 from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.folder import check_creatable
 
 
 def check_out(out: str, source: str | None = None) -> None:
@@ -15,6 +16,7 @@ def check_out(out: str, source: str | None = None) -> None:
     folder read from, which would no longer check): nothing is overwritten."""
     if os.path.lexists(out) and (not os.path.isdir(out) or os.path.islink(out) or os.listdir(out)):
         raise bad_value("--out", out, "a new or empty folder (nothing in it is overwritten)")
+    check_creatable(out)
     if source is not None:
         inner, outer = os.path.realpath(out), os.path.realpath(source)
         if os.path.commonpath([inner, outer]) in (inner, outer):

@@ -78,7 +78,7 @@ def _layers(data: bytes | None, label: str) -> dict | None:
         check_exr_header(data, label, DEFAULT_LIMITS)
     except Refused:
         return None
-    return read_exr(data).layers
+    return read_exr(data, label).layers
 
 
 def _placeholder(side: int, tiles: int = 1) -> np.ndarray:

@@ -20,7 +20,8 @@ import hashlib
 import json
 import os
 import stat
-from collections.abc import Callable, Iterator
+from array import array
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from pipeline.errors import bad_value
@@ -58,7 +59,15 @@ from pipeline.publish.table import (
     sample_row,
 )
 from pipeline.publish.tarsafe import Member, read_members, scan_tar
-from pipeline.store.folder import read_bytes, read_manifest, resolve_inside
+from pipeline.store.folder import (
+    field_type_problem,
+    json_type_name,
+    read_bytes,
+    read_manifest,
+    resolve_inside,
+    short_json,
+    structure_problem,
+)
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 from pipeline.store.records import dumps, without_timings
 
@@ -111,12 +120,12 @@ class Publication:
     sizes: dict[str, int]
     source_files: dict[str, bytes]  # spec.toml, dataset.json, manifest.jsonl: bytes as published
     markers: list[tuple[str, bytes]]  # (shard id, COMPLETE.json bytes)
-    records: list[dict]  # the manifest's, in order
+    records: Records  # the manifest's, in order (parsed when used)
     tars: list[TarEntry]
     index: dict
 
     def __post_init__(self):
-        self.by_id = {r["id"]: r for r in self.records}
+        self.by_id = _ById(self.records)
 
     def path(self, rel: str) -> str:
         return os.path.join(self.root, *rel.split("/"))
@@ -184,6 +193,12 @@ def _open_regular(path: str, label: str):
     return os.fdopen(fd, "rb")
 
 
+def shown(name: str) -> str:
+    """A name from the file system or a tar header, as a one-line message may show it: as is
+    when every character prints, else as its repr (a newline never reaches the message raw)."""
+    return name if name.isprintable() else repr(name)
+
+
 def _walk(root: str, limits: Limits) -> dict[str, int]:
     """Every file under ``root`` (relative path -> size); links, devices and unknown folders refused."""
     files: dict[str, int] = {}
@@ -199,15 +214,19 @@ def _walk(root: str, limits: Limits) -> dict[str, int]:
                 rel = f"{folder}/{entry.name}" if folder else entry.name
                 mode = entry.stat(follow_symlinks=False).st_mode
                 if stat.S_ISLNK(mode):
-                    raise Refused("link", f"{rel}: a symbolic link inside PUB; refused")
+                    raise Refused("link", f"{shown(rel)}: a symbolic link inside PUB; refused")
                 if stat.S_ISDIR(mode):
                     if folder or entry.name not in (DATASET_DIR, SHARDS_DIR):
-                        raise Refused("unlisted_file", f"{rel}/: a folder that is no part of a publication; refused")
+                        raise Refused(
+                            "unlisted_file", f"{shown(rel + '/')}: a folder that is no part of a publication; refused"
+                        )
                     pending.append(rel)
                 elif stat.S_ISREG(mode):
                     files[rel] = entry.stat(follow_symlinks=False).st_size
                 else:
-                    raise Refused("not_regular", f"{rel}: not a regular file (a device, FIFO or socket); refused")
+                    raise Refused(
+                        "not_regular", f"{shown(rel)}: not a regular file (a device, FIFO or socket); refused"
+                    )
     return files
 
 
@@ -239,20 +258,104 @@ def _parse_sums(data: bytes) -> dict[str, str]:
     return sums
 
 
-def _json(data: bytes, where: str):
+@dataclass(frozen=True)
+class Shape:
+    """What one JSON text may hold: bytes, arrays and objects (``[`` and ``{``), values (``,``
+    and ``:``). Counted in the bytes before parsing (a bracket inside a string counts too:
+    the count can only be too high), so a text whose parse would cost far more memory than
+    its size (``[[],[],...]``: ~30x) is refused first."""
+
+    bytes: int
+    containers: int
+    values: int
+
+
+def record_shape(limits: Limits) -> Shape:
+    return Shape(limits.record_bytes, limits.record_containers, limits.record_values)
+
+
+def _structure(data: bytes) -> tuple[int, int]:
+    return data.count(b"[") + data.count(b"{"), data.count(b",") + data.count(b":")
+
+
+def _check_size(size: int, where: str, shape: Shape) -> None:
+    if size > shape.bytes:
+        raise Refused("too_large", f"{where}: {size} bytes, over the cap of {shape.bytes} for one JSON text; refused")
+
+
+def _json(data: bytes, where: str, shape: Shape):
+    _check_size(len(data), where, shape)
+    containers, values = _structure(data)
+    if containers > shape.containers or values > shape.values:
+        raise Refused(
+            "too_complex",
+            f"{where}: {containers} JSON arrays/objects and {values} values, over the caps of "
+            f"{shape.containers} and {shape.values} (what parsing it may cost in memory); refused before parsing",
+        )
     try:
         return json.loads(data)
     except (ValueError, RecursionError) as exc:
         raise Refused("bad_json", f"{where}: not JSON ({str(exc)[:80]}); refused") from None
 
 
-def _json_lines(data: bytes, rel: str, cap: int) -> list:
-    lines = data.split(b"\n")
-    if lines and lines[-1] == b"":
-        lines.pop()
-    if len(lines) > cap:
-        raise Refused("too_many_members", f"{rel}: more than {cap} lines (the cap on members); refused")
-    return [_json(line, f"{rel} line {number}") for number, line in enumerate(lines, start=1)]
+def _lines(data: bytes) -> Iterator[tuple[int, int, int]]:
+    """(line number, start, end) of each line of ``data`` (a final newline ends the last line;
+    an empty line inside is a line), without copying ``data``."""
+    number, start = 0, 0
+    while start < len(data):
+        end = data.find(b"\n", start)
+        end = len(data) if end < 0 else end
+        number += 1
+        yield number, start, end
+        start = end + 1
+
+
+class Records(Sequence):
+    """The manifest's records, checked once when the publication is opened, then kept as
+    their bytes (offsets into ``manifest.jsonl``) and parsed again where used: what reading a
+    publication holds is its manifest's size, whatever structure the lines hold."""
+
+    def __init__(self, data: bytes):
+        self._data = data
+        self._starts = array("Q")
+        self._ends = array("Q")
+        self.index: dict[str, int] = {}
+
+    def add(self, sample_id: str, start: int, end: int) -> None:
+        self.index[sample_id] = len(self._starts)
+        self._starts.append(start)
+        self._ends.append(end)
+
+    def line(self, i: int) -> bytes:
+        return self._data[self._starts[i] : self._ends[i]]
+
+    def __len__(self) -> int:
+        return len(self._starts)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return json.loads(self.line(i))
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+
+class _ById(Mapping):
+    """sample id -> its record (parsed when asked for)."""
+
+    def __init__(self, records: Records):
+        self._records = records
+
+    def __getitem__(self, sample_id):
+        return self._records[self._records.index[sample_id]]
+
+    def __iter__(self):
+        return iter(self._records.index)
+
+    def __len__(self) -> int:
+        return len(self._records)
 
 
 def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
@@ -267,7 +370,7 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
         raise Refused("too_large", f"PUB: {total} bytes, over the cap of {limits.total_bytes}; refused")
     sums = _parse_sums(_read_small(root, SUMS_FILE, limits.text_bytes))
     for rel in sorted(set(files) - set(sums) - {SUMS_FILE}):
-        raise Refused("unlisted_file", f"{rel}: not listed in {SUMS_FILE}; refused")
+        raise Refused("unlisted_file", f"{shown(rel)}: not listed in {SUMS_FILE}; refused")
     for rel in sorted(set(sums) - set(files)):
         raise Refused("missing_file", f"{rel}: listed in {SUMS_FILE} but missing")
     for rel in PLAIN_FILES:
@@ -280,13 +383,18 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
             raise Refused("checksum", f"{rel}: SHA-256 differs from {SUMS_FILE}'s; the file changed or is corrupt")
         texts[rel] = data
     records = _manifest(texts[SOURCE_FILES[MANIFEST_FILE]], limits)
-    index = _json(texts[INDEX_FILE], INDEX_FILE)
+    metadata = Shape(
+        limits.text_bytes,
+        4096 + limits.json_containers_per_file * len(sums),
+        65536 + limits.json_values_per_file * len(sums),
+    )
+    index = _json(texts[INDEX_FILE], INDEX_FILE, metadata)
     tars = _tars(index, sums, files)
     _expect_members(tars, records, texts[SAMPLES_FILE], limits)
-    _check_croissant(texts, sums)
-    markers = _markers(texts[MARKERS_REL], records)
+    _check_croissant(texts, sums, metadata)
+    markers = _markers(texts[MARKERS_REL], records, limits)
     source = {name: texts[rel] for name, rel in SOURCE_FILES.items()}
-    _json(source[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE])
+    _json(source[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
     return Publication(
         root=root,
         limits=limits,
@@ -300,17 +408,25 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     )
 
 
-def _manifest(data: bytes, limits: Limits) -> list[dict]:
+def _manifest(data: bytes, limits: Limits) -> Records:
+    """Every line checked (its shape before it is parsed, then the layout of its ids and
+    paths, the types of its fields, its id unique), one at a time; kept as bytes."""
     rel = SOURCE_FILES[MANIFEST_FILE]
-    records = _json_lines(data, rel, limits.members)
-    seen: set[str] = set()
-    for number, record in enumerate(records, start=1):
-        file_refs(record, f"{rel} line {number}")
-        if not isinstance(record.get("stats", {}), dict):
-            raise Refused("bad_record", f"{rel} line {number}: stats is not an object; refused")
-        if record["id"] in seen:
-            raise Refused("duplicate", f"{rel} line {number}: a second record for {record['id']}; refused")
-        seen.add(record["id"])
+    records = Records(data)
+    shape = record_shape(limits)
+    for number, start, end in _lines(data):
+        if number > limits.members:
+            raise Refused("too_many_members", f"{rel}: more than {limits.members} lines (the cap on members); refused")
+        where = f"{rel} line {number}"
+        _check_size(end - start, where, shape)  # before the line is copied
+        record = _json(data[start:end], where, shape)
+        file_refs(record, where)
+        why = field_type_problem(record)
+        if why:
+            raise Refused("bad_record", f"{where}: {why}; refused")
+        if record["id"] in records.index:
+            raise Refused("duplicate", f"{where}: a second record for {record['id']}; refused")
+        records.add(record["id"], start, end)
     if not records:
         raise Refused("bad_record", f"{rel}: no records")
     return records
@@ -334,8 +450,15 @@ def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
                 "a materials tar and a renders tar for each number",
             )
     for number, rel in enumerate(listed):
-        if shards[number].get("bytes") != files[rel]:
-            raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {shards[number].get('bytes')}")
+        said = shards[number].get("bytes")
+        if isinstance(said, bool) or not isinstance(said, int):
+            raise Refused(
+                "bad_index",
+                f"{rel}: {INDEX_FILE} gives its size as {json_type_name(said)} ({short_json(said)}), "
+                f"not an integer number of bytes (the file has {files[rel]})",
+            )
+        if said != files[rel]:
+            raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {said}")
     return [TarEntry(rel=rel, sha256=sums[rel], size=files[rel]) for rel in listed]
 
 
@@ -363,11 +486,12 @@ def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, lim
     if len(rows) != len(records):
         raise Refused("bad_table", f"{SAMPLES_FILE}: {len(rows)} rows for {len(records)} manifest records")
     by_rel = {t.rel: t for t in tars}
+    shape = record_shape(limits)
     material_tar: dict[str, tuple[str, dict]] = {}
     last_tar = -1
     manifest = SOURCE_FILES[MANIFEST_FILE]
     for number, (record, line) in enumerate(zip(records, rows), start=1):
-        row = _json(line, f"{SAMPLES_FILE} line {number}")
+        row = _json(line, f"{SAMPLES_FILE} line {number}", shape)
         tar_rel = row.get("shard") if isinstance(row, dict) else None
         sums = {c: _sum_and_size(row, c, limits) for c in ("record", *PREVIEW_ROLES)} if isinstance(row, dict) else {}
         if (
@@ -454,9 +578,9 @@ def _shared(ref: FileRef, material: str) -> Expected:
     return Expected(ref.member, ref.role, ref.bytes, ref.sha256, ref.path, None, material)
 
 
-def _check_croissant(texts: dict[str, bytes], sums: dict[str, str]) -> None:
+def _check_croissant(texts: dict[str, bytes], sums: dict[str, str], shape: Shape) -> None:
     """croissant.json's SHA-256 of each file must be the one SHA256SUMS lists."""
-    metadata = _json(texts[CROISSANT_FILE], CROISSANT_FILE)
+    metadata = _json(texts[CROISSANT_FILE], CROISSANT_FILE, shape)
     objects = metadata.get("distribution") if isinstance(metadata, dict) else None
     if not isinstance(objects, list):
         raise Refused("bad_croissant", f"{CROISSANT_FILE}: no distribution list; refused")
@@ -471,17 +595,27 @@ def _check_croissant(texts: dict[str, bytes], sums: dict[str, str]) -> None:
                 )
 
 
-def _markers(data: bytes, records: list[dict]) -> list[tuple[str, bytes]]:
-    shards = list(dict.fromkeys(r["shard"] for r in records))
+def _markers(data: bytes, records: Records, limits: Limits) -> list[tuple[str, bytes]]:
+    by_shard: dict[str, list[int]] = {}
+    for i, record in enumerate(records):
+        by_shard.setdefault(record["shard"], []).append(i)
+    shards = list(by_shard)
     lines = [line + b"\n" for line in data.split(b"\n")[:-1]] if data.endswith(b"\n") else None
     if lines is None or len(lines) != len(shards):
         raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({len(shards)}); refused")
     out = []
     for number, (shard, line) in enumerate(zip(shards, lines), start=1):
-        marker = _json(line, f"{MARKERS_REL} line {number}")
+        # a marker holds its shard's records (but for timings) and a few fields of its own
+        own = [_structure(records.line(i)) for i in by_shard[shard]]
+        shape = Shape(
+            sum(len(records.line(i)) + 64 for i in by_shard[shard]) + limits.record_bytes,
+            sum(c for c, _ in own) + limits.record_containers,
+            sum(v for _, v in own) + limits.record_values,
+        )
+        marker = _json(line, f"{MARKERS_REL} line {number}", shape)
         if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
             raise Refused("bad_marker", f"{MARKERS_REL} line {number}: not the complete marker of shard {shard}")
-        mine = [r for r in records if r["shard"] == shard]
+        mine = [records[i] for i in by_shard[shard]]
         theirs = marker.get("records")
         if (
             not isinstance(theirs, list)
@@ -514,10 +648,12 @@ def _compare_members(label: str, scanned: list[Member], expected: list[Expected]
     have, want = set(names), set(wanted)
     missing = [n for n in wanted if n not in have]
     extra = [n for n in names if n not in want]
-    if missing:
+    if missing:  # the layout's own names
         raise Refused("missing_member", f"{label}: member(s) {', '.join(missing[:5])} missing; refused")
-    if extra:
-        raise Refused("extra_member", f"{label}: member(s) {', '.join(extra[:5])} are no part of this tar; refused")
+    if extra:  # names from tar headers, which may hold any byte but NUL: as repr
+        raise Refused(
+            "extra_member", f"{label}: member(s) {', '.join(map(repr, extra[:5]))} are no part of this tar; refused"
+        )
     first = next(i for i, (a, b) in enumerate(zip(names, wanted)) if a != b)
     raise Refused(
         "member_order",
@@ -538,7 +674,7 @@ def _check_member(
             f"{where}: SHA-256 {digest[:16]}... differs from the manifest's {expected.sha256[:16]}...; refused",
         )
     if expected.role == "record":
-        record = _json(data, where)
+        record = _json(data, where, record_shape(limits))
         if (
             not isinstance(record, dict)
             or not isinstance(record.get("stats", {}), dict)
@@ -590,7 +726,7 @@ def iter_samples(
 def publication_samples(publication: Publication, progress: Callable[[str], None] | None = None) -> Iterator[dict]:
     """The samples of each tar pair: its renders tar streamed, its materials tar streamed
     alongside (a material's maps are read when its first lighting comes)."""
-    records = {r["id"]: r for r in publication.records}
+    records = publication.by_id
     before = {t.rel: 0 for t in publication.tars}
     count = 0
     for tar in publication.tars:
@@ -624,7 +760,14 @@ def iter_folder_samples(root: str) -> Iterator[dict]:
     """The samples of a complete dataset folder, as :func:`iter_samples` yields them from its
     publication (each file's SHA-256 checked against the manifest)."""
     layout = Layout(root)
-    records = [json.loads(line) for line in read_manifest(layout).split(b"\n") if line.strip()]
+    records = []
+    for number, line in enumerate(read_manifest(layout).split(b"\n"), start=1):
+        if not line.strip():
+            continue
+        too_much = structure_problem(line)
+        if too_much:
+            raise Refused("too_complex", f"{MANIFEST_FILE} line {number}: {too_much}")
+        records.append(json.loads(line))
     shared: dict[str, bytes] = {}
     material = None
     for number, record in enumerate(records, start=1):

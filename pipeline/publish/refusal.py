@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.errors import ShaderballError
+from pipeline.store.folder import MAX_JSON_BYTES, RECORD_CONTAINERS, RECORD_VALUES
 
 
 class Refused(ShaderballError):
@@ -42,6 +43,17 @@ class Limits:
     #: an EXR header (attributes), and its image's width or height
     exr_header_bytes: int = 1 << 20
     exr_side: int = 4096
+    #: one record (a manifest line, a record member): bytes, JSON arrays and objects, values
+    #: (commas and colons); a record of the smoke dataset has 2.4 kB, 26 and 179. Counted in
+    #: the bytes before anything is parsed: parsing costs up to ~30x the text in memory, so
+    #: what a parse may cost is bounded by the structure, not only by the size
+    record_bytes: int = MAX_JSON_BYTES
+    record_containers: int = RECORD_CONTAINERS
+    record_values: int = RECORD_VALUES
+    #: any other JSON file (publication.json, croissant.json, dataset.json), per file it
+    #: lists (SHA256SUMS' lines), on top of a fixed allowance
+    json_containers_per_file: int = 64
+    json_values_per_file: int = 512
 
 
 DEFAULT_LIMITS = Limits()

@@ -23,7 +23,7 @@ from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.verify import verify_publication
 from pipeline.store.folder import only_temp_files
-from pipeline.store.layout import Layout
+from pipeline.store.layout import MANIFEST_FILE, Layout
 from pipeline.store.lock import writer_lock
 
 
@@ -85,18 +85,7 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
             "--out", out, "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
         )
     try:
-        for name, data in publication.source_files.items():
-            output.write(name, data)
-        for shard, data in publication.markers:
-            output.write(Layout.marker_rel(shard), data)
-        before = 0
-        for tar in publication.tars:
-            if progress:
-                progress(f"unpacking {tar.rel}")
-            for expected, data in publication.members(tar, before):
-                if expected.path is not None:  # previews and material rows are the publication's own
-                    output.write(expected.path, data)
-            before += len(tar.expected)
+        _write_in_completion_order(publication, output, progress)
         if validate_after:
             if progress:
                 progress(f"validating {out}")
@@ -120,3 +109,35 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
         validated=validate_after,
         seconds=time.perf_counter() - start,
     )
+
+
+def _write_in_completion_order(publication, output: Output, progress) -> None:
+    """Write the folder so that a kill at any instant leaves one that every reader (info,
+    build, validate, preview, publish) sees as incomplete: what a build writes first
+    (spec.toml, dataset.json), then every data file, each sample's record file after its
+    render, then the shards' markers, and manifest.jsonl last. A marker is written only
+    when every file it names is durable, as a build writes one (docs/publish.md)."""
+    for name, data in publication.source_files.items():
+        if name != MANIFEST_FILE:
+            output.write(name, data)
+    before = 0
+    for tar in publication.tars:
+        if progress:
+            progress(f"unpacking {tar.rel}")
+        record = None
+        for expected, data in publication.members(tar, before):
+            if expected.path is None:  # previews and material rows are the publication's own
+                continue
+            if expected.role == "record":  # its member comes before the render it names
+                record = (expected.path, data)
+                continue
+            output.write(expected.path, data)
+            if expected.role == "render" and record is not None:
+                output.write(*record)
+                record = None
+        if record is not None:  # the members' order is checked: a record is followed by its render
+            raise AssertionError(f"{tar.rel}: a record member without its render")
+        before += len(tar.expected)
+    for shard, data in publication.markers:
+        output.write(Layout.marker_rel(shard), data)
+    output.write(MANIFEST_FILE, publication.source_files[MANIFEST_FILE])

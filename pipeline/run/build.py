@@ -49,6 +49,7 @@ from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachab
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
+    check_creatable,
     complete_marker,
     folder_names,
     only_temp_files,
@@ -152,14 +153,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     except OSError as exc:
         raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
-        probe = os.path.abspath(out)
-        while not os.path.lexists(probe):
-            probe = os.path.dirname(probe)
-        if not os.path.isdir(probe):
-            what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
-            raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
-        if not os.access(probe, os.W_OK):
-            raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
+        check_creatable(out)
         return "new"
     if not os.path.lexists(layout.spec):
         raise ShaderballError(
@@ -267,8 +261,9 @@ def check_same_installation(out: str, plans: Plan, variant: str, digest: str | N
             f"{str(old['plan_digest'])[:12]} in dataset.json, {digest[:12]} now)"
         )
     libraries = library_versions()
+    recorded = old.get("libraries") if isinstance(old.get("libraries"), dict) else {}  # dataset.json: any type
     for name in ("mitsuba", "drjit"):
-        was = (old.get("libraries") or {}).get(name)
+        was = recorded.get(name)
         if was and was != libraries.get(name):
             differences.append(f"{name} {was} in dataset.json, {libraries.get(name)} now")
     if old.get("variant") and old["variant"] != variant:

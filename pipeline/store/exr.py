@@ -141,13 +141,15 @@ def _flush_c_stdio() -> None:
         pass
 
 
-def read_exr(path_or_bytes: str | bytes | os.PathLike) -> ExrImage:
+def read_exr(path_or_bytes: str | bytes | os.PathLike, label: str | None = None) -> ExrImage:
     """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers. What
-    OpenEXR prints while it decodes goes to stderr, never stdout (:class:`_StdoutToStderr`)."""
+    OpenEXR prints while it decodes goes to stderr, never stdout (:class:`_StdoutToStderr`).
+    ``label`` names the file in errors (given bytes, pass the file they were read from)."""
     import OpenEXR
 
     source = io.BytesIO(path_or_bytes) if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
-    label = "<bytes>" if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
+    if label is None:
+        label = "<bytes>" if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
     try:
         with _StdoutToStderr():
             handle = OpenEXR.File(source, separate_channels=True)
@@ -166,6 +168,9 @@ def read_exr(path_or_bytes: str | bytes | os.PathLike) -> ExrImage:
             order = tuple(sorted(chans))
         layers[layer] = np.stack([chans[c] for c in order], axis=-1)
     meta_text = header.get(META_KEY)
-    meta = json.loads(meta_text) if isinstance(meta_text, str) and meta_text else {}
+    try:
+        meta = json.loads(meta_text) if isinstance(meta_text, str) and meta_text else {}
+    except (ValueError, RecursionError):
+        raise ShaderballError(f"cannot decode EXR {label}: its {META_KEY} attribute is not JSON") from None
     chroma = header.get("chromaticities")
     return ExrImage(layers=layers, meta=meta, chromaticities=tuple(chroma) if chroma else None)

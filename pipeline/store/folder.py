@@ -37,6 +37,7 @@ import re
 import stat
 from collections.abc import Iterator
 
+from pipeline.errors import ShaderballError
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
 
@@ -216,14 +217,39 @@ def file_digest(path: str, limit: int | None = None) -> tuple[int, str]:
     return size, digest.hexdigest()
 
 
+#: What one record may hold, counted in its bytes before it is parsed: arrays and objects
+#: (``[``, ``{``) and values (``,``, ``:``); a record of the smoke dataset holds 26 and 179.
+#: Parsing ``[[],[],...]`` costs ~30 times its size in memory: a parse is bounded by the
+#: structure of what is parsed, not only by its size (a bracket inside a string counts too:
+#: the count can only be too high).
+RECORD_CONTAINERS = 256
+RECORD_VALUES = 4096
+
+
+def structure_problem(data: bytes, records: int = 1) -> str | None:
+    """Why ``data`` holds more JSON structure than ``records`` records may (None if not)."""
+    containers = data.count(b"[") + data.count(b"{")
+    values = data.count(b",") + data.count(b":")
+    if containers <= RECORD_CONTAINERS * records and values <= RECORD_VALUES * records:
+        return None
+    return (
+        f"{containers} JSON arrays/objects and {values} values, more than {records} record(s) may hold "
+        f"(at most {RECORD_CONTAINERS} and {RECORD_VALUES} each): not parsed"
+    )
+
+
 def read_json_checked(path: str, limit: int = MAX_JSON_BYTES):
-    """(value, None) for a readable JSON file, else (None, why: 'missing', 'a FIFO, ...')."""
+    """(value, None) for a readable JSON file, else (None, why: 'missing', 'a FIFO, ...').
+    Its structure is bounded by its size bound: one record's per :data:`MAX_JSON_BYTES`."""
     try:
         data = read_bytes(path, limit)
     except FileNotFoundError:
         return None, "missing"
     except OSError as exc:
         return None, exc.strerror or str(exc)
+    too_much = structure_problem(data, -(-limit // MAX_JSON_BYTES) + 1)
+    if too_much:
+        return None, too_much
     try:
         return json.loads(data.decode("utf-8")), None
     except (UnicodeDecodeError, ValueError) as exc:
@@ -252,6 +278,141 @@ def read_spec_snapshot(layout: Layout) -> bytes:
     return read_bytes(os.path.join(layout.root, SPEC_FILE), MAX_JSON_BYTES)
 
 
+#: JSON type names, as a message says them.
+_JSON_NAMES = {dict: "an object", list: "an array", str: "a string", int: "an integer", float: "a number"}
+_NUMBER = (int, float)
+#: The type of every field a record carries (docs/manifest.md), checked wherever a record is
+#: read (manifest, marker, record file, publication) before any field is used: a field may
+#: be absent (what is missing is reported by the checks that need it), never of another type.
+RECORD_FIELDS = {
+    "id": str,
+    "material_id": str,
+    "shard": str,
+    "material_index": int,
+    "light_index": int,
+    "schema": int,
+    "files": list,
+    "lighting": dict,
+    "lighting_vector": list,
+    "material": dict,
+    "render": dict,
+    "seeds": dict,
+    "effects": dict,
+    "stats": dict,
+}
+#: Fields inside them that readers use as numbers, strings or containers.
+RECORD_SUBFIELDS = {
+    "lighting": {
+        "elevation_deg": _NUMBER,
+        "azimuth_deg": _NUMBER,
+        "turbidity": _NUMBER,
+        "direction": list,
+        "policy": dict,
+        "requested": dict,
+    },
+    "material": {"kind": str, "values": dict},
+    "render": {"spp": int, "resolution": int, "max_depth": int, "integrator": str, "variant": str, "sun": str},
+    "seeds": {"light": int, "material": int, "render": int, "render_used": int},
+}
+#: A file entry of ``files``.
+FILE_ENTRY_FIELDS = {"role": str, "path": str, "bytes": int, "sha256": str}
+
+
+def json_type_name(value) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true/false"
+    return next((name for kind, name in _JSON_NAMES.items() if isinstance(value, kind)), type(value).__name__)
+
+
+def _type_problem(where: str, value, kind) -> str | None:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        wanted = " or ".join(_JSON_NAMES[k] for k in kinds)
+        return f"{where} is {json_type_name(value)} ({short_json(value)}), not {wanted}"
+    return None
+
+
+def short_json(value, limit: int = 40) -> str:
+    text = json.dumps(value, sort_keys=True, ensure_ascii=True)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def field_type_problem(record) -> str | None:
+    """Why a record's fields cannot be used as their types (:data:`RECORD_FIELDS`,
+    :data:`RECORD_SUBFIELDS`, :data:`FILE_ENTRY_FIELDS`), or None. Naming the field, its
+    type and value: ``stats is an array ([]), not an object``."""
+    if not isinstance(record, dict):
+        return f"not a record (a JSON {json_type_name(record)}, not an object)"
+    for key, kind in RECORD_FIELDS.items():
+        if key in record:
+            problem = _type_problem(key, record[key], kind)
+            if problem:
+                return problem
+    for key, fields in RECORD_SUBFIELDS.items():
+        for name, kind in fields.items():
+            if name in record.get(key, {}):
+                problem = _type_problem(f"{key}.{name}", record[key][name], kind)
+                if problem:
+                    return problem
+    for index, entry in enumerate(record.get("files", [])):
+        if not isinstance(entry, dict):
+            return f"files[{index}] is {json_type_name(entry)}, not an object"
+        for name, kind in FILE_ENTRY_FIELDS.items():
+            if name in entry:
+                problem = _type_problem(f"files[{index}].{name}", entry[name], kind)
+                if problem:
+                    return problem
+    return None
+
+
+#: The type of every field ``dataset.json`` carries (docs/manifest.md); absent is allowed.
+DESCRIPTION_FIELDS = {
+    "name": str,
+    "version": str,
+    "shaderball": str,
+    "spec_digest": str,
+    "plan_digest": str,
+    "plan_format": int,
+    "layout_version": int,
+    "variant": str,
+    "colorspace": str,
+    "counts": dict,
+    "determinism": dict,
+    "libraries": dict,
+    "machine": dict,
+}
+DESCRIPTION_SUBFIELDS = {
+    "counts": {
+        "materials": int,
+        "renders": int,
+        "shards": int,
+        "svbrdf": int,
+        "uniform": int,
+        "svbrdf_sources": dict,
+    },
+}
+
+
+def description_problem(description) -> str | None:
+    """Why ``dataset.json``'s fields cannot be used as their types, or None."""
+    if not isinstance(description, dict):
+        return f"not a JSON object (a JSON {json_type_name(description)})"
+    for key, kind in DESCRIPTION_FIELDS.items():
+        if key in description:
+            problem = _type_problem(key, description[key], kind)
+            if problem:
+                return problem
+    for key, fields in DESCRIPTION_SUBFIELDS.items():
+        for name, kind in fields.items():
+            if name in description.get(key, {}):
+                problem = _type_problem(f"{key}.{name}", description[key][name], kind)
+                if problem:
+                    return problem
+    return None
+
+
 def record_problem(record, shard_id: str | None = None) -> str | None:
     """Why ``record`` (from a marker or a record file) cannot be used, or None: a JSON
     object with a string ``id`` and a list ``files`` of entries, each a ``role``, a plain
@@ -261,6 +422,9 @@ def record_problem(record, shard_id: str | None = None) -> str | None:
         return f"not a record (a JSON {type(record).__name__}, not an object)"
     if not isinstance(record.get("id"), str):
         return "a record without an id"
+    problem = field_type_problem(record)
+    if problem:
+        return f"record {record['id']}: {problem}"
     files = record.get("files")
     if not isinstance(files, list) or not files:
         return f"record {record['id']}: no files listed"
@@ -321,9 +485,9 @@ def is_record_file(name: str) -> bool:
 
 #: A sample's record file, ``Layout.record_rel``: ``m<6-digit material>_l<light>.json``
 #: (MAX_MATERIALS is 1,000,000, so a material index has 6 digits).
-RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json$")
+RECORD_NAME = re.compile(r"^m\d{6}_l\d+\.json\Z", re.ASCII)
 #: A shard folder, ``pipeline.dataset.plan.shard_id``: ``s<5-digit index>`` (MAX_SHARDS 100,000).
-SHARD_NAME = re.compile(r"^s\d{5}$")
+SHARD_NAME = re.compile(r"^s\d{5}\Z", re.ASCII)
 
 
 def is_lock_file(name: str) -> bool:
@@ -555,3 +719,16 @@ def record_stamps(layout: Layout, shard_ids) -> dict[str, tuple[int, int]]:
                 continue
             stamps[path] = (st.st_ino, st.st_mtime_ns)
     return stamps
+
+
+def check_creatable(out: str) -> None:
+    """Refuse (exit 2) an output folder that cannot be made: below a file or a dangling
+    link, or in a folder this process cannot write (build, publish and unpack alike)."""
+    probe = os.path.abspath(out)
+    while not os.path.lexists(probe):
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
+        raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
+    if not os.access(probe, os.W_OK):
+        raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")

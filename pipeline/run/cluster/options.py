@@ -23,9 +23,9 @@ DEFAULT_RECYCLE_AFTER = 2000
 #: Shell expression for node-local scratch space, the default of ``--scratch``.
 DEFAULT_SCRATCH = "${TMPDIR:-/tmp}"
 
-_WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)$")
-_SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}$")
-_SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}$")
+_WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)\Z", re.ASCII)
+_SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}\Z", re.ASCII)
+_SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}\Z", re.ASCII)
 _MIN_WALLTIME_S = 60
 #: The ranges of the integer options, defined once (the checks below; the CLI help).
 WORKERS_RANGE = (0, 1024)
@@ -166,7 +166,7 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
 
 
 def scheduler_host_port(address: str) -> tuple[str, int]:
-    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$", address)
+    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z", address, re.ASCII)
     if match is None or not 0 < int(match[2]) < 65536:
         raise bad_value("--scheduler", address, "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786")
     return match[1].strip("[]"), int(match[2])
