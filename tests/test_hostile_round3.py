@@ -23,7 +23,7 @@ from pipeline.publish import names
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import Refused
 from pipeline.publish.writer import publish, write_publication
-from pipeline.run import cluster
+from pipeline.run.cluster import options as cluster
 from pipeline.store import folder as store_folder
 from pipeline.store.records import dumps
 from support.publishing import members, reseal, rewrite_tar, sha, smoke_build

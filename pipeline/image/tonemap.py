@@ -85,7 +85,9 @@ def preview_srgb8(image: np.ndarray, exposure: float | None = None, mask: np.nda
     image = np.maximum(image, 0.0)
     if exposure is None:
         exposure = exposure_for(image, mask)
-    return (srgb_encode(reinhard(image * exposure)) * 255.0 + 0.5).astype(np.uint8)
+    with np.errstate(over="ignore"):  # an exposed value past float32's range is white, by design
+        exposed = image * exposure
+    return (srgb_encode(reinhard(exposed)) * 255.0 + 0.5).astype(np.uint8)
 
 
 def map_srgb8(linear01: np.ndarray, srgb: bool = True) -> np.ndarray:
