@@ -18,7 +18,7 @@ from pipeline.errors import FolderBusy
 from pipeline.publish import unpack as unpack_module
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE
-from pipeline.store.lock import holds_lock, writer_lock
+from pipeline.store.lock import holder_text, holds_lock, writer_lock
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -105,6 +105,15 @@ def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
         assert refused.value.exit_code == 3
     finally:
         kill9(holder)
+
+
+def test_a_hostile_holder_is_shown_on_one_printable_line():
+    """Anyone may write the lock file: its fields never put a newline or an escape in a message."""
+    text = holder_text(
+        {"purpose": "build\nerror: forged", "pid": [1, 2], "host": "h\x1b[2J", "since": "x" * 5000, "command": "a\rb"}
+    )
+    assert text.isprintable() and len(text) < 1000, text
+    assert "build\\nerror: forged" in text and "h\\x1b[2J" in text and "pid [1, 2]" in text
 
 
 def test_a_writer_killed_with_kill_9_never_blocks_the_next(tmp_path):

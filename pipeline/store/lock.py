@@ -63,10 +63,16 @@ def holder_text(info: dict | None) -> str:
     if not isinstance(info, dict) or not info:
         return "a writer that is just starting (it has not yet said who it is)"
     command = info.get("command")
-    return (
-        f"{info.get('purpose', '?')}, pid {info.get('pid', '?')} on host {info.get('host', '?')}, "
-        f"since {info.get('since', '?')}" + (f" (`{command}`)" if command else "")
-    )
+    purpose, pid, host, since = (_shown(info.get(key, "?")) for key in ("purpose", "pid", "host", "since"))
+    return f"{purpose}, pid {pid} on host {host}, since {since}" + (f" (`{_shown(command)}`)" if command else "")
+
+
+def _shown(value, limit: int = 200) -> str:
+    """A holder's field as one printable line: the lock file is anyone's to write, so a
+    newline or a terminal escape in it is shown escaped, and a long value cut."""
+    text = value if isinstance(value, str) else json.dumps(value)
+    text = "".join(ch if ch.isprintable() else ascii(ch)[1:-1] for ch in text)
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _read_holder(fd: int) -> dict | None:
