@@ -36,6 +36,15 @@ from pipeline.run.cluster.connection import job_script
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.repair import repair
 from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.ui.progress import (
+    build_progress,
+    evaluate_progress,
+    say,
+    study_progress,
+    training_progress,
+    validate_progress,
+)
+from pipeline.ui.values import parse_int_list
 from sky.emitter import DEFAULT_SUN, SUN_MODES
 
 #: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
@@ -393,44 +402,6 @@ def render_cmd(
         click.echo(line)
 
 
-def _format_seconds(seconds: float | None) -> str:
-    if seconds is None:
-        return "--:--"
-    seconds = int(seconds)
-    return (
-        f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
-        if seconds >= 3600
-        else f"{seconds // 60}:{seconds % 60:02d}"
-    )
-
-
-def _progress_printer():
-    """A one-line progress bar on stderr: count, percentage, renders/s, elapsed, ETA, and what the
-    build waits on (workers, batch jobs pending and why), printed again when either changes."""
-    interactive = sys.stderr.isatty()
-    last = {"done": -1, "message": "", "width": 0}
-
-    def show(p):
-        message = getattr(p, "message", "")
-        if p.done == last["done"] and message == last["message"]:
-            return
-        last["done"], last["message"] = p.done, message
-        width = 30
-        filled = int(width * p.done / p.total) if p.total else width
-        line = (
-            f"[{'#' * filled}{'.' * (width - filled)}] {p.done}/{p.total} renders "
-            f"{100.0 * p.done / max(p.total, 1):5.1f}%  {p.rate:.2f}/s  "
-            f"elapsed {_format_seconds(p.elapsed_s)}  ETA {_format_seconds(p.eta_s)}"
-            + (f"  | {message}" if message else "")
-        )
-        padded, last["width"] = line.ljust(last["width"]), len(line)
-        click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive)
-        if interactive and p.done >= p.total:
-            click.echo("", err=True)
-
-    return show
-
-
 @main.command("build")
 @click.argument("spec", type=click.Path(dir_okay=False))
 @click.option(
@@ -566,7 +537,7 @@ def build_cmd(
         click.echo(f"building with {where}" + (f"; dashboard {dashboard}" if dashboard else ""), err=True)
 
     summary = build(
-        spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=_progress_printer(), on_start=started
+        spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=build_progress(), on_start=started
     )
     for line in summary.lines():
         click.echo(line)
@@ -616,22 +587,11 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
     Progress goes to stderr.
     """
-    import time
-
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
     if spec_path and not fix:
         raise click.UsageError("--spec is used only with --repair")
-    last = {"t": 0.0}
-
-    def show(p):
-        now = time.monotonic()
-        if p.done < p.total and now - last["t"] < 1.0:
-            return
-        last["t"] = now
-        read = f"files, {p.bytes_read / 1e6:.1f} MB read" if p.stage == "check" else "renders done"
-        click.echo(f"{p.stage}: {p.done}/{p.total} {read}, {_format_seconds(p.elapsed_s)}", err=True)
-
+    show = validate_progress()
     if fix:
         before, report, actions = repair(directory, workers=workers, progress=show, spec_path=spec_path)
     else:
@@ -756,9 +716,6 @@ def info_cmd(directory, as_json):
 def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
 
-    def progress(p):
-        click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {_format_seconds(p['elapsed_s'])}", err=True)
-
     req = StudyRequest(
         spec=spec,
         out=out,
@@ -770,7 +727,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
         only=tuple(n for n in only.split(",") if n),
         flip=not no_flip,
     )
-    summary = run_study(req, progress=progress)
+    summary = run_study(req, progress=study_progress)
     if as_json:
         _emit_json(summary.to_dict())
         return
@@ -848,7 +805,7 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
         profile=profile,
         repeats=repeats,
         json_path=json_path,
-        progress=lambda message: click.echo(message, err=True),
+        progress=say,
     )
     for line in result.lines():
         click.echo(line)
@@ -908,7 +865,7 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
         shard_bytes=shard_bytes,
         license_id=license_id,
         url=url,
-        progress=lambda message: click.echo(message, err=True),
+        progress=say,
     )
     _print_result(summary, as_json)
 
@@ -922,7 +879,7 @@ def verify_cmd(pub, as_json):
 
     Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
     """
-    report = verify(pub, progress=lambda message: click.echo(message, err=True))
+    report = verify(pub, progress=say)
     _print_result(report, as_json)
 
 
@@ -944,7 +901,7 @@ def verify_cmd(pub, as_json):
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
     """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
-    summary = unpack(pub, out, validate_after=not no_validate, progress=lambda message: click.echo(message, err=True))
+    summary = unpack(pub, out, validate_after=not no_validate, progress=say)
     _print_result(summary, as_json)
 
 
@@ -954,25 +911,6 @@ def _neural():
         import torch  # noqa: F401
     except ImportError:
         raise ShaderballError("the neural stage needs torch: pip install -e '.[train]'") from None
-
-
-def _training_progress():
-    """One line on stderr per batch: epoch, batch, loss, samples/s, ETA."""
-    interactive = sys.stderr.isatty()
-
-    def show(p):
-        width = 20
-        filled = int(width * p["batch"] / p["batches"])
-        line = (
-            f"epoch {p['epoch']}/{p['epochs']} [{'#' * filled}{'.' * (width - filled)}] "
-            f"batch {p['batch']}/{p['batches']}  loss {p['loss']:.4f}  {p['samples_per_s']:.1f} samples/s  "
-            f"ETA {_format_seconds(p['eta_s'])}"
-        )
-        click.echo(("\r" + line) if interactive else line, err=True, nl=not interactive)
-        if interactive and p["batch"] == p["batches"]:
-            click.echo("", err=True)
-
-    return show
 
 
 @main.command("train")
@@ -1098,7 +1036,7 @@ def train_cmd(
         result = run_benchmark(config)
         lines, data = result.lines(), result.to_dict()
     else:
-        summary = train(config, progress=None if as_json else _training_progress())
+        summary = train(config, progress=None if as_json else training_progress())
         lines, data = summary.lines(), summary.to_dict()
     if as_json:
         _emit_json(data)
@@ -1246,17 +1184,9 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
     the first-hit albedo and normal, and on the colour alone (docs/neural.md).
     """
     _neural()
-    from pipeline.neural.evaluate import EvaluateRequest, evaluate
+    from pipeline.neural.evaluate import SPP_LADDER_RANGE, EvaluateRequest, evaluate
 
-    if spp.strip().lower() == "none":
-        spp_list = ()
-    else:
-        try:
-            spp_list = tuple(int(x) for x in spp.split(","))
-        except ValueError:
-            raise ShaderballError(
-                f"--spp: {spp!r} is not allowed; allowed: comma-separated integers from 1 to 4096, or none"
-            ) from None
+    spp_list = parse_int_list("--spp", spp, SPP_LADDER_RANGE, none="none")
     request = EvaluateRequest(
         run=run,
         dataset=dataset,
@@ -1268,9 +1198,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         limit=limit,
         device=device,
     )
-    summary = evaluate(
-        request, progress=lambda p: click.echo(f"sample {p['sample']}/{p['samples']} {p['id']}", err=True)
-    )
+    summary = evaluate(request, progress=evaluate_progress)
     for line in summary.lines():
         click.echo(line)
 
