@@ -212,28 +212,160 @@ def main():
     """
 
 
+# Option groups, declared once: every command that takes one of these uses the same declaration.
+
+
+def _options(*options):
+    """One decorator of several click options, applied in the order given (as --help lists them)."""
+
+    def apply(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return apply
+
+
+def json_option(help: str):
+    """``--json``, a flag (``as_json``): one JSON document on stdout (:func:`_friendly_errors`)."""
+    return click.option("--json", "as_json", is_flag=True, help=help)
+
+
+def json_file_option(help: str):
+    """``--json PATH`` (``json_path``): also write the figures to a JSON file."""
+    return click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
+
+
+def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "out"):
+    """``--out``: a folder (``folder=True``) or a file the command writes."""
+    kind = click.Path(file_okay=False) if folder else click.Path(dir_okay=False)
+    return click.option("--out", dest, required=required, type=kind, default=None, help=help)
+
+
+def variant_option():
+    return click.option(
+        "--variant",
+        default="auto",
+        show_default=True,
+        type=click.Choice(VARIANT_CHOICES),
+        help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
+    )
+
+
+def resolution_option():
+    return click.option(
+        "--resolution",
+        default=400,
+        show_default=True,
+        type=int,
+        help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
+    )
+
+
+def device_option(help: str | None = None):
+    """torch's device (train, infer, evaluate)."""
+    return click.option(
+        "--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]), help=help
+    )
+
+
+def material_options(*, full: bool):
+    """The uniform material (--diffuse, --specular, --roughness, --normal) or --svbrdf maps, of
+    `render` and `infer`; ``full``: render's help, which infer's refers to."""
+    return _options(
+        click.option(
+            "--diffuse",
+            default="0.5,0.5,0.5",
+            show_default=True,
+            metavar="R,G,B",
+            help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
+        ),
+        click.option(
+            "--specular",
+            default="0.04,0.04,0.04",
+            show_default=True,
+            metavar="R,G,B",
+            help="Uniform specular albedo (F0), linear RGB, each in [0, 1]."
+            + (" 0.04 is a typical dielectric." if full else ""),
+        ),
+        click.option(
+            "--roughness",
+            default=0.3,
+            show_default=True,
+            type=float,
+            help="Uniform roughness in [0, 1]" + ("; GGX alpha = roughness^2." if full else "."),
+        ),
+        click.option(
+            "--normal",
+            default="0,0,1",
+            show_default=True,
+            metavar="X,Y,Z",
+            help="Uniform tangent-space normal (Z > 0; normalised).",
+        ),
+        click.option(
+            "--svbrdf",
+            type=click.Path(),
+            default=None,
+            help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
+            "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps."
+            if full
+            else "Spatially varying material, as `shaderball render --svbrdf`.",
+        ),
+        click.option(
+            "--svbrdf-colorspace",
+            type=click.Choice(["raw", "srgb"]),
+            default="raw",
+            show_default=True,
+            help="How 8-bit albedo maps of --svbrdf are decoded"
+            + (": raw (as Deschaintre's renderer) or sRGB." if full else "."),
+        ),
+    )
+
+
+def light_options(*, full: bool):
+    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`; ``full``:
+    render's help, which infer's refers to."""
+    return _options(
+        click.option(
+            "--elevation",
+            default=45.0,
+            show_default=True,
+            type=float,
+            help="Sun elevation above the horizon, degrees in [0, 90]. Below ~2.4-7 degrees "
+            "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
+            "the move is printed and recorded."
+            if full
+            else "Sun elevation, degrees in [0, 90] (raised to the low-sun floor as `shaderball render` does).",
+        ),
+        click.option(
+            "--azimuth",
+            default=270.0,
+            show_default=True,
+            type=float,
+            help="Sun azimuth, degrees in [-360, 720]"
+            + (
+                ", counter-clockwise from +x seen from above: "
+                "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side."
+                if full
+                else "."
+            ),
+        ),
+        click.option(
+            "--turbidity",
+            default=3.0,
+            show_default=True,
+            type=float,
+            help="Atmospheric turbidity in [1, 10]" + (" (1: very clear, 10: hazy)." if full else "."),
+        ),
+    )
+
+
 @main.command("scene")
-@click.option(
-    "--out",
-    "out_dir",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.",
+@out_option(
+    "Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.", folder=True, dest="out_dir"
 )
-@click.option(
-    "--resolution",
-    default=400,
-    show_default=True,
-    type=int,
-    help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-)
-@click.option(
-    "--variant",
-    default="auto",
-    show_default=True,
-    type=click.Choice(VARIANT_CHOICES),
-    help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
-)
+@resolution_option()
+@variant_option()
 @_friendly_errors
 def scene_cmd(out_dir: str, resolution: int, variant: str):
     """Write the shaderball mesh, its G-buffer and a preview picture."""
@@ -244,93 +376,17 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 
 
 @main.command("render")
-@click.option(
-    "--diffuse",
-    default="0.5,0.5,0.5",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-)
-@click.option(
-    "--specular",
-    default="0.04,0.04,0.04",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform specular albedo (F0), linear RGB, each in [0, 1]. 0.04 is a typical dielectric.",
-)
-@click.option(
-    "--roughness",
-    default=0.3,
-    show_default=True,
-    type=float,
-    help="Uniform roughness in [0, 1]; GGX alpha = roughness^2.",
-)
-@click.option(
-    "--normal",
-    default="0,0,1",
-    show_default=True,
-    metavar="X,Y,Z",
-    help="Uniform tangent-space normal (Z > 0; normalised).",
-)
-@click.option(
-    "--svbrdf",
-    type=click.Path(),
-    default=None,
-    help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
-    "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
-)
-@click.option(
-    "--svbrdf-colorspace",
-    type=click.Choice(["raw", "srgb"]),
-    default="raw",
-    show_default=True,
-    help="How 8-bit albedo maps of --svbrdf are decoded: raw (as Deschaintre's renderer) or sRGB.",
-)
-@click.option(
-    "--elevation",
-    default=45.0,
-    show_default=True,
-    type=float,
-    help="Sun elevation above the horizon, degrees in [0, 90]. Below ~2.4-7 degrees "
-    "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
-    "the move is printed and recorded.",
-)
-@click.option(
-    "--azimuth",
-    default=270.0,
-    show_default=True,
-    type=float,
-    help="Sun azimuth, degrees in [-360, 720], counter-clockwise from +x seen from above: "
-    "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side.",
-)
-@click.option(
-    "--turbidity",
-    default=3.0,
-    show_default=True,
-    type=float,
-    help="Atmospheric turbidity in [1, 10] (1: very clear, 10: hazy).",
-)
+@material_options(full=True)
+@light_options(full=True)
 @click.option(
     "--spp", default=150, show_default=True, type=int, help=f"Samples per pixel, {span(SPP_RANGE)} (the paper: 150)."
 )
-@click.option(
-    "--resolution",
-    default=400,
-    show_default=True,
-    type=int,
-    help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-)
+@resolution_option()
 @click.option(
     "--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}."
 )
 @click.option("--seed", default=0, show_default=True, type=int, help="Render seed, 0 to 2^32-1.")
-@click.option(
-    "--variant",
-    default="auto",
-    show_default=True,
-    type=click.Choice(VARIANT_CHOICES),
-    help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
-)
+@variant_option()
 @click.option(
     "--sun",
     type=click.Choice(SUN_MODES),
@@ -347,13 +403,7 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
     "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
     "roughness 0.178; docs/materials.md). A spec's materials.model.",
 )
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="Output EXR: layers render.R/G/B (float32) and the screen-space maps.",
-)
+@out_option("Output EXR: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
 @_friendly_errors
 def render_cmd(
@@ -404,13 +454,10 @@ def render_cmd(
 
 @main.command("build")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Dataset directory. Created if missing; an existing one built from the same spec is "
+@out_option(
+    "Dataset directory. Created if missing; an existing one built from the same spec is "
     "resumed (only missing or unverified samples are rendered); another spec is refused.",
+    folder=True,
 )
 @click.option(
     "--workers",
@@ -545,12 +592,9 @@ def build_cmd(
 
 @main.command("validate")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print the report as JSON on stdout: expected/present/valid render counts and "
-    "problems [{kind, id, path, message}] (docs/validate.md).",
+@json_option(
+    "Print the report as JSON on stdout: expected/present/valid render counts and "
+    "problems [{kind, id, path, message}] (docs/validate.md)."
 )
 @click.option(
     "--repair",
@@ -614,13 +658,10 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 
 @main.command("preview")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="PNG to write: one row per sample, its tone-mapped render beside its four maps, "
+@out_option(
+    "PNG to write: one row per sample, its tone-mapped render beside its four maps, "
     "labelled with its id, material and lighting.",
+    folder=False,
 )
 @click.option(
     "--samples",
@@ -645,7 +686,7 @@ def preview_cmd(directory, out, samples, tile):
 
 @main.command("info")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON instead.")
+@json_option("Print the figures as JSON instead.")
 @_friendly_errors
 def info_cmd(directory, as_json):
     """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
@@ -660,13 +701,10 @@ def info_cmd(directory, as_json):
 
 @main.command("study")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
+@out_option(
+    "Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
     "report.md. Re-running the same command resumes; another request is refused.",
+    folder=True,
 )
 @click.option(
     "--samples",
@@ -711,7 +749,7 @@ def info_cmd(directory, as_json):
     "multijitter/64); the spec's recipe is always measured.",
 )
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout (progress stays on stderr).")
+@json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
 def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
@@ -768,12 +806,8 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     help="Materials per shard, 1 to 1000000 [default: the spec's]; with few materials use 1 so "
     "every worker gets a shard.",
 )
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Keep the benchmark's dataset in this new or empty folder [default: a temporary one].",
+@out_option(
+    "Keep the benchmark's dataset in this new or empty folder [default: a temporary one].", folder=True, required=False
 )
 @click.option(
     "--profile", is_flag=True, help="Also time one loaded scene per material moved in place, and moment vs plain path."
@@ -782,13 +816,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     "--effects", is_flag=True, help="Run the effects benchmark instead: render time saved by each omitted effect."
 )
 @click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 5].")
-@click.option(
-    "--json",
-    "json_path",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="Also write the figures to this JSON file.",
-)
+@json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
@@ -821,13 +849,10 @@ def _print_result(result, as_json: bool) -> None:
 
 @main.command("publish")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "
+@out_option(
+    "New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "
     "card), croissant.json, SHA256SUMS (docs/publish.md).",
+    folder=True,
 )
 @click.option(
     "--shard-bytes",
@@ -851,7 +876,7 @@ def _print_result(result, as_json: bool) -> None:
     help="Where the publication will live (Croissant's url), e.g. "
     "https://huggingface.co/datasets/ORG/NAME [default: none].",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
     """Publish a dataset that passes `shaderball validate` (checked first; exit 1 if not).
@@ -872,7 +897,7 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
 
 @main.command("verify")
 @click.argument("pub", metavar="PUB", type=click.Path())
-@click.option("--json", "as_json", is_flag=True, help="Print the report (or the refusal: kind, message) as JSON only.")
+@json_option("Print the report (or the refusal: kind, message) as JSON only.")
 @_friendly_errors
 def verify_cmd(pub, as_json):
     """Check a publication without extracting it: every file's SHA-256, every tar header and member.
@@ -885,19 +910,13 @@ def verify_cmd(pub, as_json):
 
 @main.command("unpack")
 @click.argument("pub", metavar="PUB", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="New or empty folder for the dataset; left as it was if the publication is refused.",
-)
+@out_option("New or empty folder for the dataset; left as it was if the publication is refused.", folder=True)
 @click.option(
     "--no-validate",
     is_flag=True,
     help="Skip `shaderball validate` of the result (it needs the spec's svbrdf_folders, if any, on this machine).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
     """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
@@ -915,12 +934,10 @@ def _neural():
 
 @main.command("train")
 @click.argument("dataset", metavar="DATASET", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+@out_option(
+    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+    folder=True,
+    required=False,
 )
 @click.option(
     "--epochs",
@@ -958,13 +975,7 @@ def _neural():
 @click.option(
     "--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0."
 )
-@click.option(
-    "--device",
-    default="auto",
-    show_default=True,
-    type=click.Choice(["auto", "cpu", "cuda"]),
-    help="auto: cuda when torch sees a GPU, else cpu.",
-)
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @click.option("--workers", default=0, show_default=True, type=int, help="DataLoader worker processes, 0 to 64.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds weights, order and split, 0 to 2^63-1.")
 @click.option(
@@ -986,7 +997,7 @@ def _neural():
     is_flag=True,
     help="Measure loader samples/s, training samples/s and inference ms instead of training; writes nothing.",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or benchmark) as JSON on stdout.")
+@json_option("Print the summary (or benchmark) as JSON on stdout.")
 @_friendly_errors
 def train_cmd(
     dataset,
@@ -1047,57 +1058,14 @@ def train_cmd(
 
 @main.command("infer")
 @click.argument("run", metavar="RUN", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
+@out_option(
+    "Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.", folder=False
 )
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
-@click.option(
-    "--diffuse",
-    default="0.5,0.5,0.5",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-)
-@click.option(
-    "--specular",
-    default="0.04,0.04,0.04",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform specular albedo (F0), linear RGB, each in [0, 1].",
-)
-@click.option("--roughness", default=0.3, show_default=True, type=float, help="Uniform roughness in [0, 1].")
-@click.option(
-    "--normal",
-    default="0,0,1",
-    show_default=True,
-    metavar="X,Y,Z",
-    help="Uniform tangent-space normal (Z > 0; normalised).",
-)
-@click.option(
-    "--svbrdf", type=click.Path(), default=None, help="Spatially varying material, as `shaderball render --svbrdf`."
-)
-@click.option(
-    "--svbrdf-colorspace",
-    type=click.Choice(["raw", "srgb"]),
-    default="raw",
-    show_default=True,
-    help="How 8-bit albedo maps of --svbrdf are decoded.",
-)
-@click.option(
-    "--elevation",
-    default=45.0,
-    show_default=True,
-    type=float,
-    help="Sun elevation, degrees in [0, 90] (raised to the low-sun floor as `shaderball render` does).",
-)
-@click.option("--azimuth", default=270.0, show_default=True, type=float, help="Sun azimuth, degrees in [-360, 720].")
-@click.option("--turbidity", default=3.0, show_default=True, type=float, help="Atmospheric turbidity in [1, 10].")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@material_options(full=False)
+@light_options(full=False)
+@device_option()
+@json_option("Print the summary as JSON on stdout.")
 @_friendly_errors
 def infer_cmd(
     run,
@@ -1152,20 +1120,13 @@ def infer_cmd(
     type=click.Choice(["test", "train", "all"]),
     help="The run's held-out (test) or training materials (DATASET must be the run's), or all samples.",
 )
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+@out_option(
+    "Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+    folder=True,
+    required=False,
+    dest="out_dir",
 )
-@click.option(
-    "--json",
-    "json_path",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="Also write the results (per sample and mean) to this JSON file.",
-)
+@json_file_option("Also write the results (per sample and mean) to this JSON file.")
 @click.option(
     "--spp",
     default="1,2,4,16",
@@ -1175,7 +1136,7 @@ def infer_cmd(
 )
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@device_option()
 @_friendly_errors
 def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
