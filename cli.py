@@ -18,24 +18,35 @@ import click
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
+from pipeline.bench.effects import REPEATS_RANGE
 from pipeline.check.info import dataset_info
-from pipeline.check.preview import write_preview
+from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
+from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
-from pipeline.render.command import RenderRequest, parse_triple, render_to_files
-from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, span
+from pipeline.render.command import AZIMUTH_RANGE, SEED_RANGE, RenderRequest, parse_triple, render_to_files
+from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, interval, span
 from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
-from pipeline.run.cluster.options import ClusterOptions
+from pipeline.run.cluster.options import (
+    CORES_RANGE,
+    JOBS_RANGE,
+    RECYCLE_AFTER_RANGE,
+    START_TIMEOUT_RANGE,
+    WALLTIME_SPAN,
+    WORKERS_RANGE,
+    ClusterOptions,
+)
 from pipeline.run.repair import repair
-from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.study.run import MAX_LADDER_SPP, MAX_REFERENCE_SPP, StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -46,6 +57,7 @@ from pipeline.ui.progress import (
 )
 from pipeline.ui.values import parse_int_list
 from sky.emitter import DEFAULT_SUN, SUN_MODES
+from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
 INTERRUPTED_EXIT = 130
@@ -331,18 +343,18 @@ def light_options(*, full: bool):
             default=45.0,
             show_default=True,
             type=float,
-            help="Sun elevation above the horizon, degrees in [0, 90]. Below ~2.4-7 degrees "
+            help=f"Sun elevation above the horizon, degrees in {interval(ELEVATION_RANGE)}. Below ~2.4-7 degrees "
             "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
             "the move is printed and recorded."
             if full
-            else "Sun elevation, degrees in [0, 90] (raised to the low-sun floor as `shaderball render` does).",
+            else f"Sun elevation, degrees in {interval(ELEVATION_RANGE)} (raised to the low-sun floor as `shaderball render` does).",
         ),
         click.option(
             "--azimuth",
             default=270.0,
             show_default=True,
             type=float,
-            help="Sun azimuth, degrees in [-360, 720]"
+            help=f"Sun azimuth, degrees in {interval(AZIMUTH_RANGE)}"
             + (
                 ", counter-clockwise from +x seen from above: "
                 "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side."
@@ -355,7 +367,8 @@ def light_options(*, full: bool):
             default=3.0,
             show_default=True,
             type=float,
-            help="Atmospheric turbidity in [1, 10]" + (" (1: very clear, 10: hazy)." if full else "."),
+            help=f"Atmospheric turbidity in {interval(TURBIDITY_RANGE)}"
+            + (" (1: very clear, 10: hazy)." if full else "."),
         ),
     )
 
@@ -385,7 +398,7 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 @click.option(
     "--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}."
 )
-@click.option("--seed", default=0, show_default=True, type=int, help="Render seed, 0 to 2^32-1.")
+@click.option("--seed", default=0, show_default=True, type=int, help=f"Render seed, {span(SEED_RANGE)}.")
 @variant_option()
 @click.option(
     "--sun",
@@ -463,7 +476,7 @@ def render_cmd(
     "--workers",
     type=int,
     default=None,
-    help="Local dask worker processes, 0 to 1024 [default: one per 2 cores]. 0 runs in this "
+    help=f"Local dask worker processes, {span(WORKERS_RANGE)} [default: one per 2 cores]. 0 runs in this "
     "process without dask. Ignored with --scheduler.",
 )
 @click.option(
@@ -487,8 +500,12 @@ def render_cmd(
     show_default=True,
     help="Where workers run: this machine, or batch jobs via dask-jobqueue.",
 )
-@click.option("--jobs", type=int, default=None, help="slurm/pbs: batch jobs (nodes), 1 to 10000; one worker each.")
-@click.option("--cores", type=int, default=None, help="slurm/pbs: cores per job, 1 to 1024; every render uses all.")
+@click.option(
+    "--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs (nodes), {span(JOBS_RANGE)}; one worker each."
+)
+@click.option(
+    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; every render uses all."
+)
 @click.option(
     "--memory",
     default=None,
@@ -500,7 +517,7 @@ def render_cmd(
     "--walltime",
     default=None,
     metavar="HH:MM:SS",
-    help="slurm/pbs: wall-clock limit per job, 00:01:00 to 9999:59:59; workers retire about 5 min "
+    help=f"slurm/pbs: wall-clock limit per job, {WALLTIME_SPAN}; workers retire about 5 min "
     "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
 )
 @click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
@@ -518,7 +535,8 @@ def render_cmd(
     default=2000,
     show_default=True,
     metavar="RENDERS",
-    help="Restart a dask worker process once it has rendered this many samples, 0 to 10000000 "
+    help="Restart a dask worker process once it has rendered this many samples, "
+    f"{span(RECYCLE_AFTER_RANGE)} "
     "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
 )
 @click.option(
@@ -527,7 +545,7 @@ def render_cmd(
     default=None,
     metavar="SECONDS",
     help="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
-    "this long, 10 to 10000000: before the first one arrives, or after the last one left "
+    f"this long, {span(START_TIMEOUT_RANGE)}: before the first one arrives, or after the last one left "
     "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
     "as long as it takes]",
 )
@@ -668,13 +686,13 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     default=8,
     show_default=True,
     type=int,
-    help="Rows, 1 to 200: samples spread evenly over the renders recorded so far.",
+    help=f"Rows, {span(SAMPLES_RANGE)}: samples spread evenly over the renders recorded so far.",
 )
 @click.option(
     "--tile",
     default=None,
     type=int,
-    help="Picture size in pixels, 32 to 1024 [default: the render size, scaled to 128-256].",
+    help=f"Picture size in pixels, {span(TILE_RANGE)} [default: the render size, scaled to 128-256].",
 )
 @_friendly_errors
 def preview_cmd(directory, out, samples, tile):
@@ -711,7 +729,8 @@ def info_cmd(directory, as_json):
     type=int,
     default=12,
     show_default=True,
-    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; 1 to 1000.",
+    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; "
+    f"{span(STUDY_SAMPLES_RANGE)}.",
 )
 @click.option(
     "--reference-spp",
@@ -719,7 +738,7 @@ def info_cmd(directory, as_json):
     default=4096,
     show_default=True,
     help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
-    "studied, at most 65536.",
+    f"studied, at most {MAX_REFERENCE_SPP}.",
 )
 @click.option(
     "--resolution",
@@ -731,7 +750,7 @@ def info_cmd(directory, as_json):
     "--ladder",
     default="1,2,4,8,16,32,64,128,150,256,512,1024",
     show_default=True,
-    help="spp ladder of the independent sampler, comma-separated, 1 to 16384 (the spec's spp is always added).",
+    help=f"spp ladder of the independent sampler, comma-separated, {span((1, MAX_LADDER_SPP))} (the spec's spp is always added).",
 )
 @click.option(
     "--configs",
@@ -803,7 +822,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     "--shard-size",
     type=int,
     default=None,
-    help="Materials per shard, 1 to 1000000 [default: the spec's]; with few materials use 1 so "
+    help=f"Materials per shard, {span((1, MAX_MATERIALS))} [default: the spec's]; with few materials use 1 so "
     "every worker gets a shard.",
 )
 @out_option(
@@ -815,7 +834,12 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @click.option(
     "--effects", is_flag=True, help="Run the effects benchmark instead: render time saved by each omitted effect."
 )
-@click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 5].")
+@click.option(
+    "--repeats",
+    type=int,
+    default=None,
+    help=f"--effects: timed renders per variant, {span(REPEATS_RANGE)} [default: 5].",
+)
 @json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
