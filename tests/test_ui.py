@@ -53,3 +53,26 @@ def test_int_lists():
     )
     with pytest.raises(ShaderballError, match="from 1 to 8$"):
         parse_int_list("--n", "", (1, 8))
+
+
+def test_the_neural_commands_help_says_the_ranges_their_checks_use():
+    """train's and evaluate's ranges live in modules that import torch, which the CLI loads
+    only when such a command runs, so their --help spells them out (docs/architecture.md,
+    "One owner per concern"); this keeps the two saying the same."""
+    pytest.importorskip("torch")
+    from click.testing import CliRunner
+
+    from cli import main
+    from pipeline.neural.evaluate import SPP_LADDER_RANGE
+    from pipeline.neural.train import INTEGER_RANGES
+    from pipeline.render.limits import span
+
+    def help_of(command):
+        result = CliRunner().invoke(main, [command, "--help"])
+        assert result.exit_code == 0
+        return " ".join(result.output.split())
+
+    train = help_of("train")
+    for name, bounds in INTEGER_RANGES.items():
+        assert f"--{name.replace('_', '-')}" in train and span(bounds) in train, name
+    assert f"each {span(SPP_LADDER_RANGE)};" in help_of("evaluate")
