@@ -37,6 +37,8 @@ from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
 from pipeline.run.cluster.options import (
     CORES_RANGE,
+    DEFAULT_RECYCLE_AFTER,
+    DEFAULT_SCRATCH,
     JOBS_RANGE,
     RECYCLE_AFTER_RANGE,
     START_TIMEOUT_RANGE,
@@ -45,6 +47,7 @@ from pipeline.run.cluster.options import (
     ClusterOptions,
 )
 from pipeline.run.repair import repair
+from pipeline.study.configs import DEFAULT_LADDER
 from pipeline.study.run import MAX_LADDER_SPP, MAX_REFERENCE_SPP, StudyRequest, parse_families, parse_ladder, run_study
 from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
 from pipeline.ui.progress import (
@@ -527,12 +530,12 @@ def render_cmd(
     default=None,
     metavar="DIR",
     help="slurm/pbs: node-local folder for the kernel cache and dask's files "
-    "[default: ${TMPDIR:-/tmp}, expanded on the node].",
+    f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
 )
 @click.option(
     "--recycle-after",
     type=int,
-    default=2000,
+    default=DEFAULT_RECYCLE_AFTER,
     show_default=True,
     metavar="RENDERS",
     help="Restart a dask worker process once it has rendered this many samples, "
@@ -748,7 +751,7 @@ def info_cmd(directory, as_json):
 )
 @click.option(
     "--ladder",
-    default="1,2,4,8,16,32,64,128,150,256,512,1024",
+    default=",".join(map(str, DEFAULT_LADDER)),
     show_default=True,
     help=f"spp ladder of the independent sampler, comma-separated, {span((1, MAX_LADDER_SPP))} (the spec's spp is always added).",
 )
