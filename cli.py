@@ -18,25 +18,49 @@ import click
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
+from pipeline.bench.effects import REPEATS_RANGE
 from pipeline.check.info import dataset_info
-from pipeline.check.preview import write_preview
+from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
+from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
-from pipeline.render.command import RenderRequest, parse_triple, render_to_files
-from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, span
+from pipeline.render.command import AZIMUTH_RANGE, SEED_RANGE, RenderRequest, parse_triple, render_to_files
+from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, interval, span
 from pipeline.render.mitsuba_env import VARIANT_CHOICES
 from pipeline.render.scene_command import write_scene
 from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
-from pipeline.run.cluster.options import ClusterOptions
+from pipeline.run.cluster.options import (
+    CORES_RANGE,
+    DEFAULT_RECYCLE_AFTER,
+    DEFAULT_SCRATCH,
+    JOBS_RANGE,
+    RECYCLE_AFTER_RANGE,
+    START_TIMEOUT_RANGE,
+    WALLTIME_SPAN,
+    WORKERS_RANGE,
+    ClusterOptions,
+)
 from pipeline.run.repair import repair
-from pipeline.study.run import StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.study.configs import DEFAULT_LADDER
+from pipeline.study.run import MAX_LADDER_SPP, MAX_REFERENCE_SPP, StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
+from pipeline.ui.progress import (
+    build_progress,
+    evaluate_progress,
+    say,
+    study_progress,
+    training_progress,
+    validate_progress,
+)
+from pipeline.ui.values import parse_int_list
 from sky.emitter import DEFAULT_SUN, SUN_MODES
+from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
 INTERRUPTED_EXIT = 130
@@ -203,28 +227,161 @@ def main():
     """
 
 
+# Option groups, declared once: every command that takes one of these uses the same declaration.
+
+
+def _options(*options):
+    """One decorator of several click options, applied in the order given (as --help lists them)."""
+
+    def apply(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return apply
+
+
+def json_option(help: str):
+    """``--json``, a flag (``as_json``): one JSON document on stdout (:func:`_friendly_errors`)."""
+    return click.option("--json", "as_json", is_flag=True, help=help)
+
+
+def json_file_option(help: str):
+    """``--json PATH`` (``json_path``): also write the figures to a JSON file."""
+    return click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
+
+
+def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "out"):
+    """``--out``: a folder (``folder=True``) or a file the command writes."""
+    kind = click.Path(file_okay=False) if folder else click.Path(dir_okay=False)
+    return click.option("--out", dest, required=required, type=kind, default=None, help=help)
+
+
+def variant_option():
+    return click.option(
+        "--variant",
+        default="auto",
+        show_default=True,
+        type=click.Choice(VARIANT_CHOICES),
+        help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
+    )
+
+
+def resolution_option():
+    return click.option(
+        "--resolution",
+        default=400,
+        show_default=True,
+        type=int,
+        help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
+    )
+
+
+def device_option(help: str | None = None):
+    """torch's device (train, infer, evaluate)."""
+    return click.option(
+        "--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]), help=help
+    )
+
+
+def material_options(*, full: bool):
+    """The uniform material (--diffuse, --specular, --roughness, --normal) or --svbrdf maps, of
+    `render` and `infer`; ``full``: render's help, which infer's refers to."""
+    return _options(
+        click.option(
+            "--diffuse",
+            default="0.5,0.5,0.5",
+            show_default=True,
+            metavar="R,G,B",
+            help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
+        ),
+        click.option(
+            "--specular",
+            default="0.04,0.04,0.04",
+            show_default=True,
+            metavar="R,G,B",
+            help="Uniform specular albedo (F0), linear RGB, each in [0, 1]."
+            + (" 0.04 is a typical dielectric." if full else ""),
+        ),
+        click.option(
+            "--roughness",
+            default=0.3,
+            show_default=True,
+            type=float,
+            help="Uniform roughness in [0, 1]" + ("; GGX alpha = roughness^2." if full else "."),
+        ),
+        click.option(
+            "--normal",
+            default="0,0,1",
+            show_default=True,
+            metavar="X,Y,Z",
+            help="Uniform tangent-space normal (Z > 0; normalised).",
+        ),
+        click.option(
+            "--svbrdf",
+            type=click.Path(),
+            default=None,
+            help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
+            "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps."
+            if full
+            else "Spatially varying material, as `shaderball render --svbrdf`.",
+        ),
+        click.option(
+            "--svbrdf-colorspace",
+            type=click.Choice(["raw", "srgb"]),
+            default="raw",
+            show_default=True,
+            help="How 8-bit albedo maps of --svbrdf are decoded"
+            + (": raw (as Deschaintre's renderer) or sRGB." if full else "."),
+        ),
+    )
+
+
+def light_options(*, full: bool):
+    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`; ``full``:
+    render's help, which infer's refers to."""
+    return _options(
+        click.option(
+            "--elevation",
+            default=45.0,
+            show_default=True,
+            type=float,
+            help=f"Sun elevation above the horizon, degrees in {interval(ELEVATION_RANGE)}. Below ~2.4-7 degrees "
+            "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
+            "the move is printed and recorded."
+            if full
+            else f"Sun elevation, degrees in {interval(ELEVATION_RANGE)} (raised to the low-sun floor as `shaderball render` does).",
+        ),
+        click.option(
+            "--azimuth",
+            default=270.0,
+            show_default=True,
+            type=float,
+            help=f"Sun azimuth, degrees in {interval(AZIMUTH_RANGE)}"
+            + (
+                ", counter-clockwise from +x seen from above: "
+                "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side."
+                if full
+                else "."
+            ),
+        ),
+        click.option(
+            "--turbidity",
+            default=3.0,
+            show_default=True,
+            type=float,
+            help=f"Atmospheric turbidity in {interval(TURBIDITY_RANGE)}"
+            + (" (1: very clear, 10: hazy)." if full else "."),
+        ),
+    )
+
+
 @main.command("scene")
-@click.option(
-    "--out",
-    "out_dir",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.",
+@out_option(
+    "Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.", folder=True, dest="out_dir"
 )
-@click.option(
-    "--resolution",
-    default=400,
-    show_default=True,
-    type=int,
-    help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-)
-@click.option(
-    "--variant",
-    default="auto",
-    show_default=True,
-    type=click.Choice(VARIANT_CHOICES),
-    help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
-)
+@resolution_option()
+@variant_option()
 @_friendly_errors
 def scene_cmd(out_dir: str, resolution: int, variant: str):
     """Write the shaderball mesh, its G-buffer and a preview picture."""
@@ -235,93 +392,17 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 
 
 @main.command("render")
-@click.option(
-    "--diffuse",
-    default="0.5,0.5,0.5",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-)
-@click.option(
-    "--specular",
-    default="0.04,0.04,0.04",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform specular albedo (F0), linear RGB, each in [0, 1]. 0.04 is a typical dielectric.",
-)
-@click.option(
-    "--roughness",
-    default=0.3,
-    show_default=True,
-    type=float,
-    help="Uniform roughness in [0, 1]; GGX alpha = roughness^2.",
-)
-@click.option(
-    "--normal",
-    default="0,0,1",
-    show_default=True,
-    metavar="X,Y,Z",
-    help="Uniform tangent-space normal (Z > 0; normalised).",
-)
-@click.option(
-    "--svbrdf",
-    type=click.Path(),
-    default=None,
-    help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
-    "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
-)
-@click.option(
-    "--svbrdf-colorspace",
-    type=click.Choice(["raw", "srgb"]),
-    default="raw",
-    show_default=True,
-    help="How 8-bit albedo maps of --svbrdf are decoded: raw (as Deschaintre's renderer) or sRGB.",
-)
-@click.option(
-    "--elevation",
-    default=45.0,
-    show_default=True,
-    type=float,
-    help="Sun elevation above the horizon, degrees in [0, 90]. Below ~2.4-7 degrees "
-    "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
-    "the move is printed and recorded.",
-)
-@click.option(
-    "--azimuth",
-    default=270.0,
-    show_default=True,
-    type=float,
-    help="Sun azimuth, degrees in [-360, 720], counter-clockwise from +x seen from above: "
-    "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side.",
-)
-@click.option(
-    "--turbidity",
-    default=3.0,
-    show_default=True,
-    type=float,
-    help="Atmospheric turbidity in [1, 10] (1: very clear, 10: hazy).",
-)
+@material_options(full=True)
+@light_options(full=True)
 @click.option(
     "--spp", default=150, show_default=True, type=int, help=f"Samples per pixel, {span(SPP_RANGE)} (the paper: 150)."
 )
-@click.option(
-    "--resolution",
-    default=400,
-    show_default=True,
-    type=int,
-    help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-)
+@resolution_option()
 @click.option(
     "--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}."
 )
-@click.option("--seed", default=0, show_default=True, type=int, help="Render seed, 0 to 2^32-1.")
-@click.option(
-    "--variant",
-    default="auto",
-    show_default=True,
-    type=click.Choice(VARIANT_CHOICES),
-    help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
-)
+@click.option("--seed", default=0, show_default=True, type=int, help=f"Render seed, {span(SEED_RANGE)}.")
+@variant_option()
 @click.option(
     "--sun",
     type=click.Choice(SUN_MODES),
@@ -338,13 +419,7 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
     "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
     "roughness 0.178; docs/materials.md). A spec's materials.model.",
 )
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="Output EXR: layers render.R/G/B (float32) and the screen-space maps.",
-)
+@out_option("Output EXR: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
 @_friendly_errors
 def render_cmd(
@@ -393,59 +468,18 @@ def render_cmd(
         click.echo(line)
 
 
-def _format_seconds(seconds: float | None) -> str:
-    if seconds is None:
-        return "--:--"
-    seconds = int(seconds)
-    return (
-        f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
-        if seconds >= 3600
-        else f"{seconds // 60}:{seconds % 60:02d}"
-    )
-
-
-def _progress_printer():
-    """A one-line progress bar on stderr: count, percentage, renders/s, elapsed, ETA, and what the
-    build waits on (workers, batch jobs pending and why), printed again when either changes."""
-    interactive = sys.stderr.isatty()
-    last = {"done": -1, "message": "", "width": 0}
-
-    def show(p):
-        message = getattr(p, "message", "")
-        if p.done == last["done"] and message == last["message"]:
-            return
-        last["done"], last["message"] = p.done, message
-        width = 30
-        filled = int(width * p.done / p.total) if p.total else width
-        line = (
-            f"[{'#' * filled}{'.' * (width - filled)}] {p.done}/{p.total} renders "
-            f"{100.0 * p.done / max(p.total, 1):5.1f}%  {p.rate:.2f}/s  "
-            f"elapsed {_format_seconds(p.elapsed_s)}  ETA {_format_seconds(p.eta_s)}"
-            + (f"  | {message}" if message else "")
-        )
-        padded, last["width"] = line.ljust(last["width"]), len(line)
-        click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive)
-        if interactive and p.done >= p.total:
-            click.echo("", err=True)
-
-    return show
-
-
 @main.command("build")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Dataset directory. Created if missing; an existing one built from the same spec is "
+@out_option(
+    "Dataset directory. Created if missing; an existing one built from the same spec is "
     "resumed (only missing or unverified samples are rendered); another spec is refused.",
+    folder=True,
 )
 @click.option(
     "--workers",
     type=int,
     default=None,
-    help="Local dask worker processes, 0 to 1024 [default: one per 2 cores]. 0 runs in this "
+    help=f"Local dask worker processes, {span(WORKERS_RANGE)} [default: one per 2 cores]. 0 runs in this "
     "process without dask. Ignored with --scheduler.",
 )
 @click.option(
@@ -469,8 +503,12 @@ def _progress_printer():
     show_default=True,
     help="Where workers run: this machine, or batch jobs via dask-jobqueue.",
 )
-@click.option("--jobs", type=int, default=None, help="slurm/pbs: batch jobs (nodes), 1 to 10000; one worker each.")
-@click.option("--cores", type=int, default=None, help="slurm/pbs: cores per job, 1 to 1024; every render uses all.")
+@click.option(
+    "--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs (nodes), {span(JOBS_RANGE)}; one worker each."
+)
+@click.option(
+    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; every render uses all."
+)
 @click.option(
     "--memory",
     default=None,
@@ -482,7 +520,7 @@ def _progress_printer():
     "--walltime",
     default=None,
     metavar="HH:MM:SS",
-    help="slurm/pbs: wall-clock limit per job, 00:01:00 to 9999:59:59; workers retire about 5 min "
+    help=f"slurm/pbs: wall-clock limit per job, {WALLTIME_SPAN}; workers retire about 5 min "
     "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
 )
 @click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
@@ -492,15 +530,16 @@ def _progress_printer():
     default=None,
     metavar="DIR",
     help="slurm/pbs: node-local folder for the kernel cache and dask's files "
-    "[default: ${TMPDIR:-/tmp}, expanded on the node].",
+    f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
 )
 @click.option(
     "--recycle-after",
     type=int,
-    default=2000,
+    default=DEFAULT_RECYCLE_AFTER,
     show_default=True,
     metavar="RENDERS",
-    help="Restart a dask worker process once it has rendered this many samples, 0 to 10000000 "
+    help="Restart a dask worker process once it has rendered this many samples, "
+    f"{span(RECYCLE_AFTER_RANGE)} "
     "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
 )
 @click.option(
@@ -509,7 +548,7 @@ def _progress_printer():
     default=None,
     metavar="SECONDS",
     help="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
-    "this long, 10 to 10000000: before the first one arrives, or after the last one left "
+    f"this long, {span(START_TIMEOUT_RANGE)}: before the first one arrives, or after the last one left "
     "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
     "as long as it takes]",
 )
@@ -566,7 +605,7 @@ def build_cmd(
         click.echo(f"building with {where}" + (f"; dashboard {dashboard}" if dashboard else ""), err=True)
 
     summary = build(
-        spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=_progress_printer(), on_start=started
+        spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=build_progress(), on_start=started
     )
     for line in summary.lines():
         click.echo(line)
@@ -574,12 +613,9 @@ def build_cmd(
 
 @main.command("validate")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print the report as JSON on stdout: expected/present/valid render counts and "
-    "problems [{kind, id, path, message}] (docs/validate.md).",
+@json_option(
+    "Print the report as JSON on stdout: expected/present/valid render counts and "
+    "problems [{kind, id, path, message}] (docs/validate.md)."
 )
 @click.option(
     "--repair",
@@ -616,22 +652,11 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
     Progress goes to stderr.
     """
-    import time
-
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
     if spec_path and not fix:
         raise click.UsageError("--spec is used only with --repair")
-    last = {"t": 0.0}
-
-    def show(p):
-        now = time.monotonic()
-        if p.done < p.total and now - last["t"] < 1.0:
-            return
-        last["t"] = now
-        read = f"files, {p.bytes_read / 1e6:.1f} MB read" if p.stage == "check" else "renders done"
-        click.echo(f"{p.stage}: {p.done}/{p.total} {read}, {_format_seconds(p.elapsed_s)}", err=True)
-
+    show = validate_progress()
     if fix:
         before, report, actions = repair(directory, workers=workers, progress=show, spec_path=spec_path)
     else:
@@ -654,26 +679,23 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 
 @main.command("preview")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="PNG to write: one row per sample, its tone-mapped render beside its four maps, "
+@out_option(
+    "PNG to write: one row per sample, its tone-mapped render beside its four maps, "
     "labelled with its id, material and lighting.",
+    folder=False,
 )
 @click.option(
     "--samples",
     default=8,
     show_default=True,
     type=int,
-    help="Rows, 1 to 200: samples spread evenly over the renders recorded so far.",
+    help=f"Rows, {span(SAMPLES_RANGE)}: samples spread evenly over the renders recorded so far.",
 )
 @click.option(
     "--tile",
     default=None,
     type=int,
-    help="Picture size in pixels, 32 to 1024 [default: the render size, scaled to 128-256].",
+    help=f"Picture size in pixels, {span(TILE_RANGE)} [default: the render size, scaled to 128-256].",
 )
 @_friendly_errors
 def preview_cmd(directory, out, samples, tile):
@@ -685,7 +707,7 @@ def preview_cmd(directory, out, samples, tile):
 
 @main.command("info")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON instead.")
+@json_option("Print the figures as JSON instead.")
 @_friendly_errors
 def info_cmd(directory, as_json):
     """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
@@ -700,20 +722,18 @@ def info_cmd(directory, as_json):
 
 @main.command("study")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
+@out_option(
+    "Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
     "report.md. Re-running the same command resumes; another request is refused.",
+    folder=True,
 )
 @click.option(
     "--samples",
     type=int,
     default=12,
     show_default=True,
-    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; 1 to 1000.",
+    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; "
+    f"{span(STUDY_SAMPLES_RANGE)}.",
 )
 @click.option(
     "--reference-spp",
@@ -721,7 +741,7 @@ def info_cmd(directory, as_json):
     default=4096,
     show_default=True,
     help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
-    "studied, at most 65536.",
+    f"studied, at most {MAX_REFERENCE_SPP}.",
 )
 @click.option(
     "--resolution",
@@ -731,9 +751,9 @@ def info_cmd(directory, as_json):
 )
 @click.option(
     "--ladder",
-    default="1,2,4,8,16,32,64,128,150,256,512,1024",
+    default=",".join(map(str, DEFAULT_LADDER)),
     show_default=True,
-    help="spp ladder of the independent sampler, comma-separated, 1 to 16384 (the spec's spp is always added).",
+    help=f"spp ladder of the independent sampler, comma-separated, {span((1, MAX_LADDER_SPP))} (the spec's spp is always added).",
 )
 @click.option(
     "--configs",
@@ -751,13 +771,10 @@ def info_cmd(directory, as_json):
     "multijitter/64); the spec's recipe is always measured.",
 )
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout (progress stays on stderr).")
+@json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
 def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
-
-    def progress(p):
-        click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {_format_seconds(p['elapsed_s'])}", err=True)
 
     req = StudyRequest(
         spec=spec,
@@ -770,7 +787,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
         only=tuple(n for n in only.split(",") if n),
         flip=not no_flip,
     )
-    summary = run_study(req, progress=progress)
+    summary = run_study(req, progress=study_progress)
     if as_json:
         _emit_json(summary.to_dict())
         return
@@ -808,15 +825,11 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     "--shard-size",
     type=int,
     default=None,
-    help="Materials per shard, 1 to 1000000 [default: the spec's]; with few materials use 1 so "
+    help=f"Materials per shard, {span((1, MAX_MATERIALS))} [default: the spec's]; with few materials use 1 so "
     "every worker gets a shard.",
 )
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Keep the benchmark's dataset in this new or empty folder [default: a temporary one].",
+@out_option(
+    "Keep the benchmark's dataset in this new or empty folder [default: a temporary one].", folder=True, required=False
 )
 @click.option(
     "--profile", is_flag=True, help="Also time one loaded scene per material moved in place, and moment vs plain path."
@@ -824,14 +837,13 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @click.option(
     "--effects", is_flag=True, help="Run the effects benchmark instead: render time saved by each omitted effect."
 )
-@click.option("--repeats", type=int, default=None, help="--effects: timed renders per variant, 1 to 100 [default: 5].")
 @click.option(
-    "--json",
-    "json_path",
-    type=click.Path(dir_okay=False),
+    "--repeats",
+    type=int,
     default=None,
-    help="Also write the figures to this JSON file.",
+    help=f"--effects: timed renders per variant, {span(REPEATS_RANGE)} [default: 5].",
 )
+@json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
@@ -848,7 +860,7 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
         profile=profile,
         repeats=repeats,
         json_path=json_path,
-        progress=lambda message: click.echo(message, err=True),
+        progress=say,
     )
     for line in result.lines():
         click.echo(line)
@@ -864,13 +876,10 @@ def _print_result(result, as_json: bool) -> None:
 
 @main.command("publish")
 @click.argument("directory", metavar="DIR", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "
+@out_option(
+    "New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "
     "card), croissant.json, SHA256SUMS (docs/publish.md).",
+    folder=True,
 )
 @click.option(
     "--shard-bytes",
@@ -894,7 +903,7 @@ def _print_result(result, as_json: bool) -> None:
     help="Where the publication will live (Croissant's url), e.g. "
     "https://huggingface.co/datasets/ORG/NAME [default: none].",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
     """Publish a dataset that passes `shaderball validate` (checked first; exit 1 if not).
@@ -908,43 +917,37 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
         shard_bytes=shard_bytes,
         license_id=license_id,
         url=url,
-        progress=lambda message: click.echo(message, err=True),
+        progress=say,
     )
     _print_result(summary, as_json)
 
 
 @main.command("verify")
 @click.argument("pub", metavar="PUB", type=click.Path())
-@click.option("--json", "as_json", is_flag=True, help="Print the report (or the refusal: kind, message) as JSON only.")
+@json_option("Print the report (or the refusal: kind, message) as JSON only.")
 @_friendly_errors
 def verify_cmd(pub, as_json):
     """Check a publication without extracting it: every file's SHA-256, every tar header and member.
 
     Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
     """
-    report = verify(pub, progress=lambda message: click.echo(message, err=True))
+    report = verify(pub, progress=say)
     _print_result(report, as_json)
 
 
 @main.command("unpack")
 @click.argument("pub", metavar="PUB", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="New or empty folder for the dataset; left as it was if the publication is refused.",
-)
+@out_option("New or empty folder for the dataset; left as it was if the publication is refused.", folder=True)
 @click.option(
     "--no-validate",
     is_flag=True,
     help="Skip `shaderball validate` of the result (it needs the spec's svbrdf_folders, if any, on this machine).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or the refusal) as JSON only.")
+@json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
     """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
-    summary = unpack(pub, out, validate_after=not no_validate, progress=lambda message: click.echo(message, err=True))
+    summary = unpack(pub, out, validate_after=not no_validate, progress=say)
     _print_result(summary, as_json)
 
 
@@ -956,33 +959,12 @@ def _neural():
         raise ShaderballError("the neural stage needs torch: pip install -e '.[train]'") from None
 
 
-def _training_progress():
-    """One line on stderr per batch: epoch, batch, loss, samples/s, ETA."""
-    interactive = sys.stderr.isatty()
-
-    def show(p):
-        width = 20
-        filled = int(width * p["batch"] / p["batches"])
-        line = (
-            f"epoch {p['epoch']}/{p['epochs']} [{'#' * filled}{'.' * (width - filled)}] "
-            f"batch {p['batch']}/{p['batches']}  loss {p['loss']:.4f}  {p['samples_per_s']:.1f} samples/s  "
-            f"ETA {_format_seconds(p['eta_s'])}"
-        )
-        click.echo(("\r" + line) if interactive else line, err=True, nl=not interactive)
-        if interactive and p["batch"] == p["batches"]:
-            click.echo("", err=True)
-
-    return show
-
-
 @main.command("train")
 @click.argument("dataset", metavar="DATASET", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+@out_option(
+    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+    folder=True,
+    required=False,
 )
 @click.option(
     "--epochs",
@@ -1020,13 +1002,7 @@ def _training_progress():
 @click.option(
     "--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0."
 )
-@click.option(
-    "--device",
-    default="auto",
-    show_default=True,
-    type=click.Choice(["auto", "cpu", "cuda"]),
-    help="auto: cuda when torch sees a GPU, else cpu.",
-)
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @click.option("--workers", default=0, show_default=True, type=int, help="DataLoader worker processes, 0 to 64.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds weights, order and split, 0 to 2^63-1.")
 @click.option(
@@ -1048,7 +1024,7 @@ def _training_progress():
     is_flag=True,
     help="Measure loader samples/s, training samples/s and inference ms instead of training; writes nothing.",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the summary (or benchmark) as JSON on stdout.")
+@json_option("Print the summary (or benchmark) as JSON on stdout.")
 @_friendly_errors
 def train_cmd(
     dataset,
@@ -1098,7 +1074,7 @@ def train_cmd(
         result = run_benchmark(config)
         lines, data = result.lines(), result.to_dict()
     else:
-        summary = train(config, progress=None if as_json else _training_progress())
+        summary = train(config, progress=None if as_json else training_progress())
         lines, data = summary.lines(), summary.to_dict()
     if as_json:
         _emit_json(data)
@@ -1109,57 +1085,14 @@ def train_cmd(
 
 @main.command("infer")
 @click.argument("run", metavar="RUN", type=click.Path())
-@click.option(
-    "--out",
-    "out",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
+@out_option(
+    "Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.", folder=False
 )
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
-@click.option(
-    "--diffuse",
-    default="0.5,0.5,0.5",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-)
-@click.option(
-    "--specular",
-    default="0.04,0.04,0.04",
-    show_default=True,
-    metavar="R,G,B",
-    help="Uniform specular albedo (F0), linear RGB, each in [0, 1].",
-)
-@click.option("--roughness", default=0.3, show_default=True, type=float, help="Uniform roughness in [0, 1].")
-@click.option(
-    "--normal",
-    default="0,0,1",
-    show_default=True,
-    metavar="X,Y,Z",
-    help="Uniform tangent-space normal (Z > 0; normalised).",
-)
-@click.option(
-    "--svbrdf", type=click.Path(), default=None, help="Spatially varying material, as `shaderball render --svbrdf`."
-)
-@click.option(
-    "--svbrdf-colorspace",
-    type=click.Choice(["raw", "srgb"]),
-    default="raw",
-    show_default=True,
-    help="How 8-bit albedo maps of --svbrdf are decoded.",
-)
-@click.option(
-    "--elevation",
-    default=45.0,
-    show_default=True,
-    type=float,
-    help="Sun elevation, degrees in [0, 90] (raised to the low-sun floor as `shaderball render` does).",
-)
-@click.option("--azimuth", default=270.0, show_default=True, type=float, help="Sun azimuth, degrees in [-360, 720].")
-@click.option("--turbidity", default=3.0, show_default=True, type=float, help="Atmospheric turbidity in [1, 10].")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@material_options(full=False)
+@light_options(full=False)
+@device_option()
+@json_option("Print the summary as JSON on stdout.")
 @_friendly_errors
 def infer_cmd(
     run,
@@ -1214,20 +1147,13 @@ def infer_cmd(
     type=click.Choice(["test", "train", "all"]),
     help="The run's held-out (test) or training materials (DATASET must be the run's), or all samples.",
 )
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+@out_option(
+    "Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+    folder=True,
+    required=False,
+    dest="out_dir",
 )
-@click.option(
-    "--json",
-    "json_path",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="Also write the results (per sample and mean) to this JSON file.",
-)
+@json_file_option("Also write the results (per sample and mean) to this JSON file.")
 @click.option(
     "--spp",
     default="1,2,4,16",
@@ -1237,7 +1163,7 @@ def infer_cmd(
 )
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
-@click.option("--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]))
+@device_option()
 @_friendly_errors
 def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
@@ -1246,17 +1172,9 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
     the first-hit albedo and normal, and on the colour alone (docs/neural.md).
     """
     _neural()
-    from pipeline.neural.evaluate import EvaluateRequest, evaluate
+    from pipeline.neural.evaluate import SPP_LADDER_RANGE, EvaluateRequest, evaluate
 
-    if spp.strip().lower() == "none":
-        spp_list = ()
-    else:
-        try:
-            spp_list = tuple(int(x) for x in spp.split(","))
-        except ValueError:
-            raise ShaderballError(
-                f"--spp: {spp!r} is not allowed; allowed: comma-separated integers from 1 to 4096, or none"
-            ) from None
+    spp_list = parse_int_list("--spp", spp, SPP_LADDER_RANGE, none="none")
     request = EvaluateRequest(
         run=run,
         dataset=dataset,
@@ -1268,9 +1186,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         limit=limit,
         device=device,
     )
-    summary = evaluate(
-        request, progress=lambda p: click.echo(f"sample {p['sample']}/{p['samples']} {p['id']}", err=True)
-    )
+    summary = evaluate(request, progress=evaluate_progress)
     for line in summary.lines():
         click.echo(line)
 

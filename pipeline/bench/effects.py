@@ -32,6 +32,9 @@ from pipeline.render.renderer import RenderSettings, plan_effects, scene_dict
 from pipeline.render.scene import BALL_SHAPE_ID, bitmap_texture
 from sky import Light
 
+#: --repeats: timed renders per variant.
+REPEATS_RANGE = (1, 100)
+
 
 def bitmap_bsdf(maps, size: int, variant: str, lobes: dict | None = None) -> dict:
     """The material BSDF of a uniform ``maps`` with its values replicated in size x size bitmaps.
@@ -202,7 +205,7 @@ def run_effects_bench(
 
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or 128
     spp = check_int("--spp", spp, *SPP_RANGE) or 64
-    repeats = check_int("--repeats", repeats, 1, 100) or 5
+    repeats = check_int("--repeats", repeats, *REPEATS_RANGE) or 5
     texture_size = check_int("--texture-size", texture_size, 1, 4096) or 256
     variant = resolve_variant(variant)  # chosen once for the whole benchmark
     mi = load_mitsuba(variant)

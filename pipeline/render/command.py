@@ -26,6 +26,8 @@ from pipeline.store.exr import write_exr
 from sky import Light
 
 SEED_RANGE = (0, 2**32 - 1)
+#: Sun azimuth in degrees: any turn is one of these (a slip of a turn stays valid).
+AZIMUTH_RANGE = (-360.0, 720.0)
 
 
 def parse_triple(option: str, text: str, lo: float | None = 0.0, hi: float | None = 1.0) -> tuple[float, ...]:
@@ -141,7 +143,7 @@ def check_request(req: RenderRequest) -> None:
     if req.svbrdf is not None and not os.path.exists(req.svbrdf):
         raise bad_value("--svbrdf", req.svbrdf, "an existing PNG strip or folder of maps")
     check_number("--elevation", req.elevation_deg, 0.0, 90.0, " degrees")
-    check_number("--azimuth", req.azimuth_deg, -360.0, 720.0, " degrees")
+    check_number("--azimuth", req.azimuth_deg, *AZIMUTH_RANGE, " degrees")
     check_number("--turbidity", req.turbidity, 1.0, 10.0)
     check_int("--seed", req.seed, *SEED_RANGE)
     if req.variant not in VARIANT_CHOICES:

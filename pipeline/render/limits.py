@@ -12,8 +12,16 @@ MAX_DEPTH_RANGE = (1, 64)
 
 
 def span(bounds: tuple[int, int]) -> str:
-    """``"16 to 4096"``: a range as the CLI help words it."""
-    return f"{bounds[0]} to {bounds[1]}"
+    """``"16 to 4096"``: a range of integers as the CLI help words it; a top of 2^k-1 (a seed's)
+    as ``"2^32-1"``."""
+    low, high = bounds
+    top = f"2^{high.bit_length()}-1" if high >= 2**16 - 1 and high & (high + 1) == 0 else str(high)
+    return f"{low} to {top}"
+
+
+def interval(bounds: tuple[float, float]) -> str:
+    """``"[0, 90]"``: a closed range of numbers as the CLI help words it."""
+    return f"[{bounds[0]:g}, {bounds[1]:g}]"
 
 
 #: Mitsuba samplers a spec may name. Mitsuba rounds some sample counts (stratified: a square,

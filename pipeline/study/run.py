@@ -55,6 +55,10 @@ from sky import Light
 
 REQUEST_FILE = "request.json"
 MAX_LADDER_SPP = 16384
+#: --samples: samples drawn from the plan.
+SAMPLES_RANGE = (1, 1000)
+#: --reference-spp's largest value.
+MAX_REFERENCE_SPP = 65536
 
 
 @dataclass(frozen=True)
@@ -123,7 +127,7 @@ def parse_families(text: str) -> tuple[str, ...]:
 
 def check_request(req: StudyRequest):
     """The parsed spec; raises a ShaderballError naming the option, value and what is allowed."""
-    check_int("--samples", req.samples, 1, 1000)
+    check_int("--samples", req.samples, *SAMPLES_RANGE)
     if req.resolution is not None:
         check_int("--resolution", req.resolution, *RESOLUTION_RANGE)
     check_int("--scan", req.scan, 1, 100000)
@@ -145,11 +149,11 @@ def check_request(req: StudyRequest):
             )
     top = max(*req.ladder, spec.render.spp)
     ref = req.reference_spp
-    if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= 65536:
+    if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= MAX_REFERENCE_SPP:
         raise bad_value(
             "--reference-spp",
             ref,
-            f"an even integer from {2 * top} to 65536 (at least twice the largest spp studied, {top})",
+            f"an even integer from {2 * top} to {MAX_REFERENCE_SPP} (at least twice the largest spp studied, {top})",
         )
     if os.path.exists(req.out) and not os.path.isdir(req.out):
         raise bad_value("--out", req.out, "a folder (new, or a study folder of this same request)")

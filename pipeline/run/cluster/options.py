@@ -27,6 +27,8 @@ _WALLTIME = re.compile(r"^(\d{1,4}):([0-5]\d):([0-5]\d)\Z", re.ASCII)
 _SHELL_WORD = re.compile(r"^[A-Za-z0-9_.@:+-]{1,128}\Z", re.ASCII)
 _SCRATCH = re.compile(r"^[A-Za-z0-9_./${}:+-]{1,256}\Z", re.ASCII)
 _MIN_WALLTIME_S = 60
+#: --walltime's range, as the refusal and the CLI help word it.
+WALLTIME_SPAN = "00:01:00 to 9999:59:59"
 #: The ranges of the integer options, defined once (the checks below; the CLI help).
 WORKERS_RANGE = (0, 1024)
 JOBS_RANGE = (1, 10000)
@@ -147,7 +149,7 @@ def walltime_seconds(text: str) -> int:
     match = _WALLTIME.match(text)
     seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
     if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise bad_value("--walltime", text, "HH:MM:SS from 00:01:00 to 9999:59:59")
+        raise bad_value("--walltime", text, f"HH:MM:SS from {WALLTIME_SPAN}")
     return seconds
 
 

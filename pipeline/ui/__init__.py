@@ -1,0 +1,8 @@
+"""What the ``shaderball`` command shows and reads besides its options: progress lines on
+stderr (:mod:`pipeline.ui.progress`) and option values that need parsing
+(:mod:`pipeline.ui.values`). The command (``cli.py``) uses it; library code never does, since
+library code never prints.
+
+Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``; nothing else of the project.
+"""

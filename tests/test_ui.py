@@ -1,0 +1,78 @@
+"""pipeline.ui: the command's progress lines off a terminal, and its value parsing's refusals."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from pipeline.errors import ShaderballError
+from pipeline.ui import progress
+from pipeline.ui.values import parse_int_list
+
+
+def test_format_seconds():
+    assert [progress.format_seconds(s) for s in (None, 0, 65.9, 3605)] == ["--:--", "0:00", "1:05", "1:00:05"]
+
+
+def test_a_build_off_a_terminal_prints_whole_lines_only_when_something_changes(capsys):
+    show = progress.build_progress()  # pytest's stderr is no terminal
+    step = dict(total=4, rate=0.5, elapsed_s=2.0, eta_s=4.0)
+    show(SimpleNamespace(done=1, message="", **step))
+    show(SimpleNamespace(done=1, message="", **step))  # nothing changed: nothing printed
+    show(SimpleNamespace(done=1, message="waiting for a worker (none connected)", **step))
+    show(SimpleNamespace(done=4, message="", **step))
+    lines = capsys.readouterr().err.split("\n")
+    assert "\r" not in "".join(lines) and lines[-1] == ""
+    assert lines[:-1] == [
+        "[#######.......................] 1/4 renders  25.0%  0.50/s  elapsed 0:02  ETA 0:04",
+        "[#######.......................] 1/4 renders  25.0%  0.50/s  elapsed 0:02  ETA 0:04"
+        "  | waiting for a worker (none connected)",
+        "[##############################] 4/4 renders 100.0%  0.50/s  elapsed 0:02  ETA 0:04",
+    ]
+
+
+def test_training_off_a_terminal_prints_a_line_per_batch(capsys):
+    show = progress.training_progress()
+    p = dict(epoch=1, epochs=2, batches=2, loss=0.25, samples_per_s=3.0, eta_s=None)
+    show({**p, "batch": 1})
+    show({**p, "batch": 2})
+    assert capsys.readouterr().err.splitlines() == [
+        "epoch 1/2 [##########..........] batch 1/2  loss 0.2500  3.0 samples/s  ETA --:--",
+        "epoch 1/2 [####################] batch 2/2  loss 0.2500  3.0 samples/s  ETA --:--",
+    ]
+
+
+def test_int_lists():
+    assert parse_int_list("--spp", "1,2,16", (1, 4096), none="none") == (1, 2, 16)
+    assert parse_int_list("--spp", " None ", (1, 4096), none="none") == ()
+    with pytest.raises(ShaderballError) as refused:
+        parse_int_list("--spp", "1,x", (1, 4096), none="none")
+    assert (
+        str(refused.value) == "--spp: '1,x' is not allowed; allowed: comma-separated integers from 1 to 4096, or none"
+    )
+    with pytest.raises(ShaderballError, match="from 1 to 8$"):
+        parse_int_list("--n", "", (1, 8))
+
+
+def test_the_neural_commands_help_says_the_ranges_their_checks_use():
+    """train's and evaluate's ranges live in modules that import torch, which the CLI loads
+    only when such a command runs, so their --help spells them out (docs/architecture.md,
+    "One owner per concern"); this keeps the two saying the same."""
+    pytest.importorskip("torch")
+    from click.testing import CliRunner
+
+    from cli import main
+    from pipeline.neural.evaluate import SPP_LADDER_RANGE
+    from pipeline.neural.train import INTEGER_RANGES
+    from pipeline.render.limits import span
+
+    def help_of(command):
+        result = CliRunner().invoke(main, [command, "--help"])
+        assert result.exit_code == 0
+        return " ".join(result.output.split())
+
+    train = help_of("train")
+    for name, bounds in INTEGER_RANGES.items():
+        assert f"--{name.replace('_', '-')}" in train and span(bounds) in train, name
+    assert f"each {span(SPP_LADDER_RANGE)};" in help_of("evaluate")
