@@ -31,7 +31,7 @@ from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
-from pipeline.neural.data import box_downsample, open_dataset
+from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
 from pipeline.neural.train import pick_device
@@ -153,7 +153,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     device = pick_device(req.device)
     model, config = load_run_model(req.run, device)
     exposure = float(config["tonemap"]["exposure"])
-    source = open_dataset(req.dataset, resolution=model.resolution, exposure=exposure, check_hashes=req.check_hashes)
+    source = _open_for_run(req, model.resolution, exposure)
     same = source.identity == config["identity"]["dataset"]
     if req.split != "all":
         if not same:
@@ -250,6 +250,21 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)
+
+
+def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
+    """DATASET at the run's network resolution; a dataset it does not divide is refused with
+    what the user can do (evaluate has no --resolution: the run fixes it)."""
+    try:
+        return open_dataset(req.dataset, resolution=resolution, exposure=exposure, check_hashes=req.check_hashes)
+    except ResolutionMismatch as exc:
+        raise ShaderballError(
+            f"DATASET: {req.dataset!r} has {exc.native}x{exc.native} renders; the run {req.run!r} was trained "
+            f"at {resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, "
+            f"so its network cannot take these renders. Evaluate it on a dataset whose render resolution is a "
+            f"multiple of {resolution} (e.g. the run's own dataset), or train a run for this dataset "
+            f"(`shaderball train DATASET --out NEWRUN`, with --resolution a multiple of 16 dividing {exc.native})"
+        ) from None
 
 
 def dataset_variant(records: dict) -> str:

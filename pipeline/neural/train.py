@@ -104,13 +104,19 @@ class TrainSummary:
     baseline_psnr: float | None = None
     device: str = "cpu"
     parameters: int = 0
+    nothing_to_do: bool = False  # the run already had --epochs epochs; nothing was written
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def lines(self) -> list[str]:
         out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]
-        if self.resumed_from:
+        if self.nothing_to_do:
+            out.append(
+                f"nothing to do: the run has already trained {self.epochs_done} epochs "
+                "(pass a larger --epochs to continue it); nothing written"
+            )
+        elif self.resumed_from:
             out.append(f"resumed after epoch {self.resumed_from}")
         if self.history:
             last = self.history[-1]
@@ -277,6 +283,18 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
             )
         if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
             ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"])
+            done = int(ckpt["epoch"])
+            if done > config.epochs:
+                # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
+                # options.epochs the run's (issue 22: it was rewritten 2 -> 1).
+                raise bad_value(
+                    "--epochs",
+                    config.epochs,
+                    f"at least {done}: {config.out!r} has already trained {done} epochs "
+                    f"(pass --epochs {done} or more to continue it, or a new --out to start again)",
+                )
+            if done == config.epochs:
+                return _finished(config, old, ckpt, device, model)
         fresh["baseline"] = old.get("baseline")
 
     model.to(device)
@@ -323,6 +341,21 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
         baseline_psnr=fresh["baseline"]["test_psnr"],
         device=str(device),
         parameters=parameter_count(model),
+    )
+
+
+def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model) -> TrainSummary:
+    """A run that already has ``config.epochs`` epochs: nothing to train, nothing written."""
+    history = list(ckpt["history"])
+    return TrainSummary(
+        run_dir=config.out,
+        epochs_done=int(ckpt["epoch"]),
+        resumed_from=int(ckpt["epoch"]),
+        history=history,
+        baseline_psnr=(old_config.get("baseline") or {}).get("test_psnr"),
+        device=str(device),
+        parameters=parameter_count(model),
+        nothing_to_do=True,
     )
 
 
