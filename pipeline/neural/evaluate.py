@@ -67,6 +67,7 @@ class EvaluateRequest:
     device: str = "auto"
     check_hashes: bool = True
     grid_rows: int = 4
+    checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
 
 
 @dataclass
@@ -151,7 +152,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     """Evaluate a run on a dataset; everything is checked before anything is written."""
     _check(req)
     device = pick_device(req.device)
-    model, config = load_run_model(req.run, device)
+    model, config = load_run_model(req.run, device, req.checkpoint)
     exposure = float(config["tonemap"]["exposure"])
     source = _open_for_run(req, model.resolution, exposure)
     same = source.identity == config["identity"]["dataset"]
