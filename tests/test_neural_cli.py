@@ -68,7 +68,12 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     assert len(data["samples"]) == 2
-    assert set(data["mean"]) == {"network", "pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"}
+    assert set(data["mean"]) == {
+        "network",
+        "mean_image",
+        "pt_equal_time",
+        *("pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"),
+    }
     for scores in data["mean"].values():
         assert 0 < scores["ssim"] <= 1 and scores["psnr"] > 5 and scores["flip"] is not None
     # more samples per pixel come closer to the reference

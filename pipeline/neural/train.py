@@ -41,7 +41,7 @@ IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution
 #: A held-out output at 8-bit 0 or 255 is saturated; more than this fraction of them is a warning.
 SATURATED_FRACTION = 0.99
 #: A held-out loss whose relative change over an epoch is below this "does not move".
-STALL_RELATIVE = 1e-3
+STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
 log = logging.getLogger(__name__)
