@@ -71,6 +71,7 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     assert set(data["mean"]) == {
         "network",
         "mean_image",
+        "nearest_sample",
         "pt_equal_time",
         *("pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"),
     }

@@ -74,7 +74,9 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     assert data["reference_spp"] == 16  # manifests/smoke.toml
-    assert set(data["mean"]) == {"network", "mean_image", "pt_equal_time", "pt1", "pt8"}
+    assert set(data["mean"]) == {"network", "mean_image", "nearest_sample", "pt_equal_time", "pt1", "pt8"}
+    for row in data["samples"]:  # another material's render, never the sample's own
+        assert row["nearest_sample"]["neighbour"].split("_")[0] != row["material_id"]
     eq = data["equal_time"]
     assert eq["spp"] >= 1 and eq["network_cpu_s"] > 0 and set(eq["pt_cpu_s"]) == {"1", "8"}
     assert all(r["pt_equal_time"]["spp"] == eq["spp"] for r in data["samples"])
@@ -87,6 +89,7 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
     assert data["mean"]["mean_image"]["time_s"] == 0.0
     table = (tmp_path / "ev" / "results.md").read_text()
     assert "references of 16 spp" in table and "| mean training image |" in table
+    assert "| nearest training sample (same kind, lighting) |" in table
     assert f"| path tracing, equal CPU time ({eq['spp']} spp) |" in table
 
 

@@ -132,6 +132,7 @@ def test_train_and_evaluate_from_the_publication_match_the_folder(reference, pub
     assert set(results["pub"]["mean"]) == {
         "network",
         "mean_image",
+        "nearest_sample",
         "pt_equal_time",
         "pt1",
         "pt1+oidn",

@@ -242,13 +242,16 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     records = source.records
     reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
     ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
-    mean_y = None
+    mean_y, training = None, None
     if same and config["split"].get("train"):
         from pipeline.neural.train import mean_image  # torch's DataLoader; train is loaded already
 
-        mean_y = mean_image(source.subset(config["split"]["train"]), workers=0)
+        training = source.subset(config["split"]["train"])
+        mean_y = mean_image(training, workers=0)
     else:
-        notes.append("mean_image: DATASET is not the run's, so the run's training images are not here; left out")
+        notes.append(
+            "mean_image, nearest_sample: DATASET is not the run's, so the run's training images are not here; left out"
+        )
     tracer = aux = None
     if req.spp:
         variant = resolve_variant(dataset_variant(records))  # once; every render and buffer takes it
@@ -274,6 +277,12 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         }
         if mean_y is not None:
             row["mean_image"] = _ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
+            neighbour = nearest_sample(sample, training.samples, records)
+            if neighbour is not None:
+                near_hdr = box_downsample(_read_render(training, neighbour), training.factor)
+                row["nearest_sample"] = _scores(
+                    near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
+                )
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
         maps = tracer.material(sample) if tracer else None
         if maps is not None:
@@ -306,7 +315,10 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             progress({"sample": n, "samples": len(indices), "id": sample.id})
 
     methods = [k for k in rows[0] if k not in ("id", "material_id")]
-    means = {m: {k: _mean([r[m][k] for r in rows if m in r]) for k in rows[0][m]} for m in methods}
+    means = {
+        m: {k: _mean([r[m][k] for r in rows if m in r]) for k, v in rows[0][m].items() if not isinstance(v, str)}
+        for m in methods
+    }
     for m in methods:
         have = [r for r in rows if m in r]
         groups = [r["material_id"] for r in have]
@@ -343,6 +355,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "are correlated, so materials, not samples, are the independent units; null with fewer than 2 materials",
         "relmse_network": f"network and mean image: inverse tone map of the output capped at y = {NETWORK_Y_CAP:.6f} "
         "(8-bit 255 says only 'at least this bright')",
+        "nearest_sample": "the training sample of the same material kind with the nearest lighting vector "
+        "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
         "notes": notes,
@@ -358,6 +372,28 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)
+
+
+def _material_kind(records: dict, sample_id: str):
+    return (records[sample_id].get("material") or {}).get("kind")
+
+
+def nearest_sample(sample, training_samples, records: dict):
+    """The training sample of another material of the same kind (uniform, svbrdf) whose lighting
+    vector is nearest (with --split train or all, never the sample's own material): squared chord between the sun directions plus ((turbidity difference) / 9)^2
+    (turbidity spans 1 to 10); None when the training split holds no material of that kind."""
+    kind = _material_kind(records, sample.id)
+    d, t = np.asarray(sample.lighting_vector[:3]), sample.lighting_vector[3]
+    best, best_distance = None, np.inf
+    for other in training_samples:
+        if other.material_id == sample.material_id or _material_kind(records, other.id) != kind:
+            continue
+        distance = float(
+            np.sum((np.asarray(other.lighting_vector[:3]) - d) ** 2) + ((other.lighting_vector[3] - t) / 9.0) ** 2
+        )
+        if distance < best_distance:
+            best, best_distance = other, distance
+    return best
 
 
 def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> dict:
@@ -412,6 +448,8 @@ def _label(method: str, means: dict | None = None) -> str:
         return "neural renderer"
     if method == "mean_image":
         return "mean training image"
+    if method == "nearest_sample":
+        return "nearest training sample (same kind, lighting)"
     if method == "pt_equal_time":
         spp = (means or {}).get("pt_equal_time", {}).get("spp")
         return f"path tracing, equal CPU time ({spp:.0f} spp)" if spp else "path tracing, equal CPU time"
