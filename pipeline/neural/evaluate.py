@@ -332,6 +332,11 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             f"not learned (train with a smaller --lr); its relMSE and HDR-FLIP are of outputs capped at "
             f"y = {NETWORK_Y_CAP:.4f} before the inverse tone map, the most an 8-bit 255 says"
         )
+    if equal_time is not None and device.type != "cpu":
+        notes.append(
+            f"pt_equal_time: the network ran on {device.type}, whose CPU time is not its cost; this row matches "
+            "CPU times only (untested on a GPU)"
+        )
     compared = [(f"pt{spp}", spp) for spp in req.spp if f"pt{spp}" in means]
     if equal_time is not None:
         compared.append(("pt_equal_time", equal_time["spp"]))
