@@ -65,6 +65,10 @@ def test_held_out_psnr_beats_the_mean_training_image(tmp_path):
         test_fraction=0.25,
     )  # lr: the default
     summary = train(config)
+    print(
+        f"baseline {summary.baseline_psnr:.2f} dB; held-out PSNR per epoch:",
+        [round(h["test_psnr"], 2) for h in summary.history],
+    )
     last = summary.history[-1]
     assert summary.baseline_psnr is not None
     assert last["test_psnr"] > summary.baseline_psnr, [round(h["test_psnr"], 2) for h in summary.history]

@@ -56,7 +56,7 @@ class TrainConfig:
     """Options of `shaderball train`; each field's comment is its help text."""
 
     dataset: str  # dataset folder written by `shaderball build`
-    out: str  # run folder: config.json, log.jsonl, checkpoint.pt, loss.png
+    out: str  # run folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png
     epochs: int = 30  # epochs to reach; a resumed run continues up to this number
     batch_size: int = 6  # samples per step (the paper's 6)
     lr: float = 1e-3  # Adam learning rate (the released code's 1e-3; the paper's text says 1e-2, which saturates)
