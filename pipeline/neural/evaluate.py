@@ -34,7 +34,7 @@ from pipeline.neural import runfiles
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
-from pipeline.neural.train import SATURATED_FRACTION, pick_device
+from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import write_bytes_atomic
@@ -244,8 +244,6 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
     mean_y, training = None, None
     if same and config["split"].get("train"):
-        from pipeline.neural.train import mean_image  # torch's DataLoader; train is loaded already
-
         training = source.subset(config["split"]["train"])
         mean_y = mean_image(training, workers=0)
     else:
