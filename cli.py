@@ -977,7 +977,11 @@ def _neural():
     "--batch-size", default=6, show_default=True, type=int, help="Samples per step, 1 to 4096 (the paper: 6)."
 )
 @click.option(
-    "--lr", default=1e-2, show_default=True, type=float, help="Adam learning rate in (0, 10] (the paper: 1e-2)."
+    "--lr",
+    default=1e-3,
+    show_default=True,
+    type=float,
+    help="Adam learning rate in (0, 10] (the released code's; the paper's text: 1e-2, which saturates; docs/neural.md).",
 )
 @click.option(
     "--loss",
@@ -1093,6 +1097,13 @@ def train_cmd(
 @light_options(full=False)
 @device_option()
 @json_option("Print the summary as JSON on stdout.")
+@click.option(
+    "--checkpoint",
+    default="last",
+    show_default=True,
+    metavar="last|best|FILE",
+    help="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of RUN.",
+)
 @_friendly_errors
 def infer_cmd(
     run,
@@ -1109,6 +1120,7 @@ def infer_cmd(
     turbidity,
     device,
     as_json,
+    checkpoint,
 ):
     """The trained network's picture of one material under one sun (no path tracing)."""
     _neural()
@@ -1128,6 +1140,7 @@ def infer_cmd(
         azimuth_deg=azimuth,
         turbidity=turbidity,
         device=device,
+        checkpoint=checkpoint,
     )
     summary = infer_to_files(request)
     if as_json:
@@ -1164,8 +1177,16 @@ def infer_cmd(
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
 @device_option()
+@click.option(
+    "--checkpoint",
+    default="last",
+    show_default=True,
+    metavar="last|best|FILE",
+    help="The last epoch's weights; best: the best held-out PSNR's (chosen on the test split, so optimistic "
+    "there); or a checkpoint file of RUN.",
+)
 @_friendly_errors
-def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device):
+def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1185,6 +1206,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         denoise=not no_denoise,
         limit=limit,
         device=device,
+        checkpoint=checkpoint,
     )
     summary = evaluate(request, progress=evaluate_progress)
     for line in summary.lines():

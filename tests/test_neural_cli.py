@@ -36,7 +36,14 @@ def run(reference, tmp_path_factory):
 
 @pytest.mark.slow
 def test_train_writes_the_run_files(run):
-    assert sorted(os.listdir(run)) == ["checkpoint.pt", "config.json", "log.jsonl", "loss.png"]
+    assert sorted(os.listdir(run)) == [
+        "checkpoint-best.pt",
+        "checkpoint.pt",
+        "config.json",
+        "log.csv",
+        "log.jsonl",
+        "loss.png",
+    ]
     assert json.loads((run / "config.json").read_text())["network"]["resolution"] == 32
 
 
@@ -61,7 +68,13 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     assert len(data["samples"]) == 2
-    assert set(data["mean"]) == {"network", "pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"}
+    assert set(data["mean"]) == {
+        "network",
+        "mean_image",
+        "nearest_sample",
+        "pt_equal_time",
+        *("pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"),
+    }
     for scores in data["mean"].values():
         assert 0 < scores["ssim"] <= 1 and scores["psnr"] > 5 and scores["flip"] is not None
     # more samples per pixel come closer to the reference
@@ -165,3 +178,16 @@ def test_kill_9_then_the_same_command_resumes_to_the_same_weights(reference, tmp
     b = runfiles.load_checkpoint(str(tmp_path / "killed"))["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert [json.loads(line)["epoch"] for line in log.read_text().splitlines()] == [1, 2, 3]
+
+
+@pytest.mark.slow
+def test_infer_and_evaluate_take_checkpoint_best_last_or_a_file(run, reference, tmp_path):
+    for which in ("best", "last", run / "checkpoint-best.pt"):
+        result = _invoke("infer", run, "--out", tmp_path / "b.exr", "--checkpoint", which)
+        assert result.exit_code == 0, result.output
+    result = _invoke(
+        "evaluate", run, reference, "--spp", "none", "--limit", 1, "--checkpoint", "best", "--out", tmp_path / "ev"
+    )
+    assert result.exit_code == 0, result.output
+    result = _invoke("infer", run, "--out", tmp_path / "x.exr", "--checkpoint", tmp_path / "none.pt")
+    assert result.exit_code == 2 and "--checkpoint" in result.output and "none.pt" in result.output

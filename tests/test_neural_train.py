@@ -49,7 +49,14 @@ def test_run_files_progress_and_baseline(tmp_path):
     events = []
     summary = train(_config(tmp_path), progress=events.append, source=FakeSource())
     run = tmp_path / "run"
-    assert sorted(os.listdir(run)) == ["checkpoint.pt", "config.json", "log.jsonl", "loss.png"]
+    assert sorted(os.listdir(run)) == [
+        "checkpoint-best.pt",
+        "checkpoint.pt",
+        "config.json",
+        "log.csv",
+        "log.jsonl",
+        "loss.png",
+    ]
     config = json.loads((run / "config.json").read_text())
     assert config["split"] == {"train": ["m000000", "m000002", "m000003"], "test": ["m000001"]}
     assert config["network"]["parameters"] == summary.parameters

@@ -402,6 +402,15 @@ def dataset_resolution(records: list[dict]) -> int:
     return next(iter(sizes))
 
 
+class ResolutionMismatch(ShaderballError):
+    """A network resolution that does not divide the dataset's; callers that did not take
+    ``--resolution`` from the user (``evaluate``: the run's) say what the user can do instead."""
+
+    def __init__(self, error: ShaderballError, native: int, requested: int):
+        super().__init__(str(error))
+        self.native, self.requested = native, requested
+
+
 def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
     """(network resolution, box factor) for a dataset of ``native`` pixels."""
     if requested is None:
@@ -415,7 +424,11 @@ def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
         return native, 1
     check_network_resolution(requested, "--resolution")
     if native % requested:
-        raise bad_value("--resolution", requested, f"a multiple of 16 that divides the dataset's resolution {native}")
+        raise ResolutionMismatch(
+            bad_value("--resolution", requested, f"a multiple of 16 that divides the dataset's resolution {native}"),
+            native,
+            requested,
+        )
     return requested, native // requested
 
 

@@ -31,10 +31,10 @@ from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
-from pipeline.neural.data import box_downsample, open_dataset
+from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
-from pipeline.neural.train import pick_device
+from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import write_bytes_atomic
@@ -47,6 +47,18 @@ SPP_LADDER_RANGE = (1, 4096)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
+#: A compared path-tracing row with more than this fraction of the references' spp shares
+#: much of their noise: its scores are optimistic, and a note says so.
+REFERENCE_SPP_FRACTION = 0.25
+#: The network's (and the mean image's) output is capped here before the inverse tone map
+#: for relMSE and HDR-FLIP: the largest value that does not round to 8-bit 255. An output
+#: of 1 says only "at least this bright"; uncapped it inverts to 1e6 / exposure.
+NETWORK_Y_CAP = 254.5 / 255.0
+#: spp at which path tracing's CPU time is measured to fit t(spp) = a + b spp (equal time).
+EQUAL_TIME_PROBE_SPP = (1, 8)
+#: Bootstrap resamples (over materials) of the 95% intervals; a fixed seed keeps them reproducible.
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0x22
 DENOISER = (
     "Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
     "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
@@ -67,6 +79,7 @@ class EvaluateRequest:
     device: str = "auto"
     check_hashes: bool = True
     grid_rows: int = 4
+    checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
 
 
 @dataclass
@@ -85,14 +98,60 @@ class EvaluateSummary:
         ]
 
 
-def _scores(hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float) -> dict:
+def _scores(hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float, **extra) -> dict:
     return {
         "psnr": metrics.psnr8(srgb8, ref8),
         "ssim": metrics.ssim8(srgb8, ref8),
         "relmse": metrics.relmse(hdr, ref_hdr),
         "flip": metrics.hdr_flip(hdr, ref_hdr),
         "time_s": time_s,
+        **extra,
     }
+
+
+def network_hdr(y: np.ndarray, exposure: float) -> np.ndarray:
+    """A [0, 1] output as linear radiance for relMSE and HDR-FLIP, capped at NETWORK_Y_CAP."""
+    return inverse_tonemap(np.minimum(y, NETWORK_Y_CAP), exposure)
+
+
+def _ldr_scores(y: np.ndarray, ref_hdr, ref8, exposure: float, time_s: float, **extra) -> dict:
+    """Scores of a [0, 1] image (the network's, the mean image), with its saturated fraction."""
+    y8 = to_srgb8(y)
+    saturated = float(np.count_nonzero((y8 == 0) | (y8 == 255)) / y8.size)
+    return _scores(network_hdr(y, exposure), y8, ref_hdr, ref8, time_s, saturated=saturated, **extra)
+
+
+def _cpu_timed(fn, *args):
+    """(result, CPU seconds of this process: every thread, Mitsuba's and torch's, counted)."""
+    started = time.process_time()
+    out = fn(*args)
+    return out, time.process_time() - started
+
+
+def equal_time_spp(network_cpu_s: float, probe: dict[int, float], hi: int = SPP_LADDER_RANGE[1]) -> int:
+    """The spp whose render takes the network's CPU time, from CPU times at two spp
+    (a line a + b spp through them); at least 1."""
+    (s0, t0), (s1, t1) = sorted(probe.items())
+    per_spp = max((t1 - t0) / (s1 - s0), 1e-9)
+    fixed = t0 - per_spp * s0
+    return int(min(hi, max(1, round((network_cpu_s - fixed) / per_spp))))
+
+
+def bootstrap_ci95(values: list, groups: list, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED):
+    """Percentile 95% interval of the mean of ``values``, resampling whole ``groups`` (materials)
+    with replacement; None with fewer than 2 groups or a non-finite value."""
+    pairs = [(g, v) for g, v in zip(groups, values) if v is not None]
+    if not pairs or not all(np.isfinite(v) for _, v in pairs):
+        return None
+    names = sorted({g for g, _ in pairs})
+    if len(names) < 2:
+        return None
+    sums = np.array([sum(v for g, v in pairs if g == name) for name in names], dtype=np.float64)
+    counts = np.array([sum(1 for g, _ in pairs if g == name) for name in names], dtype=np.float64)
+    pick = np.random.default_rng(seed).integers(0, len(names), size=(resamples, len(names)))
+    means = sums[pick].sum(axis=1) / counts[pick].sum(axis=1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return [float(lo), float(hi)]
 
 
 TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
@@ -151,9 +210,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     """Evaluate a run on a dataset; everything is checked before anything is written."""
     _check(req)
     device = pick_device(req.device)
-    model, config = load_run_model(req.run, device)
+    model, config = load_run_model(req.run, device, req.checkpoint)
     exposure = float(config["tonemap"]["exposure"])
-    source = open_dataset(req.dataset, resolution=model.resolution, exposure=exposure, check_hashes=req.check_hashes)
+    source = _open_for_run(req, model.resolution, exposure)
     same = source.identity == config["identity"]["dataset"]
     if req.split != "all":
         if not same:
@@ -181,12 +240,23 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             notes.append("denoising: pyoidn is not installed (pip install pyoidn); left out")
 
     records = source.records
+    reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
+    ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
+    mean_y, training = None, None
+    if same and config["split"].get("train"):
+        training = source.subset(config["split"]["train"])
+        mean_y = mean_image(training, workers=0)
+    else:
+        notes.append(
+            "mean_image, nearest_sample: DATASET is not the run's, so the run's training images are not here; left out"
+        )
     tracer = aux = None
     if req.spp:
         variant = resolve_variant(dataset_variant(records))  # once; every render and buffer takes it
         tracer = PathTracer(dataset, variant)
         if want_denoise:
             aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant, dataset.factor)
+    equal_time = None
     rows, grid = [], []
     aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
     for n, index in enumerate(indices, start=1):
@@ -195,16 +265,31 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         ref_hdr = box_downsample(_read_render(dataset, sample), dataset.factor)
         ref8 = hdr_to_srgb8(ref_hdr, exposure)
         run_network(model, item["maps"].numpy(), sample.lighting_vector, device)  # warm-up
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
-        net_s = time.perf_counter() - started
+        net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
         row = {
             "id": sample.id,
             "material_id": sample.material_id,
-            "network": _scores(inverse_tonemap(pred, exposure), to_srgb8(pred), ref_hdr, ref8, net_s),
+            "network": _ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
         }
+        if mean_y is not None:
+            row["mean_image"] = _ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
+            neighbour = nearest_sample(sample, training.samples, records)
+            if neighbour is not None:
+                near_hdr = box_downsample(_read_render(training, neighbour), training.factor)
+                row["nearest_sample"] = _scores(
+                    near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
+                )
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
         maps = tracer.material(sample) if tracer else None
+        if maps is not None:
+            if equal_time is None:  # measured once, on this machine, in this run
+                equal_time = _measure_equal_time(model, item, sample, tracer, records[sample.id], maps, device)
+            image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
+            row["pt_equal_time"] = _scores(
+                image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t, spp=equal_time["spp"]
+            )
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
@@ -228,13 +313,53 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             progress({"sample": n, "samples": len(indices), "id": sample.id})
 
     methods = [k for k in rows[0] if k not in ("id", "material_id")]
-    means = {m: {k: _mean([r[m][k] for r in rows if m in r]) for k in rows[0][m]} for m in methods}
+    means = {
+        m: {k: _mean([r[m][k] for r in rows if m in r]) for k, v in rows[0][m].items() if not isinstance(v, str)}
+        for m in methods
+    }
+    for m in methods:
+        have = [r for r in rows if m in r]
+        groups = [r["material_id"] for r in have]
+        means[m]["ci95"] = {
+            k: bootstrap_ci95([r[m][k] for r in have], groups) for k in ("psnr", "ssim", "relmse", "flip")
+        }
+    saturated = means["network"].get("saturated")
+    if saturated is not None and saturated > SATURATED_FRACTION:
+        notes.append(
+            f"network: {100 * saturated:.1f}% of its output values are saturated (8-bit 0 or 255): the run has "
+            f"not learned (train with a smaller --lr); its relMSE and HDR-FLIP are of outputs capped at "
+            f"y = {NETWORK_Y_CAP:.4f} before the inverse tone map, the most an 8-bit 255 says"
+        )
+    if equal_time is not None and device.type != "cpu":
+        notes.append(
+            f"pt_equal_time: the network ran on {device.type}, whose CPU time is not its cost; this row matches "
+            "CPU times only (untested on a GPU)"
+        )
+    compared = [(f"pt{spp}", spp) for spp in req.spp if f"pt{spp}" in means]
+    if equal_time is not None:
+        compared.append(("pt_equal_time", equal_time["spp"]))
+    for method, spp in compared:
+        if spp > REFERENCE_SPP_FRACTION * ref_spp:
+            notes.append(
+                f"{method}: {spp} spp against references of {ref_spp} spp, more than a quarter of theirs: it "
+                "shares much of the references' noise, so its scores are optimistic; use references of at "
+                f"least {4 * spp} spp to compare it"
+            )
     result = {
         "run": os.path.abspath(req.run),
         "dataset": os.path.abspath(req.dataset),
         "split": req.split,
         "resolution": model.resolution,
         "device": str(device),
+        "checkpoint": req.checkpoint,
+        "reference_spp": reference_spp[0] if len(reference_spp) == 1 else reference_spp,
+        "equal_time": equal_time,
+        "ci95": "percentile bootstrap over materials (2000 resamples, fixed seed): a material's lightings "
+        "are correlated, so materials, not samples, are the independent units; null with fewer than 2 materials",
+        "relmse_network": f"network and mean image: inverse tone map of the output capped at y = {NETWORK_Y_CAP:.6f} "
+        "(8-bit 255 says only 'at least this bright')",
+        "nearest_sample": "the training sample of the same material kind with the nearest lighting vector "
+        "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
         "notes": notes,
@@ -242,7 +367,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "denoiser": DENOISER if want_denoise else None,
         "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR",
     }
-    table = markdown_table(means, len(rows), model.resolution)
+    table = markdown_table(means, len(rows), model.resolution, ref_spp)
     os.makedirs(out_dir, exist_ok=True)
     runfiles.write_json(os.path.join(out_dir, "results.json"), result)
     write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
@@ -250,6 +375,59 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     if req.json_path:
         runfiles.write_json(req.json_path, result)
     return EvaluateSummary(out_dir, len(rows), means, notes, table)
+
+
+def _material_kind(records: dict, sample_id: str):
+    return (records[sample_id].get("material") or {}).get("kind")
+
+
+def nearest_sample(sample, training_samples, records: dict):
+    """The training sample of another material of the same kind (uniform, svbrdf) whose lighting
+    vector is nearest (with --split train or all, never the sample's own material): squared chord between the sun directions plus ((turbidity difference) / 9)^2
+    (turbidity spans 1 to 10); None when the training split holds no material of that kind."""
+    kind = _material_kind(records, sample.id)
+    d, t = np.asarray(sample.lighting_vector[:3]), sample.lighting_vector[3]
+    best, best_distance = None, np.inf
+    for other in training_samples:
+        if other.material_id == sample.material_id or _material_kind(records, other.id) != kind:
+            continue
+        distance = float(
+            np.sum((np.asarray(other.lighting_vector[:3]) - d) ** 2) + ((other.lighting_vector[3] - t) / 9.0) ** 2
+        )
+        if distance < best_distance:
+            best, best_distance = other, distance
+    return best
+
+
+def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> dict:
+    """The spp at which a render takes the network's CPU time per image on this machine:
+    the network's median of 3, path tracing's at EQUAL_TIME_PROBE_SPP (kernels compiled first)."""
+    args = (model, item["maps"].numpy(), sample.lighting_vector, device)
+    network_cpu_s = float(np.median([_cpu_timed(run_network, *args)[1] for _ in range(3)]))
+    tracer.render(record, maps, EQUAL_TIME_PROBE_SPP[0])  # compiles and warms
+    probe = {spp: _cpu_timed(tracer.render, record, maps, spp)[1] for spp in EQUAL_TIME_PROBE_SPP}
+    return {
+        "spp": equal_time_spp(network_cpu_s, probe),
+        "network_cpu_s": network_cpu_s,
+        "pt_cpu_s": {str(k): v for k, v in probe.items()},
+        "how": "CPU time of this process (every thread) per image, measured on the first sample: the network's "
+        "median of 3 runs; path tracing's at 1 and 8 spp, a line through them solved for the network's time",
+    }
+
+
+def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
+    """DATASET at the run's network resolution; a dataset it does not divide is refused with
+    what the user can do (evaluate has no --resolution: the run fixes it)."""
+    try:
+        return open_dataset(req.dataset, resolution=resolution, exposure=exposure, check_hashes=req.check_hashes)
+    except ResolutionMismatch as exc:
+        raise ShaderballError(
+            f"DATASET: {req.dataset!r} has {exc.native}x{exc.native} renders; the run {req.run!r} was trained "
+            f"at {resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, "
+            f"so its network cannot take these renders. Evaluate it on a dataset whose render resolution is a "
+            f"multiple of {resolution} (e.g. the run's own dataset), or train a run for this dataset "
+            f"(`shaderball train DATASET --out NEWRUN`, with --resolution a multiple of 16 dividing {exc.native})"
+        ) from None
 
 
 def dataset_variant(records: dict) -> str:
@@ -268,27 +446,40 @@ def _mean(values):
     return float(np.mean(values)) if values else None
 
 
-def _label(method: str) -> str:
+def _label(method: str, means: dict | None = None) -> str:
     if method == "network":
         return "neural renderer"
+    if method == "mean_image":
+        return "mean training image"
+    if method == "nearest_sample":
+        return "nearest training sample (same kind, lighting)"
+    if method == "pt_equal_time":
+        spp = (means or {}).get("pt_equal_time", {}).get("spp")
+        return f"path tracing, equal CPU time ({spp:.0f} spp)" if spp else "path tracing, equal CPU time"
     spp, _, extra = method[2:].partition("+")
     return f"path tracing, {spp} spp" + {"": "", "oidn": " + OIDN", "oidn-colour": " + OIDN, colour only"}[extra]
 
 
-def markdown_table(means: dict, samples: int, resolution: int) -> str:
+def markdown_table(means: dict, samples: int, resolution: int, reference_spp: int | None = None) -> str:
     def fmt(v, spec):
         return "-" if v is None else format(v, spec)
 
+    def interval(m, key, spec):
+        ci = (m.get("ci95") or {}).get(key)
+        return f"{fmt(m[key], spec)} [{fmt(ci[0], spec)}, {fmt(ci[1], spec)}]" if ci else fmt(m[key], spec)
+
     lines = [
-        f"{samples} samples at {resolution}x{resolution}; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on "
-        "linear HDR; time per image",
+        f"{samples} samples at {resolution}x{resolution}"
+        + (f", references of {reference_spp} spp" if reference_spp else "")
+        + "; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on linear HDR; time per image; "
+        "[95% interval, bootstrap over materials]",
         "",
         "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) |",
         "|---|---|---|---|---|---|",
     ]
     for method, m in means.items():
         lines.append(
-            f"| {_label(method)} | {fmt(m['psnr'], '.2f')} | {fmt(m['ssim'], '.4f')} | "
+            f"| {_label(method, means)} | {interval(m, 'psnr', '.2f')} | {fmt(m['ssim'], '.4f')} | "
             f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} |"
         )
     return "\n".join(lines) + "\n"

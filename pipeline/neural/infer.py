@@ -48,6 +48,7 @@ class InferRequest:
     azimuth_deg: float = 270.0
     turbidity: float = 3.0
     device: str = "auto"
+    checkpoint: str = "last"  # last, best, or a checkpoint file of the run
 
 
 @dataclass
@@ -70,10 +71,12 @@ class InferSummary:
         ]
 
 
-def load_run_model(run_dir: str, device: torch.device) -> tuple[NeuralRenderer, dict]:
-    """The trained network of a run (eval mode, on ``device``) and its config."""
+def load_run_model(run_dir: str, device: torch.device, checkpoint: str = "last") -> tuple[NeuralRenderer, dict]:
+    """The trained network of a run (eval mode, on ``device``) and its config; ``checkpoint``:
+    ``last`` (the last epoch's), ``best`` (the best held-out PSNR's) or a checkpoint file of
+    this run's configuration."""
     config = runfiles.read_config(run_dir)
-    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"])
+    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint)
     model = NeuralRenderer(int(config["network"]["resolution"]))
     try:
         model.load_state_dict(ckpt["model"])
@@ -100,7 +103,7 @@ def run_network(model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, de
 def infer_to_files(req: InferRequest) -> InferSummary:
     device = pick_device(req.device)
     started = time.perf_counter()
-    model, config = load_run_model(req.run, device)
+    model, config = load_run_model(req.run, device, req.checkpoint)
     load_s = time.perf_counter() - started
     resolution = model.resolution
     render_req = RenderRequest(

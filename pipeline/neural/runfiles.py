@@ -1,4 +1,4 @@
-"""A training run's folder: config.json, log.jsonl, checkpoint.pt, loss.png.
+"""A training run's folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png.
 
 Every file is replaced atomically (:mod:`pipeline.store.atomic`: temporary file in the same
 folder, fsync, rename), so a kill at any instant leaves the previous complete file or the new one.
@@ -6,6 +6,7 @@ folder, fsync, rename), so a kill at any instant leaves the previous complete fi
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 import os
@@ -17,7 +18,14 @@ from pipeline.store.atomic import write_bytes_atomic
 
 CONFIG = "config.json"
 LOG = "log.jsonl"
+#: The per-epoch log as CSV, for spreadsheets and plotting tools; these columns, in this order.
+LOG_CSV = "log.csv"
+CSV_COLUMNS = ("epoch", "train_loss", "test_loss", "test_psnr", "time_s", "lr", "test_saturated", "warnings")
 CHECKPOINT = "checkpoint.pt"
+#: The checkpoint of the epoch with the best held-out PSNR so far (runs with a held-out split).
+BEST_CHECKPOINT = "checkpoint-best.pt"
+#: What `--checkpoint` names: the last epoch's or the best held-out one's, or else a file.
+CHECKPOINT_CHOICES = {"last": CHECKPOINT, "best": BEST_CHECKPOINT}
 LOSS_PNG = "loss.png"
 CHECKPOINT_FORMAT = "shaderball-neural-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -30,6 +38,21 @@ def write_json(path: str, obj) -> None:
 def write_log(path: str, history: list[dict]) -> None:
     text = "".join(json.dumps(entry, sort_keys=True) + "\n" for entry in history)
     write_bytes_atomic(path, text.encode())
+
+
+def write_log_csv(path: str, history: list[dict]) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for entry in history:
+        row = []
+        for column in CSV_COLUMNS:
+            value = entry.get(column)
+            if column == "warnings":
+                value = " | ".join(value or ())
+            row.append("" if value is None else (repr(value) if isinstance(value, float) else value))
+        writer.writerow(row)
+    write_bytes_atomic(path, buffer.getvalue().encode())
 
 
 def read_config(run_dir: str) -> dict:
@@ -49,7 +72,14 @@ def read_config(run_dir: str) -> dict:
 
 
 def save_checkpoint(
-    run_dir: str, *, epoch: int, model_state: dict, optimizer_state: dict, history: list[dict], identity_digest: str
+    run_dir: str,
+    *,
+    epoch: int,
+    model_state: dict,
+    optimizer_state: dict,
+    history: list[dict],
+    identity_digest: str,
+    name: str = CHECKPOINT,
 ) -> None:
     buffer = io.BytesIO()
     torch.save(
@@ -64,15 +94,29 @@ def save_checkpoint(
         },
         buffer,
     )
-    write_bytes_atomic(os.path.join(run_dir, CHECKPOINT), buffer.getvalue())
+    write_bytes_atomic(os.path.join(run_dir, name), buffer.getvalue())
 
 
-def load_checkpoint(run_dir: str, identity_digest: str | None = None) -> dict:
-    """The run's checkpoint, or a ShaderballError naming the file when it is missing,
-    corrupt or belongs to another configuration."""
-    path = os.path.join(run_dir, CHECKPOINT)
+def checkpoint_path(run_dir: str, checkpoint: str = "last") -> str:
+    """The file ``--checkpoint`` names: ``last``, ``best`` (in the run folder) or a file."""
+    if checkpoint in CHECKPOINT_CHOICES:
+        return os.path.join(run_dir, CHECKPOINT_CHOICES[checkpoint])
+    return checkpoint
+
+
+def load_checkpoint(run_dir: str, identity_digest: str | None = None, checkpoint: str = "last") -> dict:
+    """The run's checkpoint (``last``, ``best`` or a file), or a ShaderballError naming the file
+    when it is missing, corrupt or belongs to another configuration."""
+    path = checkpoint_path(run_dir, checkpoint)
     if not os.path.isfile(path):
-        raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
+        if checkpoint == "best":
+            raise ShaderballError(
+                f"--checkpoint best: {path}: no best checkpoint (the run holds no materials out, "
+                "or has not finished an epoch yet); use --checkpoint last"
+            )
+        if checkpoint == "last":
+            raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
+        raise ShaderballError(f"--checkpoint: {path!r}: no such file (allowed: last, best, or a checkpoint file)")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated or foreign file raises any of several types

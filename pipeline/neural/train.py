@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import math
 import os
 import time
@@ -37,8 +38,13 @@ from pipeline.store.atomic import write_bytes_atomic
 DEVICES = ("auto", "cpu", "cuda")
 #: Config fields that change what a run computes: a resume must match them.
 IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
+#: A held-out output at 8-bit 0 or 255 is saturated; more than this fraction of them is a warning.
+SATURATED_FRACTION = 0.99
+#: A held-out loss whose relative change over an epoch is below this "does not move".
+STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
+log = logging.getLogger(__name__)
 
 
 #: The ranges of the integer options of `shaderball train`, defined once (checks; the CLI help).
@@ -50,10 +56,10 @@ class TrainConfig:
     """Options of `shaderball train`; each field's comment is its help text."""
 
     dataset: str  # dataset folder written by `shaderball build`
-    out: str  # run folder: config.json, log.jsonl, checkpoint.pt, loss.png
+    out: str  # run folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png
     epochs: int = 30  # epochs to reach; a resumed run continues up to this number
     batch_size: int = 6  # samples per step (the paper's 6)
-    lr: float = 1e-2  # Adam learning rate (the paper's 1e-2), betas (0.9, 0.999)
+    lr: float = 1e-3  # Adam learning rate (the released code's 1e-3; the paper's text says 1e-2, which saturates)
     loss: str = "l1+vgg"  # "l1+vgg" (the paper's) or "l1"
     vgg_weights: str | None = None  # torchvision vgg16 state dict; default: torch hub's cache
     vgg_sha256: str | None = None  # expected SHA-256 of the VGG weights; default: torchvision's file
@@ -104,13 +110,19 @@ class TrainSummary:
     baseline_psnr: float | None = None
     device: str = "cpu"
     parameters: int = 0
+    nothing_to_do: bool = False  # the run already had --epochs epochs; nothing was written
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def lines(self) -> list[str]:
         out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]
-        if self.resumed_from:
+        if self.nothing_to_do:
+            out.append(
+                f"nothing to do: the run has already trained {self.epochs_done} epochs "
+                "(pass a larger --epochs to continue it); nothing written"
+            )
+        elif self.resumed_from:
             out.append(f"resumed after epoch {self.resumed_from}")
         if self.history:
             last = self.history[-1]
@@ -124,6 +136,8 @@ class TrainSummary:
             )
         if self.baseline_psnr is not None:
             out.append(f"baseline (training-set mean image) PSNR on held-out: {self.baseline_psnr:.2f} dB")
+        if self.history and self.history[-1].get("warnings"):
+            out.extend(f"warning: {text}" for text in self.history[-1]["warnings"])
         return out
 
 
@@ -194,17 +208,47 @@ def baseline_psnr(mean_target: np.ndarray, test_set, workers: int) -> float | No
 
 @torch.no_grad()
 def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: int) -> dict:
-    """Mean loss and mean 8-bit PSNR over a split, the network in eval mode."""
+    """Mean loss, mean 8-bit PSNR and the fraction of saturated outputs (8-bit 0 or 255)
+    over a split, the network in eval mode."""
     model.eval()
     losses, psnrs, n = 0.0, [], 0
+    saturated, values = 0, 0
     for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
         maps, light, target = batch_to(batch, device)
         pred = model(maps, light)
         losses += float(loss_fn(pred, target)) * maps.shape[0]
         n += maps.shape[0]
         for p, t in zip(pred.cpu(), target.cpu()):
-            psnrs.append(psnr8(to_srgb8(p.permute(1, 2, 0).numpy()), to_srgb8(t.permute(1, 2, 0).numpy())))
-    return {"loss": losses / n, "psnr": float(np.mean(psnrs))}
+            p8 = to_srgb8(p.permute(1, 2, 0).numpy())
+            psnrs.append(psnr8(p8, to_srgb8(t.permute(1, 2, 0).numpy())))
+            saturated += int(np.count_nonzero((p8 == 0) | (p8 == 255)))
+            values += p8.size
+    return {"loss": losses / n, "psnr": float(np.mean(psnrs)), "saturated": saturated / values}
+
+
+def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
+    """What says a run is not learning after an epoch: saturated held-out outputs, or a
+    held-out loss that did not move (issue 22: the paper's lr 1e-2 does both)."""
+    lr = entry.get("lr")
+    hint = (
+        f"try a smaller --lr (e.g. --lr {lr / 10:g}; the released code's Adam uses 1e-3)"
+        if lr
+        else "try a smaller --lr"
+    )
+    out = []
+    if entry.get("test_saturated") is not None and entry["test_saturated"] > SATURATED_FRACTION:
+        out.append(
+            f"epoch {entry['epoch']}: {100 * entry['test_saturated']:.1f}% of held-out output values are "
+            f"saturated (0 or 1 after the tone map): the sigmoid has stopped passing gradients; {hint}"
+        )
+    if previous is not None and previous.get("test_loss") is not None and entry.get("test_loss") is not None:
+        before, after = previous["test_loss"], entry["test_loss"]
+        if abs(after - before) <= STALL_RELATIVE * max(abs(before), 1e-12):
+            out.append(
+                f"epoch {entry['epoch']}: the held-out loss did not move ({before:.6g} -> {after:.6g}, "
+                f"less than {STALL_RELATIVE:.0e} relative); {hint}"
+            )
+    return out
 
 
 def _check_run_dir(run_dir: str) -> None:
@@ -277,6 +321,18 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
             )
         if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
             ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"])
+            done = int(ckpt["epoch"])
+            if done > config.epochs:
+                # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
+                # options.epochs the run's (issue 22: it was rewritten 2 -> 1).
+                raise bad_value(
+                    "--epochs",
+                    config.epochs,
+                    f"at least {done}: {config.out!r} has already trained {done} epochs "
+                    f"(pass --epochs {done} or more to continue it, or a new --out to start again)",
+                )
+            if done == config.epochs:
+                return _finished(config, old, ckpt, device, model)
         fresh["baseline"] = old.get("baseline")
 
     model.to(device)
@@ -301,19 +357,30 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     with deterministic_algorithms():
         for epoch in range(start_epoch + 1, config.epochs + 1):
             entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress)
+            entry["lr"] = config.lr
             if test_set is not None:
                 held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
-                entry.update(test_loss=held_out["loss"], test_psnr=held_out["psnr"])
+                entry.update(
+                    test_loss=held_out["loss"], test_psnr=held_out["psnr"], test_saturated=held_out["saturated"]
+                )
+            entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
+            for text in entry["warnings"]:
+                log.warning("%s", text)
+                if progress is not None:
+                    progress({"epoch": epoch, "epochs": config.epochs, "warning": text})
             history.append(entry)
-            runfiles.save_checkpoint(
-                config.out,
+            state = dict(
                 epoch=epoch,
                 model_state=model.state_dict(),
                 optimizer_state=optimizer.state_dict(),
                 history=history,
                 identity_digest=fresh["identity_digest"],
             )
+            if is_best(history):  # before the last: a kill between them redoes this epoch, same weights
+                runfiles.save_checkpoint(config.out, name=runfiles.BEST_CHECKPOINT, **state)
+            runfiles.save_checkpoint(config.out, **state)
             runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
+            runfiles.write_log_csv(os.path.join(config.out, runfiles.LOG_CSV), history)
             write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
     return TrainSummary(
         run_dir=config.out,
@@ -323,6 +390,29 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
         baseline_psnr=fresh["baseline"]["test_psnr"],
         device=str(device),
         parameters=parameter_count(model),
+    )
+
+
+def is_best(history: list[dict]) -> bool:
+    """Whether the last epoch has the best held-out PSNR so far (the first of equals)."""
+    psnrs = [h.get("test_psnr") for h in history]
+    if psnrs[-1] is None:
+        return False
+    return all(p is None or p < psnrs[-1] for p in psnrs[:-1])
+
+
+def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model) -> TrainSummary:
+    """A run that already has ``config.epochs`` epochs: nothing to train, nothing written."""
+    history = list(ckpt["history"])
+    return TrainSummary(
+        run_dir=config.out,
+        epochs_done=int(ckpt["epoch"]),
+        resumed_from=int(ckpt["epoch"]),
+        history=history,
+        baseline_psnr=(old_config.get("baseline") or {}).get("test_psnr"),
+        device=str(device),
+        parameters=parameter_count(model),
+        nothing_to_do=True,
     )
 
 

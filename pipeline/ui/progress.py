@@ -85,6 +85,9 @@ def training_progress():
     interactive = sys.stderr.isatty()
 
     def show(p):
+        if "warning" in p:  # a run that does not learn says so (pipeline.neural.train)
+            click.echo(("\n" if interactive else "") + f"warning: {p['warning']}", err=True)
+            return
         width = 20
         filled = int(width * p["batch"] / p["batches"])
         line = (

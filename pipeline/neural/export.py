@@ -1,0 +1,83 @@
+"""A trained network as a TorchScript file, for use without this package (issue 22).
+
+``export_torchscript(run, out)`` traces the run's network (``--checkpoint last|best|FILE``,
+as `infer`) in eval mode and saves it with ``torch.jit.save``. The file needs only torch:
+
+    net = torch.jit.load("net.pt")
+    image = net(maps, light)   # maps (N, 12, R, R) in [0, 1]; light (N, 4): (3 d, turbidity)
+
+``maps`` are the 12 input channels (diffuse RGB, specular RGB, normal-map colour RGB,
+roughness x3); ``light`` is the network's light input, the lighting vector with its
+direction scaled to length 3 (``network.light_input``); the output is the tone-mapped
+image in [0, 1] (``pipeline.image.tonemap``; the exposure is in the file's extra
+``shaderball.json``). Tracing records one resolution: the run's.
+
+    python -m pipeline.neural.export RUN --out net.pt [--checkpoint best]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import sys
+
+import torch
+
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.neural.infer import load_run_model
+from pipeline.neural.network import INPUT_CHANNELS, LIGHT_CHANNELS
+from pipeline.store.atomic import write_bytes_atomic
+
+EXTRA = "shaderball.json"
+
+
+def example_inputs(resolution: int, batch: int = 1, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Inputs in the network's ranges: maps in [0, 1], a light input of a unit direction x 3."""
+    g = torch.Generator().manual_seed(seed)
+    maps = torch.rand(batch, INPUT_CHANNELS, resolution, resolution, generator=g)
+    d = torch.nn.functional.normalize(torch.rand(batch, 3, generator=g) + 0.1, dim=1) * 3.0
+    light = torch.cat([d, 1.0 + 9.0 * torch.rand(batch, LIGHT_CHANNELS - 3, generator=g)], dim=1)
+    return maps, light
+
+
+def export_torchscript(run: str, out: str, checkpoint: str = "last") -> dict:
+    """Write the run's network as TorchScript to ``out``; returns what the file's extra holds."""
+    if not out.endswith((".pt", ".pth", ".ts")):
+        raise bad_value("--out", out, "a file name ending in .pt, .pth or .ts")
+    model, config = load_run_model(run, torch.device("cpu"), checkpoint)
+    meta = {
+        "format": "shaderball-neural-torchscript",
+        "resolution": model.resolution,
+        "inputs": "maps (N, 12, R, R) in [0, 1]; light (N, 4) = (3 d_x, 3 d_y, 3 d_z, turbidity)",
+        "output": "(N, 3, R, R) in [0, 1], sRGB-encoded Reinhard tone map of linear radiance",
+        "tonemap": config.get("tonemap"),
+        "checkpoint": checkpoint,
+        "identity_digest": config.get("identity_digest"),
+        "torch": torch.__version__,
+    }
+    with torch.no_grad():
+        traced = torch.jit.trace(model, example_inputs(model.resolution), check_trace=False)
+    buffer = io.BytesIO()
+    torch.jit.save(traced, buffer, _extra_files={EXTRA: json.dumps(meta, sort_keys=True)})
+    write_bytes_atomic(out, buffer.getvalue())
+    return meta
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.export", description=__doc__.split("\n")[0])
+    parser.add_argument("run", help="training run folder")
+    parser.add_argument("--out", required=True, help="TorchScript file to write (.pt)")
+    parser.add_argument("--checkpoint", default="last", help="last, best or a checkpoint file of RUN [last]")
+    args = parser.parse_args(argv)
+    try:
+        meta = export_torchscript(args.run, args.out, args.checkpoint)
+    except ShaderballError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out}: TorchScript, {meta['resolution']}x{meta['resolution']}, {meta['checkpoint']} checkpoint")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""`shaderball evaluate` (issue 22): refusals that name what the user can do, the reference's
+spp, the equal-time and mean-image rows, intervals, relMSE of a saturated network."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from cli import main
+from pipeline.image.tonemap import inverse_tonemap
+from pipeline.neural import runfiles
+from pipeline.neural.evaluate import NETWORK_Y_CAP
+from pipeline.neural.network import NeuralRenderer
+
+torch.set_num_threads(1)
+
+
+def _invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _fake_run(folder, resolution):
+    """A run folder whose network is ``resolution`` pixels (random weights)."""
+    os.makedirs(folder)
+    runfiles.write_json(
+        os.path.join(folder, runfiles.CONFIG),
+        {
+            "identity": {"dataset": {}},
+            "identity_digest": "fake",
+            "network": {"resolution": resolution},
+            "tonemap": {"name": "reinhard+srgb", "exposure": 4.0},
+        },
+    )
+    runfiles.save_checkpoint(
+        str(folder),
+        epoch=1,
+        model_state=NeuralRenderer(resolution).state_dict(),
+        optimizer_state={},
+        history=[],
+        identity_digest="fake",
+    )
+
+
+@pytest.mark.slow
+def test_a_run_whose_resolution_does_not_divide_the_datasets_names_what_to_do(reference, tmp_path):
+    _fake_run(tmp_path / "run48", 48)  # the smoke dataset is 64x64: 48 does not divide it
+    result = _invoke("evaluate", tmp_path / "run48", reference, "--split", "all", "--spp", "none")
+    assert result.exit_code == 2, result.output
+    assert "--resolution" not in result.output.replace("train DATASET --out NEWRUN`, with --resolution", "")
+    assert "64x64 renders" in result.output and "trained at 48x48" in result.output
+    assert "multiple of 48" in result.output and "shaderball train DATASET" in result.output
+    assert not (tmp_path / "run48" / "evaluation-all").exists()
+
+
+@pytest.fixture(scope="module")
+def trained(reference, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ev22") / "run"
+    args = ["--loss", "l1", "--resolution", "32", "--batch-size", "4", "--seed", "3", "--epochs", "1"]
+    result = _invoke("train", reference, "--out", out, *args)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.mark.slow
+def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trained, reference, tmp_path):
+    json_path = tmp_path / "eval.json"
+    result = _invoke(
+        "evaluate", trained, reference, "--split", "all", "--spp", "1,8", "--no-denoise", "--limit", 6,
+        "--json", json_path, "--out", tmp_path / "ev",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(json_path.read_text())
+    assert data["reference_spp"] == 16  # manifests/smoke.toml
+    assert set(data["mean"]) == {"network", "mean_image", "nearest_sample", "pt_equal_time", "pt1", "pt8"}
+    for row in data["samples"]:  # another material's render, never the sample's own
+        assert row["nearest_sample"]["neighbour"].split("_")[0] != row["material_id"]
+    eq = data["equal_time"]
+    assert eq["spp"] >= 1 and eq["network_cpu_s"] > 0 and set(eq["pt_cpu_s"]) == {"1", "8"}
+    assert all(r["pt_equal_time"]["spp"] == eq["spp"] for r in data["samples"])
+    # 8 spp is more than a quarter of 16: said; 1 spp is not
+    assert any(n.startswith("pt8:") and "optimistic" in n for n in data["notes"])
+    assert not any(n.startswith("pt1:") for n in data["notes"])
+    for method, m in data["mean"].items():
+        lo, hi = m["ci95"]["psnr"]
+        assert lo <= m["psnr"] <= hi, method
+    assert data["mean"]["mean_image"]["time_s"] == 0.0
+    table = (tmp_path / "ev" / "results.md").read_text()
+    assert "references of 16 spp" in table and "| mean training image |" in table
+    assert "| nearest training sample (same kind, lighting) |" in table
+    assert f"| path tracing, equal CPU time ({eq['spp']} spp) |" in table
+
+
+@pytest.mark.slow
+def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
+    _fake_run(tmp_path / "sat", 32)
+    ckpt = runfiles.load_checkpoint(str(tmp_path / "sat"))
+    last_bias = [k for k in ckpt["model"] if k.endswith(".bias")][-1]
+    ckpt["model"][last_bias].fill_(50.0)  # sigmoid(50): every output value 1
+    runfiles.save_checkpoint(
+        str(tmp_path / "sat"),
+        epoch=1,
+        model_state=ckpt["model"],
+        optimizer_state={},
+        history=[],
+        identity_digest="fake",
+    )
+    json_path = tmp_path / "eval.json"
+    result = _invoke("evaluate", tmp_path / "sat", reference, "--split", "all", "--spp", "none", "--limit", 2,
+                     "--json", json_path)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(json_path.read_text())
+    net = data["mean"]["network"]
+    assert net["saturated"] == 1.0
+    assert any(n.startswith("network: 100.0% of its output values are saturated") for n in data["notes"])
+    # uncapped, an output of 1 inverts to 2.5e5 and relMSE is ~1e12 (issue 22); capped, at most
+    # (the cap's radiance)^2 / 0.01 whatever the reference
+    cap = float(inverse_tonemap(np.float32(NETWORK_Y_CAP), 4.0))
+    assert net["relmse"] <= cap**2 / 0.01 < 1e6
