@@ -41,10 +41,13 @@ class Config:
     changes: dict = field(default_factory=dict)  # RenderSettings fields other than spp
     post: str | None = None  # one of POSTS
     passes: tuple[int, ...] = ()  # robust: the equal pass sizes
+    #: Renders the same settings with other seeds (the A/A configuration: "aa").
+    seed_tag: str = ""
 
     def settings_key(self) -> tuple:
         """Configurations with equal keys share one render (denoising reuses the ladder's)."""
-        return (self.spp, tuple(sorted(self.changes.items())), self.passes)
+        key = (self.spp, tuple(sorted(self.changes.items())), self.passes)
+        return (*key, self.seed_tag) if self.seed_tag else key
 
     def to_dict(self) -> dict:
         return {
@@ -54,11 +57,17 @@ class Config:
             "changes": dict(self.changes),
             "post": self.post,
             "passes": list(self.passes),
+            "seed_tag": self.seed_tag,
         }
 
 
 def paper_name(spp: int) -> str:
     return f"independent/{spp}"
+
+
+def aa_name(spp: int) -> str:
+    """The A/A configuration: the recipe again, with other seeds (the noise floor)."""
+    return f"A/A {paper_name(spp)}"
 
 
 def study_configs(
@@ -68,6 +77,7 @@ def study_configs(
     ladder = tuple(sorted(set(ladder) | {recipe_spp}))
     top = max(ladder)
     out: list[Config] = [Config(paper_name(n), "ladder", n) for n in ladder]
+    out.append(Config(aa_name(recipe_spp), "aa", recipe_spp, seed_tag="aa"))
     if "denoise" in families:
         for post in ("oidn", "oidn-color"):
             out += [Config(f"{post}+independent/{n}", "denoise", n, post=post) for n in ladder if n <= 256]
