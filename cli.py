@@ -620,7 +620,7 @@ def info_cmd(directory, as_json):
     "families",
     default="all",
     show_default=True,
-    help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, depth, "
+    help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, passes, depth, "
     "rr, sun, clamp, robust, adaptive (the ladder is always measured).",
 )
 @click.option(

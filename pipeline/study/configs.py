@@ -14,11 +14,16 @@ from pipeline.render.limits import SAMPLERS
 #: The spp ladder: powers of two and the paper's 150.
 DEFAULT_LADDER = (1, 2, 4, 8, 16, 32, 64, 128, 150, 256, 512, 1024)
 #: Families, in the order they are run and reported.
-FAMILIES = ("ladder", "denoise", "samplers", "depth", "rr", "sun", "clamp", "robust", "adaptive")
+FAMILIES = ("ladder", "denoise", "samplers", "passes", "depth", "rr", "sun", "clamp", "robust", "adaptive")
 #: Families whose estimate converges to the reference's image: the candidates for a faster
 #: recipe of the same meaning. Depth cuts, clamps, robust combinations and denoisers are biased.
-UNBIASED_FAMILIES = ("ladder", "samplers", "rr", "adaptive")
+UNBIASED_FAMILIES = ("ladder", "samplers", "passes", "rr", "adaptive")
 SAMPLER_SPP = (4, 16, 32, 48, 64, 96, 128, 150, 256)
+#: A stratifying sampler's budget split into equal passes that it takes exactly (16 = 4^2
+#: for all three: no rounding), each a power of two, so the render stays byte-reproducible
+#: where one pass of 32 or 48 would be rounded (multijitter: 35, 51): (passes, spp each).
+PASS_SPLITS = ((2, 16), (3, 16), (4, 16))
+PASS_SAMPLERS = ("stratified", "multijitter", "ldsampler")
 DEPTHS = (1, 2, 3, 4, 6, 12, 16)
 RR_DEPTHS = (1, 2, 3, 8)
 CLAMPS = (1.0, 4.0, 16.0, 64.0)
@@ -84,6 +89,13 @@ def study_configs(
     if "samplers" in families:
         for sampler in SAMPLERS[1:]:
             out += [Config(f"{sampler}/{n}", "samplers", n, {"sampler": sampler}) for n in SAMPLER_SPP if n <= top]
+    if "passes" in families:
+        out += [
+            Config(f"{sampler}/{n}x{p}", "passes", n * p, {"sampler": sampler}, post="mean", passes=(p,) * n)
+            for sampler in PASS_SAMPLERS
+            for n, p in PASS_SPLITS
+            if n * p <= top
+        ]
     if "depth" in families:
         out += [
             Config(f"depth{d}/{recipe_spp}", "depth", recipe_spp, {"max_depth": d})

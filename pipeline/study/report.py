@@ -129,6 +129,8 @@ def reproducible(config, rows: list[dict]) -> bool:
     two (measured: orthogonal at 32 -> 49 spp gave 0-2 differing pixels between repeats)."""
     if config.changes.get("sampler", "independent") == "independent":
         return True
+    if config.passes:  # equal passes, each a power of two taken exactly (no rounding)
+        return all(_power_of_two(p) for p in config.passes) and all(r["spp_used"] == config.spp for r in rows)
     return _power_of_two(config.spp) and all(_power_of_two(r["spp_used"]) for r in rows)
 
 
@@ -269,6 +271,7 @@ FAMILY_COLOURS = {
     "aa": (120, 120, 120),
     "denoise": (0, 90, 200),
     "samplers": (255, 127, 14),
+    "passes": (214, 130, 0),
     "depth": (44, 160, 44),
     "rr": (148, 103, 189),
     "sun": (140, 86, 75),
@@ -591,7 +594,7 @@ def report_markdown(
         "|---|" + "---|" * len(classes),
     ]
     for s in summary:
-        if s["family"] in ("ladder", "aa", "denoise", "adaptive", "samplers"):
+        if s["family"] in ("ladder", "aa", "denoise", "adaptive", "samplers", "passes"):
             L.append(
                 f"| {s['config']} | "
                 + " | ".join(_f(s["classes"].get(c, {}).get("relmse_ball_mean")) for c in classes)
