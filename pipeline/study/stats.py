@@ -97,7 +97,10 @@ def paired_ratio(
     rng = np.random.default_rng(seed)
     draw = rng.integers(0, len(common), (resamples, len(common)))
     ra, rb = _resample_means(a, draw, rng), _resample_means(b, draw, rng)
-    ratios = np.where(rb > 0, ra / np.where(rb > 0, rb, 1.0), np.inf)
+    # A resample whose baseline mean is 0 has no ratio: left out (JSON has no infinity).
+    ratios = (ra / np.where(rb > 0, rb, 1.0))[rb > 0]
+    if not ratios.size:
+        return None
     alpha = (1 - CONFIDENCE) / 2
     lo, hi = np.quantile(ratios, [alpha, 1 - alpha])
     return Interval(point, float(lo), float(hi))
