@@ -3,8 +3,10 @@
 Owns the choice of study samples from a spec's own plan (``select``), the configurations
 varied from the spec's recipe (``configs``), the error metrics against per-sample
 references and the reference's error floor (``measure``), denoising with Intel Open Image
-Denoise and its guide buffers (``denoise``), the run with its resume and progress
-(``run``), and the tables, Pareto plot and recommended recipes (``report``).
+Denoise and its guide buffers (``denoise``), the run with its repeats, resume and
+progress (``run``), paired ratios with bootstrap intervals and the rule that lets one
+recipe replace another (``stats``), and the tables, plot and recommended recipes
+(``report``).
 
 May import the domain packages (materials, sky, geometry), ``pipeline.errors``,
 ``pipeline.dataset`` (spec, plan, materials), ``pipeline.render`` (the renderer, through
