@@ -20,9 +20,10 @@ FAMILIES = ("ladder", "denoise", "samplers", "passes", "depth", "rr", "sun", "cl
 UNBIASED_FAMILIES = ("ladder", "samplers", "passes", "rr", "adaptive")
 SAMPLER_SPP = (4, 16, 32, 48, 64, 96, 128, 150, 256)
 #: A stratifying sampler's budget split into equal passes that it takes exactly (16 = 4^2
-#: for all three: no rounding), each a power of two, so the render stays byte-reproducible
-#: where one pass of 32 or 48 would be rounded (multijitter: 35, 51): (passes, spp each).
-PASS_SPLITS = ((2, 16), (3, 16), (4, 16))
+#: and 64 = 8^2 for all three: no rounding), each a power of two, so the render stays
+#: byte-reproducible where one pass of 32, 48 or 128 would be rounded (multijitter: 35,
+#: 51, 132): (passes, spp each).
+PASS_SPLITS = ((2, 16), (3, 16), (4, 16), (2, 64))
 PASS_SAMPLERS = ("stratified", "multijitter", "ldsampler")
 DEPTHS = (1, 2, 3, 4, 6, 12, 16)
 RR_DEPTHS = (1, 2, 3, 8)
