@@ -760,7 +760,7 @@ def info_cmd(directory, as_json):
     "families",
     default="all",
     show_default=True,
-    help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, depth, "
+    help="Families of configurations: all, or comma-separated from ladder, denoise, samplers, passes, depth, "
     "rr, sun, clamp, robust, adaptive (the ladder is always measured).",
 )
 @click.option(
@@ -770,10 +770,18 @@ def info_cmd(directory, as_json):
     help="Only these configurations (comma-separated names as the report writes them, e.g. "
     "multijitter/64); the spec's recipe is always measured.",
 )
+@click.option(
+    "--repeats",
+    type=int,
+    default=3,
+    show_default=True,
+    help="Independent seeds per sample and configuration, 1 to 64 (the cost grows in proportion); "
+    "every figure carries a 95% interval over samples and seeds.",
+)
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, no_flip, as_json):
+def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
 
     req = StudyRequest(
@@ -786,6 +794,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
         families=parse_families(families),
         only=tuple(n for n in only.split(",") if n),
         flip=not no_flip,
+        repeats=repeats,
     )
     summary = run_study(req, progress=study_progress)
     if as_json:

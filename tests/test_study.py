@@ -48,6 +48,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHORT = next(k for k, v in SHORT_VARIANTS.items() if v == VARIANT)
 LADDER = (1, 2, 4, 8, 16, 32, 64, 256)
 REFERENCE_SPP = 512
+REPEATS = 2
 #: Stated range of the log-log slope of relMSE against spp for the independent sampler
 #: (Monte Carlo: -1; fireflies at low spp and the finite reference flatten it a little).
 SLOPE_RANGE = (-1.25, -0.75)
@@ -81,6 +82,7 @@ def tiny_study(tmp_path_factory):
         families=("ladder", "denoise"),
         flip=False,
         scan=8,
+        repeats=REPEATS,
     )
     summary = run_study(req)
     with open(tmp / "out" / "study.json", encoding="utf-8") as fh:
@@ -119,7 +121,7 @@ def test_tiny_study_reference_floor_is_computed_and_enforced(tiny_study):
 @pytest.mark.slow
 def test_tiny_study_denoiser_lowers_error_at_low_spp(tiny_study):
     _, _, doc = tiny_study
-    by = {(r["sample_id"], r["config"]): r for r in doc["rows"]}
+    by = {(r["sample_id"], r["config"]): r for r in doc["rows"] if r["repeat"] == 0}
     for sample in doc["meta"]["selection"]:
         for n in (1, 2):
             raw = by[(sample["sample_id"], f"independent/{n}")]["relmse_ball"]
@@ -131,7 +133,7 @@ def test_tiny_study_denoiser_lowers_error_at_low_spp(tiny_study):
 def test_tiny_study_writes_its_outputs_and_resumes(tiny_study):
     req, summary, doc = tiny_study
     out = req.out
-    assert summary.rendered == summary.rows == len(doc["rows"]) == 3 * len(doc["meta"]["configs"])
+    assert summary.rendered == summary.rows == len(doc["rows"]) == 3 * REPEATS * len(doc["meta"]["configs"])
     with open(os.path.join(out, "study.csv"), encoding="utf-8") as fh:
         assert len(fh.read().splitlines()) == len(doc["rows"]) + 1
     with open(os.path.join(out, "pareto.png"), "rb") as fh:
@@ -144,17 +146,50 @@ def test_tiny_study_writes_its_outputs_and_resumes(tiny_study):
     ref_path = os.path.join(out, "references", f"{first}.npz")
     ref_mtime = os.stat(ref_path).st_mtime_ns
     again = run_study(req)
-    assert again.rendered == len(doc["meta"]["configs"]) and again.reused == 2 * len(doc["meta"]["configs"])
+    per_sample = REPEATS * len(doc["meta"]["configs"])
+    assert again.rendered == per_sample and again.reused == 2 * per_sample
     assert os.stat(ref_path).st_mtime_ns == ref_mtime
     redo = json.load(open(os.path.join(out, "study.json"), encoding="utf-8"))
-    old = {(r["sample_id"], r["config"]): r["relmse_ball"] for r in doc["rows"]}
-    new = {(r["sample_id"], r["config"]): r["relmse_ball"] for r in redo["rows"]}
+    old = {(r["sample_id"], r["config"], r["repeat"]): r["relmse_ball"] for r in doc["rows"]}
+    new = {(r["sample_id"], r["config"], r["repeat"]): r["relmse_ball"] for r in redo["rows"]}
     assert old == new  # deterministic seeds: the re-measured sample gives the same errors
     # Another request on the same folder is refused and leaves it alone.
     before = sorted(os.listdir(out))
     with pytest.raises(ShaderballError, match="another request"):
         run_study(StudyRequest(**{**req.__dict__, "samples": 2}))
     assert sorted(os.listdir(out)) == before
+
+
+@pytest.mark.slow
+def test_tiny_study_reports_intervals_and_the_aa_row(tiny_study):
+    """Every configuration is rendered with its own seeds per repeat; every comparison with
+    the recipe carries a 95% interval; the report prints the A/A row, whose interval holds 1."""
+    _, _, doc = tiny_study
+    seeds = {}
+    for r in doc["rows"]:
+        seeds.setdefault((r["sample_id"], r["config"]), set()).add(r["seed"])
+    assert all(len(v) == REPEATS for v in seeds.values())  # independent seeds per repeat
+    recipe = {r["seed"] for r in doc["rows"] if r["config"] == "independent/16"}
+    aa = {r["seed"] for r in doc["rows"] if r["config"] == "A/A independent/16"}
+    assert aa and not aa & recipe  # the A/A row: the recipe with other seeds
+    cmps = doc["comparisons"]
+    assert "independent/16" not in cmps and "A/A independent/16" in cmps
+    for name, c in cmps.items():
+        for fig in ("ball", "frame", "cpu"):
+            assert c[fig]["lo"] <= c[fig]["value"] <= c[fig]["hi"], (name, fig, c[fig])
+        assert c["repeats"] == REPEATS
+    assert cmps["A/A independent/16"]["ball"]["lo"] <= 1 <= cmps["A/A independent/16"]["ball"]["hi"]
+    assert cmps["independent/1"]["ball"]["lo"] > 1 and not cmps["independent/1"]["replaces"]
+    report = open(os.path.join(tiny_study[0].out, "report.md"), encoding="utf-8").read()
+    assert "| A/A independent/16 | aa | " in report and "95%" in report
+    assert re.search(r"\| independent/1 \| ladder \| [0-9.]+ \[[0-9.]+, [0-9.]+\] \|", report)
+    # The files as they are now (the resume test may have rewritten them: timings move).
+    current = json.load(open(os.path.join(tiny_study[0].out, "study.json"), encoding="utf-8"))
+    for line in current["claims"].values():
+        assert f"- {line}" in report
+    assert doc["stops_paying"]["ladder"]["config"].startswith("independent/")
+    for r in doc["rows"]:
+        assert r["build_cpu_s"] >= r["cpu_s"] >= 0 and r["load_cpu_s"] >= 0 and r["compile_s"] >= 0
 
 
 def test_configurations_vary_one_thing_from_the_recipe():
@@ -271,6 +306,7 @@ def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setu
         (["--ladder", "a,b"], "--ladder"),
         (["--configs", "ladder,bogus"], "--configs"),
         (["--only", "independent/3"], "--only"),
+        (["--repeats", "0"], "--repeats"),
     ],
 )
 def test_bad_study_options_exit_2_and_write_nothing(tmp_path, args, option):

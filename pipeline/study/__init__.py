@@ -3,8 +3,10 @@
 Owns the choice of study samples from a spec's own plan (``select``), the configurations
 varied from the spec's recipe (``configs``), the error metrics against per-sample
 references and the reference's error floor (``measure``), denoising with Intel Open Image
-Denoise and its guide buffers (``denoise``), the run with its resume and progress
-(``run``), and the tables, Pareto plot and recommended recipes (``report``).
+Denoise and its guide buffers (``denoise``), the run with its repeats, resume and
+progress (``run``), paired ratios with bootstrap intervals and the rule that lets one
+recipe replace another (``stats``), and the tables, plot and recommended recipes
+(``report``).
 
 Mitsuba is used only through ``pipeline.render`` (the variant is resolved once, at the
 study's edge); its LDR metrics are those of the images the network is trained on

@@ -14,11 +14,17 @@ from pipeline.render.limits import SAMPLERS
 #: The spp ladder: powers of two and the paper's 150.
 DEFAULT_LADDER = (1, 2, 4, 8, 16, 32, 64, 128, 150, 256, 512, 1024)
 #: Families, in the order they are run and reported.
-FAMILIES = ("ladder", "denoise", "samplers", "depth", "rr", "sun", "clamp", "robust", "adaptive")
+FAMILIES = ("ladder", "denoise", "samplers", "passes", "depth", "rr", "sun", "clamp", "robust", "adaptive")
 #: Families whose estimate converges to the reference's image: the candidates for a faster
 #: recipe of the same meaning. Depth cuts, clamps, robust combinations and denoisers are biased.
-UNBIASED_FAMILIES = ("ladder", "samplers", "rr", "adaptive")
+UNBIASED_FAMILIES = ("ladder", "samplers", "passes", "rr", "adaptive")
 SAMPLER_SPP = (4, 16, 32, 48, 64, 96, 128, 150, 256)
+#: A stratifying sampler's budget split into equal passes that it takes exactly (16 = 4^2
+#: and 64 = 8^2 for all three: no rounding), each a power of two, so the render stays
+#: byte-reproducible where one pass of 32, 48 or 128 would be rounded (multijitter: 35,
+#: 51, 132): (passes, spp each).
+PASS_SPLITS = ((2, 16), (3, 16), (4, 16), (2, 64))
+PASS_SAMPLERS = ("stratified", "multijitter", "ldsampler")
 DEPTHS = (1, 2, 3, 4, 6, 12, 16)
 RR_DEPTHS = (1, 2, 3, 8)
 CLAMPS = (1.0, 4.0, 16.0, 64.0)
@@ -41,10 +47,13 @@ class Config:
     changes: dict = field(default_factory=dict)  # RenderSettings fields other than spp
     post: str | None = None  # one of POSTS
     passes: tuple[int, ...] = ()  # robust: the equal pass sizes
+    #: Renders the same settings with other seeds (the A/A configuration: "aa").
+    seed_tag: str = ""
 
     def settings_key(self) -> tuple:
         """Configurations with equal keys share one render (denoising reuses the ladder's)."""
-        return (self.spp, tuple(sorted(self.changes.items())), self.passes)
+        key = (self.spp, tuple(sorted(self.changes.items())), self.passes)
+        return (*key, self.seed_tag) if self.seed_tag else key
 
     def to_dict(self) -> dict:
         return {
@@ -54,11 +63,17 @@ class Config:
             "changes": dict(self.changes),
             "post": self.post,
             "passes": list(self.passes),
+            "seed_tag": self.seed_tag,
         }
 
 
 def paper_name(spp: int) -> str:
     return f"independent/{spp}"
+
+
+def aa_name(spp: int) -> str:
+    """The A/A configuration: the recipe again, with other seeds (the noise floor)."""
+    return f"A/A {paper_name(spp)}"
 
 
 def study_configs(
@@ -68,12 +83,20 @@ def study_configs(
     ladder = tuple(sorted(set(ladder) | {recipe_spp}))
     top = max(ladder)
     out: list[Config] = [Config(paper_name(n), "ladder", n) for n in ladder]
+    out.append(Config(aa_name(recipe_spp), "aa", recipe_spp, seed_tag="aa"))
     if "denoise" in families:
         for post in ("oidn", "oidn-color"):
             out += [Config(f"{post}+independent/{n}", "denoise", n, post=post) for n in ladder if n <= 256]
     if "samplers" in families:
         for sampler in SAMPLERS[1:]:
             out += [Config(f"{sampler}/{n}", "samplers", n, {"sampler": sampler}) for n in SAMPLER_SPP if n <= top]
+    if "passes" in families:
+        out += [
+            Config(f"{sampler}/{n}x{p}", "passes", n * p, {"sampler": sampler}, post="mean", passes=(p,) * n)
+            for sampler in PASS_SAMPLERS
+            for n, p in PASS_SPLITS
+            if n * p <= top
+        ]
     if "depth" in families:
         out += [
             Config(f"depth{d}/{recipe_spp}", "depth", recipe_spp, {"max_depth": d})

@@ -6,7 +6,11 @@
 - PSNR and SSIM (Gaussian 11x11, sigma 1.5) of the 8-bit sRGB pictures the network is
   trained on (:mod:`pipeline.image.tonemap`, fixed exposure); HDR-FLIP on linear HDR.
 - Fireflies: relMSE on the ball without its brightest 0.1% of pixels (by the render's
-  luminance); their share of the error is 1 - that / relMSE.
+  luminance); their share of the error is 1 - that / relMSE, their part of it (relMSE
+  units, what the study compares between recipes) relMSE - that. On the frame the
+  brightest pixels are the sky, so there a firefly is a pixel too bright for its
+  reference: the 0.1% of the frame's pixels with the largest error among those brighter
+  than the reference (:func:`frame_firefly_relmse`).
 - Bias: the ball's mean luminance against the reference's, relative, with a z score
   from both renders' standard errors where the render has a variance.
 
@@ -78,6 +82,26 @@ def firefly_free_relmse(test: np.ndarray, reference: np.ndarray, mask: np.ndarra
     return float(terms[keep].mean()) if keep.size else 0.0
 
 
+def ball_firefly_relmse(test: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """The ball's relMSE carried by its brightest :data:`FIREFLY_SHARE` of pixels, per ball
+    pixel (relMSE - the rest's sum over all ball pixels: never negative)."""
+    sel = np.asarray(mask, bool)
+    terms = relmse_terms(test, reference, sel)
+    y = luminance(test)[sel]
+    drop = max(1, int(math.ceil(FIREFLY_SHARE * y.size)))
+    top = np.argsort(y, kind="stable")[y.size - drop :]
+    return float(terms[top].sum() / terms.size) if terms.size else 0.0
+
+
+def frame_firefly_relmse(test: np.ndarray, reference: np.ndarray) -> float:
+    """The frame's relMSE carried by its :data:`FIREFLY_SHARE` of pixels (at least one) with
+    the largest error among those brighter (in luminance) than the reference, per frame pixel."""
+    terms = relmse_terms(test, reference)
+    brighter = (luminance(test) > luminance(reference)).ravel()
+    top = np.sort(terms[brighter])[::-1][: max(1, int(math.ceil(FIREFLY_SHARE * terms.size)))]
+    return float(top.sum() / terms.size)
+
+
 def ball_bias(
     test: np.ndarray,
     reference: np.ndarray,
@@ -123,6 +147,8 @@ def measure(
         "relmse_frame": frame,
         "relmse_ball_no_fireflies": free,
         "firefly_share": float(1.0 - free / ball) if ball > 0 else 0.0,
+        "firefly_relmse_ball": ball_firefly_relmse(test, ref, mask),
+        "firefly_relmse_frame": frame_firefly_relmse(test, ref),
         "psnr": metrics.psnr8(test8, ref8),
         "ssim": metrics.ssim8(test8, ref8),
         "flip": metrics.hdr_flip(test, ref) if flip else None,

@@ -1,19 +1,25 @@
 """The study's outputs: study.json, study.csv, pareto.png, report.md, and the recipes the
 evidence supports.
 
-Per configuration over the samples: the median and mean relMSE on the ball (and per
-material class, with the noise of that mean from the per-pixel terms), the frame's
-relMSE, PSNR/SSIM/HDR-FLIP means, the firefly share, the ball's mean-luminance bias, spp
-used and CPU/wall seconds. A configuration with any row below the reference's resolution
-is reported but not ranked.
+Per configuration over the samples and seeds: the median and mean relMSE on the ball (and
+per material class), the frame's relMSE, PSNR/SSIM/HDR-FLIP means, the firefly share, the
+ball's mean-luminance bias, spp used, and CPU/wall seconds (the render alone, and
+``build_cpu_s``: what a build pays per render, pipeline/study/run.py). A configuration with
+any row below the reference's resolution is reported but not ranked.
 
-**paper-fast**: the byte-reproducible configuration of an unbiased family
-(configs.UNBIASED_FAMILIES) with the lowest summed CPU time whose median relMSE on the
-ball is at most the spec recipe's
-and whose mean relMSE in every material class is at most the recipe's plus twice the
-noise of the difference; CPU times within 5% count as a tie, broken by the smallest
-worst-class ratio to the recipe. The same rule picks the best denoised recipe, whose bias is
-reported beside it.
+Every configuration is compared with the spec's recipe by paired ratios with 95%
+bootstrap intervals over samples and seeds (:mod:`pipeline.study.stats`): relMSE on the
+ball (the ranking figure), per material class, on the frame, the fireflies' part of the
+error on the ball and on the frame, and build-level CPU time. The A/A row is the recipe
+against itself with other seeds: the noise floor.
+
+**paper-fast**: among the ranked, byte-reproducible configurations of an unbiased family
+(configs.UNBIASED_FAMILIES) that the rule of :func:`pipeline.study.stats.decide` lets
+replace the recipe (upper bound of the ball's error ratio <= 1, no material class worse
+beyond its interval, frame and fireflies not worse beyond theirs), the one with the lowest
+build-level CPU ratio; ratios within 5% count as a tie, broken by the lower upper bound of
+the error ratio. The same rule picks the best denoised recipe, whose bias is reported
+beside it.
 """
 
 from __future__ import annotations
@@ -28,7 +34,8 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
-from pipeline.study.configs import UNBIASED_FAMILIES, paper_name
+from pipeline.study import stats
+from pipeline.study.configs import UNBIASED_FAMILIES, aa_name, paper_name
 
 COLOURS = [
     (31, 119, 180),
@@ -67,11 +74,9 @@ def summarise(rows: list[dict], configs) -> list[dict]:
         classes = {}
         for cls in sorted({r["material_class"] for r in rs}):
             cr = [r for r in rs if r["material_class"] == cls]
-            se = math.sqrt(sum((r["relmse_ball_se"] or 0.0) ** 2 for r in cr)) / len(cr)
             classes[cls] = {
                 "relmse_ball_mean": _mean(_values(cr, "relmse_ball")),
-                "se": se,
-                "cpu_s_median": _median(_values(cr, "cpu_s")),
+                "cpu_s_median": _median(_values(cr, "build_cpu_s")),
             }
         biases = _values(rs, "bias_ball")
         out.append(
@@ -83,7 +88,8 @@ def summarise(rows: list[dict], configs) -> list[dict]:
                 "spp_used_mean": _mean(_values(rs, "spp_used")),
                 "spp_used_min": min(_values(rs, "spp_used")),
                 "spp_used_max": max(_values(rs, "spp_used")),
-                "samples": len(rs),
+                "samples": len({r["sample_id"] for r in rs}),
+                "rows": len(rs),
                 "relmse_ball_median": _median(_values(rs, "relmse_ball")),
                 "relmse_ball_mean": _mean(_values(rs, "relmse_ball")),
                 "relmse_frame_median": _median(_values(rs, "relmse_frame")),
@@ -98,6 +104,10 @@ def summarise(rows: list[dict], configs) -> list[dict]:
                 "error_estimate_mean": _mean(_values(rs, "error_estimate")),
                 "cpu_s_sum": float(sum(_values(rs, "cpu_s"))),
                 "cpu_s_median": _median(_values(rs, "cpu_s")),
+                "build_cpu_s_sum": float(sum(_values(rs, "build_cpu_s"))),
+                "build_cpu_s_median": _median(_values(rs, "build_cpu_s")),
+                "load_cpu_s_median": _median(_values(rs, "load_cpu_s")),
+                "compile_s_sum": float(sum(_values(rs, "compile_s"))),
                 "wall_s_median": _median(_values(rs, "wall_s")),
                 "reproducible": reproducible(c, rs),
                 "below_resolution": sum(1 for r in rs if r["below_resolution"]),
@@ -119,11 +129,16 @@ def reproducible(config, rows: list[dict]) -> bool:
     two (measured: orthogonal at 32 -> 49 spp gave 0-2 differing pixels between repeats)."""
     if config.changes.get("sampler", "independent") == "independent":
         return True
+    if config.passes:  # equal passes, each a power of two taken exactly (no rounding)
+        return all(_power_of_two(p) for p in config.passes) and all(r["spp_used"] == config.spp for r in rows)
     return _power_of_two(config.spp) and all(_power_of_two(r["spp_used"]) for r in rows)
 
 
 def pareto_front(summary: list[dict]) -> list[str]:
-    ranked = sorted((s for s in summary if s["ranked"]), key=lambda s: (s["cpu_s_sum"], s["relmse_ball_median"]))
+    ranked = sorted(
+        (s for s in summary if s["ranked"] and s["family"] != "aa"),
+        key=lambda s: (s["build_cpu_s_sum"], s["relmse_ball_median"]),
+    )
     front, best = [], math.inf
     for s in ranked:
         if s["relmse_ball_median"] < best:
@@ -132,31 +147,31 @@ def pareto_front(summary: list[dict]) -> list[str]:
     return front
 
 
-def meets(candidate: dict, paper: dict) -> bool:
-    """At most the recipe's median relMSE, and no class worse than the recipe's beyond noise."""
-    if candidate["relmse_ball_median"] > paper["relmse_ball_median"]:
-        return False
-    for cls, p in paper["classes"].items():
-        c = candidate["classes"].get(cls)
-        if c is None or c["relmse_ball_mean"] > p["relmse_ball_mean"] + 2 * math.hypot(c["se"], p["se"]):
-            return False
-    return True
-
-
 #: Relative CPU-time difference below which two recipes count as equally fast.
 TIME_TIE = 0.05
 
 
-def worst_class_ratio(candidate: dict, paper: dict) -> float:
-    """The largest ratio, over material classes, of the candidate's mean relMSE to the recipe's."""
-    return max(
-        candidate["classes"][c]["relmse_ball_mean"] / p["relmse_ball_mean"]
-        for c, p in paper["classes"].items()
-        if p["relmse_ball_mean"]
-    )
+def comparisons(rows: list[dict], summary: list[dict], recipe_spp: int) -> dict:
+    """{config: stats.compare against the recipe, with its decision and flags}."""
+    recipe = paper_name(recipe_spp)
+    out = {}
+    for s in summary:
+        if s["config"] == recipe:
+            continue
+        cmp = stats.compare(rows, s["config"], recipe)
+        ok, why = stats.decide(cmp)
+        cmp.update(replaces=ok, why=why, flags=stats.flags(cmp))
+        out[s["config"]] = cmp
+    return out
 
 
-def recommend(summary: list[dict], recipe_spp: int) -> dict:
+def worst_class(cmp: dict) -> tuple[str, dict] | None:
+    """The material class whose ratio's lower bound is highest (the likeliest to be worse)."""
+    classes = [(c, iv) for c, iv in cmp["classes"].items() if iv]
+    return max(classes, key=lambda item: (item[1]["lo"], item[1]["value"])) if classes else None
+
+
+def recommend(summary: list[dict], recipe_spp: int, cmps: dict) -> dict:
     by = {s["config"]: s for s in summary}
     paper = by.get(paper_name(recipe_spp))
     if paper is None:
@@ -169,39 +184,57 @@ def recommend(summary: list[dict], recipe_spp: int) -> dict:
             if s["family"] in families
             and s["ranked"]
             and s["reproducible"]
-            and s["config"] != paper["config"]
-            and meets(s, paper)
+            and s["config"] in cmps
+            and cmps[s["config"]]["replaces"]
+            and cmps[s["config"]]["cpu"]
         ]
         if not ok:
             return None
-        # CPU times within TIME_TIE of the cheapest are equal on this evidence (repeat runs on
-        # a shared machine move by more); among those the one whose worst material class is
-        # least above the recipe's wins.
-        cheapest = min(s["cpu_s_sum"] for s in ok)
-        tied = [s for s in ok if s["cpu_s_sum"] <= cheapest * (1 + TIME_TIE)]
-        best = min(tied, key=lambda s: (worst_class_ratio(s, paper), s["cpu_s_sum"]))
-        ratio = best["cpu_s_sum"] / paper["cpu_s_sum"]
+        cpu = lambda s: cmps[s["config"]]["cpu"]["value"]  # noqa: E731
+        cheapest = min(cpu(s) for s in ok)
+        tied = [s for s in ok if cpu(s) <= cheapest * (1 + TIME_TIE)]
+        best = min(tied, key=lambda s: (cmps[s["config"]]["ball"]["hi"], cpu(s)))
+        c = cmps[best["config"]]
         return {
             "config": best["config"],
-            "cpu_ratio_to_paper": ratio,
-            "worst_class_ratio": worst_class_ratio(best, paper),
+            "cpu_ratio_to_paper": c["cpu"]["value"],
+            "cpu_ratio": c["cpu"],
+            "error_ratio": c["ball"],
             "relmse_ball_median": best["relmse_ball_median"],
             "paper_relmse_ball_median": paper["relmse_ball_median"],
             "bias_ball_mean": best["bias_ball_mean"],
-            "note": f"{ratio:.2f} x the paper recipe's CPU time at median relMSE "
-            f"{best['relmse_ball_median']:.3g} vs {paper['relmse_ball_median']:.3g}" + note(best),
+            "note": f"error ratio {_iv(c['ball'])} at build-level CPU ratio {_iv(c['cpu'])}" + note(best),
         }
 
     return {
         "paper": {
             "config": paper["config"],
             "relmse_ball_median": paper["relmse_ball_median"],
-            "cpu_s_sum": paper["cpu_s_sum"],
+            "cpu_s_sum": paper["build_cpu_s_sum"],
             "note": "the spec's recipe",
         },
         "paper_fast": pick(UNBIASED_FAMILIES, lambda s: ""),
         "denoised": pick(("denoise",), lambda s: f"; biased: ball mean luminance {100 * s['bias_ball_mean']:+.1f}%"),
     }
+
+
+def family_knees(summary: list[dict], cmps: dict) -> dict:
+    """{family: the configuration where it stops paying (stats.stops_paying)}."""
+    out = {}
+    for fam in sorted({s["family"] for s in summary} - {"aa"}):
+        pts = [
+            {"config": s["config"], **cmps[s["config"]]} for s in summary if s["family"] == fam and s["config"] in cmps
+        ]
+        if fam == "ladder":
+            recipe = next((s["config"] for s in summary if s["family"] == "ladder" and s["config"] not in cmps), None)
+            if recipe:
+                one = {"value": 1.0, "lo": 1.0, "hi": 1.0}
+                pts.append({"config": recipe, "ball": one, "cpu": one})
+        knee = stats.stops_paying(pts)
+        if knee:
+            point = next(p for p in pts if p["config"] == knee)
+            out[fam] = {"config": knee, "efficiency": stats.efficiency(point), "measured": len(pts)}
+    return out
 
 
 def ladder_slope(summary: list[dict], cls: str | None = None) -> float | None:
@@ -233,87 +266,118 @@ def write_csv(path: str, rows: list[dict]) -> None:
     write_text_atomic(path, buf.getvalue())
 
 
-def pareto_png(summary: list[dict], front: list[str], recs: dict, width: int = 820, height: int = 560) -> bytes:
+FAMILY_COLOURS = {
+    "ladder": (31, 119, 180),
+    "aa": (120, 120, 120),
+    "denoise": (0, 90, 200),
+    "samplers": (255, 127, 14),
+    "passes": (0, 128, 128),
+    "depth": (44, 160, 44),
+    "rr": (148, 103, 189),
+    "sun": (140, 86, 75),
+    "clamp": (227, 119, 194),
+    "robust": (188, 189, 34),
+    "adaptive": (23, 190, 207),
+}
+
+
+def pareto_png(summary: list[dict], cmps: dict, recs: dict, knees: dict, width: int = 900, height: int = 600) -> bytes:
+    """Error ratio on the ball against build-level CPU ratio, both to the recipe, log-log:
+    every configuration with its 95% intervals, coloured by family; the A/A band (the
+    recipe against itself: what no difference looks like); the recipe, the pick and each
+    family's point where it stops paying marked; a legend."""
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default()
-    left, right, top, bottom = 80, 280, 36, 50
+    left, right, top, bottom = 70, 250, 40, 50
     x0, x1, y0, y1 = left, width - right, top, height - bottom
-    pts = [s for s in summary if s["relmse_ball_median"] and s["cpu_s_median"]]
+    fam = {s["config"]: s["family"] for s in summary}
+    pts = [(n, c) for n, c in cmps.items() if c.get("ball") and c.get("cpu") and c["ball"]["value"] > 0]
+    recipe = recs.get("paper", {}).get("config")
     if not pts:
-        draw.text((x0, y0), "no measurements", fill="black", font=font)
+        draw.text((x0, y0), "no comparisons", fill="black", font=font)
         return _png(img)
-    xs = [math.log10(s["cpu_s_median"]) for s in pts]
-    ys = [math.log10(s["relmse_ball_median"]) for s in pts]
-    for s in pts:
-        for c in s["classes"].values():
-            if c["relmse_ball_mean"] and c["cpu_s_median"]:
-                xs.append(math.log10(c["cpu_s_median"]))
-                ys.append(math.log10(c["relmse_ball_mean"]))
-    lx0, lx1 = math.floor(min(xs) * 2) / 2, math.ceil(max(xs) * 2) / 2 + 1e-9
-    ly0, ly1 = math.floor(min(ys) * 2) / 2, math.ceil(max(ys) * 2) / 2 + 1e-9
+    xs = [math.log10(v) for _, c in pts for v in (c["cpu"]["lo"], c["cpu"]["hi"]) if v > 0] + [0.0]
+    ys = [math.log10(v) for _, c in pts for v in (c["ball"]["lo"], c["ball"]["hi"]) if v > 0] + [0.0]
+    lx0, lx1 = math.floor(min(xs) * 4) / 4 - 0.05, math.ceil(max(xs) * 4) / 4 + 0.05
+    ly0, ly1 = math.floor(min(ys) * 4) / 4 - 0.05, math.ceil(max(ys) * 4) / 4 + 0.05
 
     def xy(cpu, err):
+        cpu, err = max(cpu, 10**lx0), max(err, 10**ly0)
         return (
             x0 + (math.log10(cpu) - lx0) / (lx1 - lx0) * (x1 - x0),
             y1 - (math.log10(err) - ly0) / (ly1 - ly0) * (y1 - y0),
         )
 
+    aa = cmps.get(aa_name(int(recipe.split("/")[1]))) if recipe else None
+    if aa and aa.get("ball"):
+        _, ya = xy(10**lx0, aa["ball"]["hi"])
+        _, yb = xy(10**lx0, aa["ball"]["lo"])
+        draw.rectangle([x0, ya, x1, yb], fill=(232, 232, 232))
     draw.rectangle([x0, y0, x1, y1], outline="black")
-    for e in range(math.floor(lx0), math.ceil(lx1) + 1):
-        if lx0 <= e <= lx1:
-            x, _ = xy(10**e, 10**ly0)
+    for tick in (0.1, 0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20, 50, 100):
+        lt = math.log10(tick)
+        if lx0 <= lt <= lx1:
+            x, _ = xy(tick, 10**ly0)
             draw.line([x, y1, x, y1 + 4], fill="black")
-            draw.text((x - 12, y1 + 6), f"1e{e}", fill="black", font=font)
-    for e in range(math.floor(ly0), math.ceil(ly1) + 1):
-        if ly0 <= e <= ly1:
-            _, y = xy(10**lx0, 10**e)
+            draw.text((x - 8, y1 + 6), f"{tick:g}", fill="black", font=font)
+        if ly0 <= lt <= ly1:
+            _, y = xy(10**lx0, tick)
             draw.line([x0 - 4, y, x0, y], fill="black")
-            draw.text((x0 - 40, y - 6), f"1e{e}", fill="black", font=font)
+            draw.text((x0 - 30, y - 6), f"{tick:g}", fill="black", font=font)
+    rx, ry = xy(1.0, 1.0)
+    draw.line([x0, ry, x1, ry], fill=(200, 200, 200))
+    draw.line([rx, y0, rx, y1], fill=(200, 200, 200))
     draw.text(
-        (x0, 10),
-        "relMSE on the ball (median over samples; per class: mean) vs CPU seconds per render",
+        (x0, 8),
+        "relMSE on the ball / the recipe's (mean over samples and seeds) vs CPU per render / the recipe's",
         fill="black",
         font=font,
     )
-    draw.text(((x0 + x1) // 2 - 60, height - 20), "CPU seconds per render (log)", fill="black", font=font)
-    for s in pts:  # every configuration: grey
-        x, y = xy(s["cpu_s_median"], s["relmse_ball_median"])
-        fill = (170, 170, 170) if s["ranked"] else (225, 225, 225)
-        draw.ellipse([x - 2, y - 2, x + 2, y + 2], fill=fill)
-    ladder = sorted((s for s in pts if s["family"] == "ladder"), key=lambda s: s["spp"])
-    classes = sorted({c for s in ladder for c in s["classes"]})
-    legend = []
-    for i, cls in enumerate(classes):
-        colour = COLOURS[i % len(COLOURS)]
-        line = [
-            xy(s["classes"][cls]["cpu_s_median"], s["classes"][cls]["relmse_ball_mean"])
-            for s in ladder
-            if cls in s["classes"] and s["classes"][cls]["relmse_ball_mean"]
-        ]
-        if len(line) > 1:
-            draw.line(line, fill=colour, width=1)
-        legend.append((f"ladder, {cls}", colour))
-    by = {s["config"]: s for s in pts}
-    fl = [xy(by[n]["cpu_s_median"], by[n]["relmse_ball_median"]) for n in front if n in by]
-    if len(fl) > 1:
-        draw.line(fl, fill="black", width=2)
-    legend.append(("Pareto front (median)", (0, 0, 0)))
-    marks = [
-        ("paper", (214, 39, 40), "paper recipe"),
-        ("paper_fast", (0, 150, 0), "paper-fast"),
-        ("denoised", (0, 90, 200), "denoised pick"),
-    ]
-    for key, colour, label in marks:
-        rec = recs.get(key)
-        if rec and rec["config"] in by:
-            x, y = xy(by[rec["config"]]["cpu_s_median"], by[rec["config"]]["relmse_ball_median"])
-            draw.rectangle([x - 5, y - 5, x + 5, y + 5], outline=colour, width=2)
-            legend.append((f"{label}: {rec['config']}", colour))
+    draw.text(
+        (x0, 22), "(build-level CPU time; bars: 95% bootstrap intervals; grey band: A/A)", fill="black", font=font
+    )
+    draw.text(
+        ((x0 + x1) // 2 - 100, height - 20), "CPU ratio to the recipe, build level (log)", fill="black", font=font
+    )
+    families = [f for f in FAMILY_COLOURS if any(fam.get(n) == f for n, _ in pts)]
+    for f in families:
+        colour = FAMILY_COLOURS[f]
+        mine = sorted(((n, c) for n, c in pts if fam.get(n) == f), key=lambda nc: nc[1]["cpu"]["value"])
+        if len(mine) > 1 and f != "aa":
+            draw.line([xy(c["cpu"]["value"], c["ball"]["value"]) for _, c in mine], fill=colour, width=1)
+        for _n, c in mine:
+            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+            xa, _ = xy(c["cpu"]["lo"], 1.0)
+            xb, _ = xy(c["cpu"]["hi"], 1.0)
+            _, ya = xy(1.0, c["ball"]["lo"])
+            _, yb = xy(1.0, c["ball"]["hi"])
+            draw.line([x, ya, x, yb], fill=colour, width=1)
+            draw.line([xa, y, xb, y], fill=colour, width=1)
+            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
+    label_all = len(pts) <= 25
+    knee_names = {k["config"] for k in knees.values()}
+    pick = (recs.get("paper_fast") or {}).get("config")
+    for n, c in pts:
+        if label_all or n in knee_names or n == pick:
+            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+            draw.text((x + 5, y - 12), n, fill=(60, 60, 60), font=font)
+        if n in knee_names:
+            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+            draw.ellipse([x - 7, y - 7, x + 7, y + 7], outline="black", width=1)
+    draw.rectangle([rx - 5, ry - 5, rx + 5, ry + 5], outline=(214, 39, 40), width=2)
+    legend = [(f"family: {f}" if f != "aa" else "A/A: the recipe, other seeds", FAMILY_COLOURS[f]) for f in families]
+    legend.append((f"recipe: {recipe}", (214, 39, 40)))
+    if pick and pick in cmps:
+        x, y = xy(cmps[pick]["cpu"]["value"], cmps[pick]["ball"]["value"])
+        draw.rectangle([x - 6, y - 6, x + 6, y + 6], outline=(0, 150, 0), width=2)
+        legend.append((f"paper-fast pick: {pick}", (0, 150, 0)))
+    legend.append(("ring: where a family stops paying", (0, 0, 0)))
+    legend.append(("grey band: A/A 95% interval", (200, 200, 200)))
     for i, (label, colour) in enumerate(legend):
         y = y0 + 6 + 14 * i
         draw.line([x1 + 10, y + 6, x1 + 28, y + 6], fill=colour, width=3)
-        draw.text((x1 + 32, y), label[:44], fill="black", font=font)
+        draw.text((x1 + 32, y), label[:36], fill="black", font=font)
     return _png(img)
 
 
@@ -331,18 +395,97 @@ def _f(v, spec=".3g"):
     return "-" if v is None else format(v, spec)
 
 
+def _iv(iv: dict | None, spec: str = ".2f") -> str:
+    """An interval dict as "value [lo, hi]"."""
+    return "-" if not iv else f"{format(iv['value'], spec)} [{format(iv['lo'], spec)}, {format(iv['hi'], spec)}]"
+
+
+def claim_line(meta: dict, config: str, cmp: dict) -> str:
+    """One recipe's comparison with the recipe, as one line: what docs and spec comments
+    quote verbatim (tests/test_study.py checks they do)."""
+    req = meta["request"]
+    worst = worst_class(cmp)
+    verdict = "replaces the recipe" if cmp["replaces"] else f"does not replace the recipe ({cmp['why']})"
+    return (
+        f"{config} against {meta['recipe_name']} ({req['resolution']}x{req['resolution']}, "
+        f"{len(meta['selection'])} samples x {cmp['repeats']} seeds, 95% intervals): "
+        f"error ratio on the ball {_iv(cmp['ball'])}; "
+        + (f"worst class {worst[0]} {_iv(worst[1])}; " if worst else "")
+        + f"frame {_iv(cmp['frame'])}; fireflies ball {_iv(cmp['fireflies_ball'])}, "
+        f"frame {_iv(cmp['fireflies_frame'])}; build-level CPU ratio {_iv(cmp['cpu'])}: {verdict}"
+    )
+
+
+def decision_section(meta: dict, summary: list[dict], cmps: dict, knees: dict) -> list[str]:
+    aa = aa_name(meta["recipe"]["spp"])
+    order = [aa] + [s["config"] for s in summary if s["config"] in cmps and s["config"] != aa]
+    fam = {s["config"]: s["family"] for s in summary}
+    L = [
+        "## Against the recipe, with 95% intervals",
+        "",
+        f"Each ratio: mean over samples of each sample's mean over its {meta['repeats']} seeds, this "
+        f"configuration over the recipe ({meta['recipe_name']}); interval: 95% two-level bootstrap "
+        f"(samples, then seeds; {stats.BOOTSTRAP_RESAMPLES} resamples, seed {stats.BOOTSTRAP_SEED}). "
+        "The A/A row is the recipe against itself with other seeds: the noise floor. Rule: a configuration "
+        "replaces the recipe only where the upper bound of its ball ratio is <= 1, no material class's "
+        "lower bound is > 1, and neither its frame error nor its fireflies are worse beyond their "
+        "intervals (flags). CPU: build level (render + post-process + scene load / lightings per material "
+        "+ kernel compilation as a build pays it).",
+        "",
+        "| config | family | relMSE ball ratio | worst class | frame ratio | fireflies ball | fireflies frame "
+        "| CPU ratio (build) | efficiency | flags | replaces the recipe |",
+        "|" + "---|" * 11,
+    ]
+    for n in order:
+        c = cmps[n]
+        worst = worst_class(c)
+        eff = stats.efficiency(c)
+        L.append(
+            f"| {n} | {fam.get(n, '-')} | {_iv(c['ball'])} | "
+            + (f"{worst[0]} {_iv(worst[1])}" if worst else "-")
+            + f" | {_iv(c['frame'])} | {_iv(c['fireflies_ball'])} | {_iv(c['fireflies_frame'])} | "
+            f"{_iv(c['cpu'])} | {_f(eff, '.2f')} | {', '.join(c['flags']) or '-'} | "
+            f"{'**yes**' if c['replaces'] else 'no: ' + c['why']} |"
+        )
+    L += [
+        "",
+        "Efficiency: 1 / (relMSE ratio x CPU ratio), the recipe's = 1. Where each family stops paying "
+        "(its most efficient configuration measured; past it, more CPU time lowers the error less "
+        "than in proportion):",
+        "",
+        "| family | stops paying at | efficiency | configurations measured |",
+        "|---|---|---|---|",
+    ]
+    for f, k in knees.items():
+        L.append(f"| {f} | {k['config']} | {_f(k['efficiency'], '.2f')} | {k['measured']} |")
+    L += ["", "### Claims (quoted verbatim by docs/accuracy.md and spec comments)", ""]
+    L += [f"- {claim_line(meta, n, cmps[n])}" for n in order]
+    L.append("")
+    return L
+
+
 def report_markdown(
-    meta: dict, summary: list[dict], recs: dict, front: list[str], slopes: dict, rows: list[dict] = ()
+    meta: dict,
+    summary: list[dict],
+    recs: dict,
+    front: list[str],
+    slopes: dict,
+    rows: list[dict] = (),
+    cmps: dict | None = None,
+    knees: dict | None = None,
 ) -> str:
     req = meta["request"]
     L = [
         f"# Accuracy study: {os.path.basename(meta['spec'])}",
         "",
-        f"{len(meta['selection'])} samples, {req['resolution']}x{req['resolution']}, references at "
+        f"{len(meta['selection'])} samples x {meta.get('repeats', 1)} seeds, {req['resolution']}x{req['resolution']}, "
+        f"references at "
         f"{req['reference_spp']} spp (two halves), variant {meta['variant']}, {meta['cpu_count']} CPUs. "
         f"relMSE = mean (x - ref)^2 / (ref^2 + {meta['relmse_eps']}) over the ball's pixels and channels. "
         f"A configuration with any sample within {meta['floor_factor']:g}x of its reference's floor is marked "
-        "and not ranked. CPU and wall seconds: the render alone, kernels warm, plus any post-process.",
+        "and not ranked. CPU and wall seconds: the render alone, kernels warm, plus any post-process; "
+        "build CPU s: what a build pays per render (also the scene load / lightings per material and "
+        "kernel compilation as a build pays it). Medians over samples and seeds.",
         "",
         "## Recommendations",
         "",
@@ -359,6 +502,7 @@ def report_markdown(
         )
     L += [
         "",
+        *decision_section(meta, summary, cmps or {}, knees or {}),
         f"Independent-sampler ladder: log-log slope of median relMSE vs spp {_f(slopes.get('all'), '.2f')} "
         "(1/spp is -1); per class: " + ", ".join(f"{c} {_f(v, '.2f')}" for c, v in slopes.items() if c != "all"),
         "",
@@ -378,8 +522,8 @@ def report_markdown(
         "## Every configuration",
         "",
         "| config | family | spp used | relMSE ball (median) | relMSE frame | w/o fireflies | firefly share | "
-        "PSNR | SSIM | FLIP | ball bias | CPU s | wall s | ranked |",
-        "|" + "---|" * 14,
+        "PSNR | SSIM | FLIP | ball bias | CPU s | build CPU s | wall s | ranked |",
+        "|" + "---|" * 15,
     ]
     for s in summary:
         spp = _f(s["spp_used_mean"], ".0f") + (
@@ -391,7 +535,7 @@ def report_markdown(
             f"{_f(s['relmse_ball_no_fireflies_median'])} | {_f(s['firefly_share_median'], '.2f')} | "
             f"{_f(s['psnr_mean'], '.2f')} | {_f(s['ssim_mean'], '.4f')} | {_f(s['flip_mean'], '.4f')} | "
             f"{_f(None if s['bias_ball_mean'] is None else 100 * s['bias_ball_mean'], '+.2f')}% | "
-            f"{_f(s['cpu_s_median'])} | {_f(s['wall_s_median'])} | "
+            f"{_f(s['cpu_s_median'])} | {_f(s['build_cpu_s_median'])} | {_f(s['wall_s_median'])} | "
             f"{ranked_text(s)} |"
         )
     paper_name_ = recs.get("paper", {}).get("config")
@@ -400,15 +544,15 @@ def report_markdown(
         f"## Fireflies at the recipe ({paper_name_})",
         "",
         f"relMSE on the ball with and without its brightest {100 * meta['firefly_share']:g}% of pixels (by the "
-        "render's luminance).",
+        "render's luminance), each seed.",
         "",
-        "| sample | class | relMSE | without the brightest | their share |",
-        "|---|---|---|---|---|",
+        "| sample | seed | class | relMSE | without the brightest | their share |",
+        "|---|---|---|---|---|---|",
     ]
     for r in rows:
         if r["config"] == paper_name_:
             L.append(
-                f"| {r['sample_id']} | {r['material_class']} | {r['relmse_ball']:.3g} | "
+                f"| {r['sample_id']} | {r.get('repeat', 0)} | {r['material_class']} | {r['relmse_ball']:.3g} | "
                 f"{r['relmse_ball_no_fireflies']:.3g} | {r['firefly_share']:.2f} |"
             )
     L += [
@@ -421,7 +565,7 @@ def report_markdown(
     paper = next((s for s in summary if s["config"] == recs.get("paper", {}).get("config")), None)
     for s in summary:
         if s["family"] in ("clamp", "robust", "denoise", "depth") and s["bias_ball_mean"] is not None:
-            ratio = s["cpu_s_sum"] / paper["cpu_s_sum"] if paper else None
+            ratio = s["build_cpu_s_sum"] / paper["build_cpu_s_sum"] if paper else None
             L.append(
                 f"| {s['config']} | {100 * s['bias_ball_mean']:+.2f}% | {100 * s['bias_ball_abs_max']:.2f}% | "
                 f"{_f(s['relmse_ball_median'])} | {_f(ratio, '.2f')} |"
@@ -450,7 +594,7 @@ def report_markdown(
         "|---|" + "---|" * len(classes),
     ]
     for s in summary:
-        if s["family"] in ("ladder", "denoise", "adaptive", "samplers"):
+        if s["family"] in ("ladder", "aa", "denoise", "adaptive", "samplers", "passes"):
             L.append(
                 f"| {s['config']} | "
                 + " | ".join(_f(s["classes"].get(c, {}).get("relmse_ball_mean")) for c in classes)
@@ -460,14 +604,20 @@ def report_markdown(
 
 
 def write_outputs(out: str, meta: dict, rows: list[dict], configs) -> dict:
+    meta = {**meta, "recipe_name": paper_name(meta["recipe"]["spp"]), "repeats": meta.get("repeats", 1)}
     summary = summarise(rows, configs)
-    recs = recommend(summary, meta["recipe"]["spp"])
+    cmps = comparisons(rows, summary, meta["recipe"]["spp"])
+    recs = recommend(summary, meta["recipe"]["spp"], cmps)
+    knees = family_knees(summary, cmps)
     front = pareto_front(summary)
     classes = sorted({r["material_class"] for r in rows})
     slopes = {"all": ladder_slope(summary), **{c: ladder_slope(summary, c) for c in classes}}
     doc = {
         "meta": meta,
         "summary": summary,
+        "comparisons": cmps,
+        "claims": {n: claim_line(meta, n, c) for n, c in cmps.items()},
+        "stops_paying": knees,
         "pareto_front": front,
         "recommendations": recs,
         "ladder_slopes": slopes,
@@ -475,6 +625,8 @@ def write_outputs(out: str, meta: dict, rows: list[dict], configs) -> dict:
     }
     write_text_atomic(os.path.join(out, "study.json"), json.dumps(doc, indent=1, allow_nan=False) + "\n")
     write_csv(os.path.join(out, "study.csv"), rows)
-    write_bytes_atomic(os.path.join(out, "pareto.png"), pareto_png(summary, front, recs))
-    write_text_atomic(os.path.join(out, "report.md"), report_markdown(meta, summary, recs, front, slopes, rows))
+    write_bytes_atomic(os.path.join(out, "pareto.png"), pareto_png(summary, cmps, recs, knees))
+    write_text_atomic(
+        os.path.join(out, "report.md"), report_markdown(meta, summary, recs, front, slopes, rows, cmps, knees)
+    )
     return recs

@@ -7,12 +7,23 @@ same command on the same folder resumes: references and rows already written are
 another request on the same folder is refused. Nothing is written before every option
 and the spec have been checked.
 
-Time is that of the render alone, kernels warm: before each timed render the same scene
-is rendered once untimed, which compiles its kernels: at 1 spp for the independent
-sampler (Mitsuba compiles its kernels per scene structure and resolution, not per spp),
-with the same passes for the other samplers, whose kernels depend on the sample count.
-CPU time is the process's over all threads (time.process_time), so it counts every render
-thread; post-processes (OIDN, robust combinations) are timed apart and added.
+Every configuration is rendered with ``repeats`` seeds per sample (seed: the sample's render
+seed, the configuration's settings and the repeat index; never the clock), and the spec's
+recipe once more with other seeds: the A/A configuration, the recipe against itself.
+
+Time is what a build pays per render (``build_cpu_s``): the render, any post-process, the
+scene load divided by the lightings that share a loaded scene in a build
+(``lights_per_material``), and kernel compilation as a build pays it: a kernel compiled
+the first time these settings meet this scene structure
+(:class:`pipeline.render.renderer.EffectPlan`) in this process is paid once per build
+worker, so it is divided by a build's renders per worker (the spec's renders over this
+machine's cores); one compiled again later for the same settings and structure counts in
+full. Compilation is drjit's own record of its backend time for kernels not found in its
+memory or disk cache. Before each timed render the same scene is rendered
+once (at 1 spp for the independent sampler, whose kernels do not depend on the spp; with
+the same passes for the other samplers, whose kernels do), so the render's own time
+(``render_cpu_s``) is kernels warm. CPU time is the process's over all threads
+(time.process_time), so it counts every render thread.
 """
 
 from __future__ import annotations
@@ -42,12 +53,13 @@ from pipeline.render.renderer import (
     MaterialScene,
     RenderSettings,
     luminance_variance,
+    plan_effects,
     render_pass,
     render_scene,
 )
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.study import measure as m
-from pipeline.study.configs import DEFAULT_LADDER, FAMILIES, Config, study_configs
+from pipeline.study.configs import DEFAULT_LADDER, FAMILIES, Config, aa_name, paper_name, study_configs
 from pipeline.study.denoise import guides, shape_ids_and_normals
 from pipeline.study.report import write_outputs
 from pipeline.study.select import select_samples
@@ -59,6 +71,7 @@ MAX_LADDER_SPP = 16384
 SAMPLES_RANGE = (1, 1000)
 #: --reference-spp's largest value.
 MAX_REFERENCE_SPP = 65536
+MAX_REPEATS = 64
 
 
 @dataclass(frozen=True)
@@ -75,6 +88,8 @@ class StudyRequest:
     only: tuple[str, ...] = ()
     scan: int = 60  # materials of the plan whose lightings are candidates
     flip: bool = True  # HDR-FLIP (the slowest metric)
+    #: Independent seeds per sample and configuration (the A/A configuration has as many).
+    repeats: int = 3
 
 
 @dataclass
@@ -131,6 +146,7 @@ def check_request(req: StudyRequest):
     if req.resolution is not None:
         check_int("--resolution", req.resolution, *RESOLUTION_RANGE)
     check_int("--scan", req.scan, 1, 100000)
+    check_int("--repeats", req.repeats, 1, MAX_REPEATS)
     parse_families(",".join(req.families))
     parse_ladder(",".join(map(str, req.ladder)))
     spec = parse_spec(req.spec)
@@ -170,6 +186,7 @@ def request_record(req: StudyRequest, spec) -> dict:
         "families": list(req.families),
         "scan": req.scan,
         "flip": req.flip,
+        "repeats": req.repeats,
         **({"only": list(req.only)} if req.only else {}),
     }
 
@@ -210,44 +227,97 @@ class SampleScene:
         self.maps, _ = make_material(plan, ctx.spec)
         self.light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
         self.screen = project_material(self.maps, ctx.gbuffer)
+        #: The scene's structure: scenes of equal structure and settings share kernels.
+        self.structure = plan_effects(self.maps).key()
 
     def scene(self, settings):
         loaded, _, _ = MaterialScene().lit(self.ctx.mi, self.ctx.ball, self.ctx.camera, self.maps, self.light, settings)
         return loaded
 
-    def render(self, settings: RenderSettings, seed: int, passes: tuple[int, ...] = ()) -> dict:
+    def render(self, settings: RenderSettings, seed: int, passes: tuple[int, ...] = (), warm: bool = True) -> dict:
+        """Load and render; ``warm``: first render the scene once untimed (its kernels compile).
+
+        Without ``warm`` (kernels already compiled for these settings and this structure) a
+        kernel that compiles anyway is counted by drjit's record and taken out of the
+        render's CPU time: compilation is reported apart (``compile_s``)."""
         mi, mask = self.ctx.mi, self.ctx.gbuffer.mask
+        load_wall, load_cpu = time.perf_counter(), time.process_time()
         scene = self.scene(settings)
-        # Compile, untimed. The independent sampler's kernels do not depend on the spp; the
-        # other samplers' do (measured: ~0.8 s per new sample count at 80x80), so they are
-        # warmed with the very passes they are timed with.
-        warm_spp = 1 if settings.sampler == "independent" else settings.spp
-        render_scene(
-            mi,
-            scene,
-            warm_spp,
-            derived_seed(seed, "warm"),
-            sampler=settings.sampler,
-            target_error=settings.target_error,
-            mask=mask,
+        load_wall, load_cpu = time.perf_counter() - load_wall, time.process_time() - load_cpu
+        # The independent sampler's kernels do not depend on the spp; the other samplers' do
+        # (measured: ~0.8 s per new sample count at 80x80), so they are warmed with the very
+        # passes they are timed with.
+        with CompileTimer() as warm_compiled:
+            if warm and passes:
+                for p in sorted(set(passes)):
+                    render_pass(mi, scene, 1 if settings.sampler == "independent" else p, seed, 99, settings.sampler)
+            elif warm:
+                render_scene(
+                    mi,
+                    scene,
+                    1 if settings.sampler == "independent" else settings.spp,
+                    derived_seed(seed, "warm"),
+                    sampler=settings.sampler,
+                    target_error=settings.target_error,
+                    mask=mask,
+                )
+        with CompileTimer() as compiled:
+            wall, cpu = time.perf_counter(), time.process_time()
+            if passes:
+                done = [render_pass(mi, scene, p, seed, k, settings.sampler) for k, p in enumerate(passes)]
+                result = {
+                    "passes": [d[0] for d in done],
+                    "spp_used": int(sum(d[1] for d in done)),
+                    "error_estimate": None,
+                }
+            else:
+                out = render_scene(
+                    mi,
+                    scene,
+                    settings.spp,
+                    seed,
+                    sampler=settings.sampler,
+                    target_error=settings.target_error,
+                    mask=mask,
+                )
+                result = {
+                    "image": out.image,
+                    "variance": out.variance,
+                    "spp_used": out.spp_used,
+                    "error_estimate": out.error_estimate,
+                }
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        result.update(
+            wall_s=max(0.0, wall - compiled.seconds),
+            cpu_s=max(0.0, cpu - compiled.seconds),
+            load_wall_s=load_wall,
+            load_cpu_s=load_cpu,
+            compile_s=warm_compiled.seconds + compiled.seconds,
+            kernels_compiled=warm_compiled.count + compiled.count,
         )
-        wall, cpu = time.perf_counter(), time.process_time()
-        if passes:
-            images = [render_pass(mi, scene, p, seed, k)[0] for k, p in enumerate(passes)]
-            result = {"passes": images, "spp_used": int(sum(passes)), "error_estimate": None}
-        else:
-            out = render_scene(
-                mi, scene, settings.spp, seed, sampler=settings.sampler, target_error=settings.target_error, mask=mask
-            )
-            result = {
-                "image": out.image,
-                "variance": out.variance,
-                "spp_used": out.spp_used,
-                "error_estimate": out.error_estimate,
-            }
-        result.update(wall_s=time.perf_counter() - wall, cpu_s=time.process_time() - cpu)
         del scene
         return result
+
+
+class CompileTimer:
+    """drjit's backend compile time (s) and count of the kernels compiled while active (not
+    found in its memory or disk cache): what kernel compilation costs."""
+
+    def __enter__(self):
+        import drjit as dr
+
+        self._dr, self.seconds, self.count = dr, 0.0, 0
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()  # clears
+        return self
+
+    def __exit__(self, *exc):
+        dr = self._dr
+        for k in dr.kernel_history():
+            if k["type"] == dr.KernelType.JIT and not k.get("cache_hit"):
+                self.count += 1
+                self.seconds += k.get("backend_time", 0.0) / 1000.0
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 @dataclass
@@ -261,6 +331,13 @@ class Context:
     base: RenderSettings
     shape_ids: np.ndarray
     normals: np.ndarray
+    #: Renders a build worker makes (the spec's renders over this machine's cores): what a
+    #: kernel compiled once per worker is divided by.
+    renders_per_worker: float = 1.0
+    #: Lightings of a material that share one loaded scene in a build.
+    lights_per_material: int = 1
+    #: Settings keys already rendered in this process (their kernels compiled once).
+    warmed: set = field(default_factory=set)
 
 
 def robust_combine(passes: list[np.ndarray], post: str) -> np.ndarray:
@@ -323,15 +400,29 @@ def load_reference(path: str) -> dict | None:
     return ref
 
 
-def measure_config(subject: SampleScene, ctx: Context, config: Config, ref: dict, cache: dict, flip: bool) -> dict:
+def row_key(config_name: str, repeat: int) -> str:
+    """A row's key in ``rows/SAMPLE.json``: the configuration and the repeat index."""
+    return f"{config_name}#{repeat}"
+
+
+def measure_config(
+    subject: SampleScene, ctx: Context, config: Config, ref: dict, cache: dict, flip: bool, repeat: int = 0
+) -> dict:
     key = config.settings_key()
-    seed = derived_seed(subject.sample.render_seed, repr(key))
-    if key not in cache:
+    seed = derived_seed(subject.sample.render_seed, repr(key), "repeat", repeat)
+    if (key, repeat) not in cache:
         settings = replace(ctx.base, spp=config.spp, **config.changes).check()
         for old in [k for k, v in cache.items() if "passes" in v]:  # pass stacks are big: keep one
             del cache[old]
-        cache[key] = subject.render(settings, seed, config.passes)  # denoisers reuse the ladder's renders
-    r = cache[key]
+        # Warm once per settings and scene structure: later renders find the kernels cached.
+        first = (key, subject.structure) not in ctx.warmed
+        ctx.warmed.add((key, subject.structure))
+        r = subject.render(settings, seed, config.passes, warm=first)  # denoisers reuse the ladder's renders
+        # A kernel compiled at the first render of these settings and this scene structure in
+        # this process is paid once per build worker; compiled again later, per render.
+        r["compile_paid_s"] = r["compile_s"] / ctx.renders_per_worker if first else r["compile_s"]
+        cache[(key, repeat)] = r
+    r = cache[(key, repeat)]
     post_wall = post_cpu = 0.0
     variance = None
     if config.post in ("mean", "trim", "mom"):
@@ -358,6 +449,7 @@ def measure_config(subject: SampleScene, ctx: Context, config: Config, ref: dict
         "spp": config.spp,
         "spp_used": r["spp_used"],
         "seed": seed,
+        "repeat": repeat,
         **config.changes,
         "error_estimate": r["error_estimate"],
         "render_wall_s": r["wall_s"],
@@ -366,6 +458,10 @@ def measure_config(subject: SampleScene, ctx: Context, config: Config, ref: dict
         "post_cpu_s": post_cpu,
         "wall_s": r["wall_s"] + post_wall,
         "cpu_s": r["cpu_s"] + post_cpu,
+        "load_cpu_s": r["load_cpu_s"],
+        "compile_s": r["compile_s"],
+        "kernels_compiled": r["kernels_compiled"],
+        "build_cpu_s": r["cpu_s"] + post_cpu + r["load_cpu_s"] / ctx.lights_per_material + r["compile_paid_s"],
         "floor_ball": ref["floor"]["floor_ball"],
         **metrics,
     }
@@ -393,18 +489,31 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         variant=variant,
     ).check()
     shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
-    ctx = Context(spec, variant, mi, ball, camera, gbuffer, base, shape_ids, normals)
+    ctx = Context(
+        spec,
+        variant,
+        mi,
+        ball,
+        camera,
+        gbuffer,
+        base,
+        shape_ids,
+        normals,
+        renders_per_worker=max(1.0, spec.dataset.n_renders / (os.cpu_count() or 1)),
+        lights_per_material=spec.dataset.lights_per_material,
+    )
     selection = select_samples(spec, req.samples, req.scan)
     configs = study_configs(r.spp, spec.lighting.sun, req.ladder, req.families, r.max_depth)
     if req.only:
-        configs = [c for c in configs if c.name in req.only or c.name == f"independent/{r.spp}"]
+        always = (paper_name(r.spp), aa_name(r.spp))
+        configs = [c for c in configs if c.name in req.only or c.name in always]
     wanted = {s.material_index for s in selection}
     plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials if p.material_index in wanted}
 
     os.makedirs(os.path.join(req.out, "references"), exist_ok=True)
     os.makedirs(os.path.join(req.out, "rows"), exist_ok=True)
     write_text_atomic(os.path.join(req.out, REQUEST_FILE), json.dumps(record, indent=1) + "\n")
-    total, done = len(selection) * (1 + len(configs)), 0
+    total, done = len(selection) * (1 + req.repeats * len(configs)), 0
     counts = {"rendered": 0, "reused": 0}
 
     def tick(what):
@@ -436,16 +545,18 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
             mine = {}
         cache: dict = {}
         for config in configs:
-            if config.name in mine:
-                counts["reused"] += 1
-            else:
-                mine[config.name] = measure_config(
-                    subjects[s.sample_id], ctx, config, references[s.sample_id], cache, req.flip
-                )
-                write_text_atomic(path, json.dumps(mine, indent=0, allow_nan=False) + "\n")
-                counts["rendered"] += 1
-            rows.append(mine[config.name])
-            tick(f"{s.sample_id} {config.name}")
+            for repeat in range(req.repeats):
+                name = row_key(config.name, repeat)
+                if name in mine:
+                    counts["reused"] += 1
+                else:
+                    mine[name] = measure_config(
+                        subjects[s.sample_id], ctx, config, references[s.sample_id], cache, req.flip, repeat
+                    )
+                    write_text_atomic(path, json.dumps(mine, indent=0, allow_nan=False) + "\n")
+                    counts["rendered"] += 1
+                rows.append(mine[name])
+                tick(f"{s.sample_id} {config.name} #{repeat}")
 
     meta = {
         "request": record,
@@ -462,6 +573,9 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         "relmse_eps": m.RELMSE_EPS,
         "floor_factor": m.FLOOR_FACTOR,
         "firefly_share": m.FIREFLY_SHARE,
+        "repeats": req.repeats,
+        "renders_per_worker": ctx.renders_per_worker,
+        "lights_per_material": ctx.lights_per_material,
     }
     recommendations = write_outputs(req.out, meta, rows, configs)
     return StudySummary(
