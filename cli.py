@@ -24,6 +24,7 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -48,7 +49,15 @@ from pipeline.run.cluster.options import (
 )
 from pipeline.run.repair import repair
 from pipeline.study.configs import DEFAULT_LADDER
-from pipeline.study.run import MAX_LADDER_SPP, MAX_REFERENCE_SPP, StudyRequest, parse_families, parse_ladder, run_study
+from pipeline.study.run import (
+    MAX_LADDER_SPP,
+    MAX_REFERENCE_SPP,
+    MAX_REPEATS,
+    StudyRequest,
+    parse_families,
+    parse_ladder,
+    run_study,
+)
 from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
 from pipeline.ui.progress import (
     build_progress,
@@ -279,9 +288,7 @@ def resolution_option():
 
 def device_option(help: str | None = None):
     """torch's device (train, infer, evaluate)."""
-    return click.option(
-        "--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]), help=help
-    )
+    return click.option("--device", default="auto", show_default=True, type=click.Choice(DEVICES), help=help)
 
 
 def material_options(*, full: bool):
@@ -775,7 +782,7 @@ def info_cmd(directory, as_json):
     type=int,
     default=3,
     show_default=True,
-    help="Independent seeds per sample and configuration, 1 to 64 (the cost grows in proportion); "
+    help=f"Independent seeds per sample and configuration, {span((1, MAX_REPEATS))} (the cost grows in proportion); "
     "every figure carries a 95% interval over samples and seeds.",
 )
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
@@ -980,10 +987,14 @@ def _neural():
     default=30,
     show_default=True,
     type=int,
-    help="Epochs to reach, 1 to 100000; running again with more continues the run.",
+    help=f"Epochs to reach, {span(INTEGER_RANGES['epochs'])}; running again with more continues the run.",
 )
 @click.option(
-    "--batch-size", default=6, show_default=True, type=int, help="Samples per step, 1 to 4096 (the paper: 6)."
+    "--batch-size",
+    default=6,
+    show_default=True,
+    type=int,
+    help=f"Samples per step, {span(INTEGER_RANGES['batch_size'])} (the paper: 6).",
 )
 @click.option(
     "--lr",
@@ -1016,8 +1027,20 @@ def _neural():
     "--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0."
 )
 @device_option("auto: cuda when torch sees a GPU, else cpu.")
-@click.option("--workers", default=0, show_default=True, type=int, help="DataLoader worker processes, 0 to 64.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seeds weights, order and split, 0 to 2^63-1.")
+@click.option(
+    "--workers",
+    default=0,
+    show_default=True,
+    type=int,
+    help=f"DataLoader worker processes, {span(INTEGER_RANGES['workers'])}.",
+)
+@click.option(
+    "--seed",
+    default=0,
+    show_default=True,
+    type=int,
+    help=f"Seeds weights, order and split, {span(INTEGER_RANGES['seed'])}.",
+)
 @click.option(
     "--resolution",
     default=None,
@@ -1181,7 +1204,7 @@ def infer_cmd(
     default="1,2,4,16",
     show_default=True,
     metavar="N,N,...",
-    help="Low-spp path tracing to compare with, each 1 to 4096; 'none' for no path tracing.",
+    help=f"Low-spp path tracing to compare with, each {span(SPP_LADDER_RANGE)}; 'none' for no path tracing.",
 )
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
@@ -1202,7 +1225,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
     the first-hit albedo and normal, and on the colour alone (docs/neural.md).
     """
     _neural()
-    from pipeline.neural.evaluate import SPP_LADDER_RANGE, EvaluateRequest, evaluate
+    from pipeline.neural.evaluate import EvaluateRequest, evaluate
 
     spp_list = parse_int_list("--spp", spp, SPP_LADDER_RANGE, none="none")
     request = EvaluateRequest(

@@ -34,6 +34,7 @@ from pipeline.neural import runfiles
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
+from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
@@ -42,8 +43,6 @@ from sky import Light
 
 SPLITS = ("test", "train", "all")
 DEFAULT_SPP = (1, 2, 4, 16)
-#: Each low spp of the path tracing compared with (--spp), defined once (check; the CLI help).
-SPP_LADDER_RANGE = (1, 4096)
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2

@@ -28,6 +28,7 @@ from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.data import open_dataset
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES
 from pipeline.neural.loss import LOSSES, RenderLoss
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
@@ -35,7 +36,6 @@ from pipeline.neural.splits import split_materials
 from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
 from pipeline.store.atomic import write_bytes_atomic
 
-DEVICES = ("auto", "cpu", "cuda")
 #: Config fields that change what a run computes: a resume must match them.
 IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
 #: A held-out output at 8-bit 0 or 255 is saturated; more than this fraction of them is a warning.
@@ -45,10 +45,6 @@ STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
 log = logging.getLogger(__name__)
-
-
-#: The ranges of the integer options of `shaderball train`, defined once (checks; the CLI help).
-INTEGER_RANGES = {"epochs": (1, 100_000), "batch_size": (1, 4096), "workers": (0, 64), "seed": (0, 2**63 - 1)}
 
 
 @dataclass(frozen=True)

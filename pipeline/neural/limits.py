@@ -1,0 +1,12 @@
+"""The neural commands' option ranges and choices, without torch: `cli.py` builds their
+--help from these before torch is loaded, and the checks in ``train`` and ``evaluate`` use
+the same values (one owner per range, issue 21)."""
+
+from __future__ import annotations
+
+#: --device: where the network runs ("auto": cuda where torch sees a device, else cpu).
+DEVICES = ("auto", "cpu", "cuda")
+#: train's integer options and their inclusive ranges.
+INTEGER_RANGES = {"epochs": (1, 100_000), "batch_size": (1, 4096), "workers": (0, 64), "seed": (0, 2**63 - 1)}
+#: evaluate --spp: each low-spp path-tracing rate compared with the network.
+SPP_LADDER_RANGE = (1, 4096)
