@@ -8,26 +8,13 @@ import pytest
 import torch
 
 from pipeline.errors import ShaderballError
-from pipeline.neural.train import TrainConfig, train
-from support.neural_fakes import FakeSource
+from pipeline.neural.train import train
+from support.neural_fakes import FakeSource, train_config
 
 torch.set_num_threads(1)
 
 
-def _config(tmp_path, name="run", **kw):
-    base = dict(
-        dataset="(in memory)",
-        out=str(tmp_path / name),
-        epochs=2,
-        batch_size=2,
-        lr=1e-3,
-        loss="l1",
-        device="cpu",
-        seed=5,
-        test_fraction=0.25,
-    )
-    base.update(kw)
-    return TrainConfig(**base)
+_config = train_config
 
 
 def _snapshot(folder):

@@ -345,17 +345,9 @@ def field_type_problem(record) -> str | None:
     type and value: ``stats is an array ([]), not an object``."""
     if not isinstance(record, dict):
         return f"not a record (a JSON {json_type_name(record)}, not an object)"
-    for key, kind in RECORD_FIELDS.items():
-        if key in record:
-            problem = _type_problem(key, record[key], kind)
-            if problem:
-                return problem
-    for key, fields in RECORD_SUBFIELDS.items():
-        for name, kind in fields.items():
-            if name in record.get(key, {}):
-                problem = _type_problem(f"{key}.{name}", record[key][name], kind)
-                if problem:
-                    return problem
+    problem = _fields_problem(record, RECORD_FIELDS, RECORD_SUBFIELDS)
+    if problem:
+        return problem
     for index, entry in enumerate(record.get("files", [])):
         if not isinstance(entry, dict):
             return f"files[{index}] is {json_type_name(entry)}, not an object"
@@ -399,15 +391,21 @@ def description_problem(description) -> str | None:
     """Why ``dataset.json``'s fields cannot be used as their types, or None."""
     if not isinstance(description, dict):
         return f"not a JSON object (a JSON {json_type_name(description)})"
-    for key, kind in DESCRIPTION_FIELDS.items():
-        if key in description:
-            problem = _type_problem(key, description[key], kind)
+    return _fields_problem(description, DESCRIPTION_FIELDS, DESCRIPTION_SUBFIELDS)
+
+
+def _fields_problem(obj: dict, fields: dict, subfields: dict) -> str | None:
+    """The first field of ``obj`` (or of one of its objects named in ``subfields``, checked
+    after its own type) that is not of its type; absent fields are allowed."""
+    for key, kind in fields.items():
+        if key in obj:
+            problem = _type_problem(key, obj[key], kind)
             if problem:
                 return problem
-    for key, fields in DESCRIPTION_SUBFIELDS.items():
-        for name, kind in fields.items():
-            if name in description.get(key, {}):
-                problem = _type_problem(f"{key}.{name}", description[key][name], kind)
+    for key, inner in subfields.items():
+        for name, kind in inner.items():
+            if name in obj.get(key, {}):
+                problem = _type_problem(f"{key}.{name}", obj[key][name], kind)
                 if problem:
                     return problem
     return None

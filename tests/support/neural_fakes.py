@@ -7,6 +7,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from pipeline.neural.train import TrainConfig
+
 
 class _Items(Dataset):
     def __init__(self, items):
@@ -55,3 +57,20 @@ class FakeSource:
     def subset(self, material_ids):
         keep = set(material_ids)
         return _Items([it for it in self.items if it["material_id"] in keep])
+
+
+def train_config(tmp_path, name="run", **kw) -> TrainConfig:
+    """A small CPU training run in ``tmp_path/name`` over a FakeSource; ``kw`` overrides."""
+    base = dict(
+        dataset="(in memory)",
+        out=str(tmp_path / name),
+        epochs=2,
+        batch_size=2,
+        lr=1e-3,
+        loss="l1",
+        device="cpu",
+        seed=5,
+        test_fraction=0.25,
+    )
+    base.update(kw)
+    return TrainConfig(**base)
