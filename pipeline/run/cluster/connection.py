@@ -23,9 +23,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import multiprocessing.spawn
 import os
 import re
+import shlex
+import shutil
 import sys
+import tempfile
 import threading
 import time
 import uuid
@@ -245,6 +249,30 @@ def local_workers(workers: int | None) -> int:
 
 
 @contextlib.contextmanager
+def spawned_ignoring_sigint() -> Iterator[None]:
+    """Every process spawned meanwhile (local dask workers, and the ones their nannies start
+    again later: recycling, a memory restart) starts with SIGINT ignored.
+
+    A terminal's Ctrl-C reaches the whole process group; a worker process caught while it
+    imports printed a KeyboardInterrupt traceback (seen on a loaded machine, issue 20). An
+    ignored signal stays ignored across exec and Python then installs no handler of its own,
+    so the spawn start method runs a two-line shell wrapper that ignores SIGINT and execs this
+    Python. The driver closes the workers on a Ctrl-C."""
+    folder = tempfile.mkdtemp(prefix="shaderball-spawn-")
+    wrapper = os.path.join(folder, "python")
+    with open(wrapper, "w") as fh:
+        fh.write(f"#!/bin/sh\ntrap '' INT\nexec {shlex.quote(sys.executable)} \"$@\"\n")
+    os.chmod(wrapper, 0o700)
+    previous = multiprocessing.spawn.get_executable()
+    multiprocessing.spawn.set_executable(wrapper)
+    try:
+        yield
+    finally:
+        multiprocessing.spawn.set_executable(previous)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
 def connect(options: ClusterOptions) -> Iterator[Connection]:
     """A dask client for ``options``; closes what it started (cluster, jobs) on exit."""
     import dask
@@ -289,6 +317,8 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
         else:
             n = local_workers(options.workers)
             memory = memory_bytes(options.memory) if options.memory else "auto"
+            if os.name == "posix":
+                stack.enter_context(spawned_ignoring_sigint())
             cluster = LocalCluster(
                 n_workers=n,
                 threads_per_worker=1,
