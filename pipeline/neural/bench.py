@@ -18,20 +18,23 @@ each. ``python -m pipeline.neural.bench denoise DATASET`` compares what OIDN is 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import statistics
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, default_collate
 
 from pipeline.errors import ShaderballError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
-from pipeline.neural.data import open_dataset
+from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.loss import RenderLoss
@@ -94,13 +97,20 @@ def loader_rate(config: TrainConfig) -> LoaderRate:
 
 
 def measure_loader(
-    root: str, resolution: int | None, exposure: float, check_hashes: bool, batch_size: int, workers: int
+    root: str,
+    resolution: int | None,
+    exposure: float,
+    check_hashes: bool,
+    batch_size: int,
+    workers: int,
+    collate=collate_samples,
 ) -> LoaderRate:
-    """Open ``root`` afresh and read every sample through a DataLoader."""
+    """Open ``root`` afresh and read every sample through a DataLoader (collated by ``collate``:
+    the loader's own, or torch's ``default_collate`` to compare)."""
     started = time.perf_counter()
     dataset = open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=check_hashes)
     open_s = time.perf_counter() - started
-    loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, persistent_workers=False)
+    loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate)
     started, count, ids = time.perf_counter(), 0, []
     for batch in loader:
         count += batch["maps"].shape[0]
@@ -213,6 +223,66 @@ def compare_loaders(
     return out
 
 
+@contextlib.contextmanager
+def busy_processes(count: int):
+    """``count`` Python processes spinning on a core each, stopped on exit: a loaded machine."""
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        time.sleep(0.5 if count else 0.0)
+        yield
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+
+
+COLLATIONS = {"torch default_collate": default_collate, "collate_samples (numpy, one thread)": collate_samples}
+
+
+def compare_collation(
+    root: str,
+    busy: int = 2,
+    repeats: int = 5,
+    batch_size: int = 6,
+    workers: int = 0,
+    resolution: int | None = None,
+    check_hashes: bool = True,
+    exposure: float = DEFAULT_EXPOSURE,
+) -> dict:
+    """The loader's samples/s with torch's default collation and with :func:`collate_samples`,
+    on the machine as it is and with ``busy`` spinning processes beside it; passes alternated
+    (idle A, idle B, loaded A, loaded B, ...) ``repeats`` times; medians and all passes."""
+    rates: dict[tuple[str, str], list[float]] = {}
+    loads = []
+    for _ in range(repeats):
+        for label, spinners in (("as is", 0), (f"{busy} busy processes", busy)):
+            with busy_processes(spinners):
+                for name, collate in COLLATIONS.items():
+                    rate = measure_loader(root, resolution, exposure, check_hashes, batch_size, workers, collate)
+                    rates.setdefault((label, name), []).append(rate.samples_per_s)
+                loads.append(open("/proc/loadavg").read().split()[0] if sys.platform == "linux" else "?")
+    rows = [
+        {
+            "machine": label,
+            "collation": name,
+            "samples_per_s_median": statistics.median(values),
+            "samples_per_s_all": [round(v, 1) for v in values],
+        }
+        for (label, name), values in rates.items()
+    ]
+    return {
+        "dataset": root,
+        "samples": rate.samples,
+        "resolution": rate.resolution,
+        "workers": workers,
+        "batch_size": batch_size,
+        "repeats": repeats,
+        "torch_threads": torch.get_num_threads(),
+        "load_average_1min": loads,
+        "rows": rows,
+    }
+
+
 #: What OIDN is fed, by row of :func:`compare_denoisers`: None, the colour alone; else
 #: AuxBuffers' options (the last row is what `shaderball evaluate` uses).
 DENOISE_VARIANTS = {
@@ -297,6 +367,13 @@ def main(argv=None) -> None:
     loaders.add_argument("--workers", type=int, default=0)
     loaders.add_argument("--repeats", type=int, default=3)
     loaders.add_argument("--no-hash-check", action="store_true")
+    collation = commands.add_parser("collate", help="loader samples/s, torch's collation against ours, idle and loaded")
+    collation.add_argument("dataset")
+    collation.add_argument("--busy", type=int, default=2)
+    collation.add_argument("--repeats", type=int, default=5)
+    collation.add_argument("--batch-size", type=int, default=6)
+    collation.add_argument("--workers", type=int, default=0)
+    collation.add_argument("--resolution", type=int, default=None)
     denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
     denoising.add_argument("dataset")
     denoising.add_argument("--samples", type=int, default=12)
@@ -306,6 +383,12 @@ def main(argv=None) -> None:
     if args.command == "loaders":
         result = compare_loaders(
             args.folder, args.pub, args.resolution, args.batch_size, args.workers, args.repeats, not args.no_hash_check
+        )
+        print(json.dumps(result, indent=1, sort_keys=True))
+        return
+    if args.command == "collate":
+        result = compare_collation(
+            args.dataset, args.busy, args.repeats, args.batch_size, args.workers, args.resolution
         )
         print(json.dumps(result, indent=1, sort_keys=True))
         return

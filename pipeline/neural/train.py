@@ -21,13 +21,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Subset
+from torch.utils.data import Subset
 
 from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles
-from pipeline.neural.data import open_dataset
+from pipeline.neural.data import batches, open_dataset
 from pipeline.neural.limits import DEVICES, INTEGER_RANGES
 from pipeline.neural.loss import LOSSES, RenderLoss
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
@@ -183,7 +183,7 @@ def batch_to(batch: dict, device: torch.device) -> tuple[torch.Tensor, torch.Ten
 def mean_image(dataset, workers: int, batch_size: int = 16) -> np.ndarray:
     """The training set's mean target in [0, 1], (H, W, 3): the trivial baseline."""
     total, count = None, 0
-    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+    for batch in batches(dataset, batch_size, workers):
         s = batch["target"].double().sum(0)
         total = s if total is None else total + s
         count += batch["target"].shape[0]
@@ -196,7 +196,7 @@ def baseline_psnr(mean_target: np.ndarray, test_set, workers: int) -> float | No
     guess = to_srgb8(mean_target)
     values = [
         psnr8(guess, to_srgb8(t.permute(1, 2, 0).numpy()))
-        for batch in DataLoader(test_set, batch_size=16, num_workers=workers)
+        for batch in batches(test_set, 16, workers)
         for t in batch["target"]
     ]
     return float(np.mean(values))
@@ -209,7 +209,7 @@ def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: in
     model.eval()
     losses, psnrs, n = 0.0, [], 0
     saturated, values = 0, 0
-    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+    for batch in batches(dataset, batch_size, workers):
         maps, light, target = batch_to(batch, device)
         pred = model(maps, light)
         losses += float(loss_fn(pred, target)) * maps.shape[0]
@@ -416,14 +416,8 @@ def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfi
     model.train()
     loss_fn.train()
     order = epoch_order(len(train_set), config.seed, epoch)
-    loader = DataLoader(
-        Subset(train_set, order),
-        batch_size=config.batch_size,
-        shuffle=False,
-        num_workers=config.workers,
-        pin_memory=device.type == "cuda",
-    )
-    batches = len(loader)
+    loader = batches(Subset(train_set, order), config.batch_size, config.workers, pin_memory=device.type == "cuda")
+    count = len(loader)
     sums: dict[str, float] = {}
     seen, started = 0, time.perf_counter()
     for index, batch in enumerate(loader, start=1):
@@ -439,13 +433,13 @@ def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfi
         if progress is not None:
             elapsed = time.perf_counter() - started
             rate = seen / elapsed if elapsed > 0 else 0.0
-            left = (batches - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
+            left = (count - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
             progress(
                 {
                     "epoch": epoch,
                     "epochs": config.epochs,
                     "batch": index,
-                    "batches": batches,
+                    "batches": count,
                     "loss": float(parts["total"].detach()),
                     "samples_per_s": rate,
                     "eta_s": left / rate if rate > 0 else None,
