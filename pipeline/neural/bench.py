@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import statistics
 import subprocess
@@ -34,6 +35,7 @@ from pipeline.errors import ShaderballError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
+from pipeline.neural import speed
 from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
@@ -120,13 +122,8 @@ def measure_loader(
     )
 
 
-def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
-    """Loader, training and inference rates for ``config``; writes nothing."""
-    config.check()
-    device = pick_device(config.device)
-    loaded = loader_rate(config)
-    resolution = loaded.resolution
-    model = NeuralRenderer(resolution).to(device)
+def bench_loss(config: TrainConfig, device) -> RenderLoss:
+    """``config.loss`` with a randomly initialised VGG16 (the rate does not depend on weights)."""
     if config.loss == "l1+vgg":
         vgg = vgg16_features(upto=RELU3_3)
         vgg.load_state_dict(
@@ -139,23 +136,119 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         loss_fn = RenderLoss("l1+vgg", vgg.eval().requires_grad_(False), config.vgg_weight).to(device)
     else:
         loss_fn = RenderLoss("l1").to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    maps = torch.rand(config.batch_size, 12, resolution, resolution, device=device)
-    light = torch.rand(config.batch_size, 4, device=device)
-    target = torch.rand(config.batch_size, 3, resolution, resolution, device=device)
+    return loss_fn
 
-    def step():
-        optimizer.zero_grad(set_to_none=True)
-        loss_fn(model(maps, light), target).backward()
-        optimizer.step()
 
-    step()
-    _sync(device)
-    started = time.perf_counter()
-    for _ in range(steps):
-        step()
-    _sync(device)
-    train_rate = steps * config.batch_size / (time.perf_counter() - started)
+class TrainingSteps:
+    """Training steps of a fresh network with ``config``'s loss and speed options on random
+    inputs at ``resolution``; the first (warm-up, compilation) step runs on construction."""
+
+    def __init__(self, config: TrainConfig, device, resolution: int):
+        self.config, self.device = config, device
+        with speed.torch_threads(config.threads):
+            self.model = NeuralRenderer(resolution).to(device)
+            self.loss_fn = bench_loss(config, device)
+            self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.lr)
+            self.forward = speed.step_forward(self.model, self.loss_fn, config.channels_last, config.compile)
+            self.scaler = speed.grad_scaler(device, config.precision)
+            fmt = speed.memory_format(config.channels_last)
+            n = config.batch_size
+            self.maps = torch.rand(n, 12, resolution, resolution, device=device).to(memory_format=fmt)
+            self.light = torch.rand(n, 4, device=device)
+            self.target = torch.rand(n, 3, resolution, resolution, device=device).to(memory_format=fmt)
+            self._step()
+            _sync(device)
+
+    def _step(self):
+        self.optimizer.zero_grad(set_to_none=True)
+        with speed.autocast(self.device, self.config.precision):
+            loss = self.loss_fn(self.forward(self.maps, self.light), self.target)
+        self.scaler.scale(loss).backward()
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+
+    def samples_per_s(self, steps: int) -> float:
+        with speed.torch_threads(self.config.threads):
+            started = time.perf_counter()
+            for _ in range(steps):
+                self._step()
+            _sync(self.device)
+            return steps * self.config.batch_size / (time.perf_counter() - started)
+
+
+#: Rows of :func:`compare_training`: the options each changes from the baseline (fp32, NCHW,
+#: eager, torch's threads).
+TRAINING_VARIANTS = {
+    "baseline": {},
+    "--channels-last": {"channels_last": True},
+    "--precision bf16": {"precision": "bf16"},
+    "--precision bf16 --channels-last": {"precision": "bf16", "channels_last": True},
+    "--threads 1": {"threads": 1},
+    "--compile": {"compile": True},
+}
+
+
+def compare_training(config: TrainConfig, resolution: int, variants=None, repeats: int = 5, steps: int = 3) -> dict:
+    """Training samples/s of each variant (``TRAINING_VARIANTS``' names; default all), each a
+    fresh network warmed up first, then timed ``steps`` steps at a time, variants alternated
+    ``repeats`` times; medians, all passes and the load average after each round."""
+    config.check()
+    device = pick_device(config.device)
+    names = list(variants or TRAINING_VARIANTS)
+    runners, compile_s = {}, {}
+    for name in names:
+        variant = dataclasses.replace(config, **TRAINING_VARIANTS[name])
+        speed.check_precision(variant.precision, device)
+        started = time.perf_counter()
+        runners[name] = TrainingSteps(variant, device, resolution)
+        compile_s[name] = time.perf_counter() - started
+    rates: dict[str, list[float]] = {name: [] for name in names}
+    loads = []
+    for _ in range(repeats):
+        for name in names:
+            rates[name].append(runners[name].samples_per_s(steps))
+        loads.append(_load_average())
+    base = statistics.median(rates[names[0]])
+    return {
+        "resolution": resolution,
+        "device": str(device),
+        "batch_size": config.batch_size,
+        "loss": config.loss,
+        "torch_threads": torch.get_num_threads(),
+        "repeats": repeats,
+        "steps": steps,
+        "load_average_1min": loads,
+        "rows": [
+            {
+                "options": name,
+                "samples_per_s_median": statistics.median(rates[name]),
+                "samples_per_s_all": [round(r, 2) for r in rates[name]],
+                f"ratio_to_{names[0]}": statistics.median(rates[name]) / base,
+                "first_step_s": round(compile_s[name], 2),
+            }
+            for name in names
+        ],
+    }
+
+
+def _load_average() -> str:
+    try:
+        with open("/proc/loadavg") as f:
+            return f.read().split()[0]
+    except OSError:
+        return "?"
+
+
+def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
+    """Loader, training and inference rates for ``config``; writes nothing."""
+    config.check()
+    device = pick_device(config.device)
+    speed.check_precision(config.precision, device)
+    loaded = loader_rate(config)
+    resolution = loaded.resolution
+    training = TrainingSteps(config, device, resolution)
+    train_rate = training.samples_per_s(steps)
+    model, maps, light = training.model, training.maps, training.light
 
     model.eval()
     with torch.no_grad():
@@ -178,7 +271,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         train_rate,
         config.loss,
         infer_ms,
-        torch.get_num_threads(),
+        config.threads or torch.get_num_threads(),
         loaded.source,
         loaded.open_s,
     )
@@ -260,7 +353,7 @@ def compare_collation(
                 for name, collate in COLLATIONS.items():
                     rate = measure_loader(root, resolution, exposure, check_hashes, batch_size, workers, collate)
                     rates.setdefault((label, name), []).append(rate.samples_per_s)
-                loads.append(open("/proc/loadavg").read().split()[0] if sys.platform == "linux" else "?")
+                loads.append(_load_average())
     rows = [
         {
             "machine": label,
@@ -374,6 +467,13 @@ def main(argv=None) -> None:
     collation.add_argument("--batch-size", type=int, default=6)
     collation.add_argument("--workers", type=int, default=0)
     collation.add_argument("--resolution", type=int, default=None)
+    training = commands.add_parser("train-options", help="training samples/s of each speed option, alternated")
+    training.add_argument("--resolution", type=int, default=64)
+    training.add_argument("--batch-size", type=int, default=6)
+    training.add_argument("--loss", default="l1+vgg")
+    training.add_argument("--repeats", type=int, default=5)
+    training.add_argument("--steps", type=int, default=3)
+    training.add_argument("--variants", default=",".join(TRAINING_VARIANTS), help="names, comma-separated")
     denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
     denoising.add_argument("dataset")
     denoising.add_argument("--samples", type=int, default=12)
@@ -384,6 +484,12 @@ def main(argv=None) -> None:
         result = compare_loaders(
             args.folder, args.pub, args.resolution, args.batch_size, args.workers, args.repeats, not args.no_hash_check
         )
+        print(json.dumps(result, indent=1, sort_keys=True))
+        return
+    if args.command == "train-options":
+        config = TrainConfig(dataset="", out="", batch_size=args.batch_size, loss=args.loss, device="cpu")
+        variants = [name.strip() for name in args.variants.split(",")]
+        result = compare_training(config, args.resolution, variants, args.repeats, args.steps)
         print(json.dumps(result, indent=1, sort_keys=True))
         return
     if args.command == "collate":
