@@ -31,7 +31,9 @@ def test_bf16_learns_like_fp32(tmp_path):
     assert last < first
     assert abs(last - reference) <= 0.2 * reference + 0.005, (reference, last)
     weights = runfiles.load_checkpoint(bf16.run_dir)["model"]
-    assert all(w.dtype == torch.float32 for w in weights.values() if w.is_floating_point())  # autocast keeps float32 weights
+    assert all(
+        w.dtype == torch.float32 for w in weights.values() if w.is_floating_point()
+    )  # autocast keeps float32 weights
 
 
 def test_channels_last_computes_the_same_loss_and_gradients():
