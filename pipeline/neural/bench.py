@@ -176,14 +176,15 @@ class TrainingSteps:
             return steps * self.config.batch_size / (time.perf_counter() - started)
 
 
-#: Rows of :func:`compare_training`: the options each changes from the baseline (fp32, NCHW,
-#: eager, torch's threads).
+#: Rows of :func:`compare_training`: the options each changes from the baseline (the config's:
+#: fp32, NCHW, eager and its --threads, unless given otherwise).
 TRAINING_VARIANTS = {
     "baseline": {},
     "--channels-last": {"channels_last": True},
     "--precision bf16": {"precision": "bf16"},
     "--precision bf16 --channels-last": {"precision": "bf16", "channels_last": True},
     "--threads 1": {"threads": 1},
+    "--threads 2": {"threads": 2},
     "--compile": {"compile": True},
 }
 
@@ -215,6 +216,7 @@ def compare_training(config: TrainConfig, resolution: int, variants=None, repeat
         "batch_size": config.batch_size,
         "loss": config.loss,
         "torch_threads": torch.get_num_threads(),
+        "baseline_threads": config.threads,
         "repeats": repeats,
         "steps": steps,
         "load_average_1min": loads,
@@ -473,6 +475,7 @@ def main(argv=None) -> None:
     training.add_argument("--loss", default="l1+vgg")
     training.add_argument("--repeats", type=int, default=5)
     training.add_argument("--steps", type=int, default=3)
+    training.add_argument("--threads", type=int, default=0, help="the baseline's (0: torch's default)")
     training.add_argument("--variants", default=",".join(TRAINING_VARIANTS), help="names, comma-separated")
     denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
     denoising.add_argument("dataset")
@@ -487,7 +490,9 @@ def main(argv=None) -> None:
         print(json.dumps(result, indent=1, sort_keys=True))
         return
     if args.command == "train-options":
-        config = TrainConfig(dataset="", out="", batch_size=args.batch_size, loss=args.loss, device="cpu")
+        config = TrainConfig(
+            dataset="", out="", batch_size=args.batch_size, loss=args.loss, device="cpu", threads=args.threads
+        )
         variants = [name.strip() for name in args.variants.split(",")]
         result = compare_training(config, args.resolution, variants, args.repeats, args.steps)
         print(json.dumps(result, indent=1, sort_keys=True))
