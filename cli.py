@@ -1065,12 +1065,18 @@ def _neural():
 )
 @click.option(
     "--precision",
-    default="fp32",
+    default="auto",
     show_default=True,
     type=click.Choice(PRECISIONS),
-    help="fp32; bf16: autocast to bfloat16 (CPU or CUDA); fp16: autocast to float16 with a gradient scaler (CUDA).",
+    help="auto: bf16 on a CPU with bfloat16 kernels, else fp32; bf16: autocast to bfloat16 (CPU or CUDA); "
+    "fp16: autocast to float16 with a gradient scaler (CUDA).",
 )
-@click.option("--channels-last", is_flag=True, help="Network, VGG and batches in channels-last (NHWC) memory format.")
+@click.option(
+    "--channels-last/--no-channels-last",
+    default=True,
+    show_default=True,
+    help="Network, VGG and batches in channels-last (NHWC) memory format.",
+)
 @click.option("--compile", "compile_", is_flag=True, help="torch.compile the network for the training step.")
 @click.option(
     "--benchmark",

@@ -23,7 +23,7 @@ def _run(tmp_path, name, **options):
 
 @pytest.mark.slow
 def test_bf16_learns_like_fp32(tmp_path):
-    fp32 = _run(tmp_path, "fp32")
+    fp32 = _run(tmp_path, "fp32", precision="fp32")
     bf16 = _run(tmp_path, "bf16", precision="bf16")
     first, last = bf16.history[0]["test_loss"], bf16.history[-1]["test_loss"]
     reference = fp32.history[-1]["test_loss"]
@@ -67,6 +67,14 @@ def test_threads_hold_for_the_call_only(tmp_path, monkeypatch):
     before = torch.get_num_threads()
     _run(tmp_path, "threads", threads=2)
     assert seen == [2] * 4 and torch.get_num_threads() == before
+
+
+def test_auto_precision_is_bf16_on_a_cpu_with_bf16_kernels_and_fp32_else(tmp_path):
+    summary = _run(tmp_path, "auto")
+    ran = runfiles.read_config(summary.run_dir)["options"]["precision"]
+    native = torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    assert ran == ("bf16" if native else "fp32")
+    assert speed.resolve_precision("auto", torch.device("cuda")) == "fp32"
 
 
 @pytest.mark.parametrize(

@@ -61,6 +61,8 @@ class BenchResult:
     threads: int
     source: str = "dataset folder"
     open_s: float = 0.0
+    precision: str = "fp32"
+    channels_last: bool = False
 
     def lines(self) -> list[str]:
         return [
@@ -69,7 +71,8 @@ class BenchResult:
             f"{'checked' if self.loader_hash_checked else 'not checked'}; from a {self.source}, opened in "
             f"{self.open_s:.2f} s{', every tar checked' if self.source == 'publication' else ''})",
             f"training: {self.train_samples_per_s:.2f} samples/s (batch {self.train_batch}, {self.train_loss}, "
-            f"{self.device}, {self.threads} torch threads)",
+            f"{self.device}, {self.threads} torch threads, {self.precision}"
+            f"{', channels-last' if self.channels_last else ''})",
             f"inference: {self.infer_ms:.1f} ms per image (batch 1, {self.device})",
         ]
 
@@ -199,7 +202,7 @@ def compare_training(config: TrainConfig, resolution: int, variants=None, repeat
     runners, compile_s = {}, {}
     for name in names:
         variant = dataclasses.replace(config, **TRAINING_VARIANTS[name])
-        speed.check_precision(variant.precision, device)
+        variant = dataclasses.replace(variant, precision=speed.resolve_precision(variant.precision, device))
         started = time.perf_counter()
         runners[name] = TrainingSteps(variant, device, resolution)
         compile_s[name] = time.perf_counter() - started
@@ -245,7 +248,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
     """Loader, training and inference rates for ``config``; writes nothing."""
     config.check()
     device = pick_device(config.device)
-    speed.check_precision(config.precision, device)
+    config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
     loaded = loader_rate(config)
     resolution = loaded.resolution
     training = TrainingSteps(config, device, resolution)
@@ -276,6 +279,8 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         config.threads or torch.get_num_threads(),
         loaded.source,
         loaded.open_s,
+        config.precision,
+        config.channels_last,
     )
 
 
@@ -491,7 +496,14 @@ def main(argv=None) -> None:
         return
     if args.command == "train-options":
         config = TrainConfig(
-            dataset="", out="", batch_size=args.batch_size, loss=args.loss, device="cpu", threads=args.threads
+            dataset="",
+            out="",
+            batch_size=args.batch_size,
+            loss=args.loss,
+            device="cpu",
+            threads=args.threads,
+            precision="fp32",
+            channels_last=False,
         )
         variants = [name.strip() for name in args.variants.split(",")]
         result = compare_training(config, args.resolution, variants, args.repeats, args.steps)

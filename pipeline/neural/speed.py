@@ -22,8 +22,19 @@ from pipeline.neural.limits import PRECISIONS
 DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """``precision`` with ``auto`` made concrete for ``device`` (checked): bf16 on a CPU where
+    oneDNN has bfloat16 kernels (2.1x with --channels-last on the project's machine, the same
+    held-out loss: docs/neural.md), fp32 elsewhere (CUDA: mixed precision untested here)."""
+    if precision == "auto":
+        cpu_bf16 = device.type == "cpu" and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+        precision = "bf16" if cpu_bf16 else "fp32"
+    check_precision(precision, device)
+    return precision
+
+
 def check_precision(precision: str, device: torch.device) -> None:
-    if precision not in PRECISIONS:
+    if precision not in PRECISIONS or precision == "auto":
         raise bad_value("--precision", precision, ", ".join(PRECISIONS))
     if precision == "fp16" and device.type != "cuda":
         raise bad_value("--precision", precision, "fp32 or bf16 on a CPU (fp16 autocast is for CUDA)")

@@ -11,6 +11,7 @@ uninterrupted run (on the same device, torch version, thread count and --precisi
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
@@ -68,8 +69,8 @@ class TrainConfig:
     exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
     threads: int = 0  # torch intra-op threads (0: torch's default, the core count)
-    precision: str = "fp32"  # fp32, bf16 (autocast, CPU or CUDA) or fp16 (autocast, CUDA)
-    channels_last: bool = False  # network, VGG and batches in NHWC memory format
+    precision: str = "auto"  # auto (bf16 on a CPU with bf16 kernels, else fp32), fp32, bf16 or fp16 (CUDA)
+    channels_last: bool = True  # network, VGG and batches in NHWC memory format
     compile: bool = False  # torch.compile the network for the training step
 
     def check(self) -> TrainConfig:
@@ -300,7 +301,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     config.check()
     _check_run_dir(config.out)
     device = pick_device(config.device)
-    speed.check_precision(config.precision, device)
+    config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
     with speed.torch_threads(config.threads):
         return _train(config, progress, source, device)
 
