@@ -1,5 +1,10 @@
-cd /work/wt22b
-run() { echo "== $1 | load $(cut -d' ' -f1 /proc/loadavg) | shaderball train /tmp/wt22b-ds --benchmark $2"; .venv/bin/shaderball train /tmp/wt22b-ds --benchmark $2 2>&1; }
+#!/bin/bash
+# `shaderball train DATASET --benchmark`: the defaults against fp32 NCHW, alternated, on the
+# machine as it is and beside two busy processes (docs/neural.md, "Speed on a CPU").
+# Usage: scripts/bench_train_speed.sh [DATASET]  (default /tmp/wt22b-ds)
+DATASET=${1:-/tmp/wt22b-ds}
+cd "$(dirname "$0")/.." || exit 1
+run() { echo "== $1 | load $(cut -d' ' -f1 /proc/loadavg) | shaderball train $DATASET --benchmark $2"; .venv/bin/shaderball train $DATASET --benchmark $2 2>&1; }
 for i in 1 2 3; do
   run "as is" ""
   run "as is" "--precision fp32 --no-channels-last"
