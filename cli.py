@@ -24,7 +24,7 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, SPP_LADDER_RANGE
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -1056,6 +1056,29 @@ def _neural():
 )
 @click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check on first read.")
 @click.option(
+    "--threads",
+    default=0,
+    show_default=True,
+    type=int,
+    help=f"torch intra-op threads, {span(INTEGER_RANGES['threads'])} (0: torch's default, the core count; "
+    "docs/neural.md, Speed on a CPU).",
+)
+@click.option(
+    "--precision",
+    default="auto",
+    show_default=True,
+    type=click.Choice(PRECISIONS),
+    help="auto: bf16 on a CPU with bfloat16 kernels, else fp32; bf16: autocast to bfloat16 (CPU or CUDA); "
+    "fp16: autocast to float16 with a gradient scaler (CUDA).",
+)
+@click.option(
+    "--channels-last/--no-channels-last",
+    default=True,
+    show_default=True,
+    help="Network, VGG and batches in channels-last (NHWC) memory format.",
+)
+@click.option("--compile", "compile_", is_flag=True, help="torch.compile the network for the training step.")
+@click.option(
     "--benchmark",
     is_flag=True,
     help="Measure loader samples/s, training samples/s and inference ms instead of training; writes nothing.",
@@ -1078,6 +1101,10 @@ def train_cmd(
     resolution,
     test_fraction,
     no_hash_check,
+    threads,
+    precision,
+    channels_last,
+    compile_,
     benchmark,
     as_json,
 ):
@@ -1103,6 +1130,10 @@ def train_cmd(
         resolution=resolution,
         test_fraction=test_fraction,
         check_hashes=not no_hash_check,
+        threads=threads,
+        precision=precision,
+        channels_last=channels_last,
+        compile=compile_,
     )
     if benchmark:
         from pipeline.neural.bench import benchmark as run_benchmark

@@ -18,20 +18,25 @@ each. ``python -m pipeline.neural.bench denoise DATASET`` compares what OIDN is 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
 import json
+import statistics
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, default_collate
 
 from pipeline.errors import ShaderballError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
-from pipeline.neural.data import open_dataset
+from pipeline.neural import speed
+from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.loss import RenderLoss
@@ -56,6 +61,8 @@ class BenchResult:
     threads: int
     source: str = "dataset folder"
     open_s: float = 0.0
+    precision: str = "fp32"
+    channels_last: bool = False
 
     def lines(self) -> list[str]:
         return [
@@ -64,7 +71,8 @@ class BenchResult:
             f"{'checked' if self.loader_hash_checked else 'not checked'}; from a {self.source}, opened in "
             f"{self.open_s:.2f} s{', every tar checked' if self.source == 'publication' else ''})",
             f"training: {self.train_samples_per_s:.2f} samples/s (batch {self.train_batch}, {self.train_loss}, "
-            f"{self.device}, {self.threads} torch threads)",
+            f"{self.device}, {self.threads} torch threads, {self.precision}"
+            f"{', channels-last' if self.channels_last else ''})",
             f"inference: {self.infer_ms:.1f} ms per image (batch 1, {self.device})",
         ]
 
@@ -94,13 +102,20 @@ def loader_rate(config: TrainConfig) -> LoaderRate:
 
 
 def measure_loader(
-    root: str, resolution: int | None, exposure: float, check_hashes: bool, batch_size: int, workers: int
+    root: str,
+    resolution: int | None,
+    exposure: float,
+    check_hashes: bool,
+    batch_size: int,
+    workers: int,
+    collate=collate_samples,
 ) -> LoaderRate:
-    """Open ``root`` afresh and read every sample through a DataLoader."""
+    """Open ``root`` afresh and read every sample through a DataLoader (collated by ``collate``:
+    the loader's own, or torch's ``default_collate`` to compare)."""
     started = time.perf_counter()
     dataset = open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=check_hashes)
     open_s = time.perf_counter() - started
-    loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, persistent_workers=False)
+    loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate)
     started, count, ids = time.perf_counter(), 0, []
     for batch in loader:
         count += batch["maps"].shape[0]
@@ -110,13 +125,8 @@ def measure_loader(
     )
 
 
-def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
-    """Loader, training and inference rates for ``config``; writes nothing."""
-    config.check()
-    device = pick_device(config.device)
-    loaded = loader_rate(config)
-    resolution = loaded.resolution
-    model = NeuralRenderer(resolution).to(device)
+def bench_loss(config: TrainConfig, device) -> RenderLoss:
+    """``config.loss`` with a randomly initialised VGG16 (the rate does not depend on weights)."""
     if config.loss == "l1+vgg":
         vgg = vgg16_features(upto=RELU3_3)
         vgg.load_state_dict(
@@ -129,23 +139,121 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         loss_fn = RenderLoss("l1+vgg", vgg.eval().requires_grad_(False), config.vgg_weight).to(device)
     else:
         loss_fn = RenderLoss("l1").to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    maps = torch.rand(config.batch_size, 12, resolution, resolution, device=device)
-    light = torch.rand(config.batch_size, 4, device=device)
-    target = torch.rand(config.batch_size, 3, resolution, resolution, device=device)
+    return loss_fn
 
-    def step():
-        optimizer.zero_grad(set_to_none=True)
-        loss_fn(model(maps, light), target).backward()
-        optimizer.step()
 
-    step()
-    _sync(device)
-    started = time.perf_counter()
-    for _ in range(steps):
-        step()
-    _sync(device)
-    train_rate = steps * config.batch_size / (time.perf_counter() - started)
+class TrainingSteps:
+    """Training steps of a fresh network with ``config``'s loss and speed options on random
+    inputs at ``resolution``; the first (warm-up, compilation) step runs on construction."""
+
+    def __init__(self, config: TrainConfig, device, resolution: int):
+        self.config, self.device = config, device
+        with speed.torch_threads(config.threads):
+            self.model = NeuralRenderer(resolution).to(device)
+            self.loss_fn = bench_loss(config, device)
+            self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.lr)
+            self.forward = speed.step_forward(self.model, self.loss_fn, config.channels_last, config.compile)
+            self.scaler = speed.grad_scaler(device, config.precision)
+            fmt = speed.memory_format(config.channels_last)
+            n = config.batch_size
+            self.maps = torch.rand(n, 12, resolution, resolution, device=device).to(memory_format=fmt)
+            self.light = torch.rand(n, 4, device=device)
+            self.target = torch.rand(n, 3, resolution, resolution, device=device).to(memory_format=fmt)
+            self._step()
+            _sync(device)
+
+    def _step(self):
+        self.optimizer.zero_grad(set_to_none=True)
+        with speed.autocast(self.device, self.config.precision):
+            loss = self.loss_fn(self.forward(self.maps, self.light), self.target)
+        self.scaler.scale(loss).backward()
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+
+    def samples_per_s(self, steps: int) -> float:
+        with speed.torch_threads(self.config.threads):
+            started = time.perf_counter()
+            for _ in range(steps):
+                self._step()
+            _sync(self.device)
+            return steps * self.config.batch_size / (time.perf_counter() - started)
+
+
+#: Rows of :func:`compare_training`: the options each changes from the baseline (the config's:
+#: fp32, NCHW, eager and its --threads, unless given otherwise).
+TRAINING_VARIANTS = {
+    "baseline": {},
+    "--channels-last": {"channels_last": True},
+    "--precision bf16": {"precision": "bf16"},
+    "--precision bf16 --channels-last": {"precision": "bf16", "channels_last": True},
+    "--threads 1": {"threads": 1},
+    "--threads 2": {"threads": 2},
+    "--compile": {"compile": True},
+}
+
+
+def compare_training(config: TrainConfig, resolution: int, variants=None, repeats: int = 5, steps: int = 3) -> dict:
+    """Training samples/s of each variant (``TRAINING_VARIANTS``' names; default all), each a
+    fresh network warmed up first, then timed ``steps`` steps at a time, variants alternated
+    ``repeats`` times; medians, all passes and the load average after each round."""
+    config.check()
+    device = pick_device(config.device)
+    names = list(variants or TRAINING_VARIANTS)
+    runners, compile_s = {}, {}
+    for name in names:
+        variant = dataclasses.replace(config, **TRAINING_VARIANTS[name])
+        variant = dataclasses.replace(variant, precision=speed.resolve_precision(variant.precision, device))
+        started = time.perf_counter()
+        runners[name] = TrainingSteps(variant, device, resolution)
+        compile_s[name] = time.perf_counter() - started
+    rates: dict[str, list[float]] = {name: [] for name in names}
+    loads = []
+    for _ in range(repeats):
+        for name in names:
+            rates[name].append(runners[name].samples_per_s(steps))
+        loads.append(_load_average())
+    base = statistics.median(rates[names[0]])
+    return {
+        "resolution": resolution,
+        "device": str(device),
+        "batch_size": config.batch_size,
+        "loss": config.loss,
+        "torch_threads": torch.get_num_threads(),
+        "baseline_threads": config.threads,
+        "repeats": repeats,
+        "steps": steps,
+        "load_average_1min": loads,
+        "rows": [
+            {
+                "options": name,
+                "samples_per_s_median": statistics.median(rates[name]),
+                "samples_per_s_all": [round(r, 2) for r in rates[name]],
+                f"ratio_to_{names[0]}": statistics.median(rates[name]) / base,
+                "first_step_s": round(compile_s[name], 2),
+            }
+            for name in names
+        ],
+    }
+
+
+def _load_average() -> str:
+    try:
+        with open("/proc/loadavg") as f:
+            return f.read().split()[0]
+    except OSError:
+        return "?"
+
+
+def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> BenchResult:
+    """Loader, training and inference rates for ``config``; writes nothing."""
+    config.check()
+    device = pick_device(config.device)
+    config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
+    loaded = loader_rate(config)
+    resolution = loaded.resolution
+    training = TrainingSteps(config, device, resolution)
+    train_rate = training.samples_per_s(steps)
+    model, maps, light = training.model, training.maps, training.light
 
     model.eval()
     with torch.no_grad():
@@ -168,9 +276,11 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         train_rate,
         config.loss,
         infer_ms,
-        torch.get_num_threads(),
+        config.threads or torch.get_num_threads(),
         loaded.source,
         loaded.open_s,
+        config.precision,
+        config.channels_last,
     )
 
 
@@ -211,6 +321,66 @@ def compare_loaders(
             "open_s": min(r.open_s for r in rates),
         }
     return out
+
+
+@contextlib.contextmanager
+def busy_processes(count: int):
+    """``count`` Python processes spinning on a core each, stopped on exit: a loaded machine."""
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        time.sleep(0.5 if count else 0.0)
+        yield
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+
+
+COLLATIONS = {"torch default_collate": default_collate, "collate_samples (numpy, one thread)": collate_samples}
+
+
+def compare_collation(
+    root: str,
+    busy: int = 2,
+    repeats: int = 5,
+    batch_size: int = 6,
+    workers: int = 0,
+    resolution: int | None = None,
+    check_hashes: bool = True,
+    exposure: float = DEFAULT_EXPOSURE,
+) -> dict:
+    """The loader's samples/s with torch's default collation and with :func:`collate_samples`,
+    on the machine as it is and with ``busy`` spinning processes beside it; passes alternated
+    (idle A, idle B, loaded A, loaded B, ...) ``repeats`` times; medians and all passes."""
+    rates: dict[tuple[str, str], list[float]] = {}
+    loads = []
+    for _ in range(repeats):
+        for label, spinners in (("as is", 0), (f"{busy} busy processes", busy)):
+            with busy_processes(spinners):
+                for name, collate in COLLATIONS.items():
+                    rate = measure_loader(root, resolution, exposure, check_hashes, batch_size, workers, collate)
+                    rates.setdefault((label, name), []).append(rate.samples_per_s)
+                loads.append(_load_average())
+    rows = [
+        {
+            "machine": label,
+            "collation": name,
+            "samples_per_s_median": statistics.median(values),
+            "samples_per_s_all": [round(v, 1) for v in values],
+        }
+        for (label, name), values in rates.items()
+    ]
+    return {
+        "dataset": root,
+        "samples": rate.samples,
+        "resolution": rate.resolution,
+        "workers": workers,
+        "batch_size": batch_size,
+        "repeats": repeats,
+        "torch_threads": torch.get_num_threads(),
+        "load_average_1min": loads,
+        "rows": rows,
+    }
 
 
 #: What OIDN is fed, by row of :func:`compare_denoisers`: None, the colour alone; else
@@ -297,6 +467,21 @@ def main(argv=None) -> None:
     loaders.add_argument("--workers", type=int, default=0)
     loaders.add_argument("--repeats", type=int, default=3)
     loaders.add_argument("--no-hash-check", action="store_true")
+    collation = commands.add_parser("collate", help="loader samples/s, torch's collation against ours, idle and loaded")
+    collation.add_argument("dataset")
+    collation.add_argument("--busy", type=int, default=2)
+    collation.add_argument("--repeats", type=int, default=5)
+    collation.add_argument("--batch-size", type=int, default=6)
+    collation.add_argument("--workers", type=int, default=0)
+    collation.add_argument("--resolution", type=int, default=None)
+    training = commands.add_parser("train-options", help="training samples/s of each speed option, alternated")
+    training.add_argument("--resolution", type=int, default=64)
+    training.add_argument("--batch-size", type=int, default=6)
+    training.add_argument("--loss", default="l1+vgg")
+    training.add_argument("--repeats", type=int, default=5)
+    training.add_argument("--steps", type=int, default=3)
+    training.add_argument("--threads", type=int, default=0, help="the baseline's (0: torch's default)")
+    training.add_argument("--variants", default=",".join(TRAINING_VARIANTS), help="names, comma-separated")
     denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
     denoising.add_argument("dataset")
     denoising.add_argument("--samples", type=int, default=12)
@@ -306,6 +491,27 @@ def main(argv=None) -> None:
     if args.command == "loaders":
         result = compare_loaders(
             args.folder, args.pub, args.resolution, args.batch_size, args.workers, args.repeats, not args.no_hash_check
+        )
+        print(json.dumps(result, indent=1, sort_keys=True))
+        return
+    if args.command == "train-options":
+        config = TrainConfig(
+            dataset="",
+            out="",
+            batch_size=args.batch_size,
+            loss=args.loss,
+            device="cpu",
+            threads=args.threads,
+            precision="fp32",
+            channels_last=False,
+        )
+        variants = [name.strip() for name in args.variants.split(",")]
+        result = compare_training(config, args.resolution, variants, args.repeats, args.steps)
+        print(json.dumps(result, indent=1, sort_keys=True))
+        return
+    if args.command == "collate":
+        result = compare_collation(
+            args.dataset, args.busy, args.repeats, args.batch_size, args.workers, args.resolution
         )
         print(json.dumps(result, indent=1, sort_keys=True))
         return

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
 from pipeline.errors import ShaderballError, bad_value
@@ -108,6 +108,33 @@ def assemble_maps(layers: dict[str, np.ndarray], factor: int = 1) -> tuple[np.nd
             .astype(np.float32)
         )
     return chw[:12], chw[12:]
+
+
+def collate_samples(samples: list[dict]) -> dict:
+    """Samples -> one batch dict: each tensor field stacked along a new first axis, each
+    other field (``id``, ``material_id``) a list; the same values as torch's default collation.
+
+    numpy stacks into a preallocated tensor (in shared memory inside a worker, as the default
+    does, so the batch crosses to the main process without a copy). torch's default stacks with
+    ``torch.stack``, whose intra-op threads spin against any other busy process on a small
+    machine: issue 22 saw the loader fall from 643 to 42 samples/s, 318 of 473 ms in the stack.
+    numpy's copy runs on the calling thread alone."""
+    batch = {}
+    for key, first in samples[0].items():
+        if not isinstance(first, torch.Tensor):
+            batch[key] = [sample[key] for sample in samples]
+            continue
+        out = torch.empty((len(samples), *first.shape), dtype=first.dtype)
+        if get_worker_info() is not None:
+            out.share_memory_()
+        np.stack([sample[key].numpy() for sample in samples], out=out.numpy())
+        batch[key] = out
+    return batch
+
+
+def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader:
+    """A DataLoader over ``dataset`` that collates with :func:`collate_samples`."""
+    return DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
 
 
 def read_json_file(path: str, what: str):

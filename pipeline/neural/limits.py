@@ -7,6 +7,15 @@ from __future__ import annotations
 #: --device: where the network runs ("auto": cuda where torch sees a device, else cpu).
 DEVICES = ("auto", "cpu", "cuda")
 #: train's integer options and their inclusive ranges.
-INTEGER_RANGES = {"epochs": (1, 100_000), "batch_size": (1, 4096), "workers": (0, 64), "seed": (0, 2**63 - 1)}
+INTEGER_RANGES = {
+    "epochs": (1, 100_000),
+    "batch_size": (1, 4096),
+    "workers": (0, 64),
+    "seed": (0, 2**63 - 1),
+    "threads": (0, 256),
+}
+#: --precision: auto (bf16 on a CPU with native bfloat16 kernels, else fp32), fp32, or autocast
+#: to bf16 (CPU or CUDA) or fp16 (CUDA, with a gradient scaler).
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 #: evaluate --spp: each low-spp path-tracing rate compared with the network.
 SPP_LADDER_RANGE = (1, 4096)

@@ -5,12 +5,13 @@ checkpointing every epoch into the run folder. Everything random derives from
 ``config.seed``: the initial weights (``torch.manual_seed``) and each epoch's order
 (a generator seeded by (seed, epoch)), so a run killed at any instant and started again
 with the same command continues from its last checkpoint to the same weights as an
-uninterrupted run (on the same device, torch version and thread count).
+uninterrupted run (on the same device, torch version, thread count and --precision).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
@@ -21,14 +22,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Subset
+from torch.utils.data import Subset
 
 from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
-from pipeline.neural import runfiles
-from pipeline.neural.data import open_dataset
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES
+from pipeline.neural import runfiles, speed
+from pipeline.neural.data import batches, open_dataset
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS
 from pipeline.neural.loss import LOSSES, RenderLoss
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
@@ -67,6 +68,10 @@ class TrainConfig:
     test_fraction: float = 0.2  # fraction of materials held out for testing
     exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
+    threads: int = 0  # torch intra-op threads (0: torch's default, the core count)
+    precision: str = "auto"  # auto (bf16 on a CPU with bf16 kernels, else fp32), fp32, bf16 or fp16 (CUDA)
+    channels_last: bool = True  # network, VGG and batches in NHWC memory format
+    compile: bool = False  # torch.compile the network for the training step
 
     def check(self) -> TrainConfig:
         def number(name, lo, hi, lo_open=False):
@@ -90,6 +95,8 @@ class TrainConfig:
             raise bad_value("--test-fraction", self.test_fraction, "a fraction in [0, 1)")
         if self.loss not in LOSSES:
             raise bad_value("--loss", self.loss, " or ".join(LOSSES))
+        if self.precision not in PRECISIONS:
+            raise bad_value("--precision", self.precision, ", ".join(PRECISIONS))
         if self.device not in DEVICES:
             raise bad_value("--device", self.device, ", ".join(DEVICES))
         if self.resolution is not None:
@@ -173,17 +180,20 @@ def make_loss(config: TrainConfig) -> tuple[RenderLoss, str | None]:
     return RenderLoss("l1+vgg", load_vgg16_relu3_3(weights), config.vgg_weight), weights.sha256
 
 
-def batch_to(batch: dict, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    maps = batch["maps"].to(device, non_blocking=True)
+def batch_to(
+    batch: dict, device: torch.device, channels_last: bool = False
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    fmt = speed.memory_format(channels_last)
+    maps = batch["maps"].to(device, non_blocking=True, memory_format=fmt)
     light = light_input(batch["light"].to(device, non_blocking=True))
-    target = batch["target"].to(device, non_blocking=True)
+    target = batch["target"].to(device, non_blocking=True, memory_format=fmt)
     return maps, light, target
 
 
 def mean_image(dataset, workers: int, batch_size: int = 16) -> np.ndarray:
     """The training set's mean target in [0, 1], (H, W, 3): the trivial baseline."""
     total, count = None, 0
-    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+    for batch in batches(dataset, batch_size, workers):
         s = batch["target"].double().sum(0)
         total = s if total is None else total + s
         count += batch["target"].shape[0]
@@ -196,7 +206,7 @@ def baseline_psnr(mean_target: np.ndarray, test_set, workers: int) -> float | No
     guess = to_srgb8(mean_target)
     values = [
         psnr8(guess, to_srgb8(t.permute(1, 2, 0).numpy()))
-        for batch in DataLoader(test_set, batch_size=16, num_workers=workers)
+        for batch in batches(test_set, 16, workers)
         for t in batch["target"]
     ]
     return float(np.mean(values))
@@ -209,7 +219,7 @@ def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: in
     model.eval()
     losses, psnrs, n = 0.0, [], 0
     saturated, values = 0, 0
-    for batch in DataLoader(dataset, batch_size=batch_size, num_workers=workers):
+    for batch in batches(dataset, batch_size, workers):
         maps, light, target = batch_to(batch, device)
         pred = model(maps, light)
         losses += float(loss_fn(pred, target)) * maps.shape[0]
@@ -286,10 +296,17 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
 
     ``source`` is the opened dataset (:func:`pipeline.neural.data.open_dataset`); by
     default ``config.dataset`` is opened. Nothing is written before every check passed.
+    ``config.threads`` holds for the call; torch's setting is restored after.
     """
     config.check()
     _check_run_dir(config.out)
     device = pick_device(config.device)
+    config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
+    with speed.torch_threads(config.threads):
+        return _train(config, progress, source, device)
+
+
+def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     if source is None:
         source = open_dataset(
             config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.check_hashes
@@ -334,6 +351,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     model.to(device)
     loss_fn.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
+    forward = speed.step_forward(model, loss_fn, config.channels_last, config.compile)
     if ckpt is not None:
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -352,7 +370,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
 
     with deterministic_algorithms():
         for epoch in range(start_epoch + 1, config.epochs + 1):
-            entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress)
+            entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress, forward)
             entry["lr"] = config.lr
             if test_set is not None:
                 held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
@@ -412,26 +430,28 @@ def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model) 
     )
 
 
-def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress) -> dict:
+def train_epoch(
+    model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress, forward=None
+) -> dict:
+    """One epoch; ``forward`` runs the network (default ``model``; a compiled one, see
+    :func:`pipeline.neural.speed.step_forward`), in ``config.precision``."""
+    forward = forward or model
+    scaler = speed.grad_scaler(device, config.precision)
     model.train()
     loss_fn.train()
     order = epoch_order(len(train_set), config.seed, epoch)
-    loader = DataLoader(
-        Subset(train_set, order),
-        batch_size=config.batch_size,
-        shuffle=False,
-        num_workers=config.workers,
-        pin_memory=device.type == "cuda",
-    )
-    batches = len(loader)
+    loader = batches(Subset(train_set, order), config.batch_size, config.workers, pin_memory=device.type == "cuda")
+    count = len(loader)
     sums: dict[str, float] = {}
     seen, started = 0, time.perf_counter()
     for index, batch in enumerate(loader, start=1):
-        maps, light, target = batch_to(batch, device)
+        maps, light, target = batch_to(batch, device, config.channels_last)
         optimizer.zero_grad(set_to_none=True)
-        parts = loss_fn.parts(model(maps, light), target)
-        parts["total"].backward()
-        optimizer.step()
+        with speed.autocast(device, config.precision):
+            parts = loss_fn.parts(forward(maps, light), target)
+        scaler.scale(parts["total"]).backward()
+        scaler.step(optimizer)
+        scaler.update()
         n = maps.shape[0]
         seen += n
         for key, value in parts.items():
@@ -439,13 +459,13 @@ def train_epoch(model, loss_fn, optimizer, train_set, device, config: TrainConfi
         if progress is not None:
             elapsed = time.perf_counter() - started
             rate = seen / elapsed if elapsed > 0 else 0.0
-            left = (batches - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
+            left = (count - index) * config.batch_size + (config.epochs - epoch) * len(train_set)
             progress(
                 {
                     "epoch": epoch,
                     "epochs": config.epochs,
                     "batch": index,
-                    "batches": batches,
+                    "batches": count,
                     "loss": float(parts["total"].detach()),
                     "samples_per_s": rate,
                     "eta_s": left / rate if rate > 0 else None,

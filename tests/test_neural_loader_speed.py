@@ -1,0 +1,69 @@
+"""The loader under load (issue 22, item 4): collation is numpy's, on the calling thread, with
+the values of torch's default; and the loader's rate with two busy processes beside it stays
+a fair share of its rate without them. The figures: ``python -m pipeline.neural.bench collate``
+(docs/neural.md, "Speed on a CPU")."""
+
+import os
+
+import pytest
+import torch
+from torch.utils.data import DataLoader, default_collate
+
+from pipeline.image.tonemap import DEFAULT_EXPOSURE
+from pipeline.neural import data
+from pipeline.neural.bench import busy_processes, measure_loader
+from pipeline.neural.data import collate_samples, open_dataset
+
+
+def _same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(
+        torch.equal(a[k], b[k]) and a[k].dtype == b[k].dtype if isinstance(a[k], torch.Tensor) else a[k] == b[k]
+        for k in a
+    )
+
+
+def test_collation_equals_torchs_default(reference):
+    ds = open_dataset(str(reference))
+    samples = [ds[i] for i in range(5)]
+    assert _same(collate_samples(samples), default_collate(samples))
+
+
+def test_collation_calls_no_torch_kernel(reference, monkeypatch):
+    """No torch.stack/cat (whose intra-op threads contend with other work): numpy copies."""
+    samples = [open_dataset(str(reference))[i] for i in range(3)]
+
+    def refused(*args, **kwargs):
+        raise AssertionError("collation called a torch kernel")
+
+    monkeypatch.setattr(torch, "stack", refused)
+    monkeypatch.setattr(torch, "cat", refused)
+    batch = collate_samples(samples)
+    assert batch["maps"].shape == (3, *samples[0]["maps"].shape)
+
+
+@pytest.mark.slow
+def test_worker_batches_equal_in_process_ones_and_lie_in_shared_memory(reference):
+    ds = open_dataset(str(reference))
+    one = list(data.batches(ds, 4, 0))
+    two = list(data.batches(ds, 4, 2))
+    assert len(one) == len(two) and all(_same(a, b) for a, b in zip(one, two))
+    assert all(b["maps"].is_shared() for b in two)
+    assert list(DataLoader(ds, batch_size=4, collate_fn=collate_samples))[0]["id"] == one[0]["id"]
+
+
+@pytest.mark.slow
+def test_the_loader_keeps_a_fair_share_with_two_busy_processes(reference):
+    """Best of 3 passes each, alternated, with the intra-op threads at the core count: the loaded
+    rate stays above a quarter of the unloaded one. A fair share of 2 cores against 2 spinners is
+    about 2/3; torch's collation fell to 1/15 (issue 22: 643 -> 42 samples/s)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(os.cpu_count() or 1)
+    try:
+        idle, loaded = [], []
+        for _ in range(3):
+            idle.append(measure_loader(str(reference), None, DEFAULT_EXPOSURE, True, 6, 0).samples_per_s)
+            with busy_processes(2):
+                loaded.append(measure_loader(str(reference), None, DEFAULT_EXPOSURE, True, 6, 0).samples_per_s)
+    finally:
+        torch.set_num_threads(before)
+    assert max(loaded) >= 0.25 * max(idle), f"idle {idle}, with two busy processes {loaded} samples/s"
