@@ -69,7 +69,9 @@ class TrainConfig:
     exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
     check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
     threads: int = 0  # torch intra-op threads (0: torch's default, the core count)
-    precision: str = "auto"  # auto (bf16 on a CPU with bf16 kernels, else fp32), fp32, bf16 or fp16 (CUDA)
+    precision: str = (
+        "fp32"  # fp32 (the same numbers on every CPU), bf16, fp16 (CUDA), or auto (bf16 where a CPU has bf16 kernels)
+    )
     channels_last: bool = True  # network, VGG and batches in NHWC memory format
     compile: bool = False  # torch.compile the network for the training step
 
