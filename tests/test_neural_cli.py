@@ -16,6 +16,7 @@ from PIL import Image
 from cli import main
 from pipeline.neural import runfiles
 from pipeline.store.exr import read_exr
+from support.neural_fakes import RUN_FILES
 
 torch.set_num_threads(1)
 TRAIN = ["--loss", "l1", "--resolution", "32", "--batch-size", "4", "--lr", "1e-3", "--seed", "3"]
@@ -36,14 +37,7 @@ def run(reference, tmp_path_factory):
 
 @pytest.mark.slow
 def test_train_writes_the_run_files(run):
-    assert sorted(os.listdir(run)) == [
-        "checkpoint-best.pt",
-        "checkpoint.pt",
-        "config.json",
-        "log.csv",
-        "log.jsonl",
-        "loss.png",
-    ]
+    assert sorted(os.listdir(run)) == RUN_FILES
     assert json.loads((run / "config.json").read_text())["network"]["resolution"] == 32
 
 

@@ -10,7 +10,7 @@ from PIL import Image
 from pipeline.errors import ShaderballError
 from pipeline.neural import runfiles
 from pipeline.neural.train import epoch_order, train
-from support.neural_fakes import FakeSource, train_config
+from support.neural_fakes import RUN_FILES, FakeSource, train_config
 
 torch.set_num_threads(1)
 
@@ -36,14 +36,7 @@ def test_run_files_progress_and_baseline(tmp_path):
     events = []
     summary = train(_config(tmp_path), progress=events.append, source=FakeSource())
     run = tmp_path / "run"
-    assert sorted(os.listdir(run)) == [
-        "checkpoint-best.pt",
-        "checkpoint.pt",
-        "config.json",
-        "log.csv",
-        "log.jsonl",
-        "loss.png",
-    ]
+    assert sorted(os.listdir(run)) == RUN_FILES
     config = json.loads((run / "config.json").read_text())
     assert config["split"] == {"train": ["m000000", "m000002", "m000003"], "test": ["m000001"]}
     assert config["network"]["parameters"] == summary.parameters

@@ -74,3 +74,7 @@ def train_config(tmp_path, name="run", **kw) -> TrainConfig:
     )
     base.update(kw)
     return TrainConfig(**base)
+
+
+#: The files a finished training run folder holds (with a held-out split).
+RUN_FILES = ["checkpoint-best.pt", "checkpoint.pt", "config.json", "log.csv", "log.jsonl", "loss.png"]
