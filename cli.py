@@ -1054,6 +1054,43 @@ def _neural():
     type=float,
     help="Fraction of materials held out for testing, in [0, 1).",
 )
+@click.option(
+    "--split-seed",
+    default=None,
+    type=int,
+    help="Seeds the split by material (and --train-materials' choice) apart from --seed, so runs of "
+    "several seeds share one held-out set [default: --seed].",
+)
+@click.option(
+    "--train-materials",
+    default=None,
+    type=int,
+    help="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
+    "larger one; the held-out set stays) [default: all].",
+)
+@click.option(
+    "--width",
+    default=1.0,
+    show_default=True,
+    type=float,
+    help="Fraction of the paper's channels in (0, 1]; 1 is the paper's network, 0.5 about a quarter of its "
+    "work for CPU-scale runs (docs/neural.md).",
+)
+@click.option(
+    "--schedule",
+    default="constant",
+    show_default=True,
+    type=click.Choice(["constant", "cosine"]),
+    help="Learning rate after the warm-up: constant, or a cosine decay reaching 0 at --epochs (the run then "
+    "ends at --epochs: a longer run is another configuration).",
+)
+@click.option(
+    "--warmup-epochs",
+    default=0.0,
+    show_default=True,
+    type=float,
+    help="Linear warm-up of the learning rate over this many epochs (fractions allowed), 0 to --epochs.",
+)
 @click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check on first read.")
 @click.option(
     "--threads",
@@ -1101,6 +1138,11 @@ def train_cmd(
     seed,
     resolution,
     test_fraction,
+    split_seed,
+    train_materials,
+    width,
+    schedule,
+    warmup_epochs,
     no_hash_check,
     threads,
     precision,
@@ -1130,6 +1172,11 @@ def train_cmd(
         seed=seed,
         resolution=resolution,
         test_fraction=test_fraction,
+        split_seed=split_seed,
+        train_materials=train_materials,
+        width=width,
+        schedule=schedule,
+        warmup_epochs=warmup_epochs,
         check_hashes=not no_hash_check,
         threads=threads,
         precision=precision,
@@ -1249,8 +1296,18 @@ def infer_cmd(
     help="The last epoch's weights; best: the best held-out PSNR's (chosen on the test split, so optimistic "
     "there); or a checkpoint file of RUN.",
 )
+@click.option(
+    "--report",
+    "report_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    metavar="DIR",
+    help="Also write a report into DIR: report.md (the table, per material class with 95% intervals), "
+    "learning-curve.png/.csv (training and held-out loss and PSNR per epoch), grid.png (maps, reference, "
+    "network, path tracing at equal time, error maps), report.json.",
+)
 @_friendly_errors
-def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint):
+def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report_dir):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1271,6 +1328,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         limit=limit,
         device=device,
         checkpoint=checkpoint,
+        report_dir=report_dir,
     )
     summary = evaluate(request, progress=evaluate_progress)
     for line in summary.lines():

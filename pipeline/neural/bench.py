@@ -149,7 +149,7 @@ class TrainingSteps:
     def __init__(self, config: TrainConfig, device, resolution: int):
         self.config, self.device = config, device
         with speed.torch_threads(config.threads):
-            self.model = NeuralRenderer(resolution).to(device)
+            self.model = NeuralRenderer(resolution, config.width).to(device)
             self.loss_fn = bench_loss(config, device)
             self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.lr)
             self.forward = speed.step_forward(self.model, self.loss_fn, config.channels_last, config.compile)

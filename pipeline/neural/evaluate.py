@@ -30,7 +30,7 @@ from pipeline.errors import ShaderballError, bad_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
-from pipeline.neural import runfiles
+from pipeline.neural import report, runfiles
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
@@ -79,6 +79,7 @@ class EvaluateRequest:
     check_hashes: bool = True
     grid_rows: int = 4
     checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
+    report_dir: str | None = None  # also write a report: per-class table, learning curve, picture grid
 
 
 @dataclass
@@ -89,9 +90,12 @@ class EvaluateSummary:
     notes: list = field(default_factory=list)
     table: str = ""
 
+    report_dir: str | None = None
+
     def lines(self) -> list[str]:
         return [
-            f"evaluated {self.samples} samples; wrote {self.out_dir}/results.md, results.json, grid.png",
+            f"evaluated {self.samples} samples; wrote {self.out_dir}/results.md, results.json, grid.png"
+            + (f"; the report in {self.report_dir}/report.md" if self.report_dir else ""),
             *self.table.splitlines(),
             *self.notes,
         ]
@@ -203,6 +207,8 @@ def _check(req: EvaluateRequest) -> None:
         raise bad_value("--limit", req.limit, "an integer >= 1")
     if req.json_path is not None and not req.json_path.lower().endswith(".json"):
         raise bad_value("--json", req.json_path, "a file name ending in .json")
+    if req.report_dir is not None and os.path.exists(req.report_dir) and not os.path.isdir(req.report_dir):
+        raise bad_value("--report", req.report_dir, "a folder (this is a file)")
 
 
 def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
@@ -256,7 +262,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         if want_denoise:
             aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant, dataset.factor)
     equal_time = None
-    rows, grid = [], []
+    rows, grid, report_rows = [], [], []
+    per_class: dict[str, int] = {}
     aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
     for n, index in enumerate(indices, start=1):
         item = dataset[index]
@@ -270,6 +277,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         row = {
             "id": sample.id,
             "material_id": sample.material_id,
+            "class": report.material_class(records[sample.id]),
             "network": _ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
         }
         if mean_y is not None:
@@ -286,9 +294,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             if equal_time is None:  # measured once, on this machine, in this run
                 equal_time = _measure_equal_time(model, item, sample, tracer, records[sample.id], maps, device)
             image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
-            row["pt_equal_time"] = _scores(
-                image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t, spp=equal_time["spp"]
-            )
+            pictures["equal time"] = hdr_to_srgb8(image, exposure)
+            row["pt_equal_time"] = _scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=equal_time["spp"])
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
@@ -308,10 +315,14 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         rows.append(row)
         if len(grid) < req.grid_rows:
             grid.append((sample.id, pictures))
+        if req.report_dir and per_class.get(row["class"], 0) < report.GRID_PER_CLASS:
+            per_class[row["class"]] = per_class.get(row["class"], 0) + 1
+            title = f"{sample.id}\n{row['class']}\nnet {row['network']['psnr']:.1f} dB"
+            report_rows.append((title, report.grid_pictures(item["maps"].numpy(), pictures)))
         if progress is not None:
             progress({"sample": n, "samples": len(indices), "id": sample.id})
 
-    methods = [k for k in rows[0] if k not in ("id", "material_id")]
+    methods = [k for k in rows[0] if k not in ("id", "material_id", "class")]
     means = {
         m: {k: _mean([r[m][k] for r in rows if m in r]) for k, v in rows[0][m].items() if not isinstance(v, str)}
         for m in methods
@@ -361,6 +372,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
+        "by_class": report.class_means(rows, methods, bootstrap_ci95),
+        "classes": f"uniform metal: a uniform material whose largest specular (F0) value is above {report.METAL_F0}; "
+        "uniform dielectric: the other uniform ones; svbrdf: the spatially varying ones",
         "notes": notes,
         "tonemap": config["tonemap"],
         "denoiser": DENOISER if want_denoise else None,
@@ -373,7 +387,11 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
     if req.json_path:
         runfiles.write_json(req.json_path, result)
-    return EvaluateSummary(out_dir, len(rows), means, notes, table)
+    if req.report_dir:
+        report.write_report(
+            req.report_dir, result, table, report.class_table(result["by_class"], _label), report_rows, req.run
+        )
+    return EvaluateSummary(out_dir, len(rows), means, notes, table, req.report_dir)
 
 
 def _material_kind(records: dict, sample_id: str):

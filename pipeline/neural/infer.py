@@ -77,7 +77,7 @@ def load_run_model(run_dir: str, device: torch.device, checkpoint: str = "last")
     this run's configuration."""
     config = runfiles.read_config(run_dir)
     ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint)
-    model = NeuralRenderer(int(config["network"]["resolution"]))
+    model = NeuralRenderer(int(config["network"]["resolution"]), float(config["network"].get("width", 1.0)))
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as exc:

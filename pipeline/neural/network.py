@@ -12,6 +12,10 @@ network has exactly 11,752,404 parameters. At another resolution R (divisible by
 last light layer has (R/16)^2 outputs, reshaped to R/16 x R/16: the light map always
 covers the bottleneck one value per pixel, so the parameter count depends on R (e.g.
 11,595,891 at 64x64).
+
+``width`` scales every convolution's channels and the light map's copies (the paper's
+network: 1.0): a narrower network for CPU-scale runs (issue 22; at 0.5 about a quarter of
+the convolutions' work). The light branch's MLP is the paper's at every width.
 """
 
 from __future__ import annotations
@@ -33,6 +37,22 @@ ENCODER_CHANNELS = (64, 128, 256, 512)
 SUN_DIRECTION_SCALE = 3.0
 PAPER_RESOLUTION = 400
 PAPER_PARAMETERS = 11_752_404
+#: --width: the fraction of the paper's channels, (0, 1] (1: the paper's network).
+WIDTH_RANGE = (0.0, 1.0)
+
+
+def check_width(width, field: str = "--width") -> float:
+    """Channel fractions the network accepts: (0, 1], giving at least 1 channel per layer."""
+    lo, hi = WIDTH_RANGE
+    if isinstance(width, bool) or not isinstance(width, (int, float)) or not lo < width <= hi:
+        raise bad_value(
+            field, width, f"a fraction of the paper's channels in ({lo:g}, {hi:g}] (1: the paper's network)"
+        )
+    return float(width)
+
+
+def scaled_channels(channels: int, width: float) -> int:
+    return max(1, round(channels * width))
 
 
 def check_network_resolution(resolution, field: str = "resolution") -> int:
@@ -82,11 +102,13 @@ class DecoderBlock(nn.Module):
 class NeuralRenderer(nn.Module):
     """12-channel maps (N, 12, R, R) in [0, 1] and light input (N, 4) -> RGB (N, 3, R, R) in [0, 1]."""
 
-    def __init__(self, resolution: int = PAPER_RESOLUTION):
+    def __init__(self, resolution: int = PAPER_RESOLUTION, width: float = 1.0):
         super().__init__()
         self.resolution = check_network_resolution(resolution)
+        self.width = check_width(width, "width")
         self.bottleneck_size = resolution // 16
-        e1, e2, e3, e4 = ENCODER_CHANNELS
+        e1, e2, e3, e4 = (scaled_channels(c, self.width) for c in ENCODER_CHANNELS)
+        self.light_channels = scaled_channels(LIGHT_MAP_CHANNELS, self.width)
         self.light = nn.Sequential(
             nn.Linear(LIGHT_CHANNELS, 32),
             nn.Tanh(),
@@ -105,7 +127,7 @@ class NeuralRenderer(nn.Module):
                 _conv_bn_relu(e3, e4, stride=2),
             ]
         )
-        self.bottleneck = _conv_bn_relu(e4 + LIGHT_MAP_CHANNELS, e4)
+        self.bottleneck = _conv_bn_relu(e4 + self.light_channels, e4)
         self.decoder = nn.ModuleList(
             [
                 DecoderBlock(e4, e4, e4),
@@ -127,10 +149,10 @@ class NeuralRenderer(nn.Module):
                 module.reset_parameters()
 
     def light_map(self, light: torch.Tensor) -> torch.Tensor:
-        """(N, 4) network light input -> (N, 128, R/16, R/16), 128 identical channels."""
+        """(N, 4) network light input -> (N, C, R/16, R/16), C identical channels (128 at width 1)."""
         b = self.bottleneck_size
         plane = self.light(light).view(-1, 1, b, b)
-        return plane.expand(-1, LIGHT_MAP_CHANNELS, b, b)
+        return plane.expand(-1, self.light_channels, b, b)
 
     def forward(self, maps: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
         r = self.resolution

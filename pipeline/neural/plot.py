@@ -1,4 +1,6 @@
-"""The loss curve of a run as a PNG (PIL only: no plotting library is a dependency)."""
+"""A run's curves as PNG (PIL only: no plotting library is a dependency): the loss per
+epoch (``loss.png``), the learning curve of a report (loss and PSNR per epoch, training and
+held-out, beside the mean-image baseline) and the data-size curve of a sweep."""
 
 from __future__ import annotations
 
@@ -7,7 +9,15 @@ import math
 
 from PIL import Image, ImageDraw, ImageFont
 
-SERIES = (("train_loss", "train loss", (31, 119, 180)), ("test_loss", "held-out loss", (214, 39, 40)))
+BLUE, RED, GREEN, GREY, ORANGE, PURPLE = (
+    (31, 119, 180),
+    (214, 39, 40),
+    (44, 160, 44),
+    (127, 127, 127),
+    (255, 127, 14),
+    (148, 103, 189),
+)
+SERIES = (("train_loss", "train loss", BLUE), ("test_loss", "held-out loss", RED))
 
 
 def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
@@ -22,51 +32,127 @@ def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     return [start + i * step for i in range(int((hi - start) / step) + 1)]
 
 
-def loss_curve_png(history: list[dict], width: int = 640, height: int = 400) -> bytes:
-    """PNG bytes: per-epoch training and held-out loss against the epoch, log10 y axis."""
+def chart(
+    series: list[tuple[str, tuple, list]],
+    title: str,
+    xlabel: str,
+    log_y: bool = False,
+    log_x: bool = False,
+    width: int = 640,
+    height: int = 400,
+) -> Image.Image:
+    """A line chart: ``series`` is [(label, colour, [(x, y) or (x, y, lo, hi)])]; a 4-tuple
+    point draws its interval as a vertical bar; a label starting with '--' draws a dashed
+    line. Log axes drop points <= 0."""
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default()
     left, right, top, bottom = 70, 20, 30, 45
     x0, x1, y0, y1 = left, width - right, top, height - bottom
     draw.rectangle([x0, y0, x1, y1], outline="black")
-    draw.text((x0, 8), "loss per epoch (log scale)", fill="black", font=font)
-    draw.text(((x0 + x1) // 2 - 15, height - 18), "epoch", fill="black", font=font)
-    points = {
-        key: [(h["epoch"], h[key]) for h in history if h.get(key) is not None and h[key] > 0] for key, _, _ in SERIES
-    }
-    values = [v for pts in points.values() for _, v in pts]
-    if not values:
+    draw.text((x0, 8), title, fill="black", font=font)
+    draw.text(((x0 + x1) // 2 - 3 * len(xlabel), height - 18), xlabel, fill="black", font=font)
+
+    def keep(p):
+        return (not log_y or min(p[1:]) > 0) and (not log_x or p[0] > 0)
+
+    points = [(label, colour, [p for p in pts if p[1] is not None and keep(p)]) for label, colour, pts in series]
+    ys = [v for _, _, pts in points for p in pts for v in p[1:]]
+    xs = [p[0] for _, _, pts in points for p in pts]
+    if not ys:
         draw.text((x0 + 10, y0 + 10), "no finished epoch yet", fill="black", font=font)
-    else:
-        epochs = [e for pts in points.values() for e, _ in pts]
-        e_lo, e_hi = min(epochs), max(max(epochs), min(epochs) + 1)
-        l_lo, l_hi = math.log10(min(values)), math.log10(max(values))
-        if l_hi - l_lo < 0.1:
-            l_lo, l_hi = l_lo - 0.05, l_hi + 0.05
+        return img
+    fy = math.log10 if log_y else float
+    fx = math.log10 if log_x else float
+    x_lo, x_hi = fx(min(xs)), fx(max(xs))
+    if x_hi - x_lo < 1e-9:
+        x_lo, x_hi = x_lo - 1, x_hi + 1
+    y_lo, y_hi = fy(min(ys)), fy(max(ys))
+    pad = 0.05 * (y_hi - y_lo) if y_hi > y_lo else (0.05 if log_y else 0.5)
+    y_lo, y_hi = y_lo - pad, y_hi + pad
 
-        def xy(epoch, value):
-            x = x0 + (epoch - e_lo) / (e_hi - e_lo) * (x1 - x0)
-            y = y1 - (math.log10(value) - l_lo) / (l_hi - l_lo) * (y1 - y0)
-            return x, y
+    def xy(x, y):
+        return (x0 + (fx(x) - x_lo) / (x_hi - x_lo) * (x1 - x0), y1 - (fy(y) - y_lo) / (y_hi - y_lo) * (y1 - y0))
 
-        for t in _nice_ticks(l_lo, l_hi):
-            _, y = xy(e_lo, 10**t)
-            draw.line([x0 - 4, y, x0, y], fill="black")
-            draw.text((5, y - 6), f"{10**t:.3g}", fill="black", font=font)
-        for t in _nice_ticks(e_lo, e_hi):
-            if float(t).is_integer():
-                x, _ = xy(t, 10**l_lo)
-                draw.line([x, y1, x, y1 + 4], fill="black")
-                draw.text((x - 4, y1 + 6), str(int(t)), fill="black", font=font)
-        for i, (key, label, colour) in enumerate(SERIES):
-            pts = [xy(e, v) for e, v in points[key]]
-            if len(pts) > 1:
-                draw.line(pts, fill=colour, width=2)
-            for x, y in pts:
+    for t in _nice_ticks(y_lo, y_hi):
+        value = 10**t if log_y else t
+        _, y = xy(xs[0], value)
+        draw.line([x0 - 4, y, x0, y], fill="black")
+        draw.text((5, y - 6), f"{value:.3g}", fill="black", font=font)
+    for t in _nice_ticks(x_lo, x_hi):
+        value = 10**t if log_x else t
+        if log_x or float(value).is_integer():
+            x, _ = xy(value, 10**y_lo if log_y else y_lo)
+            draw.line([x, y1, x, y1 + 4], fill="black")
+            draw.text((x - 6, y1 + 6), f"{value:.4g}", fill="black", font=font)
+    for i, (label, colour, pts) in enumerate(points):
+        dashed = label.startswith("--")
+        coords = [xy(p[0], p[1]) for p in pts]
+        for a, b in zip(coords, coords[1:]):
+            if dashed:
+                steps = max(1, int(math.dist(a, b) / 6))
+                for k in range(0, steps, 2):
+                    f0, f1 = k / steps, min(1.0, (k + 1) / steps)
+                    draw.line(
+                        [
+                            (a[0] + (b[0] - a[0]) * f0, a[1] + (b[1] - a[1]) * f0),
+                            (a[0] + (b[0] - a[0]) * f1, a[1] + (b[1] - a[1]) * f1),
+                        ],
+                        fill=colour,
+                        width=2,
+                    )
+            else:
+                draw.line([a, b], fill=colour, width=2)
+        for p, (x, y) in zip(pts, coords):
+            if len(p) == 4:
+                _, lo = xy(p[0], p[2])
+                _, hi = xy(p[0], p[3])
+                draw.line([x, lo, x, hi], fill=colour, width=1)
+                draw.line([x - 3, lo, x + 3, lo], fill=colour)
+                draw.line([x - 3, hi, x + 3, hi], fill=colour)
+            if not dashed:
                 draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
-            draw.line([x1 - 150, y0 + 12 + 14 * i, x1 - 130, y0 + 12 + 14 * i], fill=colour, width=2)
-            draw.text((x1 - 125, y0 + 6 + 14 * i), label, fill="black", font=font)
+        ly = y0 + 12 + 14 * i
+        draw.line([x1 - 190, ly, x1 - 170, ly], fill=colour, width=2)
+        draw.text((x1 - 165, ly - 6), label.lstrip("-"), fill="black", font=font)
+    return img
+
+
+def png(*images: Image.Image) -> bytes:
+    """The images stacked vertically, as PNG bytes."""
+    width = max(i.width for i in images)
+    out_img = Image.new("RGB", (width, sum(i.height for i in images)), "white")
+    y = 0
+    for image in images:
+        out_img.paste(image, (0, y))
+        y += image.height
     out = io.BytesIO()
-    img.save(out, format="PNG")
+    out_img.save(out, format="PNG")
     return out.getvalue()
+
+
+def loss_curve_png(history: list[dict], width: int = 640, height: int = 400) -> bytes:
+    """PNG bytes: per-epoch training and held-out loss against the epoch, log10 y axis."""
+    series = [(label, colour, [(h["epoch"], h.get(key)) for h in history]) for key, label, colour in SERIES]
+    return png(chart(series, "loss per epoch (log scale)", "epoch", log_y=True, width=width, height=height))
+
+
+def learning_curve_png(history: list[dict], baseline_psnr: float | None = None) -> bytes:
+    """Two panels: loss (training loop, training sample in eval mode, held-out) and 8-bit
+    PSNR (training sample, held-out, the training set's mean image on held-out) per epoch."""
+    epochs = [h["epoch"] for h in history]
+    loss = [
+        ("train loss (training loop)", BLUE, [(h["epoch"], h.get("train_loss")) for h in history]),
+        ("train loss (eval mode)", GREEN, [(h["epoch"], h.get("train_eval_loss")) for h in history]),
+        ("held-out loss", RED, [(h["epoch"], h.get("test_loss")) for h in history]),
+    ]
+    psnr = [
+        ("train PSNR (eval mode)", GREEN, [(h["epoch"], h.get("train_psnr")) for h in history]),
+        ("held-out PSNR", RED, [(h["epoch"], h.get("test_psnr")) for h in history]),
+    ]
+    if baseline_psnr is not None and epochs:
+        psnr.append(("--mean image, held-out", GREY, [(min(epochs), baseline_psnr), (max(epochs), baseline_psnr)]))
+    return png(
+        chart(loss, "loss per epoch (log scale)", "epoch", log_y=True),
+        chart(psnr, "PSNR per epoch (dB, 8-bit sRGB)", "epoch"),
+    )

@@ -20,7 +20,19 @@ CONFIG = "config.json"
 LOG = "log.jsonl"
 #: The per-epoch log as CSV, for spreadsheets and plotting tools; these columns, in this order.
 LOG_CSV = "log.csv"
-CSV_COLUMNS = ("epoch", "train_loss", "test_loss", "test_psnr", "time_s", "lr", "test_saturated", "warnings")
+CSV_COLUMNS = (
+    "epoch",
+    "train_loss",
+    "test_loss",
+    "test_psnr",
+    "time_s",
+    "lr",
+    "test_saturated",
+    "warnings",
+    "train_eval_loss",
+    "train_psnr",
+    "samples_per_s",
+)
 CHECKPOINT = "checkpoint.pt"
 #: The checkpoint of the epoch with the best held-out PSNR so far (runs with a held-out split).
 BEST_CHECKPOINT = "checkpoint-best.pt"
@@ -40,7 +52,24 @@ def write_log(path: str, history: list[dict]) -> None:
     write_bytes_atomic(path, text.encode())
 
 
+def read_log(run_dir: str) -> list[dict]:
+    """The run's epochs from log.jsonl ([] when there is none yet)."""
+    path = os.path.join(run_dir, LOG)
+    if not os.path.isfile(path):
+        return []
+    try:
+        with open(path, encoding="utf-8") as f:
+            return [json.loads(line) for line in f if line.strip()]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ShaderballError(f"{path}: not a run's log ({exc})") from None
+
+
 def write_log_csv(path: str, history: list[dict]) -> None:
+    write_bytes_atomic(path, log_csv(history))
+
+
+def log_csv(history: list[dict]) -> bytes:
+    """The epochs as CSV, CSV_COLUMNS in order (warnings joined by ' | ')."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
@@ -52,7 +81,7 @@ def write_log_csv(path: str, history: list[dict]) -> None:
                 value = " | ".join(value or ())
             row.append("" if value is None else (repr(value) if isinstance(value, float) else value))
         writer.writerow(row)
-    write_bytes_atomic(path, buffer.getvalue().encode())
+    return buffer.getvalue().encode()
 
 
 def read_config(run_dir: str) -> dict:

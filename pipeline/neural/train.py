@@ -31,7 +31,13 @@ from pipeline.neural import runfiles, speed
 from pipeline.neural.data import batches, open_dataset
 from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS
 from pipeline.neural.loss import LOSSES, RenderLoss
-from pipeline.neural.network import NeuralRenderer, check_network_resolution, light_input, parameter_count
+from pipeline.neural.network import (
+    NeuralRenderer,
+    check_network_resolution,
+    check_width,
+    light_input,
+    parameter_count,
+)
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
 from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
@@ -39,6 +45,22 @@ from pipeline.store.atomic import write_bytes_atomic
 
 #: Config fields that change what a run computes: a resume must match them.
 IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
+#: Identity fields added in issue 22 with their defaults: part of a run's identity only when
+#: not the default, so a run made before them resumes. ``epochs`` joins with a cosine
+#: schedule, whose learning rate depends on where the run ends.
+OPTIONAL_IDENTITY = {
+    "width": 1.0,
+    "split_seed": None,
+    "train_materials": None,
+    "schedule": "constant",
+    "warmup_epochs": 0.0,
+}
+#: --schedule: constant (after any warm-up), or cosine decay to 0 at the last epoch.
+SCHEDULES = ("constant", "cosine")
+#: Key of the stream that orders the training materials for --train-materials (nested subsets).
+SUBSET_STREAM = 0x5B5E
+#: At most this many training samples are scored after every epoch (the training curve).
+TRAIN_EVAL_SAMPLES = 256
 #: A held-out output at 8-bit 0 or 255 is saturated; more than this fraction of them is a warning.
 SATURATED_FRACTION = 0.99
 #: A held-out loss whose relative change over an epoch is below this "does not move".
@@ -74,6 +96,11 @@ class TrainConfig:
     )
     channels_last: bool = True  # network, VGG and batches in NHWC memory format
     compile: bool = False  # torch.compile the network for the training step
+    width: float = 1.0  # fraction of the paper's channels (1: the paper's network)
+    split_seed: int | None = None  # seeds the split by material; default --seed
+    train_materials: int | None = None  # train on this many of the training split's materials (nested subsets)
+    schedule: str = "constant"  # learning rate: constant, or cosine decay to 0 at --epochs
+    warmup_epochs: float = 0.0  # linear warm-up of the learning rate over this many epochs
 
     def check(self) -> TrainConfig:
         def number(name, lo, hi, lo_open=False):
@@ -103,7 +130,19 @@ class TrainConfig:
             raise bad_value("--device", self.device, ", ".join(DEVICES))
         if self.resolution is not None:
             check_network_resolution(self.resolution, "--resolution")
+        check_width(self.width)
+        if self.split_seed is not None:
+            check_int("--split-seed", self.split_seed, *INTEGER_RANGES["seed"])
+        if self.train_materials is not None:
+            check_int("--train-materials", self.train_materials, 1, 10**9)
+        if self.schedule not in SCHEDULES:
+            raise bad_value("--schedule", self.schedule, " or ".join(SCHEDULES))
+        number("warmup_epochs", 0.0, float(self.epochs))
         return self
+
+    @property
+    def splitting_seed(self) -> int:
+        return self.seed if self.split_seed is None else self.split_seed
 
 
 @dataclass
@@ -270,9 +309,45 @@ def _check_run_dir(run_dir: str) -> None:
         )
 
 
-def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg_sha256, params) -> dict:
+def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -> dict:
+    """What a run computes: a resume must match it. Issue 22's options join only when not
+    their defaults, so older runs keep their digest."""
     identity = {k: getattr(config, k) for k in IDENTITY_FIELDS}
-    identity.update(resolution=resolution, dataset=source.identity, vgg_sha256=vgg_sha256)
+    identity.update(resolution=resolution, dataset=source_identity, vgg_sha256=vgg_sha256)
+    for key, default in OPTIONAL_IDENTITY.items():
+        if getattr(config, key) != default:
+            identity[key] = getattr(config, key)
+    if config.schedule != "constant":
+        identity["epochs"] = config.epochs
+    return identity
+
+
+def select_training_materials(train_ids: list[str], count: int | None, seed: int) -> list[str]:
+    """The first ``count`` training materials in an order drawn from ``seed`` (sorted):
+    nested subsets, so a run on 64 materials sees a subset of one on 128."""
+    if count is None:
+        return train_ids
+    if count > len(train_ids):
+        raise bad_value("--train-materials", count, f"at most {len(train_ids)}, the training split's materials")
+    order = np.random.default_rng(np.random.SeedSequence([int(seed), SUBSET_STREAM])).permutation(len(train_ids))
+    return sorted(train_ids[i] for i in order[:count])
+
+
+def learning_rate(config: TrainConfig, step: int, steps_per_epoch: int) -> float:
+    """The learning rate of optimiser step ``step`` (0-based over the whole run): a linear
+    warm-up over --warmup-epochs, then constant or a cosine decay reaching 0 after the
+    last step of --epochs. A pure function of the step: resume gives the same rates."""
+    warm = round(config.warmup_epochs * steps_per_epoch)
+    if step < warm:
+        return config.lr * (step + 1) / warm
+    if config.schedule == "constant":
+        return config.lr
+    total = max(config.epochs * steps_per_epoch - warm, 1)
+    return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step - warm, total) / total))
+
+
+def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg_sha256, params) -> dict:
+    identity = run_identity(config, source.identity, resolution, vgg_sha256)
     return {
         "format": "shaderball-neural-run",
         "version": 1,
@@ -284,11 +359,18 @@ def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg
         "network": {
             "name": "NeuralRenderer (KT et al. 2019)",
             "resolution": resolution,
+            "width": config.width,
             "parameters": params,
             "light_input": "(3 d_x, 3 d_y, 3 d_z, turbidity) from the record's lighting_vector",
         },
         "tonemap": {"name": "reinhard+srgb", "exposure": config.exposure},
-        "optimizer": {"name": "Adam", "lr": config.lr, "betas": [0.9, 0.999]},
+        "optimizer": {
+            "name": "Adam",
+            "lr": config.lr,
+            "betas": [0.9, 0.999],
+            "schedule": config.schedule,
+            "warmup_epochs": config.warmup_epochs,
+        },
         "torch": torch.__version__,
     }
 
@@ -314,10 +396,11 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
             config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.check_hashes
         )
     resolution = source.resolution
-    train_ids, test_ids = split_materials(source.material_ids, config.test_fraction, config.seed)
+    pool, test_ids = split_materials(source.material_ids, config.test_fraction, config.splitting_seed)
+    train_ids = select_training_materials(pool, config.train_materials, config.splitting_seed)
     loss_fn, vgg_sha = make_loss(config)
     torch.manual_seed(config.seed)
-    model = NeuralRenderer(resolution)
+    model = NeuralRenderer(resolution, config.width)
     fresh = run_config(config, source, train_ids, test_ids, resolution, vgg_sha, parameter_count(model))
 
     start_epoch, history, ckpt = 0, [], None
@@ -361,6 +444,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
 
     train_set = source.subset(train_ids)
     test_set = source.subset(test_ids) if test_ids else None
+    train_probe = training_probe(train_set, config.splitting_seed)
     if not fresh.get("baseline"):
         mean_target = mean_image(train_set, config.workers)
         fresh["baseline"] = {
@@ -373,7 +457,9 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     with deterministic_algorithms():
         for epoch in range(start_epoch + 1, config.epochs + 1):
             entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress, forward)
-            entry["lr"] = config.lr
+            if train_probe is not None:
+                seen = evaluate_split(model, loss_fn, train_probe, device, config.batch_size, config.workers)
+                entry.update(train_eval_loss=seen["loss"], train_psnr=seen["psnr"])
             if test_set is not None:
                 held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
                 entry.update(
@@ -407,6 +493,15 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
         device=str(device),
         parameters=parameter_count(model),
     )
+
+
+def training_probe(train_set, seed: int):
+    """A fixed sample of at most TRAIN_EVAL_SAMPLES training renders, scored in eval mode
+    after every epoch as the held-out split is (the learning curve's training PSNR)."""
+    if len(train_set) == 0:
+        return None
+    order = np.random.default_rng(np.random.SeedSequence([int(seed), SUBSET_STREAM, 1])).permutation(len(train_set))
+    return Subset(train_set, sorted(order[:TRAIN_EVAL_SAMPLES].tolist()))
 
 
 def is_best(history: list[dict]) -> bool:
@@ -444,10 +539,14 @@ def train_epoch(
     order = epoch_order(len(train_set), config.seed, epoch)
     loader = batches(Subset(train_set, order), config.batch_size, config.workers, pin_memory=device.type == "cuda")
     count = len(loader)
+    lr = config.lr
     sums: dict[str, float] = {}
     seen, started = 0, time.perf_counter()
     for index, batch in enumerate(loader, start=1):
         maps, light, target = batch_to(batch, device, config.channels_last)
+        lr = learning_rate(config, (epoch - 1) * count + index - 1, count)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
         optimizer.zero_grad(set_to_none=True)
         with speed.autocast(device, config.precision):
             parts = loss_fn.parts(forward(maps, light), target)
@@ -480,6 +579,7 @@ def train_epoch(
         "train_l1": sums["l1"] / seen,
         "time_s": elapsed,
         "samples_per_s": seen / elapsed if elapsed > 0 else None,
+        "lr": lr,
     }
     if "vgg" in sums:
         entry["train_vgg"] = sums["vgg"] / seen
