@@ -89,7 +89,7 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
     assert data["mean"]["mean_image"]["time_s"] == 0.0
     table = (tmp_path / "ev" / "results.md").read_text()
     assert "references of 16 spp" in table and "| mean training image |" in table
-    assert "| nearest training sample (same kind, lighting) |" in table
+    assert "| nearest training sample (same class, lighting) |" in table
     assert f"| path tracing, equal CPU time ({eq['spp']} spp) |" in table
 
 
@@ -119,3 +119,48 @@ def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
     # (the cap's radiance)^2 / 0.01 whatever the reference
     cap = float(inverse_tonemap(np.float32(NETWORK_Y_CAP), 4.0))
     assert net["relmse"] <= cap**2 / 0.01 < 1e6
+
+
+@pytest.mark.slow
+def test_evaluate_report_has_classes_with_intervals_a_learning_curve_and_a_grid(trained, reference, tmp_path):
+    report_dir = tmp_path / "report"
+    result = _invoke(
+        "evaluate", trained, reference, "--split", "all", "--spp", "1", "--limit", 8, "--report", report_dir,
+        "--out", tmp_path / "ev",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert sorted(os.listdir(report_dir)) == [
+        "grid.png", "learning-curve.csv", "learning-curve.png", "report.json", "report.md",
+    ]  # fmt: skip
+    data = json.loads((report_dir / "report.json").read_text())
+    assert {"pt_equal_time", "pt_equal_time+oidn", "pt1", "pt1+oidn"} <= set(data["mean"])
+    classes = {r["class"] for r in data["samples"]}
+    assert classes <= {"uniform dielectric", "uniform metal", "svbrdf"} and "svbrdf" in classes
+    assert set(data["by_class"]) == classes
+    for name, methods in data["by_class"].items():
+        assert {"network", "mean_image", "nearest_sample", "pt_equal_time"} <= set(methods), name
+        for method, m in methods.items():
+            members = [r for r in data["samples"] if r["class"] == name and method in r]
+            assert m["samples"] == len(members)
+            assert m["psnr"] == pytest.approx(np.mean([r[method]["psnr"] for r in members]))
+            ci = m["ci95"]["psnr"]
+            assert (ci is None) == (m["materials"] < 2), (name, method)
+            assert ci is None or ci[0] <= m["psnr"] <= ci[1]
+    history = data["history"]
+    assert len(history) == 1 and history[0]["train_psnr"] > 0
+    curve = (report_dir / "learning-curve.csv").read_text().splitlines()
+    assert curve[0].split(",") == list(runfiles.CSV_COLUMNS) and len(curve) == 2
+    text = (report_dir / "report.md").read_text()
+    assert "## Per material class" in text and "![grid](grid.png)" in text
+    assert "path tracing, equal CPU time" in text and "+ OIDN (its time added)" in text
+    from PIL import Image
+
+    with Image.open(report_dir / "grid.png") as grid:  # a row per sample shown: at most 2 per class
+        assert grid.height > 64 * len(classes)
+
+
+def test_a_report_into_a_file_is_refused_before_anything_is_written(trained, reference, tmp_path):
+    (tmp_path / "afile").write_text("x")
+    result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--report", tmp_path / "afile")
+    assert result.exit_code == 2 and "--report" in result.output
+    assert not (tmp_path / "ev").exists()

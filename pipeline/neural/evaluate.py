@@ -35,6 +35,7 @@ from pipeline.neural.data import ResolutionMismatch, box_downsample, open_datase
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
+from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
@@ -55,9 +56,6 @@ REFERENCE_SPP_FRACTION = 0.25
 NETWORK_Y_CAP = 254.5 / 255.0
 #: spp at which path tracing's CPU time is measured to fit t(spp) = a + b spp (equal time).
 EQUAL_TIME_PROBE_SPP = (1, 8)
-#: Bootstrap resamples (over materials) of the 95% intervals; a fixed seed keeps them reproducible.
-BOOTSTRAP_RESAMPLES = 2000
-BOOTSTRAP_SEED = 0x22
 DENOISER = (
     "Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
     "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
@@ -138,23 +136,6 @@ def equal_time_spp(network_cpu_s: float, probe: dict[int, float], hi: int = SPP_
     per_spp = max((t1 - t0) / (s1 - s0), 1e-9)
     fixed = t0 - per_spp * s0
     return int(min(hi, max(1, round((network_cpu_s - fixed) / per_spp))))
-
-
-def bootstrap_ci95(values: list, groups: list, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED):
-    """Percentile 95% interval of the mean of ``values``, resampling whole ``groups`` (materials)
-    with replacement; None with fewer than 2 groups or a non-finite value."""
-    pairs = [(g, v) for g, v in zip(groups, values) if v is not None]
-    if not pairs or not all(np.isfinite(v) for _, v in pairs):
-        return None
-    names = sorted({g for g, _ in pairs})
-    if len(names) < 2:
-        return None
-    sums = np.array([sum(v for g, v in pairs if g == name) for name in names], dtype=np.float64)
-    counts = np.array([sum(1 for g, _ in pairs if g == name) for name in names], dtype=np.float64)
-    pick = np.random.default_rng(seed).integers(0, len(names), size=(resamples, len(names)))
-    means = sums[pick].sum(axis=1) / counts[pick].sum(axis=1)
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return [float(lo), float(hi)]
 
 
 TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
@@ -296,6 +277,13 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
             pictures["equal time"] = hdr_to_srgb8(image, exposure)
             row["pt_equal_time"] = _scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=equal_time["spp"])
+            if want_denoise:
+                if aux_albedo[0] != sample.material_id:
+                    aux_albedo = (sample.material_id, aux.albedo(maps))
+                clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
+                row["pt_equal_time+oidn"] = _scores(
+                    clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn, spp=equal_time["spp"]
+                )
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
@@ -368,11 +356,12 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "are correlated, so materials, not samples, are the independent units; null with fewer than 2 materials",
         "relmse_network": f"network and mean image: inverse tone map of the output capped at y = {NETWORK_Y_CAP:.6f} "
         "(8-bit 255 says only 'at least this bright')",
-        "nearest_sample": "the training sample of the same material kind with the nearest lighting vector "
+        "nearest_sample": "the training sample of the same material class with the nearest lighting vector "
         "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
         "by_class": report.class_means(rows, methods, bootstrap_ci95),
+        "train_renders": len(training) if training is not None else None,
         "classes": f"uniform metal: a uniform material whose largest specular (F0) value is above {report.METAL_F0}; "
         "uniform dielectric: the other uniform ones; svbrdf: the spatially varying ones",
         "notes": notes,
@@ -395,11 +384,13 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
 
 
 def _material_kind(records: dict, sample_id: str):
-    return (records[sample_id].get("material") or {}).get("kind")
+    """The sample's material class (report.material_class: uniform dielectric, uniform metal, svbrdf)."""
+    return report.material_class(records[sample_id])
 
 
 def nearest_sample(sample, training_samples, records: dict):
-    """The training sample of another material of the same kind (uniform, svbrdf) whose lighting
+    """The training sample of another material of the same class (uniform dielectric, uniform metal,
+    svbrdf) whose lighting
     vector is nearest (with --split train or all, never the sample's own material): squared chord between the sun directions plus ((turbidity difference) / 9)^2
     (turbidity spans 1 to 10); None when the training split holds no material of that kind."""
     kind = _material_kind(records, sample.id)
@@ -469,10 +460,11 @@ def _label(method: str, means: dict | None = None) -> str:
     if method == "mean_image":
         return "mean training image"
     if method == "nearest_sample":
-        return "nearest training sample (same kind, lighting)"
-    if method == "pt_equal_time":
+        return "nearest training sample (same class, lighting)"
+    if method.startswith("pt_equal_time"):
         spp = (means or {}).get("pt_equal_time", {}).get("spp")
-        return f"path tracing, equal CPU time ({spp:.0f} spp)" if spp else "path tracing, equal CPU time"
+        label = f"path tracing, equal CPU time ({spp:.0f} spp)" if spp else "path tracing, equal CPU time"
+        return label + (" + OIDN (its time added)" if method.endswith("+oidn") else "")
     spp, _, extra = method[2:].partition("+")
     return f"path tracing, {spp} spp" + {"": "", "oidn": " + OIDN", "oidn-colour": " + OIDN, colour only"}[extra]
 

@@ -28,8 +28,28 @@ CLASSES = ("uniform dielectric", "uniform metal", "svbrdf")
 #: Report metrics with intervals (relMSE is in results.json).
 METRICS = ("psnr", "ssim", "flip")
 GRID_PER_CLASS = 2
+#: Bootstrap resamples (over materials) of the 95% intervals; a fixed seed keeps them reproducible.
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0x22
 #: Error maps: mean absolute 8-bit difference over RGB, times this, as a heat map.
 ERROR_GAIN = 4.0
+
+
+def bootstrap_ci95(values: list, groups: list, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED):
+    """Percentile 95% interval of the mean of ``values``, resampling whole ``groups`` (materials)
+    with replacement; None with fewer than 2 groups or a non-finite value."""
+    pairs = [(g, v) for g, v in zip(groups, values) if v is not None]
+    if not pairs or not all(np.isfinite(v) for _, v in pairs):
+        return None
+    names = sorted({g for g, _ in pairs})
+    if len(names) < 2:
+        return None
+    sums = np.array([sum(v for g, v in pairs if g == name) for name in names], dtype=np.float64)
+    counts = np.array([sum(1 for g, _ in pairs if g == name) for name in names], dtype=np.float64)
+    pick = np.random.default_rng(seed).integers(0, len(names), size=(resamples, len(names)))
+    means = sums[pick].sum(axis=1) / counts[pick].sum(axis=1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return [float(lo), float(hi)]
 
 
 def material_class(record: dict) -> str:
@@ -209,5 +229,11 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     write_bytes_atomic(os.path.join(report_dir, "report.md"), ("\n".join(lines) + "\n").encode())
     runfiles.write_json(
         os.path.join(report_dir, "report.json"),
-        {**result, "history": history, "run_options": options, "baseline": config.get("baseline")},
+        {
+            **result,
+            "history": history,
+            "run_options": options,
+            "run_split": config.get("split"),
+            "baseline": config.get("baseline"),
+        },
     )

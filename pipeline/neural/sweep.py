@@ -1,0 +1,217 @@
+"""Runs of several training-set sizes and seeds, side by side: the data-size curve.
+
+``python -m pipeline.neural.sweep REPORT.json ... --out DIR`` reads the report.json that
+`shaderball evaluate --report` wrote for each run (all evaluated on the same held-out
+samples) and writes into DIR:
+
+- ``sweep.md``: per training size and seed, the network's held-out PSNR with its 95%
+  interval, the paired differences network - mean image and network - nearest sample (per
+  sample, then bootstrapped over materials: a difference whose interval lies above 0 is a
+  win beyond noise), and the seeds pooled (each material's mean over the seeds);
+- ``sweep.json``: the same numbers;
+- ``data-size.png``: held-out PSNR against the number of training renders (log axis), each
+  seed with its interval, the baselines dashed.
+
+Which runs belong together is checked: the same held-out samples, the same dataset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from pipeline.errors import ShaderballError
+from pipeline.neural import plot, runfiles
+from pipeline.neural.report import bootstrap_ci95
+from pipeline.store.atomic import write_bytes_atomic
+
+BASELINES = ("mean_image", "nearest_sample")
+SEED_COLOURS = (plot.BLUE, plot.RED, plot.GREEN, plot.PURPLE, plot.ORANGE)
+
+
+def _load(path: str) -> dict:
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ShaderballError(f"{path}: not a report.json of `shaderball evaluate --report` ({exc})") from None
+    if not isinstance(doc, dict) or "samples" not in doc or "run_options" not in doc:
+        raise ShaderballError(
+            f"{path}: not a report.json of `shaderball evaluate --report` (no samples or run_options)"
+        )
+    return doc
+
+
+def _paired(rows: list[dict], a: str, b: str, metric: str = "psnr"):
+    have = [r for r in rows if a in r and b in r]
+    if not have:
+        return None, None
+    diff = [r[a][metric] - r[b][metric] for r in have]
+    return float(np.mean(diff)), bootstrap_ci95(diff, [r["material_id"] for r in have])
+
+
+def summarise(docs: list[tuple[str, dict]]) -> dict:
+    """One entry per (training renders, seed), sorted; the seeds pooled per size."""
+    ids = {tuple(sorted(r["id"] for r in d["samples"])) for _, d in docs}
+    if len(ids) != 1:
+        raise ShaderballError(
+            "the reports were evaluated on different samples; a sweep compares runs on one held-out set"
+        )
+    entries = []
+    for path, d in docs:
+        rows = d["samples"]
+        history = d.get("history") or []
+        train_renders = d.get("train_renders")
+        entry = {
+            "report": os.path.abspath(path),
+            "seed": d["run_options"].get("seed"),
+            "train_materials": len((d.get("run_split") or {}).get("train", []))
+            or d["run_options"].get("train_materials"),
+            "train_renders": train_renders,
+            "epochs": history[-1]["epoch"] if history else None,
+            "network": {"psnr": d["mean"]["network"]["psnr"], "ci95": d["mean"]["network"]["ci95"]["psnr"]},
+            "train_psnr": history[-1].get("train_psnr") if history else None,
+        }
+        for b in BASELINES:
+            if b in d["mean"]:
+                entry[b] = {"psnr": d["mean"][b]["psnr"], "ci95": d["mean"][b]["ci95"]["psnr"]}
+                mean, ci = _paired(rows, "network", b)
+                entry[f"network_minus_{b}"] = {"psnr": mean, "ci95": ci}
+        for pt in ("pt_equal_time", "pt_equal_time+oidn"):
+            if pt in d["mean"]:
+                entry[pt] = {
+                    "psnr": d["mean"][pt]["psnr"],
+                    "ci95": d["mean"][pt]["ci95"]["psnr"],
+                    "spp": d["mean"][pt].get("spp"),
+                }
+        entries.append(entry)
+    pooled = [
+        _pool(size, [d for _, d in docs if d.get("train_renders") == size])
+        for size in sorted({e["train_renders"] or 0 for e in entries})
+    ]
+    entries.sort(key=lambda e: (e["train_renders"] or 0, e["seed"] or 0))
+    return {"runs": entries, "pooled": pooled}
+
+
+def _pool(size: int, group: list[dict]) -> dict:
+    """Each sample's network PSNR averaged over the seeds, then the mean and its interval over
+    materials; the same for the differences with the baselines."""
+    by_id: dict[str, list[dict]] = {}
+    for d in group:
+        for r in d["samples"]:
+            by_id.setdefault(r["id"], []).append(r)
+    ids = sorted(by_id)
+    groups = [by_id[i][0]["material_id"] for i in ids]
+    net = [float(np.mean([r["network"]["psnr"] for r in by_id[i]])) for i in ids]
+    out = {
+        "train_renders": size,
+        "seeds": len(group),
+        "network": {"psnr": float(np.mean(net)), "ci95": bootstrap_ci95(net, groups)},
+    }
+    for b in BASELINES:
+        if all(b in by_id[i][0] for i in ids):
+            diff = [net[k] - by_id[i][0][b]["psnr"] for k, i in enumerate(ids)]
+            out[f"network_minus_{b}"] = {"psnr": float(np.mean(diff)), "ci95": bootstrap_ci95(diff, groups)}
+    return out
+
+
+def _ci(v: dict | None) -> str:
+    if not v or v.get("psnr") is None:
+        return "-"
+    ci = v.get("ci95")
+    return f"{v['psnr']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else f"{v['psnr']:.2f}"
+
+
+def markdown(summary: dict) -> str:
+    lines = [
+        "Held-out PSNR (dB, 8-bit sRGB) with 95% intervals (bootstrap over held-out materials); "
+        "differences are paired per sample.",
+        "",
+        "| training renders | seed | epochs | network | mean image | nearest sample | network - mean image | "
+        "network - nearest sample | train PSNR (last epoch) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for e in summary["runs"]:
+        lines.append(
+            f"| {e['train_renders']} | {e['seed']} | {e['epochs']} | {_ci(e['network'])} | {_ci(e.get('mean_image'))} | "
+            f"{_ci(e.get('nearest_sample'))} | {_ci(e.get('network_minus_mean_image'))} | "
+            f"{_ci(e.get('network_minus_nearest_sample'))} | "
+            + ("-" if e.get("train_psnr") is None else f"{e['train_psnr']:.2f}")
+            + " |"
+        )
+    lines += [
+        "",
+        "Seeds pooled (each held-out sample's PSNR averaged over the seeds):",
+        "",
+        "| training renders | seeds | network | network - mean image | network - nearest sample |",
+        "|---|---|---|---|---|",
+    ]
+    for p in summary["pooled"]:
+        lines.append(
+            f"| {p['train_renders']} | {p['seeds']} | {_ci(p['network'])} | {_ci(p.get('network_minus_mean_image'))} | "
+            f"{_ci(p.get('network_minus_nearest_sample'))} |"
+        )
+    pts = [e for e in summary["runs"] if e.get("pt_equal_time")]
+    if pts:
+        e = pts[-1]
+        lines += [
+            "",
+            f"Path tracing at the network's CPU time ({e['pt_equal_time'].get('spp'):.0f} spp): "
+            f"{_ci(e['pt_equal_time'])} dB; denoised (OIDN, its time added): {_ci(e.get('pt_equal_time+oidn'))} dB.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def data_size_png(summary: dict) -> bytes:
+    runs = summary["runs"]
+    seeds = sorted({e["seed"] for e in runs})
+    series = []
+    for k, seed in enumerate(seeds):
+        pts = [
+            (e["train_renders"], e["network"]["psnr"], *(e["network"]["ci95"] or [e["network"]["psnr"]] * 2))
+            for e in runs
+            if e["seed"] == seed
+        ]
+        series.append((f"network, seed {seed}", SEED_COLOURS[k % len(SEED_COLOURS)], pts))
+    for b, colour, label in (
+        ("mean_image", plot.GREY, "--mean image"),
+        ("nearest_sample", plot.ORANGE, "--nearest sample"),
+    ):
+        per_size = {}
+        for e in runs:
+            if e.get(b):
+                per_size.setdefault(e["train_renders"], e[b]["psnr"])
+        if per_size:
+            series.append((label, colour, sorted(per_size.items())))
+    return plot.png(
+        plot.chart(series, "held-out PSNR (dB) against training renders", "training renders (log)", log_x=True)
+    )
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.sweep", description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "reports", nargs="+", metavar="REPORT.json", help="report.json of `shaderball evaluate --report`"
+    )
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder for sweep.md, sweep.json, data-size.png")
+    args = parser.parse_args(argv)
+    try:
+        summary = summarise([(p, _load(p)) for p in args.reports])
+    except ShaderballError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    os.makedirs(args.out, exist_ok=True)
+    text = markdown(summary)
+    write_bytes_atomic(os.path.join(args.out, "sweep.md"), text.encode())
+    runfiles.write_json(os.path.join(args.out, "sweep.json"), summary)
+    write_bytes_atomic(os.path.join(args.out, "data-size.png"), data_size_png(summary))
+    print(text, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
