@@ -67,6 +67,7 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
         "mean_image",
         "nearest_sample",
         "pt_equal_time",
+        "pt_equal_time+oidn",
         *("pt1", "pt1+oidn", "pt1+oidn-colour", "pt2", "pt2+oidn", "pt2+oidn-colour"),
     }
     for scores in data["mean"].values():
