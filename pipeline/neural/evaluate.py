@@ -15,13 +15,11 @@ Mitsuba variant is resolved once, from the dataset's. Writes results.json, resul
 
 from __future__ import annotations
 
-import io
 import os
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
 
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
@@ -494,30 +492,10 @@ def markdown_table(means: dict, samples: int, resolution: int, reference_spp: in
     return "\n".join(lines) + "\n"
 
 
-def grid_png(rows: list[tuple[str, dict]], scale: int | None = None) -> bytes:
+def grid_png(rows: list[tuple[str, dict]]) -> bytes:
     """Rows of labelled pictures: reference, network, 2 spp, 2 spp + OIDN."""
     columns = ["reference", "network", f"{GRID_SPP} spp", f"{GRID_SPP} spp + OIDN"]
-    size = rows[0][1]["reference"].shape[0]
-    scale = scale or max(1, 192 // size)
-    cell, pad, head = size * scale, 6, 18
-    img = Image.new("RGB", (len(columns) * (cell + pad) + pad + 90, len(rows) * (cell + pad) + pad + head), "white")
-    draw = ImageDraw.Draw(img)
-    font = ImageFont.load_default()
-    for c, name in enumerate(columns):
-        draw.text((90 + pad + c * (cell + pad), 4), name, fill="black", font=font)
-    for r, (sample_id, pictures) in enumerate(rows):
-        y = head + pad + r * (cell + pad)
-        draw.text((4, y + cell // 2 - 6), sample_id, fill="black", font=font)
-        for c, name in enumerate(columns):
-            x = 90 + pad + c * (cell + pad)
-            if name in pictures:
-                img.paste(Image.fromarray(pictures[name]).resize((cell, cell), Image.NEAREST), (x, y))
-            else:
-                draw.rectangle([x, y, x + cell, y + cell], outline="grey")
-                draw.text((x + 6, y + 6), "left out", fill="grey", font=font)
-    out = io.BytesIO()
-    img.save(out, format="PNG")
-    return out.getvalue()
+    return report.picture_grid(rows, columns, cell_target=192, label=90, pad=6)
 
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate"]

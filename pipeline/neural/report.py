@@ -126,22 +126,25 @@ GRID_COLUMNS = (
 )
 
 
-def grid_png(rows: list[tuple[str, dict]]) -> bytes:
+def picture_grid(
+    rows: list[tuple[str, dict]], columns, cell_target: int = 128, label: int = 150, pad: int = 4
+) -> bytes:
+    """PNG bytes: a row per (title, {column: uint8 picture}), a column per name (its header),
+    pictures scaled by an integer to about ``cell_target`` pixels, "left out" where missing;
+    a title's lines (split on newlines) stand left of its row."""
     size = next(iter(rows[0][1].values())).shape[0]
-    scale = max(1, 128 // size)
-    cell, pad, head, label = size * scale, 4, 18, 150
-    img = Image.new(
-        "RGB", (label + len(GRID_COLUMNS) * (cell + pad) + pad, head + len(rows) * (cell + pad) + pad), "white"
-    )
+    cell, head = size * max(1, cell_target // size), 18
+    img = Image.new("RGB", (label + len(columns) * (cell + pad) + pad, head + len(rows) * (cell + pad) + pad), "white")
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default()
-    for c, name in enumerate(GRID_COLUMNS):
+    for c, name in enumerate(columns):
         draw.text((label + pad + c * (cell + pad), 4), name[:22], fill="black", font=font)
     for r, (title, cells) in enumerate(rows):
         y = head + pad + r * (cell + pad)
-        for k, part in enumerate(title.split("\n")):
-            draw.text((4, y + cell // 2 - 12 + 12 * k), part, fill="black", font=font)
-        for c, name in enumerate(GRID_COLUMNS):
+        parts = title.split("\n")
+        for k, part in enumerate(parts):
+            draw.text((4, y + cell // 2 - 6 * len(parts) + 12 * k), part, fill="black", font=font)
+        for c, name in enumerate(columns):
             x = label + pad + c * (cell + pad)
             if name in cells:
                 img.paste(Image.fromarray(cells[name]).resize((cell, cell), Image.NEAREST), (x, y))
@@ -186,7 +189,7 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     write_bytes_atomic(os.path.join(report_dir, "learning-curve.png"), learning_curve_png(history, baseline))
     write_bytes_atomic(os.path.join(report_dir, "learning-curve.csv"), runfiles.log_csv(history))
     if grid_rows:
-        write_bytes_atomic(os.path.join(report_dir, "grid.png"), grid_png(grid_rows))
+        write_bytes_atomic(os.path.join(report_dir, "grid.png"), picture_grid(grid_rows, GRID_COLUMNS))
     last = history[-1] if history else {}
     split = config.get("split") or {}
     lines = [
