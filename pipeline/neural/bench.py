@@ -189,6 +189,8 @@ TRAINING_VARIANTS = {
     "--threads 1": {"threads": 1},
     "--threads 2": {"threads": 2},
     "--compile": {"compile": True},
+    "--width 0.5": {"width": 0.5},
+    "--width 0.25": {"width": 0.25},
 }
 
 
