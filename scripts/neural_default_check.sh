@@ -9,6 +9,7 @@ cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-default-check}
 SB=${SHADERBALL:-.venv/bin/shaderball}
 mkdir -p "$OUT"
+exec > >(tee "$OUT/check.log") 2>&1
 sed 's/^materials = 8 .*/materials = 64/' manifests/smoke.toml >"$OUT/smoke64.toml"
 grep -q '^materials = 64$' "$OUT/smoke64.toml"
 "$SB" build "$OUT/smoke64.toml" --out "$OUT/smoke64" --workers 0 2>&1 | tail -n 1

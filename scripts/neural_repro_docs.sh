@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Copies what scripts/neural_repro.sh and scripts/neural_default_check.sh wrote into
+# docs/neural-mini/ (the reports docs/neural.md quotes; tests/test_neural_docs.py checks that
+# every table row it quotes is in them).
+#
+#   scripts/neural_repro_docs.sh [OUT] [DEFAULT_OUT]   (defaults: /tmp/neural-repro, /tmp/neural-default-check)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-/tmp/neural-repro}
+DEFAULT_OUT=${2:-/tmp/neural-default-check}
+DOCS=docs/neural-mini
+rm -rf "$DOCS"
+mkdir -p "$DOCS/sweep"
+cp "$OUT/sweep/sweep.md" "$OUT/sweep/data-size.png" "$DOCS/sweep/"
+for report in "$OUT"/run-*/report; do
+  run=$(basename "$(dirname "$report")")
+  mkdir -p "$DOCS/$run"
+  cp "$report/report.md" "$report/learning-curve.png" "$report/learning-curve.csv" "$report/grid.png" "$DOCS/$run/"
+done
+[[ -f "$OUT/repro.log" ]] && cp "$OUT/repro.log" "$DOCS/repro.log"
+if [[ -f "$DEFAULT_OUT/train.json" ]]; then
+  cp "$DEFAULT_OUT/train.json" "$DOCS/default-check-train.json"
+  cp "$DEFAULT_OUT/check.log" "$DOCS/default-check.log"
+fi
+ls -R "$DOCS"
