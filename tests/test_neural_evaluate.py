@@ -78,7 +78,7 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
     for row in data["samples"]:  # another material's render, never the sample's own
         assert row["nearest_sample"]["neighbour"].split("_")[0] != row["material_id"]
     eq = data["equal_time"]
-    assert eq["spp"] >= 1 and eq["network_cpu_s"] > 0 and set(eq["pt_cpu_s"]) == {"1", "8"}
+    assert eq["spp"] >= 1 and eq["network_cpu_s"] > 0 and set(eq["pt_cpu_s"]) == {"1", "64"}
     assert all(r["pt_equal_time"]["spp"] == eq["spp"] for r in data["samples"])
     # 8 spp is more than a quarter of 16: said; 1 spp is not
     assert any(n.startswith("pt8:") and "optimistic" in n for n in data["notes"])
@@ -164,3 +164,15 @@ def test_a_report_into_a_file_is_refused_before_anything_is_written(trained, ref
     result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--report", tmp_path / "afile")
     assert result.exit_code == 2 and "--report" in result.output
     assert not (tmp_path / "ev").exists()
+
+
+def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
+    from pipeline.neural.evaluate import equal_time_spp
+
+    # 0.1 s fixed + 0.01 s per spp: the network's 0.3 s buys 20 spp; less than 1 spp's time: 1
+    assert equal_time_spp(0.3, {1: 0.11, 64: 0.74}) == 20
+    assert equal_time_spp(0.01, {1: 0.11, 64: 0.74}) == 1
+    # issue 22: measured beside other work, 64 spp took less CPU than 1 spp; the old fit gave 4096
+    assert equal_time_spp(0.42, {1: 0.121, 64: 0.115}) == round(0.42 / (0.115 / 64))
+    assert equal_time_spp(0.018, {1: 0.121, 64: 0.115}) == 1  # faster than either render
+    assert equal_time_spp(1e9, {1: 0.11, 64: 0.74}) == 4096  # the ladder's top, no further
