@@ -1306,8 +1306,15 @@ def infer_cmd(
     "learning-curve.png/.csv (training and held-out loss and PSNR per epoch), grid.png (maps, reference, "
     "network, path tracing at equal time, error maps), report.json.",
 )
+@click.option(
+    "--no-flip",
+    is_flag=True,
+    help="Leave out HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).",
+)
 @_friendly_errors
-def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report_dir):
+def evaluate_cmd(
+    run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report_dir, no_flip
+):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1329,6 +1336,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         device=device,
         checkpoint=checkpoint,
         report_dir=report_dir,
+        flip=not no_flip,
     )
     summary = evaluate(request, progress=evaluate_progress)
     for line in summary.lines():

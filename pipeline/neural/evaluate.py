@@ -15,6 +15,7 @@ Mitsuba variant is resolved once, from the dataset's. Writes results.json, resul
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -81,6 +82,7 @@ class EvaluateRequest:
     grid_rows: int = 4
     checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
     report_dir: str | None = None  # also write a report: per-class table, learning curve, picture grid
+    flip: bool = True  # HDR-FLIP (the slowest metric: most of an evaluation's time at 64x64)
 
 
 @dataclass
@@ -102,12 +104,14 @@ class EvaluateSummary:
         ]
 
 
-def _scores(hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float, **extra) -> dict:
+def _scores(
+    hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float, flip: bool = True, **extra
+) -> dict:
     return {
         "psnr": metrics.psnr8(srgb8, ref8),
         "ssim": metrics.ssim8(srgb8, ref8),
         "relmse": metrics.relmse(hdr, ref_hdr),
-        "flip": metrics.hdr_flip(hdr, ref_hdr),
+        "flip": metrics.hdr_flip(hdr, ref_hdr) if flip else None,
         "time_s": time_s,
         **extra,
     }
@@ -118,11 +122,11 @@ def network_hdr(y: np.ndarray, exposure: float) -> np.ndarray:
     return inverse_tonemap(np.minimum(y, NETWORK_Y_CAP), exposure)
 
 
-def _ldr_scores(y: np.ndarray, ref_hdr, ref8, exposure: float, time_s: float, **extra) -> dict:
+def _ldr_scores(y: np.ndarray, ref_hdr, ref8, exposure: float, time_s: float, flip: bool = True, **extra) -> dict:
     """Scores of a [0, 1] image (the network's, the mean image), with its saturated fraction."""
     y8 = to_srgb8(y)
     saturated = float(np.count_nonzero((y8 == 0) | (y8 == 255)) / y8.size)
-    return _scores(network_hdr(y, exposure), y8, ref_hdr, ref8, time_s, saturated=saturated, **extra)
+    return _scores(network_hdr(y, exposure), y8, ref_hdr, ref8, time_s, flip, saturated=saturated, **extra)
 
 
 def _cpu_timed(fn, *args):
@@ -225,7 +229,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     indices = list(range(len(dataset)))[: req.limit]
     out_dir = req.out_dir or os.path.join(req.run, f"evaluation-{req.split}")
     notes = []
-    if not metrics.flip_available():
+    if not req.flip:
+        notes.append("HDR-FLIP: left out (--no-flip)")
+    elif not metrics.flip_available():
         notes.append("HDR-FLIP: flip-evaluator is not installed (pip install flip-evaluator); left out")
     want_denoise = req.denoise and bool(req.spp)
     if want_denoise:
@@ -252,6 +258,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         tracer = PathTracer(dataset, variant)
         if want_denoise:
             aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant, dataset.factor)
+    scores = functools.partial(_scores, flip=req.flip)
+    ldr_scores = functools.partial(_ldr_scores, flip=req.flip)
     equal_time = None
     rows, grid, report_rows = [], [], []
     per_class: dict[str, int] = {}
@@ -269,14 +277,14 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             "id": sample.id,
             "material_id": sample.material_id,
             "class": report.material_class(records[sample.id]),
-            "network": _ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
+            "network": ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
         }
         if mean_y is not None:
-            row["mean_image"] = _ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
+            row["mean_image"] = ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
             neighbour = nearest_sample(sample, training.samples, records)
             if neighbour is not None:
                 near_hdr = box_downsample(_read_render(training, neighbour), training.factor)
-                row["nearest_sample"] = _scores(
+                row["nearest_sample"] = scores(
                     near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
                 )
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
@@ -286,28 +294,28 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 equal_time = _measure_equal_time(model, item, sample, tracer, records[sample.id], maps, device)
             image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
             pictures["equal time"] = hdr_to_srgb8(image, exposure)
-            row["pt_equal_time"] = _scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=equal_time["spp"])
+            row["pt_equal_time"] = scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=equal_time["spp"])
             if want_denoise:
                 if aux_albedo[0] != sample.material_id:
                     aux_albedo = (sample.material_id, aux.albedo(maps))
                 clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
-                row["pt_equal_time+oidn"] = _scores(
+                row["pt_equal_time+oidn"] = scores(
                     clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn, spp=equal_time["spp"]
                 )
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
             image, t = tracer.render(records[sample.id], maps, spp)
-            row[f"pt{spp}"] = _scores(image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t)
+            row[f"pt{spp}"] = scores(image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t)
             if spp == GRID_SPP:
                 pictures[f"{spp} spp"] = hdr_to_srgb8(image, exposure)
             if want_denoise:
                 if aux_albedo[0] != sample.material_id:
                     aux_albedo = (sample.material_id, aux.albedo(maps))
                 clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
-                row[f"pt{spp}+oidn"] = _scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
+                row[f"pt{spp}+oidn"] = scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
                 alone, t_alone, _cpu = denoise(image)
-                row[f"pt{spp}+oidn-colour"] = _scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
+                row[f"pt{spp}+oidn-colour"] = scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
         rows.append(row)
