@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Issue 22's check of the defaults: `manifests/smoke.toml` with 64 materials (128 renders at
 # 64x64, 16 spp), `shaderball train` with every default but --loss l1 (no VGG16 ImageNet
-# weights here), then the last epoch's held-out PSNR against the training set's mean image.
+# weights here) and --threads 1 (speed only: two torch threads beside other work collapse;
+# docs/neural.md, "Speed on a CPU"), then the last epoch's held-out PSNR against the training
+# set's mean image.
 #
 #   scripts/neural_default_check.sh [OUT]      (default OUT: /tmp/neural-default-check)
 set -euo pipefail
@@ -13,7 +15,7 @@ exec > >(tee "$OUT/check.log") 2>&1
 sed 's/^materials = 8 .*/materials = 64/' manifests/smoke.toml >"$OUT/smoke64.toml"
 grep -q '^materials = 64$' "$OUT/smoke64.toml"
 "$SB" build "$OUT/smoke64.toml" --out "$OUT/smoke64" --workers 0 2>&1 | tail -n 1
-/usr/bin/time -f "train wall %e s" "$SB" train "$OUT/smoke64" --out "$OUT/run" --loss l1 --json >"$OUT/train.json"
+/usr/bin/time -f "train wall %e s" "$SB" train "$OUT/smoke64" --out "$OUT/run" --loss l1 --threads 1 --json >"$OUT/train.json"
 python3 - "$OUT/train.json" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))

@@ -53,15 +53,21 @@ for size in "${SIZES[@]}"; do
   IFS=: read -r m e w <<<"$size"
   for seed in "${SEEDS[@]}"; do
     run="$OUT/run-m$m-s$seed"
-    reports+=("$run/report/report.json")
-    [[ -f "$run/report/report.json" ]] && continue
-    # path tracing (1, 2, 4 spp and equal time, with and without OIDN) once, beside the first
-    # size's first seed (it does not depend on the run: the equal-time spp follows the network's
-    # width, the same for every run); the others are compared with the baselines only.
-    spp=(--spp none)
-    [[ "$size" == "${SIZES[0]}" && "$seed" == "${SEEDS[0]}" ]] && spp=(--spp 1,2,4)
-    log "evaluate $run ${spp[*]}"
-    "$SB" evaluate "$run" "$OUT/mini" --report "$run/report" "${spp[@]}" 2>&1 | grep -v '^sample ' | tail -n 30
+    # every run on all held-out samples, without path tracing and HDR-FLIP (most of an
+    # evaluation's time at 64x64): the network, the mean image, the nearest sample, for the sweep
+    reports+=("$run/report-all/report.json")
+    if [[ ! -f "$run/report-all/report.json" ]]; then
+      log "evaluate $run --spp none --no-flip"
+      "$SB" evaluate "$run" "$OUT/mini" --out "$run/evaluation-all-samples" --report "$run/report-all" \
+        --spp none --no-flip 2>&1 | grep -v '^sample ' | tail -n 12
+    fi
+    # path tracing once (1 and 4 spp and equal time, with and without OIDN, every metric), beside
+    # the first size's first seed, on the first 160 held-out samples (32 materials): it does not
+    # depend on the run (the equal-time spp follows the network's width, the same for every run)
+    if [[ "$size" == "${SIZES[0]}" && "$seed" == "${SEEDS[0]}" && ! -f "$run/report/report.json" ]]; then
+      log "evaluate $run --spp 1,4 --limit 160"
+      "$SB" evaluate "$run" "$OUT/mini" --report "$run/report" --spp 1,4 --limit 160 2>&1 | grep -v '^sample ' | tail -n 30
+    fi
   done
 done
 log "sweep"

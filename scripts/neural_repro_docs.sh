@@ -12,10 +12,11 @@ DOCS=docs/neural-mini
 rm -rf "$DOCS"
 mkdir -p "$DOCS/sweep"
 cp "$OUT/sweep/sweep.md" "$OUT/sweep/data-size.png" "$DOCS/sweep/"
-for report in "$OUT"/run-*/report; do
-  run=$(basename "$(dirname "$report")")
-  mkdir -p "$DOCS/$run"
-  cp "$report/report.md" "$report/learning-curve.png" "$report/learning-curve.csv" "$report/grid.png" "$DOCS/$run/"
+for report in "$OUT"/run-*/report "$OUT"/run-*/report-all; do
+  [[ -d "$report" ]] || continue
+  dest="$DOCS/$(basename "$(dirname "$report")")/$(basename "$report")"
+  mkdir -p "$dest"
+  cp "$report/report.md" "$report/learning-curve.png" "$report/learning-curve.csv" "$report/grid.png" "$dest/"
 done
 [[ -f "$OUT/repro.log" ]] && cp "$OUT/repro.log" "$DOCS/repro.log"
 if [[ -f "$DEFAULT_OUT/train.json" ]]; then

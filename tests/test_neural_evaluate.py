@@ -176,3 +176,13 @@ def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
     assert equal_time_spp(0.42, {1: 0.121, 64: 0.115}) == round(0.42 / (0.115 / 64))
     assert equal_time_spp(0.018, {1: 0.121, 64: 0.115}) == 1  # faster than either render
     assert equal_time_spp(1e9, {1: 0.11, 64: 0.74}) == 4096  # the ladder's top, no further
+
+
+def test_no_flip_leaves_hdr_flip_out_and_says_so(trained, reference, tmp_path):
+    json_path = tmp_path / "e.json"
+    result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--limit", 2, "--no-flip",
+                     "--json", json_path, "--out", tmp_path / "ev")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(json_path.read_text())
+    assert all(r["network"]["flip"] is None and r["network"]["psnr"] > 0 for r in data["samples"])
+    assert "HDR-FLIP: left out (--no-flip)" in data["notes"]
