@@ -29,7 +29,7 @@ from pipeline.errors import ShaderballError, bad_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
-from pipeline.neural import report, runfiles
+from pipeline.neural import report, runfiles, speed
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, run_network
@@ -427,10 +427,12 @@ def nearest_sample(sample, training_samples, records: dict):
 
 def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> dict:
     """The spp at which a render takes the network's CPU time per image on this machine: the
-    least of EQUAL_TIME_REPEATS CPU times of the network and of path tracing at each of
-    EQUAL_TIME_PROBE_SPP (kernels compiled first)."""
+    least of EQUAL_TIME_REPEATS CPU times of the network (one torch thread: an idle intra-op
+    thread spins, so on a loaded machine two threads' CPU time was 20x the work) and of path
+    tracing at each of EQUAL_TIME_PROBE_SPP (kernels compiled first)."""
     args = (model, item["maps"].numpy(), sample.lighting_vector, device)
-    network_all = [_cpu_timed(run_network, *args)[1] for _ in range(EQUAL_TIME_REPEATS)]
+    with speed.torch_threads(1):  # idle threads spin: beside other work 2 threads burnt 0.40 s CPU, not 0.018
+        network_all = [_cpu_timed(run_network, *args)[1] for _ in range(EQUAL_TIME_REPEATS)]
     tracer.render(record, maps, EQUAL_TIME_PROBE_SPP[0])  # compiles and warms
     probe_all = {
         spp: [_cpu_timed(tracer.render, record, maps, spp)[1] for _ in range(EQUAL_TIME_REPEATS)]
@@ -446,7 +448,7 @@ def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> di
         "network_cpu_s_all": network_all,
         "pt_cpu_s_all": {str(k): v for k, v in probe_all.items()},
         "how": f"CPU time of this process (every thread) per image, measured on the first sample: the least of "
-        f"{EQUAL_TIME_REPEATS} runs of the network and of path tracing at {lo} and {hi} spp; a line through the two "
+        f"{EQUAL_TIME_REPEATS} runs of the network (one torch thread) and of path tracing at {lo} and {hi} spp; a line through the two "
         "solved for the network's time (if the larger spp took no more time, its time per spp with no fixed part)",
     }
 
