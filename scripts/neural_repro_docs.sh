@@ -16,7 +16,9 @@ for report in "$OUT"/run-*/report "$OUT"/run-*/report-all; do
   [[ -d "$report" ]] || continue
   dest="$DOCS/$(basename "$(dirname "$report")")/$(basename "$report")"
   mkdir -p "$dest"
-  cp "$report/report.md" "$report/learning-curve.png" "$report/learning-curve.csv" "$report/grid.png" "$dest/"
+  cp "$report/report.md" "$report/learning-curve.png" "$report/learning-curve.csv" "$dest/"
+  # the pictures of the evaluation with path tracing only (the others' grids leave it out)
+  if [[ "$(basename "$report")" == report ]]; then cp "$report/grid.png" "$dest/"; fi
 done
 [[ -f "$OUT/repro.log" ]] && cp "$OUT/repro.log" "$DOCS/repro.log"
 if [[ -f "$DEFAULT_OUT/train.json" ]]; then
