@@ -378,7 +378,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
-        "by_class": report.class_means(rows, methods, bootstrap_ci95),
+        "by_class": report.class_means(rows, methods),
         "train_renders": len(training) if training is not None else None,
         "classes": f"uniform metal: a uniform material whose largest specular (F0) value is above {report.METAL_F0}; "
         "uniform dielectric: the other uniform ones; svbrdf: the spatially varying ones",

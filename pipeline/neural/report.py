@@ -61,9 +61,9 @@ def material_class(record: dict) -> str:
     return "uniform metal" if max(specular) > METAL_F0 else "uniform dielectric"
 
 
-def class_means(rows: list[dict], methods: list[str], ci) -> dict:
+def class_means(rows: list[dict], methods: list[str]) -> dict:
     """{class: {method: {metric: mean, ci95: {metric: [lo, hi]}, samples, materials}}};
-    ``ci(values, groups)`` gives an interval over materials."""
+    intervals by :func:`bootstrap_ci95` over the class's materials."""
     out = {}
     for name in [c for c in CLASSES if any(r.get("class") == c for r in rows)]:
         members = [r for r in rows if r.get("class") == name]
@@ -80,7 +80,8 @@ def class_means(rows: list[dict], methods: list[str], ci) -> dict:
                 for m in METRICS
             }
             entry["ci95"] = {
-                m: ci([r[method][m] for r in have], groups) if entry[m] is not None else None for m in METRICS
+                m: bootstrap_ci95([r[method][m] for r in have], groups) if entry[m] is not None else None
+                for m in METRICS
             }
             entry["samples"] = len(have)
             entry["materials"] = len(set(groups))
