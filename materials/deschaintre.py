@@ -33,6 +33,7 @@ import numpy as np
 
 from materials.colorspace import COLORSPACES, srgb_decode
 from materials.errors import MaterialError
+from materials.imagefile import read_image
 from materials.maps import MaterialMaps, decode_normal_map
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,9 @@ MAP_NAMES = ("diffuse", "specular", "roughness", "normal")
 #: Maps whose colour space can be chosen (normals are data, always raw).
 COLOUR_MAPS = ("diffuse", "specular", "roughness")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+#: Largest map read, in pixels a side (their release: 288; the largest texture_resolution
+#: a spec may ask of a procedural map is 4096). A strip is at most five such panels wide.
+MAX_MAP_SIDE = 2048
 #: Default: matches their renderer, which takes the stored values as linear.
 DEFAULT_COLORSPACE = "raw"
 
@@ -76,13 +80,15 @@ def load_deschaintre(path, colorspace: str | Mapping[str, str] = DEFAULT_COLORSP
     spaces = resolve_colorspaces(colorspace)
     path = Path(path)
     if path.is_dir():
-        images = {name: _read_image(file) for name, file in _find_maps(path).items()}
+        images = {
+            name: _scaled(*_read_image(file, MAX_MAP_SIDE, MAX_MAP_SIDE)) for name, file in _find_maps(path).items()
+        }
         sizes = {name: image.shape[:2] for name, image in images.items()}
         if len(set(sizes.values())) != 1:
             raise MaterialError(f"{path}: maps differ in size (height, width): {sizes}")
         source = str(path)
     elif path.is_file():
-        images = _split_strip(path, _read_image(path))
+        images = _split_strip(path, _read_image(path, len(STRIP_PANELS) * MAX_MAP_SIDE, MAX_MAP_SIDE))
         source = str(path)
     else:
         raise MaterialError(f"SVBRDF path {str(path)!r} is neither a file nor a directory")
@@ -109,33 +115,25 @@ def _stem_matches(stem: str, name: str) -> bool:
     return stem == name or any(stem.endswith(sep + name) for sep in ("_", "-", "."))
 
 
-def _read_image(path: Path) -> np.ndarray:
-    """float64 (H, W, C) in [0, 1] from an 8- or 16-bit image."""
-    from PIL import Image
-
-    try:
-        with Image.open(path) as image:
-            image.load()
-            mode = image.mode
-            if mode in ("I;16", "I;16B", "I;16L", "I"):
-                array = np.asarray(image, dtype=np.float64) / 65535.0
-            elif mode in ("L", "RGB", "RGBA", "LA"):
-                array = np.asarray(image, dtype=np.float64) / 255.0
-            elif mode == "P":
-                array = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
-            else:
-                raise MaterialError(f"{path}: image mode {mode!r} is not supported (8/16-bit grey or RGB)")
-    except (OSError, ValueError) as exc:
-        raise MaterialError(f"{path}: cannot read image: {exc}") from exc
+def _read_image(path: Path, max_width: int, max_height: int) -> tuple[np.ndarray, float]:
+    """(H, W, C) pixels as stored, alpha dropped, and their full scale; the size is checked
+    from the header before anything is decoded (materials.imagefile)."""
+    array, full_scale = read_image(path, str(path), max_width, max_height)
     if array.ndim == 2:
         array = array[..., None]
     if array.shape[-1] in (2, 4):  # drop alpha
         array = array[..., :-1]
-    return array
+    return array, full_scale
 
 
-def _split_strip(path: Path, image: np.ndarray) -> dict[str, np.ndarray]:
-    height, width = image.shape[:2]
+def _scaled(array: np.ndarray, full_scale: float) -> np.ndarray:
+    """float64 in [0, 1]: converted per map, after a strip is cut, so the photo never is."""
+    return np.asarray(array, dtype=np.float64) / full_scale
+
+
+def _split_strip(path: Path, image: tuple[np.ndarray, float]) -> dict[str, np.ndarray]:
+    array, full_scale = image
+    height, width = array.shape[:2]
     count = len(STRIP_PANELS)
     if width % count != 0 or width == 0:
         raise MaterialError(
@@ -143,7 +141,11 @@ def _split_strip(path: Path, image: np.ndarray) -> dict[str, np.ndarray]:
             f"({', '.join(STRIP_PANELS)}), e.g. 1440 x 288"
         )
     panel = width // count
-    return {name: image[:, k * panel : (k + 1) * panel] for k, name in enumerate(STRIP_PANELS) if name != "photo"}
+    return {
+        name: _scaled(array[:, k * panel : (k + 1) * panel], full_scale)
+        for k, name in enumerate(STRIP_PANELS)
+        if name != "photo"
+    }
 
 
 def _rgb(name: str, image: np.ndarray, source: str) -> np.ndarray:

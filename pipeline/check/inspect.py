@@ -17,6 +17,7 @@ from pipeline.check.report import Progress
 from pipeline.errors import USER_ERRORS
 from pipeline.image.stats import render_stats
 from pipeline.store.exr import read_exr
+from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds
 from pipeline.store.folder import UnsafePath, read_bytes, resolve_inside
 
 #: Largest |length - 1| of a stored normal: half floats carry 11 significant bits, so a unit
@@ -67,6 +68,14 @@ class Expect:
     role: str
     layers: dict[str, tuple[int, str]] | None  # name -> (channels, dtype name); None: any
     shape: tuple[int, int] | None
+
+    @property
+    def bounds(self) -> ExrBounds:
+        """What the file may cost to decode (pipeline.store.exrheader): a small multiple of
+        the expected image; the budget when its size or layers are not known."""
+        if self.layers is None or self.shape is None:
+            return DEFAULT_BOUNDS
+        return ExrBounds(shape=self.shape, channels=sum(c for c, _ in self.layers.values()))
 
 
 def expectations(spec, material_kind: str | None, family: str | None) -> dict[str, Expect]:
@@ -217,7 +226,7 @@ def inspect_file(root: str, rel: str, expect: Expect, recorded_bytes, fast: bool
         return facts
     facts.sha256 = hashlib.sha256(data).hexdigest()
     try:
-        image = read_exr(data)
+        image = read_exr(data, bounds=expect.bounds)
     except USER_ERRORS as exc:
         facts.error = str(exc).replace("<bytes>", "").replace("EXR :", "EXR:").strip()
         return facts

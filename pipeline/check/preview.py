@@ -20,7 +20,7 @@ from pipeline.check.snapshot import read_snapshot
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.exr import read_exr
+from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.folder import manifest_record_count, read_bytes, resolve_inside, shard_records, unsafe_entry
 from pipeline.store.layout import Layout
 
@@ -137,14 +137,17 @@ def label_text(record: dict) -> list[str]:
     return lines
 
 
-def _read_layers(root: str, rel: str, layer: str | None = None) -> dict:
+def _read_layers(root: str, rel: str, layer: str | None, resolution: int) -> dict:
     """The layers of the EXR a record names at ``rel``, read only inside the folder
-    (pipeline.store.folder.resolve_inside); ShaderballError naming it otherwise."""
+    (pipeline.store.folder.resolve_inside) and decoded only if its header says it is
+    ``resolution`` pixels a side, with no more channels than a render (``layer`` "render")
+    or a maps file holds (pipeline.store.exrheader); ShaderballError naming it otherwise."""
     try:
         data = read_bytes(resolve_inside(root, rel))
     except OSError as exc:
         raise ShaderballError(f"DIR: {rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
-    layers = read_exr(data, rel).layers
+    role = "render" if layer == "render" else "maps"
+    layers = read_exr(data, rel, layer_bounds(resolution, ROLE_LAYERS[role], exact=True)).layers
     if layer is not None and layer not in layers:
         raise ShaderballError(f"DIR: {rel}: holds no {layer} layer; run `shaderball validate`")
     return layers
@@ -169,14 +172,14 @@ def _fit(picture: np.ndarray, tile: int):
     return image.resize((tile, tile), Image.NEAREST if upscale else Image.LANCZOS)
 
 
-def _tile_layers(root: str, rel: str | None, layer: str | None, problems: list[str]) -> dict | None:
+def _tile_layers(root: str, rel: str | None, layer: str | None, resolution: int, problems: list[str]) -> dict | None:
     """The layers of one tile's file, or None (the tile is marked unreadable and the reason
     added to ``problems``) when it cannot be read or decoded: one bad file spoils one tile,
     not the sheet."""
     if rel is None:
         return {}
     try:
-        return _read_layers(root, rel, layer)
+        return _read_layers(root, rel, layer, resolution)
     except ShaderballError as exc:
         problems.append(str(exc).removeprefix("DIR: "))
         return None
@@ -187,9 +190,12 @@ def _unreadable(draw, x: int, y: int, tile: int, text: str, font) -> None:
     draw.text((x + 6, y + 6), text, fill=(200, 200, 200), font=font)
 
 
-def contact_sheet(root: str, records: list[dict], tile: int, problems: list[str] | None = None) -> np.ndarray:
+def contact_sheet(
+    root: str, records: list[dict], tile: int, resolution: int, problems: list[str] | None = None
+) -> np.ndarray:
     """The sheet as uint8 (H, W, 3): a header, then one row per record. A file that cannot
-    be read or decoded gets an "unreadable" tile, and why goes to ``problems``."""
+    be read or decoded, or is not ``resolution`` pixels a side, gets an "unreadable" tile,
+    and why goes to ``problems``."""
     problems = [] if problems is None else problems
     from PIL import Image, ImageDraw
 
@@ -204,10 +210,10 @@ def contact_sheet(root: str, records: list[dict], tile: int, problems: list[str]
     for r, record in enumerate(records):
         y = HEADER_HEIGHT + r * (tile + GAP)
         files = {entry["role"]: entry["path"] for entry in record["files"]}
-        render = _tile_layers(root, files["render"], "render", problems)
+        render = _tile_layers(root, files["render"], "render", resolution, problems)
         maps_rel = files.get("maps")
         if maps_rel not in cache:
-            cache[maps_rel] = _tile_layers(root, maps_rel, None, problems)
+            cache[maps_rel] = _tile_layers(root, maps_rel, None, resolution, problems)
         layers = cache[maps_rel]
         mask = (layers or {}).get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None
@@ -264,10 +270,10 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
             + (f" ({len(problems)} left out: {problems[0]})" if problems else "")
         )
     chosen = choose_samples(records, samples)
+    resolution = spec.render.resolution
     if tile is None:
-        resolution = spec.render.resolution
         tile = resolution * max(1, -(-128 // resolution)) if resolution < 128 else min(resolution, 256)
-    picture = contact_sheet(root, chosen, tile, problems)
+    picture = contact_sheet(root, chosen, tile, resolution, problems)
     import io
 
     buffer = io.BytesIO()

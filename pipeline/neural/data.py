@@ -50,7 +50,7 @@ from pipeline.neural.network import check_network_resolution
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
 from pipeline.publish.refusal import Refused
-from pipeline.store.exr import read_exr
+from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.folder import (
     UnsafePath,
     read_bytes,
@@ -373,7 +373,9 @@ class ShaderballDataset(Dataset):
                 raise self.files.changed(key)
             self._verified.add(key)
         label = self.files.label(key)
-        decoded = read_exr(data, label).layers
+        role = "render" if "render" in layers else "maps" if screen else "texture"
+        side = self.resolution * self.factor if screen else None
+        decoded = read_exr(data, label, layer_bounds(side, ROLE_LAYERS[role], exact=screen)).layers
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(

@@ -5,8 +5,9 @@ specular, roughness, normal), each at most ``PREVIEW_SIDE`` pixels a side.
 A preview is a pure function of the EXR bytes: numpy arithmetic, then a PNG written here
 (not by Pillow: its encoder, and so the bytes, change with its version), compressed by
 zlib at level 9 with one filter for every row. Never used for data: 8-bit, tone-mapped.
-An EXR whose header does not pass pipeline.publish.exrcheck is never decoded: its preview
-is a grey placeholder (publish validates first, so only a forged folder gets one).
+An EXR whose header does not pass pipeline.store.exrheader (the resolution, the role's
+channels) is never decoded: its preview is a grey placeholder (publish validates first, so
+only a forged folder gets one).
 """
 
 from __future__ import annotations
@@ -17,10 +18,9 @@ import zlib
 import numpy as np
 
 from pipeline.check.preview import map_tiles
+from pipeline.errors import USER_ERRORS
 from pipeline.image.tonemap import preview_srgb8
-from pipeline.publish.exrcheck import check_exr_header
-from pipeline.publish.refusal import DEFAULT_LIMITS, Refused
-from pipeline.store.exr import read_exr
+from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 
 #: The largest side of a preview tile, in pixels (a 400x400 render gets a 200x200 preview).
 PREVIEW_SIDE = 256
@@ -71,14 +71,14 @@ def shrink(picture: np.ndarray, factor: int) -> np.ndarray:
     return (blocks.mean(axis=(1, 3)) + 0.5).astype(np.uint8)
 
 
-def _layers(data: bytes | None, label: str) -> dict | None:
+def _layers(data: bytes | None, label: str, side: int) -> dict | None:
+    """The layers of a ``side`` x ``side`` render or maps file; None if it is not one."""
     if data is None:
         return None
     try:
-        check_exr_header(data, label, DEFAULT_LIMITS)
-    except Refused:
+        return read_exr(data, label, layer_bounds(side, ROLE_LAYERS[label], exact=True)).layers
+    except USER_ERRORS:
         return None
-    return read_exr(data, label).layers
 
 
 def _placeholder(side: int, tiles: int = 1) -> np.ndarray:
@@ -89,10 +89,10 @@ def render_preview(render_exr: bytes, maps_exr: bytes | None, side: int) -> byte
     """The render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, the
     maps' mask; Reinhard; sRGB), as a PNG of ``side // preview_factor(side)`` pixels a side."""
     factor = preview_factor(side)
-    render = _layers(render_exr, "render")
+    render = _layers(render_exr, "render", side)
     if render is None or "render" not in render:
         return encode_png(_placeholder(side // factor))
-    maps = _layers(maps_exr, "maps") or {}
+    maps = _layers(maps_exr, "maps", side) or {}
     mask = maps.get("mask")
     mask = mask[..., 0] > 0.5 if mask is not None and mask.shape[:2] == render["render"].shape[:2] else None
     return encode_png(shrink(preview_srgb8(render["render"], mask=mask), factor))
@@ -104,7 +104,7 @@ def maps_preview(maps_exr: bytes, side: int) -> bytes:
     the render preview is."""
     factor = preview_factor(side)
     tile = side // factor
-    layers = _layers(maps_exr, "maps")
+    layers = _layers(maps_exr, "maps", side)
     if layers is None:
         return encode_png(_placeholder(tile, len(MAP_ORDER)))
     pictures = map_tiles(layers)

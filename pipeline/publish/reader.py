@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from pipeline.errors import bad_value
-from pipeline.publish.exrcheck import check_exr_header
+from pipeline.publish.exrcheck import check_exr_header, member_bounds
 from pipeline.publish.names import (
     CROISSANT_FILE,
     DATASET_DIR,
@@ -68,7 +68,7 @@ from pipeline.store.folder import (
     short_json,
     structure_problem,
 )
-from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
 from pipeline.store.records import dumps, without_timings
 
 HEX = frozenset("0123456789abcdef")
@@ -126,6 +126,8 @@ class Publication:
 
     def __post_init__(self):
         self.by_id = _ById(self.records)
+        #: what each role's EXR members may hold (pipeline.publish.exrcheck.member_bounds)
+        self.exr_bounds = member_bounds(self.source_files.get(SPEC_FILE, b""))
 
     def path(self, rel: str) -> str:
         return os.path.join(self.root, *rel.split("/"))
@@ -155,7 +157,7 @@ class Publication:
             scanned = scan_tar(fh, label, self.limits, before)
             _compare_members(label, scanned, tar.expected)
             for (member, data), expected in zip(read_members(fh, label, scanned), tar.expected):
-                _check_member(label, member, data, expected, self.by_id, self.limits)
+                _check_member(label, member, data, expected, self.by_id, self.limits, self.exr_bounds)
                 yield expected, member, data
 
     def locate(self, progress: Callable[[str], None] | None = None) -> dict[str, Located]:
@@ -662,7 +664,13 @@ def _compare_members(label: str, scanned: list[Member], expected: list[Expected]
 
 
 def _check_member(
-    label: str, member: Member, data: bytes, expected: Expected, records: dict[str, dict], limits: Limits
+    label: str,
+    member: Member,
+    data: bytes,
+    expected: Expected,
+    records: dict[str, dict],
+    limits: Limits,
+    bounds: dict,
 ) -> None:
     where = f"{label}: member {member.name!r}"
     if member.size != expected.size:
@@ -688,7 +696,7 @@ def _check_member(
                 "preview", f"{where}: not a PNG of at most {4 * limits.exr_side} x {limits.exr_side}; refused"
             )
     elif expected.role != "material":  # a material's row: its bytes are the table's (checked above)
-        check_exr_header(data, where, limits)
+        check_exr_header(data, where, limits, bounds[expected.role])
 
 
 # --------------------------------------------------------------------------- samples

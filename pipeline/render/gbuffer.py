@@ -25,7 +25,7 @@ from pipeline.errors import USER_ERRORS, check_int
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID, sensor_dict, shape_dicts
-from pipeline.store.exr import read_exr, write_exr
+from pipeline.store.exr import layer_bounds, read_exr, write_exr
 
 #: Bump when what the G-buffer holds or how it is taken changes.
 GBUFFER_CODE_VERSION = 1
@@ -211,7 +211,7 @@ def load_gbuffer(
 
 
 def gbuffer_from_exr(path: str, ball: Shaderball, camera: Camera, resolution: int, variant: str) -> GBuffer:
-    image = read_exr(path)
+    image = read_exr(path, bounds=layer_bounds(resolution, ("uv", "normal", "mask"), exact=True))
     if image.meta != gbuffer_key_inputs(ball, camera, resolution, variant):
         raise ValueError(f"{path} was made for other inputs")
     layers = image.layers

@@ -21,6 +21,7 @@ import numpy as np
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrRefused, check_header
 
 #: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
 LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
@@ -32,6 +33,13 @@ LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
     "mask": ("Y",),
     "normal": ("X", "Y", "Z"),
     "uv": ("U", "V"),
+}
+
+#: The layers each role's file may hold (a maps file holds those storage.layers names).
+ROLE_LAYERS: dict[str, tuple[str, ...]] = {
+    "render": ("render",),
+    "maps": ("diffuse", "specular", "roughness", "normal", "mask"),
+    "texture": ("diffuse", "specular", "roughness", "normal"),
 }
 
 #: Linear Rec.709 / sRGB primaries and D65 white: red xy, green xy, blue xy, white xy.
@@ -141,18 +149,41 @@ def _flush_c_stdio() -> None:
         pass
 
 
-def read_exr(path_or_bytes: str | bytes | os.PathLike, label: str | None = None) -> ExrImage:
-    """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers. What
-    OpenEXR prints while it decodes goes to stderr, never stdout (:class:`_StdoutToStderr`).
-    ``label`` names the file in errors (given bytes, pass the file they were read from)."""
+def layer_bounds(side: int | None, layers, *, exact: bool = False) -> ExrBounds:
+    """The bounds of a file expected to hold ``layers`` (names of :data:`LAYER_CHANNELS`) at
+    ``side`` x ``side`` pixels (None: any size within the budget)."""
+    channels = sum(len(LAYER_CHANNELS.get(name, ("Y",))) for name in layers)
+    return ExrBounds(shape=None if side is None else (side, side), channels=channels, exact=exact)
+
+
+def read_exr(
+    path_or_bytes: str | bytes | os.PathLike, label: str | None = None, bounds: ExrBounds = DEFAULT_BOUNDS
+) -> ExrImage:
+    """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers. Its header
+    is checked against ``bounds`` first (:func:`pipeline.store.exrheader.check_header`): a
+    file that would decode to more, or that is tiled, deep or multi-part, is refused before
+    OpenEXR sees it. What OpenEXR prints while it decodes goes to stderr, never stdout
+    (:class:`_StdoutToStderr`). ``label`` names the file in errors (given bytes, pass the
+    file they were read from)."""
     import OpenEXR
 
-    source = io.BytesIO(path_or_bytes) if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
     if label is None:
         label = "<bytes>" if isinstance(path_or_bytes, bytes) else str(path_or_bytes)
+    if isinstance(path_or_bytes, bytes):
+        data = path_or_bytes
+    else:
+        try:
+            with open(path_or_bytes, "rb") as fh:
+                data = fh.read()
+        except OSError as exc:
+            raise ShaderballError(f"cannot decode EXR {label}: {exc.strerror or exc}") from None
+    try:
+        check_header(data, label, bounds)
+    except ExrRefused as exc:
+        raise ShaderballError(f"cannot decode EXR {label}: {exc.reason}") from None
     try:
         with _StdoutToStderr():
-            handle = OpenEXR.File(source, separate_channels=True)
+            handle = OpenEXR.File(io.BytesIO(data), separate_channels=True)
             header = handle.header()
             channels = {name: channel.pixels for name, channel in handle.channels().items()}
     except Exception as exc:  # the bindings raise plain exceptions for corrupt files
