@@ -2,6 +2,7 @@
 
     .venv/bin/python scripts/bad_inputs.py > /tmp/table.md
     .venv/bin/python scripts/bad_inputs.py --write     # replace the table in docs/bad-inputs.md
+                                                       # and the count of cases in README.md
 
 Each case runs the real CLI (click's CliRunner, in this process) in a fresh folder and
 records the exit code, the message, and whether any file was created or changed.
@@ -18,6 +19,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
 SMOKE = (REPO / "manifests" / "smoke.toml").read_text()
 
 
@@ -67,6 +69,10 @@ SPEC_CASES = [
         spec_with('layers = ["diffuse"', "layers = [" + '"diffuse", ' * 20000 + '"diffuse"'),
     ),
     ("a corrupt image in svbrdf_folders", spec_with("svbrdf_folders = []", 'svbrdf_folders = ["badmaps"]')),
+    (
+        "a 176 kB PNG of 15000 x 12000 pixels in svbrdf_folders",
+        spec_with("svbrdf_folders = []", 'svbrdf_folders = ["bombs"]'),
+    ),
 ]
 
 COMMAND_CASES = [
@@ -107,6 +113,16 @@ COMMAND_CASES = [
 ]
 
 
+#: Image files read from outside: sizes checked from the header before decoding (docs/materials.md).
+IMAGE_CASES = [
+    (
+        "render: --svbrdf a 176 kB PNG of 15000 x 12000",
+        ["render", "--svbrdf", "{bombs}/strip.png", "--out", "{out}/x.exr"],
+    ),
+    ("render: --svbrdf a map of 4000 x 4000 pixels", ["render", "--svbrdf", "{bombs}/maps", "--out", "{out}/x.exr"]),
+]
+
+
 def snapshot(folder: Path) -> dict:
     """Every entry under ``folder`` (links as links: a symlink loop is one entry)."""
     out = {}
@@ -116,6 +132,18 @@ def snapshot(folder: Path) -> dict:
             info = os.lstat(path)
             out[os.path.relpath(path, folder)] = (info.st_size, info.st_mtime_ns)
     return out
+
+
+def make_bombs(folder: Path) -> None:
+    """Decompression bombs (tests/support/bombs.py): a strip over twice Pillow's pixel
+    limit, and a folder of maps whose diffuse map is over a map's 2048 x 2048."""
+    from support.bombs import png_bomb
+
+    (folder / "maps").mkdir(parents=True)
+    (folder / "strip.png").write_bytes(png_bomb(15000, 12000))
+    for name in ("specular", "roughness", "normal"):
+        (folder / "maps" / f"{name}.png").write_bytes(png_bomb(16, 16))
+    (folder / "maps" / "diffuse.png").write_bytes(png_bomb(4000, 4000))
 
 
 def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
@@ -136,6 +164,8 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     (base / "loop").symlink_to(base / "loop")
     (base / "badmaps").mkdir()
     (base / "badmaps" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    if "bombs" in " ".join(args) + (spec_text or ""):
+        make_bombs(base / "bombs")
     spec = base / "spec.toml"
     if spec_text is not None:
         spec.write_text(spec_text)
@@ -147,6 +177,7 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
         "file": str(base / "file.txt"),
         "foreign": str(foreign),
         "other_dataset": str(other),
+        "bombs": str(base / "bombs"),
     }
     argv = [a.format(**fill) for a in args]
     before = snapshot(base)
@@ -170,6 +201,7 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
 def all_cases():
     yield from ((what, None, args) for what, args in COMMAND_CASES)
     yield from ((what, text, ["build", "{spec}"]) for what, text in SPEC_CASES)
+    yield from ((what, None, args) for what, args in IMAGE_CASES)
 
 
 def run_all() -> list[dict]:
@@ -198,10 +230,20 @@ def write_page(new_table: str, page: Path = REPO / "docs" / "bad-inputs.md") -> 
     page.write_text("".join(lines[:start]) + new_table + "".join(lines[end:]))
 
 
+#: README.md's words for the count of rows in the table.
+README_COUNT = re.compile(r"\d+ bad inputs run through the CLI")
+
+
+def write_readme_count(count: int, readme: Path = REPO / "README.md") -> None:
+    readme.write_text(README_COUNT.sub(f"{count} bad inputs run through the CLI", readme.read_text(), count=1))
+
+
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    result = table(run_all())
+    rows = run_all()
+    result = table(rows)
     if "--write" in sys.argv[1:]:
         write_page(result)
+        write_readme_count(len(rows))
     else:
         print(result, end="")

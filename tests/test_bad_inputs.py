@@ -26,3 +26,5 @@ def test_every_bad_input_is_refused_cleanly():
             assert row["json"]["ok"] is False and row["json"]["exit"] == 2 and row["json"]["error"], row
     page = (REPO / "docs" / "bad-inputs.md").read_text()
     assert script.table(rows) in page, "docs/bad-inputs.md is stale: re-run scripts/bad_inputs.py"
+    readme = (REPO / "README.md").read_text()
+    assert f"{len(rows)} bad inputs run through the CLI" in readme, "README.md's count is stale: --write it"

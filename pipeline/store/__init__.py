@@ -2,7 +2,8 @@
 
 Owns ``layout`` (paths of shards, records, maps, renders), ``folder`` (the one reader of
 a dataset folder: record files, markers, the manifest, temporary files), ``exr`` (EXR
-encoding with OpenEXR's layer naming), ``records`` (sample records, file entries, the
+encoding with OpenEXR's layer naming), ``exrheader`` (an EXR's header checked against what
+is expected of the file before any pixel is decoded), ``records`` (sample records, file entries, the
 manifest lines), ``atomic`` (temp file, fsync, rename: the one atomic writer) and ``lock``
 (one writer per folder).
 
