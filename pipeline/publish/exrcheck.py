@@ -34,7 +34,7 @@ def member_bounds(spec: bytes) -> dict[str, ExrBounds]:
     textures at ``[materials] texture_resolution`` unless maps are imported (their files keep
     their own size). A spec that does not say leaves only the budget (DEFAULT_BOUNDS)."""
     try:
-        table = tomllib.loads(spec[: MAX_SPEC_BYTES + 1].decode("utf-8-sig")) if len(spec) <= MAX_SPEC_BYTES else {}
+        table = tomllib.loads(spec.decode("utf-8-sig")) if len(spec) <= MAX_SPEC_BYTES else {}
     except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
         table = {}
 
