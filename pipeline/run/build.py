@@ -557,10 +557,10 @@ def sigint_at_safe_points(on_start, report):
     nothing would close. Why not ignore it while the cluster starts: SIGINT's disposition is
     the process's and its mask is each thread's; a Ctrl-C that the kernel hands to one of the
     driver's other threads (which do not block it; multiprocessing's resource tracker unblocks
-    it in the thread that starts it) is discarded while ignored: the build ran on to the end
-    (measured: 4 of 4 builds with a Ctrl-C 2-4 s after the start). The workers ignore SIGINT
-    themselves (pipeline.run.cluster.connection.spawned_ignoring_sigint). A second Ctrl-C before
-    the first is acted on stops the driver at once."""
+    it in the thread that starts it) is discarded while it is ignored, and the build runs on
+    to the end. The workers ignore SIGINT themselves
+    (pipeline.run.cluster.connection.spawned_ignoring_sigint). A second Ctrl-C before the
+    first is acted on stops the driver at once."""
     if threading.current_thread() is not threading.main_thread():  # signal handlers are the main thread's
         yield on_start, report
         return

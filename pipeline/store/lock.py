@@ -98,8 +98,9 @@ def busy(root: str, holder: dict | None, label: str = "DIR") -> FolderBusy:
 
 def current_holder(root: str) -> dict | None:
     """Who holds ``root`` now (their description, ``{}`` when not yet written), or None when
-    nobody does. A probe that takes nothing a writer waits for: a shared lock for an instant
-    on the file as it is, never created, never removed (a writer's exclusive lock excludes it)."""
+    nobody does. The probe creates and removes nothing: it takes a shared lock on the lock
+    file as it is, which a writer's exclusive lock refuses, and lets it go at once (a writer
+    starting in that instant is refused as busy; only a folder already refused asks)."""
     try:
         fd = os.open(lock_path(root), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
