@@ -5,13 +5,40 @@ summary and maps the project's own error (:class:`pipeline.errors.ShaderballErro
 to a message on stderr and exit code 2. Logic lives in the packages.
 """
 
+# ruff: noqa: E402 - the imports come after the Ctrl-C handler that covers them
+
 from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+
+#: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
+INTERRUPTED_EXIT = 130
+INTERRUPTED_MESSAGE = (
+    "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
+)
+
+
+def _interrupted_while_loading(signum, frame):
+    """Ctrl-C while the imports below run (a second or more): they write nothing, so stop at
+    once with the interrupted exit code and line (and --json's document), without the
+    import's traceback."""
+    os.write(2, f"\n{INTERRUPTED_MESSAGE}\n".encode())
+    args = sys.argv[1:]
+    if "--json" in args[: args.index("--") if "--" in args else len(args)]:
+        doc = {"error": INTERRUPTED_MESSAGE, "exit": INTERRUPTED_EXIT, "ok": False}
+        os.write(1, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
+    os._exit(INTERRUPTED_EXIT)
+
+
+if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
+    signal.signal(signal.SIGINT, _interrupted_while_loading)
 
 import contextlib
 import ctypes
 import functools
-import os
-import sys
 import traceback
 
 import click
@@ -71,16 +98,9 @@ from pipeline.ui.values import parse_int_list
 from sky.emitter import DEFAULT_SUN, SUN_MODES
 from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
-#: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
-INTERRUPTED_EXIT = 130
-
-
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
 INTERNAL_EXIT = 70
-INTERRUPTED_MESSAGE = (
-    "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
-)
 #: Where a --json command leaves its one document (click's context meta).
 _JSON_DOC = "shaderball.json_doc"
 
@@ -91,8 +111,6 @@ def _emit_json(doc: dict) -> None:
 
 
 def _write_json(doc: dict) -> None:
-    import json
-
     click.echo(json.dumps(doc, indent=1, sort_keys=True))
 
 
@@ -143,7 +161,7 @@ def _failure(exc: BaseException, as_json: bool) -> tuple[int, str, dict]:
     if isinstance(exc, OSError):
         error = filesystem_error(exc, "?", "fix the cause and run the same command again")
         return error.exit_code, str(error), {}
-    if isinstance(exc, KeyboardInterrupt) or (isinstance(exc, RuntimeError) and caused_by_interrupt(exc)):
+    if caused_by_interrupt(exc):  # a KeyboardInterrupt, or what one caused (drjit's import, a plugin callback)
         click.echo("", err=True)
         return INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, {}
     if not as_json or not isinstance(exc, Exception):
@@ -1344,4 +1362,5 @@ def evaluate_cmd(
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     main()

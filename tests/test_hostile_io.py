@@ -298,3 +298,116 @@ def test_ctrl_c_of_a_build_prints_one_line_and_the_build_resumes(tmp_path, worke
     checked = subprocess.run(cli("validate", out), cwd=REPO, capture_output=True, text=True, timeout=300)
     assert checked.returncode == 0, checked.stdout
     shutil.rmtree(out)
+
+
+# Ctrl-C at fixed points of a command's start: while the CLI imports, and while the local dask
+# cluster starts (its first worker held with SIGSTOP, so the cluster cannot be up yet, however
+# loaded the machine is).
+
+INTERRUPTED = "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of every process whose parent is ``pid`` (from /proc)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                parent = int(fh.read().rsplit(")", 1)[1].split()[1])
+            if parent == pid:
+                with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                    found.append((int(entry), fh.read().replace(b"\0", b" ").decode(errors="replace")))
+        except (OSError, ValueError, IndexError):
+            continue
+    return found
+
+
+def _has_mapped(pid: int, library: str) -> bool:
+    try:
+        with open(f"/proc/{pid}/maps") as fh:
+            return library in fh.read()
+    except OSError:
+        return False
+
+
+def _started(command: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(
+        command,
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+
+
+def _finish(proc: subprocess.Popen) -> tuple[str, str]:
+    try:
+        return proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _one_interrupted_line(proc: subprocess.Popen, stdout: str, stderr: str) -> None:
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stdout + stderr, stderr
+    assert "distributed." not in stderr and "ERROR" not in stderr, stderr
+    assert stderr.rstrip().splitlines()[-1] == INTERRUPTED, stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize(
+    "command,loaded",
+    [("build", "_multiarray_umath"), ("validate --json", "_multiarray_umath"), ("build", "_drjit_ext")],
+    ids=["build-cli-imports", "validate-json-cli-imports", "build-mitsuba-loads"],
+)
+def test_ctrl_c_while_the_cli_or_mitsuba_loads_prints_one_line(tmp_path, reference, command, loaded):
+    """The fixed point: a native library is mapped (numpy's: the CLI's first heavy import; drjit's:
+    Mitsuba's first, in the build's driver) and the modules after it are not loaded yet."""
+    if command == "build":
+        args = cli("build", SMOKE, "--out", tmp_path / "ds", "--workers", 0)
+    else:
+        args = cli("validate", reference, "--json")
+    proc = _started(args)
+    try:
+        deadline = time.monotonic() + 120
+        while not _has_mapped(proc.pid, loaded) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.002)
+        os.killpg(proc.pid, signal.SIGINT)
+    finally:
+        stdout, stderr = _finish(proc)
+    _one_interrupted_line(proc, stdout, stderr)
+    if command != "build":
+        doc = json.loads(stdout)  # the one JSON document, and nothing else
+        assert doc["exit"] == 130 and doc["ok"] is False and doc["error"] == INTERRUPTED
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_ctrl_c_while_the_local_cluster_starts_stops_the_build_once_it_is_up(tmp_path):
+    out = tmp_path / "ds"
+    proc = _started(cli("build", SMOKE, "--out", out, "--workers", 2))
+    held: list[int] = []
+    try:
+        deadline = time.monotonic() + 240
+        while not held and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            held = [pid for pid, command in _children(proc.pid) if "spawn_main" in command]
+            for pid in held:
+                os.kill(pid, signal.SIGSTOP)
+            time.sleep(0.005)
+        assert held, "the build spawned no dask worker"
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(1.0)
+        for pid in held:
+            os.kill(pid, signal.SIGCONT)
+    finally:
+        stdout, stderr = _finish(proc)
+    _one_interrupted_line(proc, stdout, stderr)
+    assert not list(out.rglob("*.render.exr"))  # acted on as the cluster came up, before any shard

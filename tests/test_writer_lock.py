@@ -261,3 +261,96 @@ def test_a_build_killed_with_kill_9_does_not_block_its_resume(tmp_path, referenc
     assert resumed.returncode == 0, resumed.stderr
     assert not (out / LOCK_FILE).exists()
     crash_module().check_complete(out, reference)
+
+
+# --------------------------------------------------------------------------- publish --out PUB
+
+
+def _busy_line(folder: Path, purpose: str, pid: int) -> str:
+    return f"error: PUB: {str(folder)!r} is being written by another writer: {purpose}, pid {pid} on host "
+
+
+@pytest.mark.slow
+def test_publish_into_a_folder_another_writer_holds_is_refused_naming_it(tmp_path, reference):
+    pub = tmp_path / "pub"
+    pub.mkdir()
+    holder = hold(pub, "publish")
+    try:
+        refused = run("publish", reference, "--out", pub)
+        assert refused.returncode == 3, refused
+        assert refused.stderr.startswith(_busy_line(pub, "publish", holder.pid)), refused.stderr
+        assert "Traceback" not in refused.stderr
+        assert os.listdir(pub) == [LOCK_FILE]  # the holder's; publish wrote nothing
+    finally:
+        kill9(holder)
+
+
+@pytest.mark.slow
+def test_publish_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_path, reference, monkeypatch):
+    """The race the lock closes: PUB was new when publish looked, another publish took it
+    before the first write. This one is refused (exit code 3) and writes nothing there."""
+    from pipeline.publish import writer
+
+    pub = tmp_path / "pub"
+    holders = []
+    real_check = writer.check_out
+
+    def checked_then_another_publish_starts(out, source=None, label="DIR"):
+        real_check(out, source, label)
+        os.makedirs(out)
+        holders.append(hold(Path(out), "publish"))
+
+    monkeypatch.setattr(writer, "check_out", checked_then_another_publish_starts)
+    try:
+        with pytest.raises(FolderBusy) as refused:
+            writer.publish(str(reference), str(pub))
+        assert str(refused.value).startswith(_busy_line(pub, "publish", holders[0].pid)[len("error: ") :])
+        assert refused.value.exit_code == 3
+        assert os.listdir(pub) == [LOCK_FILE]  # the other publish's lock; nothing of this one
+    finally:
+        for proc in holders:
+            kill9(proc)
+
+
+@pytest.mark.slow
+def test_a_second_publish_while_the_first_holds_the_folder_is_refused_and_the_first_verifies(tmp_path, reference):
+    """Two real publish processes: the second starts once the first holds PUB, and the first
+    is stopped (SIGSTOP) meanwhile, so it cannot finish before the second looks."""
+    pub = tmp_path / "pub"
+    first = start(cli("publish", reference, "--out", pub))
+    try:
+        holder = wait_for_lock(pub, first)
+        assert holder["purpose"] == "publish" and holder["pid"] == first.pid
+        os.kill(first.pid, signal.SIGSTOP)
+        try:
+            second = run("publish", reference, "--out", pub)
+        finally:
+            os.kill(first.pid, signal.SIGCONT)
+        assert second.returncode == 3, second
+        assert second.stderr.startswith(_busy_line(pub, "publish", first.pid)), second.stderr
+        assert "Traceback" not in second.stderr
+        stdout, stderr = first.communicate(timeout=400)
+    finally:
+        if first.poll() is None:
+            kill9(first)
+    assert first.returncode == 0, stderr
+    assert not (pub / LOCK_FILE).exists()
+    verified = run("verify", pub)
+    assert verified.returncode == 0, verified.stdout + verified.stderr
+    unpacked = run("unpack", pub, "--out", tmp_path / "back")
+    assert unpacked.returncode == 0, unpacked.stderr
+    assert (tmp_path / "back" / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+
+
+@pytest.mark.slow
+def test_two_publishes_started_together_into_one_folder_exactly_one_succeeds(tmp_path, reference):
+    pub = tmp_path / "pub"
+    procs = [start(cli("publish", reference, "--out", pub)) for _ in range(2)]
+    outputs = [p.communicate(timeout=400) for p in procs]
+    codes = [p.returncode for p in procs]
+    assert sorted(codes)[0] == 0 and sorted(codes)[1] in (2, 3), (codes, outputs)
+    loser = outputs[codes.index(sorted(codes)[1])][1]
+    assert loser.startswith("error: ") and "Traceback" not in loser, loser
+    assert str(pub) in loser  # the folder is named, busy or already filled
+    verified = run("verify", pub)
+    assert verified.returncode == 0, verified.stdout + verified.stderr

@@ -3,18 +3,25 @@ file written atomically, and everything removed again when the write fails or is
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+from collections.abc import Iterator
 
 from pipeline.errors import bad_value
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.folder import check_creatable
+from pipeline.store.folder import check_creatable, only_temp_files, real_dir
+from pipeline.store.lock import busy, current_holder, writer_lock
 
 
-def check_out(out: str, source: str | None = None) -> None:
+def check_out(out: str, source: str | None = None, label: str = "DIR") -> None:
     """PUB (or an unpack's DIR) must be new or an empty folder, and not inside ``source`` (the
-    folder read from, which would no longer check): nothing is overwritten."""
+    folder read from, which would no longer check): nothing is overwritten. A folder another
+    writer is filling is refused as busy (exit code 3), naming it (pipeline.store.lock)."""
     if os.path.lexists(out) and (not os.path.isdir(out) or os.path.islink(out) or os.listdir(out)):
+        holder = current_holder(out) if real_dir(out) else None
+        if holder is not None:
+            raise busy(out, holder, label)
         raise bad_value("--out", out, "a new or empty folder (nothing in it is overwritten)")
     check_creatable(out)
     if source is not None:
@@ -26,6 +33,24 @@ def check_out(out: str, source: str | None = None) -> None:
                 f"a folder outside {source!r} and not containing it (files written "
                 "there would make it fail its own checks)",
             )
+
+
+@contextlib.contextmanager
+def held_output(out: str, purpose: str, label: str) -> Iterator[Output]:
+    """``out`` created and held for writing (pipeline.store.lock) while the block writes it;
+    on any failure inside, everything written there is removed again. A writer that took the
+    folder first is refused (exit code 3); one that filled it meanwhile is not written over."""
+    output = Output(out)
+    with writer_lock(out, purpose, label):
+        if not only_temp_files(os.listdir(out)):
+            raise bad_value(
+                "--out", out, "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
+            )
+        try:
+            yield output
+        except BaseException:
+            output.discard()
+            raise
 
 
 class Output:

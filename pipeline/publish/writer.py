@@ -5,6 +5,9 @@ The same folder gives the same bytes: members in plan order with fixed metadata
 (pipeline.publish.tarsafe), JSON with sorted keys, nothing from the clock, the host or
 the user. A material's maps are stored once, before its lightings, in the same tar
 (docs/publish.md measures what repeating them per sample would cost).
+
+PUB is held for writing (pipeline.store.lock) from its first check to its last file, as
+unpack holds its DIR: a second publish into it is refused (exit code 3) naming the first.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from pipeline.publish.names import (
     member_name,
     tar_rel,
 )
-from pipeline.publish.output import Output, check_out
+from pipeline.publish.output import Output, check_out, held_output
 from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
@@ -55,6 +58,8 @@ DEFAULT_SHARD_BYTES = 1_000_000_000
 SHARD_BYTES_RANGE = (1 << 16, 1 << 40)
 DEFAULT_LICENSE = "cc-by-4.0"
 PREVIEW_SAMPLES = 8
+#: How publish's messages name its output folder.
+PUB_LABEL = "PUB"
 
 
 @dataclass(frozen=True)
@@ -174,22 +179,30 @@ def publish(
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
     """
     check_options(shard_bytes, license_id, url)
-    check_out(out, root)
+    check_out(out, root, PUB_LABEL)
     start = time.perf_counter()
-    if progress:
-        progress(f"validating {root} (every file, as `shaderball validate`)")
-    report = validate(root)
-    if not report.ok:
-        first = "; ".join(p.message for p in report.problems[:3])
-        raise Refused(
-            "invalid_dataset",
-            f"DIR: {root!r} does not pass `shaderball validate` "
-            f"({len(report.problems)} problem(s): {first}); nothing was published",
+    # PUB is held from here, validation included: a second publish into it is refused at once.
+    with held_output(out, "publish", PUB_LABEL) as output:
+        if progress:
+            progress(f"validating {root} (every file, as `shaderball validate`)")
+        report = validate(root)
+        if not report.ok:
+            first = "; ".join(p.message for p in report.problems[:3])
+            raise Refused(
+                "invalid_dataset",
+                f"DIR: {root!r} does not pass `shaderball validate` "
+                f"({len(report.problems)} problem(s): {first}); nothing was published",
+            )
+        validation_s = time.perf_counter() - start
+        return _write_into(
+            output,
+            root,
+            shard_bytes=shard_bytes,
+            license_id=license_id,
+            url=url,
+            validation_s=validation_s,
+            progress=progress,
         )
-    validation_s = time.perf_counter() - start
-    return write_publication(
-        root, out, shard_bytes=shard_bytes, license_id=license_id, url=url, validation_s=validation_s, progress=progress
-    )
 
 
 # --------------------------------------------------------------------------- planning
@@ -347,7 +360,34 @@ def write_publication(
     """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
     does; tests use this to build hostile publications)."""
     check_options(shard_bytes, license_id, url)
-    check_out(out, root)
+    check_out(out, root, PUB_LABEL)
+    with held_output(out, "publish", PUB_LABEL) as output:
+        return _write_into(
+            output,
+            root,
+            shard_bytes=shard_bytes,
+            license_id=license_id,
+            url=url,
+            contact_sheet=contact_sheet,
+            validation_s=validation_s,
+            progress=progress,
+        )
+
+
+def _write_into(
+    output: Output,
+    root: str,
+    *,
+    shard_bytes: int,
+    license_id: str,
+    url: str | None,
+    contact_sheet: bool = True,
+    validation_s: float,
+    progress: Callable[[str], None] | None,
+) -> PublishSummary:
+    """The publication of ``root``, written into ``output`` while this process holds it
+    (:func:`pipeline.publish.output.held_output` removes it again on a failure)."""
+    out = output.out
     start = time.perf_counter()
     layout = Layout(root)
     spec: DatasetSpec = read_snapshot(root)
@@ -356,84 +396,75 @@ def write_publication(
         raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
     groups = material_groups(layout, records)
     side = spec.render.resolution
-    output = Output(out)
-    try:
-        tars, rows = [], []
-        pair: list[MaterialGroup] = []
-        pair_sizes: list[tuple[list[int], list[int]]] = []
-        for number, group in enumerate(groups, start=1):
+    tars, rows = [], []
+    pair: list[MaterialGroup] = []
+    pair_sizes: list[tuple[list[int], list[int]]] = []
+    for number, group in enumerate(groups, start=1):
+        if progress:
+            progress(f"previews of {group.material_id} ({number}/{len(groups)})")
+        draw_previews(layout, group, side)
+        sizes = group.sizes()
+        if pair and not fits(pair_sizes, sizes, shard_bytes):
+            index = len(tars) // 2
             if progress:
-                progress(f"previews of {group.material_id} ({number}/{len(groups)})")
-            draw_previews(layout, group, side)
-            sizes = group.sizes()
-            if pair and not fits(pair_sizes, sizes, shard_bytes):
-                index = len(tars) // 2
-                if progress:
-                    progress(f"writing {tar_rel(index, MATERIALS)} and {tar_rel(index, RENDERS)}")
-                written, pair_rows = _write_pair(output, layout, index, pair)
-                tars += written
-                rows += pair_rows
-                pair, pair_sizes = [], []
-            pair.append(group)
-            pair_sizes.append(sizes)
-        written, pair_rows = _write_pair(output, layout, len(tars) // 2, pair)
-        tars += written
-        rows += pair_rows
-        tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
-        for source, rel in SOURCE_FILES.items():
-            output.write(
-                rel,
-                read_bytes(
-                    layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE else list_bound(len(records))
-                ),
+                progress(f"writing {tar_rel(index, MATERIALS)} and {tar_rel(index, RENDERS)}")
+            written, pair_rows = _write_pair(output, layout, index, pair)
+            tars += written
+            rows += pair_rows
+            pair, pair_sizes = [], []
+        pair.append(group)
+        pair_sizes.append(sizes)
+    written, pair_rows = _write_pair(output, layout, len(tars) // 2, pair)
+    tars += written
+    rows += pair_rows
+    tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
+    for source, rel in SOURCE_FILES.items():
+        output.write(
+            rel,
+            read_bytes(layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE else list_bound(len(records))),
+        )
+    output.write(MARKERS_REL, _markers(layout, records))
+    output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
+    if contact_sheet:
+        if progress:
+            progress("drawing the contact sheet")
+        write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
+        with open(output.path(PREVIEW_FILE), "rb") as fh:
+            output.adopt(
+                PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
             )
-        output.write(MARKERS_REL, _markers(layout, records))
-        output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
-        if contact_sheet:
-            if progress:
-                progress("drawing the contact sheet")
-            write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
-            with open(output.path(PREVIEW_FILE), "rb") as fh:
-                output.adopt(
-                    PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
-                )
-        description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
-        source_bytes = (
-            sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.shared + g.lightings)
-            + sum(output.sizes[rel] for rel in SOURCE_FILES.values())
-            + output.sizes[MARKERS_REL]
-        )
-        facts = PublicationFacts(
-            spec=spec,
-            description=description,
-            records=records,
-            rows=rows,
-            tars=tars,
-            license_id=license_id,
-            url=url,
-            shard_bytes=shard_bytes,
-            files=dict(output.sums),
-            sizes=dict(output.sizes),
-            source_bytes=source_bytes,
-            member_bytes=sum(sum(a) + sum(b) for a, b in (g.sizes() for g in groups)),
-            repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
-            materials=len(groups),
-            has_preview=contact_sheet,
-        )
-        output.write(
-            INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8")
-        )
-        facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
-        facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
-        output.write(
-            CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
-        )
-        facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
-        output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
-        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
-    except BaseException:
-        output.discard()
-        raise
+    description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
+    source_bytes = (
+        sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.shared + g.lightings)
+        + sum(output.sizes[rel] for rel in SOURCE_FILES.values())
+        + output.sizes[MARKERS_REL]
+    )
+    facts = PublicationFacts(
+        spec=spec,
+        description=description,
+        records=records,
+        rows=rows,
+        tars=tars,
+        license_id=license_id,
+        url=url,
+        shard_bytes=shard_bytes,
+        files=dict(output.sums),
+        sizes=dict(output.sizes),
+        source_bytes=source_bytes,
+        member_bytes=sum(sum(a) + sum(b) for a, b in (g.sizes() for g in groups)),
+        repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
+        materials=len(groups),
+        has_preview=contact_sheet,
+    )
+    output.write(INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8"))
+    facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
+    facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
+    output.write(
+        CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
+    )
+    facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
+    output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
+    output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
     published = sum(output.sizes.values())
     return PublishSummary(
         out=out,

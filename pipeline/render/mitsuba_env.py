@@ -16,10 +16,13 @@ one that names a variant or calls ``set_variant`` (tests/test_architecture.py).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import platform
+import signal
 import sys
+import threading
 
 import numpy as np
 
@@ -53,6 +56,25 @@ def select_libllvm() -> str:
     return found
 
 
+@contextlib.contextmanager
+def _sigint_held():
+    """A Ctrl-C while drjit and Mitsuba initialise (their native modules, a variant's plugins:
+    a second or more) is held until they are done, then delivered as it would have been.
+    Raised inside their initialisation, a KeyboardInterrupt can abort the process (SIGABRT) or
+    leave a half-made module (``NameError: name '_drjit_ext' is not defined``)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        signal.raise_signal(signal.SIGINT)  # to the handler the process had: KeyboardInterrupt, or ignored
+
+
 def _import_mitsuba(requested: str):
     if "drjit" not in sys.modules and not requested.startswith("cuda"):
         try:
@@ -61,7 +83,8 @@ def _import_mitsuba(requested: str):
             if requested != "auto":
                 raise
             # auto on a GPU machine needs no libLLVM; without a GPU, resolve_variant raises.
-    import mitsuba as mi
+    with _sigint_held():
+        import mitsuba as mi
 
     return mi
 
@@ -113,7 +136,8 @@ def load_mitsuba(variant: str):
     mi = _import_mitsuba(name)
     if mi.variant() != name:
         try:
-            mi.set_variant(name)
+            with _sigint_held():
+                mi.set_variant(name)
         except Exception as exc:  # mitsuba raises plain ImportError/RuntimeError
             raise SetupError(f"cannot use Mitsuba variant {name!r}: {exc}") from exc
     return mi

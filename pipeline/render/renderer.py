@@ -232,7 +232,7 @@ def render_whole(mi, scene, spp: int, seed: int):
     """``mi.render``, never cut short. Mitsuba installs a SIGINT handler for the length of a
     render that cancels it and returns what it has so far (fewer samples, no error). Here a
     cancelled render is never used: where this process ignores SIGINT (a dask worker: the
-    build's driver handles Ctrl-C, pipeline.run.build.workers_ignore_sigint) it is rendered
+    build's driver handles Ctrl-C, pipeline.run.build.sigint_at_safe_points) it is rendered
     again, to the same bytes (same seed); elsewhere KeyboardInterrupt is raised."""
     while True:
         try:

@@ -513,9 +513,9 @@ def _build_locked(
             def report(status: str = ""):
                 _report(progress, done, total, already, start, status)
 
-            with workers_ignore_sigint(on_start) as started:
+            with sigint_at_safe_points(on_start, report) as (started, reported):
                 results, dashboard, recycled = run_shards_on_dask(
-                    out, spec, [plans[i] for i in todo], variant, cluster, report, started
+                    out, spec, [plans[i] for i in todo], variant, cluster, reported, started
                 )
     write_manifest(out, plans)
     # Every temp file, this build's too: a worker killed mid-write during the build (a SLURM job
@@ -546,36 +546,50 @@ def _build_locked(
 
 
 @contextlib.contextmanager
-def workers_ignore_sigint(on_start):
-    """Ctrl-C stops the build's driver only. A Ctrl-C in a terminal reaches the whole process
-    group, local dask workers included: each printed a traceback, and Mitsuba's own SIGINT
-    handler (installed for the length of a render) "winds down" the render it is in. So the
-    local workers are started with SIGINT ignored and blocked, which they inherit across
-    spawn (Python and asyncio then install no handler; a blocked signal never reaches
-    Mitsuba's); the driver closes the cluster. The driver's own mask and handler are back once
-    the workers are up (``on_start``); a Ctrl-C meanwhile waits, blocked, and is seen then."""
-    if threading.current_thread() is not threading.main_thread():
-        yield on_start
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    restored = []
+def sigint_at_safe_points(on_start, report):
+    """Ctrl-C of a dask build is acted on where the driver can close its cluster cleanly: once
+    the cluster is up (``on_start``) and between two looks at the shards (``report``, about
+    every second). The handler only records it.
 
-    def restore():
-        if not restored:
-            restored.append(True)
-            signal.signal(signal.SIGINT, previous)
-            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    Why not where it lands: a Ctrl-C raised as KeyboardInterrupt anywhere in the driver can
+    land inside dask's or a finalizer's code (where Python prints "Exception ignored" with a
+    traceback and the build goes on), or while a LocalCluster starts, whose half-made nannies
+    nothing would close. Why not ignore it while the cluster starts: SIGINT's disposition is
+    the process's and its mask is each thread's; a Ctrl-C that the kernel hands to one of the
+    driver's other threads (which do not block it; multiprocessing's resource tracker unblocks
+    it in the thread that starts it) is discarded while it is ignored, and the build runs on
+    to the end. The workers ignore SIGINT themselves
+    (pipeline.run.cluster.connection.spawned_ignoring_sigint). A second Ctrl-C before the
+    first is acted on stops the driver at once."""
+    if threading.current_thread() is not threading.main_thread():  # signal handlers are the main thread's
+        yield on_start, report
+        return
+    caught: list[float] = []
+
+    def note(signum, frame):
+        if caught:
+            raise KeyboardInterrupt
+        caught.append(time.monotonic())
+
+    def check() -> None:
+        if caught:
+            raise KeyboardInterrupt
 
     def started(where, dashboard):
-        restore()
+        check()
         if on_start:
             on_start(where, dashboard)
 
+    def reported(status: str = ""):
+        check()
+        report(status)
+
+    previous = signal.signal(signal.SIGINT, note)
     try:
-        yield started
+        yield started, reported
     finally:
-        restore()
+        signal.signal(signal.SIGINT, previous)
+    check()  # a Ctrl-C after the last look: the shards are done, the manifest is not written
 
 
 def _planning_ticks(progress, total: int):

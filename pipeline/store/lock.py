@@ -1,10 +1,11 @@
 """One writer per dataset folder at a time: an exclusive ``flock`` on ``DIR/.shaderball.lock``.
 
-Writers (a build, ``validate --repair``, ``shaderball unpack``) hold the lock for as long as
-they write; a second writer is refused at once (:class:`pipeline.errors.FolderBusy`, exit
-code 3) with a message naming the holder (host, pid, command, since). Readers (validate
-without ``--repair``, info, preview, publish, the training loader) never take it: every file
-is written atomically, so they see whole files, old or new, beside a writer.
+Writers (a build, ``validate --repair``, ``shaderball unpack`` into its DIR, ``shaderball
+publish`` into its PUB) hold the lock for as long as they write; a second writer is refused at
+once (:class:`pipeline.errors.FolderBusy`, exit code 3) with a message naming the holder
+(host, pid, command, since). Readers (validate without ``--repair``, info, preview, publish of
+the dataset it reads, the training loader) never take it: every file is written atomically, so
+they see whole files, old or new, beside a writer.
 
 Why ``flock``: the kernel drops the lock when its holder dies, however it dies (``kill -9``
 included), so a killed writer never blocks the next one; there is nothing stale to clean up
@@ -84,6 +85,40 @@ def _read_holder(fd: int) -> dict | None:
     return info if isinstance(info, dict) else None
 
 
+def busy(root: str, holder: dict | None, label: str = "DIR") -> FolderBusy:
+    """The refusal of a writer that finds ``root`` held by ``holder``; ``label`` names the
+    folder as its command calls it (DIR, PUB)."""
+    return FolderBusy(
+        f"{label}: {root!r} is being written by another writer: {holder_text(holder)}. "
+        "One writer at a time (build, validate --repair, unpack, publish --out): wait for it to "
+        "finish, or stop it (a writer that is killed releases the folder at once); "
+        "readers (validate, info, preview, publish of a dataset, train) may run beside it"
+    )
+
+
+def current_holder(root: str) -> dict | None:
+    """Who holds ``root`` now (their description, ``{}`` when not yet written), or None when
+    nobody does. The probe creates and removes nothing: it takes a shared lock on the lock
+    file as it is, which a writer's exclusive lock refuses, and lets it go at once (a writer
+    starting in that instant is refused as busy; only a folder already refused asks)."""
+    try:
+        fd = os.open(lock_path(root), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _read_holder(fd) or {}
+        except OSError:
+            return None
+        return None  # closing the file lets the shared lock go
+    finally:
+        os.close(fd)
+
+
 def _open_lock_file(root: str) -> int:
     path = lock_path(root)
     flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
@@ -110,7 +145,7 @@ def _same_file(fd: int, path: str) -> bool:
     return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
 
 
-def _acquire(root: str, purpose: str) -> int:
+def _acquire(root: str, purpose: str, label: str) -> int:
     path = lock_path(root)
     for _ in range(ATTEMPTS):
         fd = _open_lock_file(root)
@@ -119,12 +154,7 @@ def _acquire(root: str, purpose: str) -> int:
         except BlockingIOError:
             holder = _read_holder(fd)
             os.close(fd)
-            raise FolderBusy(
-                f"DIR: {root!r} is being written by another writer: {holder_text(holder)}. "
-                "One writer at a time (build, validate --repair, unpack): wait for it to "
-                "finish, or stop it (a writer that is killed releases the folder at once); "
-                "readers (validate, info, preview, publish, train) may run beside it"
-            ) from None
+            raise busy(root, holder, label) from None
         except OSError as exc:
             os.close(fd)
             raise FilesystemError(
@@ -159,9 +189,10 @@ def _release(root: str, fd: int) -> None:
 
 
 @contextlib.contextmanager
-def writer_lock(root: str, purpose: str):
+def writer_lock(root: str, purpose: str, label: str = "DIR"):
     """Hold the folder ``root`` (an existing directory) for writing; ``purpose`` names the
-    writer in a refusal ("build", "validate --repair", "unpack")."""
+    writer in a refusal ("build", "validate --repair", "unpack", "publish"), ``label`` the
+    folder in this writer's own refusal (DIR; PUB for publish)."""
     key = os.path.realpath(root)
     if key in _held:
         _held[key][1] += 1
@@ -170,7 +201,7 @@ def writer_lock(root: str, purpose: str):
         finally:
             _held[key][1] -= 1
         return
-    fd = _acquire(root, purpose)
+    fd = _acquire(root, purpose, label)
     _held[key] = [fd, 1]
     try:
         yield

@@ -28,6 +28,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import sys
 import tempfile
 import threading
@@ -226,7 +227,9 @@ def quiet_for_shutdown(client, workers_too: bool) -> None:
     done = threading.Event()
 
     def run():
-        with contextlib.suppress(Exception):
+        # BaseException: a client closed meanwhile cancels the call (asyncio's CancelledError is
+        # no Exception), and a thread's uncaught error is printed with its traceback.
+        with contextlib.suppress(BaseException):
             client.run(logging.disable, logging.CRITICAL, on_error="ignore")
         done.set()
 
@@ -248,20 +251,33 @@ def local_workers(workers: int | None) -> int:
     return workers or max(1, (os.cpu_count() or 1) // 2)
 
 
+#: What the spawn wrapper runs before the worker's Python: SIGINT blocked, then exec. A
+#: shell can ignore a signal but not block it.
+_BLOCK_SIGINT_AND_EXEC = (
+    "import os, signal, sys; signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}); "
+    "os.execv(sys.executable, [sys.executable] + sys.argv[1:])"
+)
+
+
 @contextlib.contextmanager
 def spawned_ignoring_sigint() -> Iterator[None]:
     """Every process spawned meanwhile (local dask workers, and the ones their nannies start
-    again later: recycling, a memory restart) starts with SIGINT ignored.
+    again later: recycling, a memory restart) starts with SIGINT ignored and blocked.
 
     A terminal's Ctrl-C reaches the whole process group; a worker process caught while it
     imports printed a KeyboardInterrupt traceback (seen on a loaded machine, issue 20). An
     ignored signal stays ignored across exec and Python then installs no handler of its own,
-    so the spawn start method runs a two-line shell wrapper that ignores SIGINT and execs this
-    Python. The driver closes the workers on a Ctrl-C."""
+    so the spawn start method runs a wrapper that ignores SIGINT and execs this Python. Ignored
+    is not enough while Mitsuba renders: it installs its own SIGINT handler for the length of
+    a render, which cancels it and logs from inside the signal handler, on whichever thread
+    the kernel picks. Blocked in every thread from the start (a mask is inherited by each new
+    thread and kept across exec), the signal never reaches it. The driver closes the workers
+    on a Ctrl-C."""
     folder = tempfile.mkdtemp(prefix="shaderball-spawn-")
     wrapper = os.path.join(folder, "python")
+    python = shlex.quote(sys.executable)
     with open(wrapper, "w") as fh:
-        fh.write(f"#!/bin/sh\ntrap '' INT\nexec {shlex.quote(sys.executable)} \"$@\"\n")
+        fh.write(f"#!/bin/sh\ntrap '' INT\nexec {python} -S -c {shlex.quote(_BLOCK_SIGINT_AND_EXEC)} \"$@\"\n")
     os.chmod(wrapper, 0o700)
     previous = multiprocessing.spawn.get_executable()
     multiprocessing.spawn.set_executable(wrapper)
@@ -270,6 +286,30 @@ def spawned_ignoring_sigint() -> Iterator[None]:
     finally:
         multiprocessing.spawn.set_executable(previous)
         shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _sigint_blocked_in_new_threads() -> Iterator[None]:
+    """SIGINT blocked in this thread while a local cluster starts, so that the threads it
+    starts (its event loop, the nannies' process threads) block it too, and every worker
+    process they spawn, now or when a nanny starts one again, begins with it blocked: a
+    Ctrl-C before the wrapper's ``trap`` has run waits instead of killing the worker.
+    multiprocessing's resource tracker is started first, here: starting it unblocks SIGINT
+    in the thread that does (it blocks it for its own spawn, then unblocks it).
+
+    A Ctrl-C meanwhile is not lost: the process's handler (pipeline.run.build records it)
+    runs when another thread takes the signal, or when this one unblocks it."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 @contextlib.contextmanager
@@ -319,14 +359,15 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             memory = memory_bytes(options.memory) if options.memory else "auto"
             if os.name == "posix":
                 stack.enter_context(spawned_ignoring_sigint())
-            cluster = LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=":0",
-                silence_logs=40,
-                memory_limit=memory,
-            )
+            with _sigint_blocked_in_new_threads():
+                cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=":0",
+                    silence_logs=40,
+                    memory_limit=memory,
+                )
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
