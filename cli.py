@@ -19,6 +19,8 @@ import click
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
+from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
+from pipeline.bench.estimate import SAMPLES_RANGE as PLAN_SAMPLES_RANGE
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
@@ -713,17 +715,73 @@ def preview_cmd(directory, out, samples, tile):
 
 
 @main.command("info")
-@click.argument("directory", metavar="DIR", type=click.Path())
+@click.argument("directory", metavar="DIR|SPEC", type=click.Path())
 @json_option("Print the figures as JSON instead.")
 @_friendly_errors
 def info_cmd(directory, as_json):
-    """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
+    """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds).
 
-    info = dataset_info(directory)
+    Given a spec file instead: what `shaderball plan SPEC` prints without timing (counts, shards, disk).
+    """
+
+    if os.path.isfile(directory):
+        info = plan_spec(PlanRequest(spec=directory, timed=False))
+    else:
+        info = dataset_info(directory)
     if as_json:
         _emit_json(info.to_dict())
         return
     for line in info.lines():
+        click.echo(line)
+
+
+@main.command("plan")
+@click.argument("spec", type=click.Path(dir_okay=False))
+@click.option(
+    "--samples",
+    default=DEFAULT_SAMPLES,
+    show_default=True,
+    type=int,
+    help=f"Renders to time, {span(PLAN_SAMPLES_RANGE)}: the spec's first materials, whole (so at least this many).",
+)
+@click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
+@click.option(
+    "--cluster",
+    "cluster_kind",
+    type=click.Choice(["local", "slurm", "pbs"]),
+    default="local",
+    show_default=True,
+    help="Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them.",
+)
+@click.option(
+    "--workers",
+    type=int,
+    default=None,
+    help=f"Local dask worker processes to estimate for, {span(WORKERS_RANGE)} [default: one per 2 cores, as build].",
+)
+@click.option("--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs, {span(JOBS_RANGE)}; one worker each.")
+@click.option(
+    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; taken as fast as one here."
+)
+@json_option("Print the plan as JSON on stdout.")
+@_friendly_errors
+def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_json):
+    """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
+
+    The time comes from the spec's own first renders, built here at the spec's settings
+    (a few seconds to a minute; nothing is kept), extrapolated per worker. Example:
+    shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
+    """
+    request = PlanRequest(
+        spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
+    )
+    if request.timed:
+        say("timing the first renders of the spec (kernels are compiled first) ...")
+    report = plan_spec(request)
+    if as_json:
+        _emit_json(report.to_dict())
+        return
+    for line in report.lines():
         click.echo(line)
 
 
