@@ -26,7 +26,7 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS, SPP_LADDER_RANGE
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -1036,7 +1036,9 @@ def _neural():
 @main.command("train")
 @click.argument("dataset", metavar="DATASET", type=click.Path())
 @out_option(
-    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, loss.png, checkpoint.pt (weights and "
+    "Adam's state, to resume; at 400 px 141 MB with --width 1, 37 MB with 0.5) and checkpoint-best.pt (weights "
+    "only: 47 MB, 12 MB; scripts/checkpoint_sizes.py). [required, except with --benchmark]",
     folder=True,
     required=False,
 )
@@ -1063,10 +1065,11 @@ def _neural():
 )
 @click.option(
     "--loss",
-    default="l1+vgg",
+    default="auto",
     show_default=True,
-    type=click.Choice(["l1+vgg", "l1"]),
-    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; needs VGG16 weights); l1: L1 alone.",
+    type=click.Choice(LOSS_CHOICES),
+    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
+    "auto: l1+vgg where the weights are found (--vgg-weights or torch hub's cache), else l1, and says which.",
 )
 @click.option(
     "--vgg-weights",
@@ -1330,7 +1333,9 @@ def infer_cmd(
     help="The run's held-out (test) or training materials (DATASET must be the run's), or all samples.",
 )
 @out_option(
-    "Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+    "The one folder of the evaluation: results.json, results.md, grid.png (maps, reference, network, path "
+    "tracing at equal time and 2 spp, denoised, error maps), and with --report the report "
+    "[default: RUN/evaluation-SPLIT].",
     folder=True,
     required=False,
     dest="out_dir",
@@ -1356,13 +1361,9 @@ def infer_cmd(
 )
 @click.option(
     "--report",
-    "report_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    metavar="DIR",
-    help="Also write a report into DIR: report.md (the table, per material class with 95% intervals), "
-    "learning-curve.png/.csv (training and held-out loss and PSNR per epoch), grid.png (maps, reference, "
-    "network, path tracing at equal time, error maps), report.json.",
+    is_flag=True,
+    help="Also write, into the --out folder: report.md (the table, per material class with 95% intervals, "
+    "the grid), report.json, learning-curve.png/.csv (training and held-out loss and PSNR per epoch).",
 )
 @click.option(
     "--no-flip",
@@ -1370,9 +1371,7 @@ def infer_cmd(
     help="Leave out HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).",
 )
 @_friendly_errors
-def evaluate_cmd(
-    run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report_dir, no_flip
-):
+def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1393,10 +1392,10 @@ def evaluate_cmd(
         limit=limit,
         device=device,
         checkpoint=checkpoint,
-        report_dir=report_dir,
+        report=report,
         flip=not no_flip,
     )
-    summary = evaluate(request, progress=evaluate_progress)
+    summary = evaluate(request, progress=evaluate_progress())
     for line in summary.lines():
         click.echo(line)
 
