@@ -775,9 +775,7 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     request = PlanRequest(
         spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
     )
-    if request.timed:
-        say("timing the first renders of the spec (kernels are compiled first) ...")
-    report = plan_spec(request)
+    report = plan_spec(request, progress=say)
     if as_json:
         _emit_json(report.to_dict())
         return

@@ -196,9 +196,10 @@ def disk_estimate(spec, uniform: int, svbrdf: int) -> dict:
     }
 
 
-def plan_spec(req: PlanRequest) -> PlanReport:
+def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
     """Counts and disk of ``req.spec``; with ``req.timed`` also the timed renders and the time
-    estimates. Nothing is written outside a temporary folder, removed after."""
+    estimates (``progress(str)`` says when they start). Nothing is written outside a temporary
+    folder, removed after."""
     req.check()
     spec, _text = read_spec_text(req.spec)
     plans = plan_dataset(spec)
@@ -224,6 +225,11 @@ def plan_spec(req: PlanRequest) -> PlanReport:
     )
     if not req.timed:
         return report
+    if progress is not None:
+        progress(
+            f"timing the first {req.samples}+ renders of {req.spec} at its settings (kernels compiled first; "
+            "nothing is kept) ..."
+        )
     report.timing = time_first_samples(spec, plans, req.samples)
     report.estimates = estimates(report, req)
     if spec.render.target_error > 0:
