@@ -52,7 +52,7 @@ def test_plan_json_has_counts_disk_timing_and_estimates(timed):
     t = timed["timing"]
     assert t["materials"] == 1 and t["renders"] == 2  # whole materials: one of two lightings
     assert t["seconds"] > 0 and t["seconds_per_render"] == pytest.approx(t["seconds"] / t["renders"])
-    assert t["threads"] >= 1 and t["bytes_per_render"] > 0
+    assert t["threads"] >= 1 and t["bytes_per_render"] > 0 and t["cpu_seconds_per_render"] > 0
 
 
 def test_plan_estimates_are_per_worker_arithmetic(timed):

@@ -84,6 +84,8 @@ class Timing:
     setup_s: float  # geometry, G-buffer and kernel compilation, once per worker
     seconds: float  # the timed build of those materials (wall)
     seconds_per_render: float
+    cpu_seconds_per_render: float  # CPU time of this process (every thread) per render: less disturbed by other load
+    load_average: float  # the machine's 1-minute load average after the timed renders
     bytes_per_render: float  # what the folder holds per render afterwards: EXRs, records, markers
 
 
@@ -140,7 +142,8 @@ class PlanReport:
             out.append(
                 f"timed: {t.renders} renders of the first {t.materials} materials ({t.uniform} uniform, {t.svbrdf} "
                 f"svbrdf), {t.variant}, {t.threads} threads: {t.seconds_per_render:.3f} s a render "
-                f"({t.seconds:.2f} s), set-up {t.setup_s:.2f} s (geometry, G-buffer, kernels; once per worker)"
+                f"({t.seconds:.2f} s; CPU {t.cpu_seconds_per_render:.3f} s a render; load average "
+                f"{t.load_average:.1f}), set-up {t.setup_s:.2f} s (geometry, G-buffer, kernels; once per worker)"
             )
             out.append(
                 f"disk as written (EXR compressed, records and markers): {_human(t.bytes_per_render)} a render, "
@@ -237,6 +240,14 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
             "render.target_error is on: a render stops when it reaches the target, so its time varies with "
             "the material and lighting; the timed ones stand for all"
         )
+    t = report.timing
+    if t.load_average > t.threads:
+        idle = t.setup_s + report.renders * t.cpu_seconds_per_render / t.threads
+        report.notes.append(
+            f"the machine was busy (load average {t.load_average:.1f} on {t.threads} cores): wall times are "
+            f"longer than on an idle machine; from the CPU time per render ({t.cpu_seconds_per_render:.3f} s) "
+            f"this process would take about {idle:,.0f} s ({_hours(idle)}) with the cores to itself"
+        )
     if report.timing.materials < report.materials and (report.timing.uniform == 0 or report.timing.svbrdf == 0):
         report.notes.append(
             "the timed materials are all of one kind; svbrdf materials also make texture maps (about 0.1 s each)"
@@ -283,9 +294,9 @@ def time_first_samples(spec, plans: Plan, samples: int) -> Timing:
         layout = Layout(root)
         for shard_id in sorted({m.shard_id for m in shard.materials}):  # the first materials may span shards
             make_shard_dir(layout, shard_id)
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         done = run_shard(root, spec, shard, variant)
-        seconds = time.perf_counter() - started
+        seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
         written = _folder_bytes(root)
     finally:
         shutil.rmtree(root, ignore_errors=True)
@@ -301,6 +312,8 @@ def time_first_samples(spec, plans: Plan, samples: int) -> Timing:
         setup_s=setup_s,
         seconds=seconds,
         seconds_per_render=seconds / renders,
+        cpu_seconds_per_render=cpu_seconds / renders,
+        load_average=os.getloadavg()[0],
         bytes_per_render=written / renders,
     )
 
