@@ -50,8 +50,15 @@ def test_plan_json_has_counts_disk_timing_and_estimates(timed):
     assert disk["total_bytes"] == disk["render_bytes"] + disk["maps_bytes"] + disk["texture_bytes"]
     assert disk["render_bytes"] == 16 * disk["bytes_per_render"]
     t = timed["timing"]
-    assert t["materials"] == 1 and t["renders"] == 2  # whole materials: one of two lightings
-    assert t["seconds"] > 0 and t["seconds_per_render"] == pytest.approx(t["seconds"] / t["renders"])
+    # whole materials: the first (two lightings), and the first of the other kind
+    assert (t["materials"], t["renders"], t["uniform"], t["svbrdf"]) == (2, 4, 1, 1)
+    kinds = t["by_kind"]
+    assert {k: v["renders"] for k, v in kinds.items()} == {"uniform": 2, "svbrdf": 2}
+    assert t["seconds"] == pytest.approx(sum(v["seconds"] for v in kinds.values()))
+    for key in ("seconds_per_render", "cpu_seconds_per_render", "bytes_per_render"):  # the spec's mix: 4 and 4
+        assert t[key] == pytest.approx((kinds["uniform"][key] + kinds["svbrdf"][key]) / 2)
+    # an svbrdf material's texture maps take room: more bytes per render than a uniform one's
+    assert kinds["svbrdf"]["bytes_per_render"] > kinds["uniform"]["bytes_per_render"]
     assert t["threads"] >= 1 and t["bytes_per_render"] > 0 and t["cpu_seconds_per_render"] > 0
 
 

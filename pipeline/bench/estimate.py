@@ -5,11 +5,13 @@ From the spec alone (no rendering; `shaderball info SPEC` prints this part): the
 resolution and the layers, channels and float widths the store writes
 (:func:`pipeline.store.exr.pixel_bytes`): pixel data before EXR's lossless compression.
 
-Timed (`shaderball plan`): the spec's own first samples (whole materials, in plan order) are
+Timed (`shaderball plan`): the spec's own first samples (whole materials, in plan order, and
+the first material of each kind they lack: an svbrdf material also makes texture maps) are
 built with the build's own shard code (:func:`pipeline.run.shard.run_shard`) into a temporary
 folder, at the spec's settings, in this process with every core, kernels compiled first
-and timed apart (a build compiles them once per worker). Their wall time per render, and
-the bytes the folder then holds per render, are extrapolated to the whole spec: in this
+and timed apart (a build compiles them once per worker), each kind on its own. Their wall
+time per render, and the bytes the folder then holds per render, weighed by the spec's
+counts of each kind, are extrapolated to the whole spec: in this
 process, on a local cluster of worker processes sharing the cores, or on ``--cluster
 slurm|pbs`` jobs of ``--cores`` each, a shard at a time per worker (per-worker arithmetic:
 rounds of shards x a shard's renders x seconds per render x this machine's cores / the
@@ -34,7 +36,7 @@ from pipeline.run.build import read_spec_text
 from pipeline.run.cluster.options import CORES_RANGE, JOBQUEUE_KINDS, JOBS_RANGE, KINDS, WORKERS_RANGE
 from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
-from pipeline.store.layout import Layout
+from pipeline.store.layout import MARKER_FILE, Layout
 
 #: --samples: renders timed (whole materials, so at least this many).
 SAMPLES_RANGE = (1, 1000)
@@ -86,7 +88,10 @@ class Timing:
     seconds_per_render: float
     cpu_seconds_per_render: float  # CPU time of this process (every thread) per render: less disturbed by other load
     load_average: float  # the machine's 1-minute load average after the timed renders
-    bytes_per_render: float  # what the folder holds per render afterwards: EXRs, records, markers
+    bytes_per_render: float  # what a dataset holds per render: EXRs, records, markers, manifest line
+    #: "uniform"/"svbrdf" -> materials, renders, seconds, seconds_per_render, cpu_seconds_per_render,
+    #: bytes_per_render of that kind's timed materials; the figures above weigh them by the spec's counts
+    by_kind: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -139,15 +144,17 @@ class PlanReport:
         ]
         t = self.timing
         if t is not None:
-            out.append(
-                f"timed: {t.renders} renders of the first {t.materials} materials ({t.uniform} uniform, {t.svbrdf} "
-                f"svbrdf), {t.variant}, {t.threads} threads: {t.seconds_per_render:.3f} s a render "
-                f"({t.seconds:.2f} s; CPU {t.cpu_seconds_per_render:.3f} s a render; load average "
-                f"{t.load_average:.1f}), set-up {t.setup_s:.2f} s (geometry, G-buffer, kernels; once per worker)"
+            kinds = ", ".join(
+                f"{k['renders']} {kind} {k['seconds_per_render']:.3f} s a render" for kind, k in t.by_kind.items()
             )
             out.append(
-                f"disk as written (EXR compressed, records and markers): {_human(t.bytes_per_render)} a render, "
-                f"{_human(t.bytes_per_render * self.renders)} in all"
+                f"timed: {t.renders} renders of the spec's first {t.materials} materials ({kinds}), {t.variant}, "
+                f"{t.threads} threads: {t.seconds_per_render:.3f} s a render in the spec's mix "
+                f"(CPU {t.cpu_seconds_per_render:.3f} s a render; load average {t.load_average:.1f}), set-up {t.setup_s:.2f} s (geometry, G-buffer, kernels; once per worker)"
+            )
+            out.append(
+                f"disk as written (EXR compressed, records, markers, manifest): {_human(t.bytes_per_render)} a "
+                f"render, {_human(t.bytes_per_render * self.renders)} in all"
             )
             for e in self.estimates:
                 out.append(
@@ -233,7 +240,7 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
             f"timing the first {req.samples}+ renders of {req.spec} at its settings (kernels compiled first; "
             "nothing is kept) ..."
         )
-    report.timing = time_first_samples(spec, plans, req.samples)
+    report.timing = time_first_samples(spec, plans, req.samples, {"uniform": report.uniform, "svbrdf": report.svbrdf})
     report.estimates = estimates(report, req)
     if spec.render.target_error > 0:
         report.notes.append(
@@ -248,36 +255,66 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
             f"longer than on an idle machine; from the CPU time per render ({t.cpu_seconds_per_render:.3f} s) "
             f"this process would take about {idle:,.0f} s ({_hours(idle)}) with the cores to itself"
         )
-    if report.timing.materials < report.materials and (report.timing.uniform == 0 or report.timing.svbrdf == 0):
-        report.notes.append(
-            "the timed materials are all of one kind; svbrdf materials also make texture maps (about 0.1 s each)"
-        )
     return report
 
 
-def first_materials(plans: Plan, renders: int) -> ShardPlan:
+def first_materials(plans: Plan, renders: int, kinds: tuple[str, ...]) -> list:
     """The spec's first materials, in plan order, holding at least ``renders`` renders (all
-    of them when the spec has fewer), as one shard of the first shard's id."""
+    of them when the spec has fewer), and the first material of each of ``kinds`` that they
+    lack (the kinds the spec has: an svbrdf material also makes texture maps)."""
     chosen, count = [], 0
     for shard in plans:
         for material in shard.materials:
-            if count >= renders:
-                break
-            chosen.append(material)
-            count += material.n_lights
-        if count >= renders:
-            break
-    first = plans[0]
-    return ShardPlan(shard_index=first.shard_index, shard_id=first.shard_id, materials=tuple(chosen))
+            if count < renders or (material.kind in kinds and material.kind not in {m.kind for m in chosen}):
+                chosen.append(material)
+                count += material.n_lights
+            if count >= renders and {m.kind for m in chosen} >= set(kinds):
+                return chosen
+    return chosen
 
 
-def _folder_bytes(root: str) -> int:
-    return sum(os.path.getsize(os.path.join(d, f)) for d, _dirs, files in os.walk(root) for f in files)
+def _folder_bytes(root: str) -> tuple[int, int]:
+    """(bytes of every file under ``root``, bytes of its sample records: the manifest repeats them)."""
+    total = records = 0
+    for folder, _dirs, files in os.walk(root):
+        for name in files:
+            size = os.path.getsize(os.path.join(folder, name))
+            total += size
+            records += size if name.endswith(".json") and name != MARKER_FILE else 0
+    return total, records
 
 
-def time_first_samples(spec, plans: Plan, samples: int) -> Timing:
-    """Build the spec's first ``samples`` renders (whole materials) into a temporary folder
-    with the build's shard code, kernels compiled first; time it."""
+def _time_kind(spec, materials: list, variant: str) -> dict:
+    """Build ``materials`` (of one kind) into a temporary folder with the build's shard code; time it."""
+    first = materials[0]
+    shard = ShardPlan(shard_index=first.shard_index, shard_id=first.shard_id, materials=tuple(materials))
+    root = tempfile.mkdtemp(prefix="shaderball-plan-")
+    try:
+        layout = Layout(root)
+        for shard_id in sorted({m.shard_id for m in materials}):  # the materials may span shards
+            make_shard_dir(layout, shard_id)
+        started, cpu_started = time.perf_counter(), time.process_time()
+        done = run_shard(root, spec, shard, variant)
+        seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
+        written, records = _folder_bytes(root)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    renders = done["rendered"]
+    return {
+        "materials": len(materials),
+        "renders": renders,
+        "seconds": seconds,
+        "seconds_per_render": seconds / renders,
+        "cpu_seconds_per_render": cpu_seconds / renders,
+        "bytes_per_render": (written + records) / renders,
+    }
+
+
+def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int]) -> Timing:
+    """Build the spec's first ``samples`` renders (whole materials, and the first material of
+    each kind the spec has) with the build's shard code, kernels compiled first, each kind
+    timed on its own; the figures per render are the kinds' weighted by ``counts`` (materials
+    of each kind in the spec)."""
     variant = resolve_variant(spec.render.variant)
     load_mitsuba(variant)
     import drjit as dr
@@ -285,36 +322,35 @@ def time_first_samples(spec, plans: Plan, samples: int) -> Timing:
     threads = os.cpu_count() or 1
     if dr.thread_count() != threads:
         dr.set_thread_count(threads)
-    shard = first_materials(plans, samples)
+    chosen = first_materials(plans, samples, tuple(k for k, n in counts.items() if n))
     started = time.perf_counter()
+    shard = ShardPlan(shard_index=chosen[0].shard_index, shard_id=chosen[0].shard_id, materials=tuple(chosen))
     warm_kernels(spec, [shard], variant)  # also makes this process's geometry and G-buffer
     setup_s = time.perf_counter() - started
-    root = tempfile.mkdtemp(prefix="shaderball-plan-")
-    try:
-        layout = Layout(root)
-        for shard_id in sorted({m.shard_id for m in shard.materials}):  # the first materials may span shards
-            make_shard_dir(layout, shard_id)
-        started, cpu_started = time.perf_counter(), time.process_time()
-        done = run_shard(root, spec, shard, variant)
-        seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
-        written = _folder_bytes(root)
-    finally:
-        shutil.rmtree(root, ignore_errors=True)
-    renders = done["rendered"]
-    kinds = [m.kind for m in shard.materials]
+    by_kind = {
+        kind: _time_kind(spec, [m for m in chosen if m.kind == kind], variant)
+        for kind in counts
+        if any(m.kind == kind for m in chosen)
+    }
+    weight = {kind: counts[kind] for kind in by_kind}  # every timed kind is one the spec has
+
+    def mix(key: str) -> float:
+        return sum(weight[k] * by_kind[k][key] for k in by_kind) / sum(weight.values())
+
     return Timing(
-        renders=renders,
-        materials=len(shard.materials),
-        uniform=kinds.count("uniform"),
-        svbrdf=len(kinds) - kinds.count("uniform"),
+        renders=sum(k["renders"] for k in by_kind.values()),
+        materials=len(chosen),
+        uniform=by_kind.get("uniform", {}).get("materials", 0),
+        svbrdf=by_kind.get("svbrdf", {}).get("materials", 0),
         variant=variant,
         threads=threads,
         setup_s=setup_s,
-        seconds=seconds,
-        seconds_per_render=seconds / renders,
-        cpu_seconds_per_render=cpu_seconds / renders,
+        seconds=sum(k["seconds"] for k in by_kind.values()),
+        seconds_per_render=mix("seconds_per_render"),
+        cpu_seconds_per_render=mix("cpu_seconds_per_render"),
         load_average=os.getloadavg()[0],
-        bytes_per_render=written / renders,
+        bytes_per_render=mix("bytes_per_render"),
+        by_kind=by_kind,
     )
 
 
