@@ -769,8 +769,11 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
 
     The time comes from the spec's own first renders, built here at the spec's settings
-    (a few seconds to a minute; nothing is kept), extrapolated per worker. Example:
-    shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
+    (seconds to minutes; nothing is kept), extrapolated per worker (docs/build.md).
+
+    \b
+    Example:
+      shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
     """
     request = PlanRequest(
         spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
