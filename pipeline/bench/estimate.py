@@ -145,10 +145,11 @@ class PlanReport:
         t = self.timing
         if t is not None:
             kinds = ", ".join(
-                f"{k['renders']} {kind} {k['seconds_per_render']:.3f} s a render" for kind, k in t.by_kind.items()
+                f"{k['renders']} {kind} at {k['seconds_per_render']:.3f} s each" for kind, k in t.by_kind.items()
             )
             out.append(
-                f"timed: {t.renders} renders of the spec's first {t.materials} materials ({kinds}), {t.variant}, "
+                f"timed: {t.renders} renders ({kinds}) of {t.materials} materials (the spec's first, and the first of each kind), "
+                f"{t.variant}, "
                 f"{t.threads} threads: {t.seconds_per_render:.3f} s a render in the spec's mix "
                 f"(CPU {t.cpu_seconds_per_render:.3f} s a render; load average {t.load_average:.1f}), set-up {t.setup_s:.2f} s (geometry, G-buffer, kernels; once per worker)"
             )
