@@ -46,12 +46,14 @@ import click
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
+from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
+from pipeline.bench.estimate import SAMPLES_RANGE as PLAN_SAMPLES_RANGE
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS, SPP_LADDER_RANGE
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -731,17 +733,74 @@ def preview_cmd(directory, out, samples, tile):
 
 
 @main.command("info")
-@click.argument("directory", metavar="DIR", type=click.Path())
+@click.argument("directory", metavar="DIR|SPEC", type=click.Path())
 @json_option("Print the figures as JSON instead.")
 @_friendly_errors
 def info_cmd(directory, as_json):
-    """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds)."""
+    """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds).
 
-    info = dataset_info(directory)
+    Given a spec file instead: what `shaderball plan SPEC` prints without timing (counts, shards, disk).
+    """
+
+    if os.path.isfile(directory):
+        info = plan_spec(PlanRequest(spec=directory, timed=False))
+    else:
+        info = dataset_info(directory)
     if as_json:
         _emit_json(info.to_dict())
         return
     for line in info.lines():
+        click.echo(line)
+
+
+@main.command("plan")
+@click.argument("spec", type=click.Path(dir_okay=False))
+@click.option(
+    "--samples",
+    default=DEFAULT_SAMPLES,
+    show_default=True,
+    type=int,
+    help=f"Renders to time, {span(PLAN_SAMPLES_RANGE)}: the spec's first materials, whole (so at least this many).",
+)
+@click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
+@click.option(
+    "--cluster",
+    "cluster_kind",
+    type=click.Choice(["local", "slurm", "pbs"]),
+    default="local",
+    show_default=True,
+    help="Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them.",
+)
+@click.option(
+    "--workers",
+    type=int,
+    default=None,
+    help=f"Local dask worker processes to estimate for, {span(WORKERS_RANGE)} [default: one per 2 cores, as build].",
+)
+@click.option("--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs, {span(JOBS_RANGE)}; one worker each.")
+@click.option(
+    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; taken as fast as one here."
+)
+@json_option("Print the plan as JSON on stdout.")
+@_friendly_errors
+def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_json):
+    """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
+
+    The time comes from the spec's own first renders, built here at the spec's settings
+    (seconds to minutes; nothing is kept), extrapolated per worker (docs/build.md).
+
+    \b
+    Example:
+      shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
+    """
+    request = PlanRequest(
+        spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
+    )
+    report = plan_spec(request, progress=say)
+    if as_json:
+        _emit_json(report.to_dict())
+        return
+    for line in report.lines():
         click.echo(line)
 
 
@@ -996,7 +1055,9 @@ def _neural():
 @main.command("train")
 @click.argument("dataset", metavar="DATASET", type=click.Path())
 @out_option(
-    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, checkpoint.pt, loss.png.",
+    "Run folder (new, empty, or a run to resume): config.json, log.jsonl, loss.png, checkpoint.pt (weights and "
+    "Adam's state, to resume; at 400 px 141 MB with --width 1, 37 MB with 0.5) and checkpoint-best.pt (weights "
+    "only: 47 MB, 12 MB; scripts/checkpoint_sizes.py). [required, except with --benchmark]",
     folder=True,
     required=False,
 )
@@ -1023,10 +1084,11 @@ def _neural():
 )
 @click.option(
     "--loss",
-    default="l1+vgg",
+    default="auto",
     show_default=True,
-    type=click.Choice(["l1+vgg", "l1"]),
-    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; needs VGG16 weights); l1: L1 alone.",
+    type=click.Choice(LOSS_CHOICES),
+    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
+    "auto: l1+vgg where the weights are found (--vgg-weights or torch hub's cache), else l1, and says which.",
 )
 @click.option(
     "--vgg-weights",
@@ -1290,7 +1352,9 @@ def infer_cmd(
     help="The run's held-out (test) or training materials (DATASET must be the run's), or all samples.",
 )
 @out_option(
-    "Folder for results.json, results.md and grid.png [default: RUN/evaluation-SPLIT].",
+    "The one folder of the evaluation: results.json, results.md, grid.png (maps, reference, network, path "
+    "tracing at equal time and 2 spp, denoised, error maps), and with --report the report "
+    "[default: RUN/evaluation-SPLIT].",
     folder=True,
     required=False,
     dest="out_dir",
@@ -1316,13 +1380,9 @@ def infer_cmd(
 )
 @click.option(
     "--report",
-    "report_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    metavar="DIR",
-    help="Also write a report into DIR: report.md (the table, per material class with 95% intervals), "
-    "learning-curve.png/.csv (training and held-out loss and PSNR per epoch), grid.png (maps, reference, "
-    "network, path tracing at equal time, error maps), report.json.",
+    is_flag=True,
+    help="Also write, into the --out folder: report.md (the table, per material class with 95% intervals, "
+    "the grid), report.json, learning-curve.png/.csv (training and held-out loss and PSNR per epoch).",
 )
 @click.option(
     "--no-flip",
@@ -1330,9 +1390,7 @@ def infer_cmd(
     help="Leave out HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).",
 )
 @_friendly_errors
-def evaluate_cmd(
-    run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report_dir, no_flip
-):
+def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1353,10 +1411,10 @@ def evaluate_cmd(
         limit=limit,
         device=device,
         checkpoint=checkpoint,
-        report_dir=report_dir,
+        report=report,
         flip=not no_flip,
     )
-    summary = evaluate(request, progress=evaluate_progress)
+    summary = evaluate(request, progress=evaluate_progress())
     for line in summary.lines():
         click.echo(line)
 

@@ -58,15 +58,15 @@ for size in "${SIZES[@]}"; do
     reports+=("$run/report-all/report.json")
     if [[ ! -f "$run/report-all/report.json" ]]; then
       log "evaluate $run --spp none --no-flip"
-      "$SB" evaluate "$run" "$OUT/mini" --out "$run/evaluation-all-samples" --report "$run/report-all" \
-        --spp none --no-flip 2>&1 | grep -v '^sample ' | tail -n 12
+      "$SB" evaluate "$run" "$OUT/mini" --out "$run/report-all" --report \
+        --spp none --no-flip 2>&1 | grep -v ' samples .* ETA ' | tail -n 12
     fi
     # path tracing once (1 and 4 spp and equal time, with and without OIDN, every metric), beside
     # the first size's first seed, on the first 160 held-out samples (32 materials): it does not
     # depend on the run (the equal-time spp follows the network's width, the same for every run)
     if [[ "$size" == "${SIZES[0]}" && "$seed" == "${SEEDS[0]}" && ! -f "$run/report/report.json" ]]; then
       log "evaluate $run --spp 1,4 --limit 160"
-      "$SB" evaluate "$run" "$OUT/mini" --report "$run/report" --spp 1,4 --limit 160 2>&1 | grep -v '^sample ' | tail -n 30
+      "$SB" evaluate "$run" "$OUT/mini" --out "$run/report" --report --spp 1,4 --limit 160 2>&1 | grep -v ' samples .* ETA ' | tail -n 30
     fi
   done
 done

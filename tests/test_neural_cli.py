@@ -79,6 +79,19 @@ def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     assert Image.open(tmp_path / "ev" / "grid.png").size[0] > 4 * 32
 
 
+@pytest.mark.slow
+def test_train_with_no_loss_named_trains_and_says_which(reference, tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))  # no VGG16 weights, as on a fresh machine
+    out = tmp_path / "run"
+    result = _invoke("train", reference, "--out", out, "--epochs", 1, "--resolution", 32, "--batch-size", 4)
+    assert result.exit_code == 0, result.output
+    assert "loss: l1 (--loss auto: no VGG16 ImageNet weights at " in result.output
+    assert json.loads((out / "config.json").read_text())["loss"]["used"] == "l1"
+    args = ("--out", out, "--epochs", 1, "--resolution", 32, "--batch-size", 4, "--json")
+    doc = json.loads(_invoke("train", reference, *args).output)
+    assert doc["nothing_to_do"] and doc["loss"] == "l1" and doc["loss_reason"].startswith("loss: l1 (--loss auto")
+
+
 def _snapshot(folder):
     return {
         p: open(os.path.join(folder, p), "rb").read()
@@ -92,7 +105,8 @@ def test_bad_input_exits_2_naming_it_and_writes_nothing(run, reference, tmp_path
     cases = [
         (["train", tmp_path / "nothere", "--out", tmp_path / "r1", *TRAIN], "nothere"),
         (["train", reference, "--out", tmp_path / "r2", "--loss", "l1", "--resolution", "48"], "--resolution: 48"),
-        (["train", reference, "--out", tmp_path / "r3", "--resolution", "32"], "--vgg-weights"),
+        (["train", reference, "--out", tmp_path / "r3", "--resolution", "32", "--loss", "l1+vgg"], "--vgg-weights"),
+        (["train", reference, "--resolution", "32"], "--out"),
         (
             [
                 "train",

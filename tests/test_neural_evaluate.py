@@ -123,15 +123,20 @@ def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
 
 @pytest.mark.slow
 def test_evaluate_report_has_classes_with_intervals_a_learning_curve_and_a_grid(trained, reference, tmp_path):
-    report_dir = tmp_path / "report"
+    report_dir = tmp_path / "ev"
     result = _invoke(
-        "evaluate", trained, reference, "--split", "all", "--spp", "1", "--limit", 8, "--report", report_dir,
-        "--out", tmp_path / "ev",
+        "evaluate", trained, reference, "--split", "all", "--spp", "1", "--limit", 8, "--report",
+        "--out", report_dir,
     )  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert sorted(os.listdir(report_dir)) == [
-        "grid.png", "learning-curve.csv", "learning-curve.png", "report.json", "report.md",
+    assert sorted(os.listdir(report_dir)) == [  # one folder, one grid
+        "grid.png", "learning-curve.csv", "learning-curve.png", "report.json", "report.md", "results.json",
+        "results.md",
     ]  # fmt: skip
+    assert sorted(os.listdir(tmp_path)) == ["ev"]
+    # progress as a build shows it: samples done, rate, ETA and what runs now, on stderr
+    assert "8/8 samples 100.0%" in result.output and "ETA" in result.output
+    assert "equal time (the network's CPU time" in result.output
     data = json.loads((report_dir / "report.json").read_text())
     assert {"pt_equal_time", "pt_equal_time+oidn", "pt1", "pt1+oidn"} <= set(data["mean"])
     classes = {r["class"] for r in data["samples"]}
@@ -153,17 +158,24 @@ def test_evaluate_report_has_classes_with_intervals_a_learning_curve_and_a_grid(
     text = (report_dir / "report.md").read_text()
     assert "## Per material class" in text and "![grid](grid.png)" in text
     assert "path tracing, equal CPU time" in text and "+ OIDN (its time added)" in text
+    # the table shows the CPU times the equal-time row matched, as results.json has them
+    equal = data["equal_time"]
+    row = next(line for line in text.splitlines() if line.startswith("| path tracing, equal CPU time ("))
+    assert row.rstrip(" |").endswith(f"{1000 * equal['pt_cpu_s_at_spp']:.1f}")
+    net = next(line for line in text.splitlines() if line.startswith("| neural renderer |"))
+    assert net.rstrip(" |").endswith(f"{1000 * equal['network_cpu_s']:.1f}")
+    assert f"on one torch thread, {1000 * equal['network_cpu_s']:.1f} ms, matched by path tracing at" in text
     from PIL import Image
 
     with Image.open(report_dir / "grid.png") as grid:  # a row per sample shown: at most 2 per class
         assert grid.height > 64 * len(classes)
 
 
-def test_a_report_into_a_file_is_refused_before_anything_is_written(trained, reference, tmp_path):
+def test_evaluate_into_a_file_is_refused_before_anything_is_written(trained, reference, tmp_path):
     (tmp_path / "afile").write_text("x")
-    result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--report", tmp_path / "afile")
-    assert result.exit_code == 2 and "--report" in result.output
-    assert not (tmp_path / "ev").exists()
+    result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--out", tmp_path / "afile")
+    assert result.exit_code == 2 and "--out" in result.output
+    assert sorted(os.listdir(tmp_path)) == ["afile"] and (tmp_path / "afile").read_text() == "x"
 
 
 def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():

@@ -45,8 +45,10 @@ def test_run_files_progress_and_baseline(tmp_path):
     assert [e["epoch"] for e in log] == [1, 2]
     assert {"train_loss", "test_loss", "test_psnr", "samples_per_s", "time_s"} <= set(log[-1])
     assert Image.open(run / "loss.png").size == (640, 400)
-    assert [(e["epoch"], e["batch"]) for e in events] == [(1, 1), (1, 2), (1, 3), (2, 1), (2, 2), (2, 3)]
-    assert events[-1]["eta_s"] == 0 and events[0]["samples_per_s"] > 0
+    assert events[0] == {"note": "loss: l1 (--loss l1)"} == {"note": summary.loss_reason}
+    batches = events[1:]
+    assert [(e["epoch"], e["batch"]) for e in batches] == [(1, 1), (1, 2), (1, 3), (2, 1), (2, 2), (2, 3)]
+    assert batches[-1]["eta_s"] == 0 and batches[0]["samples_per_s"] > 0
 
 
 def test_epoch_order_is_a_pure_function_of_seed_and_epoch():
@@ -133,3 +135,54 @@ def test_missing_vgg_weights_refuse_before_anything_is_written(tmp_path, monkeyp
     with pytest.raises(ShaderballError, match="--vgg-weights"):
         train(_config(tmp_path, loss="l1+vgg"), source=FakeSource())
     assert not (tmp_path / "run").exists()
+
+
+def test_the_default_loss_is_l1_without_vgg_weights_and_says_so(tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))
+    summary = train(_config(tmp_path, loss="auto"), source=FakeSource())
+    assert summary.loss == "l1"
+    assert summary.loss_reason.startswith("loss: l1 (--loss auto: no VGG16 ImageNet weights at ")
+    assert summary.loss_reason in summary.lines() and summary.to_dict()["loss"] == "l1"
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["loss"] == {"requested": "auto", "used": "l1", "reason": summary.loss_reason}
+    assert config["identity"]["loss"] == "l1"
+    # the same run named explicitly resumes it: auto's choice is the run's identity
+    again = train(_config(tmp_path, loss="l1", epochs=3), source=FakeSource())
+    assert again.resumed_from == 2 and again.epochs_done == 3
+
+
+def test_the_default_loss_is_the_papers_where_vgg_weights_are_found(tmp_path, monkeypatch):
+    from pipeline.neural.vgg import HUB_FILENAME, random_vgg16_state_dict, sha256_of
+
+    home = tmp_path / "torch-home"
+    (home / "hub" / "checkpoints").mkdir(parents=True)
+    weights = home / "hub" / "checkpoints" / HUB_FILENAME
+    torch.save(random_vgg16_state_dict(1), weights)
+    monkeypatch.setenv("TORCH_HOME", str(home))
+    summary = train(_config(tmp_path, loss="auto", epochs=1, vgg_sha256=sha256_of(weights)), source=FakeSource())
+    assert summary.loss == "l1+vgg" and str(weights) in summary.loss_reason
+    assert "train_vgg" in summary.history[-1]
+
+
+def test_the_best_checkpoint_holds_the_weights_only_and_resume_uses_the_last(tmp_path):
+    train(_config(tmp_path, epochs=1), source=FakeSource())
+    run = tmp_path / "run"
+    best = runfiles.load_checkpoint(str(run), checkpoint="best")
+    last = runfiles.load_checkpoint(str(run))
+    assert "optimizer" not in best and "optimizer" in last
+    assert best["model"].keys() == last["model"].keys()
+    assert (run / "checkpoint-best.pt").stat().st_size < 0.5 * (run / "checkpoint.pt").stat().st_size
+    assert train(_config(tmp_path, epochs=2), source=FakeSource()).resumed_from == 1
+
+
+def test_a_run_below_the_mean_image_says_so_with_what_to_try():
+    from pipeline.neural.train import TrainSummary
+
+    history = [{"epoch": 2, "train_loss": 0.2, "test_loss": 0.3, "test_psnr": 17.01, "lr": 1e-3}]
+    below = TrainSummary("RUN", 2, 0, history=history, baseline_psnr=17.30)
+    text = below.lines()[-1]
+    assert text.startswith("warning: held-out PSNR 17.01 dB after epoch 2 is below the training-set mean image's 17.30")
+    assert "--epochs" in text and "--lr" in text and "more training data" in text
+    assert below.to_dict()["below_mean_image"] == text.removeprefix("warning: ")
+    above = TrainSummary("RUN", 2, 0, history=[dict(history[0], test_psnr=18.0)], baseline_psnr=17.30)
+    assert above.below_mean_image is None and not any("mean image's" in line for line in above.lines())

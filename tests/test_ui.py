@@ -35,11 +35,23 @@ def test_a_build_off_a_terminal_prints_whole_lines_only_when_something_changes(c
 def test_training_off_a_terminal_prints_a_line_per_batch(capsys):
     show = progress.training_progress()
     p = dict(epoch=1, epochs=2, batches=2, loss=0.25, samples_per_s=3.0, eta_s=None)
+    show({"note": "loss: l1 (--loss l1)"})
     show({**p, "batch": 1})
     show({**p, "batch": 2})
     assert capsys.readouterr().err.splitlines() == [
+        "loss: l1 (--loss l1)",
         "epoch 1/2 [##########..........] batch 1/2  loss 0.2500  3.0 samples/s  ETA --:--",
         "epoch 1/2 [####################] batch 2/2  loss 0.2500  3.0 samples/s  ETA --:--",
+    ]
+
+
+def test_evaluate_off_a_terminal_prints_a_bar_line_per_step_saying_what_runs(capsys):
+    show = progress.evaluate_progress()
+    show(dict(done=0, total=4, rate=0.0, elapsed_s=0.5, eta_s=None, what="m000000_l0: network"))
+    show(dict(done=1, total=4, rate=0.25, elapsed_s=4.0, eta_s=12.0, what="m000000_l0: done"))
+    assert capsys.readouterr().err.splitlines() == [
+        "[..............................] 0/4 samples   0.0%  0.00/s  elapsed 0:00  ETA --:--  | m000000_l0: network",
+        "[#######.......................] 1/4 samples  25.0%  0.25/s  elapsed 0:04  ETA 0:12  | m000000_l0: done",
     ]
 
 

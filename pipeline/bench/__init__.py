@@ -1,6 +1,7 @@
 """Measurements: what accuracy and the build cost in time, and the evidence behind defaults.
 
-``build_bench`` (``shaderball bench``: a build against bare renders), ``effects`` (what the
+``build_bench`` (``shaderball bench``: a build against bare renders), ``estimate``
+(``shaderball plan``: a spec's counts, disk and time from its first renders), ``effects`` (what the
 effects a build leaves out would cost), ``compare`` (two renders equal within noise),
 ``memory_probe`` (worker memory over many renders), ``sun_benchmark``, ``sky_floor`` and
 ``probe_scene`` (the sky's measurements). Nothing in the project imports it except the CLI

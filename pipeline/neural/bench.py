@@ -41,7 +41,7 @@ from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
-from pipeline.neural.train import TrainConfig, pick_device
+from pipeline.neural.train import TrainConfig, choose_loss, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
 from pipeline.render.mitsuba_env import resolve_variant
 
@@ -251,6 +251,8 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
     config.check()
     device = pick_device(config.device)
     config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
+    if config.loss == "auto":  # the loss training would use (the rate depends on the kind, not the weights)
+        config = dataclasses.replace(config, loss=choose_loss(config).name)
     loaded = loader_rate(config)
     resolution = loaded.resolution
     training = TrainingSteps(config, device, resolution)

@@ -9,8 +9,12 @@ texture-space maps file), lighting, settings and a seed of their own; denoising 
 Open Image Denoise (``pyoidn``) in HDR mode, fed the noise-free first-hit albedo and normal
 (:mod:`pipeline.neural.denoise`), and on the colour alone as a second row. DATASET may be
 a dataset folder or its publication (:func:`pipeline.neural.data.open_dataset`). The
-Mitsuba variant is resolved once, from the dataset's. Writes results.json, results.md
-(Table 1-shaped) and grid.png (reference, network, 2 spp, 2 spp + denoiser).
+Mitsuba variant is resolved once, from the dataset's. Everything goes into one folder
+(``--out``, default RUN/evaluation-SPLIT): results.json, results.md (Table 1-shaped, with
+the CPU times the equal-time row matched) and grid.png (the maps, the reference, the network,
+path tracing at equal time and at 2 spp with and without the denoiser, error maps; two
+samples per material class); with ``report`` also report.md, report.json and the learning
+curve (:mod:`pipeline.neural.report`).
 """
 
 from __future__ import annotations
@@ -72,16 +76,15 @@ class EvaluateRequest:
     run: str  # training run folder
     dataset: str  # dataset folder with the references
     split: str = "test"  # test or train (the run's split by material; same dataset only) or all
-    out_dir: str | None = None  # where results.json, results.md and grid.png go; default RUN/evaluation-SPLIT
+    out_dir: str | None = None  # the one folder of results, grid and report; default RUN/evaluation-SPLIT
     json_path: str | None = None  # also write the results JSON here
     spp: tuple[int, ...] = DEFAULT_SPP  # low-spp path tracing to compare with; () for none
     denoise: bool = True  # also denoise each low-spp render with pyoidn
     limit: int | None = None  # evaluate at most this many samples (in manifest order)
     device: str = "auto"
     check_hashes: bool = True
-    grid_rows: int = 4
     checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
-    report_dir: str | None = None  # also write a report: per-class table, learning curve, picture grid
+    report: bool = False  # also write report.md/.json (per-class table) and the learning curve into out_dir
     flip: bool = True  # HDR-FLIP (the slowest metric: most of an evaluation's time at 64x64)
 
 
@@ -92,13 +95,12 @@ class EvaluateSummary:
     means: dict
     notes: list = field(default_factory=list)
     table: str = ""
-
-    report_dir: str | None = None
+    report: bool = False
 
     def lines(self) -> list[str]:
         return [
             f"evaluated {self.samples} samples; wrote {self.out_dir}/results.md, results.json, grid.png"
-            + (f"; the report in {self.report_dir}/report.md" if self.report_dir else ""),
+            + (", report.md, report.json, learning-curve.png/.csv" if self.report else ""),
             *self.table.splitlines(),
             *self.notes,
         ]
@@ -152,6 +154,17 @@ def equal_time_spp(network_cpu_s: float, probe: dict[int, float], hi: int = SPP_
     return int(min(hi, max(1, round((network_cpu_s - fixed) / per_spp))))
 
 
+def pt_cpu_time(probe: dict[int, float], spp: int) -> float:
+    """Path tracing's CPU time at ``spp`` on the line :func:`equal_time_spp` solves (its time
+    per spp alone, when the larger probe took no more time)."""
+    (s0, t0), (s1, t1) = sorted(probe.items())
+    per_spp = (t1 - t0) / (s1 - s0)
+    fixed = t0 - per_spp * s0
+    if per_spp <= 0 or fixed < 0:
+        per_spp, fixed = t1 / s1, 0.0
+    return fixed + per_spp * spp
+
+
 TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
 
 
@@ -202,12 +215,32 @@ def _check(req: EvaluateRequest) -> None:
         raise bad_value("--limit", req.limit, "an integer >= 1")
     if req.json_path is not None and not req.json_path.lower().endswith(".json"):
         raise bad_value("--json", req.json_path, "a file name ending in .json")
-    if req.report_dir is not None and os.path.exists(req.report_dir) and not os.path.isdir(req.report_dir):
-        raise bad_value("--report", req.report_dir, "a folder (this is a file)")
+    if req.out_dir is not None and os.path.exists(req.out_dir) and not os.path.isdir(req.out_dir):
+        raise bad_value("--out", req.out_dir, "a folder (this is a file)")
+
+
+class _Progress:
+    """``progress(dict)`` with done/total samples, rate, elapsed, ETA and what runs now."""
+
+    def __init__(self, progress, total: int):
+        self.progress, self.total, self.done = progress, total, 0
+        self.started = time.perf_counter()
+
+    def __call__(self, what: str) -> None:
+        if self.progress is None:
+            return
+        elapsed = time.perf_counter() - self.started
+        rate = self.done / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - self.done) / rate if rate > 0 else None
+        self.progress(
+            {"done": self.done, "total": self.total, "rate": rate, "elapsed_s": elapsed, "eta_s": eta, "what": what}
+        )
 
 
 def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
-    """Evaluate a run on a dataset; everything is checked before anything is written."""
+    """Evaluate a run on a dataset; everything is checked before anything is written.
+    ``progress(dict)``: done and total samples, samples/s, elapsed and ETA seconds, and what
+    runs now (the first sample also compiles kernels and measures equal time)."""
     _check(req)
     device = pick_device(req.device)
     model, config = load_run_model(req.run, device, req.checkpoint)
@@ -261,12 +294,14 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     scores = functools.partial(_scores, flip=req.flip)
     ldr_scores = functools.partial(_ldr_scores, flip=req.flip)
     equal_time = None
-    rows, grid, report_rows = [], [], []
+    rows, grid_rows = [], []
+    show = _Progress(progress, len(indices))
     per_class: dict[str, int] = {}
     aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
     for n, index in enumerate(indices, start=1):
         item = dataset[index]
         sample = dataset.samples[index]
+        show(f"{sample.id}: network")
         ref_hdr = box_downsample(_read_render(dataset, sample), dataset.factor)
         ref8 = hdr_to_srgb8(ref_hdr, exposure)
         run_network(model, item["maps"].numpy(), sample.lighting_vector, device)  # warm-up
@@ -291,6 +326,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         maps = tracer.material(sample) if tracer else None
         if maps is not None:
             if equal_time is None:  # measured once, on this machine, in this run
+                show(f"{sample.id}: equal time (the network's CPU time, path tracing at {EQUAL_TIME_PROBE_SPP} spp)")
                 equal_time = _measure_equal_time(model, item, sample, tracer, records[sample.id], maps, device)
             image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
             pictures["equal time"] = hdr_to_srgb8(image, exposure)
@@ -305,6 +341,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         if tracer and maps is None and "no texture" not in " ".join(notes):
             notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
         for spp in req.spp if maps is not None else ():
+            show(f"{sample.id}: path tracing {spp} spp" + (", denoising" if want_denoise else ""))
             image, t = tracer.render(records[sample.id], maps, spp)
             row[f"pt{spp}"] = scores(image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t)
             if spp == GRID_SPP:
@@ -319,14 +356,12 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 if spp == GRID_SPP:
                     pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
         rows.append(row)
-        if len(grid) < req.grid_rows:
-            grid.append((sample.id, pictures))
-        if req.report_dir and per_class.get(row["class"], 0) < report.GRID_PER_CLASS:
+        if per_class.get(row["class"], 0) < report.GRID_PER_CLASS:
             per_class[row["class"]] = per_class.get(row["class"], 0) + 1
             title = f"{sample.id}\n{row['class']}\nnet {row['network']['psnr']:.1f} dB"
-            report_rows.append((title, report.grid_pictures(item["maps"].numpy(), pictures)))
-        if progress is not None:
-            progress({"sample": n, "samples": len(indices), "id": sample.id})
+            grid_rows.append((title, report.grid_pictures(item["maps"].numpy(), pictures)))
+        show.done = n
+        show(f"{sample.id}: done")
 
     methods = [k for k in rows[0] if k not in ("id", "material_id", "class")]
     means = {
@@ -387,18 +422,16 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "denoiser": DENOISER if want_denoise else None,
         "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR",
     }
-    table = markdown_table(means, len(rows), model.resolution, ref_spp)
+    table = markdown_table(means, len(rows), model.resolution, ref_spp, equal_time)
     os.makedirs(out_dir, exist_ok=True)
     runfiles.write_json(os.path.join(out_dir, "results.json"), result)
     write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
-    write_bytes_atomic(os.path.join(out_dir, "grid.png"), grid_png(grid))
+    write_bytes_atomic(os.path.join(out_dir, "grid.png"), report.picture_grid(grid_rows, report.GRID_COLUMNS))
     if req.json_path:
         runfiles.write_json(req.json_path, result)
-    if req.report_dir:
-        report.write_report(
-            req.report_dir, result, table, report.class_table(result["by_class"], _label), report_rows, req.run
-        )
-    return EvaluateSummary(out_dir, len(rows), means, notes, table, req.report_dir)
+    if req.report:
+        report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
+    return EvaluateSummary(out_dir, len(rows), means, notes, table, req.report)
 
 
 def _material_kind(records: dict, sample_id: str):
@@ -441,9 +474,11 @@ def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> di
     probe = {spp: min(times) for spp, times in probe_all.items()}
     network_cpu_s = min(network_all)
     lo, hi = EQUAL_TIME_PROBE_SPP
+    spp = equal_time_spp(network_cpu_s, probe)
     return {
-        "spp": equal_time_spp(network_cpu_s, probe),
+        "spp": spp,
         "network_cpu_s": network_cpu_s,
+        "pt_cpu_s_at_spp": pt_cpu_time(probe, spp),
         "pt_cpu_s": {str(k): v for k, v in probe.items()},
         "network_cpu_s_all": network_all,
         "pt_cpu_s_all": {str(k): v for k, v in probe_all.items()},
@@ -499,7 +534,12 @@ def _label(method: str, means: dict | None = None) -> str:
     return f"path tracing, {spp} spp" + {"": "", "oidn": " + OIDN", "oidn-colour": " + OIDN, colour only"}[extra]
 
 
-def markdown_table(means: dict, samples: int, resolution: int, reference_spp: int | None = None) -> str:
+def markdown_table(
+    means: dict, samples: int, resolution: int, reference_spp: int | None = None, equal_time: dict | None = None
+) -> str:
+    """Table 1: a row per method; the network's and the equal-time row's matched CPU times in a
+    column of their own (``equal_time``: :func:`_measure_equal_time`'s figures)."""
+
     def fmt(v, spec):
         return "-" if v is None else format(v, spec)
 
@@ -513,21 +553,29 @@ def markdown_table(means: dict, samples: int, resolution: int, reference_spp: in
         + "; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on linear HDR; time per image; "
         "[95% interval, bootstrap over materials]",
         "",
-        "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) |",
-        "|---|---|---|---|---|---|",
+        "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) | CPU time matched (ms) |",
+        "|---|---|---|---|---|---|---|",
     ]
+    matched = {}
+    if equal_time:
+        matched = {"network": equal_time["network_cpu_s"], "pt_equal_time": equal_time.get("pt_cpu_s_at_spp")}
     for method, m in means.items():
+        cpu = matched.get(method)
         lines.append(
             f"| {_label(method, means)} | {interval(m, 'psnr', '.2f')} | {fmt(m['ssim'], '.4f')} | "
-            f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} |"
+            f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} | "
+            f"{fmt(None if cpu is None else cpu * 1000, '.1f')} |"
         )
+    if equal_time:
+        lines += [
+            "",
+            f"Equal time: the network's CPU time per image on one torch thread, "
+            f"{1000 * equal_time['network_cpu_s']:.1f} ms, matched by path tracing at {equal_time['spp']} spp "
+            f"({1000 * equal_time['pt_cpu_s_at_spp']:.1f} ms of CPU on the line through its CPU times at "
+            + " and ".join(f"{k} spp ({1000 * v:.1f} ms)" for k, v in equal_time["pt_cpu_s"].items())
+            + "); time (ms) is wall time per image.",
+        ]
     return "\n".join(lines) + "\n"
-
-
-def grid_png(rows: list[tuple[str, dict]]) -> bytes:
-    """Rows of labelled pictures: reference, network, 2 spp, 2 spp + OIDN."""
-    columns = ["reference", "network", f"{GRID_SPP} spp", f"{GRID_SPP} spp + OIDN"]
-    return report.picture_grid(rows, columns, cell_target=192, label=90, pad=6)
 
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate"]

@@ -4,6 +4,9 @@ the same values (one owner per range, issue 21)."""
 
 from __future__ import annotations
 
+#: --loss: auto (the default: the paper's l1+vgg where VGG16's ImageNet weights are found, else l1),
+#: l1+vgg (the paper's L1 + VGG16 relu3_3 feature loss; refused without the weights) or l1.
+LOSS_CHOICES = ("auto", "l1+vgg", "l1")
 #: --device: where the network runs ("auto": cuda where torch sees a device, else cpu).
 DEVICES = ("auto", "cpu", "cuda")
 #: train's integer options and their inclusive ranges.

@@ -108,6 +108,9 @@ def grid_pictures(maps: np.ndarray, pictures: dict) -> dict:
     }
     if "equal time" in pictures:
         cells["PT equal time"] = pictures["equal time"]
+    for name in ("2 spp", "2 spp + OIDN"):
+        if name in pictures:
+            cells[name] = pictures[name]
     cells["|network - ref| x4"] = _error_map(pictures["network"], pictures["reference"])
     if "equal time" in pictures:
         cells["|PT - ref| x4"] = _error_map(pictures["equal time"], pictures["reference"])
@@ -122,6 +125,8 @@ GRID_COLUMNS = (
     "reference",
     "network",
     "PT equal time",
+    "2 spp",
+    "2 spp + OIDN",
     "|network - ref| x4",
     "|PT - ref| x4",
 )
@@ -180,8 +185,9 @@ def class_table(by_class: dict, label) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(report_dir: str, result: dict, table: str, by_class_table: str, grid_rows: list, run_dir: str) -> None:
-    """report.md, report.json, learning-curve.png/.csv and grid.png into ``report_dir``."""
+def write_report(report_dir: str, result: dict, table: str, by_class_table: str, run_dir: str) -> None:
+    """report.md, report.json and learning-curve.png/.csv into ``report_dir``, beside the
+    evaluation's grid.png."""
     history = runfiles.read_log(run_dir)
     config = runfiles.read_config(run_dir)
     baseline = (config.get("baseline") or {}).get("test_psnr")
@@ -189,8 +195,6 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     os.makedirs(report_dir, exist_ok=True)
     write_bytes_atomic(os.path.join(report_dir, "learning-curve.png"), learning_curve_png(history, baseline))
     write_bytes_atomic(os.path.join(report_dir, "learning-curve.csv"), runfiles.log_csv(history))
-    if grid_rows:
-        write_bytes_atomic(os.path.join(report_dir, "grid.png"), picture_grid(grid_rows, GRID_COLUMNS))
     last = history[-1] if history else {}
     split = config.get("split") or {}
     lines = [
@@ -226,7 +230,8 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
         "![grid](grid.png)",
         "",
         "Columns: the maps (diffuse, specular sRGB; roughness, normal colour linear), the reference, the "
-        f"network, path tracing at equal time, and |image - reference| on 8-bit sRGB, mean over RGB, x{ERROR_GAIN:g}.",
+        "network, path tracing at equal time and at 2 spp (and denoised), and |image - reference| on 8-bit "
+        f"sRGB, mean over RGB, x{ERROR_GAIN:g}; two samples per material class.",
         "",
         *(f"- {note}" for note in result.get("notes", [])),
     ]

@@ -34,7 +34,8 @@ CSV_COLUMNS = (
     "samples_per_s",
 )
 CHECKPOINT = "checkpoint.pt"
-#: The checkpoint of the epoch with the best held-out PSNR so far (runs with a held-out split).
+#: The checkpoint of the epoch with the best held-out PSNR so far (runs with a held-out split):
+#: the weights only, no optimizer state.
 BEST_CHECKPOINT = "checkpoint-best.pt"
 #: What `--checkpoint` names: the last epoch's or the best held-out one's, or else a file.
 CHECKPOINT_CHOICES = {"last": CHECKPOINT, "best": BEST_CHECKPOINT}
@@ -105,24 +106,25 @@ def save_checkpoint(
     *,
     epoch: int,
     model_state: dict,
-    optimizer_state: dict,
+    optimizer_state: dict | None,
     history: list[dict],
     identity_digest: str,
     name: str = CHECKPOINT,
 ) -> None:
+    """``optimizer_state`` None: the weights only (the best checkpoint: a third of the size of one
+    with Adam's two moments; a run resumes from the last checkpoint, which keeps them)."""
+    content = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "epoch": int(epoch),
+        "identity_digest": identity_digest,
+        "model": {k: v.detach().cpu() for k, v in model_state.items()},
+        "history": history,
+    }
+    if optimizer_state is not None:
+        content["optimizer"] = optimizer_state
     buffer = io.BytesIO()
-    torch.save(
-        {
-            "format": CHECKPOINT_FORMAT,
-            "version": CHECKPOINT_VERSION,
-            "epoch": int(epoch),
-            "identity_digest": identity_digest,
-            "model": {k: v.detach().cpu() for k, v in model_state.items()},
-            "optimizer": optimizer_state,
-            "history": history,
-        },
-        buffer,
-    )
+    torch.save(content, buffer)
     write_bytes_atomic(os.path.join(run_dir, name), buffer.getvalue())
 
 

@@ -29,8 +29,8 @@ from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
 from pipeline.neural import runfiles, speed
 from pipeline.neural.data import batches, open_dataset
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, PRECISIONS
-from pipeline.neural.loss import LOSSES, RenderLoss
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS
+from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import (
     NeuralRenderer,
     check_network_resolution,
@@ -40,7 +40,7 @@ from pipeline.neural.network import (
 )
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.splits import split_materials
-from pipeline.neural.vgg import find_vgg_weights, load_vgg16_relu3_3
+from pipeline.neural.vgg import HUB_FILENAME, VggWeights, find_vgg_weights, hub_cache_path, load_vgg16_relu3_3
 from pipeline.store.atomic import write_bytes_atomic
 
 #: Config fields that change what a run computes: a resume must match them.
@@ -79,7 +79,7 @@ class TrainConfig:
     epochs: int = 30  # epochs to reach; a resumed run continues up to this number
     batch_size: int = 6  # samples per step (the paper's 6)
     lr: float = 1e-3  # Adam learning rate (the released code's 1e-3; the paper's text says 1e-2, which saturates)
-    loss: str = "l1+vgg"  # "l1+vgg" (the paper's) or "l1"
+    loss: str = "auto"  # "auto" (l1+vgg where VGG16's weights are found, else l1), "l1+vgg" (the paper's) or "l1"
     vgg_weights: str | None = None  # torchvision vgg16 state dict; default: torch hub's cache
     vgg_sha256: str | None = None  # expected SHA-256 of the VGG weights; default: torchvision's file
     vgg_weight: float = 1.0  # weight of the VGG relu3_3 term beside L1
@@ -122,8 +122,8 @@ class TrainConfig:
         number("exposure", 0.0, 1e6, lo_open=True)
         if not (isinstance(self.test_fraction, (int, float)) and 0.0 <= self.test_fraction < 1.0):
             raise bad_value("--test-fraction", self.test_fraction, "a fraction in [0, 1)")
-        if self.loss not in LOSSES:
-            raise bad_value("--loss", self.loss, " or ".join(LOSSES))
+        if self.loss not in LOSS_CHOICES:
+            raise bad_value("--loss", self.loss, ", ".join(LOSS_CHOICES))
         if self.precision not in PRECISIONS:
             raise bad_value("--precision", self.precision, ", ".join(PRECISIONS))
         if self.device not in DEVICES:
@@ -155,12 +155,22 @@ class TrainSummary:
     device: str = "cpu"
     parameters: int = 0
     nothing_to_do: bool = False  # the run already had --epochs epochs; nothing was written
+    loss: str = ""  # the loss trained with: l1+vgg or l1
+    loss_reason: str = ""  # one line: which loss, and why (--loss auto's choice)
+    #: what to try when the held-out PSNR ends below the training-set mean image's; None otherwise
+    below_mean_image: str | None = None
+
+    def __post_init__(self):
+        if self.below_mean_image is None:
+            self.below_mean_image = below_mean_image_advice(self.history, self.baseline_psnr)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def lines(self) -> list[str]:
         out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]
+        if self.loss_reason:
+            out.append(self.loss_reason)
         if self.nothing_to_do:
             out.append(
                 f"nothing to do: the run has already trained {self.epochs_done} epochs "
@@ -182,7 +192,66 @@ class TrainSummary:
             out.append(f"baseline (training-set mean image) PSNR on held-out: {self.baseline_psnr:.2f} dB")
         if self.history and self.history[-1].get("warnings"):
             out.extend(f"warning: {text}" for text in self.history[-1]["warnings"])
+        if self.below_mean_image:
+            out.append(f"warning: {self.below_mean_image}")
         return out
+
+
+def below_mean_image_advice(history: list[dict], baseline_psnr: float | None) -> str | None:
+    """What to try when the last epoch's held-out PSNR is below the training-set mean image's
+    (the run has not learnt more than the average picture); None when it is above, or unknown."""
+    last = history[-1].get("test_psnr") if history else None
+    if last is None or baseline_psnr is None or last >= baseline_psnr:
+        return None
+    epoch, lr = history[-1].get("epoch"), history[-1].get("lr")
+    at = f" (now {lr:g})" if lr else ""
+    return (
+        f"held-out PSNR {last:.2f} dB after epoch {epoch} is below the training-set mean image's "
+        f"{baseline_psnr:.2f} dB: the network predicts worse than the average picture. Try more epochs "
+        f"(a larger --epochs continues this run), another --lr{at}: lower if the loss jumps about or the "
+        "outputs saturate, higher if it falls slowly; or more training data (more materials)"
+    )
+
+
+@dataclass(frozen=True)
+class LossChoice:
+    """The loss a run trains with and why (``--loss auto`` resolved)."""
+
+    name: str  # l1+vgg or l1
+    reason: str  # one line for the summary, the log and config.json
+    weights: VggWeights | None  # the VGG16 weights (l1+vgg), their SHA-256 checked
+
+
+def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
+    """``config.loss``, with ``auto`` resolved: the run's own loss when it resumes one
+    (``run_loss``), the paper's l1+vgg when --vgg-weights is given or the weights are in torch
+    hub's cache, else l1. An explicit l1+vgg without usable weights is refused (ShaderballError)."""
+    if config.loss == "l1":
+        return LossChoice("l1", "loss: l1 (--loss l1)", None)
+    if config.loss == "l1+vgg" or config.vgg_weights is not None or run_loss == "l1+vgg":
+        weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
+        why = (
+            "--loss l1+vgg"
+            if config.loss == "l1+vgg"
+            else ("the run's own loss" if run_loss == "l1+vgg" else "--loss auto, --vgg-weights given")
+        )
+        return LossChoice("l1+vgg", f"loss: l1+vgg, the paper's L1 + VGG16 ({why}; weights {weights.path})", weights)
+    if run_loss == "l1":
+        return LossChoice("l1", "loss: l1 (--loss auto: the run's own loss)", None)
+    try:
+        weights = find_vgg_weights(None, config.vgg_sha256)
+    except ShaderballError as exc:
+        found = os.path.isfile(hub_cache_path())
+        why = str(exc) if found else f"no VGG16 ImageNet weights at {hub_cache_path()}"
+        return LossChoice(
+            "l1",
+            f"loss: l1 (--loss auto: {why}; for the paper's L1 + VGG16 put {HUB_FILENAME} there or pass "
+            "--vgg-weights FILE)",
+            None,
+        )
+    return LossChoice(
+        "l1+vgg", f"loss: l1+vgg, the paper's L1 + VGG16 (--loss auto: weights found at {weights.path})", weights
+    )
 
 
 def pick_device(name: str) -> torch.device:
@@ -214,11 +283,10 @@ def deterministic_algorithms():
         torch.use_deterministic_algorithms(before)
 
 
-def make_loss(config: TrainConfig) -> tuple[RenderLoss, str | None]:
-    if config.loss == "l1":
+def make_loss(choice: LossChoice, vgg_weight: float) -> tuple[RenderLoss, str | None]:
+    if choice.name == "l1":
         return RenderLoss("l1"), None
-    weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
-    return RenderLoss("l1+vgg", load_vgg16_relu3_3(weights), config.vgg_weight), weights.sha256
+    return RenderLoss("l1+vgg", load_vgg16_relu3_3(choice.weights), vgg_weight), choice.weights.sha256
 
 
 def batch_to(
@@ -398,15 +466,21 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     resolution = source.resolution
     pool, test_ids = split_materials(source.material_ids, config.test_fraction, config.splitting_seed)
     train_ids = select_training_materials(pool, config.train_materials, config.splitting_seed)
-    loss_fn, vgg_sha = make_loss(config)
+    config_path = os.path.join(config.out, runfiles.CONFIG)
+    old = runfiles.read_config(config.out) if os.path.isfile(config_path) else None
+    choice = choose_loss(config, (old or {}).get("identity", {}).get("loss") if config.loss == "auto" else None)
+    requested = config.loss
+    config = dataclasses.replace(config, loss=choice.name)
+    loss_fn, vgg_sha = make_loss(choice, config.vgg_weight)
     torch.manual_seed(config.seed)
     model = NeuralRenderer(resolution, config.width)
     fresh = run_config(config, source, train_ids, test_ids, resolution, vgg_sha, parameter_count(model))
+    fresh["loss"] = {"requested": requested, "used": choice.name, "reason": choice.reason}
+    if progress is not None:
+        progress({"note": choice.reason})
 
     start_epoch, history, ckpt = 0, [], None
-    config_path = os.path.join(config.out, runfiles.CONFIG)
-    if os.path.isfile(config_path):
-        old = runfiles.read_config(config.out)
+    if old is not None:
         if old["identity_digest"] != fresh["identity_digest"]:
             changed = sorted(
                 k
@@ -430,7 +504,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
                     f"(pass --epochs {done} or more to continue it, or a new --out to start again)",
                 )
             if done == config.epochs:
-                return _finished(config, old, ckpt, device, model)
+                return _finished(config, old, ckpt, device, model, choice)
         fresh["baseline"] = old.get("baseline")
 
     model.to(device)
@@ -438,6 +512,11 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
     forward = speed.step_forward(model, loss_fn, config.channels_last, config.compile)
     if ckpt is not None:
+        if "optimizer" not in ckpt:
+            raise ShaderballError(
+                f"{os.path.join(config.out, runfiles.CHECKPOINT)}: holds the weights only (no optimizer state), "
+                "so the run cannot continue from it; restore the run's last checkpoint or train a new --out"
+            )
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         start_epoch, history = ckpt["epoch"], list(ckpt["history"])
@@ -479,7 +558,8 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
                 identity_digest=fresh["identity_digest"],
             )
             if is_best(history):  # before the last: a kill between them redoes this epoch, same weights
-                runfiles.save_checkpoint(config.out, name=runfiles.BEST_CHECKPOINT, **state)
+                best = dict(state, optimizer_state=None)  # the weights only: resume uses the last
+                runfiles.save_checkpoint(config.out, name=runfiles.BEST_CHECKPOINT, **best)
             runfiles.save_checkpoint(config.out, **state)
             runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
             runfiles.write_log_csv(os.path.join(config.out, runfiles.LOG_CSV), history)
@@ -492,6 +572,8 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
         baseline_psnr=fresh["baseline"]["test_psnr"],
         device=str(device),
         parameters=parameter_count(model),
+        loss=choice.name,
+        loss_reason=choice.reason,
     )
 
 
@@ -512,7 +594,7 @@ def is_best(history: list[dict]) -> bool:
     return all(p is None or p < psnrs[-1] for p in psnrs[:-1])
 
 
-def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model) -> TrainSummary:
+def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model, choice: LossChoice) -> TrainSummary:
     """A run that already has ``config.epochs`` epochs: nothing to train, nothing written."""
     history = list(ckpt["history"])
     return TrainSummary(
@@ -524,6 +606,8 @@ def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model) 
         device=str(device),
         parameters=parameter_count(model),
         nothing_to_do=True,
+        loss=choice.name,
+        loss_reason=choice.reason,
     )
 
 

@@ -37,7 +37,7 @@ from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import MaterialScene, RenderSettings, render_sample
 from pipeline.store.atomic import write_text_atomic
-from pipeline.store.exr import write_exr
+from pipeline.store.exr import MATERIAL_MAP_LAYERS, write_exr
 from pipeline.store.folder import complete_marker, real_dir, record_problem
 from pipeline.store.layout import Layout
 from pipeline.store.records import SCHEMA_VERSION, dumps, file_entry, file_ok, read_json
@@ -382,7 +382,7 @@ def write_material_files(layout, spec, ctx, material, maps, description, intact=
 
     storage = spec.storage
     intact = {entry["role"]: entry for entry in intact}
-    half = ("diffuse", "specular", "roughness", "normal") if storage.maps_half else ()
+    half = MATERIAL_MAP_LAYERS if storage.maps_half else ()
     meta = {
         "id": material.material_id,
         "material": description,
@@ -406,12 +406,7 @@ def write_material_files(layout, spec, ctx, material, maps, description, intact=
         files.append(intact["texture"])
     elif storage.texture_maps:
         rel = layout.texture_rel(material.shard_id, material.material_id)
-        texture = {
-            "diffuse": maps.diffuse,
-            "specular": maps.specular,
-            "roughness": maps.roughness,
-            "normal": maps.normal,
-        }
+        texture = {name: getattr(maps, name) for name in MATERIAL_MAP_LAYERS}
         digest = write_exr(layout.path(rel), texture, meta, half=half, compression=storage.compression)
         files.append(file_entry(layout.root, rel, "texture", digest))
     return files

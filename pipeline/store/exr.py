@@ -35,12 +35,27 @@ LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
     "uv": ("U", "V"),
 }
 
+#: A material's four maps: the layers of its texture-space file, and the layers stored as half
+#: floats when ``storage.maps_half`` is on (the mask and the renders stay float32).
+MATERIAL_MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal")
+#: Bytes per channel value of a layer stored as float32 and as half.
+FLOAT_BYTES, HALF_BYTES = 4, 2
+
+
+def pixel_bytes(layers, side: int, half: tuple[str, ...] = ()) -> int:
+    """Bytes of pixel data of a ``side`` x ``side`` file of ``layers``, as :func:`encode_exr` lays
+    them out before compression (headers and compression not counted)."""
+    per_pixel = sum(len(LAYER_CHANNELS[name]) * (HALF_BYTES if name in half else FLOAT_BYTES) for name in layers)
+    return side * side * per_pixel
+
+
 #: The layers each role's file may hold (a maps file holds those storage.layers names).
 ROLE_LAYERS: dict[str, tuple[str, ...]] = {
     "render": ("render",),
-    "maps": ("diffuse", "specular", "roughness", "normal", "mask"),
-    "texture": ("diffuse", "specular", "roughness", "normal"),
+    "maps": (*MATERIAL_MAP_LAYERS, "mask"),
+    "texture": MATERIAL_MAP_LAYERS,
 }
+
 
 #: Linear Rec.709 / sRGB primaries and D65 white: red xy, green xy, blue xy, white xy.
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)

@@ -88,6 +88,9 @@ def training_progress():
         if "warning" in p:  # a run that does not learn says so (pipeline.neural.train)
             click.echo(("\n" if interactive else "") + f"warning: {p['warning']}", err=True)
             return
+        if "note" in p:  # which loss the run trains with, and why
+            click.echo(p["note"], err=True)
+            return
         width = 20
         filled = int(width * p["batch"] / p["batches"])
         line = (
@@ -102,6 +105,23 @@ def training_progress():
     return show
 
 
-def evaluate_progress(p: dict) -> None:
-    """One line on stderr per sample evaluated."""
-    click.echo(f"sample {p['sample']}/{p['samples']} {p['id']}", err=True)
+def evaluate_progress():
+    """evaluate's bar on stderr, as a build's: samples done, percentage, samples/s, elapsed, ETA,
+    and what runs now (the network, the equal-time measurement, path tracing at N spp)."""
+    interactive = sys.stderr.isatty()
+    last = {"width": 0}
+
+    def show(p: dict):
+        width = 30
+        filled = int(width * p["done"] / p["total"]) if p["total"] else width
+        line = (
+            f"[{'#' * filled}{'.' * (width - filled)}] {p['done']}/{p['total']} samples "
+            f"{100.0 * p['done'] / max(p['total'], 1):5.1f}%  {p['rate']:.2f}/s  "
+            f"elapsed {format_seconds(p['elapsed_s'])}  ETA {format_seconds(p['eta_s'])}  | {p['what']}"
+        )
+        padded, last["width"] = line.ljust(last["width"]), len(line)
+        click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive)
+        if interactive and p["done"] >= p["total"]:
+            click.echo("", err=True)
+
+    return show
