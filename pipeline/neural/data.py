@@ -29,6 +29,16 @@ nothing extracted); then each file is read at the offset where its checked bytes
 its tar (:func:`pipeline.publish.reader.read_located`, no ``tarfile``), and its SHA-256
 compared again on its first read in a process. A publication that does not verify is a
 user error (exit code 2), named with the reader's message.
+
+A sample that ``shaderball validate`` refuses is refused here too, when it is read: every
+file's EXR header is checked before it is decoded (single-part scanline, a bounded data
+window and channel count: :func:`pipeline.publish.exrcheck.check_exr_header`), then its
+decoded content by validate's own checks (:func:`pipeline.check.inspect.content_issues`:
+the layers and channels the network needs, the manifest's size, float sample types; maps
+finite, in range, unit normals; a render finite, and non-negative unless the render policy
+flagged it). The policy is to stop, never to skip: a ShaderballError (exit code 2) names
+the file and what is wrong, and training writes nothing for an epoch it did not finish
+(a fresh run reads every sample for its baseline before it writes anything).
 """
 
 from __future__ import annotations
@@ -44,12 +54,14 @@ import torch
 from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
+from pipeline.check.inspect import content_issues, sample_expectations
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.neural.network import check_network_resolution
+from pipeline.publish.exrcheck import check_exr_header
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
-from pipeline.publish.refusal import Refused
+from pipeline.publish.refusal import DEFAULT_LIMITS, Refused
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import (
     UnsafePath,
@@ -205,10 +217,20 @@ def parse_records(data: bytes, description: dict, root: str, where: str, checker
     return records
 
 
+def decode_exr(data: bytes, label: str) -> dict[str, np.ndarray]:
+    """The layers of an EXR file's bytes, its header checked before anything decodes it."""
+    try:
+        check_exr_header(data, label, DEFAULT_LIMITS)
+    except Refused as exc:
+        raise ShaderballError(f"DATASET: {exc.message}") from None
+    return read_exr(data, label).layers
+
+
 class FolderFiles:
     """The files of a dataset folder; a file's key is its path, checked to lie inside."""
 
     kind = "dataset folder"
+    checker = "`shaderball validate`"
 
     def __init__(self, root: str):
         self.root = root
@@ -239,6 +261,7 @@ class PublishedFiles:
     a file's key is its path in the dataset folder's layout, its bytes lie in a tar."""
 
     kind = "publication"
+    checker = "`shaderball unpack`, which validates what it unpacks"
 
     def __init__(self, root: str, located: dict[str, Located]):
         self.root = root
@@ -340,6 +363,10 @@ class ShaderballDataset(Dataset):
         self.identity = identity or {}
         self.files = files if files is not None else FolderFiles(root)
         self.records = records or {}
+        #: renders the render policy flagged (bad pixels recorded): negative values allowed
+        self.flagged = {
+            s.render[0] for s in samples if ((self.records.get(s.id) or {}).get("stats") or {}).get("flagged")
+        }
         self.material_ids = sorted({s.material_id for s in samples})
         self._verified: set[str] = set()
         self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
@@ -373,7 +400,7 @@ class ShaderballDataset(Dataset):
                 raise self.files.changed(key)
             self._verified.add(key)
         label = self.files.label(key)
-        decoded = read_exr(data, label).layers
+        decoded = decode_exr(data, label)
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(
@@ -385,7 +412,21 @@ class ShaderballDataset(Dataset):
             raise ShaderballError(
                 f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says {self.resolution * self.factor}"
             )
+        role = ("render" if "render" in layers else "maps") if screen else "texture"
+        self.refuse_bad_content(label, decoded, role, key in self.flagged)
         return decoded
+
+    def refuse_bad_content(self, label: str, layers: dict[str, np.ndarray], role: str, flagged: bool) -> None:
+        """A ShaderballError naming the file and the first of its issues that validate reports."""
+        expect = sample_expectations(self.resolution * self.factor)[role]
+        issues = content_issues(layers, expect, flagged)
+        if issues:
+            kind, text = issues[0]
+            more = f" (and {len(issues) - 1} more)" if len(issues) > 1 else ""
+            raise ShaderballError(
+                f"DATASET: {label}: {text}{more} [{kind}]: a sample validate refuses; nothing trains "
+                f"on it (check the {self.files.kind} with {self.files.checker}, then repair or rebuild it)"
+            )
 
     def _read(self, key: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
         return self.read_layers((key, sha256), layers, screen=True)

@@ -32,7 +32,7 @@ from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import report, runfiles, speed
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
-from pipeline.neural.infer import load_run_model, run_network
+from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
@@ -213,7 +213,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     model, config = load_run_model(req.run, device, req.checkpoint)
     exposure = float(config["tonemap"]["exposure"])
     source = _open_for_run(req, model.resolution, exposure)
-    same = source.identity == config["identity"]["dataset"]
+    same = source.identity == config["identity"].get("dataset")
     if req.split != "all":
         if not same:
             raise bad_value(
@@ -273,6 +273,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         started, cpu_started = time.perf_counter(), time.process_time()
         pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
         net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
+        refuse_nonfinite(pred, f"RUN: {req.run}, sample {sample.id}")
         row = {
             "id": sample.id,
             "material_id": sample.material_id,
