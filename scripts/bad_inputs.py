@@ -106,6 +106,46 @@ COMMAND_CASES = [
     ),
 ]
 
+#: A training run's config.json as `shaderball train` writes it (the fields commands read).
+RUN_CONFIG = {
+    "identity": {"dataset": None},
+    "identity_digest": "0" * 64,
+    "network": {"resolution": 16, "width": 0.1},
+    "tonemap": {"exposure": 1.0},
+    "split": {"train": ["m000000"], "test": []},
+}
+DEEP = "[" * 100_000 + "]" * 100_000
+#: (what, the run folder's config.json with one thing wrong, CLI arguments; {run} is that folder)
+RUN_CASES = [
+    (
+        "infer: config.json without identity_digest",
+        {"identity_digest": None},
+        ["infer", "{run}", "--out", "{out}/x.exr"],
+    ),
+    ("infer: config.json network an integer", {"network": 5}, ["infer", "{run}", "--out", "{out}/x.exr"]),
+    (
+        "evaluate: config.json network.width a string",
+        {"network": {"resolution": 16, "width": "wide"}},
+        ["evaluate", "{run}", "{foreign}", "--out", "{out}"],
+    ),
+    (
+        "evaluate: config.json network.resolution a list",
+        {"network": {"resolution": [16]}},
+        ["evaluate", "{run}", "{foreign}", "--out", "{out}"],
+    ),
+    (
+        "infer: config.json split.test a string",
+        {"split": {"train": [], "test": "m1"}},
+        ["infer", "{run}", "--out", "{out}/x.exr"],
+    ),
+    ("evaluate: config.json nested 100,000 deep", {"network": DEEP}, ["evaluate", "{run}", "{foreign}"]),
+]
+
+
+def run_config_text(change: dict) -> str:
+    config = {k: v for k, v in {**RUN_CONFIG, **change}.items() if v is not None}
+    return json.dumps(config).replace(json.dumps(DEEP), DEEP)
+
 
 def snapshot(folder: Path) -> dict:
     """Every entry under ``folder`` (links as links: a symlink loop is one entry)."""
@@ -118,7 +158,7 @@ def snapshot(folder: Path) -> dict:
     return out
 
 
-def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
+def run_case(args: list[str], spec_text: str | None, base: Path, run_config: dict | None = None) -> dict:
     from click.testing import CliRunner
 
     from cli import main
@@ -136,6 +176,9 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     (base / "loop").symlink_to(base / "loop")
     (base / "badmaps").mkdir()
     (base / "badmaps" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    if run_config is not None:
+        (base / "run").mkdir()
+        (base / "run" / "config.json").write_text(run_config_text(run_config))
     spec = base / "spec.toml"
     if spec_text is not None:
         spec.write_text(spec_text)
@@ -147,6 +190,7 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
         "file": str(base / "file.txt"),
         "foreign": str(foreign),
         "other_dataset": str(other),
+        "run": str(base / "run"),
     }
     argv = [a.format(**fill) for a in args]
     before = snapshot(base)
@@ -168,15 +212,16 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
 
 
 def all_cases():
-    yield from ((what, None, args) for what, args in COMMAND_CASES)
-    yield from ((what, text, ["build", "{spec}"]) for what, text in SPEC_CASES)
+    yield from ((what, None, args, None) for what, args in COMMAND_CASES)
+    yield from ((what, text, ["build", "{spec}"], None) for what, text in SPEC_CASES)
+    yield from ((what, None, args, config) for what, config, args in RUN_CASES)
 
 
 def run_all() -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (what, text, args) in enumerate(all_cases()):
-            row = run_case(args, text, Path(tmp) / f"case{i:02d}")
+        for i, (what, text, args, config) in enumerate(all_cases()):
+            row = run_case(args, text, Path(tmp) / f"case{i:02d}", config)
             row["what"] = what
             rows.append(row)
     return rows

@@ -135,6 +135,8 @@ def _lookup(config: dict, field: str):
 
 
 def _kind_text(kind) -> str:
+    if kind == _NUMBER:
+        return "a number"
     kinds = kind if isinstance(kind, tuple) else (kind,)
     return " or ".join(
         {dict: "an object", list: "an array", str: "a string", int: "an integer", float: "a number"}[k] for k in kinds
