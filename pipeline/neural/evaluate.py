@@ -221,7 +221,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 req.split,
                 "all: DATASET is not the dataset the run was trained on, so the run's split does not apply",
             )
-        dataset = source.subset(config["split"][req.split])
+        dataset = source.subset((config.get("split") or {}).get(req.split) or [])
     else:
         dataset = source
     if len(dataset) == 0:
@@ -245,7 +245,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
     ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
     mean_y, training = None, None
-    if same and config["split"].get("train"):
+    if same and (config.get("split") or {}).get("train"):
         training = source.subset(config["split"]["train"])
         mean_y = mean_image(training, workers=0)
     else:

@@ -110,9 +110,6 @@ CONFIG_FIELDS = {
     "network.resolution": int,
     "tonemap": dict,
     "tonemap.exposure": _NUMBER,
-    "split": dict,
-    "split.train": list,
-    "split.test": list,
 }
 #: Fields that may be absent or null, and their type when present.
 OPTIONAL_CONFIG_FIELDS = {
@@ -121,6 +118,9 @@ OPTIONAL_CONFIG_FIELDS = {
     "identity.dataset.variant": str,
     "baseline": dict,
     "baseline.test_psnr": _NUMBER,
+    "split": dict,
+    "split.train": list,
+    "split.test": list,
 }
 
 
@@ -161,7 +161,7 @@ def config_problem(config) -> str | None:
     if not (math.isfinite(exposure) and exposure > 0):
         return f"tonemap.exposure is {exposure!r}, not a positive number"
     for name in ("train", "test"):
-        ids = config["split"][name]
+        ids = (config.get("split") or {}).get(name) or []
         bad = next((i for i in ids if not isinstance(i, str)), None)
         if bad is not None:
             return f"split.{name} holds {json_type_name(bad)} ({short_json(bad)}), not only material ids (strings)"
