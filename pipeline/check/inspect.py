@@ -208,7 +208,8 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
                     )
                 )
         elif name == "normal" and values.shape[-1] == 3 and (inside is not None or not screen_space):
-            length = np.sqrt(np.sum(values.astype(np.float64) ** 2, axis=-1))
+            x, y, z = (values[..., i].astype(np.float64) for i in range(3))
+            length = np.sqrt(x * x + y * y + z * z)  # the sum over a last axis of 3 is ~5x slower
             deviation = np.abs(length - 1.0)
             if inside is not None and inside.shape == deviation.shape:
                 deviation = deviation[inside]

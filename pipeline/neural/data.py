@@ -36,7 +36,7 @@ window and channel count: :func:`pipeline.publish.exrcheck.check_exr_header`), t
 decoded content by validate's own checks (:func:`pipeline.check.inspect.content_issues`:
 the layers and channels the network needs, the manifest's size, float sample types; maps
 finite, in range, unit normals; a render finite, and non-negative unless the render policy
-flagged it). The policy is to stop, never to skip: a ShaderballError (exit code 2) names
+flagged it), on its first read in a process. The policy is to stop, never to skip: a ShaderballError (exit code 2) names
 the file and what is wrong, and training writes nothing for an epoch it did not finish
 (a fresh run reads every sample for its baseline before it writes anything).
 """
@@ -369,6 +369,7 @@ class ShaderballDataset(Dataset):
         }
         self.material_ids = sorted({s.material_id for s in samples})
         self._verified: set[str] = set()
+        self._content_checked: set[str] = set()  # files whose content passed, in this process
         self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
         self.maps_reads = 0  # maps files decoded by this process (tests count them)
 
@@ -412,8 +413,10 @@ class ShaderballDataset(Dataset):
             raise ShaderballError(
                 f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says {self.resolution * self.factor}"
             )
-        role = ("render" if "render" in layers else "maps") if screen else "texture"
-        self.refuse_bad_content(label, decoded, role, key in self.flagged)
+        if key not in self._content_checked:
+            role = ("render" if "render" in layers else "maps") if screen else "texture"
+            self.refuse_bad_content(label, decoded, role, key in self.flagged)
+            self._content_checked.add(key)
         return decoded
 
     def refuse_bad_content(self, label: str, layers: dict[str, np.ndarray], role: str, flagged: bool) -> None:
