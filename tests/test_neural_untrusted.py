@@ -128,6 +128,14 @@ def test_train_on_a_sample_validate_refuses_exits_2_naming_it_and_writes_nothing
         assert report.exit_code != 0 and rel in json.dumps(json.loads(report.stdout)["problems"]), report.output
 
 
+def test_a_worker_process_that_meets_it_gives_the_same_one_line(forged, tmp_path):
+    result = _invoke("train", forged["nan-maps"], "--out", tmp_path / "run", "--epochs", 1, "--workers", 1, *TINY)
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and lines[0].startswith(f"error: DATASET: {forged['nan-maps'] / MAPS}: layer diffuse")
+    assert "Traceback" not in result.output and "worker" not in result.output
+
+
 # --------------------------------------------------------------------------- divergence
 
 

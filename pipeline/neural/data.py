@@ -144,9 +144,35 @@ def collate_samples(samples: list[dict]) -> dict:
     return batch
 
 
+class Batches(DataLoader):
+    """A DataLoader whose worker processes' user errors reach the caller as the error they
+    raised, with its own message: torch re-raises an exception of a worker as one of the same
+    type whose message holds the worker's traceback, which the CLI would print."""
+
+    def __iter__(self):
+        iterator = super().__iter__()
+        while True:
+            try:
+                batch = next(iterator)
+            except StopIteration:
+                return
+            except ShaderballError as exc:
+                raise type(exc)(worker_message(exc)) from None
+            yield batch
+
+
+def worker_message(exc: Exception) -> str:
+    """The message a worker's exception was raised with (torch's wrapper text taken off)."""
+    text = str(exc)
+    marker = f"{type(exc).__module__}.{type(exc).__qualname__}: "
+    if text.startswith("Caught ") and marker in text:
+        return text.rsplit(marker, 1)[1].strip()
+    return text
+
+
 def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader:
-    """A DataLoader over ``dataset`` that collates with :func:`collate_samples`."""
-    return DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
+    """A DataLoader over ``dataset`` that collates with :func:`collate_samples` (:class:`Batches`)."""
+    return Batches(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
 
 
 def read_json_file(path: str, what: str):
