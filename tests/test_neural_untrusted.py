@@ -208,6 +208,7 @@ CONFIG_CASES = {
     "split-of-numbers": (lambda c: c["split"].update(test=[1]), "split.test holds an integer (1)"),
     "exposure-negative": (lambda c: c["tonemap"].update(exposure=-1), "tonemap.exposure is -1"),
     "nested-100k-deep": (_nest, "JSON arrays/objects"),
+    "options-a-list": (lambda c: c.update(options=[]), "options is an array ([]), not an object"),
 }
 
 
@@ -228,6 +229,23 @@ def test_a_hostile_config_is_refused_naming_the_field(run, reference, tmp_path, 
         assert "Traceback" not in result.output
     assert {p.name: p.read_bytes() for p in broken.iterdir()} == before
     assert sorted(os.listdir(tmp_path)) == ["broken"]
+
+
+@pytest.mark.slow
+def test_a_hostile_log_is_refused_naming_its_line(run, reference, tmp_path):
+    broken = _copy_run(run, tmp_path / "broken")
+    log = broken / "log.jsonl"
+    log.write_text(log.read_text() + "[" * 100_000 + "]" * 100_000 + "\n")
+    args = ["evaluate", broken, reference, "--spp", "none", "--out", tmp_path / "ev", "--report", tmp_path / "rep"]
+    result = _invoke(*args)
+    assert result.exit_code == 2 and "log.jsonl line 2: not a run's log (100000 JSON arrays" in result.output
+    assert "Traceback" not in result.output and sorted(os.listdir(tmp_path)) == ["broken"]
+    log.write_text('{"epoch": "one", "train_loss": 0.1}\n')
+    result = _invoke(*args)
+    assert (
+        result.exit_code == 2
+        and 'line 1: not a run\'s log (epoch is a string ("one"), not an integer)' in result.output
+    )
 
 
 def _zip_bomb(checkpoint: bytes, zeros: int) -> bytes:

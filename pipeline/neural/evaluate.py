@@ -211,6 +211,8 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     _check(req)
     device = pick_device(req.device)
     model, config = load_run_model(req.run, device, req.checkpoint)
+    if req.report_dir:
+        runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
     exposure = float(config["tonemap"]["exposure"])
     source = _open_for_run(req, model.resolution, exposure)
     same = source.identity == config["identity"].get("dataset")

@@ -28,7 +28,14 @@ import torch
 from pipeline.errors import ShaderballError
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.folder import MAX_JSON_BYTES, json_type_name, read_json_checked, short_json
+from pipeline.store.folder import (
+    MAX_JSON_BYTES,
+    json_type_name,
+    read_bytes,
+    read_json_checked,
+    short_json,
+    structure_problem,
+)
 
 CONFIG = "config.json"
 LOG = "log.jsonl"
@@ -66,16 +73,50 @@ def write_log(path: str, history: list[dict]) -> None:
     write_bytes_atomic(path, text.encode())
 
 
+#: Largest log.jsonl read (an epoch's line is ~1 kB: 100,000 epochs take ~100 MB).
+MAX_LOG_BYTES = 256 << 20
+
+
 def read_log(run_dir: str) -> list[dict]:
-    """The run's epochs from log.jsonl ([] when there is none yet)."""
+    """The run's epochs from log.jsonl ([] when there is none yet), read bounded: each line's
+    JSON structure is counted before it is parsed (pipeline.store.folder) and must be an
+    epoch (:func:`epoch_problem`)."""
     path = os.path.join(run_dir, LOG)
     if not os.path.isfile(path):
         return []
     try:
-        with open(path, encoding="utf-8") as f:
-            return [json.loads(line) for line in f if line.strip()]
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ShaderballError(f"{path}: not a run's log ({exc})") from None
+        data = read_bytes(path, MAX_LOG_BYTES)
+    except OSError as exc:
+        raise ShaderballError(f"{path}: not a run's log ({exc.strerror or exc})") from None
+    history = []
+    for number, line in enumerate(data.split(b"\n"), start=1):
+        if not line.strip():
+            continue
+        problem = structure_problem(line)
+        if problem is None:
+            try:
+                entry = json.loads(line)
+                problem = epoch_problem(entry)
+            except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+                problem = f"not JSON ({type(exc).__name__})"
+        if problem:
+            raise ShaderballError(f"{path} line {number}: not a run's log ({problem})")
+        history.append(entry)
+    return history
+
+
+def epoch_problem(entry) -> str | None:
+    """Why an epoch of a log or a checkpoint's history cannot be used, or None: the fields
+    the commands read, by type."""
+    if not isinstance(entry, dict):
+        return f"an epoch is {json_type_name(entry)}, not an object"
+    for field, kind, required in (("epoch", int, True), ("train_loss", _NUMBER, True), ("test_psnr", _NUMBER, False)):
+        value = entry.get(field)
+        if value is None and not required:
+            continue
+        if isinstance(value, bool) or not isinstance(value, kind):
+            return f"{field} is {json_type_name(value)} ({short_json(value)}), not {_kind_text(kind)}"
+    return None
 
 
 def write_log_csv(path: str, history: list[dict]) -> None:
@@ -114,6 +155,8 @@ CONFIG_FIELDS = {
 #: Fields that may be absent or null, and their type when present.
 OPTIONAL_CONFIG_FIELDS = {
     "network.width": _NUMBER,
+    "network.parameters": int,
+    "options": dict,
     "identity.dataset": dict,
     "identity.dataset.variant": str,
     "baseline": dict,
@@ -298,8 +341,11 @@ def checkpoint_content_problem(ckpt: dict) -> str | None:
     if not isinstance(ckpt.get("optimizer"), dict):
         return "optimizer is not a state dict"
     history = ckpt.get("history")
-    if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
+    if not isinstance(history, list):
         return "history is not a list of epochs"
+    problem = next((p for p in map(epoch_problem, history) if p), None)
+    if problem:
+        return f"history: {problem}"
     bad = nonfinite_weights(model)
     if bad:
         return f"{bad:,} weight value(s) are NaN or infinite: the run diverged (train again with a smaller --lr)"
