@@ -579,12 +579,12 @@ def train_epoch(
         optimizer.zero_grad(set_to_none=True)
         with speed.autocast(device, config.precision):
             parts = loss_fn.parts(forward(maps, light), target)
-        loss = float(parts["total"].detach())
-        if not math.isfinite(loss):
-            raise diverged(f"batch {index} of {count}: the training loss is {loss}", epoch, lr)
         scaler.scale(parts["total"]).backward()
         scaler.step(optimizer)
         scaler.update()
+        loss = float(parts["total"].detach())  # after the step, as before: no sync of its own
+        if not math.isfinite(loss):  # the weights in memory are spoilt; none is saved
+            raise diverged(f"batch {index} of {count}: the training loss is {loss}", epoch, lr)
         n = maps.shape[0]
         seen += n
         for key, value in parts.items():
