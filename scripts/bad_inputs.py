@@ -126,6 +126,46 @@ IMAGE_CASES = [
     ("render: --svbrdf a map of 4000 x 4000 pixels", ["render", "--svbrdf", "{bombs}/maps", "--out", "{out}/x.exr"]),
 ]
 
+#: A training run's config.json as `shaderball train` writes it (the fields commands read).
+RUN_CONFIG = {
+    "identity": {"dataset": None},
+    "identity_digest": "0" * 64,
+    "network": {"resolution": 16, "width": 0.1},
+    "tonemap": {"exposure": 1.0},
+    "split": {"train": ["m000000"], "test": []},
+}
+DEEP = "[" * 100_000 + "]" * 100_000
+#: (what, the run folder's config.json with one thing wrong, CLI arguments; {run} is that folder)
+RUN_CASES = [
+    (
+        "infer: config.json without identity_digest",
+        {"identity_digest": None},
+        ["infer", "{run}", "--out", "{out}/x.exr"],
+    ),
+    ("infer: config.json network an integer", {"network": 5}, ["infer", "{run}", "--out", "{out}/x.exr"]),
+    (
+        "evaluate: config.json network.width a string",
+        {"network": {"resolution": 16, "width": "wide"}},
+        ["evaluate", "{run}", "{foreign}", "--out", "{out}"],
+    ),
+    (
+        "evaluate: config.json network.resolution a list",
+        {"network": {"resolution": [16]}},
+        ["evaluate", "{run}", "{foreign}", "--out", "{out}"],
+    ),
+    (
+        "infer: config.json split.test a string",
+        {"split": {"train": [], "test": "m1"}},
+        ["infer", "{run}", "--out", "{out}/x.exr"],
+    ),
+    ("evaluate: config.json nested 100,000 deep", {"network": DEEP}, ["evaluate", "{run}", "{foreign}"]),
+]
+
+
+def run_config_text(change: dict) -> str:
+    config = {k: v for k, v in {**RUN_CONFIG, **change}.items() if v is not None}
+    return json.dumps(config).replace(json.dumps(DEEP), DEEP)
+
 
 def snapshot(folder: Path) -> dict:
     """Every entry under ``folder`` (links as links: a symlink loop is one entry)."""
@@ -150,7 +190,7 @@ def make_bombs(folder: Path) -> None:
     (folder / "maps" / "diffuse.png").write_bytes(png_bomb(4000, 4000))
 
 
-def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
+def run_case(args: list[str], spec_text: str | None, base: Path, run_config: dict | None = None) -> dict:
     from click.testing import CliRunner
 
     from cli import main
@@ -170,6 +210,9 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
     (base / "badmaps" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
     if "bombs" in " ".join(args) + (spec_text or ""):
         make_bombs(base / "bombs")
+    if run_config is not None:
+        (base / "run").mkdir()
+        (base / "run" / "config.json").write_text(run_config_text(run_config))
     spec = base / "spec.toml"
     if spec_text is not None:
         spec.write_text(spec_text)
@@ -182,6 +225,7 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
         "foreign": str(foreign),
         "other_dataset": str(other),
         "bombs": str(base / "bombs"),
+        "run": str(base / "run"),
     }
     argv = [a.format(**fill) for a in args]
     before = snapshot(base)
@@ -203,16 +247,17 @@ def run_case(args: list[str], spec_text: str | None, base: Path) -> dict:
 
 
 def all_cases():
-    yield from ((what, None, args) for what, args in COMMAND_CASES)
-    yield from ((what, text, ["build", "{spec}"]) for what, text in SPEC_CASES)
-    yield from ((what, None, args) for what, args in IMAGE_CASES)
+    yield from ((what, None, args, None) for what, args in COMMAND_CASES)
+    yield from ((what, text, ["build", "{spec}"], None) for what, text in SPEC_CASES)
+    yield from ((what, None, args, None) for what, args in IMAGE_CASES)
+    yield from ((what, None, args, config) for what, config, args in RUN_CASES)
 
 
 def run_all() -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (what, text, args) in enumerate(all_cases()):
-            row = run_case(args, text, Path(tmp) / f"case{i:02d}")
+        for i, (what, text, args, config) in enumerate(all_cases()):
+            row = run_case(args, text, Path(tmp) / f"case{i:02d}", config)
             row["what"] = what
             rows.append(row)
     return rows

@@ -8,7 +8,7 @@ import math
 import os
 from dataclasses import dataclass
 
-from pipeline.check.inspect import FileFacts, expectations
+from pipeline.check.inspect import FileFacts, expectations, render_value_issues
 from pipeline.check.report import Problems, summarise
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
@@ -428,24 +428,9 @@ def _policy_problems(record: dict, render: FileFacts) -> list[tuple[str, str]]:
     stats, pixels = record.get("stats") or {}, render.pixel_stats
     if pixels is None or (isinstance(stats, dict) and stats.get("flagged")):
         return []
-    out = []
-    if pixels["nan"] or pixels["inf"]:
-        out.append(
-            (
-                "non_finite",
-                f"{pixels['nan']} NaN and {pixels['inf']} infinite value(s) in a "
-                "render not flagged by the render policy",
-            )
-        )
-    if pixels["negative"]:
-        out.append(
-            (
-                "negative_render",
-                f"{pixels['negative']} negative value(s) (min "
-                f"{pixels['min']:.6g}) in a render not flagged by the render policy",
-            )
-        )
-    return out
+    return [
+        (kind, f"{text} in a render not flagged by the render policy") for kind, text in render_value_issues(pixels)
+    ]
 
 
 def _diff_keys(a, b, prefix: str = "") -> list[str]:

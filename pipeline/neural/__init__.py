@@ -6,5 +6,6 @@ Importing this package does not import torch; its modules do.
 
 Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
-``pipeline.store``, ``pipeline.render``, ``pipeline.publish``; nothing else of the project.
+``pipeline.store``, ``pipeline.render``, ``pipeline.check``, ``pipeline.publish``; nothing
+else of the project.
 """

@@ -29,6 +29,16 @@ nothing extracted); then each file is read at the offset where its checked bytes
 its tar (:func:`pipeline.publish.reader.read_located`, no ``tarfile``), and its SHA-256
 compared again on its first read in a process. A publication that does not verify is a
 user error (exit code 2), named with the reader's message.
+
+A sample that ``shaderball validate`` refuses is refused here too, when it is read: every
+file's EXR header is checked before it is decoded (single-part scanline, a bounded data
+window and channel count, the decoded size within the expected image: :func:`pipeline.store.exrheader.check_header`), then its
+decoded content by validate's own checks (:func:`pipeline.check.inspect.content_issues`:
+the layers and channels the network needs, the manifest's size, float sample types; maps
+finite, in range, unit normals; a render finite, and non-negative unless the render policy
+flagged it), on its first read in a process. The policy is to stop, never to skip: a ShaderballError (exit code 2) names
+the file and what is wrong, and training writes nothing for an epoch it did not finish
+(a fresh run reads every sample for its baseline before it writes anything).
 """
 
 from __future__ import annotations
@@ -44,6 +54,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
+from pipeline.check.inspect import content_issues, sample_expectations
 from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.neural.network import check_network_resolution
@@ -51,6 +62,7 @@ from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
 from pipeline.publish.refusal import Refused
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
+from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
 from pipeline.store.folder import (
     UnsafePath,
     read_bytes,
@@ -132,9 +144,35 @@ def collate_samples(samples: list[dict]) -> dict:
     return batch
 
 
+class Batches(DataLoader):
+    """A DataLoader whose worker processes' user errors reach the caller as the error they
+    raised, with its own message: torch re-raises an exception of a worker as one of the same
+    type whose message holds the worker's traceback, which the CLI would print."""
+
+    def __iter__(self):
+        iterator = super().__iter__()
+        while True:
+            try:
+                batch = next(iterator)
+            except StopIteration:
+                return
+            except ShaderballError as exc:
+                raise type(exc)(worker_message(exc)) from None
+            yield batch
+
+
+def worker_message(exc: Exception) -> str:
+    """The message a worker's exception was raised with (torch's wrapper text taken off)."""
+    text = str(exc)
+    marker = f"{type(exc).__module__}.{type(exc).__qualname__}: "
+    if text.startswith("Caught ") and marker in text:
+        return text.rsplit(marker, 1)[1].strip()
+    return text
+
+
 def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader:
-    """A DataLoader over ``dataset`` that collates with :func:`collate_samples`."""
-    return DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
+    """A DataLoader over ``dataset`` that collates with :func:`collate_samples` (:class:`Batches`)."""
+    return Batches(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
 
 
 def read_json_file(path: str, what: str):
@@ -205,10 +243,21 @@ def parse_records(data: bytes, description: dict, root: str, where: str, checker
     return records
 
 
+def decode_exr(data: bytes, label: str, bounds: ExrBounds) -> dict[str, np.ndarray]:
+    """The layers of an EXR file's bytes, its header checked against ``bounds`` before
+    anything decodes it (:func:`pipeline.store.exrheader.check_header`)."""
+    try:
+        check_header(data, label, bounds)
+    except ExrRefused as exc:
+        raise ShaderballError(f"DATASET: {exc}") from None
+    return read_exr(data, label, bounds).layers
+
+
 class FolderFiles:
     """The files of a dataset folder; a file's key is its path, checked to lie inside."""
 
     kind = "dataset folder"
+    checker = "`shaderball validate`"
 
     def __init__(self, root: str):
         self.root = root
@@ -239,6 +288,7 @@ class PublishedFiles:
     a file's key is its path in the dataset folder's layout, its bytes lie in a tar."""
 
     kind = "publication"
+    checker = "`shaderball unpack`, which validates what it unpacks"
 
     def __init__(self, root: str, located: dict[str, Located]):
         self.root = root
@@ -340,8 +390,13 @@ class ShaderballDataset(Dataset):
         self.identity = identity or {}
         self.files = files if files is not None else FolderFiles(root)
         self.records = records or {}
+        #: renders the render policy flagged (bad pixels recorded): negative values allowed
+        self.flagged = {
+            s.render[0] for s in samples if ((self.records.get(s.id) or {}).get("stats") or {}).get("flagged")
+        }
         self.material_ids = sorted({s.material_id for s in samples})
         self._verified: set[str] = set()
+        self._content_checked: set[str] = set()  # files whose content passed, in this process
         self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
         self.maps_reads = 0  # maps files decoded by this process (tests count them)
 
@@ -375,7 +430,7 @@ class ShaderballDataset(Dataset):
         label = self.files.label(key)
         role = "render" if "render" in layers else "maps" if screen else "texture"
         side = self.resolution * self.factor if screen else None
-        decoded = read_exr(data, label, layer_bounds(side, ROLE_LAYERS[role], exact=screen)).layers
+        decoded = decode_exr(data, label, layer_bounds(side, ROLE_LAYERS[role], exact=screen))
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(
@@ -387,7 +442,23 @@ class ShaderballDataset(Dataset):
             raise ShaderballError(
                 f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says {self.resolution * self.factor}"
             )
+        if key not in self._content_checked:
+            role = ("render" if "render" in layers else "maps") if screen else "texture"
+            self.refuse_bad_content(label, decoded, role, key in self.flagged)
+            self._content_checked.add(key)
         return decoded
+
+    def refuse_bad_content(self, label: str, layers: dict[str, np.ndarray], role: str, flagged: bool) -> None:
+        """A ShaderballError naming the file and the first of its issues that validate reports."""
+        expect = sample_expectations(self.resolution * self.factor)[role]
+        issues = content_issues(layers, expect, flagged)
+        if issues:
+            kind, text = issues[0]
+            more = f" (and {len(issues) - 1} more)" if len(issues) > 1 else ""
+            raise ShaderballError(
+                f"DATASET: {label}: {text}{more} [{kind}]: a sample validate refuses; nothing trains "
+                f"on it (check the {self.files.kind} with {self.files.checker}, then repair or rebuild it)"
+            )
 
     def _read(self, key: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
         return self.read_layers((key, sha256), layers, screen=True)

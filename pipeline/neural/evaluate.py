@@ -36,7 +36,7 @@ from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import report, runfiles, speed
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
-from pipeline.neural.infer import load_run_model, run_network
+from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
@@ -244,9 +244,11 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     _check(req)
     device = pick_device(req.device)
     model, config = load_run_model(req.run, device, req.checkpoint)
+    if req.report:
+        runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
     exposure = float(config["tonemap"]["exposure"])
     source = _open_for_run(req, model.resolution, exposure)
-    same = source.identity == config["identity"]["dataset"]
+    same = source.identity == config["identity"].get("dataset")
     if req.split != "all":
         if not same:
             raise bad_value(
@@ -254,7 +256,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 req.split,
                 "all: DATASET is not the dataset the run was trained on, so the run's split does not apply",
             )
-        dataset = source.subset(config["split"][req.split])
+        dataset = source.subset((config.get("split") or {}).get(req.split) or [])
     else:
         dataset = source
     if len(dataset) == 0:
@@ -278,7 +280,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
     ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
     mean_y, training = None, None
-    if same and config["split"].get("train"):
+    if same and (config.get("split") or {}).get("train"):
         training = source.subset(config["split"]["train"])
         mean_y = mean_image(training, workers=0)
     else:
@@ -308,6 +310,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         started, cpu_started = time.perf_counter(), time.process_time()
         pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
         net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
+        refuse_nonfinite(pred, f"RUN: {req.run}, sample {sample.id}")
         row = {
             "id": sample.id,
             "material_id": sample.material_id,

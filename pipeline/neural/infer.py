@@ -9,6 +9,7 @@ dataset record stores it.
 from __future__ import annotations
 
 import io
+import os
 import time
 from dataclasses import dataclass
 
@@ -21,7 +22,7 @@ from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.data import assemble_maps
-from pipeline.neural.network import NeuralRenderer, light_input
+from pipeline.neural.network import NeuralRenderer, light_input, parameter_count
 from pipeline.neural.train import pick_device
 from pipeline.render.command import RenderRequest, check_request, load_material
 from pipeline.render.gbuffer import load_gbuffer
@@ -74,17 +75,28 @@ class InferSummary:
 def load_run_model(run_dir: str, device: torch.device, checkpoint: str = "last") -> tuple[NeuralRenderer, dict]:
     """The trained network of a run (eval mode, on ``device``) and its config; ``checkpoint``:
     ``last`` (the last epoch's), ``best`` (the best held-out PSNR's) or a checkpoint file of
-    this run's configuration."""
+    this run's configuration. The config and the checkpoint are untrusted input (runfiles)."""
     config = runfiles.read_config(run_dir)
-    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint)
-    model = NeuralRenderer(int(config["network"]["resolution"]), float(config["network"].get("width", 1.0)))
+    model = NeuralRenderer(config["network"]["resolution"], float(config["network"].get("width", 1.0)))
+    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint, parameter_count(model))
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as exc:
-        raise ShaderballError(
-            f"{run_dir}: the checkpoint's weights do not fit the network of its config ({str(exc).splitlines()[0]})"
+        raise runfiles.weights_mismatch(
+            exc, runfiles.checkpoint_path(run_dir, checkpoint), checkpoint, os.path.join(run_dir, runfiles.CONFIG)
         ) from None
     return model.to(device).eval(), config
+
+
+def refuse_nonfinite(output: np.ndarray, what: str) -> np.ndarray:
+    """``output`` if every value is finite, else a ShaderballError: nothing is written of it."""
+    bad = int(np.count_nonzero(~np.isfinite(output)))
+    if bad:
+        raise ShaderballError(
+            f"{what}: {bad} of {output.size} output values are NaN or infinite; nothing written "
+            "(the weights are finite: the input maps or lighting are outside what the network was trained on)"
+        )
+    return output
 
 
 def _synchronize(device: torch.device) -> None:
@@ -127,7 +139,7 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     vector = [float(v) for v in effective.lighting_vector()]
 
     started = time.perf_counter()
-    variant = resolve_variant((config.get("identity", {}).get("dataset") or {}).get("variant") or "auto")
+    variant = resolve_variant((config["identity"].get("dataset") or {}).get("variant") or "auto")
     gbuffer = load_gbuffer(build_shaderball(), default_camera(), resolution, variant)
     screen = project_material(material, gbuffer)
     layers = {k: (v[..., None] if v.ndim == 2 else v) for k, v in screen.items()}
@@ -140,6 +152,7 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     output = run_network(model, maps_chw, vector, device)
     _synchronize(device)
     network_s = time.perf_counter() - started
+    refuse_nonfinite(output, f"RUN: {req.run}")
 
     exposure = float(config["tonemap"]["exposure"])
     meta = {

@@ -2,19 +2,40 @@
 
 Every file is replaced atomically (:mod:`pipeline.store.atomic`: temporary file in the same
 folder, fsync, rename), so a kill at any instant leaves the previous complete file or the new one.
+
+A run folder is untrusted input, as a dataset folder is: ``config.json`` is read bounded
+(:func:`pipeline.store.folder.read_json_checked`: a regular file, its size and JSON
+structure bounded before it is parsed) and checked field by field (:func:`config_problem`)
+before any field is used; a checkpoint's zip archive is checked against a budget derived
+from the network's parameter count before ``torch.load`` decompresses anything
+(:func:`checkpoint_archive_problem`), then its content by type, and refused when a weight is
+not finite. Each refusal is a ShaderballError naming the file and the field.
 """
 
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
+import math
 import os
+import struct
+import zipfile
 
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
 from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.folder import (
+    MAX_JSON_BYTES,
+    json_type_name,
+    read_bytes,
+    read_json_checked,
+    short_json,
+    structure_problem,
+)
 
 CONFIG = "config.json"
 LOG = "log.jsonl"
@@ -53,16 +74,50 @@ def write_log(path: str, history: list[dict]) -> None:
     write_bytes_atomic(path, text.encode())
 
 
+#: Largest log.jsonl read (an epoch's line is ~1 kB: 100,000 epochs take ~100 MB).
+MAX_LOG_BYTES = 256 << 20
+
+
 def read_log(run_dir: str) -> list[dict]:
-    """The run's epochs from log.jsonl ([] when there is none yet)."""
+    """The run's epochs from log.jsonl ([] when there is none yet), read bounded: each line's
+    JSON structure is counted before it is parsed (pipeline.store.folder) and must be an
+    epoch (:func:`epoch_problem`)."""
     path = os.path.join(run_dir, LOG)
     if not os.path.isfile(path):
         return []
     try:
-        with open(path, encoding="utf-8") as f:
-            return [json.loads(line) for line in f if line.strip()]
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ShaderballError(f"{path}: not a run's log ({exc})") from None
+        data = read_bytes(path, MAX_LOG_BYTES)
+    except OSError as exc:
+        raise ShaderballError(f"{path}: not a run's log ({exc.strerror or exc})") from None
+    history = []
+    for number, line in enumerate(data.split(b"\n"), start=1):
+        if not line.strip():
+            continue
+        problem = structure_problem(line)
+        if problem is None:
+            try:
+                entry = json.loads(line)
+                problem = epoch_problem(entry)
+            except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+                problem = f"not JSON ({type(exc).__name__})"
+        if problem:
+            raise ShaderballError(f"{path} line {number}: not a run's log ({problem})")
+        history.append(entry)
+    return history
+
+
+def epoch_problem(entry) -> str | None:
+    """Why an epoch of a log or a checkpoint's history cannot be used, or None: the fields
+    the commands read, by type."""
+    if not isinstance(entry, dict):
+        return f"an epoch is {json_type_name(entry)}, not an object"
+    for field, kind, required in (("epoch", int, True), ("train_loss", _NUMBER, True), ("test_psnr", _NUMBER, False)):
+        value = entry.get(field)
+        if value is None and not required:
+            continue
+        if isinstance(value, bool) or not isinstance(value, kind):
+            return f"{field} is {json_type_name(value)} ({short_json(value)}), not {_kind_text(kind)}"
+    return None
 
 
 def write_log_csv(path: str, history: list[dict]) -> None:
@@ -85,19 +140,95 @@ def log_csv(history: list[dict]) -> bytes:
     return buffer.getvalue().encode()
 
 
+#: Largest config.json read: its split lists every material id (the paper's 10,000 take
+#: ~0.2 MB); its JSON structure is bounded in proportion (pipeline.store.folder).
+MAX_CONFIG_BYTES = 32 * MAX_JSON_BYTES
+_NUMBER = (int, float)
+#: What the commands read of config.json, and its type; a path names a field in an object.
+CONFIG_FIELDS = {
+    "identity": dict,
+    "identity_digest": str,
+    "network": dict,
+    "network.resolution": int,
+    "tonemap": dict,
+    "tonemap.exposure": _NUMBER,
+}
+#: Fields that may be absent or null, and their type when present.
+OPTIONAL_CONFIG_FIELDS = {
+    "network.width": _NUMBER,
+    "network.parameters": int,
+    "options": dict,
+    "identity.dataset": dict,
+    "identity.dataset.variant": str,
+    "baseline": dict,
+    "baseline.test_psnr": _NUMBER,
+    "split": dict,
+    "split.train": list,
+    "split.test": list,
+}
+
+
+def _lookup(config: dict, field: str):
+    """(found, value) of a dotted field; not found when a parent is absent or null."""
+    value = config
+    for part in field.split("."):
+        if not isinstance(value, dict) or value.get(part) is None:
+            return False, None
+        value = value[part]
+    return True, value
+
+
+def _kind_text(kind) -> str:
+    if kind == _NUMBER:
+        return "a number"
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    return " or ".join(
+        {dict: "an object", list: "an array", str: "a string", int: "an integer", float: "a number"}[k] for k in kinds
+    )
+
+
+def config_problem(config) -> str | None:
+    """Why a run's config cannot be used (the field, its type or value, what is allowed), or None."""
+    if not isinstance(config, dict):
+        return f"not a shaderball training config (a JSON {json_type_name(config)}, not an object)"
+    for fields, required in ((CONFIG_FIELDS, True), (OPTIONAL_CONFIG_FIELDS, False)):
+        for field, kind in fields.items():
+            found, value = _lookup(config, field)
+            if not found:
+                parent = field.rpartition(".")[0]
+                if required and (not parent or _lookup(config, parent)[0]):
+                    return f"no {field} (a shaderball training config has one)"
+                continue
+            if isinstance(value, bool) or not isinstance(value, kind):
+                return f"{field} is {json_type_name(value)} ({short_json(value)}), not {_kind_text(kind)}"
+    exposure = config["tonemap"]["exposure"]
+    if not (math.isfinite(exposure) and exposure > 0):
+        return f"tonemap.exposure is {exposure!r}, not a positive number"
+    for name in ("train", "test"):
+        ids = (config.get("split") or {}).get(name) or []
+        bad = next((i for i in ids if not isinstance(i, str)), None)
+        if bad is not None:
+            return f"split.{name} holds {json_type_name(bad)} ({short_json(bad)}), not only material ids (strings)"
+    return None
+
+
 def read_config(run_dir: str) -> dict:
+    """The run's config.json, read bounded and checked field by field (:func:`config_problem`);
+    a ShaderballError naming the file and the field when it cannot be used."""
     path = os.path.join(run_dir, CONFIG)
-    if not os.path.isfile(path):
+    config, why = read_json_checked(path, MAX_CONFIG_BYTES)
+    if why == "missing":
         raise ShaderballError(
             f"RUN: {run_dir!r} is not a training run (no {CONFIG}); make one with `shaderball train DATASET --out RUN`"
         )
-    try:
-        with open(path, encoding="utf-8") as f:
-            config = json.load(f)
-    except (OSError, ValueError) as exc:
-        raise ShaderballError(f"{path}: not readable JSON ({exc})") from exc
-    if not isinstance(config, dict) or "identity" not in config:
-        raise ShaderballError(f"{path}: not a shaderball training config (no 'identity')")
+    if why is not None:
+        raise ShaderballError(f"{path}: not readable JSON ({why}); the run folder is damaged")
+    problem = config_problem(config)
+    if problem:
+        raise ShaderballError(f"{path}: {problem}; the run folder is damaged (train a new run with `shaderball train`)")
+    field = f"{path}: network.resolution"
+    check_network_resolution(config["network"]["resolution"], field)
+    check_width(config["network"].get("width", 1.0), f"{path}: network.width")
     return config
 
 
@@ -135,9 +266,117 @@ def checkpoint_path(run_dir: str, checkpoint: str = "last") -> str:
     return checkpoint
 
 
-def load_checkpoint(run_dir: str, identity_digest: str | None = None, checkpoint: str = "last") -> dict:
+#: Bytes a checkpoint holds besides its tensors' (the pickled history and names, the zip
+#: records): a 100,000-epoch log pickles to ~40 MB.
+CHECKPOINT_SLACK_BYTES = 64 << 20
+#: A checkpoint holds the weights, and Adam's two moments of each: 3 float32 copies.
+CHECKPOINT_COPIES = 3
+#: Members of a checkpoint's zip archive: one per tensor (the network's ~60, Adam's state of
+#: each) and a few records; a zip64 archive (member count 0xFFFF) is never one.
+MAX_CHECKPOINT_MEMBERS = 10_000
+_EOCD = b"PK\x05\x06"
+
+
+def checkpoint_budget(parameters: int) -> int:
+    """The most bytes a checkpoint of a network of ``parameters`` holds, decompressed."""
+    return CHECKPOINT_COPIES * 4 * parameters + CHECKPOINT_SLACK_BYTES
+
+
+@functools.cache
+def largest_network_parameters() -> int:
+    """Parameters of the largest network a config may name (counted on torch's meta device:
+    nothing allocated): the budget of a checkpoint read without its config."""
+    with torch.device("meta"):
+        return parameter_count(NeuralRenderer(4096, 1.0))
+
+
+def checkpoint_archive_problem(path: str, parameters: int) -> str | None:
+    """Why the checkpoint file at ``path`` is not one ``torch.save`` writes for a network of
+    ``parameters`` (None if it may be): a zip archive over the budget, holding more members
+    than a checkpoint has, or a compressed member (``torch.save`` stores members: a DEFLATE
+    member could expand 1,000-fold when ``torch.load`` reads it). Only the archive's
+    directory is read; nothing is decompressed."""
+    budget = checkpoint_budget(parameters)
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > budget:
+                return f"{size} bytes, over the {budget} a checkpoint of {parameters:,} parameters may hold"
+            f.seek(max(0, size - 22 - 65535))
+            tail = f.read()
+            at = tail.rfind(_EOCD)
+            if at < 0 or at + 22 > len(tail):
+                return "not a complete zip archive (torch.save writes one)"
+            entries = struct.unpack_from("<H", tail, at + 10)[0]
+            if entries > MAX_CHECKPOINT_MEMBERS:
+                return (
+                    f"a zip archive of {entries} members (0xFFFF: a zip64 archive), more than a checkpoint "
+                    f"holds (at most {MAX_CHECKPOINT_MEMBERS})"
+                )
+            f.seek(0)
+            members = zipfile.ZipFile(f).infolist()
+    except (OSError, zipfile.BadZipFile, ValueError, EOFError) as exc:
+        return f"not a readable zip archive ({exc})"
+    total = 0
+    for member in members:
+        if member.compress_type != zipfile.ZIP_STORED or member.compress_size != member.file_size:
+            return (
+                f"member {short_json(member.filename)} is compressed ({member.compress_size} bytes "
+                f"holding {member.file_size}); torch.save stores its members uncompressed"
+            )
+        total += member.file_size
+    if total > budget:
+        return f"members of {total} bytes in all, over the {budget} a checkpoint of {parameters:,} parameters may hold"
+    return None
+
+
+def checkpoint_content_problem(ckpt: dict) -> str | None:
+    """Why a loaded checkpoint's fields cannot be used (type by type), or None."""
+    epoch = ckpt.get("epoch")
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
+        return f"epoch is {short_json(repr(epoch))}, not an integer >= 0"
+    model = ckpt.get("model")
+    if not isinstance(model, dict) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in model.items()
+    ):
+        return "model is not a state dict (names -> tensors)"
+    if "optimizer" in ckpt and not isinstance(ckpt["optimizer"], dict):  # the best checkpoint holds none
+        return "optimizer is not a state dict"
+    history = ckpt.get("history")
+    if not isinstance(history, list):
+        return "history is not a list of epochs"
+    problem = next((p for p in map(epoch_problem, history) if p), None)
+    if problem:
+        return f"history: {problem}"
+    bad = nonfinite_weights(model)
+    if bad:
+        return f"{bad:,} weight value(s) are NaN or infinite: the run diverged (train again with a smaller --lr)"
+    return None
+
+
+def nonfinite_weights(state: dict) -> int:
+    """How many values of a state dict's floating-point tensors are NaN or infinite."""
+    return sum(
+        int(torch.count_nonzero(~torch.isfinite(v)))
+        for v in state.values()
+        if isinstance(v, torch.Tensor) and v.is_floating_point()
+    )
+
+
+def _remedy(checkpoint: str) -> str:
+    """What to do about an unusable checkpoint: a run's own can be restored or removed; a
+    file the user named is replaced by one this run wrote."""
+    if checkpoint in CHECKPOINT_CHOICES:
+        return "restore it, or remove it to train again from the start"
+    return "name a checkpoint this run's configuration wrote (--checkpoint last, best, or such a file)"
+
+
+def load_checkpoint(
+    run_dir: str, identity_digest: str | None = None, checkpoint: str = "last", parameters: int | None = None
+) -> dict:
     """The run's checkpoint (``last``, ``best`` or a file), or a ShaderballError naming the file
-    when it is missing, corrupt or belongs to another configuration."""
+    when it is missing, over the budget of a network of ``parameters`` (default: the largest
+    network), corrupt, holds non-finite weights or belongs to another configuration."""
     path = checkpoint_path(run_dir, checkpoint)
     if not os.path.isfile(path):
         if checkpoint == "best":
@@ -148,21 +387,39 @@ def load_checkpoint(run_dir: str, identity_digest: str | None = None, checkpoint
         if checkpoint == "last":
             raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
         raise ShaderballError(f"--checkpoint: {path!r}: no such file (allowed: last, best, or a checkpoint file)")
+    problem = checkpoint_archive_problem(path, parameters or largest_network_parameters())
+    if problem:
+        raise ShaderballError(f"{path}: a corrupt checkpoint, {problem}; {_remedy(checkpoint)}")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated or foreign file raises any of several types
         raise ShaderballError(
-            f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); "
-            "restore it, or remove it to train again from the start"
+            f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); {_remedy(checkpoint)}"
         ) from exc
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ShaderballError(f"{path}: not a shaderball checkpoint")
     if ckpt.get("version") != CHECKPOINT_VERSION:
         raise ShaderballError(
-            f"{path}: checkpoint version {ckpt.get('version')!r}; this shaderball reads version {CHECKPOINT_VERSION}"
+            f"{path}: checkpoint version {short_json(ckpt.get('version'))}; this shaderball reads version "
+            f"{CHECKPOINT_VERSION}"
         )
     if identity_digest is not None and ckpt.get("identity_digest") != identity_digest:
         raise ShaderballError(
             f"{path}: the checkpoint belongs to another configuration than {os.path.join(run_dir, CONFIG)}"
         )
+    problem = checkpoint_content_problem(ckpt)
+    if problem:
+        raise ShaderballError(f"{path}: a corrupt checkpoint: {problem}; {_remedy(checkpoint)}")
     return ckpt
+
+
+def weights_mismatch(exc: RuntimeError, path: str, checkpoint: str, config_path: str) -> ShaderballError:
+    """``load_state_dict``'s refusal as one whole message (every line of torch's, bounded)."""
+    detail = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    if len(detail) > 2000:
+        detail = detail[:1997] + "..."
+    if checkpoint in CHECKPOINT_CHOICES:
+        what = f"the run folder's checkpoint does not match its {config_path}: {_remedy(checkpoint)}"
+    else:
+        what = f"it is not a checkpoint of the network {config_path} describes: {_remedy(checkpoint)}"
+    return ShaderballError(f"{path}: the weights do not fit the network ({detail}); {what}")

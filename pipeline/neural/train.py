@@ -341,15 +341,26 @@ def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: in
     return {"loss": losses / n, "psnr": float(np.mean(psnrs)), "saturated": saturated / values}
 
 
+def smaller_lr(lr: float | None) -> str:
+    return f"a smaller --lr (e.g. --lr {lr / 10:g}; the released code's Adam uses 1e-3)" if lr else "a smaller --lr"
+
+
+class Diverged(ShaderballError):
+    """A run whose loss or weights stopped being finite: it stops, and saves nothing of the epoch."""
+
+
+def diverged(what: str, epoch: int, lr: float) -> Diverged:
+    kept = f"{runfiles.CHECKPOINT} keeps epoch {epoch - 1}" if epoch > 1 else "no checkpoint is written"
+    return Diverged(
+        f"epoch {epoch}: {what}: the run stops, nothing of epoch {epoch} is saved ({kept}). The dataset's samples "
+        f"are checked as they load, so the optimiser diverged: train again with {smaller_lr(lr)} in a new --out"
+    )
+
+
 def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
     """What says a run is not learning after an epoch: saturated held-out outputs, or a
     held-out loss that did not move (issue 22: the paper's lr 1e-2 does both)."""
-    lr = entry.get("lr")
-    hint = (
-        f"try a smaller --lr (e.g. --lr {lr / 10:g}; the released code's Adam uses 1e-3)"
-        if lr
-        else "try a smaller --lr"
-    )
+    hint = "try " + smaller_lr(entry.get("lr"))
     out = []
     if entry.get("test_saturated") is not None and entry["test_saturated"] > SATURATED_FRACTION:
         out.append(
@@ -492,7 +503,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
                 f"{', '.join(changed)}); use a new --out folder or the same options"
             )
         if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
-            ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"])
+            ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"], parameters=parameter_count(model))
             done = int(ckpt["epoch"])
             if done > config.epochs:
                 # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
@@ -512,13 +523,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
     forward = speed.step_forward(model, loss_fn, config.channels_last, config.compile)
     if ckpt is not None:
-        if "optimizer" not in ckpt:
-            raise ShaderballError(
-                f"{os.path.join(config.out, runfiles.CHECKPOINT)}: holds the weights only (no optimizer state), "
-                "so the run cannot continue from it; restore the run's last checkpoint or train a new --out"
-            )
-        model.load_state_dict(ckpt["model"])
-        optimizer.load_state_dict(ckpt["optimizer"])
+        _resume_state(config.out, model, optimizer, ckpt)
         start_epoch, history = ckpt["epoch"], list(ckpt["history"])
 
     train_set = source.subset(train_ids)
@@ -536,6 +541,9 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     with deterministic_algorithms():
         for epoch in range(start_epoch + 1, config.epochs + 1):
             entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress, forward)
+            bad = runfiles.nonfinite_weights(model.state_dict())
+            if bad:
+                raise diverged(f"{bad:,} weight value(s) are NaN or infinite", epoch, entry["lr"])
             if train_probe is not None:
                 seen = evaluate_split(model, loss_fn, train_probe, device, config.batch_size, config.workers)
                 entry.update(train_eval_loss=seen["loss"], train_psnr=seen["psnr"])
@@ -569,12 +577,33 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
         epochs_done=max(start_epoch, config.epochs if history else 0),
         resumed_from=start_epoch,
         history=history,
-        baseline_psnr=fresh["baseline"]["test_psnr"],
+        baseline_psnr=fresh["baseline"].get("test_psnr"),
         device=str(device),
         parameters=parameter_count(model),
         loss=choice.name,
         loss_reason=choice.reason,
     )
+
+
+def _resume_state(run_dir: str, model, optimizer, ckpt: dict) -> None:
+    """The checkpoint's weights and optimiser state, or a ShaderballError naming what does not fit."""
+    path = os.path.join(run_dir, runfiles.CHECKPOINT)
+    if "optimizer" not in ckpt:
+        raise ShaderballError(
+            f"{path}: holds the weights only (no optimizer state), so the run cannot continue from it; "
+            "restore the run's last checkpoint or train a new --out"
+        )
+    try:
+        model.load_state_dict(ckpt["model"])
+    except RuntimeError as exc:
+        raise runfiles.weights_mismatch(exc, path, "last", os.path.join(run_dir, runfiles.CONFIG)) from None
+    try:
+        optimizer.load_state_dict(ckpt["optimizer"])
+    except (ValueError, KeyError, TypeError, RuntimeError) as exc:
+        raise ShaderballError(
+            f"{path}: a corrupt checkpoint: its optimizer state does not fit the network ({type(exc).__name__}: "
+            f"{str(exc)[:200]}); restore it, or remove it to train again from the start"
+        ) from None
 
 
 def training_probe(train_set, seed: int):
@@ -637,6 +666,9 @@ def train_epoch(
         scaler.scale(parts["total"]).backward()
         scaler.step(optimizer)
         scaler.update()
+        loss = float(parts["total"].detach())  # after the step, as before: no sync of its own
+        if not math.isfinite(loss):  # the weights in memory are spoilt; none is saved
+            raise diverged(f"batch {index} of {count}: the training loss is {loss}", epoch, lr)
         n = maps.shape[0]
         seen += n
         for key, value in parts.items():
@@ -651,7 +683,7 @@ def train_epoch(
                     "epochs": config.epochs,
                     "batch": index,
                     "batches": count,
-                    "loss": float(parts["total"].detach()),
+                    "loss": loss,
                     "samples_per_s": rate,
                     "eta_s": left / rate if rate > 0 else None,
                 }
