@@ -20,17 +20,18 @@ import json
 import sys
 import time
 
+from torch.utils.data import DataLoader
+
 from pipeline.errors import USER_ERRORS
+from pipeline.neural.data import collate_samples, open_dataset
+from pipeline.neural.splits import split_materials
+from pipeline.neural.train import TrainConfig
 
 PROBES = ("loader", "evaluate-setup")
 
 
 def loader_pass(root: str, batch_size: int = 16) -> dict:
     """Open ``root`` and read every sample once (workers 0, hashes checked)."""
-    from torch.utils.data import DataLoader
-
-    from pipeline.neural.data import collate_samples, open_dataset
-
     started = time.perf_counter()
     dataset = open_dataset(root, check_hashes=True)
     opened = time.perf_counter()
@@ -42,10 +43,6 @@ def loader_pass(root: str, batch_size: int = 16) -> dict:
 
 def evaluate_setup(root: str) -> dict:
     """Open ``root`` and take its held-out subset as ``evaluate`` takes a run's."""
-    from pipeline.neural.data import open_dataset
-    from pipeline.neural.splits import split_materials
-    from pipeline.neural.train import TrainConfig
-
     started = time.perf_counter()
     dataset = open_dataset(root, check_hashes=True)
     _train, test_ids = split_materials(dataset.material_ids, TrainConfig.test_fraction, 0)
