@@ -883,6 +883,7 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
             spec_path=spec,
             resolution=resolution,
             spp=spp,
+            json_path=json_path,
             progress=say,
         )
         for line in result.lines():

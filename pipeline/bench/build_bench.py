@@ -316,9 +316,9 @@ def _materials_of(plans):
 def warm_kernels(spec, plans, variant: str) -> float:
     """Compile (or fetch from drjit's disk cache) every kernel the build will need.
 
-    Per material, one spp-1 render of its scene loaded and one after its emitters were moved
-    to its next lighting, as the build renders them (spp is not part of a kernel, the
-    resolution is).
+    Per material, spp-1 renders (spp is not part of a kernel, the resolution is) of its
+    scene loaded afresh, as the bare renders load it, and of one scene moved from its first
+    lighting to its next, as the build renders them.
     """
 
     ctx = worker_context(spec, variant)
@@ -327,6 +327,9 @@ def warm_kernels(spec, plans, variant: str) -> float:
     start = time.perf_counter()
     for material in _materials_of(plans):
         maps, _ = make_material(material, spec)
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(material.samples[0]), ctx.settings)
+        np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
+        del desc
         with MaterialScene() as held:
             for s in material.samples[:2]:
                 scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)

@@ -270,9 +270,11 @@ def run_scale_bench(
     spec_path: str | None = None,
     resolution: int | None = None,
     spp: int | None = None,
+    json_path: str | None = None,
     progress=None,
 ) -> ScaleBench:
-    """Build a dataset of each size and measure every command over it; write the results to ``out``."""
+    """Build a dataset of each size and measure every command over it; write the results to
+    ``out`` (and the figures to ``json_path`` too, where given)."""
     sizes = parse_sizes(sizes)
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or DEFAULT_RESOLUTION
     spp = check_int("--spp", spp, *SPP_RANGE) or DEFAULT_SPP
@@ -318,6 +320,8 @@ def run_scale_bench(
                 bench.rows.append(Measured(name, renders, wall, peak))
         bench.machine["load_after"] = _load()
         write_results(bench, out)
+        if json_path:
+            write_text_atomic(json_path, dumps(bench.to_dict()) + "\n")
         return bench
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
