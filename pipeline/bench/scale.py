@@ -163,6 +163,7 @@ class ScaleBench:
             f"(size, value). Memory bounded by structure: under {MEMORY_GOAL_BYTES_PER_RENDER / 1024:.0f} KB "
             "per extra render.",
             "",
+            *self._load_note(),
             "![time and peak memory against size](scale.png)",
             "",
             "## Growth",
@@ -190,6 +191,38 @@ class ScaleBench:
             ]
             out.append(f"| {c} | " + " | ".join(cells) + " |")
         return "\n".join(out) + "\n"
+
+    def _load_note(self) -> list[str]:
+        """A warning where other work ran beside the benchmark (load above the CPU count)."""
+        cpus = self.machine.get("cpus") or 1
+        loads = []
+        for key in ("load_before", "load_after"):
+            try:
+                loads += [float(x) for x in str(self.machine.get(key, "")).split()]
+            except ValueError:
+                pass
+        if not loads or max(loads) <= cpus:
+            return []
+        return [
+            f"Other work ran beside this run (load average up to {max(loads):.1f} on {cpus} CPUs): its wall "
+            "times, and the time exponents and costs fitted to them, are the machine's load as much as the "
+            "commands'; peak memory does not depend on it.",
+            "",
+        ]
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> ScaleBench:
+        """A bench from its ``scale.json`` (to write its page again)."""
+        return cls(
+            command_line=doc["command"],
+            spec_name=doc["spec"],
+            resolution=doc["resolution"],
+            spp=doc["spp"],
+            sizes=list(doc["sizes"]),
+            machine=dict(doc["machine"]),
+            date=doc["date"],
+            rows=[Measured(**row) for row in doc["rows"]],
+        )
 
     def figure_png(self) -> bytes:
         colours = [BLUE, RED, GREEN, ORANGE, PURPLE, GREY, (23, 190, 207), (188, 189, 34), (140, 86, 75), (0, 0, 0)]
