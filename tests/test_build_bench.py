@@ -85,6 +85,9 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     assert bench.outside_per_render_s == pytest.approx((bench.build_s - bench.startup_s - phases["render calls"]) / 4)
     assert "render calls inside the build over bare renders of the same scenes" in text
     assert "outside the render calls, per render:" in text and "on the writer thread" in text
+    cpu = bench.in_build_phases_cpu
+    assert list(cpu) == list(BUILD_PHASES) and cpu["writer thread"] > 0 and cpu["scene loads"] > 0
+    assert "the same phases in CPU time of their thread" in text
     estimate = bench.paper_estimate()
     assert estimate["scaled_by"] == (400 * 400 * 150) / (64 * 64 * 16)
     assert estimate["hours_bare"] == pytest.approx(bench.bare_s / 4 * estimate["scaled_by"] * 50_000 / 3600)

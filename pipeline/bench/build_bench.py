@@ -115,6 +115,7 @@ class BuildBench:
     startup_s: float  # build() call to the start of rendering (spec, plan, dask cluster)
     in_build_render_s: float | None  # in-process builds: time inside render_scene during the build
     in_build_phases: dict | None = None  # in-process builds: seconds per phase (BUILD_PHASES)
+    in_build_phases_cpu: dict | None = None  # the same phases' CPU time on the thread that ran them
     timings: list[SampleTiming] = field(default_factory=list)
     material_files_s: float = 0.0  # per material: raster projection + maps (+ texture) EXR
     render_file_s: float = 0.0  # per render: EXR encode + SHA-256 + atomic write
@@ -190,6 +191,15 @@ class BuildBench:
             + ", ".join(f"{p} {phases.get(p, 0.0) / n * 1e3:.1f} ms" for p in main)
             + f", the rest {rest * 1e3:.1f} ms; beside them on the writer thread "
             f"{phases.get('writer thread', 0.0) / n * 1e3:.1f} ms",
+            *(
+                [
+                    "the same phases in CPU time of their thread, per render (less moved by other load): "
+                    + ", ".join(f"{p} {cpu.get(p, 0.0) / n * 1e3:.1f} ms" for p in main if p != "writer waits")
+                    + f"; writer thread {cpu.get('writer thread', 0.0) / n * 1e3:.1f} ms"
+                ]
+                if (cpu := self.in_build_phases_cpu)
+                else []
+            ),
         ]
 
     def paper_estimate(self) -> dict:
@@ -532,6 +542,9 @@ class RenderCallTimer:
 
     def __init__(self):
         self.phases = dict.fromkeys(BUILD_PHASES, 0.0)
+        #: CPU time of the calling thread in each phase: the work itself, less disturbed by other
+        #: load than wall time (render calls: the main thread mostly waits for drjit's threads)
+        self.cpu = dict.fromkeys(BUILD_PHASES, 0.0)
         self.calls = 0
 
     @property
@@ -544,11 +557,12 @@ class RenderCallTimer:
 
         def timed(*args, **kwargs):
             label = phase(args) if callable(phase) else phase
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.thread_time()
             try:
                 return original(*args, **kwargs)
             finally:
                 self.phases[label] += time.perf_counter() - start
+                self.cpu[label] += time.thread_time() - cpu
                 self.calls += counts
 
         setattr(owner, name, timed)
@@ -660,6 +674,7 @@ def run_build_bench(
             startup_s=first_start,
             in_build_render_s=in_build.seconds if in_build.calls else None,
             in_build_phases=dict(in_build.phases) if in_build.calls else None,
+            in_build_phases_cpu=dict(in_build.cpu) if in_build.calls else None,
             timings=timings,
             material_files_s=per_material,
             render_file_s=per_render,
