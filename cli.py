@@ -48,6 +48,8 @@ from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
 from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
 from pipeline.bench.estimate import SAMPLES_RANGE as PLAN_SAMPLES_RANGE
+from pipeline.bench.scale import SIZE_RANGE as SCALE_SIZE_RANGE
+from pipeline.bench.scale import run_scale_bench
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
@@ -936,11 +938,34 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     default=None,
     help=f"--effects: timed renders per variant, {span(REPEATS_RANGE)} [default: 5].",
 )
+@click.option(
+    "--scale",
+    default=None,
+    metavar="N,N,...",
+    help="Run the scale benchmark instead: build datasets of these sizes (renders, two or more, e.g. "
+    "1000,10000,50000) from SPEC [default: manifests/paper.toml] at --resolution [16] and --spp [1], time "
+    "every command over each and write README.md, scale.png and scale.json to --out (docs/results/scale/).",
+)
 @json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
-def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, json_path):
+def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
 
+    if scale is not None:
+        if out is None:
+            raise ShaderballError("--out: missing; --scale writes its results page to this folder")
+        result = run_scale_bench(
+            parse_int_list("--scale", scale, SCALE_SIZE_RANGE),
+            out=out,
+            spec_path=spec,
+            resolution=resolution,
+            spp=spp,
+            json_path=json_path,
+            progress=say,
+        )
+        for line in result.lines():
+            click.echo(line)
+        return
     result = run_from_args(
         spec,
         effects=effects,

@@ -15,6 +15,7 @@ builds the scene entries from them.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -111,9 +112,21 @@ def hemisphere_check_directions(sun_dir: np.ndarray) -> np.ndarray:
     azimuths are taken relative to the sun over one half-turn.
     """
     sun_az = math.atan2(sun_dir[1], sun_dir[0])
+    cos_el, sin_el, turn = _check_grid()
+    az = np.ascontiguousarray(np.broadcast_to(sun_az + turn, cos_el.shape))  # as meshgrid gave it
+    dirs = np.stack([cos_el * np.cos(az), cos_el * np.sin(az), sin_el], -1).reshape(-1, 3)
+    return np.concatenate([dirs, sun_dir[None, :]])
+
+
+@functools.cache
+def _check_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sun-independent part of :func:`hemisphere_check_directions`, computed once: cosine
+    and sine of the elevation grid (elevations x azimuths) and the half-turn of azimuths."""
     horizon = np.concatenate([[0.0], np.geomspace(1e-4, 0.5, 24)])
     elevations = np.concatenate([horizon, np.linspace(0.75, 90.0, 120)])
-    azimuths = sun_az + np.radians(np.linspace(0.0, 180.0, 181))
-    el, az = np.meshgrid(np.radians(elevations), azimuths, indexing="ij")
-    dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
-    return np.concatenate([dirs, sun_dir[None, :]])
+    turn = np.radians(np.linspace(0.0, 180.0, 181))
+    el, _ = np.meshgrid(np.radians(elevations), turn, indexing="ij")
+    cos_el, sin_el = np.cos(el), np.sin(el)
+    for array in (cos_el, sin_el, turn):
+        array.flags.writeable = False
+    return cos_el, sin_el, turn

@@ -74,6 +74,20 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     assert "wall ratio build / bare" in text and "CPU ratio build / bare" in text and "4/4" in text
     assert bench.build_compiled == 0  # warmed kernels, one scene per material moved between lights
     assert bench.records_render_s > 0 and bench.processes == 1 and "same run, from the records" in text
+    # the build's own split, per phase (2 materials x 2 lightings: two scene loads, two moves)
+    from pipeline.bench.build_bench import BUILD_PHASES
+
+    phases = bench.in_build_phases
+    assert list(phases) == list(BUILD_PHASES) and phases["render calls"] == bench.in_build_render_s
+    assert all(phases[p] > 0 for p in ("render calls", "scene loads", "emitter moves", "statistics", "writer thread"))
+    assert sum(v for p, v in phases.items() if p != "writer thread") < bench.build_s
+    assert bench.render_call_ratio == bench.in_build_render_s / bench.bare_s
+    assert bench.outside_per_render_s == pytest.approx((bench.build_s - bench.startup_s - phases["render calls"]) / 4)
+    assert "render calls inside the build over bare renders of the same scenes" in text
+    assert "outside the render calls, per render:" in text and "on the writer thread" in text
+    cpu = bench.in_build_phases_cpu
+    assert list(cpu) == list(BUILD_PHASES) and cpu["writer thread"] > 0 and cpu["scene loads"] > 0
+    assert "the same phases in CPU time of their thread" in text
     estimate = bench.paper_estimate()
     assert estimate["scaled_by"] == (400 * 400 * 150) / (64 * 64 * 16)
     assert estimate["hours_bare"] == pytest.approx(bench.bare_s / 4 * estimate["scaled_by"] * 50_000 / 3600)

@@ -47,6 +47,7 @@ from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
+from pipeline.run import shard
 from pipeline.run.build import build, read_spec_text
 from pipeline.run.cluster.options import WORKERS_RANGE
 from pipeline.run.shard import worker_context, write_material_files
@@ -113,6 +114,8 @@ class BuildBench:
     build_cpu_s: float  # CPU time of this process and its (reaped) children during the build
     startup_s: float  # build() call to the start of rendering (spec, plan, dask cluster)
     in_build_render_s: float | None  # in-process builds: time inside render_scene during the build
+    in_build_phases: dict | None = None  # in-process builds: seconds per phase (BUILD_PHASES)
+    in_build_phases_cpu: dict | None = None  # the same phases' CPU time on the thread that ran them
     timings: list[SampleTiming] = field(default_factory=list)
     material_files_s: float = 0.0  # per material: raster projection + maps (+ texture) EXR
     render_file_s: float = 0.0  # per render: EXR encode + SHA-256 + atomic write
@@ -154,6 +157,50 @@ class BuildBench:
         """Build wall time from its first render on, over the bare renders: the ratio a long
         build tends to, where the start-up (spec, plan, cluster) is spread over many renders."""
         return (self.build_s - self.startup_s) / self.bare_s if self.bare_s > 0 else math.inf
+
+    @property
+    def render_call_ratio(self) -> float | None:
+        """In-process builds: the build's render calls over the bare renders of the same scenes
+        (1.0: no slowdown of the render itself inside the build)."""
+        if not self.in_build_render_s or self.bare_s <= 0:
+            return None
+        return self.in_build_render_s / self.bare_s
+
+    @property
+    def outside_per_render_s(self) -> float | None:
+        """In-process builds: the build's wall time from its first render on, less its render
+        calls, per render: everything a render costs beside the render itself."""
+        if not self.in_build_render_s:
+            return None
+        return (self.build_s - self.startup_s - self.in_build_render_s) / max(self.samples, 1)
+
+    def _phase_lines(self) -> list[str]:
+        if not self.in_build_render_s:
+            return []
+        n = max(self.samples, 1)
+        phases = self.in_build_phases or {}
+        main = [p for p in BUILD_PHASES if p not in ("render calls", "writer thread")]
+        rest = self.outside_per_render_s - sum(phases.get(p, 0.0) for p in main) / n
+        return [
+            f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
+            f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
+            f"{self.build_s / self.in_build_render_s:.3f}",
+            f"render calls inside the build over bare renders of the same scenes: {self.render_call_ratio:.3f} "
+            f"({self.in_build_render_s:.2f} s / {self.bare_s:.2f} s)",
+            f"outside the render calls, per render: {self.outside_per_render_s * 1e3:.1f} ms (goal <= 10 ms): "
+            + ", ".join(f"{p} {phases.get(p, 0.0) / n * 1e3:.1f} ms" for p in main)
+            + f", the rest {rest * 1e3:.1f} ms; beside them on the writer thread "
+            f"{phases.get('writer thread', 0.0) / n * 1e3:.1f} ms",
+            *(
+                [
+                    "the same phases in CPU time of their thread, per render (less moved by other load): "
+                    + ", ".join(f"{p} {cpu.get(p, 0.0) / n * 1e3:.1f} ms" for p in main if p != "writer waits")
+                    + f"; writer thread {cpu.get('writer thread', 0.0) / n * 1e3:.1f} ms"
+                ]
+                if (cpu := self.in_build_phases_cpu)
+                else []
+            ),
+        ]
 
     def paper_estimate(self) -> dict:
         """The paper's 50,000 renders on this machine, two ways: at this build's own rate (its
@@ -200,15 +247,7 @@ class BuildBench:
                 if self.records_render_s > 0
                 else []
             ),
-            *(
-                [
-                    f"in-process build, same run: {self.in_build_render_s:.2f} s in render calls, "
-                    f"{self.build_s - self.in_build_render_s:.2f} s elsewhere: build / its own renders = "
-                    f"{self.build_s / self.in_build_render_s:.3f}"
-                ]
-                if self.in_build_render_s
-                else []
-            ),
+            *self._phase_lines(),
             f"bare renders bit-identical to the build's: {sum(t.identical for t in self.timings)}/{len(self.timings)}",
             *(
                 [
@@ -273,6 +312,8 @@ class BuildBench:
             cpu_ratio=self.cpu_ratio,
             steady_ratio=self.steady_ratio,
             records_ratio=self.records_ratio,
+            render_call_ratio=self.render_call_ratio,
+            outside_per_render_s=self.outside_per_render_s,
             paper_estimate=self.paper_estimate(),
         )
         return d
@@ -285,7 +326,9 @@ def _materials_of(plans):
 def warm_kernels(spec, plans, variant: str) -> float:
     """Compile (or fetch from drjit's disk cache) every kernel the build will need.
 
-    One spp-1 render per material: spp is not part of a kernel, the resolution is.
+    Per material, spp-1 renders (spp is not part of a kernel, the resolution is) of its
+    scene loaded afresh, as the bare renders load it, and of one scene moved from its first
+    lighting to its next, as the build renders them.
     """
 
     ctx = worker_context(spec, variant)
@@ -294,11 +337,14 @@ def warm_kernels(spec, plans, variant: str) -> float:
     start = time.perf_counter()
     for material in _materials_of(plans):
         maps, _ = make_material(material, spec)
-        s = material.samples[0]
-        desc, _, _ = scene_dict(
-            ctx.ball, ctx.camera, maps, Light(s.elevation_deg, s.azimuth_deg, s.turbidity), ctx.settings
-        )
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(material.samples[0]), ctx.settings)
         np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
+        del desc
+        with MaterialScene() as held:
+            for s in material.samples[:2]:
+                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+                np.asarray(mi.render(scene, spp=1, seed=0))
+                del scene
     return time.perf_counter() - start
 
 
@@ -473,36 +519,71 @@ def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
     }
 
 
+#: The build's phases a :class:`RenderCallTimer` times, in the order they are reported.
+BUILD_PHASES = (
+    "render calls",  # pipeline.render.renderer.render_scene
+    "scene loads",  # MaterialScene.lit of a material's first lighting: scene dict + load_dict
+    "emitter moves",  # MaterialScene.lit of its next ones: the emitter state + params.update
+    "statistics",  # pipeline.image.stats.render_stats of each render
+    "writer waits",  # the main thread blocked on the writer thread (queue full, end of a shard)
+    "writer thread",  # EXR encoding, SHA-256, fsync and records, beside the next render
+)
+
+
 class RenderCallTimer:
-    """Times every ``pipeline.render.renderer.render_scene`` call made in this process while active.
+    """Times the phases of an in-process build (:data:`BUILD_PHASES`) while active.
 
     For an in-process build (workers=0) this splits the build's own wall time into its
     render calls and everything else, measured at the same moments, so the split is not
-    disturbed by other load the way two separate measurements are. (render_scene is looked
-    up in its module at each call, so wrapping the module attribute sees every call.)
+    disturbed by other load the way two separate measurements are. Each phase is a
+    function looked up in its module (or class) at each call, so wrapping that attribute
+    sees every call; ``writer thread`` runs beside the others, the rest on the main thread.
     """
 
     def __init__(self):
-        self.seconds = 0.0
+        self.phases = dict.fromkeys(BUILD_PHASES, 0.0)
+        #: CPU time of the calling thread in each phase: the work itself, less disturbed by other
+        #: load than wall time (render calls: the main thread mostly waits for drjit's threads)
+        self.cpu = dict.fromkeys(BUILD_PHASES, 0.0)
         self.calls = 0
 
-    def __enter__(self):
+    @property
+    def seconds(self) -> float:
+        """Time inside render calls."""
+        return self.phases["render calls"]
 
-        self._module, self._original = render, render.render_scene
+    def _wrap(self, owner, name, phase, counts=False):
+        original = getattr(owner, name)
 
         def timed(*args, **kwargs):
-            start = time.perf_counter()
+            label = phase(args) if callable(phase) else phase
+            start, cpu = time.perf_counter(), time.thread_time()
             try:
-                return self._original(*args, **kwargs)
+                return original(*args, **kwargs)
             finally:
-                self.seconds += time.perf_counter() - start
-                self.calls += 1
+                self.phases[label] += time.perf_counter() - start
+                self.cpu[label] += time.thread_time() - cpu
+                self.calls += counts
 
-        render.render_scene = timed
+        setattr(owner, name, timed)
+        self._restore.append((owner, name, original))
+
+    def __enter__(self):
+        self._restore = []
+        self._wrap(render, "render_scene", "render calls", counts=True)
+        self._wrap(render, "render_stats", "statistics")
+        self._wrap(
+            render.MaterialScene, "lit", lambda args: "scene loads" if args[0].scene is None else "emitter moves"
+        )
+        self._wrap(shard.OrderedWriter, "submit", "writer waits")
+        self._wrap(shard.OrderedWriter, "close", "writer waits")
+        self._wrap(shard, "write_render_and_record", "writer thread")
+        self._wrap(shard, "write_material_files", "writer thread")
         return self
 
     def __exit__(self, *exc):
-        self._module.render_scene = self._original
+        for owner, name, original in reversed(self._restore):
+            setattr(owner, name, original)
 
 
 def records_render_time(root: str) -> float:
@@ -592,6 +673,8 @@ def run_build_bench(
             build_cpu_s=build_cpu,
             startup_s=first_start,
             in_build_render_s=in_build.seconds if in_build.calls else None,
+            in_build_phases=dict(in_build.phases) if in_build.calls else None,
+            in_build_phases_cpu=dict(in_build.cpu) if in_build.calls else None,
             timings=timings,
             material_files_s=per_material,
             render_file_s=per_render,

@@ -14,23 +14,28 @@ def render_stats(image: np.ndarray, variance: np.ndarray | None = None, mask: np
     infinite-spp limit — and the same relative to the mean pixel value.
     """
     image = np.asarray(image, dtype=np.float32)
+    # The common case (every value finite) skips the masked copies: the same elements in the
+    # same order, so the same sums and the same bits as the general path.
     finite = np.isfinite(image)
-    values = image[finite]
+    all_finite = bool(finite.all())
+    values = image.reshape(-1) if all_finite else image[finite]
+    lowest = values.min() if values.size else None
     stats = {
-        "min": float(values.min()) if values.size else None,
+        "min": float(lowest) if values.size else None,
         "max": float(values.max()) if values.size else None,
         "mean": float(values.mean(dtype=np.float64)) if values.size else None,
-        "nan": int(np.isnan(image).sum()),
-        "inf": int(np.isinf(image).sum()),
-        "negative": int((values < 0).sum()),
+        "nan": 0 if all_finite else int(np.isnan(image).sum()),
+        "inf": 0 if all_finite else int(np.isinf(image).sum()),
+        "negative": int(np.count_nonzero(values < 0)) if values.size and lowest < 0 else 0,
     }
     if variance is not None:
         var = np.clip(np.asarray(variance, dtype=np.float64), 0.0, None)
-        var = (
-            var[np.isfinite(var)]
-            if mask is None
-            else var[np.asarray(mask, bool)][np.isfinite(var[np.asarray(mask, bool)])]
-        )
+        if mask is not None:
+            var = var[np.asarray(mask, bool)]
+        var = var.reshape(-1)
+        finite_var = np.isfinite(var)
+        if not finite_var.all():
+            var = var[finite_var]
         rmse = float(np.sqrt(var.mean())) if var.size else 0.0
         mean = stats["mean"] or 0.0
         stats["noise_rmse"] = rmse

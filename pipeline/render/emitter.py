@@ -67,7 +67,9 @@ def loaded_sun_direction(direction, variant: str):
 def _emitter_state(effective: Light, sun: str, policy: LightingPolicy, variant: str) -> dict:
     """Everything both the dicts and the in-place update need, measured on the probe."""
     load_mitsuba(variant)  # the probe's types belong to this variant
-    probe = shared_probe(variant).set(effective.direction, effective.turbidity)
+    # Only the probe's emitters read below are moved (each move recomputes a sunsky's tables).
+    parts = ("sun", "sky") if sun == "split" else ("sun", "both")
+    probe = shared_probe(variant).set(effective.direction, effective.turbidity, parts=parts)
     raw_irradiance = probe.sun_disk_radiance() * SUN_SOLID_ANGLE_SR
     state = {"sun": sun, "variant": variant, "raw_sun_irradiance": raw_irradiance}
     if sun == "split":

@@ -1,0 +1,392 @@
+"""The scale benchmark: every command's wall time and peak memory against the dataset's size.
+
+``shaderball bench [SPEC] --scale 1000,10000,50000 --out docs/results/scale``
+    For each size, builds a tiny dataset from SPEC (default ``manifests/paper.toml``: its
+    distributions, cut to that many renders, at ``--resolution`` 16 px and ``--spp`` 1) and
+    runs every command over it, each as a child process of its own: build, info, validate
+    --fast, validate, preview, publish, verify, unpack, the training loader's open and one
+    pass, evaluate's set-up. Each child's wall time and peak resident memory (``wait4``'s
+    ``ru_maxrss``: the child and the processes it waited for) are taken. It writes to
+    ``--out``: ``README.md`` (headed by the command that wrote it, the machine and the
+    date: a table per command and size, each command's growth exponents and its cost per
+    render), ``scale.png`` (time and peak memory against size, log-log) and ``scale.json``.
+    An unmeasured build of two materials comes first, so the smallest size is not charged
+    the machine's first kernel compilation.
+
+Per command: the growth exponent is the slope of a least-squares line through (log size,
+log value); the cost per render is the slope of a least-squares line through (size, value):
+seconds and bytes per extra render. A command whose memory is bounded by the dataset's
+structure has a memory cost per render near zero (the goal: under ~1 KB).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.bench.build_bench import derive_spec
+from pipeline.dataset.spec import spec_to_toml
+from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
+from pipeline.run.build import read_spec_text
+from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
+from pipeline.store.records import dumps
+
+#: The repository root: where ``python -m cli`` runs (and the default spec lives).
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+DEFAULT_SPEC = os.path.join("manifests", "paper.toml")
+DEFAULT_SIZES = (1000, 10000, 50000)
+SIZE_RANGE = (2, 10_000_000)
+DEFAULT_RESOLUTION, DEFAULT_SPP = 16, 1
+#: Memory per extra render a command may take and still count as bounded by structure.
+MEMORY_GOAL_BYTES_PER_RENDER = 1024
+
+
+def _commands(data: str, pub: str, work: str) -> list[tuple[str, list[str]]]:
+    """(name, argv after the Python interpreter) of every measured command but the build, in order."""
+    cli = ["-m", "cli"]
+    return [
+        ("info", [*cli, "info", data]),
+        ("validate --fast", [*cli, "validate", data, "--fast"]),
+        ("validate", [*cli, "validate", data]),
+        ("preview", [*cli, "preview", data, "--out", os.path.join(work, "preview.png")]),
+        ("publish", [*cli, "publish", data, "--out", pub]),
+        ("verify", [*cli, "verify", pub]),
+        ("unpack", [*cli, "unpack", pub, "--out", os.path.join(work, "unpacked")]),
+        ("loader (open + one pass)", ["-m", "pipeline.neural.open_probe", "loader", data]),
+        ("evaluate set-up", ["-m", "pipeline.neural.open_probe", "evaluate-setup", data]),
+    ]
+
+
+COMMANDS = ("build", *(name for name, _ in _commands("D", "P", "W")))
+
+
+@dataclass
+class Measured:
+    command: str
+    renders: int
+    wall_s: float
+    peak_rss_bytes: int
+
+
+@dataclass
+class ScaleBench:
+    command_line: str
+    spec_name: str
+    resolution: int
+    spp: int
+    sizes: list[int]
+    machine: dict
+    date: str
+    rows: list[Measured] = field(default_factory=list)
+
+    def series(self, command: str) -> list[Measured]:
+        return sorted((r for r in self.rows if r.command == command), key=lambda r: r.renders)
+
+    def fit(self, command: str) -> dict:
+        """Growth exponents (log-log slopes) and costs per render (linear slopes) of ``command``."""
+        rows = self.series(command)
+        n = np.array([r.renders for r in rows], float)
+        t = np.array([r.wall_s for r in rows], float)
+        m = np.array([r.peak_rss_bytes for r in rows], float)
+        if len(rows) < 2 or len(set(n)) < 2:
+            return {}
+        return {
+            "time_exponent": _slope(np.log(n), np.log(np.maximum(t, 1e-9))),
+            "memory_exponent": _slope(np.log(n), np.log(np.maximum(m, 1.0))),
+            "seconds_per_render": _slope(n, t),
+            "bytes_per_render": _slope(n, m),
+        }
+
+    def bounded(self, command: str) -> bool | None:
+        fit = self.fit(command)
+        return fit["bytes_per_render"] < MEMORY_GOAL_BYTES_PER_RENDER if fit else None
+
+    def to_dict(self) -> dict:
+        return {
+            "command": self.command_line,
+            "spec": self.spec_name,
+            "resolution": self.resolution,
+            "spp": self.spp,
+            "sizes": self.sizes,
+            "machine": self.machine,
+            "date": self.date,
+            "memory_goal_bytes_per_render": MEMORY_GOAL_BYTES_PER_RENDER,
+            "rows": [dataclasses.asdict(r) for r in self.rows],
+            "fits": {c: self.fit(c) for c in COMMANDS if self.series(c)},
+        }
+
+    def lines(self) -> list[str]:
+        """The summary a command prints: one line per command."""
+        out = [
+            f"scale benchmark: {self.spec_name} at {self.resolution} px, {self.spp} spp; sizes "
+            f"{', '.join(str(s) for s in self.sizes)} renders"
+        ]
+        for c in COMMANDS:
+            fit = self.fit(c)
+            if not fit:
+                continue
+            largest = self.series(c)[-1]
+            out.append(
+                f"{c:26s} {largest.wall_s:8.2f} s {largest.peak_rss_bytes / 2**20:8.1f} MB at {largest.renders}; "
+                f"time ~n^{fit['time_exponent']:.2f} ({fit['seconds_per_render'] * 1e3:.2f} ms/render), "
+                f"memory ~n^{fit['memory_exponent']:.2f} ({fit['bytes_per_render'] / 1024:.2f} KB/render)"
+            )
+        return out
+
+    def markdown(self) -> str:
+        m = self.machine
+        out = [
+            "# Every command's cost against the dataset's size",
+            "",
+            f"Written by `{self.command_line}` on {self.date}.",
+            "",
+            f"Machine: {m.get('cpu_model', '?')} ({m.get('cpus', '?')} CPUs, {m.get('memory_gb', '?')} GB), "
+            f"{m.get('system', '?')}, Python {m.get('python', '?')}; load average before the run "
+            f"{m.get('load_before', '?')}, after {m.get('load_after', '?')}.",
+            "",
+            f"Datasets: `{self.spec_name}`'s distributions cut to each size, {self.resolution}x{self.resolution} px, "
+            f"{self.spp} spp; every command a child process of its own; wall time, and peak resident memory "
+            "(`ru_maxrss` of the child and what it waited for). Growth exponent: the slope of a least-squares "
+            "line through (log size, log value); per render: the slope of a least-squares line through "
+            f"(size, value). Memory bounded by structure: under {MEMORY_GOAL_BYTES_PER_RENDER / 1024:.0f} KB "
+            "per extra render.",
+            "",
+            *self._load_note(),
+            "![time and peak memory against size](scale.png)",
+            "",
+            "## Growth",
+            "",
+            "| command | time exponent | ms per render | memory exponent | KB per render | bounded |",
+            "|---|---|---|---|---|---|",
+        ]
+        for c in COMMANDS:
+            fit = self.fit(c)
+            if fit:
+                out.append(
+                    f"| {c} | {fit['time_exponent']:.2f} | {fit['seconds_per_render'] * 1e3:.3f} | "
+                    f"{fit['memory_exponent']:.2f} | {fit['bytes_per_render'] / 1024:.2f} | "
+                    f"{'yes' if self.bounded(c) else 'no'} |"
+                )
+        out += ["", "## Measured", "", "| command | " + " | ".join(f"{s:,} renders" for s in self.sizes) + " |"]
+        out.append("|---|" + "---|" * len(self.sizes))
+        for c in COMMANDS:
+            by_size = {r.renders: r for r in self.series(c)}
+            if not by_size:
+                continue
+            cells = [
+                f"{by_size[s].wall_s:.2f} s, {by_size[s].peak_rss_bytes / 2**20:.0f} MB" if s in by_size else "-"
+                for s in self.sizes
+            ]
+            out.append(f"| {c} | " + " | ".join(cells) + " |")
+        return "\n".join(out) + "\n"
+
+    def _load_note(self) -> list[str]:
+        """A warning where other work ran beside the benchmark (load above the CPU count)."""
+        cpus = self.machine.get("cpus") or 1
+        loads = []
+        for key in ("load_before", "load_after"):
+            try:
+                loads += [float(x) for x in str(self.machine.get(key, "")).split()]
+            except ValueError:
+                pass
+        if not loads or max(loads) <= cpus:
+            return []
+        return [
+            f"Other work ran beside this run (load average up to {max(loads):.1f} on {cpus} CPUs): its wall "
+            "times, and the time exponents and costs fitted to them, are the machine's load as much as the "
+            "commands'; peak memory does not depend on it.",
+            "",
+        ]
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> ScaleBench:
+        """A bench from its ``scale.json`` (to write its page again)."""
+        return cls(
+            command_line=doc["command"],
+            spec_name=doc["spec"],
+            resolution=doc["resolution"],
+            spp=doc["spp"],
+            sizes=list(doc["sizes"]),
+            machine=dict(doc["machine"]),
+            date=doc["date"],
+            rows=[Measured(**row) for row in doc["rows"]],
+        )
+
+    def figure_png(self) -> bytes:
+        colours = [BLUE, RED, GREEN, ORANGE, PURPLE, GREY, (23, 190, 207), (188, 189, 34), (140, 86, 75), (0, 0, 0)]
+        time_series, memory_series = [], []
+        for c, colour in zip(COMMANDS, colours):
+            rows = self.series(c)
+            time_series.append((c, colour, [(r.renders, r.wall_s) for r in rows]))
+            memory_series.append((c, colour, [(r.renders, r.peak_rss_bytes / 2**20) for r in rows]))
+        size = dict(width=900, height=520)
+        return png(
+            chart(time_series, "wall time (s) against renders, log-log", "renders (log)", True, True, **size),
+            chart(memory_series, "peak memory (MB) against renders, log-log", "renders (log)", True, True, **size),
+        )
+
+
+def _slope(x: np.ndarray, y: np.ndarray) -> float:
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def machine_facts() -> dict:
+    facts = {
+        "system": f"{platform.system()} {platform.release()} {platform.machine()}",
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "cpu_model": "?",
+        "load_before": _load(),
+    }
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            facts["cpu_model"] = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "?")
+        with open("/proc/meminfo", encoding="utf-8") as f:
+            kb = next(int(ln.split()[1]) for ln in f if ln.startswith("MemTotal"))
+        facts["memory_gb"] = round(kb / 2**20, 1)
+    except (OSError, StopIteration, ValueError):
+        pass
+    return facts
+
+
+def _load() -> str:
+    try:
+        return " ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "?"
+
+
+def measure_child(argv: list[str], log_path: str) -> tuple[float, int]:
+    """Run ``python argv`` in the repository root; (wall seconds, peak RSS bytes). A failure is
+    raised with its command, exit code and the end of its output."""
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with open(log_path, "wb") as log:
+        start = time.perf_counter()
+        child = subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+        _pid, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - start
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        with open(log_path, "rb") as f:
+            tail = f.read()[-2000:].decode("utf-8", "replace")
+        raise ShaderballError(
+            f"scale benchmark: `python {' '.join(argv)}` exited with {child.returncode}; its output ends:\n{tail}"
+        )
+    return wall, int(usage.ru_maxrss) * 1024  # Linux: kilobytes
+
+
+def parse_sizes(sizes) -> list[int]:
+    values = list(sizes)
+    for v in values:
+        check_int("--scale", v, *SIZE_RANGE)
+    if len(set(values)) < 2:
+        raise bad_value("--scale", ",".join(str(v) for v in values), "two or more different sizes (renders)")
+    return sorted(set(values))
+
+
+def run_scale_bench(
+    sizes=DEFAULT_SIZES,
+    *,
+    out: str,
+    spec_path: str | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    json_path: str | None = None,
+    progress=None,
+) -> ScaleBench:
+    """Build a dataset of each size and measure every command over it; write the results to
+    ``out`` (and the figures to ``json_path`` too, where given)."""
+    sizes = parse_sizes(sizes)
+    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or DEFAULT_RESOLUTION
+    spp = check_int("--spp", spp, *SPP_RANGE) or DEFAULT_SPP
+    spec_arg = spec_path or DEFAULT_SPEC
+    spec, _ = read_spec_text(spec_path or os.path.join(ROOT, DEFAULT_SPEC))
+    smallest = 2 * spec.dataset.lights_per_material  # evaluate holds whole materials out: two at least
+    for size in sizes:
+        if size < smallest:
+            raise bad_value(
+                "--scale",
+                size,
+                f"at least {smallest} renders with this spec (two materials of "
+                f"{spec.dataset.lights_per_material} lightings: evaluate's set-up holds materials out)",
+            )
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise bad_value("--out", out, "a folder for the results page (this is a file)")
+    say = progress or (lambda message: None)
+    command_line = (
+        f"shaderball bench {spec_arg} --scale {','.join(str(s) for s in sizes)} "
+        f"--resolution {resolution} --spp {spp} --out {out}"
+    )
+    bench = ScaleBench(
+        command_line=command_line,
+        spec_name=spec.dataset.name,
+        resolution=resolution,
+        spp=spp,
+        sizes=[],
+        machine=machine_facts(),
+        date=datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    )
+    scratch = tempfile.mkdtemp(prefix="shaderball-scale-")
+    try:
+        # An unmeasured build of two materials first: kernels compiled and cached, so the
+        # smallest size is not charged the machine's first compilation.
+        say("warm-up: a build of two materials ...")
+        warm = derive_spec(spec, samples=smallest, resolution=resolution, spp=spp)
+        run_commands(warm, scratch, "warm-up", commands=("build",))
+        for size in sizes:
+            derived = derive_spec(spec, samples=size, resolution=resolution, spp=spp)
+            renders = derived.dataset.materials * derived.dataset.lights_per_material
+            bench.sizes.append(renders)
+            for name, wall, peak in run_commands(derived, scratch, str(size), say):
+                bench.rows.append(Measured(name, renders, wall, peak))
+        bench.machine["load_after"] = _load()
+        write_results(bench, out)
+        if json_path:
+            write_text_atomic(json_path, dumps(bench.to_dict()) + "\n")
+        return bench
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def run_commands(spec, scratch: str, name: str, say=None, commands=COMMANDS) -> list[tuple[str, float, int]]:
+    """Build ``spec`` in ``scratch/name`` and run ``commands`` (every one by default) over it:
+    (command, wall s, peak bytes) each. The folder is removed afterwards (the largest sizes
+    take disk: one at a time)."""
+    say = say or (lambda message: None)
+    work = os.path.join(scratch, name)
+    os.mkdir(work)
+    try:
+        spec_file = os.path.join(work, "spec.toml")
+        write_text_atomic(spec_file, spec_to_toml(spec))
+        data, pub = os.path.join(work, "dataset"), os.path.join(work, "publication")
+        renders = spec.dataset.materials * spec.dataset.lights_per_material
+        steps = [("build", ["-m", "cli", "build", spec_file, "--out", data, "--workers", "0"])]
+        measured = []
+        for command, argv in steps + _commands(data, pub, work):
+            if command not in commands:
+                continue
+            say(f"{renders} renders: {command} ...")
+            measured.append((command, *measure_child(argv, os.path.join(work, "log.txt"))))
+        return measured
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def write_results(bench: ScaleBench, out: str) -> None:
+    """README.md, scale.png and scale.json into ``out`` (created if needed)."""
+    os.makedirs(out, exist_ok=True)
+    write_text_atomic(os.path.join(out, "README.md"), bench.markdown())
+    write_bytes_atomic(os.path.join(out, "scale.png"), bench.figure_png())
+    write_text_atomic(os.path.join(out, "scale.json"), dumps(bench.to_dict()) + "\n")

@@ -1,0 +1,99 @@
+"""`shaderball bench --scale`: its bad input, and a real run at two small sizes whose page,
+figure and figures are checked."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _cli(*args):
+    from cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--scale", "100"], "--scale: '100' is not allowed; allowed: two or more different sizes"),
+        (["--scale", "100,100"], "--scale: '100,100' is not allowed; allowed: two or more different sizes"),
+        (["--scale", "1,100"], "--scale: 1 is not allowed; allowed: an integer from 2 to 10000000"),
+        (["--scale", "10,ten"], "--scale: '10,ten' is not allowed; allowed: comma-separated integers"),
+        (["--scale", "10,20", "--resolution", "8"], "--resolution: 8 is not allowed"),
+        (["--scale", "5,20"], "--scale: 5 is not allowed; allowed: at least 10 renders with this spec"),
+    ],
+)
+def test_scale_bad_input_exits_2_and_writes_nothing(tmp_path, args, message):
+    out = tmp_path / "results"
+    result = _cli("bench", *args, "--out", out)
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not out.exists()
+
+
+def test_scale_needs_out():
+    result = _cli("bench", "--scale", "10,20")
+    assert result.exit_code == 2 and "--out: missing" in result.output, result.output
+
+
+def test_scale_benchmark_writes_its_page_figure_and_figures(tmp_path):
+    from pipeline.bench.scale import COMMANDS
+
+    out = tmp_path / "scale"
+    run = subprocess.run(
+        [sys.executable, "-m", "cli", "bench", "--scale", "20,10", "--out", str(out)],
+        cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    # one summary line per command, with its slopes (the lead compares memory per render)
+    for command in COMMANDS:
+        assert any(line.startswith(command + " ") and "KB/render" in line for line in run.stdout.splitlines()), (
+            command,
+            run.stdout,
+        )
+
+    doc = json.loads((out / "scale.json").read_text())
+    assert doc["sizes"] == [10, 20]  # sorted; the paper spec's 5 lightings: 2 and 4 materials
+    assert doc["command"] == f"shaderball bench manifests/paper.toml --scale 10,20 --resolution 16 --spp 1 --out {out}"
+    assert sorted((r["command"], r["renders"]) for r in doc["rows"]) == sorted(
+        (c, n) for c in COMMANDS for n in (10, 20)
+    )
+    for row in doc["rows"]:
+        # a Python process that imported the project: tens of MB at least, far from a leak
+        assert 0.05 < row["wall_s"] < 300 and 20 * 2**20 < row["peak_rss_bytes"] < 4 * 2**30, row
+    assert set(doc["fits"]) == set(COMMANDS)
+    for command, fit in doc["fits"].items():
+        assert set(fit) == {"time_exponent", "memory_exponent", "seconds_per_render", "bytes_per_render"}
+        assert all(math.isfinite(v) for v in fit.values()), (command, fit)
+        # the exponent and the per-render cost agree in sign: both fitted to the same two points
+        rows = sorted((r for r in doc["rows"] if r["command"] == command), key=lambda r: r["renders"])
+        grew = rows[1]["peak_rss_bytes"] - rows[0]["peak_rss_bytes"]
+        assert fit["bytes_per_render"] == pytest.approx(grew / 10)
+        assert math.copysign(1, fit["memory_exponent"]) == math.copysign(1, grew) or grew == 0
+
+    page = (out / "README.md").read_text()
+    assert page.startswith("# ") and f"Written by `{doc['command']}`" in page
+    assert doc["machine"]["cpu_model"] in page and doc["date"] in page
+    assert "![time and peak memory against size](scale.png)" in page
+    for command in COMMANDS:
+        assert sum(line.startswith(f"| {command} |") for line in page.splitlines()) == 2, command  # both tables
+
+    with Image.open(out / "scale.png") as figure:
+        figure.load()
+        assert figure.format == "PNG" and figure.size == (900, 1040)
+        colours = figure.convert("RGB").getcolors(1 << 20)
+    assert len(colours) > 10  # lines in several colours, not a blank page
