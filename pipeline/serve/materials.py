@@ -1,0 +1,214 @@
+"""A view's material as texture-space maps: uniform values, a procedural SVBRDF, a dataset
+sample (made again from the dataset's spec and plan), or maps the page uploaded or painted.
+
+Uploads are bounded before they are decoded: the body's bytes by the server, then the
+image's pixel count from its header (Pillow's lazy open, OpenEXR's header-only read), and
+only then the pixels. A dataset sample is picked by its id, which must be in the dataset's
+manifest; the id never becomes a path.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+
+import numpy as np
+
+from materials import MaterialMaps, UniformMaterial, decode_normal_map, sample_svbrdf
+from pipeline.dataset.materialize import make_material
+from pipeline.dataset.plan import list_imported_maps, plan_dataset, seeded_rng
+from pipeline.dataset.spec import parse_spec
+from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.serve.view import DatasetChoice, MapsChoice, RequestError, SvbrdfChoice, UniformChoice, refused
+from pipeline.store.folder import read_bytes, read_manifest
+from pipeline.store.layout import Layout
+
+#: Largest upload body, bytes.
+MAX_UPLOAD_BYTES = 8 * 1024 * 1024
+#: Largest upload, pixels (width x height, from the header, before decoding).
+MAX_UPLOAD_PIXELS = 4096 * 4096
+#: Uploaded maps are resampled to this many texels a side (the paper's canvases: 200).
+TEXTURE_TEXELS = 256
+#: Procedural SVBRDFs at this texture resolution (smoke spec: 64; the ball covers <= 128 px here).
+SVBRDF_TEXELS = 128
+MAP_NAMES = ("diffuse", "specular", "roughness", "normal")
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: Largest manifest read for the picker (pipeline.store.folder bounds it by the record count too).
+MAX_PICKER_SAMPLES = 10_000
+
+
+def uniform_maps(choice: UniformChoice) -> MaterialMaps:
+    tilt = math.radians(choice.tilt_deg)
+    normal = (math.sin(tilt), 0.0, math.cos(tilt))
+    if choice.metal:  # a metal: no diffuse lobe, a coloured specular albedo
+        material = UniformMaterial((0.0, 0.0, 0.0), choice.diffuse, choice.roughness, normal)
+    else:
+        material = UniformMaterial(choice.diffuse, (choice.specular,) * 3, choice.roughness, normal)
+    return material.to_maps(1)
+
+
+def svbrdf_maps(choice: SvbrdfChoice) -> MaterialMaps:
+    return sample_svbrdf(seeded_rng(choice.seed), choice.family, SVBRDF_TEXELS)
+
+
+def decode_upload(name: str, data: bytes) -> np.ndarray:
+    """An uploaded map (PNG or EXR bytes, texture space) as float32 (TEXTURE_TEXELS, TEXTURE_TEXELS, C)
+    in [0, 1] (the normal map: unit normals); refused with a 4xx RequestError otherwise."""
+    if name not in MAP_NAMES:
+        raise refused("map", name, ", ".join(MAP_NAMES), 404)
+    if len(data) > MAX_UPLOAD_BYTES:
+        raise refused(f"{name} upload", f"{len(data)} bytes", f"at most {MAX_UPLOAD_BYTES} bytes", 413)
+    if data.startswith(PNG_MAGIC):
+        pixels = _decode_png(name, data)
+    elif data.startswith(EXR_MAGIC):
+        pixels = _decode_exr(name, data)
+    else:
+        raise RequestError(f"{name} upload: not a PNG or EXR file (its first bytes are {data[:8]!r})", 415)
+    pixels = np.clip(np.nan_to_num(pixels, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+    if name == "roughness":
+        return pixels[..., :1]
+    rgb = pixels[..., :3] if pixels.shape[2] >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    if name == "normal":
+        return decode_normal_map(rgb)[0].astype(np.float32)
+    return rgb
+
+
+def _check_pixels(name: str, width: int, height: int) -> None:
+    if width < 1 or height < 1 or width * height > MAX_UPLOAD_PIXELS:
+        raise refused(f"{name} upload", f"{width}x{height} pixels", f"at most {MAX_UPLOAD_PIXELS} pixels", 413)
+
+
+def _resample(array: np.ndarray) -> np.ndarray:
+    """(h, w, C) float32 -> (TEXTURE_TEXELS, TEXTURE_TEXELS, C), bilinear (Pillow, per channel)."""
+    from PIL import Image
+
+    channels = [
+        np.asarray(
+            Image.fromarray(np.ascontiguousarray(array[..., c], np.float32), mode="F").resize(
+                (TEXTURE_TEXELS, TEXTURE_TEXELS), Image.BILINEAR
+            ),
+            np.float32,
+        )
+        for c in range(array.shape[2])
+    ]
+    return np.stack(channels, axis=-1)
+
+
+def _decode_png(name: str, data: bytes) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data), formats=["PNG"]) as image:  # reads the header only
+            _check_pixels(name, *image.size)
+            image = image.convert("RGBA" if image.mode in ("RGBA", "LA", "P") else "RGB")
+            array = np.asarray(image, np.float32) / 255.0
+    except RequestError:
+        raise
+    except Exception as exc:  # Pillow raises many kinds on a corrupt file
+        raise RequestError(f"{name} upload: not a readable PNG ({type(exc).__name__}: {exc})", 415) from None
+    return _resample(array[..., :3])
+
+
+def _decode_exr(name: str, data: bytes) -> np.ndarray:
+    import OpenEXR
+
+    try:
+        header = OpenEXR.File(io.BytesIO(data), header_only=True).header()
+        (x0, y0), (x1, y1) = header["dataWindow"]
+    except Exception as exc:  # the bindings raise plain exceptions for corrupt files
+        raise RequestError(f"{name} upload: not a readable EXR ({type(exc).__name__}: {exc})", 415) from None
+    _check_pixels(name, int(x1) - int(x0) + 1, int(y1) - int(y0) + 1)
+    try:
+        channels = OpenEXR.File(io.BytesIO(data), separate_channels=True).channels()
+    except Exception as exc:
+        raise RequestError(f"{name} upload: not a readable EXR ({type(exc).__name__}: {exc})", 415) from None
+    names = sorted(channels)
+    picked = [n for suffix in ("R", "G", "B", "X", "Y", "Z") for n in names if n.rpartition(".")[2] == suffix][:3]
+    picked = picked or names[:3]
+    array = np.stack([np.asarray(channels[n].pixels, np.float32) for n in picked], axis=-1)
+    return _resample(array)
+
+
+def maps_from_uploads(uploads: dict[str, np.ndarray]) -> MaterialMaps:
+    """The uploaded maps; a map not uploaded is the uniform default (grey, 0.04, 0.3, flat)."""
+    shape = (TEXTURE_TEXELS, TEXTURE_TEXELS)
+    defaults = UniformMaterial((0.5, 0.5, 0.5), (0.04, 0.04, 0.04), 0.3).to_maps(shape)
+    return MaterialMaps(
+        diffuse=uploads.get("diffuse", defaults.diffuse),
+        specular=uploads.get("specular", defaults.specular),
+        roughness=uploads["roughness"][..., 0] if "roughness" in uploads else defaults.roughness,
+        normal=uploads.get("normal", defaults.normal),
+    )
+
+
+class DatasetSamples:
+    """The samples of a dataset folder: listed from its manifest, made again from its spec.
+
+    Only ids in the manifest are served; a sample's material comes from the spec snapshot and
+    the plan (pipeline.dataset), so no file named by a request is ever opened.
+    """
+
+    def __init__(self, root: str):
+        layout = Layout(root)
+        if not os.path.isdir(root) or not os.path.isfile(layout.spec):
+            raise ShaderballError(f"--dataset: {root!r} is not a dataset folder written by `shaderball build`")
+        try:
+            self.spec = parse_spec(layout.spec)
+            description = json.loads(read_bytes(layout.description, 1 << 20))
+            renders = (description.get("counts") or {}).get("renders")
+            lines = read_manifest(layout, renders if isinstance(renders, int) else None).split(b"\n")
+        except (OSError, ValueError, *USER_ERRORS) as exc:
+            raise ShaderballError(
+                f"--dataset: {root!r} cannot be read ({exc}); check it with `shaderball validate`"
+            ) from None
+        self.plan = plan_dataset(self.spec, list_imported_maps(self.spec))
+        self.records: dict[str, dict] = {}
+        for line in lines:
+            if line.strip() and len(self.records) < MAX_PICKER_SAMPLES:
+                record = json.loads(line)
+                self.records[str(record["id"])] = record
+        self.root = root
+
+    def listing(self) -> list[dict]:
+        out = []
+        for sample_id, record in self.records.items():
+            material = record.get("material") or {}
+            requested = (record.get("lighting") or {}).get("requested") or {}
+            out.append(
+                {
+                    "id": sample_id,
+                    "kind": material.get("kind"),
+                    "family": material.get("family"),
+                    "elevation_deg": requested.get("elevation_deg"),
+                    "azimuth_deg": requested.get("azimuth_deg"),
+                    "turbidity": requested.get("turbidity"),
+                }
+            )
+        return out
+
+    def maps(self, choice: DatasetChoice) -> MaterialMaps:
+        record = self.records.get(choice.sample)
+        if record is None:
+            raise refused("material.sample", choice.sample, "a sample id listed by /api/info", 404)
+        index = int(record["material_id"][1:])
+        shard = self.plan.shard(next(i for i in range(len(self.plan)) if index in self.plan.material_range(i)))
+        plan = next(m for m in shard.materials if m.material_index == index)
+        return make_material(plan, self.spec)[0]
+
+
+def material_maps(choice, dataset: DatasetSamples | None, uploads: dict[str, np.ndarray]) -> MaterialMaps:
+    """The texture-space maps of a view's material."""
+    if isinstance(choice, UniformChoice):
+        return uniform_maps(choice)
+    if isinstance(choice, SvbrdfChoice):
+        return svbrdf_maps(choice)
+    if isinstance(choice, DatasetChoice):
+        if dataset is None:
+            raise RequestError("material.kind: 'dataset' needs the server started with --dataset DIR", 400)
+        return dataset.maps(choice)
+    if isinstance(choice, MapsChoice):
+        return maps_from_uploads(uploads)
+    raise RequestError(f"material: {choice!r} is not a material", 400)
