@@ -107,9 +107,18 @@ def _decode_png(name: str, data: bytes) -> np.ndarray:
             array = np.asarray(image, np.float32) / 255.0
     except RequestError:
         raise
+    except Image.DecompressionBombError:  # Pillow's own bound, far above ours: refused as ours is
+        width, height = _png_header_size(data)
+        _check_pixels(name, width, height)
+        raise
     except Exception as exc:  # Pillow raises many kinds on a corrupt file
         raise RequestError(f"{name} upload: not a readable PNG ({type(exc).__name__}: {exc})", 415) from None
     return _resample(array[..., :3])
+
+
+def _png_header_size(data: bytes) -> tuple[int, int]:
+    """Width and height from a PNG's IHDR chunk (the first, at a fixed offset)."""
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
 
 
 def _decode_exr(name: str, data: bytes) -> np.ndarray:
@@ -193,7 +202,9 @@ class DatasetSamples:
         record = self.records.get(choice.sample)
         if record is None:
             raise refused("material.sample", choice.sample, "a sample id listed by /api/info", 404)
-        index = int(record["material_id"][1:])
+        index = record.get("material_index")
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < self.spec.dataset.materials:
+            raise refused("material.sample", choice.sample, "a sample whose record names its material_index", 404)
         shard = self.plan.shard(next(i for i in range(len(self.plan)) if index in self.plan.material_range(i)))
         plan = next(m for m in shard.materials if m.material_index == index)
         return make_material(plan, self.spec)[0]

@@ -112,6 +112,9 @@ class App:
             self.httpd.shutdown()
             self.httpd.server_close()
         self.hub.close()
+        for thread in (self.tracer, self.runner):
+            if thread is not None and thread.is_alive():
+                thread.join(60)  # the pass under way ends; Mitsuba is not left mid-render at exit
 
     def info(self) -> dict:
         return {
