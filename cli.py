@@ -48,6 +48,7 @@ from pipeline.run.cluster.options import (
     ClusterOptions,
 )
 from pipeline.run.repair import repair
+from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.configs import DEFAULT_LADDER
 from pipeline.study.run import (
     MAX_LADDER_SPP,
@@ -1383,8 +1384,6 @@ def evaluate_cmd(
 @_friendly_errors
 def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats):
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md)."""
-    from pipeline.serve.command import ServeOptions, serve_command
-
     options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
         click.echo(line)

@@ -13,8 +13,10 @@ import time
 from dataclasses import dataclass
 
 from pipeline.errors import check_int
+from pipeline.serve.materials import uniform_maps
 from pipeline.serve.server import App, ServeOptions, serve
 from pipeline.serve.view import UniformChoice, View
+from pipeline.serve.work import NetworkRunner
 from sky import Light
 
 __all__ = ["ServeOptions", "serve_command", "benchmark"]
@@ -70,13 +72,9 @@ def benchmark(options: ServeOptions, network_loader=None, repeats: int = 9) -> B
     if app.tracer.failure is not None:
         raise app.tracer.failure
     if network is not None:
-        from pipeline.serve.work import NetworkRunner
-
         app.runner = NetworkRunner(app.hub, network, lambda: app.tracer.network_gbuffer)
         app.runner.start()
     material = UniformChoice((0.6, 0.3, 0.2), 0.04, 0.3, False, 0.0)
-    from pipeline.serve.materials import uniform_maps
-
     maps = uniform_maps(material)
     net_ms, net_latency, first, first_latency = [], [], [], []
     try:
