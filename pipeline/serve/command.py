@@ -91,7 +91,7 @@ def benchmark(options: ServeOptions, network_loader=None, repeats: int = 9) -> B
                 net_ms.append(net["network_ms"])
                 net_latency.append(net["latency_ms"])
     finally:
-        app.hub.close()
+        app.close()
     network_doc = None
     if network is not None:
         network_doc = {

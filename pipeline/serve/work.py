@@ -34,6 +34,9 @@ from pipeline.serve.view import View
 
 #: Total spp after each progressive pass; the pass sizes are the differences.
 PASS_TOTALS = (1, 4, 16, 64)
+#: A pass is rendered in chunks of at most this many spp, the generation checked before each,
+#: so a new view waits for one chunk (not a 48 spp pass) before its first pass starts.
+CHUNK_SPP = 4
 #: Most clients (tabs) held at once; the least recently seen is forgotten beyond it.
 MAX_CLIENTS = 16
 #: Path-traced frames are this many pixels a side unless the network's resolution asks for more.
@@ -72,8 +75,10 @@ class Job:
     view: View
     maps: object  # materials.MaterialMaps, the same object for every job of one material
     index: int = 0  # the progressive pass
+    chunk: int = 0  # chunks rendered so far (each its own seed)
     acc: PassSum = field(default_factory=PassSum)
     started: float = field(default_factory=time.perf_counter)
+    pass_started: float | None = None
 
 
 class LatestSlots:
@@ -281,14 +286,21 @@ class PathTracer(threading.Thread):
         return self.scene.scene
 
     def render_pass(self, job: Job) -> None:
-        started = time.perf_counter()
+        """One chunk of the job's current pass; the pass's picture once the chunk completes it."""
+        if job.pass_started is None:
+            job.pass_started = time.perf_counter()
         scene = self.loaded_scene(job)
         total = PASS_TOTALS[job.index]
-        spp = total - (PASS_TOTALS[job.index - 1] if job.index else 0)
-        image = self.mi.render(scene, spp=spp, seed=pass_seed(0, job.index))
+        spp = min(CHUNK_SPP, total - job.acc.spp)
+        image = self.mi.render(scene, spp=spp, seed=pass_seed(0, job.chunk))
         if scene.integrator().should_stop():
             raise KeyboardInterrupt("a render was cancelled by SIGINT")
+        job.chunk += 1
         job.acc.add(np.asarray(image, dtype=np.float64), spp)
+        if job.acc.spp < total:
+            self.hub.path_slots.put(job, replace=False)  # the pass goes on unless a newer view came
+            return
+        started, job.pass_started = job.pass_started, None
         out = job.acc.mean()
         hdr = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
         mask = self.hub.screen_gbuffer.mask
