@@ -264,18 +264,19 @@ def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummar
     (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens."""
     options.check()
     network = network_loader() if network_loader is not None else None
-    app = App(options, network).start()
-    if ready is not None:
-        ready(
-            [
-                f"serving {app.url} (Ctrl-C stops it)",
-                "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
-            ]
-        )
+    app = App(options, network)
     try:
+        app.start()
+        if ready is not None:
+            ready(
+                [
+                    f"serving {app.url} (Ctrl-C stops it)",
+                    "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
+                ]
+            )
         app.httpd.serve_forever()
     except KeyboardInterrupt:
-        pass
+        pass  # Ctrl-C, while starting or serving: the summary's one line says so
     finally:
         app.close()
-    return ServeSummary(app.url, "Ctrl-C")
+    return ServeSummary(app.url if app.httpd is not None else "nothing (stopped while starting)", "Ctrl-C")
