@@ -326,3 +326,28 @@ def test_ctrl_c_stops_the_server_with_one_line(tmp_path):
     assert proc.returncode == 0, err
     assert out.splitlines() == [f"stopped (Ctrl-C); served {url}"]
     assert "Traceback" not in err
+
+
+def test_a_dataset_sample_is_the_datasets_material_from_a_folder_or_its_publication(reference, tmp_path):
+    """The picker makes a sample's material again from the spec and plan: the maps equal the
+    texture maps the build stored (half floats), and a publication lists the same samples."""
+    from click.testing import CliRunner
+
+    from cli import main
+    from pipeline.serve.materials import DatasetSamples
+    from pipeline.serve.view import DatasetChoice
+    from pipeline.store.exr import read_exr
+
+    folder = DatasetSamples(str(reference))
+    for line in (reference / "manifest.jsonl").read_text().splitlines()[::5]:
+        record = json.loads(line)
+        maps = folder.maps(DatasetChoice(record["id"]))
+        texture = next(f["path"] for f in record["files"] if f["role"] == "texture")
+        stored = read_exr(str(reference / texture)).layers
+        for name in ("diffuse", "specular", "normal"):
+            assert np.allclose(getattr(maps, name), stored[name], atol=2e-3), (record["id"], name)
+        assert np.allclose(maps.roughness, stored["roughness"][..., 0], atol=2e-3)
+    pub = tmp_path / "pub"
+    result = CliRunner().invoke(main, ["publish", str(reference), "--out", str(pub)])
+    assert result.exit_code == 0, result.output
+    assert DatasetSamples(str(pub)).listing() == folder.listing()

@@ -7,5 +7,6 @@ this package never imports torch and serves a path-traced previewer without one.
 
 Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
-``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``; nothing else of the project.
+``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``, ``pipeline.publish.names``;
+nothing else of the project.
 """

@@ -21,7 +21,16 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import list_imported_maps, plan_dataset, seeded_rng
 from pipeline.dataset.spec import parse_spec
 from pipeline.errors import USER_ERRORS, ShaderballError
-from pipeline.serve.view import DatasetChoice, MapsChoice, RequestError, SvbrdfChoice, UniformChoice, refused
+from pipeline.publish.names import DATASET_DIR, INDEX_FILE
+from pipeline.serve.view import (
+    SAMPLE_ID,
+    DatasetChoice,
+    MapsChoice,
+    RequestError,
+    SvbrdfChoice,
+    UniformChoice,
+    refused,
+)
 from pipeline.store.folder import read_bytes, read_manifest
 from pipeline.store.layout import Layout
 
@@ -36,8 +45,8 @@ SVBRDF_TEXELS = 128
 MAP_NAMES = ("diffuse", "specular", "roughness", "normal")
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 EXR_MAGIC = b"\x76\x2f\x31\x01"
-#: Largest manifest read for the picker (pipeline.store.folder bounds it by the record count too).
-MAX_PICKER_SAMPLES = 10_000
+#: Most renders of a dataset the picker lists (its manifest is read whole, bounded by this count).
+MAX_PICKER_SAMPLES = 100_000
 
 
 def uniform_maps(choice: UniformChoice) -> MaterialMaps:
@@ -161,53 +170,54 @@ class DatasetSamples:
     """
 
     def __init__(self, root: str):
-        layout = Layout(root)
+        # A publication (PUB) carries the folder's spec, description and manifest byte for byte.
+        published = os.path.isfile(os.path.join(root, INDEX_FILE))
+        layout = Layout(os.path.join(root, DATASET_DIR) if published else root)
         if not os.path.isdir(root) or not os.path.isfile(layout.spec):
-            raise ShaderballError(f"--dataset: {root!r} is not a dataset folder written by `shaderball build`")
+            raise ShaderballError(
+                f"--dataset: {root!r} is not a dataset folder written by `shaderball build` or its publication"
+            )
         try:
             self.spec = parse_spec(layout.spec)
             description = json.loads(read_bytes(layout.description, 1 << 20))
             renders = (description.get("counts") or {}).get("renders")
-            lines = read_manifest(layout, renders if isinstance(renders, int) else None).split(b"\n")
-        except (OSError, ValueError, *USER_ERRORS) as exc:
+            if not isinstance(renders, int) or not 0 < renders <= MAX_PICKER_SAMPLES:
+                raise ValueError(
+                    f"its dataset.json counts {renders!r} renders; the picker takes 1 to {MAX_PICKER_SAMPLES}"
+                )
+            lines = read_manifest(layout, renders).split(b"\n")
+            self.samples = dict(_picker_row(json.loads(line), self.spec) for line in lines if line.strip())
+        except (OSError, ValueError, KeyError, TypeError, *USER_ERRORS) as exc:
             raise ShaderballError(
-                f"--dataset: {root!r} cannot be read ({exc}); check it with `shaderball validate`"
+                f"--dataset: {root!r} cannot be read ({exc}); check it with `shaderball validate` or `shaderball verify`"
             ) from None
         self.plan = plan_dataset(self.spec, list_imported_maps(self.spec))
-        self.records: dict[str, dict] = {}
-        for line in lines:
-            if line.strip() and len(self.records) < MAX_PICKER_SAMPLES:
-                record = json.loads(line)
-                self.records[str(record["id"])] = record
         self.root = root
 
     def listing(self) -> list[dict]:
-        out = []
-        for sample_id, record in self.records.items():
-            material = record.get("material") or {}
-            requested = (record.get("lighting") or {}).get("requested") or {}
-            out.append(
-                {
-                    "id": sample_id,
-                    "kind": material.get("kind"),
-                    "family": material.get("family"),
-                    "elevation_deg": requested.get("elevation_deg"),
-                    "azimuth_deg": requested.get("azimuth_deg"),
-                    "turbidity": requested.get("turbidity"),
-                }
-            )
-        return out
+        return [{"id": sample_id, **row} for sample_id, (_, row) in self.samples.items()]
 
     def maps(self, choice: DatasetChoice) -> MaterialMaps:
-        record = self.records.get(choice.sample)
-        if record is None:
+        entry = self.samples.get(choice.sample)
+        if entry is None:
             raise refused("material.sample", choice.sample, "a sample id listed by /api/info", 404)
-        index = record.get("material_index")
-        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < self.spec.dataset.materials:
-            raise refused("material.sample", choice.sample, "a sample whose record names its material_index", 404)
+        index = entry[0]
         shard = self.plan.shard(next(i for i in range(len(self.plan)) if index in self.plan.material_range(i)))
         plan = next(m for m in shard.materials if m.material_index == index)
         return make_material(plan, self.spec)[0]
+
+
+def _picker_row(record: dict, spec) -> tuple[str, tuple[int, dict]]:
+    """(sample id, (material index, what the picker shows)) of a manifest record."""
+    sample_id, index = record["id"], record["material_index"]
+    if not isinstance(sample_id, str) or not SAMPLE_ID.fullmatch(sample_id):
+        raise ValueError(f"a record's id {sample_id!r} is not a sample id")
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < spec.dataset.materials:
+        raise ValueError(f"record {sample_id}: material_index {index!r} is not in the spec's range")
+    material = record.get("material") or {}
+    requested = (record.get("lighting") or {}).get("requested") or {}
+    row = {key: requested.get(key) for key in ("elevation_deg", "azimuth_deg", "turbidity")}
+    return sample_id, (index, {"kind": material.get("kind"), "family": material.get("family"), **row})
 
 
 def material_maps(choice, dataset: DatasetSamples | None, uploads: dict[str, np.ndarray]) -> MaterialMaps:
