@@ -1359,7 +1359,10 @@ def evaluate_cmd(
     help="--run's weights, as `shaderball infer --checkpoint`.",
 )
 @click.option(
-    "--dataset", type=click.Path(), default=None, help="A dataset folder whose samples the page offers by id."
+    "--dataset",
+    type=click.Path(),
+    default=None,
+    help="A dataset folder or its publication, whose samples the page offers by id.",
 )
 @click.option(
     "--host",
