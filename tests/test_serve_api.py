@@ -237,11 +237,22 @@ def test_a_bomb_exr_is_refused_from_its_header(http):
         ("GET", "/page.html", 404),
         ("GET", "/api/frame?client=../x", 400),
         ("GET", "/api/frame?client=ok&since=-1", 400),
+        ("GET", "/api/frame?" + "&".join(f"f{i}=1" for i in range(20)), 400),
+        ("OPTIONS", "/api/view", 405),
     ],
 )
 def test_wrong_methods_and_paths_get_json_errors(http, method, path, status):
     got, doc = http.json(method, path, raw=b"{}" if method != "GET" else None)
     assert got == status and doc["ok"] is False and doc["error"]
+
+
+def test_a_malformed_request_line_gets_a_json_error(http):
+    with socket.create_connection((http.host, http.port), timeout=30) as sock:
+        sock.sendall(b"GET / extra words HTTP/1.1\r\n\r\n")
+        reply = sock.recv(65536).decode("latin-1")
+    head, _, body = reply.partition("\r\n\r\n")
+    assert head.startswith("HTTP/1.1 400") and "application/json" in head
+    assert json.loads(body)["ok"] is False
 
 
 def test_a_body_without_its_length_is_refused(http):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import threading
 from dataclasses import dataclass
+from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, urlsplit
@@ -164,6 +165,13 @@ def handler_for(app: App):
     class Handler(BaseHTTPRequestHandler):
         server_version = "shaderball-serve"
         protocol_version = "HTTP/1.1"
+        #: Seconds a socket read or write may stall (a client that sends half a body lets go then).
+        timeout = 60
+
+        def send_error(self, code, message=None, explain=None):
+            """http.server's own refusals (a malformed request line, a header too long) as JSON too."""
+            self.close_connection = True
+            self._error(int(code), f"{int(code)} {message or HTTPStatus(int(code)).phrase}")
 
         def log_message(self, format, *args):  # noqa: A002 - the library's name
             pass  # the library never prints; a request log is not wanted on the terminal
@@ -187,7 +195,10 @@ def handler_for(app: App):
             self._json(status, {"ok": False, "error": message})
 
         def _query(self) -> dict:
-            pairs = parse_qs(urlsplit(self.path).query, keep_blank_values=True, max_num_fields=8)
+            try:
+                pairs = parse_qs(urlsplit(self.path).query, keep_blank_values=True, max_num_fields=8)
+            except ValueError:
+                raise RequestError("query: more than 8 fields; allowed: client, map, since", 400) from None
             return {k: v[-1] for k, v in pairs.items()}
 
         def _body(self, limit: int) -> bytes:
@@ -238,7 +249,7 @@ def handler_for(app: App):
         def _not_allowed(self):
             self._error(405, f"{self.command}: not allowed; use GET or POST")
 
-        do_PUT = do_DELETE = do_PATCH = _not_allowed  # noqa: N815
+        do_PUT = do_DELETE = do_PATCH = do_HEAD = do_OPTIONS = _not_allowed  # noqa: N815
 
     return Handler
 
