@@ -14,7 +14,6 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 import zlib
 from pathlib import Path
 
@@ -91,7 +90,7 @@ def test_a_sun_move_changes_the_network_and_the_path_traced_pictures(http):
         assert frame["network"]["resolution"] == 64 and frame["path"]["resolution"] == 128
         assert frame["network"]["network_ms"] > 0 and frame["path"]["seconds"] > 0
         assert 0 < frame["path"]["noise_rel"] < 10
-        assert 5 < frame["diff"]["psnr_db"] < 100
+        assert 5 < frame["diff"]["psnr_db"] < 100 and 10 < frame["diff"]["noise_psnr_db"] < 100
         assert frame["maps"].startswith("data:image/png;base64,")
 
 
@@ -327,10 +326,11 @@ def test_ctrl_c_stops_the_server_with_one_line(tmp_path):
         assert line.startswith("serving http://127.0.0.1:"), line
         url = line.split()[1]
         host, port = url.split("//")[1].rstrip("/").split(":")
-        status, doc = Client(f"http://{host}:{port}/").view("sigint")
+        client = Client(f"http://{host}:{port}/")
+        status, doc = client.view("sigint")
         assert status == 200
-        time.sleep(0.5)  # a render is likely under way
-        proc.send_signal(signal.SIGINT)
+        client.wait_frame("sigint", doc["generation"], lambda f: "path" in f)
+        proc.send_signal(signal.SIGINT)  # most likely inside Mitsuba's render of the next chunk
         out, err = proc.communicate(timeout=120)
     finally:
         proc.kill()

@@ -106,3 +106,22 @@ def test_uploads_are_resampled_to_texture_maps_and_bounded():
     with pytest.raises(RequestError) as refused:
         decode_upload("diffuse", b"\x89PNG\r\n\x1a\n" + b"\0" * (MAX_UPLOAD_BYTES))
     assert refused.value.status == 413
+
+
+def test_the_noise_psnr_estimate_matches_the_psnr_of_real_noise():
+    """Frames of a known per-pixel variance: the estimate is within 1 dB of the PSNR their
+    noise actually costs through the tone map (not rounded to 8 bits, which would floor it)."""
+    from pipeline.image.tonemap import tonemap
+    from pipeline.serve.work import noise_psnr_db
+
+    rng = np.random.default_rng(5)
+    clean = rng.uniform(0.01, 0.3, size=(64, 64, 1)).astype(np.float32).repeat(3, axis=2)
+    variance = (0.004 * clean[..., 0]) ** 2
+    estimate = noise_psnr_db(clean, variance, 1, 4.0)
+    errors = []
+    for _ in range(20):
+        noisy = clean + rng.standard_normal((64, 64, 1)).astype(np.float32) * np.sqrt(variance)[..., None]
+        errors.append(np.mean(((tonemap(noisy, 4.0) - tonemap(clean, 4.0)) * 255.0) ** 2))
+    measured = 10 * np.log10(255.0**2 / np.mean(errors))
+    assert abs(estimate - measured) < 1.0, (estimate, measured)
+    assert noise_psnr_db(clean, variance, 2, 4.0) > estimate + 4  # 4 pixels averaged: about 6 dB less noise

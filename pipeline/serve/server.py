@@ -15,6 +15,7 @@ the server nothing (BrokenPipeError and ConnectionResetError end that answer onl
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import threading
 from dataclasses import dataclass
@@ -97,6 +98,10 @@ class App:
             ) from None
         self.httpd.daemon_threads = True
         return self
+
+    @property
+    def loopback(self) -> bool:
+        return ipaddress.ip_address(self.httpd.server_address[0]).is_loopback
 
     @property
     def url(self) -> str:
@@ -284,6 +289,11 @@ def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummar
                     f"serving {app.url} (Ctrl-C stops it)",
                     "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
                 ]
+                + (
+                    []
+                    if app.loopback
+                    else [f"--host {options.host}: other machines that reach this one can use the page"]
+                )
             )
         app.httpd.serve_forever()
     except KeyboardInterrupt:

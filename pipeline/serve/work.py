@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import base64
 import io
+import math
 import threading
 import time
 from collections import OrderedDict
@@ -25,11 +26,18 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from pipeline.errors import USER_ERRORS
 from pipeline.image.metrics import psnr8
-from pipeline.image.tonemap import hdr_to_srgb8, map_srgb8
+from pipeline.image.tonemap import hdr_to_srgb8, map_srgb8, tonemap
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.raster import encode_normal_texture, project_material
-from pipeline.render.renderer import MaterialScene, PassSum, RenderSettings, pass_seed, relative_error
+from pipeline.render.renderer import (
+    MaterialScene,
+    PassSum,
+    RenderSettings,
+    luminance_variance,
+    pass_seed,
+    relative_error,
+)
 from pipeline.serve.view import View
 
 #: Total spp after each progressive pass; the pass sizes are the differences.
@@ -123,6 +131,7 @@ class Client:
     frame: dict = field(default_factory=dict)
     network_hdr: np.ndarray | None = None
     path_hdr: np.ndarray | None = None
+    path_variance: np.ndarray | None = None
 
 
 class Hub:
@@ -190,7 +199,9 @@ class Hub:
         client.frame["generation"], client.frame["version"] = client.generation, client.version
         self.lock.notify_all()
 
-    def publish(self, job: Job, part: str, doc: dict, hdr: np.ndarray | None = None) -> bool:
+    def publish(
+        self, job: Job, part: str, doc: dict, hdr: np.ndarray | None = None, variance: np.ndarray | None = None
+    ) -> bool:
         """Store a result if its generation is still the client's; False (dropped) otherwise."""
         with self.lock:
             client = self.clients.get(job.client)
@@ -200,9 +211,11 @@ class Hub:
             if part == "network":
                 client.network_hdr = hdr
             elif part == "path":
-                client.path_hdr = hdr
+                client.path_hdr, client.path_variance = hdr, variance
             if client.network_hdr is not None and client.path_hdr is not None:
-                client.frame["diff"] = difference(client.network_hdr, client.path_hdr, job.view.exposure)
+                client.frame["diff"] = difference(
+                    client.network_hdr, client.path_hdr, client.path_variance, job.view.exposure
+                )
             self._changed(client)
             return True
 
@@ -221,9 +234,21 @@ class Hub:
         self.network_slots.close()
 
 
-def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, exposure: float) -> dict:
+def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray, factor: int, exposure: float) -> float:
+    """The path-traced frame's own noise as a PSNR against its converged limit, in the displayed
+    8-bit space at the network's resolution: each pixel moved by one standard deviation of its
+    estimate (the moment integrator's luminance variance, over ``factor``^2 pixels averaged),
+    through the tone map (first order)."""
+    mean = box_down(path_hdr, factor)
+    sigma = np.sqrt(box_down(variance[..., None], factor) / (factor * factor))
+    delta = (tonemap(mean + sigma, exposure) - tonemap(mean, exposure)) * 255.0
+    mse = float(np.mean(delta.astype(np.float64) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, variance: np.ndarray, exposure: float) -> dict:
     """|network - path| of the displayed 8-bit pictures (at the network's resolution, the path
-    frame box-averaged to it) and the PSNR between them."""
+    frame box-averaged to it), the PSNR between them, and the path frame's own noise as a PSNR."""
     factor = path_hdr.shape[0] // network_hdr.shape[0]
     reference = hdr_to_srgb8(box_down(path_hdr, factor), exposure)
     test = hdr_to_srgb8(network_hdr, exposure)
@@ -231,6 +256,7 @@ def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, exposure: float) -
     return {
         "png": png_data_url(np.clip(delta, 0, 255).astype(np.uint8)),
         "psnr_db": round(psnr8(test, reference), 2),
+        "noise_psnr_db": round(noise_psnr_db(path_hdr, variance, factor, exposure), 2),
         "gain": DIFF_GAIN,
     }
 
@@ -251,6 +277,9 @@ class PathTracer(threading.Thread):
         try:
             self.variant = resolve_variant(self.requested_variant)
             self.mi = load_mitsuba(self.variant)
+            # Errors only: Mitsuba's warnings (a render wound down by Ctrl-C, a sampler's rounding)
+            # would print on the terminal the server owns; a failed render reaches the page instead.
+            self.mi.logger().set_log_level(self.mi.LogLevel.Error)
             self.ball, self.camera = build_shaderball(), default_camera()
             self.hub.screen_gbuffer = load_gbuffer(self.ball, self.camera, self.hub.path_resolution, self.variant)
             if self.hub.network_resolution is not None:
@@ -312,7 +341,8 @@ class PathTracer(threading.Thread):
             "noise_rel": round(relative_error(out, job.acc.spp, mask), 4),
             "resolution": int(hdr.shape[0]),
         }
-        if self.hub.publish(job, "path", doc, hdr) and job.index + 1 < len(PASS_TOTALS):
+        variance = luminance_variance(out, job.acc.spp).astype(np.float32)
+        if self.hub.publish(job, "path", doc, hdr, variance) and job.index + 1 < len(PASS_TOTALS):
             job.index += 1
             self.hub.path_slots.put(job, replace=False)  # a newer view, if any, stays first
 
