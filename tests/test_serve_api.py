@@ -14,6 +14,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 import zlib
 from pathlib import Path
 
@@ -287,6 +288,19 @@ def test_clients_that_go_away_and_clients_that_crowd_in_do_not_break_it(http):
     assert errors == [] and len(results) == 6
     status, _, _ = http.request("GET", "/")
     assert status == 200
+
+
+def test_a_connection_reset_mid_request_prints_nothing(http, capfd):
+    for _ in range(5):
+        sock = socket.create_connection((http.host, http.port), timeout=30)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # close = reset
+        sock.sendall(b"GET /api/fra")
+        time.sleep(0.05)
+        sock.close()
+    status, _, _ = http.request("GET", "/")
+    time.sleep(0.5)
+    err = capfd.readouterr().err
+    assert status == 200 and "Traceback" not in err and "Exception occurred" not in err, err
 
 
 def _cli(*args, **kwargs):

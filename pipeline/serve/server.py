@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import logging
 import threading
 from dataclasses import dataclass
 from http import HTTPStatus
@@ -31,6 +32,8 @@ from pipeline.serve.materials import MAX_UPLOAD_BYTES, DatasetSamples, decode_up
 from pipeline.serve.view import RequestError, client_id, parse_view, refused
 from pipeline.serve.work import PASS_TOTALS, PATH_RESOLUTION, Hub, NetworkRunner, PathTracer
 
+log = logging.getLogger(__name__)
+
 #: Largest JSON body of /api/view, bytes.
 MAX_JSON_BYTES = 64 * 1024
 #: Longest a /api/frame long poll waits, seconds.
@@ -40,6 +43,17 @@ TRAIN_HINT = (
     "No network: start with --run RUN. `make serve-network` trains a small one on the smoke "
     "dataset in a few minutes (docs/serve.md)."
 )
+
+
+class QuietServer(ThreadingHTTPServer):
+    """socketserver prints a traceback for an error outside the handler's own answers: a client
+    that resets or stalls its connection while its request is read. That ends the connection
+    only; it is logged, not printed on the terminal the server owns."""
+
+    daemon_threads = True
+
+    def handle_error(self, request, client_address):
+        log.debug("connection from %s ended by an error", client_address, exc_info=True)
 
 
 @dataclass(frozen=True)
@@ -90,13 +104,12 @@ class App:
             self.runner = NetworkRunner(self.hub, self.network, lambda: self.tracer.network_gbuffer)
             self.runner.start()
         try:
-            self.httpd = ThreadingHTTPServer((self.options.host, self.options.port), handler_for(self))
+            self.httpd = QuietServer((self.options.host, self.options.port), handler_for(self))
         except OSError as exc:
             raise ShaderballError(
                 f"--port: cannot listen on {self.options.host}:{self.options.port} ({exc.strerror}); "
                 "pick another port (0: any free one)"
             ) from None
-        self.httpd.daemon_threads = True
         return self
 
     @property

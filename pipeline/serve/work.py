@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import base64
 import io
+import itertools
 import math
 import threading
 import time
@@ -143,6 +144,7 @@ class Hub:
         self.path_slots, self.network_slots = LatestSlots(), LatestSlots()
         self.path_resolution, self.network_resolution = path_resolution, network_resolution
         self.screen_gbuffer = None  # the path tracer's G-buffer, set once it is loaded
+        self.generations = itertools.count(1)
 
     def client(self, client_id: str) -> Client:
         """The client's state (made on first sight); caller holds the lock."""
@@ -175,12 +177,13 @@ class Hub:
             client = self.client(client_id)
             if client.material_key != key or client.maps is None:
                 client.material_key, client.maps = key, maps
-            client.generation += 1
+                client.frame.pop("maps", None)
+            client.generation = next(self.generations)  # never reused, even by a forgotten client's id
             client.view = view
             client.network_hdr = client.path_hdr = None
             for part in ("network", "path", "diff", "error"):
                 client.frame.pop(part, None)
-            if self.screen_gbuffer is not None:
+            if self.screen_gbuffer is not None and "maps" not in client.frame:
                 client.frame["maps"] = png_data_url(maps_strip(project_material(client.maps, self.screen_gbuffer)))
             self._changed(client)
             job = Job(client_id, client.generation, view, client.maps)
