@@ -1,5 +1,6 @@
 """`shaderball serve` in a real headless Chromium: the page loads, a mouse drag moves the sun
-slider, and the network's and the path-traced pictures change, with their times shown.
+slider, and the network's and the path-traced pictures change, with their times shown; paint
+on a map's canvas reaches the maps and the render.
 
 Debian's `chromium` (`make chromium`, part of `make test`), driven over the DevTools protocol
 (support.browser). Without it every test here is skipped with the reason. Set
@@ -28,6 +29,17 @@ UNAVAILABLE = unavailable_reason()
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(UNAVAILABLE is not None, reason=UNAVAILABLE or "")]
 
 SRC = "document.getElementById('{}').getAttribute('src') || ''"
+#: Pixels of the maps picture's diffuse tile (its first quarter) that are the brush's green.
+GREEN_DIFFUSE_TEXELS = """(() => {
+  const img = document.getElementById('maps-img');
+  if (!img.complete || !img.naturalWidth) return 0;
+  const c = document.createElement('canvas'); c.width = img.naturalWidth / 4; c.height = img.naturalHeight;
+  const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) if (d[i + 1] > 150 && d[i] < 80) n++;
+  return n;
+})()"""
 TEXT = "document.getElementById('{}').textContent"
 
 
@@ -75,6 +87,28 @@ def test_without_a_network_the_page_is_a_path_traced_previewer(browser):
         before = browser.evaluate(SRC.format("path-img"))
         _slider_drag(browser, "elevation", 0.2)
         browser.wait_for(f"{SRC.format('path-img')} !== {json.dumps(before)}", timeout_s=300)
+        assert browser.evaluate(TEXT.format("error")) == ""
+        # Paint on the diffuse canvas: the page uploads it and the maps and the render follow.
+        browser.evaluate(
+            "(() => { const k = document.getElementById('kind'); k.value = 'maps'; "
+            "k.dispatchEvent(new Event('input')); document.getElementById('brush').value = '#00ff40'; })()"
+        )
+        browser.wait_for("!document.getElementById('maps-box').hidden")
+        maps, path = browser.evaluate(SRC.format("maps-img")), browser.evaluate(SRC.format("path-img"))
+        box = json.loads(
+            browser.evaluate(
+                "(() => { const c = document.getElementById('cv-diffuse'); c.scrollIntoView(); "
+                "const r = c.getBoundingClientRect(); return JSON.stringify({x: r.left, y: r.top, w: r.width}); })()"
+            )
+        )
+        for row in (0.2, 0.5, 0.8):
+            y = box["y"] + box["w"] * row
+            browser.drag(box["x"] + 2, y, box["x"] + box["w"] - 2, y)
+        browser.wait_for(
+            f"{SRC.format('maps-img')} !== {json.dumps(maps)} && {SRC.format('path-img')} !== {json.dumps(path)}",
+            timeout_s=300,
+        )
+        browser.wait_for(GREEN_DIFFUSE_TEXELS, timeout_s=300)  # the paint, not just another material
         assert browser.evaluate(TEXT.format("error")) == ""
     finally:
         app.close()
