@@ -116,6 +116,21 @@ def test_uploaded_maps_png_and_exr_render(http):
     assert frame["path"]["spp"] >= 1
 
 
+@pytest.mark.parametrize(
+    "material",
+    [
+        {"kind": "svbrdf", "family": "tiles", "seed": 3},
+        {"kind": "uniform", "diffuse": [0.9, 0.6, 0.2], "roughness": 0.2, "metal": True, "tilt_deg": 20},
+    ],
+    ids=["svbrdf", "metal-tilted"],
+)
+def test_every_material_control_renders(http, material):
+    status, doc = http.view("materials", material=material)
+    assert status == 200, doc
+    frame = http.wait_frame("materials", doc["generation"], lambda f: "path" in f and "network" in f)
+    assert frame["maps"].startswith("data:image/png;base64,")
+
+
 def test_a_dataset_sample_is_picked_by_its_id(http, reference):
     sample = json.loads((reference / "manifest.jsonl").read_text().splitlines()[-1])["id"]
     status, doc = http.view("pick", material={"kind": "dataset", "sample": sample})
