@@ -28,6 +28,7 @@ from pipeline.store.exr import encode_exr
 from support.serving import Client, start_app, train_tiny_run
 
 torch.set_num_threads(1)
+pytestmark = pytest.mark.slow  # a smoke build, a tiny training run and real renders
 REPO = Path(__file__).resolve().parents[1]
 FULL = {"path": lambda f: f.get("path", {}).get("spp") == 64}
 
