@@ -9,7 +9,7 @@ PIP_VERSION   := 26.3
 TORCH_VERSION := 2.13.0
 UV_VERSION    := 0.13.9
 
-.PHONY: setup llvm slurm demo test lint test-all bench clean lock
+.PHONY: setup llvm slurm chromium demo test lint test-all bench clean lock serve-network
 
 setup: llvm $(STAMP)
 
@@ -21,6 +21,11 @@ llvm:
 # as root with apt-get where possible; anywhere else a note, and those tests are skipped.
 slurm:
 	@$(PYTHON) scripts/ensure_slurm.py
+
+# The browser test of `shaderball serve` (tests/test_serve_browser.py) needs Debian's chromium:
+# installed as root with apt-get where possible; anywhere else a note, and that test is skipped.
+chromium:
+	@$(PYTHON) scripts/ensure_chromium.py
 
 # Installs exactly what requirements.lock pins, each file checked against its SHA-256 (the
 # versions CI tested); then torch, pinned to this machine's local CPU wheel where it lies (an
@@ -53,7 +58,7 @@ demo: setup
 	@echo
 	@echo "demo: dataset in $(DEMO_OUT)/smoke (manifest.jsonl, shards/), contact sheet $(DEMO_OUT)/smoke-preview.png"
 
-test: setup slurm
+test: setup slurm chromium
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q -n 2 tests
@@ -62,8 +67,17 @@ lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
+# A small network for `shaderball serve --run serve-out/run` (docs/serve.md): the smoke dataset
+# (16 renders at 64 px) and 30 epochs of a quarter-width network, about a minute or two on 2 cores.
+SERVE_OUT ?= serve-out
+serve-network: setup
+	$(VENV)/bin/shaderball build manifests/smoke.toml --out $(SERVE_OUT)/smoke
+	$(VENV)/bin/shaderball train $(SERVE_OUT)/smoke --out $(SERVE_OUT)/run --epochs 30 --loss l1 --width 0.25 \
+		--batch-size 4 --threads 1 --seed 0
+	@echo "serve-network: run \`$(VENV)/bin/shaderball serve --run $(SERVE_OUT)/run --dataset $(SERVE_OUT)/smoke\`"
+
 bench: setup
 	$(VENV)/bin/shaderball bench manifests/smoke.toml
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT)
+	rm -rf $(VENV) $(DEMO_OUT) $(SERVE_OUT)

@@ -79,6 +79,7 @@ from pipeline.run.cluster.options import (
     ClusterOptions,
 )
 from pipeline.run.repair import repair
+from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.configs import DEFAULT_LADDER
 from pipeline.study.run import (
     MAX_LADDER_SPP,
@@ -1442,6 +1443,68 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
     summary = evaluate(request, progress=evaluate_progress())
     for line in summary.lines():
         click.echo(line)
+
+
+@main.command("serve")
+@click.option(
+    "--run",
+    type=click.Path(),
+    default=None,
+    help="A training run folder: the network shown beside path tracing [default: none, a path-traced previewer].",
+)
+@click.option(
+    "--checkpoint",
+    default="last",
+    show_default=True,
+    metavar="last|best|FILE",
+    help="--run's weights, as `shaderball infer --checkpoint`.",
+)
+@click.option(
+    "--dataset",
+    type=click.Path(),
+    default=None,
+    help="A dataset folder or its publication, whose samples the page offers by id.",
+)
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to bind; another than 127.0.0.1 lets other machines in.",
+)
+@click.option("--port", default=8765, show_default=True, type=int, help="Port, 0 to 65535 (0: any free one).")
+@click.option(
+    "--threads",
+    default=0,
+    show_default=True,
+    type=int,
+    help="torch threads for the network, 0 to 256 (0: torch's default).",
+)
+@click.option(
+    "--benchmark",
+    is_flag=True,
+    help="Print the network's time per frame and the first path-traced pass's time instead of serving.",
+)
+@click.option("--repeats", default=9, show_default=True, type=int, help="--benchmark: slider moves timed, 1 to 100.")
+@_friendly_errors
+def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats):
+    """A local web page: the network's picture beside progressive path tracing (docs/serve.md)."""
+    options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
+    for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
+        click.echo(line)
+
+
+def _live_network(options):
+    """The loader of --run's network for `serve` (torch is imported only when there is one)."""
+    if options.run is None:
+        return None
+
+    def load():
+        _neural()
+        from pipeline.neural.live import LiveNetwork
+
+        return LiveNetwork(options.run, checkpoint=options.checkpoint, threads=options.threads)
+
+    return load
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Set-up runs on a bare Python, and installs what the lock file pins (issue 20).
 
-``make`` runs scripts/ensure_llvm.py and scripts/ensure_slurm.py with the machine's own
+``make`` runs scripts/ensure_llvm.py, ensure_slurm.py and ensure_chromium.py with the machine's own
 python3 before the virtual environment exists: on a bare Debian that python3 has nothing
 but the standard library. These tests hold that promise two ways: statically (every import
 of those files is the standard library's) and by running them under ``python3 -I -S``, which
@@ -19,7 +19,12 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 #: What make runs before .venv exists, and the project file ensure_llvm loads by path.
-PRE_VENV = ["scripts/ensure_llvm.py", "scripts/ensure_slurm.py", "pipeline/render/libllvm.py"]
+PRE_VENV = [
+    "scripts/ensure_llvm.py",
+    "scripts/ensure_slurm.py",
+    "scripts/ensure_chromium.py",
+    "pipeline/render/libllvm.py",
+]
 
 
 def _imported_top_names(path: Path) -> set[str]:
@@ -38,7 +43,7 @@ def test_what_make_runs_before_the_venv_imports_the_standard_library_only(rel):
     assert not foreign, f"{rel} imports {sorted(foreign)}: make runs it before .venv exists"
 
 
-@pytest.mark.parametrize("script", ["scripts/ensure_llvm.py", "scripts/ensure_slurm.py"])
+@pytest.mark.parametrize("script", ["scripts/ensure_llvm.py", "scripts/ensure_slurm.py", "scripts/ensure_chromium.py"])
 def test_the_set_up_scripts_run_with_no_site_packages(script, tmp_path):
     """``-I -S``: no site-packages, no PYTHONPATH, no user site; cwd elsewhere."""
     run = subprocess.run(

@@ -1,0 +1,316 @@
+"""`shaderball serve`: the HTTP side, on the standard library's ThreadingHTTPServer.
+
+Routes (JSON unless said):
+
+    GET  /                    the page (page.html, in this package; nothing from the internet)
+    GET  /api/info            what the server offers: network or not, ranges, presets, samples
+    POST /api/view            {client, material, light, exposure} -> {generation}
+    POST /api/upload?client=ID&map=diffuse|specular|roughness|normal   body: PNG or EXR bytes
+    GET  /api/frame?client=ID&since=VERSION   long poll: the client's frame once it changes
+
+Every refusal is a 4xx JSON ``{"ok": false, "error": "..."}`` the page shows; an unexpected
+failure is a 500 with one line, never a traceback. A client that goes away mid-answer costs
+the server nothing (BrokenPipeError and ConnectionResetError end that answer only).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import logging
+import threading
+from dataclasses import dataclass
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from urllib.parse import parse_qs, urlsplit
+
+from materials import SVBRDF_FAMILIES
+from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
+from pipeline.serve import view as views
+from pipeline.serve.materials import MAX_UPLOAD_BYTES, DatasetSamples, decode_upload, material_maps
+from pipeline.serve.view import RequestError, client_id, parse_view, refused
+from pipeline.serve.work import PASS_TOTALS, PATH_RESOLUTION, Hub, NetworkRunner, PathTracer
+
+log = logging.getLogger(__name__)
+
+#: Largest JSON body of /api/view, bytes.
+MAX_JSON_BYTES = 64 * 1024
+#: Longest a /api/frame long poll waits, seconds.
+FRAME_WAIT_S = 10.0
+PORT_RANGE = (0, 65535)
+TRAIN_HINT = (
+    "No network: start with --run RUN. `make serve-network` trains a small one on the smoke "
+    "dataset in a few minutes (docs/serve.md)."
+)
+
+
+class QuietServer(ThreadingHTTPServer):
+    """socketserver prints a traceback for an error outside the handler's own answers: a client
+    that resets or stalls its connection while its request is read. That ends the connection
+    only; it is logged, not printed on the terminal the server owns."""
+
+    daemon_threads = True
+
+    def handle_error(self, request, client_address):
+        log.debug("connection from %s ended by an error", client_address, exc_info=True)
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    run: str | None = None
+    dataset: str | None = None
+    host: str = "127.0.0.1"
+    port: int = 8765
+    checkpoint: str = "last"
+    threads: int = 0
+    variant: str = "llvm"
+
+    def check(self) -> ServeOptions:
+        check_int("--port", self.port, *PORT_RANGE)
+        check_int("--threads", self.threads, 0, 256)
+        if not isinstance(self.host, str) or not self.host or any(c.isspace() for c in self.host):
+            raise bad_value("--host", self.host, "an address to bind, such as 127.0.0.1")
+        return self
+
+
+class App:
+    """The server's state: the hub, the workers, the dataset picker and the network."""
+
+    def __init__(self, options: ServeOptions, network=None):
+        self.options = options.check()
+        self.network = network
+        self.dataset = DatasetSamples(options.dataset) if options.dataset else None
+        net_res = network.resolution if network is not None else None
+        path_res = PATH_RESOLUTION if net_res is None else net_res * max(1, round(PATH_RESOLUTION / net_res))
+        self.hub = Hub(path_res, net_res)
+        self.fatal = None
+        self.tracer = PathTracer(self.hub, options.variant, on_fatal=self._fatal)
+        self.runner = None
+        self.httpd = None
+
+    def _fatal(self, exc: BaseException) -> None:
+        self.fatal = exc
+        if self.httpd is not None:
+            threading.Thread(target=self.httpd.shutdown, daemon=True).start()
+
+    def start(self) -> App:
+        """Load Mitsuba and the G-buffers (in the path tracer's thread), then bind the port."""
+        self.tracer.start()
+        self.tracer.ready.wait()
+        if self.tracer.failure is not None:
+            raise self.tracer.failure
+        if self.network is not None:
+            self.runner = NetworkRunner(self.hub, self.network, lambda: self.tracer.network_gbuffer)
+            self.runner.start()
+        try:
+            self.httpd = QuietServer((self.options.host, self.options.port), handler_for(self))
+        except OSError as exc:
+            raise ShaderballError(
+                f"--port: cannot listen on {self.options.host}:{self.options.port} ({exc.strerror}); "
+                "pick another port (0: any free one)"
+            ) from None
+        return self
+
+    @property
+    def loopback(self) -> bool:
+        return ipaddress.ip_address(self.httpd.server_address[0]).is_loopback
+
+    @property
+    def url(self) -> str:
+        host, port = self.httpd.server_address[:2]
+        return f"http://{host}:{port}/"
+
+    def serve_in_thread(self) -> threading.Thread:
+        thread = threading.Thread(target=self.httpd.serve_forever, name="shaderball-http", daemon=True)
+        thread.start()
+        return thread
+
+    def close(self) -> None:
+        if self.httpd is not None:
+            self.httpd.shutdown()
+            self.httpd.server_close()
+        self.hub.close()
+        for thread in (self.tracer, self.runner):
+            if thread is not None and thread.is_alive():
+                thread.join(60)  # the pass under way ends; Mitsuba is not left mid-render at exit
+
+    def info(self) -> dict:
+        return {
+            "network": self.network.describe() if self.network is not None else None,
+            "train_hint": None if self.network is not None else TRAIN_HINT,
+            "path_resolution": self.hub.path_resolution,
+            "passes_spp": list(PASS_TOTALS),
+            "families": list(SVBRDF_FAMILIES),
+            "ranges": {
+                "elevation_deg": views.ELEVATION_RANGE,
+                "azimuth_deg": views.AZIMUTH_RANGE,
+                "turbidity": views.TURBIDITY_RANGE,
+                "exposure": views.EXPOSURE_RANGE,
+                "tilt_deg": views.TILT_RANGE,
+            },
+            "cloudiness_turbidity": list(views.CLOUDINESS_TURBIDITY),
+            "max_upload_bytes": MAX_UPLOAD_BYTES,
+            "samples": self.dataset.listing() if self.dataset is not None else [],
+        }
+
+    def view(self, doc) -> dict:
+        client, view = parse_view(doc)
+        uploads = self.hub.uploads(client)
+        generation = self.hub.submit(client, view, lambda: material_maps(view.material, self.dataset, uploads))
+        return {"ok": True, "generation": generation}
+
+    def upload(self, query: dict, body: bytes) -> dict:
+        client = client_id(query.get("client"))
+        name = query.get("map")
+        pixels = decode_upload(name, body)
+        self.hub.store_upload(client, name, pixels)
+        return {"ok": True, "map": name, "texels": list(pixels.shape[:2])}
+
+    def frame(self, query: dict) -> dict:
+        client = client_id(query.get("client"))
+        since = query.get("since", "0")
+        if not since.isdigit() or len(since) > 12:
+            raise refused("since", since, "a non-negative integer (the last version seen)")
+        return self.hub.frame(client, int(since), FRAME_WAIT_S)
+
+
+def page_bytes() -> bytes:
+    return resources.files("pipeline.serve").joinpath("page.html").read_bytes()
+
+
+def handler_for(app: App):
+    class Handler(BaseHTTPRequestHandler):
+        server_version = "shaderball-serve"
+        protocol_version = "HTTP/1.1"
+        #: Seconds a socket read or write may stall (a client that sends half a body lets go then).
+        timeout = 60
+
+        def send_error(self, code, message=None, explain=None):
+            """http.server's own refusals (a malformed request line, a header too long) as JSON too."""
+            self.close_connection = True
+            self._error(int(code), f"{int(code)} {message or HTTPStatus(int(code)).phrase}")
+
+        def log_message(self, format, *args):  # noqa: A002 - the library's name
+            pass  # the library never prints; a request log is not wanted on the terminal
+
+        def _send(self, status: int, body: bytes, content_type: str) -> None:
+            try:
+                self.send_response(status)
+                self.send_header("Content-Type", content_type)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                self.send_header("X-Content-Type-Options", "nosniff")
+                self.end_headers()
+                self.wfile.write(body)
+            except (BrokenPipeError, ConnectionResetError):
+                self.close_connection = True  # the client went away: its answer is dropped
+
+        def _json(self, status: int, doc: dict) -> None:
+            self._send(status, json.dumps(doc).encode(), "application/json")
+
+        def _error(self, status: int, message: str) -> None:
+            self._json(status, {"ok": False, "error": message})
+
+        def _query(self) -> dict:
+            try:
+                pairs = parse_qs(urlsplit(self.path).query, keep_blank_values=True, max_num_fields=8)
+            except ValueError:
+                raise RequestError("query: more than 8 fields; allowed: client, map, since", 400) from None
+            return {k: v[-1] for k, v in pairs.items()}
+
+        def _body(self, limit: int) -> bytes:
+            length = self.headers.get("Content-Length")
+            if length is None or not length.isdigit():
+                raise RequestError("Content-Length: missing or not a number; send the body with its length", 411)
+            if int(length) > limit:
+                self.close_connection = True  # the body is not read: the connection cannot be reused
+                raise refused("body", f"{int(length)} bytes", f"at most {limit} bytes", 413)
+            return self.rfile.read(int(length))
+
+        def _answer(self, work) -> None:
+            try:
+                self._json(200, work())
+            except RequestError as exc:
+                self._error(exc.status, str(exc))
+            except USER_ERRORS as exc:
+                self._error(400, str(exc))
+            except (BrokenPipeError, ConnectionResetError):
+                self.close_connection = True
+            except Exception as exc:  # noqa: BLE001 - one line to the page, never a traceback
+                self._error(500, f"internal error: {type(exc).__name__}: {exc}")
+
+        def do_GET(self):  # noqa: N802 - http.server's name
+            route = urlsplit(self.path).path
+            if route in ("/", "/index.html"):
+                self._send(200, page_bytes(), "text/html; charset=utf-8")
+            elif route == "/api/info":
+                self._answer(app.info)
+            elif route == "/api/frame":
+                self._answer(lambda: app.frame(self._query()))
+            elif route in ("/api/view", "/api/upload"):
+                self._error(405, f"{route}: use POST")
+            else:
+                self._error(404, f"{route}: no such page; the page is at /")
+
+        def do_POST(self):  # noqa: N802
+            route = urlsplit(self.path).path
+            if route == "/api/view":
+                self._answer(lambda: app.view(_json_body(self._body(MAX_JSON_BYTES))))
+            elif route == "/api/upload":
+                self._answer(lambda: app.upload(self._query(), self._body(MAX_UPLOAD_BYTES)))
+            elif route in ("/", "/api/info", "/api/frame"):
+                self._error(405, f"{route}: use GET")
+            else:
+                self._error(404, f"{route}: no such page; the page is at /")
+
+        def _not_allowed(self):
+            self._error(405, f"{self.command}: not allowed; use GET or POST")
+
+        do_PUT = do_DELETE = do_PATCH = do_HEAD = do_OPTIONS = _not_allowed  # noqa: N815
+
+    return Handler
+
+
+def _json_body(body: bytes):
+    try:
+        return json.loads(body.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise RequestError(f"body: not JSON ({type(exc).__name__}: {str(exc)[:80]})", 400) from None
+
+
+@dataclass
+class ServeSummary:
+    url: str
+    stopped_by: str
+
+    def lines(self) -> list[str]:
+        return [f"stopped ({self.stopped_by}); served {self.url}"]
+
+
+def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummary:
+    """Run the server until Ctrl-C. ``network_loader``: a callable returning the network
+    (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens."""
+    options.check()
+    network = network_loader() if network_loader is not None else None
+    app = App(options, network)
+    try:
+        app.start()
+        if ready is not None:
+            ready(
+                [
+                    f"serving {app.url} (Ctrl-C stops it)",
+                    "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
+                ]
+                + (
+                    []
+                    if app.loopback
+                    else [f"--host {options.host}: other machines that reach this one can use the page"]
+                )
+            )
+        app.httpd.serve_forever()
+    except KeyboardInterrupt:
+        pass  # Ctrl-C, while starting or serving: the summary's one line says so
+    finally:
+        app.close()
+    return ServeSummary(app.url if app.httpd is not None else "nothing (stopped while starting)", "Ctrl-C")

@@ -1,0 +1,377 @@
+"""The server's work: one Mitsuba thread, one network thread, fed by latest-wins slots.
+
+Each client (a browser tab) has a generation counter. A new view bumps it and replaces the
+client's pending jobs; a job whose generation is no longer the client's is dropped before it
+starts, and its result is dropped if the generation moved while it ran. Path tracing is
+progressive: passes bringing the total to 1, 4, 16, 64 spp, each a separate job checked
+against the current generation before it starts, so a slider drag cancels within one pass.
+
+Mitsuba's variant is process-global and not every path of it is thread-safe, so every Mitsuba
+call (G-buffers, scene loads, renders) runs in :class:`PathTracer`'s one thread; the network
+runs on torch in :class:`NetworkRunner`'s thread and touches no Mitsuba.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import itertools
+import math
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geometry import build_shaderball, default_camera
+from pipeline.errors import USER_ERRORS
+from pipeline.image.metrics import psnr8
+from pipeline.image.tonemap import hdr_to_srgb8, map_srgb8, tonemap
+from pipeline.render.gbuffer import load_gbuffer
+from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
+from pipeline.render.raster import encode_normal_texture, project_material
+from pipeline.render.renderer import (
+    MaterialScene,
+    PassSum,
+    RenderSettings,
+    luminance_variance,
+    pass_seed,
+    relative_error,
+)
+from pipeline.serve.view import View
+
+#: Total spp after each progressive pass; the pass sizes are the differences.
+PASS_TOTALS = (1, 4, 16, 64)
+#: A pass is rendered in chunks of at most this many spp, the generation checked before each,
+#: so a new view waits for one chunk (not a 48 spp pass) before its first pass starts.
+CHUNK_SPP = 4
+#: Most clients (tabs) held at once; the least recently seen is forgotten beyond it.
+MAX_CLIENTS = 16
+#: Path-traced frames are this many pixels a side unless the network's resolution asks for more.
+PATH_RESOLUTION = 128
+#: The difference image is scaled by this before display (errors are small).
+DIFF_GAIN = 4.0
+
+
+def png_data_url(pixels: np.ndarray) -> str:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels)).save(buffer, format="PNG", compress_level=1)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def box_down(image: np.ndarray, factor: int) -> np.ndarray:
+    if factor == 1:
+        return image
+    h, w = image.shape[:2]
+    return image.reshape(h // factor, factor, w // factor, factor, -1).mean(axis=(1, 3)).astype(np.float32)
+
+
+def maps_strip(screen: dict[str, np.ndarray]) -> np.ndarray:
+    """The four screen-space maps side by side as one 8-bit picture (albedos sRGB-encoded)."""
+    rough = np.repeat(screen["roughness"][..., None], 3, axis=2)
+    normal = encode_normal_texture(screen["normal"]) * screen["mask"][..., None]
+    tiles = [map_srgb8(screen["diffuse"]), map_srgb8(screen["specular"]), map_srgb8(rough, False)]
+    return np.concatenate(tiles + [map_srgb8(normal, False)], axis=1)
+
+
+@dataclass
+class Job:
+    client: str
+    generation: int
+    view: View
+    maps: object  # materials.MaterialMaps, the same object for every job of one material
+    index: int = 0  # the progressive pass
+    chunk: int = 0  # chunks rendered so far (each its own seed)
+    acc: PassSum = field(default_factory=PassSum)
+    started: float = field(default_factory=time.perf_counter)
+    pass_started: float | None = None
+
+
+class LatestSlots:
+    """At most one pending job per client; a new one replaces the old (latest wins). Clients
+    take turns: :meth:`take` returns the job waiting longest."""
+
+    def __init__(self):
+        self.jobs: OrderedDict[str, Job] = OrderedDict()
+        self.cond = threading.Condition()
+        self.closed = False
+
+    def put(self, job: Job, replace: bool = True) -> None:
+        with self.cond:
+            if job.client in self.jobs and not replace:
+                return
+            self.jobs.pop(job.client, None)
+            self.jobs[job.client] = job
+            self.cond.notify()
+
+    def take(self) -> Job | None:
+        with self.cond:
+            while not self.jobs and not self.closed:
+                self.cond.wait()
+            if self.closed:
+                return None
+            return self.jobs.popitem(last=False)[1]
+
+    def close(self) -> None:
+        with self.cond:
+            self.closed = True
+            self.cond.notify_all()
+
+
+@dataclass
+class Client:
+    generation: int = 0
+    version: int = 0
+    view: View | None = None
+    material_key: tuple | None = None
+    maps: object = None
+    uploads: dict = field(default_factory=dict)
+    frame: dict = field(default_factory=dict)
+    network_hdr: np.ndarray | None = None
+    path_hdr: np.ndarray | None = None
+    path_variance: np.ndarray | None = None
+
+
+class Hub:
+    """Every client's generation, pending jobs and latest frame; what the HTTP handlers call."""
+
+    def __init__(self, path_resolution: int, network_resolution: int | None):
+        self.lock = threading.Condition()
+        self.clients: OrderedDict[str, Client] = OrderedDict()
+        self.path_slots, self.network_slots = LatestSlots(), LatestSlots()
+        self.path_resolution, self.network_resolution = path_resolution, network_resolution
+        self.screen_gbuffer = None  # the path tracer's G-buffer, set once it is loaded
+        self.generations = itertools.count(1)
+
+    def client(self, client_id: str) -> Client:
+        """The client's state (made on first sight); caller holds the lock."""
+        client = self.clients.pop(client_id, None) or Client()
+        self.clients[client_id] = client
+        while len(self.clients) > MAX_CLIENTS:
+            self.clients.popitem(last=False)
+        return client
+
+    def uploads(self, client_id: str) -> dict:
+        with self.lock:
+            return dict(self.client(client_id).uploads)
+
+    def store_upload(self, client_id: str, name: str, pixels: np.ndarray) -> None:
+        with self.lock:
+            client = self.client(client_id)
+            client.uploads[name] = pixels
+            client.material_key = None  # the maps changed: next view makes them again
+
+    def submit(self, client_id: str, view: View, make_maps) -> int:
+        """A new view: the client's generation moves on, its pending jobs are replaced."""
+        key = view.material_key()
+        with self.lock:
+            client = self.client(client_id)
+            same = client.material_key == key and client.maps is not None
+            maps = client.maps if same else None
+        if maps is None:
+            maps = make_maps()  # may raise RequestError: nothing changes then
+        with self.lock:
+            client = self.client(client_id)
+            if client.material_key != key or client.maps is None:
+                client.material_key, client.maps = key, maps
+                client.frame.pop("maps", None)
+            client.generation = next(self.generations)  # never reused, even by a forgotten client's id
+            client.view = view
+            client.network_hdr = client.path_hdr = None
+            for part in ("network", "path", "diff", "error"):
+                client.frame.pop(part, None)
+            if self.screen_gbuffer is not None and "maps" not in client.frame:
+                client.frame["maps"] = png_data_url(maps_strip(project_material(client.maps, self.screen_gbuffer)))
+            self._changed(client)
+            job = Job(client_id, client.generation, view, client.maps)
+        self.path_slots.put(job)
+        if self.network_resolution is not None:
+            self.network_slots.put(Job(client_id, job.generation, view, job.maps))
+        return job.generation
+
+    def current(self, job: Job) -> bool:
+        with self.lock:
+            client = self.clients.get(job.client)
+            return client is not None and client.generation == job.generation
+
+    def _changed(self, client: Client) -> None:
+        client.version += 1
+        client.frame["generation"], client.frame["version"] = client.generation, client.version
+        self.lock.notify_all()
+
+    def publish(
+        self, job: Job, part: str, doc: dict, hdr: np.ndarray | None = None, variance: np.ndarray | None = None
+    ) -> bool:
+        """Store a result if its generation is still the client's; False (dropped) otherwise."""
+        with self.lock:
+            client = self.clients.get(job.client)
+            if client is None or client.generation != job.generation:
+                return False
+            client.frame[part] = doc
+            if part == "network":
+                client.network_hdr = hdr
+            elif part == "path":
+                client.path_hdr, client.path_variance = hdr, variance
+            if client.network_hdr is not None and client.path_hdr is not None:
+                client.frame["diff"] = difference(
+                    client.network_hdr, client.path_hdr, client.path_variance, job.view.exposure
+                )
+            self._changed(client)
+            return True
+
+    def frame(self, client_id: str, since: int, wait_s: float) -> dict:
+        """The client's frame once its version passes ``since`` (or after ``wait_s``)."""
+        deadline = time.monotonic() + wait_s
+        with self.lock:
+            client = self.client(client_id)
+            while client.version <= since and (left := deadline - time.monotonic()) > 0:
+                self.lock.wait(left)
+                client = self.clients.get(client_id) or self.client(client_id)
+            return {"version": client.version, **client.frame}
+
+    def close(self) -> None:
+        self.path_slots.close()
+        self.network_slots.close()
+
+
+def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray, factor: int, exposure: float) -> float:
+    """The path-traced frame's own noise as a PSNR against its converged limit, in the displayed
+    8-bit space at the network's resolution: each pixel moved by one standard deviation of its
+    estimate (the moment integrator's luminance variance, over ``factor``^2 pixels averaged),
+    through the tone map (first order)."""
+    mean = box_down(path_hdr, factor)
+    sigma = np.sqrt(box_down(variance[..., None], factor) / (factor * factor))
+    delta = (tonemap(mean + sigma, exposure) - tonemap(mean, exposure)) * 255.0
+    mse = float(np.mean(delta.astype(np.float64) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, variance: np.ndarray, exposure: float) -> dict:
+    """|network - path| of the displayed 8-bit pictures (at the network's resolution, the path
+    frame box-averaged to it), the PSNR between them, and the path frame's own noise as a PSNR."""
+    factor = path_hdr.shape[0] // network_hdr.shape[0]
+    reference = hdr_to_srgb8(box_down(path_hdr, factor), exposure)
+    test = hdr_to_srgb8(network_hdr, exposure)
+    delta = np.abs(test.astype(np.int16) - reference.astype(np.int16)).astype(np.float32) * DIFF_GAIN
+    return {
+        "png": png_data_url(np.clip(delta, 0, 255).astype(np.uint8)),
+        "psnr_db": round(psnr8(test, reference), 2),
+        "noise_psnr_db": round(noise_psnr_db(path_hdr, variance, factor, exposure), 2),
+        "gain": DIFF_GAIN,
+    }
+
+
+class PathTracer(threading.Thread):
+    """The one thread that calls Mitsuba: loads the G-buffers, then renders passes of jobs."""
+
+    def __init__(self, hub: Hub, variant: str = "llvm", on_fatal=None):
+        super().__init__(name="shaderball-path-tracer", daemon=True)
+        self.hub, self.requested_variant = hub, variant
+        self.ready, self.failure = threading.Event(), None
+        self.on_fatal = on_fatal or (lambda exc: None)
+        self.network_gbuffer = None
+        self.scene = MaterialScene()
+        self.scene_light = None
+
+    def run(self) -> None:
+        try:
+            self.variant = resolve_variant(self.requested_variant)
+            self.mi = load_mitsuba(self.variant)
+            # Errors only: Mitsuba's warnings (a render wound down by Ctrl-C, a sampler's rounding)
+            # would print on the terminal the server owns; a failed render reaches the page instead.
+            self.mi.logger().set_log_level(self.mi.LogLevel.Error)
+            self.ball, self.camera = build_shaderball(), default_camera()
+            self.hub.screen_gbuffer = load_gbuffer(self.ball, self.camera, self.hub.path_resolution, self.variant)
+            if self.hub.network_resolution is not None:
+                self.network_gbuffer = load_gbuffer(self.ball, self.camera, self.hub.network_resolution, self.variant)
+            self.settings = RenderSettings(
+                resolution=self.hub.path_resolution, spp=PASS_TOTALS[-1], variant=self.variant
+            )
+        except BaseException as exc:  # noqa: BLE001 - handed to the thread that waits for ready
+            self.failure = exc
+            self.ready.set()
+            return
+        self.ready.set()
+        while (job := self.hub.path_slots.take()) is not None:
+            if not self.hub.current(job):
+                continue  # stale: a newer view replaced it
+            try:
+                self.render_pass(job)
+            except KeyboardInterrupt as exc:  # Mitsuba's SIGINT handler cancelled a render
+                self.on_fatal(exc)
+                return
+            except USER_ERRORS as exc:
+                self.hub.publish(job, "error", {"message": str(exc)})
+            except Exception as exc:  # noqa: BLE001 - shown in the page; the server goes on
+                self.hub.publish(job, "error", {"message": f"path tracing failed: {type(exc).__name__}: {exc}"})
+
+    def loaded_scene(self, job: Job):
+        if self.scene.maps is not job.maps:
+            self.scene.release()
+            self.scene_light = None
+        if self.scene_light != job.view.light:
+            self.scene.lit(self.mi, self.ball, self.camera, job.maps, job.view.light, self.settings)
+            self.scene_light = job.view.light
+        return self.scene.scene
+
+    def render_pass(self, job: Job) -> None:
+        """One chunk of the job's current pass; the pass's picture once the chunk completes it."""
+        if job.pass_started is None:
+            job.pass_started = time.perf_counter()
+        scene = self.loaded_scene(job)
+        total = PASS_TOTALS[job.index]
+        spp = min(CHUNK_SPP, total - job.acc.spp)
+        image = self.mi.render(scene, spp=spp, seed=pass_seed(0, job.chunk))
+        if scene.integrator().should_stop():
+            raise KeyboardInterrupt("a render was cancelled by SIGINT")
+        job.chunk += 1
+        job.acc.add(np.asarray(image, dtype=np.float64), spp)
+        if job.acc.spp < total:
+            self.hub.path_slots.put(job, replace=False)  # the pass goes on unless a newer view came
+            return
+        started, job.pass_started = job.pass_started, None
+        out = job.acc.mean()
+        hdr = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
+        mask = self.hub.screen_gbuffer.mask
+        doc = {
+            "png": png_data_url(hdr_to_srgb8(hdr, job.view.exposure)),
+            "spp": job.acc.spp,
+            "pass_s": round(time.perf_counter() - started, 4),
+            "seconds": round(time.perf_counter() - job.started, 4),
+            "noise_rel": round(relative_error(out, job.acc.spp, mask), 4),
+            "resolution": int(hdr.shape[0]),
+        }
+        variance = luminance_variance(out, job.acc.spp).astype(np.float32)
+        if self.hub.publish(job, "path", doc, hdr, variance) and job.index + 1 < len(PASS_TOTALS):
+            job.index += 1
+            self.hub.path_slots.put(job, replace=False)  # a newer view, if any, stays first
+
+
+class NetworkRunner(threading.Thread):
+    """The thread that runs the network (torch) on each client's latest view."""
+
+    def __init__(self, hub: Hub, network, gbuffer_of):
+        super().__init__(name="shaderball-network", daemon=True)
+        self.hub, self.network, self.gbuffer_of = hub, network, gbuffer_of
+
+    def run(self) -> None:
+        while (job := self.hub.network_slots.take()) is not None:
+            if not self.hub.current(job):
+                continue
+            try:
+                started = time.perf_counter()
+                screen = project_material(job.maps, self.gbuffer_of())
+                hdr, network_s = self.network(screen, job.view.light)
+                doc = {
+                    "png": png_data_url(hdr_to_srgb8(hdr, job.view.exposure)),
+                    "network_ms": round(network_s * 1000, 2),
+                    "frame_ms": round((time.perf_counter() - started) * 1000, 2),
+                    "latency_ms": round((time.perf_counter() - job.started) * 1000, 2),
+                    "resolution": int(hdr.shape[0]),
+                }
+                self.hub.publish(job, "network", doc, hdr)
+            except Exception as exc:  # noqa: BLE001 - shown in the page; the server goes on
+                self.hub.publish(job, "error", {"message": f"the network failed: {type(exc).__name__}: {exc}"})

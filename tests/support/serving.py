@@ -1,0 +1,77 @@
+"""A `shaderball serve` app started in-process on a free port, with a tiny trained network."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import time
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from click.testing import CliRunner
+
+from cli import main
+
+#: A network small enough to train in seconds on the smoke dataset (its pictures are poor).
+TINY_TRAIN = ["--loss", "l1", "--resolution", "64", "--width", "0.25", "--batch-size", "4", "--epochs", "2"]
+
+
+def train_tiny_run(dataset: Path, out: Path) -> Path:
+    result = CliRunner().invoke(main, ["train", str(dataset), "--out", str(out), "--threads", "1", *TINY_TRAIN])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def start_app(dataset: Path | None, run: Path | None):
+    from pipeline.neural.live import LiveNetwork
+    from pipeline.serve.server import App, ServeOptions
+
+    network = LiveNetwork(str(run), threads=1) if run is not None else None
+    app = App(ServeOptions(port=0, dataset=str(dataset) if dataset else None), network).start()
+    app.serve_in_thread()
+    return app
+
+
+class Client:
+    """JSON requests to the app over real HTTP (one connection per request)."""
+
+    def __init__(self, url: str):
+        parts = urlsplit(url)
+        self.host, self.port = parts.hostname, parts.port
+
+    def request(self, method: str, path: str, body: bytes | None = None, headers: dict | None = None):
+        conn = http.client.HTTPConnection(self.host, self.port, timeout=60)
+        try:
+            conn.request(method, path, body=body, headers=headers or {})
+            response = conn.getresponse()
+            data = response.read()
+        finally:
+            conn.close()
+        return response.status, response.getheader("Content-Type"), data
+
+    def json(self, method: str, path: str, doc=None, raw: bytes | None = None):
+        body = raw if raw is not None else (json.dumps(doc).encode() if doc is not None else None)
+        status, kind, data = self.request(method, path, body, {"Content-Type": "application/json"})
+        assert kind == "application/json", (status, kind, data[:200])
+        return status, json.loads(data)
+
+    def view(self, client: str, azimuth: float = 270.0, material: dict | None = None, **light):
+        doc = {
+            "client": client,
+            "material": material or {"kind": "uniform", "diffuse": [0.7, 0.3, 0.2], "roughness": 0.3},
+            "light": {"azimuth_deg": azimuth, "elevation_deg": 40.0, "turbidity": 3.0, **light},
+            "exposure": 4.0,
+        }
+        return self.json("POST", "/api/view", doc)
+
+    def wait_frame(self, client: str, generation: int, need, timeout_s: float = 240.0) -> dict:
+        """The client's frame of ``generation`` once ``need(frame)`` holds."""
+        deadline, since = time.monotonic() + timeout_s, 0
+        while time.monotonic() < deadline:
+            status, frame = self.json("GET", f"/api/frame?client={client}&since={since}")
+            assert status == 200, frame
+            since = frame["version"]
+            assert "error" not in frame, frame["error"]
+            if frame.get("generation") == generation and need(frame):
+                return frame
+        raise AssertionError(f"no frame of generation {generation} within {timeout_s} s")
