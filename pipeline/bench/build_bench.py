@@ -326,9 +326,10 @@ def _materials_of(plans):
 def warm_kernels(spec, plans, variant: str) -> float:
     """Compile (or fetch from drjit's disk cache) every kernel the build will need.
 
-    Per material, spp-1 renders (spp is not part of a kernel, the resolution is) of its
-    scene loaded afresh, as the bare renders load it, and of one scene moved from its first
-    lighting to its next, as the build renders them.
+    Spp-1 renders (spp is not part of a kernel, the resolution is): each material's scene
+    loaded afresh, as the bare renders load it; then one scene moved from material to
+    material and from a material's first lighting to its next, in the plan's order, as an
+    in-process build renders them.
     """
 
     ctx = worker_context(spec, variant)
@@ -340,7 +341,9 @@ def warm_kernels(spec, plans, variant: str) -> float:
         desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(material.samples[0]), ctx.settings)
         np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
         del desc
-        with MaterialScene() as held:
+    with MaterialScene() as held:
+        for material in _materials_of(plans):
+            maps, _ = make_material(material, spec)
             for s in material.samples[:2]:
                 scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
                 np.asarray(mi.render(scene, spp=1, seed=0))
@@ -522,12 +525,22 @@ def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
 #: The build's phases a :class:`RenderCallTimer` times, in the order they are reported.
 BUILD_PHASES = (
     "render calls",  # pipeline.render.renderer.render_scene
-    "scene loads",  # MaterialScene.lit of a material's first lighting: scene dict + load_dict
+    "scene loads",  # MaterialScene.lit where it loads: scene dict + load_dict (the first render)
+    "material moves",  # MaterialScene.lit of a material's first lighting: its BSDF + the emitters
     "emitter moves",  # MaterialScene.lit of its next ones: the emitter state + params.update
     "statistics",  # pipeline.image.stats.render_stats of each render
     "writer waits",  # the main thread blocked on the writer thread (queue full, end of a shard)
     "writer thread",  # EXR encoding, SHA-256, fsync and records, beside the next render
 )
+
+
+_LIT_PHASES = {"load": "scene loads", "material": "material moves", "light": "emitter moves"}
+
+
+def _lit_phase(args) -> str:
+    """The phase of ``MaterialScene.lit(self, mi, ball, camera, maps, light, settings)``."""
+    held, _mi, ball, camera, maps, _light, settings = args
+    return _LIT_PHASES[held.step(ball, camera, maps, settings)]
 
 
 class RenderCallTimer:
@@ -572,9 +585,7 @@ class RenderCallTimer:
         self._restore = []
         self._wrap(render, "render_scene", "render calls", counts=True)
         self._wrap(render, "render_stats", "statistics")
-        self._wrap(
-            render.MaterialScene, "lit", lambda args: "scene loads" if args[0].scene is None else "emitter moves"
-        )
+        self._wrap(render.MaterialScene, "lit", _lit_phase)
         self._wrap(shard.OrderedWriter, "submit", "writer waits")
         self._wrap(shard.OrderedWriter, "close", "writer waits")
         self._wrap(shard, "write_render_and_record", "writer thread")

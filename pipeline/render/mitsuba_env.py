@@ -132,6 +132,9 @@ def load_mitsuba(variant: str):
     (short forms are resolved here too, for the command line of the tools). This is
     the only call of ``mi.set_variant`` in the project.
     """
+    mi = sys.modules.get("mitsuba")
+    if mi is not None and variant == mi.variant():  # already current by its full name: a build calls
+        return mi  # this several times a render, and resolving takes two signal handler swaps
     name = resolve_variant(variant)
     mi = _import_mitsuba(name)
     if mi.variant() != name:

@@ -46,7 +46,7 @@ from pipeline.render.limits import (
     TARGET_ERROR_RANGE,
 )
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
-from pipeline.render.scene import sensor_dict, shape_dicts
+from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
 from sky.emitter import SUN_MODES
 
 #: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
@@ -392,29 +392,61 @@ def render_scene(
 
 
 class MaterialScene:
-    """One material's loaded scene, moved from lighting to lighting.
+    """A loaded scene moved from material to material and from lighting to lighting.
 
-    The first :meth:`lit` loads the material's scene; the next ones move its emitters in
-    place (:func:`pipeline.render.emitter.update_emitter_params`): no scene dict, no
-    ``load_dict`` (~0.1 s, and the memory growth of repeated loads, mitsuba3#1890), no kernel
-    compiled, and the same bytes as a scene loaded afresh for that light
-    (tests/test_build_bench.py). Release it (``with``, or :meth:`release`) before the next
-    material's: two scenes alive at once change the kernels' hashes (drjit traces virtual
-    calls over every registered instance) and recompile them.
+    The first :meth:`lit` loads the whole scene; most of a load (~70 ms at 400 px on 2
+    cores) is the shaderball's mesh and its acceleration structure, which no material
+    changes. The next ones move what changed, in place: a new material's BSDF is loaded
+    alone (its dict, ~1 ms) and set on the ball's shape (``Shape.set_bsdf``), and the
+    emitters are moved to the light (:func:`pipeline.render.emitter.update_emitter_params`).
+    No scene dict, no ``load_dict`` of the scene (nor the memory growth of repeated loads,
+    mitsuba3#1890), and the same bytes as a scene loaded afresh for that material and light
+    (tests/test_scene_reuse.py). A scene is loaded afresh only where the ball, the camera or
+    the render settings differ from the held scene's.
+
+    Kernels: a swapped BSDF takes another instance id than a fresh load gives it, so the
+    held scene's kernels are not all those of fresh scenes; they are a handful per process
+    (one per effect plan and id layout, measured), never one per material.
+
+    Keep one alive at a time and release it (``with``, or :meth:`release`) before another
+    scene is loaded: two scenes alive at once change the kernels' hashes (drjit traces
+    virtual calls over every registered instance) and recompile them.
     """
 
     def __init__(self):
         self.maps = self.scene = self.params = self.effects = None
+        self._ball = self._camera = self._settings = self._shape = None
+
+    def step(self, ball, camera, maps, settings: RenderSettings) -> str:
+        """What :meth:`lit` does for these: ``"load"``, ``"material"`` (swap the BSDF, move
+        the emitters) or ``"light"`` (move the emitters)."""
+        same_scene = (
+            self.scene is not None and ball is self._ball and camera is self._camera and settings == self._settings
+        )
+        if not same_scene:
+            return "load"
+        return "light" if maps is self.maps else "material"
 
     def lit(self, mi, ball, camera, maps, light, settings: RenderSettings):
         """The scene of ``maps`` lit by ``light``; its lighting record and effects."""
-        if self.scene is None:
-            desc, lighting, self.effects = scene_dict(ball, camera, maps, light, settings)
+        step = self.step(ball, camera, maps, settings)
+        if step == "load":
+            self.release()
+            desc, lighting, effects = scene_dict(ball, camera, maps, light, settings)
             with _quiet(mi, settings.sampler != "independent"):  # a sampler's rounding: recorded, not printed
-                self.scene, self.maps = mi.load_dict(desc), maps
-            return self.scene, lighting, self.effects
-        if maps is not self.maps:
-            raise ValueError("MaterialScene holds another material's scene: release it first")
+                self.scene = mi.load_dict(desc)
+            del desc
+            self._shape = next(s for s in self.scene.shapes() if s.id() == BALL_SHAPE_ID)
+            self._ball, self._camera, self._settings = ball, camera, settings
+            self.maps, self.effects = maps, effects
+            return self.scene, lighting, effects
+        if step == "material":
+            self.params = None  # its references would keep the old BSDF (and its instance id) alive
+            effects = plan_effects(maps)
+            bsdf = mi.load_dict(material_bsdf(maps, effects, settings.variant, settings.model))
+            self._shape.set_bsdf(bsdf)
+            del bsdf
+            self.maps, self.effects = maps, effects
         if self.params is None:
             self.params = mi.traverse(self.scene)
         lighting = update_emitter_params(self.params, light, sun=settings.sun, variant=settings.variant)
@@ -422,6 +454,7 @@ class MaterialScene:
 
     def release(self) -> None:
         self.maps = self.scene = self.params = self.effects = None
+        self._ball = self._camera = self._settings = self._shape = None
 
     def __enter__(self) -> MaterialScene:
         return self
@@ -442,8 +475,8 @@ def render_sample(
 ) -> RenderResult:
     """Render one material under one light, re-rendering bad (NaN/Inf/negative) results.
 
-    ``scene``: the material's :class:`MaterialScene`, kept across its lightings (a build
-    renders every lighting of a material in a row); None loads a scene for this render only.
+    ``scene``: a :class:`MaterialScene` kept across renders (a build keeps one for all its
+    materials and lightings); None loads a scene for this render only.
     """
     settings.check()
     mi = load_mitsuba(settings.variant)

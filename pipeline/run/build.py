@@ -44,6 +44,7 @@ from pipeline.render.mitsuba_env import (
     resolve_variant,
     weakest_guarantee,
 )
+from pipeline.render.renderer import MaterialScene
 from pipeline.run.cluster.connection import run_shards_on_dask
 from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
 from pipeline.run.shard import run_shard_in_process
@@ -505,9 +506,10 @@ def _build_locked(
             if on_start:
                 on_start("in-process (no dask)", None)
             threads = os.cpu_count() or 1
-            for index in todo:  # one shard planned at a time: a lazy plan is never held whole
-                results.append(run_shard_in_process(out, spec, plans[index], variant, threads))
-                _report(progress, done, total, already, start)
+            with MaterialScene() as scene:  # one loaded scene for every shard, moved from material to material
+                for index in todo:  # one shard planned at a time: a lazy plan is never held whole
+                    results.append(run_shard_in_process(out, spec, plans[index], variant, threads, scene))
+                    _report(progress, done, total, already, start)
         else:
 
             def report(status: str = ""):

@@ -13,12 +13,14 @@ A shard task may run twice, even at the same time, or be killed at any instant:
 Rendering and writing overlap: the maps' raster projection, EXR encoding, SHA-256, fsync
 and records run on one writer thread (:class:`OrderedWriter`), in the order a synchronous
 build would write them, while the next render runs; the next material's maps are made
-on a thread of their own. A material's scene is loaded once and moved from lighting to
-lighting (:class:`pipeline.render.renderer.MaterialScene`).
+on a thread of their own. A scene is loaded once and moved from material to material and
+lighting to lighting (:class:`pipeline.render.renderer.MaterialScene`): across a shard,
+and across every shard of an in-process build.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import time
@@ -226,8 +228,11 @@ def sample_verified(
     return True
 
 
-def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> dict:
-    """Build ``shard`` under ``root``; return a summary. Safe to run again or concurrently."""
+def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str, scene: MaterialScene | None = None) -> dict:
+    """Build ``shard`` under ``root``; return a summary. Safe to run again or concurrently.
+
+    ``scene``: a :class:`MaterialScene` held across shards (an in-process build's); None: one
+    for this shard, released at its end."""
     layout = Layout(root)
     if complete_marker(layout, shard.shard_id, [s.sample_id for s in shard.samples]) is not None:
         return {"shard": shard.shard_id, "rendered": 0, "skipped": shard.n_renders, "seconds": 0.0}
@@ -250,13 +255,17 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str) -> d
             )
     # The next material's maps are made on their own thread while this one renders (numpy:
     # ~65 ms a material, a tenth of a material's renders on a GPU, issue 11).
-    with OrderedWriter() as writer, ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker:
+    with (
+        OrderedWriter() as writer,
+        ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker,
+        contextlib.nullcontext(scene) if scene is not None else MaterialScene() as held,
+    ):
         made = [maker.submit(make_material, material, spec) for _slot, material, _e, _r in work[:1]]
         ctx = worker_context(spec, variant) if work else None
         for k, (slot, material, existing, render_kept) in enumerate(work):
             if k + 1 < len(work):
                 made.append(maker.submit(make_material, work[k + 1][1], spec))
-            slots[slot] = queue_material(layout, spec, ctx, material, existing, writer, render_kept, made[k])
+            slots[slot] = queue_material(layout, spec, ctx, material, existing, writer, render_kept, made[k], held)
     new = [r for slot in slots for r in slot]
     rendered = sum(isinstance(r, Future) for r in new)
     write_marker(layout, shard, _resolved(new))
@@ -283,8 +292,11 @@ def make_shard_dir(layout: Layout, shard_id: str) -> None:
                 ) from None
 
 
-def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant: str, threads: int) -> dict:
-    """Run one shard in this process with ``threads`` Mitsuba threads (a worker's task).
+def run_shard_in_process(
+    out: str, spec: DatasetSpec, shard: ShardPlan, variant: str, threads: int, scene: MaterialScene | None = None
+) -> dict:
+    """Run one shard in this process with ``threads`` Mitsuba threads (a worker's task);
+    ``scene`` as :func:`run_shard` takes it.
 
     Refuses to start where the dataset folder is not visible: a worker without the shared
     filesystem would write a dataset of its own.
@@ -299,7 +311,7 @@ def run_shard_in_process(out: str, spec: DatasetSpec, shard: ShardPlan, variant:
 
     if dr.thread_count() != threads:
         dr.set_thread_count(threads)
-    return dict(run_shard(out, spec, shard, variant), pid=f"{socket.gethostname()}:{os.getpid()}")
+    return dict(run_shard(out, spec, shard, variant, scene), pid=f"{socket.gethostname()}:{os.getpid()}")
 
 
 def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
@@ -334,6 +346,7 @@ def queue_material(
     writer: OrderedWriter,
     render_kept: list[dict | None] | None = None,
     made: Future | None = None,
+    scene: MaterialScene | None = None,
 ) -> list[dict | Future]:
     """Render every sample of ``material`` that ``existing`` (verified records or None) lacks;
     its files and records are queued on ``writer``. Return the kept records and, for the
@@ -346,7 +359,8 @@ def queue_material(
     render when the material files written anew are the ones they list (the maps are a pure
     function of the plan). Otherwise the material files are written before the first
     render's record. ``made``: the future of ``make_material(material, spec)``, when it was
-    started ahead.
+    started ahead. ``scene``: the :class:`MaterialScene` to render in (held by the caller
+    across materials); None: one for this material.
     """
     maps, description = made.result() if made is not None else make_material(material, spec)
     maps.check()
@@ -363,7 +377,7 @@ def queue_material(
     else:
         material_files = writer.submit(write_material_files, layout, spec, ctx, material, maps, description)
     records: list[dict | Future] = []
-    with MaterialScene() as scene:
+    with contextlib.nullcontext(scene) if scene is not None else MaterialScene() as scene:
         for sample, old in zip(material.samples, existing):
             if old is not None and old.get("files", [])[1:] == material_files:
                 records.append(old)
