@@ -238,18 +238,19 @@ def contact_sheet(root: str, records: list[dict], tile: int, problems: list[str]
 
 
 def _read_chosen(layout: Layout, counts: dict[str, int], places: list[int]) -> list[dict]:
-    """The records at ``places`` (shard number << 32 | position among its records)."""
+    """The records at ``places`` (shard number << 32 | position among its records), in that
+    order, reading each shard once and holding one shard's records at a time."""
     shards = list(counts.items())
-    read: dict[int, list[dict]] = {}
-    out = []
-    for place in places:
+    chosen: dict[int, dict] = {}
+    current, found = None, []
+    for place in sorted(set(places)):
         index, position = place >> 32, place & 0xFFFFFFFF
-        if index not in read:
-            read[index] = shard_records(layout, shards[index][0], shards[index][1])[0]
-        if position >= len(read[index]):
+        if index != current:
+            current, found = index, shard_records(layout, shards[index][0], shards[index][1])[0]
+        if position >= len(found):
             raise ShaderballError(f"DIR: {layout.root!r}: shard {shards[index][0]} changed while it was previewed")
-        out.append(read[index][position])
-    return out
+        chosen[place] = found[position]
+    return [chosen[place] for place in places]
 
 
 def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = None) -> PreviewSummary:
