@@ -36,8 +36,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from array import array
 from collections import OrderedDict
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -53,13 +55,17 @@ from pipeline.publish.refusal import Refused
 from pipeline.store.exr import read_exr
 from pipeline.store.folder import (
     UnsafePath,
+    file_digest,
+    iter_lines,
+    iter_manifest,
+    list_bound,
     read_bytes,
     read_json_checked,
+    read_line_at,
     record_problem,
     resolve_inside,
     structure_problem,
 )
-from pipeline.store.folder import read_manifest as folder_read_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
@@ -147,8 +153,13 @@ def read_json_file(path: str, what: str):
     return value
 
 
-def read_manifest(root: str) -> tuple[dict, list[dict]]:
-    """dataset.json and the manifest's records of a complete dataset folder."""
+def _expected(description: dict) -> int | None:
+    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
+    return counts.get("renders") if isinstance(counts.get("renders"), int) else None
+
+
+def folder_manifest(root: str) -> tuple[dict, str]:
+    """dataset.json of a complete dataset folder and its manifest's path (checked readable)."""
     layout = Layout(root)
     if not os.path.isdir(root):
         raise bad_value(
@@ -164,37 +175,34 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
             f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
             "when a build completes); finish it with `shaderball build SPEC --out DIR`"
         )
-    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
-    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
     try:
-        data = folder_read_manifest(layout, expected)
+        for _line in iter_manifest(layout, _expected(description)):
+            break  # opened and within its bound: read a line at a time by index_records
     except OSError as exc:
         raise ShaderballError(
             f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
         ) from None
-    return description, parse_records(data, description, root, layout.manifest, "`shaderball validate`")
+    return description, layout.manifest
 
 
 def parse_records(data: bytes, description: dict, root: str, where: str, checker: str) -> list[dict]:
     """The records of a manifest's bytes, each checked (pipeline.store.folder.record_problem),
     as many as ``dataset.json`` counts."""
-    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
-    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
-    records = []
+    records = [_checked_record(line, number, where, checker) for number, _offset, line in _byte_lines(data)]
+    return _count_check(records, description, root)
+
+
+def _byte_lines(data: bytes):
+    """(line number, offset, line) of every non-empty line of ``data``."""
+    offset = 0
     for number, line in enumerate(data.split(b"\n"), start=1):
-        if not line.strip():
-            continue
-        too_much = structure_problem(line)
-        if too_much:
-            raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
-        try:
-            record = json.loads(line)
-        except (ValueError, RecursionError):
-            raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
-        problem = record_problem(record)
-        if problem:
-            raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
-        records.append(record)
+        if line.strip():
+            yield number, offset, line
+        offset += len(line) + 1
+
+
+def _count_check(records, description: dict, root: str):
+    expected = _expected(description)
     if expected is not None and len(records) != expected:
         raise ShaderballError(
             f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
@@ -203,6 +211,21 @@ def parse_records(data: bytes, description: dict, root: str, where: str, checker
     if not records:
         raise ShaderballError(f"DATASET: {root!r} has no renders")
     return records
+
+
+def _checked_record(line: bytes, number: int, where: str, checker: str) -> dict:
+    """The record on manifest line ``number``, checked (a ShaderballError naming the line)."""
+    too_much = structure_problem(line)
+    if too_much:
+        raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
+    try:
+        record = json.loads(line)
+    except (ValueError, RecursionError):
+        raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
+    problem = record_problem(record)
+    if problem:
+        raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
+    return record
 
 
 class FolderFiles:
@@ -276,7 +299,7 @@ def refused(root: str, exc: Refused) -> ShaderballError:
     return ShaderballError(f"DATASET: {root!r} is a publication that does not verify ({exc.kind}): {exc.message}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SampleFiles:
     id: str
     material_id: str
@@ -312,6 +335,79 @@ def sample_files(files, record: dict) -> SampleFiles:
     )
 
 
+class ManifestRecords(Mapping):
+    """The manifest's records by sample id, each parsed when asked for: only where its line
+    lies is kept (a byte offset and a length, numpy arrays), in the manifest file of a folder
+    or in the manifest's bytes a publication's reader holds."""
+
+    def __init__(self, source: str | bytes, offsets: np.ndarray, lengths: np.ndarray, positions: dict[str, int]):
+        self.source, self.offsets, self.lengths, self.positions = source, offsets, lengths, positions
+
+    def __getitem__(self, sample_id: str) -> dict:
+        position = self.positions[sample_id]
+        offset, length = int(self.offsets[position]), int(self.lengths[position])
+        if isinstance(self.source, bytes):
+            line = self.source[offset : offset + length]
+        else:
+            try:
+                line = read_line_at(self.source, offset, length)
+            except OSError as exc:
+                raise ShaderballError(f"DATASET: {self.source} cannot be read ({exc.strerror})") from None
+        try:
+            record = json.loads(line)
+        except (ValueError, RecursionError):
+            record = None
+        if not isinstance(record, dict) or record.get("id") != sample_id:
+            raise ShaderballError(
+                f"DATASET: {self.source if isinstance(self.source, str) else 'the manifest'} changed since it "
+                f"was opened (no record of {sample_id} where it was); open the dataset again"
+            )
+        return record
+
+    def __iter__(self):
+        return iter(self.positions)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+@dataclass
+class ManifestIndex:
+    """What opening a dataset keeps of its manifest: the records by id (parsed when asked
+    for), each sample's files and lighting vector, the renders' resolutions."""
+
+    records: ManifestRecords
+    samples: list[SampleFiles]
+    resolutions: set
+
+
+def index_records(lines, source: str | bytes, files, description: dict, root: str, where: str, checker: str):
+    """:class:`ManifestIndex` of the manifest ``lines`` ((number, offset, line) of each line),
+    each record checked as :func:`parse_records` checks it, one at a time."""
+    offsets, lengths, positions, samples, resolutions = array("q"), array("q"), {}, [], set()
+    shared: dict = {}  # a material's id and maps: one object for all its lightings
+    for number, offset, line in lines:
+        if not line.strip():
+            continue
+        record = _checked_record(line, number, where, checker)
+        sample = sample_files(files, record)
+        samples.append(
+            replace(
+                sample,
+                material_id=shared.setdefault(sample.material_id, sample.material_id),
+                maps=shared.setdefault(sample.maps, sample.maps),
+                texture=shared.setdefault(sample.texture, sample.texture),
+            )
+        )
+        positions[record["id"]] = len(offsets)  # a repeated id: its last record, as a dict of them keeps
+        offsets.append(offset)
+        lengths.append(len(line))
+        resolutions.add((record.get("render") or {}).get("resolution"))
+    _count_check(samples, description, root)
+    records = ManifestRecords(source, np.frombuffer(offsets, np.int64), np.frombuffer(lengths, np.int64), positions)
+    return ManifestIndex(records, samples, resolutions)
+
+
 class ShaderballDataset(Dataset):
     """Samples of a dataset folder or a publication (see the module's docstring); build with
     :func:`open_dataset`. ``files`` reads them (default: the folder ``root``); ``records``
@@ -328,7 +424,7 @@ class ShaderballDataset(Dataset):
         cache_materials: int = DEFAULT_CACHE_MATERIALS,
         identity: dict | None = None,
         files=None,
-        records: dict[str, dict] | None = None,
+        records: Mapping[str, dict] | None = None,
     ):
         self.root = root
         self.samples = samples
@@ -423,7 +519,10 @@ class ShaderballDataset(Dataset):
 
 
 def dataset_resolution(records: list[dict]) -> int:
-    sizes = {(r.get("render") or {}).get("resolution") for r in records}
+    return one_resolution({(r.get("render") or {}).get("resolution") for r in records})
+
+
+def one_resolution(sizes: set) -> int:
     if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
         raise ShaderballError(f"DATASET: renders of several or unknown resolutions {sorted(map(str, sizes))}")
     return next(iter(sizes))
@@ -486,12 +585,17 @@ def open_dataset(
     (all samples, in manifest order; see the module's docstring)."""
     if is_publication(root):
         return open_published(root, resolution, exposure, check_hashes, cache_materials)
-    layout = Layout(root)
-    description, records = read_manifest(root)
-    manifest = folder_read_manifest(layout, len(records))
-    return _make(
-        root, description, records, manifest, FolderFiles(root), resolution, exposure, check_hashes, cache_materials
-    )
+    description, path = folder_manifest(root)
+    bound = list_bound(_expected(description))
+    files = FolderFiles(root)
+    try:
+        index = index_records(iter_lines(path, bound), path, files, description, root, path, "`shaderball validate`")
+        manifest_sha256 = file_digest(path, bound)[1]
+    except OSError as exc:
+        raise ShaderballError(
+            f"DATASET: {path} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
+        ) from None
+    return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 
 
 def open_published(
@@ -512,38 +616,40 @@ def open_published(
     if not isinstance(description, dict):
         raise ShaderballError(f"DATASET: {root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object")
     manifest = publication.source_files[MANIFEST_FILE]
-    records = parse_records(
-        manifest, description, root, os.path.join(root, "dataset", MANIFEST_FILE), "`shaderball verify`"
-    )
-    keep = {entry["path"] for record in records for entry in record["files"]}
+    where = os.path.join(root, "dataset", MANIFEST_FILE)
+    keep = set()
+    for number, _offset, line in _byte_lines(manifest):
+        keep.update(entry["path"] for entry in _checked_record(line, number, where, "`shaderball verify`")["files"])
     files = PublishedFiles(root, {path: at for path, at in located.items() if path in keep})
-    return _make(root, description, records, manifest, files, resolution, exposure, check_hashes, cache_materials)
+    del keep
+    index = index_records(_byte_lines(manifest), manifest, files, description, root, where, "`shaderball verify`")
+    manifest_sha256 = hashlib.sha256(manifest).hexdigest()
+    return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 
 
 def _make(
     root: str,
     description: dict,
-    records: list[dict],
-    manifest: bytes,
+    index: ManifestIndex,
+    manifest_sha256: str,
     files,
     resolution,
     exposure,
     check_hashes,
     cache_materials,
 ) -> ShaderballDataset:
-    native = dataset_resolution(records)
+    native = one_resolution(index.resolutions)
     net_res, factor = network_resolution(native, resolution)
-    samples = [sample_files(files, r) for r in records]
     identity = {
         "spec_digest": description.get("spec_digest"),
-        "manifest_sha256": hashlib.sha256(manifest).hexdigest(),
+        "manifest_sha256": manifest_sha256,
         "name": description.get("name"),
         "resolution": native,
         "variant": description.get("variant"),
     }
     return ShaderballDataset(
         root,
-        samples,
+        index.samples,
         net_res,
         factor,
         exposure,
@@ -551,5 +657,5 @@ def _make(
         cache_materials,
         identity,
         files=files,
-        records={r["id"]: r for r in records},
+        records=index.records,
     )

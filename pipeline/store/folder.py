@@ -183,10 +183,10 @@ def _open_regular(path: str, limit: int | None) -> tuple[int, int]:
     return fd, info.st_size
 
 
-def _chunks(fd: int, path: str, limit: int | None):
+def _chunks(fd: int, path: str, limit: int | None, size: int = 1 << 20):
     total = 0
     while True:
-        chunk = os.read(fd, 1 << 20)
+        chunk = os.read(fd, size)
         if not chunk:
             return
         total += len(chunk)
@@ -608,6 +608,11 @@ def read_manifest(layout: Layout, renders: int | None = None) -> bytes:
     return read_bytes(layout.manifest, list_bound(renders))
 
 
+#: Bytes read at a time by :func:`iter_lines`: a few records' worth, so what a reader of lines
+#: holds does not grow with the file up to a larger chunk.
+LINE_CHUNK = 1 << 16
+
+
 def iter_lines(path: str, limit: int | None = None) -> Iterator[tuple[int, int, bytes]]:
     """(line number from 1, byte offset, bytes without the newline) of every line of the
     regular file at ``path``, read a chunk at a time (as :func:`read_bytes` reads: no link, no
@@ -620,7 +625,7 @@ def iter_lines(path: str, limit: int | None = None) -> Iterator[tuple[int, int, 
 def _lines_of(fd: int, path: str, limit: int | None) -> Iterator[tuple[int, int, bytes]]:
     number, offset, parts = 0, 0, []  # parts: the line so far (a long line is not re-copied per chunk)
     try:
-        for chunk in _chunks(fd, path, limit):
+        for chunk in _chunks(fd, path, limit, LINE_CHUNK):
             start = 0
             while (end := chunk.find(b"\n", start)) >= 0:
                 line = b"".join([*parts, chunk[start:end]]) if parts else chunk[start:end]
