@@ -62,6 +62,7 @@ __all__ = [
     "read_line_at",
     "only_temp_files",
     "read_bytes",
+    "read_chunks",
     "read_json",
     "read_json_checked",
     "read_json_in",
@@ -204,6 +205,20 @@ def read_bytes(path: str, limit: int | None = None) -> bytes:
         return b"".join(_chunks(fd, path, limit))
     finally:
         os.close(fd)
+
+
+def read_chunks(path: str, limit: int | None = None) -> Iterator[bytes]:
+    """The bytes of the regular file at ``path`` a chunk at a time, as :func:`read_bytes`
+    reads them (opened by the call: OSErrors are raised by it)."""
+    fd, _size = _open_regular(path, limit)
+
+    def chunks():
+        try:
+            yield from _chunks(fd, path, limit)
+        finally:
+            os.close(fd)
+
+    return chunks()
 
 
 def file_digest(path: str, limit: int | None = None) -> tuple[int, str]:
