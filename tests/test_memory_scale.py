@@ -70,6 +70,15 @@ LOADER = (
 )
 
 
+#: Publishing alone (``publish`` validates first: its peak may be validate's).
+WRITE = (
+    "import sys, tracemalloc; tracemalloc.start()\n"
+    "from pipeline.publish.writer import write_publication\n"
+    "write_publication(sys.argv[1], sys.argv[2], contact_sheet=False)\n"
+    "print('PEAK', tracemalloc.get_traced_memory()[1], file=sys.stderr)"
+)
+
+
 def _commands(data: Path, scratch: Path) -> dict[str, list]:
     return {
         "info": ["info", data],
@@ -77,6 +86,7 @@ def _commands(data: Path, scratch: Path) -> dict[str, list]:
         "validate": ["validate", data],
         "preview": ["preview", data, "--out", scratch / "sheet.png"],
         "publish": ["publish", data, "--out", scratch / "pub"],
+        "publishing alone": [WRITE, data, scratch / "pub-alone"],
         "training loader": [LOADER, data],
     }
 

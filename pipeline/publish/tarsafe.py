@@ -105,6 +105,9 @@ def member_header(name: str, size: int) -> bytes:
 
 def write_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     tar.addfile(_info(name, len(data)), io.BytesIO(data))
+    # tarfile keeps a TarInfo of every member it writes (~0.8 kB each), which only reading
+    # uses: a writer of millions of members keeps none.
+    tar.members.clear()
 
 
 # --------------------------------------------------------------------------- reading
