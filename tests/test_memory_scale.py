@@ -5,7 +5,7 @@ render must stay under ~1 KB (a record is ~11 kB as Python objects: a command th
 them all grew ~5-45 kB a render). A ratio from one run, not a timing. Traced memory, not
 the resident set: the resident set's peak moves by ~1 MB with the allocator's arenas, more
 than the bound over a few hundred renders; traced memory is the same from run to run
-within a few kB. The resident figures at 1,000 and 4,000 renders are in docs/validate.md."""
+within a few kB."""
 
 import os
 import re
