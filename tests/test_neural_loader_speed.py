@@ -3,12 +3,16 @@ the values of torch's default; and the loader's rate with two busy processes bes
 a fair share of its rate without them. The figures: ``python -m pipeline.neural.bench collate``
 (docs/neural.md, "Speed on a CPU")."""
 
+import json
 import os
+import time
 
 import pytest
 import torch
+from click.testing import CliRunner
 from torch.utils.data import DataLoader, default_collate
 
+from cli import main
 from pipeline.image.tonemap import DEFAULT_EXPOSURE
 from pipeline.neural import data
 from pipeline.neural.bench import busy_processes, measure_loader
@@ -67,3 +71,37 @@ def test_the_loader_keeps_a_fair_share_with_two_busy_processes(reference):
     finally:
         torch.set_num_threads(before)
     assert max(loaded) >= 0.25 * max(idle), f"idle {idle}, with two busy processes {loaded} samples/s"
+
+
+def test_the_loader_rate_leaves_start_up_out(reference):
+    """A first batch that takes half a second (as spawning workers does) is start-up: the
+    steady rate counts the samples after it over the time after it."""
+    calls = []
+
+    def slow_first(samples):
+        if not calls:
+            time.sleep(0.5)
+        calls.append(len(samples))
+        return collate_samples(samples)
+
+    rate = measure_loader(str(reference), None, DEFAULT_EXPOSURE, True, 4, 0, collate=slow_first)
+    assert rate.samples == 16 and rate.startup_samples == 4 and calls == [4, 4, 4, 4]
+    assert rate.startup_s >= 0.5
+    assert rate.steady_samples_per_s > rate.samples_per_s  # the whole pass pays the half second
+    whole_s = rate.samples / rate.samples_per_s
+    assert rate.steady_samples_per_s == pytest.approx(12 / (whole_s - rate.startup_s), rel=0.05)
+
+
+def test_train_benchmark_prints_start_up_on_its_own_line(reference):
+    args = ["train", str(reference), "--benchmark", "--loss", "l1", "--resolution", "32", "--batch-size", "4"]
+    args += ["--workers", "1"]
+    text = CliRunner().invoke(main, args)
+    assert text.exit_code == 0, text.output
+    lines = text.output.splitlines()
+    assert lines[0].startswith("loader: ") and "samples/s steady (16 samples" in lines[0], lines
+    assert lines[1].startswith("loader start-up: ") and "(4 samples, 1 workers started)" in lines[1], lines
+    done = CliRunner().invoke(main, [*args, "--json"])
+    assert done.exit_code == 0, done.output
+    result = json.loads(done.output)
+    assert result["loader_startup_samples"] == 4 and result["loader_startup_s"] > 0
+    assert result["loader_samples_per_s"] > 0 and result["loader_overall_samples_per_s"] > 0

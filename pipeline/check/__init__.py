@@ -1,7 +1,8 @@
 """Checking a dataset folder: ``validate``, ``info``, ``preview``.
 
 ``validate`` is split by concern: ``report`` (problem kinds, report types, output),
-``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan);
+``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan),
+``byshard`` (those checks one shard at a time over a compact index of the manifest);
 ``validate`` keeps the entry point. ``snapshot`` reads the spec a folder was built from.
 
 Readers of a dataset, never writers: ``validate --repair`` re-renders, so it is a step of the

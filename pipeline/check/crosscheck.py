@@ -86,8 +86,10 @@ def check_root(root: str) -> Layout:
     return layout
 
 
-def load_plan(layout: Layout, problems: Problems):
-    """(spec, plans, description, spec_ok, description_ok); spec and plans None if unusable."""
+def load_plan(layout: Layout, problems: Problems, keep: bool = True):
+    """(spec, plans, description, spec_ok, description_ok); spec and plans None if unusable.
+    ``keep``: every shard planned now and kept (a reader that holds every record anyway);
+    else a lazy plan, each shard made when asked for."""
 
     description = read_json(layout.description)
     description_ok = isinstance(description, dict)
@@ -148,7 +150,8 @@ def load_plan(layout: Layout, problems: Problems):
         )
         return spec, None, description, False, description_ok
     try:
-        plans = plan_dataset(spec).kept()  # validate holds every record anyway: plan each shard once
+        plans = plan_dataset(spec)
+        plans = plans.kept() if keep else plans
     except USER_ERRORS as exc:
         problems.add("spec_snapshot", None, SPEC_FILE, f"{SPEC_FILE}: cannot be planned ({exc})")
         return spec, None, description, False, description_ok
@@ -527,18 +530,24 @@ def check_records_against_plan(records, state: State, problems: Problems, from_m
             problems.add("edited_record", sid, source.path, f"{source}: record for {sid} is out of plan order")
             order_reported = True
         last_index = max(last_index, plan_order[sid])
-    if state.plans is not None:
-        where = MANIFEST_FILE if from_manifest else "the shard markers or record files"
-        for sid, sample in state.planned.items():
-            if sid not in primary:
-                problems.add(
-                    "missing_sample",
-                    sid,
-                    MANIFEST_FILE if from_manifest else None,
-                    f"{sid} (shard {sample.shard_id}): planned, but there is no record of it in {where}",
-                )
+    check_missing_samples(state, primary, problems, from_manifest)
     state.manifest = {sid: rec for sid, (src, rec) in primary.items()} if from_manifest else {}
     return primary
+
+
+def check_missing_samples(state: State, primary: dict, problems: Problems, from_manifest: bool) -> None:
+    """Every planned sample of ``state`` without a record in ``primary``."""
+    if state.plans is None:
+        return
+    where = MANIFEST_FILE if from_manifest else "the shard markers or record files"
+    for sid, sample in state.planned.items():
+        if sid not in primary:
+            problems.add(
+                "missing_sample",
+                sid,
+                MANIFEST_FILE if from_manifest else None,
+                f"{sid} (shard {sample.shard_id}): planned, but there is no record of it in {where}",
+            )
 
 
 def check_markers(state: State, primary: dict, problems: Problems, have_manifest: bool, fast: bool) -> None:
@@ -703,8 +712,18 @@ def _trusted(facts: FileFacts | None, files: dict) -> bool:
 
 def check_files_and_records(primary: dict, files: dict, state: State, problems: Problems, fast: bool) -> None:
     """File problems (once per file) and each record's agreement with plan, headers, stats."""
+    check_files(files, state, problems)
+    check_records(primary, files, state, problems, fast)
+
+
+def check_files(files: dict, state: State, problems: Problems) -> None:
+    """Each file's problems, once per file, against its first record."""
     for rel, (owner, entry, listed_by, _expect) in files.items():
         _file_problems(state.facts[rel], entry, owner, listed_by, problems)
+
+
+def check_records(primary: dict, files: dict, state: State, problems: Problems, fast: bool) -> None:
+    """Each record's agreement with its plan, its files' headers and its render's statistics."""
     for sid, (source, record) in primary.items():
         sample = state.planned.get(sid)
         if sample is None:
@@ -774,14 +793,20 @@ def _allowed_files(state: State, primary: dict) -> tuple[set, set]:
     return files, dirs
 
 
-def check_extra_files(state: State, primary: dict, problems: Problems) -> None:
-    files, dirs = _allowed_files(state, primary)
+def check_extra_files(
+    state: State, primary: dict, problems: Problems, allowed: tuple | None = None, unsafe_listed=None
+) -> None:
+    """Every entry of the folder that is no part of the dataset. ``allowed``: (files,
+    directories) that belong to it, anything ``in`` can ask (default: the sets of
+    :func:`_allowed_files`); ``unsafe_listed``: unsafe files a record lists, reported with its
+    id (default: from ``state.facts``)."""
+    files, dirs = allowed if allowed is not None else _allowed_files(state, primary)
     state.allowed_dirs = dirs
     root = state.layout.root
     odd = dict(symlinks_and_odd_files(root))
     for rel, what in odd.items():
         facts = state.facts.get(rel)
-        if facts is not None and facts.unsafe:
+        if (rel in unsafe_listed) if unsafe_listed is not None else (facts is not None and facts.unsafe):
             continue  # a file a record lists: reported with the record's id
         state.extra_files.append(rel)
         problems.add(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import statistics
+from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -202,22 +203,25 @@ def dataset_info(root: str) -> DatasetInfo:
     )
     if (why is not None and why != "missing") or (why is None and not isinstance(description, dict)):
         info.problems.append(f"{DESCRIPTION_FILE}: {why or 'not a JSON object'}")
-    files: dict[str, dict] = {}
+    files: dict[str, dict] = {}  # role -> {"count", "bytes"}
     effects: Counter = Counter()
-    kinds: dict[str, str] = {}
-    noise = []
+    kinds: dict[str, str] = {}  # material id -> kind: one entry per material
+    noise = array("d")
     for shard, renders in counts.items():
+        # One shard's records at a time: a record's files lie in its shard's folder
+        # (record_problem), so distinct files are counted shard by shard.
         records, complete, started, problems = shard_records(layout, shard, renders)
         info.problems += problems
         info.shards_complete += complete
         info.shards_started += started
+        shard_files: dict[str, dict] = {}
         for record in records:
             unsafe = [e["path"] for e in record["files"] if unsafe_entry(root, e["path"])]
             if unsafe:
                 info.problems.append(f"record {record['id']}: {unsafe_entry(root, unsafe[0])}")
             info.recorded += 1
             for entry in record["files"]:
-                files.setdefault(entry["role"], {})[entry["path"]] = entry["bytes"]
+                shard_files.setdefault(entry["role"], {})[entry["path"]] = entry["bytes"]
             for name, on in _dict(record.get("effects")).items():
                 effects[name] += bool(on)
             kinds[str(record.get("material_id", ""))] = str(_dict(record.get("material")).get("kind", "?"))
@@ -226,7 +230,11 @@ def dataset_info(root: str) -> DatasetInfo:
             info.rerendered += (_number(stats.get("attempts")) or 1) > 1
             if _number(stats.get("noise_relative")) is not None:
                 noise.append(_number(stats["noise_relative"]))
-    info.files = {role: {"count": len(paths), "bytes": sum(paths.values())} for role, paths in files.items()}
+        for role, paths in shard_files.items():
+            total = files.setdefault(role, {"count": 0, "bytes": 0})
+            total["count"] += len(paths)
+            total["bytes"] += sum(paths.values())
+    info.files = files
     info.effects = {name: effects[name] for name in sorted(effects, key=_effect_order)}
     info.kinds = dict(Counter(kinds.values()))
     info.noise_relative_median = statistics.median(noise) if noise else None

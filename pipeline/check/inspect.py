@@ -283,10 +283,23 @@ def inspect_file(root: str, rel: str, expect: Expect, recorded_bytes, fast: bool
     return facts
 
 
-def inspect_all(root: str, files: dict, fast: bool, progress, found: dict, threads, start) -> int:
+def inspect_all(
+    root: str,
+    files: dict,
+    fast: bool,
+    progress,
+    found: dict,
+    threads,
+    start,
+    done_before: int = 0,
+    total: int | None = None,
+    bytes_before: int = 0,
+) -> int:
     """Inspect ``files`` (rel path -> (owner, entry, listed_by, expectation)) on ``threads``
-    threads, putting each one's facts in ``found``; return the bytes read."""
-    total, bytes_read = len(files), 0
+    threads, putting each one's facts in ``found``; return the bytes read. Progress counts
+    from ``done_before`` files and ``bytes_before`` bytes towards ``total`` (default: these
+    files) when files are inspected a group at a time."""
+    total, bytes_read = len(files) if total is None else total, 0
     items = list(files.items())
 
     def one(item):
@@ -300,5 +313,15 @@ def inspect_all(root: str, files: dict, fast: bool, progress, found: dict, threa
             if facts.sha256 is not None:
                 bytes_read += facts.size or 0
             if progress is not None:
-                progress(Progress("check", done, total, facts.rel, bytes_read, time.perf_counter() - start))
+                done_all = done_before + done
+                progress(
+                    Progress(
+                        "check",
+                        done_all,
+                        max(total, done_all),
+                        facts.rel,
+                        bytes_before + bytes_read,
+                        time.perf_counter() - start,
+                    )
+                )
     return bytes_read

@@ -11,6 +11,7 @@ works on a partial build. Never used for data: the PNG is 8-bit and tone-mapped.
 from __future__ import annotations
 
 import os
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,11 +77,17 @@ class PreviewSummary:
 
 def choose_samples(records: list[dict], count: int) -> list[dict]:
     """``count`` records spread evenly over ``records`` (sorted by id), first and last included."""
-    records = sorted(records, key=lambda r: r["id"])
-    if len(records) <= count:
-        return records
-    picks = np.unique(np.round(np.linspace(0, len(records) - 1, count)).astype(int))
-    return [records[i] for i in picks]
+    return [records[i] for i in choose_indices([r["id"] for r in records], count)]
+
+
+def choose_indices(ids: list[str], count: int) -> list[int]:
+    """Positions in ``ids`` of ``count`` ids spread evenly over them sorted (ties in their
+    order), first and last included: what :func:`choose_samples` picks, from the ids alone."""
+    order = sorted(range(len(ids)), key=ids.__getitem__)
+    if len(order) <= count:
+        return order
+    picks = np.unique(np.round(np.linspace(0, len(order) - 1, count)).astype(int))
+    return [order[i] for i in picks]
 
 
 def map_tiles(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray | None]:
@@ -236,6 +243,22 @@ def contact_sheet(
     return np.asarray(sheet)
 
 
+def _read_chosen(layout: Layout, counts: dict[str, int], places: list[int]) -> list[dict]:
+    """The records at ``places`` (shard number << 32 | position among its records), in that
+    order, reading each shard once and holding one shard's records at a time."""
+    shards = list(counts.items())
+    chosen: dict[int, dict] = {}
+    current, found = None, []
+    for place in sorted(set(places)):
+        index, position = place >> 32, place & 0xFFFFFFFF
+        if index != current:
+            current, found = index, shard_records(layout, shards[index][0], shards[index][1])[0]
+        if position >= len(found):
+            raise ShaderballError(f"DIR: {layout.root!r}: shard {shards[index][0]} changed while it was previewed")
+        chosen[place] = found[position]
+    return [chosen[place] for place in places]
+
+
 def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = None) -> PreviewSummary:
     """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
     from PIL import Image
@@ -253,23 +276,26 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
         raise bad_value("DIR", root, "a dataset folder made by `shaderball build` (with its spec.toml)")
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
-    records, problems, complete = [], [], 0
-    for shard, renders in counts.items():
+    # One shard's records at a time; of each usable one, its id and where it was found (a
+    # compact index), then the chosen few are read again.
+    ids, where, problems, complete = [], array("l"), [], 0
+    for index, (shard, renders) in enumerate(counts.items()):
         found, shard_complete, _started, left_out = shard_records(layout, shard, renders)
         complete += shard_complete
         problems += left_out
-        for record in found:
+        for position, record in enumerate(found):
             unsafe = next((why for e in record["files"] if (why := unsafe_entry(root, e["path"]))), None)
             if unsafe:
                 problems.append(f"record {record['id']}: {unsafe}")
             else:
-                records.append(record)
-    if not records:
+                ids.append(record["id"])
+                where.append(index << 32 | position)
+    if not ids:
         raise ShaderballError(
             f"DIR: {root!r} holds no finished render yet; nothing to preview"
             + (f" ({len(problems)} left out: {problems[0]})" if problems else "")
         )
-    chosen = choose_samples(records, samples)
+    chosen = _read_chosen(layout, counts, [where[i] for i in choose_indices(ids, samples)])
     resolution = spec.render.resolution
     if tile is None:
         tile = resolution * max(1, -(-128 // resolution)) if resolution < 128 else min(resolution, 256)
@@ -284,7 +310,7 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     return PreviewSummary(
         out=out,
         samples=[r["id"] for r in chosen],
-        recorded=len(records),
+        recorded=len(ids),
         total=sum(counts.values()),
         size=(picture.shape[1], picture.shape[0]),
         problems=tuple(problems),

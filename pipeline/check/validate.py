@@ -32,6 +32,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from pipeline.check.byshard import Phases, check_by_shard, check_extra_by_shard, index_manifest
 from pipeline.check.crosscheck import (
     State,
     check_extra_files,
@@ -57,18 +58,35 @@ __all__ = ["PROBLEM_KINDS", "Problem", "Progress", "RepairAction", "Report", "va
 
 
 def validate(
-    root: str, *, fast: bool = False, progress: Callable[[Progress], None] | None = None, threads: int | None = None
+    root: str,
+    *,
+    fast: bool = False,
+    progress: Callable[[Progress], None] | None = None,
+    threads: int | None = None,
+    keep_state: bool = False,
 ) -> Report:
     """Check the dataset in ``root``; return a :class:`Report` (``report.ok`` when valid).
 
     Raises :class:`ShaderballError` when ``root`` is missing or not a dataset directory.
     ``fast``: sizes, markers and records only (no file is read). ``threads``: files read
     at once (hashing and decompression release the GIL); default: up to 4.
+
+    A dataset with a plan and a manifest is checked one shard at a time
+    (:mod:`pipeline.check.byshard`: memory bounded by a shard). Without either, or with
+    ``keep_state`` (repair: it needs every record, file and marker afterwards, in
+    ``report._state``), it is checked whole.
     """
     start = time.perf_counter()
     layout = check_root(root)
     problems = Problems()
-    spec, plans, description, spec_ok, description_ok = load_plan(layout, problems)
+    spec, plans, description, spec_ok, description_ok = load_plan(layout, problems, keep=keep_state)
+    if plans is not None and not keep_state:
+        report = _validate_by_shard(
+            root, layout, problems, spec, plans, description, spec_ok, description_ok, fast, progress, threads, start
+        )
+        if report is not None:
+            return report
+        plans = plans.kept()
     planned = {}
     if plans is not None:
         planned = {s.sample_id: s for s in iter_samples(plans)}
@@ -133,6 +151,52 @@ def validate(
         flagged=flagged,
         files_checked=len(files),
         bytes_read=bytes_read,
+        seconds=time.perf_counter() - start,
+        _state=state,
+    )
+
+
+def _validate_by_shard(
+    root, layout, head: Problems, spec, plans, description, spec_ok, description_ok, fast, progress, threads, start
+) -> Report | None:
+    """The report of :func:`validate`, checked one shard at a time; None when the manifest
+    cannot be read (missing, not a regular file, over its bound): the whole check reports it."""
+    phases = Phases()
+    try:
+        index = index_manifest(layout, plans, phases.parse, phases.order)
+    except OSError:
+        return None
+    state = State(
+        layout=layout,
+        spec=spec,
+        plans=plans,
+        planned={},
+        variant=(description or {}).get("variant"),
+        spec_ok=spec_ok,
+        description_ok=description_ok,
+        manifest={},
+        markers={},
+        record_files={},
+        facts={},
+        extra_files=[],
+        allowed_dirs=set(),
+        manifest_dirty=False,
+    )
+    tally = check_by_shard(state, index, phases, fast, progress, threads, start)
+    check_extra_by_shard(state, phases, tally)
+    problems = Problems(head)
+    problems += phases.joined()
+    state.manifest_dirty = any(p.path == MANIFEST_FILE for p in problems)
+    return Report(
+        root=root,
+        fast=fast,
+        expected=plans.n_renders,
+        present=tally.present,
+        valid=tally.valid,
+        problems=list(problems),
+        flagged=tally.flagged,
+        files_checked=tally.files,
+        bytes_read=tally.bytes_read,
         seconds=time.perf_counter() - start,
         _state=state,
     )

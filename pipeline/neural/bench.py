@@ -3,7 +3,10 @@
 - loader: EXR reading, SHA-256 check, decoding and assembly of every sample of the
   dataset through a DataLoader with the given workers, from a fresh dataset object (so
   the per-process maps cache starts empty, as in a first epoch); DATASET may be a
-  publication, whose opening (the reader's check of every tar) is timed apart;
+  publication, whose opening (the reader's check of every tar) is timed apart. Its rate is
+  the steady one, from the first batch on; the start-up before it (worker processes
+  started, the first batch read) is said apart: over a few samples it would be most of
+  the time;
 - training: steps of the network with the chosen loss on random inputs at the dataset's
   network resolution (a randomly initialised VGG16 stands in for ImageNet weights: the
   rate does not depend on the weights' values);
@@ -52,7 +55,7 @@ class BenchResult:
     device: str
     workers: int
     loader_samples: int
-    loader_samples_per_s: float
+    loader_samples_per_s: float | None  # steady: from the first batch on (None with one batch)
     loader_hash_checked: bool
     train_batch: int
     train_samples_per_s: float
@@ -63,13 +66,27 @@ class BenchResult:
     open_s: float = 0.0
     precision: str = "fp32"
     channels_last: bool = False
+    #: seconds from the loader's start to its first batch (workers started, one batch read)
+    loader_startup_s: float = 0.0
+    #: samples in that first batch (left out of the steady rate)
+    loader_startup_samples: int = 0
+    #: every sample over the whole pass, start-up included
+    loader_overall_samples_per_s: float = 0.0
 
     def lines(self) -> list[str]:
+        steady = (
+            f"{self.loader_samples_per_s:.1f} samples/s steady"
+            if self.loader_samples_per_s is not None
+            else "no steady rate (one batch only: pass more samples than --batch-size)"
+        )
         return [
-            f"loader: {self.loader_samples_per_s:.1f} samples/s ({self.loader_samples} samples at "
+            f"loader: {steady} ({self.loader_samples} samples at "
             f"{self.resolution}x{self.resolution}, {self.workers} workers, SHA-256 "
             f"{'checked' if self.loader_hash_checked else 'not checked'}; from a {self.source}, opened in "
             f"{self.open_s:.2f} s{', every tar checked' if self.source == 'publication' else ''})",
+            f"loader start-up: {self.loader_startup_s:.2f} s to the first batch ({self.loader_startup_samples} "
+            f"samples, {self.workers} workers started); {self.loader_overall_samples_per_s:.1f} samples/s "
+            "over the whole pass",
             f"training: {self.train_samples_per_s:.2f} samples/s (batch {self.train_batch}, {self.train_loss}, "
             f"{self.device}, {self.threads} torch threads, {self.precision}"
             f"{', channels-last' if self.channels_last else ''})",
@@ -90,9 +107,13 @@ class LoaderRate:
     source: str  # "dataset folder" or "publication"
     open_s: float  # open_dataset (a publication: every tar checked)
     samples: int
-    samples_per_s: float
+    samples_per_s: float  # over the whole pass, start-up included
     resolution: int
     ids: list
+    startup_s: float = 0.0  # from the loader's start to its first batch
+    startup_samples: int = 0  # samples in the first batch
+    #: samples after the first batch over the time since it arrived; None with one batch
+    steady_samples_per_s: float | None = None
 
 
 def loader_rate(config: TrainConfig) -> LoaderRate:
@@ -117,11 +138,24 @@ def measure_loader(
     open_s = time.perf_counter() - started
     loader = DataLoader(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate)
     started, count, ids = time.perf_counter(), 0, []
+    first_at, first_count = None, 0
     for batch in loader:
         count += batch["maps"].shape[0]
         ids += batch["id"]
+        if first_at is None:  # the iterator starts its workers, then waits for this batch
+            first_at, first_count = time.perf_counter(), count
+    ended = time.perf_counter()
+    steady = (count - first_count) / (ended - first_at) if first_at is not None and count > first_count else None
     return LoaderRate(
-        dataset.files.kind, open_s, count, count / (time.perf_counter() - started), dataset.resolution, ids
+        dataset.files.kind,
+        open_s,
+        count,
+        count / (ended - started),
+        dataset.resolution,
+        ids,
+        startup_s=(first_at if first_at is not None else ended) - started,
+        startup_samples=first_count,
+        steady_samples_per_s=steady,
     )
 
 
@@ -274,7 +308,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         str(device),
         config.workers,
         loaded.samples,
-        loaded.samples_per_s,
+        loaded.steady_samples_per_s,
         config.check_hashes,
         config.batch_size,
         train_rate,
@@ -285,6 +319,9 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         loaded.open_s,
         config.precision,
         config.channels_last,
+        loaded.startup_s,
+        loaded.startup_samples,
+        loaded.samples_per_s,
     )
 
 

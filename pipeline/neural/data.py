@@ -46,7 +46,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from array import array
 from collections import OrderedDict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,13 +67,17 @@ from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
 from pipeline.store.folder import (
     UnsafePath,
+    file_digest,
+    iter_lines,
+    iter_manifest,
+    list_bound,
     read_bytes,
     read_json_checked,
+    read_line_at,
     record_problem,
     resolve_inside,
     structure_problem,
 )
-from pipeline.store.folder import read_manifest as folder_read_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
@@ -185,8 +191,13 @@ def read_json_file(path: str, what: str):
     return value
 
 
-def read_manifest(root: str) -> tuple[dict, list[dict]]:
-    """dataset.json and the manifest's records of a complete dataset folder."""
+def _expected(description: dict) -> int | None:
+    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
+    return counts.get("renders") if isinstance(counts.get("renders"), int) else None
+
+
+def folder_manifest(root: str) -> tuple[dict, str]:
+    """dataset.json of a complete dataset folder and its manifest's path (checked readable)."""
     layout = Layout(root)
     if not os.path.isdir(root):
         raise bad_value(
@@ -202,37 +213,34 @@ def read_manifest(root: str) -> tuple[dict, list[dict]]:
             f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
             "when a build completes); finish it with `shaderball build SPEC --out DIR`"
         )
-    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
-    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
     try:
-        data = folder_read_manifest(layout, expected)
+        for _line in iter_manifest(layout, _expected(description)):
+            break  # opened and within its bound: read a line at a time by index_records
     except OSError as exc:
         raise ShaderballError(
             f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
         ) from None
-    return description, parse_records(data, description, root, layout.manifest, "`shaderball validate`")
+    return description, layout.manifest
 
 
 def parse_records(data: bytes, description: dict, root: str, where: str, checker: str) -> list[dict]:
     """The records of a manifest's bytes, each checked (pipeline.store.folder.record_problem),
     as many as ``dataset.json`` counts."""
-    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
-    expected = counts.get("renders") if isinstance(counts.get("renders"), int) else None
-    records = []
+    records = [_checked_record(line, number, where, checker) for number, _offset, line in _byte_lines(data)]
+    return _count_check(records, description, root)
+
+
+def _byte_lines(data: bytes):
+    """(line number, offset, line) of every non-empty line of ``data``."""
+    offset = 0
     for number, line in enumerate(data.split(b"\n"), start=1):
-        if not line.strip():
-            continue
-        too_much = structure_problem(line)
-        if too_much:
-            raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
-        try:
-            record = json.loads(line)
-        except (ValueError, RecursionError):
-            raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
-        problem = record_problem(record)
-        if problem:
-            raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
-        records.append(record)
+        if line.strip():
+            yield number, offset, line
+        offset += len(line) + 1
+
+
+def _count_check(records, description: dict, root: str):
+    expected = _expected(description)
     if expected is not None and len(records) != expected:
         raise ShaderballError(
             f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
@@ -253,8 +261,24 @@ def decode_exr(data: bytes, label: str, bounds: ExrBounds) -> dict[str, np.ndarr
     return read_exr(data, label, bounds).layers
 
 
+def _checked_record(line: bytes, number: int, where: str, checker: str) -> dict:
+    """The record on manifest line ``number``, checked (a ShaderballError naming the line)."""
+    too_much = structure_problem(line)
+    if too_much:
+        raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
+    try:
+        record = json.loads(line)
+    except (ValueError, RecursionError):
+        raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
+    problem = record_problem(record)
+    if problem:
+        raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
+    return record
+
+
 class FolderFiles:
-    """The files of a dataset folder; a file's key is its path, checked to lie inside."""
+    """The files of a dataset folder; a file's key is its manifest path, checked to lie inside
+    (the path itself: no second string a sample)."""
 
     kind = "dataset folder"
     checker = "`shaderball validate`"
@@ -263,22 +287,26 @@ class FolderFiles:
         self.root = root
 
     def key(self, rel: str) -> str:
-        return safe_path(self.root, rel)
+        safe_path(self.root, rel)
+        return rel
+
+    def path(self, key: str) -> str:
+        return os.path.join(self.root, *key.split("/"))
 
     def read(self, key: str) -> bytes:
         try:
-            return read_bytes(key)
+            return read_bytes(safe_path(self.root, key))
         except OSError as exc:
             raise ShaderballError(
-                f"DATASET: cannot read {key} ({exc.strerror}); check the folder with `shaderball validate`"
+                f"DATASET: cannot read {self.path(key)} ({exc.strerror}); check the folder with `shaderball validate`"
             ) from None
 
     def label(self, key: str) -> str:
-        return key
+        return self.path(key)
 
     def changed(self, key: str) -> ShaderballError:
         return ShaderballError(
-            f"DATASET: {key} does not match its SHA-256 in the manifest; repair the folder with "
+            f"DATASET: {self.path(key)} does not match its SHA-256 in the manifest; repair the folder with "
             "`shaderball validate --repair`"
         )
 
@@ -326,7 +354,7 @@ def refused(root: str, exc: Refused) -> ShaderballError:
     return ShaderballError(f"DATASET: {root!r} is a publication that does not verify ({exc.kind}): {exc.message}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SampleFiles:
     id: str
     material_id: str
@@ -362,6 +390,149 @@ def sample_files(files, record: dict) -> SampleFiles:
     )
 
 
+class ManifestRecords(Mapping):
+    """The manifest's records by sample id, each parsed when asked for: only where its line
+    lies is kept (a byte offset and a length, numpy arrays), in the manifest file of a folder
+    or in the manifest's bytes a publication's reader holds."""
+
+    def __init__(self, source: str | bytes, offsets: np.ndarray, lengths: np.ndarray, positions: dict[str, int]):
+        self.source, self.offsets, self.lengths, self.positions = source, offsets, lengths, positions
+
+    def __getitem__(self, sample_id: str) -> dict:
+        position = self.positions[sample_id]
+        offset, length = int(self.offsets[position]), int(self.lengths[position])
+        if isinstance(self.source, bytes):
+            line = self.source[offset : offset + length]
+        else:
+            try:
+                line = read_line_at(self.source, offset, length)
+            except OSError as exc:
+                raise ShaderballError(f"DATASET: {self.source} cannot be read ({exc.strerror})") from None
+        try:
+            record = json.loads(line)
+        except (ValueError, RecursionError):
+            record = None
+        if not isinstance(record, dict) or record.get("id") != sample_id:
+            raise ShaderballError(
+                f"DATASET: {self.source if isinstance(self.source, str) else 'the manifest'} changed since it "
+                f"was opened (no record of {sample_id} where it was); open the dataset again"
+            )
+        return record
+
+    def __iter__(self):
+        return iter(self.positions)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+class SampleColumns(Sequence):
+    """Every sample's :class:`SampleFiles`, kept as columns (its id, its render's path and
+    SHA-256, its lighting vector, its material's number; a material's id and maps once) and
+    made when asked for: ~0.2 kB a sample where a list of them holds ~0.7 kB."""
+
+    def __init__(self, files):
+        self.files = files
+        self.ids: list[str] = []
+        self.render_paths: list[str] = []
+        self.render_sha256 = bytearray()  # 32 bytes a sample
+        self.lighting = array("d")  # 4 a sample
+        self.material = array("l")  # index into self.materials
+        self.materials: list[tuple] = []  # (material id, maps ref, texture ref)
+        self._material_at: dict = {}
+        self.odd_sha256: dict[int, object] = {}  # row -> a recorded sha256 that is not 64 lowercase hex digits
+        self.rows: range | np.ndarray = range(0)  # the samples of this view, in order
+
+    def append(self, sample: SampleFiles, render_path: str) -> None:
+        material = (sample.material_id, sample.maps, sample.texture)
+        number = self._material_at.setdefault(material, len(self.materials))
+        if number == len(self.materials):
+            self.materials.append(material)
+        sha256 = sample.render[1]
+        if not _is_sha256(sha256):  # kept as it is: the file's digest will not match it when read
+            self.odd_sha256[len(self.ids)] = sha256
+        self.ids.append(sample.id)
+        self.render_paths.append(render_path)
+        self.render_sha256 += bytes.fromhex(sha256) if _is_sha256(sha256) else bytes(32)
+        self.lighting.extend(sample.lighting_vector)
+        self.material.append(number)
+        self.rows = range(len(self.ids))
+
+    def _one(self, row: int) -> SampleFiles:
+        material_id, maps, texture = self.materials[self.material[row]]
+        return SampleFiles(
+            self.ids[row],
+            material_id,
+            (self.files.key(self.render_paths[row]), self._sha256(row)),
+            maps,
+            tuple(self.lighting[4 * row : 4 * row + 4]),
+            texture,
+        )
+
+    def _sha256(self, row: int):
+        if row in self.odd_sha256:
+            return self.odd_sha256[row]
+        return self.render_sha256[32 * row : 32 * row + 32].hex()
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        return self._one(int(self.rows[index]))
+
+    def material_ids(self) -> list[str]:
+        return sorted({self.materials[self.material[row]][0] for row in self.rows})
+
+    def of_materials(self, material_ids) -> SampleColumns:
+        """The samples of these materials, in order (a view: the columns are shared)."""
+        keep = set(material_ids)
+        view = SampleColumns.__new__(SampleColumns)
+        view.__dict__.update(self.__dict__)
+        view.rows = np.asarray([row for row in self.rows if self.materials[self.material[row]][0] in keep], np.int64)
+        return view
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_material_at"] = {}  # only needed while appending
+        return state
+
+
+@dataclass
+class ManifestIndex:
+    """What opening a dataset keeps of its manifest: the records by id (parsed when asked
+    for), each sample's files and lighting vector, the renders' resolutions."""
+
+    records: ManifestRecords
+    samples: SampleColumns
+    resolutions: set
+
+
+def index_records(lines, source: str | bytes, files, description: dict, root: str, where: str, checker: str):
+    """:class:`ManifestIndex` of the manifest ``lines`` ((number, offset, line) of each line),
+    each record checked as :func:`parse_records` checks it, one at a time."""
+    offsets, lengths, positions, samples, resolutions = array("q"), array("q"), {}, SampleColumns(files), set()
+    for number, offset, line in lines:
+        if not line.strip():
+            continue
+        record = _checked_record(line, number, where, checker)
+        sample = sample_files(files, record)  # every path checked now, and again when read
+        render_path = [e.get("path") for e in record["files"] if e.get("role") == "render"][-1]
+        samples.append(sample, render_path)
+        positions[record["id"]] = len(offsets)  # a repeated id: its last record, as a dict of them keeps
+        offsets.append(offset)
+        lengths.append(len(line))
+        resolutions.add((record.get("render") or {}).get("resolution"))
+    _count_check(samples, description, root)
+    records = ManifestRecords(source, np.frombuffer(offsets, np.int64), np.frombuffer(lengths, np.int64), positions)
+    return ManifestIndex(records, samples, resolutions)
+
+
+def _is_sha256(text) -> bool:
+    return isinstance(text, str) and len(text) == 64 and all(c in "0123456789abcdef" for c in text)
+
+
 class ShaderballDataset(Dataset):
     """Samples of a dataset folder or a publication (see the module's docstring); build with
     :func:`open_dataset`. ``files`` reads them (default: the folder ``root``); ``records``
@@ -370,7 +541,7 @@ class ShaderballDataset(Dataset):
     def __init__(
         self,
         root: str,
-        samples: list[SampleFiles],
+        samples: Sequence[SampleFiles],
         resolution: int,
         factor: int,
         exposure: float = DEFAULT_EXPOSURE,
@@ -378,7 +549,7 @@ class ShaderballDataset(Dataset):
         cache_materials: int = DEFAULT_CACHE_MATERIALS,
         identity: dict | None = None,
         files=None,
-        records: dict[str, dict] | None = None,
+        records: Mapping[str, dict] | None = None,
     ):
         self.root = root
         self.samples = samples
@@ -390,11 +561,9 @@ class ShaderballDataset(Dataset):
         self.identity = identity or {}
         self.files = files if files is not None else FolderFiles(root)
         self.records = records or {}
-        #: renders the render policy flagged (bad pixels recorded): negative values allowed
-        self.flagged = {
-            s.render[0] for s in samples if ((self.records.get(s.id) or {}).get("stats") or {}).get("flagged")
-        }
-        self.material_ids = sorted({s.material_id for s in samples})
+        self.material_ids = (
+            samples.material_ids() if isinstance(samples, SampleColumns) else sorted({s.material_id for s in samples})
+        )
         self._verified: set[str] = set()
         self._content_checked: set[str] = set()  # files whose content passed, in this process
         self._maps_cache: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
@@ -407,7 +576,9 @@ class ShaderballDataset(Dataset):
         keep = set(material_ids)
         return ShaderballDataset(
             self.root,
-            [s for s in self.samples if s.material_id in keep],
+            self.samples.of_materials(keep)
+            if isinstance(self.samples, SampleColumns)
+            else [s for s in self.samples if s.material_id in keep],
             self.resolution,
             self.factor,
             self.exposure,
@@ -418,9 +589,12 @@ class ShaderballDataset(Dataset):
             self.records,
         )
 
-    def read_layers(self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False) -> dict[str, np.ndarray]:
+    def read_layers(
+        self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False, flagged: bool = False
+    ) -> dict[str, np.ndarray]:
         """The decoded layers of the file ``ref`` (key, sha256), which must hold ``layers``;
-        ``screen``: and be the dataset's resolution (renders, maps)."""
+        ``screen``: and be the dataset's resolution (renders, maps); ``flagged``: a render the
+        render policy flagged (bad pixels recorded), whose negative values are allowed."""
         key, sha256 = ref
         data = self.files.read(key)
         if self.check_hashes and key not in self._verified:
@@ -444,7 +618,7 @@ class ShaderballDataset(Dataset):
             )
         if key not in self._content_checked:
             role = ("render" if "render" in layers else "maps") if screen else "texture"
-            self.refuse_bad_content(label, decoded, role, key in self.flagged)
+            self.refuse_bad_content(label, decoded, role, flagged)
             self._content_checked.add(key)
         return decoded
 
@@ -460,8 +634,13 @@ class ShaderballDataset(Dataset):
                 f"on it (check the {self.files.kind} with {self.files.checker}, then repair or rebuild it)"
             )
 
-    def _read(self, key: str, sha256: str, layers: tuple[str, ...]) -> dict[str, np.ndarray]:
-        return self.read_layers((key, sha256), layers, screen=True)
+    def _read(self, key: str, sha256: str, layers: tuple[str, ...], flagged: bool = False) -> dict[str, np.ndarray]:
+        return self.read_layers((key, sha256), layers, screen=True, flagged=flagged)
+
+    def flagged(self, sample: SampleFiles) -> bool:
+        """Whether the render policy flagged the sample's render (its record, parsed when asked)."""
+        record = self.records.get(sample.id) or {}
+        return bool((record.get("stats") or {}).get("flagged"))
 
     def material_maps(self, sample: SampleFiles) -> tuple[torch.Tensor, torch.Tensor]:
         cached = self._maps_cache.get(sample.material_id)
@@ -478,7 +657,7 @@ class ShaderballDataset(Dataset):
         return entry
 
     def target(self, sample: SampleFiles) -> torch.Tensor:
-        render = self._read(*sample.render, ("render",))["render"].astype(np.float32)
+        render = self._read(*sample.render, ("render",), self.flagged(sample))["render"].astype(np.float32)
         render = box_downsample(render, self.factor)
         return torch.from_numpy(np.ascontiguousarray(tonemap(render, self.exposure).transpose(2, 0, 1)))
 
@@ -496,7 +675,10 @@ class ShaderballDataset(Dataset):
 
 
 def dataset_resolution(records: list[dict]) -> int:
-    sizes = {(r.get("render") or {}).get("resolution") for r in records}
+    return one_resolution({(r.get("render") or {}).get("resolution") for r in records})
+
+
+def one_resolution(sizes: set) -> int:
     if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
         raise ShaderballError(f"DATASET: renders of several or unknown resolutions {sorted(map(str, sizes))}")
     return next(iter(sizes))
@@ -559,12 +741,17 @@ def open_dataset(
     (all samples, in manifest order; see the module's docstring)."""
     if is_publication(root):
         return open_published(root, resolution, exposure, check_hashes, cache_materials)
-    layout = Layout(root)
-    description, records = read_manifest(root)
-    manifest = folder_read_manifest(layout, len(records))
-    return _make(
-        root, description, records, manifest, FolderFiles(root), resolution, exposure, check_hashes, cache_materials
-    )
+    description, path = folder_manifest(root)
+    bound = list_bound(_expected(description))
+    files = FolderFiles(root)
+    try:
+        index = index_records(iter_lines(path, bound), path, files, description, root, path, "`shaderball validate`")
+        manifest_sha256 = file_digest(path, bound)[1]
+    except OSError as exc:
+        raise ShaderballError(
+            f"DATASET: {path} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
+        ) from None
+    return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 
 
 def open_published(
@@ -585,38 +772,40 @@ def open_published(
     if not isinstance(description, dict):
         raise ShaderballError(f"DATASET: {root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object")
     manifest = publication.source_files[MANIFEST_FILE]
-    records = parse_records(
-        manifest, description, root, os.path.join(root, "dataset", MANIFEST_FILE), "`shaderball verify`"
-    )
-    keep = {entry["path"] for record in records for entry in record["files"]}
+    where = os.path.join(root, "dataset", MANIFEST_FILE)
+    keep = set()
+    for number, _offset, line in _byte_lines(manifest):
+        keep.update(entry["path"] for entry in _checked_record(line, number, where, "`shaderball verify`")["files"])
     files = PublishedFiles(root, {path: at for path, at in located.items() if path in keep})
-    return _make(root, description, records, manifest, files, resolution, exposure, check_hashes, cache_materials)
+    del keep
+    index = index_records(_byte_lines(manifest), manifest, files, description, root, where, "`shaderball verify`")
+    manifest_sha256 = hashlib.sha256(manifest).hexdigest()
+    return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 
 
 def _make(
     root: str,
     description: dict,
-    records: list[dict],
-    manifest: bytes,
+    index: ManifestIndex,
+    manifest_sha256: str,
     files,
     resolution,
     exposure,
     check_hashes,
     cache_materials,
 ) -> ShaderballDataset:
-    native = dataset_resolution(records)
+    native = one_resolution(index.resolutions)
     net_res, factor = network_resolution(native, resolution)
-    samples = [sample_files(files, r) for r in records]
     identity = {
         "spec_digest": description.get("spec_digest"),
-        "manifest_sha256": hashlib.sha256(manifest).hexdigest(),
+        "manifest_sha256": manifest_sha256,
         "name": description.get("name"),
         "resolution": native,
         "variant": description.get("variant"),
     }
     return ShaderballDataset(
         root,
-        samples,
+        index.samples,
         net_res,
         factor,
         exposure,
@@ -624,5 +813,5 @@ def _make(
         cache_materials,
         identity,
         files=files,
-        records={r["id"]: r for r in records},
+        records=index.records,
     )

@@ -280,6 +280,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
     ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
     mean_y, training = None, None
+    kinds = MaterialKinds(records)
     if same and (config.get("split") or {}).get("train"):
         training = source.subset(config["split"]["train"])
         mean_y = mean_image(training, workers=0)
@@ -319,7 +320,7 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         }
         if mean_y is not None:
             row["mean_image"] = ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
-            neighbour = nearest_sample(sample, training.samples, records)
+            neighbour = nearest_sample(sample, training.samples, kinds)
             if neighbour is not None:
                 near_hdr = box_downsample(_read_render(training, neighbour), training.factor)
                 row["nearest_sample"] = scores(
@@ -437,21 +438,35 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
     return EvaluateSummary(out_dir, len(rows), means, notes, table, req.report)
 
 
-def _material_kind(records: dict, sample_id: str):
+def _material_kind(records, sample_id: str):
     """The sample's material class (report.material_class: uniform dielectric, uniform metal, svbrdf)."""
     return report.material_class(records[sample_id])
 
 
-def nearest_sample(sample, training_samples, records: dict):
+class MaterialKinds(dict):
+    """sample id -> material class, each found once (a dataset's records are parsed when asked
+    for: the nearest-sample search would parse every training record per evaluated sample)."""
+
+    def __init__(self, records):
+        super().__init__()
+        self.records = records
+
+    def __missing__(self, sample_id: str):
+        kind = self[sample_id] = _material_kind(self.records, sample_id)
+        return kind
+
+
+def nearest_sample(sample, training_samples, kinds):
     """The training sample of another material of the same class (uniform dielectric, uniform metal,
     svbrdf) whose lighting
     vector is nearest (with --split train or all, never the sample's own material): squared chord between the sun directions plus ((turbidity difference) / 9)^2
-    (turbidity spans 1 to 10); None when the training split holds no material of that kind."""
-    kind = _material_kind(records, sample.id)
+    (turbidity spans 1 to 10); None when the training split holds no material of that kind.
+    ``kinds``: sample id -> material class (:class:`MaterialKinds`)."""
+    kind = kinds[sample.id]
     d, t = np.asarray(sample.lighting_vector[:3]), sample.lighting_vector[3]
     best, best_distance = None, np.inf
     for other in training_samples:
-        if other.material_id == sample.material_id or _material_kind(records, other.id) != kind:
+        if other.material_id == sample.material_id or kinds[other.id] != kind:
             continue
         distance = float(
             np.sum((np.asarray(other.lighting_vector[:3]) - d) ** 2) + ((other.lighting_vector[3] - t) / 9.0) ** 2

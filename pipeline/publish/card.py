@@ -176,7 +176,7 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
         f"license: {facts.license_id}",
         f"pretty_name: {dumps(f'shaderball {facts.name}')}",
         "size_categories:",
-        f"- {size_category(len(facts.records))}",
+        f"- {size_category(facts.summary.samples)}",
         "task_categories:",
         "- image-to-image",
         "tags:",
@@ -200,9 +200,9 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
     ]
 
 
-def _range(values) -> str:
-    values = [v for v in values if isinstance(v, (int, float))]
-    return f"{min(values):.3g} to {max(values):.3g}" if values else "none"
+def _range(span: tuple | None) -> str:
+    """``least to greatest`` of a :class:`RecordSummary` span, or ``none``."""
+    return f"{span[0]:.3g} to {span[1]:.3g}" if span is not None else "none"
 
 
 def _mb(n: int) -> str:
@@ -264,19 +264,14 @@ def sample_section(facts: PublicationFacts) -> list[str]:
 
 
 def made_section(facts: PublicationFacts) -> list[str]:
-    spec, description, records = facts.spec, facts.description, facts.records
+    spec, description, summary = facts.spec, facts.description, facts.summary
     counts = description.get("counts") or {}
     libraries = description.get("libraries") or {}
-    lighting = [r.get("lighting") or {} for r in records]
-    changed = sum(1 for light in lighting if (light.get("policy") or {}).get("changed"))
-    flagged = [r["id"] for r in records if (r.get("stats") or {}).get("flagged")]
-    noise = [(r.get("stats") or {}).get("noise_relative") for r in records]
-    noise = [v for v in noise if isinstance(v, (int, float))]
+    changed, flagged, noise = summary.policy_changed, summary.flagged, summary.noise
     families = counts.get("svbrdf_sources") or {}
     left_out = []
     for key, what in EFFECTS:
-        n = sum(1 for r in records if (r.get("effects") or {}).get(key) is False)
-        left_out.append(f"| {what} | {n} of {len(records)} |")
+        left_out.append(f"| {what} | {summary.effects_off.get(key, 0)} of {summary.samples} |")
     lines = [
         "## How it was made",
         "",
@@ -289,7 +284,7 @@ def made_section(facts: PublicationFacts) -> list[str]:
         "rebuild the same bytes.",
         "",
         f"- **Counts**: {counts.get('materials', facts.materials)} materials x "
-        f"{spec.dataset.lights_per_material} lightings = {len(records)} renders in {counts.get('shards', '?')} "
+        f"{spec.dataset.lights_per_material} lightings = {summary.samples} renders in {counts.get('shards', '?')} "
         f"source shards; {counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying"
         + (" (" + ", ".join(f"{k} {v}" for k, v in sorted(families.items())) + ")" if families else "")
         + ".",
@@ -302,8 +297,8 @@ def made_section(facts: PublicationFacts) -> list[str]:
         f"{spec.lighting.elevation_deg[1]:g} deg, azimuth {spec.lighting.azimuth_deg[0]:g} to "
         f"{spec.lighting.azimuth_deg[1]:g} deg, turbidity {spec.lighting.turbidity[0]:g} to "
         f"{spec.lighting.turbidity[1]:g} (one per {spec.lighting.turbidity_per}). Rendered: elevation "
-        f"{_range(light.get('elevation_deg') for light in lighting)} deg, turbidity "
-        f"{_range(light.get('turbidity') for light in lighting)}; the low-sun policy raised {changed} sun(s).",
+        f"{_range(summary.elevation)} deg, turbidity "
+        f"{_range(summary.turbidity)}; the low-sun policy raised {changed} sun(s).",
         f"- **Materials**: Cook-Torrance (GGX) as in Deschaintre et al. 2018; uniform materials drawn from "
         f"roughness {spec.materials.roughness[0]:g} to {spec.materials.roughness[1]:g}, metal probability "
         f"{spec.materials.metal_probability:g}, flat-normal probability {spec.materials.flat_normal_probability:g} "
@@ -432,7 +427,7 @@ def dataset_card(facts: PublicationFacts) -> str:
     intro = [
         f"# shaderball dataset `{facts.name}` (version {facts.description.get('version', '?')})",
         "",
-        f"{len(facts.records)} path-traced renders of a shaderball, {counts.get('materials', facts.materials)} "
+        f"{facts.summary.samples} path-traced renders of a shaderball, {counts.get('materials', facts.materials)} "
         f"materials under {spec.dataset.lights_per_material} sun-and-sky lightings each, with the material "
         "maps and lighting vector each render was made from: the data of *A Flexible Neural Renderer for "
         "Material Visualization* (KT, Sakurikar, Saini, Narayanan; SIGGRAPH Asia 2019 Technical Briefs), "

@@ -198,7 +198,7 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
     if facts.has_preview:
         distribution.append(_file_object(PREVIEW_FILE, facts, "contact sheet: renders beside their maps"))
     for set_id, kind, pattern, encoding, what in MEMBER_SETS:
-        if set_id == "texture-exr" and not any(r.get("texture") for r in facts.rows):
+        if set_id == "texture-exr" and not facts.summary.has_texture:
             continue
         distribution.append(
             {
@@ -216,7 +216,7 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
         "@type": "sc:Dataset",
         "name": facts.name,
         "description": (
-            f"{len(facts.records)} path-traced renders ({resolution}x{resolution}, {facts.spec.render.spp} spp, "
+            f"{facts.summary.samples} path-traced renders ({resolution}x{resolution}, {facts.spec.render.spp} spp, "
             f"Mitsuba 3) of a shaderball with {counts.get('materials', facts.materials)} materials "
             f"({counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying) under a "
             "Hosek-Wilkie sun and sky, each with its material's screen-space maps (diffuse, specular, roughness, "

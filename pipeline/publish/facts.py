@@ -3,7 +3,8 @@ dataset card (pipeline.publish.card) and of the Croissant metadata (pipeline.pub
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from array import array
+from dataclasses import dataclass, field
 
 from pipeline.dataset.spec import DatasetSpec
 
@@ -54,12 +55,51 @@ class TarFacts:
         }
 
 
+def _number(value) -> bool:
+    return isinstance(value, (int, float))
+
+
+@dataclass
+class RecordSummary:
+    """What the card and the Croissant metadata say of the published records, summed one
+    record (and its samples-table row) at a time: no record is kept."""
+
+    samples: int = 0
+    policy_changed: int = 0  # suns the low-sun policy raised
+    flagged: list = field(default_factory=list)  # ids of flagged renders (few)
+    noise: array = field(default_factory=lambda: array("d"))  # stats.noise_relative, 8 bytes a render
+    elevation: tuple | None = None  # (least, greatest) rendered elevation, degrees
+    turbidity: tuple | None = None
+    effects_off: dict = field(default_factory=dict)  # effect -> renders without it
+    has_texture: bool = False  # a row lists a texture-space maps file
+
+    def add(self, record: dict, row: dict, effects) -> None:
+        self.samples += 1
+        lighting = record.get("lighting") or {}
+        stats = record.get("stats") or {}
+        self.policy_changed += bool((lighting.get("policy") or {}).get("changed"))
+        if stats.get("flagged"):
+            self.flagged.append(record["id"])
+        if _number(stats.get("noise_relative")):
+            self.noise.append(stats["noise_relative"])
+        self.elevation = _widen(self.elevation, lighting.get("elevation_deg"))
+        self.turbidity = _widen(self.turbidity, lighting.get("turbidity"))
+        for key in effects:
+            self.effects_off[key] = self.effects_off.get(key, 0) + ((record.get("effects") or {}).get(key) is False)
+        self.has_texture = self.has_texture or bool(row.get("texture"))
+
+
+def _widen(span: tuple | None, value) -> tuple | None:
+    if not _number(value):
+        return span
+    return (value, value) if span is None else (min(span[0], value), max(span[1], value))
+
+
 @dataclass
 class PublicationFacts:
     spec: DatasetSpec
     description: dict
-    records: list[dict]
-    rows: list[dict]
+    summary: RecordSummary
     tars: list[TarFacts]
     license_id: str
     url: str | None

@@ -69,8 +69,18 @@ def padded(size: int) -> int:
 
 def tar_bytes(member_sizes) -> int:
     """The exact size of the tar :func:`write_member` writes for members of these sizes."""
-    body = sum(BLOCK + padded(s) for s in member_sizes) + 2 * BLOCK
-    return -(-body // RECORD) * RECORD
+    return tar_size(sum(member_bytes(s) for s in member_sizes))
+
+
+def member_bytes(size: int) -> int:
+    """What a member of ``size`` bytes takes in a tar: its header block and padded data."""
+    return BLOCK + padded(size)
+
+
+def tar_size(members: int) -> int:
+    """The exact size of a tar whose members take ``members`` bytes (:func:`member_bytes`):
+    two end blocks, padded to a record."""
+    return -(-(members + 2 * BLOCK) // RECORD) * RECORD
 
 
 def open_writer(fileobj) -> tarfile.TarFile:
@@ -95,6 +105,9 @@ def member_header(name: str, size: int) -> bytes:
 
 def write_member(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     tar.addfile(_info(name, len(data)), io.BytesIO(data))
+    # tarfile keeps a TarInfo of every member it writes (~0.8 kB each), which only reading
+    # uses: a writer of millions of members keeps none.
+    tar.members.clear()
 
 
 # --------------------------------------------------------------------------- reading

@@ -13,20 +13,22 @@ unpack holds its DIR: a second publish into it is refused (exit code 3) naming t
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
+from dataclasses import dataclass, field
 
 from pipeline.check.preview import write_preview
 from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.errors import ShaderballError, bad_value, check_int
-from pipeline.publish.card import dataset_card
+from pipeline.publish.card import EFFECTS, dataset_card
 from pipeline.publish.croissant import croissant_metadata
-from pipeline.publish.facts import LICENSES, PublicationFacts, TarFacts
+from pipeline.publish.facts import LICENSES, PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.names import (
     CARD_FILE,
     CROISSANT_FILE,
@@ -48,9 +50,9 @@ from pipeline.publish.output import Output, check_out, held_output
 from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
-from pipeline.publish.tarsafe import BLOCK, open_writer, padded, tar_bytes, write_member
+from pipeline.publish.tarsafe import BLOCK, member_bytes, open_writer, padded, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
-from pipeline.store.folder import MAX_JSON_BYTES, list_bound, read_bytes, read_manifest, resolve_inside
+from pipeline.store.folder import MAX_JSON_BYTES, iter_manifest, list_bound, read_bytes, read_chunks, resolve_inside
 from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.records import dumps
 
@@ -208,25 +210,31 @@ def publish(
 # --------------------------------------------------------------------------- planning
 
 
-def _read_manifest(layout: Layout) -> list[dict]:
-    data = read_manifest(layout)  # a regular file, bounded (pipeline.store.folder)
-    return [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]
+def manifest_records(layout: Layout):
+    """(line number, record) of every non-empty line of the manifest, a line at a time (a
+    regular file, bounded: pipeline.store.folder). Publish runs on a validated folder, so
+    every line is a record; ``write_publication`` on an unvalidated one stops at the first
+    line that is not JSON."""
+    for number, _offset, line in iter_manifest(layout):
+        if line.strip():
+            yield number, json.loads(line)
 
 
-def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
-    """Members of each material in plan order (the manifest's); previews not yet drawn."""
-    groups: list[MaterialGroup] = []
-    for number, record in enumerate(records, start=1):
+def material_groups(layout: Layout, records) -> Iterator[MaterialGroup]:
+    """Members of each material in plan order (the manifest's), one material at a time;
+    ``records``: (line number, record) in manifest order; previews not yet drawn."""
+    group = None
+    for number, record in records:
         refs = file_refs(record, f"manifest.jsonl line {number}")
-        if not groups or groups[-1].material_id != record["material_id"]:
+        if group is None or group.material_id != record["material_id"]:
+            if group is not None:
+                yield group
             group = MaterialGroup(record["material_id"])
             for role in ("maps", "texture"):
                 if role in refs:
                     ref = refs[role]
                     group.shared.append(PackedMember(ref.member, ref.path, ref.bytes, ref.sha256))
                     group.shared_bytes += BLOCK + padded(ref.bytes)
-            groups.append(group)
-        group = groups[-1]
         record_rel = Layout.record_rel(record["shard"], record["id"])
         group.lightings.append(
             PackedMember(record_member(record["id"]), record_rel, os.path.getsize(layout.path(record_rel)), None)
@@ -234,7 +242,8 @@ def material_groups(layout: Layout, records: list[dict]) -> list[MaterialGroup]:
         render = refs["render"]
         group.lightings.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
         group.records.append(record)
-    return groups
+    if group is not None:
+        yield group
 
 
 def draw_previews(layout: Layout, group: MaterialGroup, side: int) -> None:
@@ -254,13 +263,6 @@ def draw_previews(layout: Layout, group: MaterialGroup, side: int) -> None:
         )
         preview = render_preview(_read_checked(layout, render_member), maps, side)
         group.render_previews.append(derived(member_name(record["id"], PREVIEW_FIELDS["render_preview"]), preview))
-
-
-def fits(pair_sizes: list[tuple[list[int], list[int]]], sizes: tuple[list[int], list[int]], shard_bytes: int) -> bool:
-    """Whether a material whose members have ``sizes`` (MaterialGroup.sizes) joins a tar pair
-    whose materials have ``pair_sizes`` with both tars at most ``shard_bytes``."""
-    every = pair_sizes + [sizes]
-    return all(tar_bytes([n for s in every for n in s[kind]]) <= shard_bytes for kind in (0, 1))
 
 
 # --------------------------------------------------------------------------- writing
@@ -284,66 +286,123 @@ def _read_checked(layout: Layout, member: PackedMember) -> bytes:
     return data
 
 
-def _write_tar(output: Output, layout: Layout, rel: str, members: list[PackedMember]) -> tuple[int, str]:
-    """Write the tar ``rel`` of ``members`` atomically; its size and SHA-256."""
-    final = output.path(rel)
-    with atomic_file(final) as fh:
-        with open_writer(fh) as tar:
+class TarPair:
+    """The materials tar and the renders tar of number ``index``, each written atomically as
+    materials join them: a material's members are written when it joins, then dropped."""
+
+    def __init__(self, output: Output, layout: Layout, index: int):
+        self.output, self.layout, self.index = output, layout, index
+        self.stack = ExitStack()
+        self.files, self.tars = {}, {}
+        for kind in (MATERIALS, RENDERS):
+            fh = self.stack.enter_context(atomic_file(output.path(tar_rel(index, kind))))
+            self.files[kind], self.tars[kind] = fh, self.stack.enter_context(open_writer(fh))
+        self.body = {MATERIALS: 0, RENDERS: 0}  # bytes of the members written (tarsafe.member_bytes)
+        self.members = {MATERIALS: 0, RENDERS: 0}
+        self.materials, self.samples = 0, 0
+        self.first: dict[str, str] = {}
+        self.last: dict[str, str] = {}
+
+    def fits(self, sizes: tuple[list[int], list[int]], shard_bytes: int) -> bool:
+        """Whether a material whose members have ``sizes`` joins with both tars at most ``shard_bytes``."""
+        return all(
+            tar_size(self.body[kind] + sum(map(member_bytes, extra))) <= shard_bytes
+            for kind, extra in zip((MATERIALS, RENDERS), sizes)
+        )
+
+    def add(self, group: MaterialGroup) -> list[dict]:
+        """Write ``group``'s members; its samples-table rows."""
+        rows = group.rows(self.index)
+        for kind, members in (
+            (MATERIALS, group.materials_members(self.index)),
+            (RENDERS, group.renders_members()),
+        ):
             for member in members:
-                write_member(tar, member.name, member.data if member.source is None else _read_checked(layout, member))
-        size = fh.tell()
-    digest = sha256_file(final)
-    expected = tar_bytes([m.size for m in members])
-    assert size == expected, (size, expected)
-    output.adopt(rel, digest, size)
-    return size, digest
+                data = member.data if member.source is None else _read_checked(self.layout, member)
+                write_member(self.tars[kind], member.name, data)
+                self.body[kind] += member_bytes(member.size)
+                self.members[kind] += 1
+        self.first.setdefault(MATERIALS, group.material_id)
+        self.first.setdefault(RENDERS, rows[0]["id"])
+        self.last[MATERIALS], self.last[RENDERS] = group.material_id, rows[-1]["id"]
+        self.materials += 1
+        self.samples += len(rows)
+        return rows
 
-
-def _write_pair(
-    output: Output, layout: Layout, index: int, pair: list[MaterialGroup]
-) -> tuple[list[TarFacts], list[dict]]:
-    """The materials tar and the renders tar of number ``index``; their facts and the rows."""
-    rows = [row for group in pair for row in group.rows(index)]
-    facts = []
-    for kind in (MATERIALS, RENDERS):
-        rel = tar_rel(index, kind)
-        members = [m for g in pair for m in (g.materials_members(index) if kind == MATERIALS else g.renders_members())]
-        size, digest = _write_tar(output, layout, rel, members)
-        first, last = (
-            (pair[0].material_id, pair[-1].material_id) if kind == MATERIALS else (rows[0]["id"], rows[-1]["id"])
-        )
-        facts.append(
-            TarFacts(
-                path=rel,
-                kind=kind,
-                bytes=size,
-                sha256=digest,
-                members=len(members),
-                samples=len(rows),
-                materials=len(pair),
-                first=first,
-                last=last,
+    def close(self) -> list[TarFacts]:
+        """Finish both tars (end blocks, fsync, rename); their facts."""
+        for kind in (RENDERS, MATERIALS):  # the stack closes the renders tar first: either order
+            self.tars[kind].close()
+        ends = {kind: self.files[kind].tell() for kind in (MATERIALS, RENDERS)}
+        self.stack.close()
+        facts = []
+        for kind in (MATERIALS, RENDERS):
+            rel = tar_rel(self.index, kind)
+            digest = sha256_file(self.output.path(rel))
+            expected = tar_size(self.body[kind])
+            assert ends[kind] == expected, (ends[kind], expected)
+            self.output.adopt(rel, digest, ends[kind])
+            facts.append(
+                TarFacts(
+                    path=rel,
+                    kind=kind,
+                    bytes=ends[kind],
+                    sha256=digest,
+                    members=self.members[kind],
+                    samples=self.samples,
+                    materials=self.materials,
+                    first=self.first[kind],
+                    last=self.last[kind],
+                )
             )
+        return facts
+
+    def abort(self) -> None:
+        """Remove what was written (the temporary files): the publication failed."""
+        _abandon(self.stack)
+
+
+def _abandon(stack: ExitStack) -> None:
+    abandoned = RuntimeError("publication abandoned")
+    try:  # each atomic file sees an exception, so it removes its temporary file
+        stack.__exit__(RuntimeError, abandoned, None)
+    except Exception:
+        pass  # the failure that abandoned the publication is the one reported
+
+
+class StreamedFile:
+    """A file of PUB written a piece at a time, atomically; its SHA-256 and size counted."""
+
+    def __init__(self, output: Output, rel: str):
+        self.output, self.rel = output, rel
+        self.stack = ExitStack()
+        self.fh = self.stack.enter_context(atomic_file(output.path(rel)))
+        self.digest, self.size = hashlib.sha256(), 0
+
+    def write(self, data: bytes) -> None:
+        self.fh.write(data)
+        self.digest.update(data)
+        self.size += len(data)
+
+    def close(self) -> None:
+        self.stack.close()
+        self.output.adopt(self.rel, self.digest.hexdigest(), self.size)
+
+    def abort(self) -> None:
+        """Remove what was written (the temporary files): the publication failed."""
+        _abandon(self.stack)
+
+
+def _marker_line(layout: Layout, shard: str) -> bytes:
+    """A shard's marker file, byte for byte: one line of JSON, or Refused."""
+    data = read_bytes(resolve_inside(layout.root, Layout.marker_rel(shard)), list_bound(None))
+    if not data.endswith(b"\n") or data.count(b"\n") != 1:
+        raise Refused(
+            "invalid_dataset",
+            f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
+            "`shaderball build` writes it; cannot publish it byte for byte",
         )
-    for group in pair:  # the previews are written: keep their sums, not their bytes
-        group.maps_preview = replace(group.maps_preview, data=b"")
-        group.render_previews = [replace(p, data=b"") for p in group.render_previews]
-    return facts, rows
-
-
-def _markers(layout: Layout, records: list[dict]) -> bytes:
-    """Every shard's marker file, byte for byte, one line each, in plan order."""
-    lines = []
-    for shard in dict.fromkeys(r["shard"] for r in records):
-        data = read_bytes(resolve_inside(layout.root, Layout.marker_rel(shard)), list_bound(None))
-        if not data.endswith(b"\n") or data.count(b"\n") != 1:
-            raise Refused(
-                "invalid_dataset",
-                f"shards/{shard}/{MARKER_FILE}: not one line of JSON as "
-                "`shaderball build` writes it; cannot publish it byte for byte",
-            )
-        lines.append(data)
-    return b"".join(lines)
+    return data
 
 
 def write_publication(
@@ -391,85 +450,103 @@ def _write_into(
     start = time.perf_counter()
     layout = Layout(root)
     spec: DatasetSpec = read_snapshot(root)
-    records = _read_manifest(layout)
-    if not records:
+    records = manifest_records(layout)
+    first = next(records, None)
+    if first is None:
         raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
-    groups = material_groups(layout, records)
     side = spec.render.resolution
-    tars, rows = [], []
-    pair: list[MaterialGroup] = []
-    pair_sizes: list[tuple[list[int], list[int]]] = []
-    for number, group in enumerate(groups, start=1):
-        if progress:
-            progress(f"previews of {group.material_id} ({number}/{len(groups)})")
-        draw_previews(layout, group, side)
-        sizes = group.sizes()
-        if pair and not fits(pair_sizes, sizes, shard_bytes):
-            index = len(tars) // 2
+    summary, shards = RecordSummary(), {}  # shards: the source shards, in plan order
+    tars: list[TarFacts] = []
+    pair: TarPair | None = None
+    table: StreamedFile | None = None
+    materials = source_bytes = member_bytes = repeated_extra = 0
+    try:
+        table = StreamedFile(output, SAMPLES_FILE)
+        for number, group in enumerate(material_groups(layout, itertools.chain([first], records)), start=1):
             if progress:
-                progress(f"writing {tar_rel(index, MATERIALS)} and {tar_rel(index, RENDERS)}")
-            written, pair_rows = _write_pair(output, layout, index, pair)
-            tars += written
-            rows += pair_rows
-            pair, pair_sizes = [], []
-        pair.append(group)
-        pair_sizes.append(sizes)
-    written, pair_rows = _write_pair(output, layout, len(tars) // 2, pair)
-    tars += written
-    rows += pair_rows
-    tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
-    for source, rel in SOURCE_FILES.items():
-        output.write(
-            rel,
-            read_bytes(layout.path(source), MAX_JSON_BYTES if source != MANIFEST_FILE else list_bound(len(records))),
+                progress(f"previews of {group.material_id} ({number}/{spec.dataset.materials})")
+            draw_previews(layout, group, side)
+            sizes = group.sizes()
+            if pair is not None and not pair.fits(sizes, shard_bytes):
+                if progress:
+                    progress(f"writing {tar_rel(pair.index, MATERIALS)} and {tar_rel(pair.index, RENDERS)}")
+                tars += pair.close()
+                pair = None
+            if pair is None:
+                pair = TarPair(output, layout, len(tars) // 2)
+            for record, row in zip(group.records, pair.add(group)):
+                table.write((dumps(row) + "\n").encode("utf-8"))
+                summary.add(record, row, [key for key, _what in EFFECTS])
+                shards.setdefault(record["shard"], None)
+            materials += 1
+            source_bytes += sum(os.path.getsize(layout.path(m.source)) for m in group.shared + group.lightings)
+            member_bytes += sum(sizes[0]) + sum(sizes[1])
+            repeated_extra += (len(group.records) - 1) * group.shared_bytes
+        tars += pair.close()
+        pair = None
+        tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
+        for source, rel in SOURCE_FILES.items():
+            if source == MANIFEST_FILE:
+                _copy(output, rel, layout.path(source), list_bound(summary.samples))
+            else:
+                output.write(rel, read_bytes(layout.path(source), MAX_JSON_BYTES))
+        markers = StreamedFile(output, MARKERS_REL)
+        try:
+            for shard in shards:
+                markers.write(_marker_line(layout, shard))
+        except BaseException:
+            markers.abort()
+            raise
+        markers.close()
+        table.close()
+        table = None
+        if contact_sheet:
+            if progress:
+                progress("drawing the contact sheet")
+            write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
+            with open(output.path(PREVIEW_FILE), "rb") as fh:
+                output.adopt(
+                    PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
+                )
+        description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
+        source_bytes += sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
+        facts = PublicationFacts(
+            spec=spec,
+            description=description,
+            summary=summary,
+            tars=tars,
+            license_id=license_id,
+            url=url,
+            shard_bytes=shard_bytes,
+            files=dict(output.sums),
+            sizes=dict(output.sizes),
+            source_bytes=source_bytes,
+            member_bytes=member_bytes,
+            repeated_maps_extra_bytes=repeated_extra,
+            materials=materials,
+            has_preview=contact_sheet,
         )
-    output.write(MARKERS_REL, _markers(layout, records))
-    output.write(SAMPLES_FILE, "".join(dumps(row) + "\n" for row in rows).encode("utf-8"))
-    if contact_sheet:
-        if progress:
-            progress("drawing the contact sheet")
-        write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
-        with open(output.path(PREVIEW_FILE), "rb") as fh:
-            output.adopt(
-                PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
-            )
-    description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
-    source_bytes = (
-        sum(os.path.getsize(layout.path(m.source)) for g in groups for m in g.shared + g.lightings)
-        + sum(output.sizes[rel] for rel in SOURCE_FILES.values())
-        + output.sizes[MARKERS_REL]
-    )
-    facts = PublicationFacts(
-        spec=spec,
-        description=description,
-        records=records,
-        rows=rows,
-        tars=tars,
-        license_id=license_id,
-        url=url,
-        shard_bytes=shard_bytes,
-        files=dict(output.sums),
-        sizes=dict(output.sizes),
-        source_bytes=source_bytes,
-        member_bytes=sum(sum(a) + sum(b) for a, b in (g.sizes() for g in groups)),
-        repeated_maps_extra_bytes=sum((len(g.records) - 1) * g.shared_bytes for g in groups),
-        materials=len(groups),
-        has_preview=contact_sheet,
-    )
-    output.write(INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8"))
-    facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
-    facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
-    output.write(
-        CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
-    )
-    facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
-    output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
-    output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
+        output.write(
+            INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8")
+        )
+        facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
+        facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
+        output.write(
+            CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
+        )
+        facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
+        output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
+        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
+    except BaseException:
+        for open_file in (pair, table):
+            if open_file is not None:
+                open_file.abort()
+        raise  # held_output removes what was written
     published = sum(output.sizes.values())
     return PublishSummary(
         out=out,
-        samples=len(records),
-        materials=len(groups),
+        samples=summary.samples,
+        materials=materials,
         tars=tars,
         published_bytes=published,
         source_bytes=facts.source_bytes,
@@ -478,6 +555,18 @@ def _write_into(
         validation_s=validation_s,
         seconds=time.perf_counter() - start,
     )
+
+
+def _copy(output: Output, rel: str, path: str, limit: int) -> None:
+    """Copy the regular file at ``path`` (at most ``limit`` bytes) to ``rel``, a chunk at a time."""
+    copy = StreamedFile(output, rel)
+    try:
+        for chunk in read_chunks(path, limit):
+            copy.write(chunk)
+    except BaseException:
+        copy.abort()
+        raise
+    copy.close()
 
 
 def publication_index(facts: PublicationFacts) -> dict:
@@ -493,7 +582,7 @@ def publication_index(facts: PublicationFacts) -> dict:
             "version": description.get("version"),
             "spec_digest": description.get("spec_digest"),
             "plan_digest": description.get("plan_digest"),
-            "renders": len(facts.records),
+            "renders": facts.summary.samples,
             "materials": facts.materials,
         },
         "shard_bytes": facts.shard_bytes,

@@ -298,13 +298,13 @@ def _repair_locked(
     without ``spec_path`` it is not repaired (which side is right is unknown): the actions
     say so and nothing is changed.
     """
-    before = validate(root, progress=progress)
+    before = validate(root, progress=progress, keep_state=True)
     if before.ok:
         return before, before, []
     state, actions = before._state, []
     if (state.plans is None or not state.spec_ok) and spec_path is not None:
         actions.append(restore_spec(state, spec_path))
-        current = validate(root, progress=progress)
+        current = validate(root, progress=progress, keep_state=True)
         if current.ok:
             return before, current, actions
         state = current._state

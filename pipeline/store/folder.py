@@ -56,9 +56,13 @@ __all__ = [
     "is_lock_file",
     "is_record_file",
     "is_temp_file",
+    "iter_lines",
+    "iter_manifest",
     "manifest_record_count",
+    "read_line_at",
     "only_temp_files",
     "read_bytes",
+    "read_chunks",
     "read_json",
     "read_json_checked",
     "read_json_in",
@@ -180,10 +184,10 @@ def _open_regular(path: str, limit: int | None) -> tuple[int, int]:
     return fd, info.st_size
 
 
-def _chunks(fd: int, path: str, limit: int | None):
+def _chunks(fd: int, path: str, limit: int | None, size: int = 1 << 20):
     total = 0
     while True:
-        chunk = os.read(fd, 1 << 20)
+        chunk = os.read(fd, size)
         if not chunk:
             return
         total += len(chunk)
@@ -201,6 +205,20 @@ def read_bytes(path: str, limit: int | None = None) -> bytes:
         return b"".join(_chunks(fd, path, limit))
     finally:
         os.close(fd)
+
+
+def read_chunks(path: str, limit: int | None = None) -> Iterator[bytes]:
+    """The bytes of the regular file at ``path`` a chunk at a time, as :func:`read_bytes`
+    reads them (opened by the call: OSErrors are raised by it)."""
+    fd, _size = _open_regular(path, limit)
+
+    def chunks():
+        try:
+            yield from _chunks(fd, path, limit)
+        finally:
+            os.close(fd)
+
+    return chunks()
 
 
 def file_digest(path: str, limit: int | None = None) -> tuple[int, str]:
@@ -605,13 +623,63 @@ def read_manifest(layout: Layout, renders: int | None = None) -> bytes:
     return read_bytes(layout.manifest, list_bound(renders))
 
 
-def manifest_record_count(layout: Layout, renders: int | None = None) -> int | None:
-    """Non-empty lines of the manifest, None when there is none (or it cannot be read)."""
+#: Bytes read at a time by :func:`iter_lines`: a few records' worth, so what a reader of lines
+#: holds does not grow with the file up to a larger chunk.
+LINE_CHUNK = 1 << 16
+
+
+def iter_lines(path: str, limit: int | None = None) -> Iterator[tuple[int, int, bytes]]:
+    """(line number from 1, byte offset, bytes without the newline) of every line of the
+    regular file at ``path``, read a chunk at a time (as :func:`read_bytes` reads: no link, no
+    FIFO, at most ``limit`` bytes, UnsafePath beyond), so only one line is held at a time.
+    The file is opened before the first line is asked for: OSErrors are raised by the call."""
+    fd, _size = _open_regular(path, limit)
+    return _lines_of(fd, path, limit)
+
+
+def _lines_of(fd: int, path: str, limit: int | None) -> Iterator[tuple[int, int, bytes]]:
+    number, offset, parts = 0, 0, []  # parts: the line so far (a long line is not re-copied per chunk)
     try:
-        data = read_manifest(layout, renders)
+        for chunk in _chunks(fd, path, limit, LINE_CHUNK):
+            start = 0
+            while (end := chunk.find(b"\n", start)) >= 0:
+                line = b"".join([*parts, chunk[start:end]]) if parts else chunk[start:end]
+                parts = []
+                number += 1
+                yield number, offset, line
+                offset += len(line) + 1
+                start = end + 1
+            if start < len(chunk):
+                parts.append(chunk[start:])
+        if parts:
+            yield number + 1, offset, b"".join(parts)
+    finally:
+        os.close(fd)
+
+
+def iter_manifest(layout: Layout, renders: int | None = None) -> Iterator[tuple[int, int, bytes]]:
+    """:func:`iter_lines` of the manifest, bounded as :func:`read_manifest` bounds it."""
+    return iter_lines(layout.manifest, list_bound(renders))
+
+
+def read_line_at(path: str, offset: int, limit: int) -> bytes:
+    """The line of the regular file at ``path`` that starts at byte ``offset`` (a line
+    :func:`iter_lines` found), without its newline; at most ``limit`` bytes are read."""
+    fd, _size = _open_regular(path, None)
+    try:
+        data = os.pread(fd, limit + 1, offset)
+    finally:
+        os.close(fd)
+    return data.split(b"\n", 1)[0]
+
+
+def manifest_record_count(layout: Layout, renders: int | None = None) -> int | None:
+    """Non-empty lines of the manifest, None when there is none (or it cannot be read);
+    streamed, a line at a time."""
+    try:
+        return sum(1 for _n, _o, line in iter_manifest(layout, renders) if line.strip())
     except OSError:
         return None
-    return sum(1 for line in data.split(b"\n") if line.strip())
 
 
 def disk_usage(root: str) -> tuple[int, int]:
