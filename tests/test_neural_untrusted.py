@@ -7,6 +7,7 @@ import io
 import json
 import os
 import shutil
+import struct
 import zipfile
 
 import numpy as np
@@ -89,6 +90,14 @@ def _tiled(data):
     return _exr(_render_channels(image.layers["render"]), image.meta, tiled=True)
 
 
+def _inverted_window(data):
+    """The render's dataWindow patched to end before it starts (x_max < x_min)."""
+    key = b"dataWindow\0box2i\0" + struct.pack("<i", 16)
+    at = data.index(key) + len(key)
+    x_min, y_min, _x_max, y_max = struct.unpack("<4i", data[at : at + 16])
+    return data[:at] + struct.pack("<4i", x_min, y_min, x_min - 5, y_max) + data[at + 16 :]
+
+
 #: (name, file, forgery, words the refusal holds, whether today's validate reports the file)
 CASES = [
     ("nan-maps", MAPS, _nan_maps, "layer diffuse has 1 NaN", True),
@@ -96,7 +105,8 @@ CASES = [
     ("nan-render", RENDER, _nan_render, "1 NaN and 0 infinite value(s)", True),
     ("uint32-render", RENDER, _uint32_render, "layer render is uint32, expected float32", True),
     ("2000-channels", RENDER, _many_channels, "more than 64 channels", True),
-    ("tiled", RENDER, _tiled, "not tiled, deep or multi-part", False),
+    ("tiled", RENDER, _tiled, "not tiled, deep or multi-part", True),
+    ("inverted-data-window", RENDER, _inverted_window, "data window is -4 x", True),
 ]
 
 
