@@ -1487,7 +1487,12 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
 @click.option("--repeats", default=9, show_default=True, type=int, help="--benchmark: slider moves timed, 1 to 100.")
 @_friendly_errors
 def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats):
-    """A local web page: the network's picture beside progressive path tracing (docs/serve.md)."""
+    """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
+
+    \b
+    Example:
+      make serve-network && shaderball serve --run serve-out/run --dataset serve-out/smoke
+    """
     options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
         click.echo(line)

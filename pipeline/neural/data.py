@@ -674,10 +674,6 @@ class ShaderballDataset(Dataset):
         }
 
 
-def dataset_resolution(records: list[dict]) -> int:
-    return one_resolution({(r.get("render") or {}).get("resolution") for r in records})
-
-
 def one_resolution(sizes: set) -> int:
     if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
         raise ShaderballError(f"DATASET: renders of several or unknown resolutions {sorted(map(str, sizes))}")

@@ -57,7 +57,3 @@ class LiveNetwork:
         output = run_network(self.model, maps_chw, self.lighting_vector(light), self.device)
         seconds = time.perf_counter() - started
         return inverse_tonemap(output, self.exposure), seconds
-
-
-def load_live_network(run_dir: str, checkpoint: str = "last", threads: int = 0) -> LiveNetwork:
-    return LiveNetwork(run_dir, checkpoint=checkpoint, threads=threads)
