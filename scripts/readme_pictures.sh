@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Regenerates every picture the README shows, each with the command that draws it:
+#
+#   docs/img/smoke_preview.png    the demo's contact sheet: `make demo`'s build and preview
+#                                 commands (manifests/smoke.toml, 16 renders)
+#   docs/img/network_vs_pt.png    the network next to path tracing: `shaderball evaluate --report`'s
+#                                 grid, after a short training run on manifests/train-small.toml
+#                                 (120 renders at 64x64; a half-width network, 30 epochs)
+#   docs/img/accuracy_time.png    error against CPU time: `shaderball study`'s pareto.png, a small
+#                                 study of manifests/smoke.toml (the spp ladder and denoising)
+#
+#   scripts/readme_pictures.sh [WORK]   (default WORK: out/readme-pictures; its folders are
+#                                        rebuilt, so the pictures come from fresh runs)
+#
+# About 6 minutes on the shared 2-core machine here (docs/tutorial.md lists the steps' times).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+SB=${SHADERBALL:-.venv/bin/shaderball}
+WORK=${1:-out/readme-pictures}
+rm -rf "$WORK"
+mkdir -p "$WORK" docs/img
+start=$SECONDS
+step() { echo "== $* ($((SECONDS - start)) s)" >&2; }
+
+step "the demo's contact sheet"
+"$SB" build manifests/smoke.toml --out "$WORK/smoke"
+"$SB" preview "$WORK/smoke" --out docs/img/smoke_preview.png
+
+step "the network next to path tracing"
+"$SB" build manifests/train-small.toml --out "$WORK/train-small"
+"$SB" train "$WORK/train-small" --out "$WORK/run" --epochs 30 --width 0.5 --loss l1 --lr 2e-3 \
+  --schedule cosine --batch-size 6 --threads 1 --seed 0
+"$SB" evaluate "$WORK/run" "$WORK/train-small" --report --no-flip
+cp "$WORK/run/evaluation-test/grid.png" docs/img/network_vs_pt.png
+
+step "the accuracy/time plot"
+"$SB" study manifests/smoke.toml --out "$WORK/study" --configs ladder,denoise --reference-spp 256 \
+  --ladder 1,2,4,8,16,32,64 --no-flip
+cp "$WORK/study/pareto.png" docs/img/accuracy_time.png
+
+step "done: docs/img/smoke_preview.png, docs/img/network_vs_pt.png, docs/img/accuracy_time.png"
