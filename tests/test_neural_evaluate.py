@@ -157,6 +157,11 @@ def test_evaluate_report_has_classes_with_intervals_a_learning_curve_and_a_grid(
     assert curve[0].split(",") == list(runfiles.CSV_COLUMNS) and len(curve) == 2
     text = (report_dir / "report.md").read_text()
     assert "## Per material class" in text and "![grid](grid.png)" in text
+    # headed by the command that wrote it (the same options again), the machine and the date
+    head = text.splitlines()[2]
+    command = f"shaderball evaluate {trained} {reference} --split all --out {report_dir} --spp 1 --limit 8 --report"
+    assert head.startswith(f"Written by `{command}` on 20") and head.endswith(" UTC.")
+    assert text.splitlines()[4].startswith("Machine: ") and "torch device cpu" in text.splitlines()[4]
     assert "path tracing, equal CPU time" in text and "+ OIDN (its time added)" in text
     # the table shows the CPU times the equal-time row matched, as results.json has them
     equal = data["equal_time"]
