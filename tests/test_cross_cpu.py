@@ -33,7 +33,10 @@ def test_builds_for_another_cpu_have_the_same_plan_and_renders_within_their_nois
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
     assert result == json.loads((out / "report.json").read_text())
-    assert (out / "report.md").read_text().startswith("# What another CPU changes")
+    report = (out / "report.md").read_text()
+    assert report.startswith("# What another CPU changes")
+    assert report.splitlines()[2] == f"Written by `{result['command']}` on {result['date']}."  # and the machine below
+    assert result["date"].startswith("20") and result["date"].endswith(" UTC")
     builds = result["builds"]
     assert {"native", "numpy-avx2"} <= set(builds)
     for name, row in builds.items():

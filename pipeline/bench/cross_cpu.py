@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import datetime
 import json
 import math
 import os
@@ -191,6 +192,8 @@ def report_markdown(result: dict) -> str:
     lines = [
         "# What another CPU changes: builds of one spec under emulated CPUs",
         "",
+        f"Written by `{result['command']}` on {result['date']}.",
+        "",
         f"Spec `{result['spec']}` on {result['host']['cpu_model']} (LLVM target "
         f"{result['host']['llvm_target_cpu']}, {result['host']['llvm_vector_width']} lanes; numpy SIMD "
         f"{', '.join(result['host']['numpy_simd'])}). Re-run: `{result['command']}`.",
@@ -260,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
         "spec": args.spec,
         "command": f"python -m pipeline.bench.cross_cpu {args.spec} --out DIR",
         "host": machine_fingerprint(),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "avx2_target": {"cpu": AVX2_CPU, "vector_width": AVX2_WIDTH, "numpy_disabled": numpy_without_avx512()},
         "builds": {
             name: {"seconds": round(seconds[name], 1), **compare(native, os.path.join(out, name))} for name in seconds
