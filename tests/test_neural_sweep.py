@@ -59,7 +59,11 @@ def test_a_sweep_orders_runs_pairs_differences_and_pools_seeds(tmp_path):
     lo, hi = pooled[400]["network"]["ci95"]
     assert lo <= pooled[400]["network"]["psnr"] <= hi
     assert (out / "data-size.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "| 400 | 2 |" in (out / "sweep.md").read_text()
+    text = (out / "sweep.md").read_text()
+    assert "| 400 | 2 |" in text
+    # headed by the command that wrote it, the machine and the date
+    command = " ".join(["shaderball sweep", *paths, "--out", str(out)])
+    assert text.splitlines()[2].startswith(f"Written by `{command}` on 20") and "CPUs" in text.splitlines()[2]
 
 
 def test_reports_on_other_held_out_samples_are_refused(tmp_path):

@@ -18,8 +18,11 @@ Which runs belong together is checked: the same held-out samples, the same datas
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
+import platform
+import shlex
 import sys
 
 import numpy as np
@@ -126,8 +129,21 @@ def _ci(v: dict | None) -> str:
     return f"{v['psnr']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else f"{v['psnr']:.2f}"
 
 
+def heading(reports: list[str], out: str) -> dict:
+    """What heads sweep.md: the command that writes it, the machine and the date."""
+    return {
+        "command": shlex.join(["shaderball", "sweep", *reports, "--out", out]),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
 def markdown(summary: dict) -> str:
     lines = [
+        "# Data-size sweep",
+        "",
+        f"Written by `{summary['command']}` on {summary['date']}; machine: {summary['machine']}.",
+        "",
         "Held-out PSNR (dB, 8-bit sRGB) with 95% intervals (bootstrap over held-out materials); "
         "differences are paired per sample.",
         "",
@@ -200,7 +216,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for sweep.md, sweep.json, data-size.png")
     args = parser.parse_args(argv)
     try:
-        summary = summarise([(p, _load(p)) for p in args.reports])
+        summary = {**heading(args.reports, args.out), **summarise([(p, _load(p)) for p in args.reports])}
     except ShaderballError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
