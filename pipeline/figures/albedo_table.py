@@ -178,7 +178,7 @@ def models_markdown() -> str:
 
 
 def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str:
-    """All tables of docs/materials.md, as markdown."""
+    """All tables of docs/results/albedo.md (scripts/albedo_results.py), as markdown."""
     lut = build_lut() if lut is None else lut
     parts = [
         _table("A1: specular albedo with F = 1 (s = 1, d = 0; a mirror-like metal)", _rows(lut, lut.a1), lut),

@@ -12,7 +12,7 @@ task per shard to the client this module connects (the only module that runs das
 Worker memory is bounded twice: the nanny restarts a worker whose memory passes 95 % of its
 limit (its unfinished shard runs again), and ``recycle_after`` restarts a worker process,
 between shards, once it has rendered that many samples (Mitsuba's memory grows slowly when
-it renders in a long loop; docs/cluster.md has the measurement). Re-running a shard is safe
+it renders in a long loop; scripts/memory_probe.py measures it, docs/cluster.md). Re-running a shard is safe
 because shard tasks are idempotent (:mod:`pipeline.run.shard`).
 
 ``python -m pipeline.bench.memory_probe --memory-probe 200`` re-measures the growth. The options are checked in
