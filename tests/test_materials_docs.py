@@ -20,7 +20,7 @@ def test_albedo_tables_in_docs_are_current():
     doc = DOC.read_text()
     missing = [line for line in tables.splitlines() if line.strip() and line not in doc]
     assert not missing, (
-        f"{DOC} is out of date; re-run `python -m pipeline.figures.albedo_table` and paste its output. "
+        f"{DOC} is out of date; re-run `shaderball figures albedo-table` and paste its output. "
         f"First missing line: {missing[0]!r}"
     )
 
@@ -51,6 +51,6 @@ def test_contact_sheet_is_reproducible_and_current():
     current = contact_sheet.contact_sheet(**SHEET_ARGS)
     stored = np.asarray(Image.open(SHEET).convert("RGB"))
     assert np.array_equal(current, stored), (
-        f"{SHEET} is out of date; re-run `python -m pipeline.figures.contact_sheet --out {SHEET.relative_to(ROOT)} "
+        f"{SHEET} is out of date; re-run `shaderball figures contact-sheet --out {SHEET.relative_to(ROOT)} "
         "--examples 4`"
     )
