@@ -36,7 +36,7 @@ def test_albedo_lut_numbers():
 
 
 def test_model_comparison_numbers():
-    # Issue 17: A1 at normal incidence 0.012 / 0.19 / 0.76 with Deschaintre et al.'s floors, ~1 without.
+    # docs/materials.md: A1 at normal incidence 0.012 / 0.19 / 0.76 with Deschaintre et al.'s floors, ~1 without.
     a1 = albedo_table.model_comparison(roughness=(0.05, 0.1, 0.15, 0.2))
     np.testing.assert_allclose(a1["shaderball"], 1.0, atol=3e-3)
     np.testing.assert_allclose(a1["deschaintre2018"][:3], [0.012, 0.190, 0.755], atol=2e-3)

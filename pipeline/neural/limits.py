@@ -1,6 +1,6 @@
 """The neural commands' option ranges and choices, without torch: `cli.py` builds their
 --help from these before torch is loaded, and the checks in ``train`` and ``evaluate`` use
-the same values (one owner per range, issue 21)."""
+the same values (one owner per range)."""
 
 from __future__ import annotations
 
