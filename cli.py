@@ -55,14 +55,7 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import (
-    DEVICES,
-    INTEGER_RANGES,
-    LOSS_CHOICES,
-    PRECISIONS,
-    SPP_LADDER_RANGE,
-    TRAINING_VARIANTS,
-)
+from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
@@ -1526,6 +1519,7 @@ from pipeline.figures.albedo_table import markdown as albedo_markdown
 from pipeline.figures.albedo_table import models_markdown
 from pipeline.figures.contact_sheet import SHEET_SEED, write_contact_sheet
 from pipeline.figures.sun_positions import sun_positions
+from pipeline.neural.limits import TRAINING_VARIANTS
 from pipeline.store.atomic import write_text_atomic
 
 _CHECKPOINT_HELP = (
