@@ -1512,6 +1512,278 @@ def _live_network(options):
     return load
 
 
+# Commands over finished work: a network exported, runs compared, the docs' figures, the neural
+# stage's benchmarks. The library functions they call return; the printing is here.
+
+from pipeline.figures.albedo_table import markdown as albedo_markdown
+from pipeline.figures.albedo_table import models_markdown
+from pipeline.figures.contact_sheet import SHEET_SEED, write_contact_sheet
+from pipeline.figures.sun_positions import sun_positions
+from pipeline.neural.limits import TRAINING_VARIANTS
+from pipeline.store.atomic import write_text_atomic
+
+_CHECKPOINT_HELP = (
+    "The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of RUN."
+)
+
+
+@main.command("export")
+@click.argument("run", metavar="RUN", type=click.Path())
+@out_option("TorchScript file to write (.pt, .pth or .ts).", folder=False)
+@click.option("--checkpoint", default="last", show_default=True, metavar="last|best|FILE", help=_CHECKPOINT_HELP)
+@json_option("Print what the file's extra shaderball.json holds, and its path, as JSON on stdout.")
+@_friendly_errors
+def export_cmd(run, out, checkpoint, as_json):
+    """The trained network as a TorchScript file, for torch without this package (docs/neural.md).
+
+    \b
+    Example:
+      shaderball export runs/smoke --out runs/smoke/net.pt
+    """
+    _neural()
+    from pipeline.neural.export import export_torchscript
+
+    meta = export_torchscript(run, out, checkpoint)
+    if as_json:
+        _emit_json({"out": out, **meta})
+        return
+    click.echo(f"wrote {out}: TorchScript, {meta['resolution']}x{meta['resolution']}, {checkpoint} checkpoint")
+
+
+@main.command("sweep")
+@click.argument("reports", nargs=-1, required=True, metavar="REPORT.json...", type=click.Path(dir_okay=False))
+@out_option("Folder for sweep.md, sweep.json and data-size.png.", folder=True)
+@json_option("Print the summary (what sweep.json holds) as JSON on stdout instead of the table.")
+@_friendly_errors
+def sweep_cmd(reports, out, as_json):
+    """Runs of several training-set sizes and seeds side by side: the data-size curve (docs/neural.md).
+
+    Each REPORT.json is the report.json that `shaderball evaluate --report` wrote for a run;
+    all must be evaluated on the same held-out samples of the same dataset.
+
+    \b
+    Example:
+      shaderball sweep runs/smoke/evaluation-test/report.json --out runs/sweep
+    """
+    _neural()
+    from pipeline.neural.sweep import write_sweep
+
+    summary, text = write_sweep(list(reports), out)
+    if as_json:
+        _emit_json(summary)
+        return
+    click.echo(text, nl=False)
+
+
+#: `shaderball figures NAME`: the options each figure takes (beyond --out and --json).
+_FIGURE_OPTIONS = {
+    "sun-positions": (),
+    "contact-sheet": ("examples", "resolution", "seed"),
+    "albedo-table": ("models", "no_samplers"),
+}
+
+
+@main.command("figures")
+@click.argument("name", metavar="NAME", type=click.Choice(list(_FIGURE_OPTIONS)))
+@out_option(
+    "sun-positions, contact-sheet: the PNG file to write (required); albedo-table: a markdown file "
+    "[default: print the tables].",
+    folder=False,
+    required=False,
+)
+@click.option("--examples", type=int, default=None, help="contact-sheet: materials per family, 1 to 64 [4].")
+@click.option("--resolution", type=int, default=None, help="contact-sheet: map side in texels, 16 to 1024 [128].")
+@click.option("--seed", type=int, default=None, help="contact-sheet: the sheet's seed [2019].")
+@click.option("--models", is_flag=True, help="albedo-table: only the two material models side by side.")
+@click.option("--no-samplers", is_flag=True, help="albedo-table: leave out the sampler statistics.")
+@json_option("Print what was written (or the tables) as JSON on stdout.")
+@_friendly_errors
+def figures_cmd(name, out, examples, resolution, seed, models, no_samplers, as_json):
+    """A figure or table of the docs, reproduced: sun-positions (README, about 20 s at its size),
+    contact-sheet (docs/materials.md), albedo-table (docs/materials.md, about 10 s).
+
+    \b
+    Example:
+      shaderball figures contact-sheet --out figures/sheet.png --examples 1 --resolution 16
+    """
+    given = {"examples": examples, "resolution": resolution, "seed": seed, "models": models, "no_samplers": no_samplers}
+    for option, value in given.items():
+        if value not in (None, False) and option not in _FIGURE_OPTIONS[name]:
+            flag = "--" + option.replace("_", "-")
+            raise ShaderballError(f"{flag}: not an option of {name}; it takes {_figure_options_text(name)}")
+    if name != "albedo-table" and out is None:
+        raise ShaderballError(f"--out: missing; {name} writes a PNG file (e.g. --out figures/{name}.png)")
+    if name == "albedo-table":
+        text = models_markdown() if models else albedo_markdown(with_samplers=not no_samplers, progress=say)
+        if out is not None:
+            write_text_atomic(out, text + "\n")
+        if as_json:
+            _emit_json({"figure": name, "out": out, "markdown": text})
+        elif out is None:
+            click.echo(text)
+        else:
+            click.echo(f"wrote {out}")
+        return
+    if name == "sun-positions":
+        width, height = sun_positions(out, progress=say)
+    else:
+        width, height = write_contact_sheet(
+            out,
+            examples=4 if examples is None else examples,
+            resolution=128 if resolution is None else resolution,
+            seed=SHEET_SEED if seed is None else seed,
+            progress=say,
+        )
+    if as_json:
+        _emit_json({"figure": name, "out": out, "width": width, "height": height})
+        return
+    click.echo(f"wrote {out} ({width}x{height})")
+
+
+def _figure_options_text(name: str) -> str:
+    taken = ["--out", "--json", *("--" + o.replace("_", "-") for o in _FIGURE_OPTIONS[name])]
+    return ", ".join(taken)
+
+
+@main.group("neural-bench", cls=_Group)
+def neural_bench():
+    """The neural stage's measurements (docs/neural.md): KIND is loaders (a dataset folder
+    against its publication), collate (torch's collation against ours, idle and loaded), denoise
+    (what OIDN is fed) or train-options (training samples/s of each speed option).
+
+    \b
+    Example:
+      shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
+    """
+
+
+def _bench_output(result: dict, table: str, as_json: bool) -> None:
+    if as_json:
+        _emit_json(result)
+        return
+    click.echo(table, nl=False)
+
+
+@neural_bench.command("loaders")
+@click.argument("folder", metavar="DIR", type=click.Path())
+@click.argument("pub", metavar="PUB", type=click.Path())
+@click.option("--resolution", type=int, default=None, help="Network resolution in pixels [default: the dataset's].")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per batch.")
+@click.option("--loader-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
+@click.option("--repeats", type=int, default=3, show_default=True, help="Passes over each; the best counts.")
+@click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check.")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_loaders_cmd(folder, pub, resolution, batch_size, loader_workers, repeats, no_hash_check, as_json):
+    """The loader's samples/s on a dataset folder DIR and on its publication PUB, passes alternated.
+
+    \b
+    Example:
+      shaderball neural-bench loaders demo-out/smoke demo-out/smoke-pub --repeats 1
+    """
+    _neural()
+    from pipeline.neural.bench import compare_loaders, loaders_table
+
+    result = compare_loaders(
+        folder, pub, resolution, batch_size, loader_workers, repeats, not no_hash_check, progress=say
+    )
+    _bench_output(result, loaders_table(result), as_json)
+
+
+@neural_bench.command("collate")
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option(
+    "--busy", type=int, default=2, show_default=True, help="Spinning processes of the loaded passes, 0 to 64."
+)
+@click.option("--repeats", type=int, default=5, show_default=True, help="Rounds of passes; medians count.")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per batch.")
+@click.option("--loader-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
+@click.option("--resolution", type=int, default=None, help="Network resolution in pixels [default: the dataset's].")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_collate_cmd(dataset, busy, repeats, batch_size, loader_workers, resolution, as_json):
+    """The loader's samples/s with torch's default collation and with the project's, on the
+    machine as it is and with --busy spinning processes beside it.
+
+    \b
+    Example:
+      shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
+    """
+    _neural()
+    from pipeline.neural.bench import collation_table, compare_collation
+
+    result = compare_collation(dataset, busy, repeats, batch_size, loader_workers, resolution, progress=say)
+    _bench_output(result, collation_table(result), as_json)
+
+
+@neural_bench.command("denoise")
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option("--limit", type=int, default=12, show_default=True, help="Samples compared, spread over the dataset.")
+@click.option("--spp", default="1,4,16", show_default=True, metavar="N,N,...", help="Path-tracing rates denoised.")
+@click.option("--reference-spp", type=int, default=256, show_default=True, help="Samples per pixel of the reference.")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_denoise_cmd(dataset, limit, spp, reference_spp, as_json):
+    """OIDN fed each choice of auxiliary buffers, against fresh high-spp renders of the same
+    samples (the dataset must store texture maps).
+
+    \b
+    Example:
+      shaderball neural-bench denoise demo-out/smoke --limit 1 --spp 1 --reference-spp 4
+    """
+    _neural()
+    from pipeline.neural.bench import compare_denoisers, denoise_table
+
+    result = compare_denoisers(dataset, limit, parse_int_list("--spp", spp, SPP_RANGE), reference_spp, progress=say)
+    _bench_output(result, denoise_table(result), as_json)
+
+
+@neural_bench.command("train-options")
+@click.option("--resolution", type=int, default=64, show_default=True, help="Network resolution in pixels.")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per step.")
+@click.option("--loss", default="l1+vgg", show_default=True, type=click.Choice(LOSS_CHOICES), help="Training loss.")
+@click.option("--repeats", type=int, default=5, show_default=True, help="Rounds of timed steps; medians count.")
+@click.option("--steps", type=int, default=3, show_default=True, help="Steps timed per variant and round.")
+@click.option(
+    "--threads", type=int, default=0, show_default=True, help="The baseline's torch threads (0: torch's default)."
+)
+@click.option(
+    "--variants",
+    default=None,
+    metavar="NAME,NAME,...",
+    help="Speed options compared, comma-separated, the first the baseline: "
+    + "; ".join(TRAINING_VARIANTS)
+    + " [default: all].",
+)
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_train_options_cmd(resolution, batch_size, loss, repeats, steps, threads, variants, as_json):
+    """Training samples/s of each speed option (random inputs, a fresh network each), variants
+    alternated; a randomly initialised VGG16 stands in for ImageNet weights.
+
+    \b
+    Example:
+      shaderball neural-bench train-options --resolution 32 --loss l1 --repeats 1 --steps 1 --variants baseline,--channels-last
+    """
+    _neural()
+    from pipeline.neural.bench import compare_training, training_table
+    from pipeline.neural.train import TrainConfig
+
+    config = TrainConfig(
+        dataset="",
+        out="",
+        batch_size=batch_size,
+        loss=loss,
+        device="cpu",
+        threads=threads,
+        precision="fp32",
+        channels_last=False,
+    )
+    names = None if variants is None else [name.strip() for name in variants.split(",")]
+    result = compare_training(config, resolution, names, repeats, steps, progress=say)
+    _bench_output(result, training_table(result), as_json)
+
+
 if __name__ == "__main__":
     signal.signal(signal.SIGINT, signal.default_int_handler)
     main()

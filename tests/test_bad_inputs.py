@@ -22,7 +22,7 @@ def test_every_bad_input_is_refused_cleanly():
         assert row["exit_code"] == 2, row
         assert not row["wrote"], row
         assert "UNCAUGHT" not in row["message"] and ("error" in row["message"].lower()), row
-        if "--json" in row["argv"]:  # one JSON document on stdout (issue 24)
+        if "--json" in row["argv"]:  # one JSON document on stdout
             assert row["json"]["ok"] is False and row["json"]["exit"] == 2 and row["json"]["error"], row
     page = script.PAGE.read_text()
     assert script.table(rows) in page, "docs/results/bad-inputs.md is stale: re-run scripts/bad_inputs.py --write"

@@ -1,6 +1,6 @@
-"""What another CPU changes, measured under emulated CPUs (issue 20; docs/build.md).
+"""What another CPU changes, measured under emulated CPUs (docs/build.md).
 
-Runs ``python -m pipeline.bench.cross_cpu`` on a 4-render cut of the smoke spec: four real
+Runs ``scripts/cross_cpu.py`` on a 4-render cut of the smoke spec: four real
 builds, each in a fresh process with fresh kernel and geometry caches. What must hold on any
 machine: the plan is the same under every emulation (plan format 2), and a render made for
 another CPU differs from this one's far inside its own noise. Which files stay byte-identical
@@ -24,7 +24,7 @@ def test_builds_for_another_cpu_have_the_same_plan_and_renders_within_their_nois
     spec.write_text(SMOKE.read_text().replace("materials = 8 ", "materials = 2 "))
     out = tmp_path / "cross"
     run = subprocess.run(
-        [sys.executable, "-m", "pipeline.bench.cross_cpu", str(spec), "--out", str(out), "--json"],
+        [sys.executable, str(REPO / "scripts" / "cross_cpu.py"), str(spec), "--out", str(out), "--json"],
         cwd=REPO,
         capture_output=True,
         text=True,

@@ -55,6 +55,6 @@ def test_contact_sheet_is_reproducible_and_current():
     current = contact_sheet.contact_sheet(**SHEET_ARGS)
     stored = np.asarray(Image.open(SHEET).convert("RGB"))
     assert np.array_equal(current, stored), (
-        f"{SHEET} is out of date; re-run `python -m pipeline.figures.contact_sheet --out {SHEET.relative_to(ROOT)} "
+        f"{SHEET} is out of date; re-run `shaderball figures contact-sheet --out {SHEET.relative_to(ROOT)} "
         "--examples 4`"
     )

@@ -1,4 +1,4 @@
-"""`shaderball evaluate` (issue 22): refusals that name what the user can do, the reference's
+"""`shaderball evaluate`: refusals that name what the user can do, the reference's
 spp, the equal-time and mean-image rows, intervals, relMSE of a saturated network."""
 
 import json
@@ -115,7 +115,7 @@ def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
     net = data["mean"]["network"]
     assert net["saturated"] == 1.0
     assert any(n.startswith("network: 100.0% of its output values are saturated") for n in data["notes"])
-    # uncapped, an output of 1 inverts to 2.5e5 and relMSE is ~1e12 (issue 22); capped, at most
+    # uncapped, an output of 1 inverts to 2.5e5 and relMSE is ~1e12; capped, at most
     # (the cap's radiance)^2 / 0.01 whatever the reference
     cap = float(inverse_tonemap(np.float32(NETWORK_Y_CAP), 4.0))
     assert net["relmse"] <= cap**2 / 0.01 < 1e6
@@ -189,7 +189,7 @@ def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
     # 0.1 s fixed + 0.01 s per spp: the network's 0.3 s buys 20 spp; less than 1 spp's time: 1
     assert equal_time_spp(0.3, {1: 0.11, 64: 0.74}) == 20
     assert equal_time_spp(0.01, {1: 0.11, 64: 0.74}) == 1
-    # issue 22: measured beside other work, 64 spp took less CPU than 1 spp; the old fit gave 4096
+    # measured beside other work, 64 spp took less CPU than 1 spp; a fit through both would give 4096
     assert equal_time_spp(0.42, {1: 0.121, 64: 0.115}) == round(0.42 / (0.115 / 64))
     assert equal_time_spp(0.018, {1: 0.121, 64: 0.115}) == 1  # faster than either render
     assert equal_time_spp(1e9, {1: 0.11, 64: 0.74}) == 4096  # the ladder's top, no further

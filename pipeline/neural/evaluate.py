@@ -62,7 +62,7 @@ NETWORK_Y_CAP = 254.5 / 255.0
 #: spp at which path tracing's CPU time is measured to fit t(spp) = a + b spp (equal time).
 EQUAL_TIME_PROBE_SPP = (1, 64)
 #: Each probe is timed this many times and the least CPU time kept: other work on the machine
-#: only adds time (spinning threads, cache), so the minimum is the cost (issue 22: a median of
+#: only adds time (spinning threads, cache), so the minimum is the cost (measured: a median of
 #: 3 taken beside two training runs gave the network 0.42 s instead of 0.018 s, and 8 spp less
 #: time than 1, which sent the fit to 4096 spp).
 EQUAL_TIME_REPEATS = 5

@@ -265,7 +265,7 @@ def spawned_ignoring_sigint() -> Iterator[None]:
     again later: recycling, a memory restart) starts with SIGINT ignored and blocked.
 
     A terminal's Ctrl-C reaches the whole process group; a worker process caught while it
-    imports printed a KeyboardInterrupt traceback (seen on a loaded machine, issue 20). An
+    imports printed a KeyboardInterrupt traceback (seen on a loaded machine). An
     ignored signal stays ignored across exec and Python then installs no handler of its own,
     so the spawn start method runs a wrapper that ignores SIGINT and execs this Python. Ignored
     is not enough while Mitsuba renders: it installs its own SIGINT handler for the length of

@@ -1,6 +1,6 @@
-"""Hostile round 3 (issue 24): fields of other types in records, markers and dataset.json
-(item 2), JSON whose parse would cost far more memory than its size (item 3), names with a
-trailing newline (item 4), and the messages of item 6."""
+"""Hostile input of other types: fields of other types in records, markers and dataset.json,
+JSON whose parse would cost far more memory than its size, names with a trailing newline,
+and the messages that name them."""
 
 from __future__ import annotations
 
