@@ -15,7 +15,7 @@ between shards, once it has rendered that many samples (Mitsuba's memory grows s
 it renders in a long loop; scripts/memory_probe.py measures it, docs/cluster.md). Re-running a shard is safe
 because shard tasks are idempotent (:mod:`pipeline.run.shard`).
 
-``python -m pipeline.bench.memory_probe --memory-probe 200`` re-measures the growth. The options are checked in
+``scripts/memory_probe.py --memory-probe 200`` re-measures the growth. The options are checked in
 :mod:`pipeline.run.cluster.options`; batch jobs are watched by :mod:`pipeline.run.cluster.watch`.
 """
 
