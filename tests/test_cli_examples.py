@@ -33,6 +33,8 @@ _spec.loader.exec_module(cli_reference)
 
 #: The folders examples write into; each is a folder of the test's own.
 OUTPUT_ROOTS = ("demo-out", "runs")
+#: The folders of the repository examples may read (and so never write).
+INPUT_ROOTS = ("manifests",)
 #: The order in which the examples need each other's outputs; a command not named here runs
 #: after all of these, so it finds every dataset, publication and run they made.
 ORDER = (
@@ -74,8 +76,9 @@ def command_line(example: str, root: Path) -> list[str]:
         if word.split("/", 1)[0] in OUTPUT_ROOTS:
             argv.append(str(root / word))
         else:
-            assert not _is_path(word) or (REPO / word).exists(), (
-                f"{example!r}: {word} is neither a file of the repository nor under {', '.join(OUTPUT_ROOTS)}/"
+            assert not _is_path(word) or (word.split("/", 1)[0] in INPUT_ROOTS and (REPO / word).exists()), (
+                f"{example!r}: {word} is neither an input under {', '.join(INPUT_ROOTS)}/ nor an output "
+                f"under {', '.join(OUTPUT_ROOTS)}/"
             )
             argv.append(word)
     return [sys.executable, "-m", "cli", *argv]
@@ -180,11 +183,13 @@ def test_every_help_ends_with_an_example(name):
     for example in found:
         if name != GROUP:
             assert example.startswith(f"shaderball {name} "), example
-        command_line(example, Path("/nowhere"))  # paths: the repository's or under OUTPUT_ROOTS
+        command_line(example, Path("/nowhere"))  # its paths: under INPUT_ROOTS or OUTPUT_ROOTS
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", commands_in_order())
 def test_every_example_runs(workspace, name):
-    for example, code, output in workspace.run_command(name):
+    ran = workspace.run_command(name)
+    assert ran, f"{name}: no example to run"
+    for example, code, output in ran:
         assert code == 0, f"`{example}` exited {code}\n{output}"
