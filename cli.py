@@ -909,7 +909,7 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     \b
     Example:
       shaderball study manifests/smoke.toml --out demo-out/smoke-study --resolution 16 \\
-        --configs ladder --ladder 1,4 --reference-spp 64 --repeats 1
+        --configs ladder --ladder 4 --reference-spp 64 --repeats 1 --no-flip
     """
 
     req = StudyRequest(
@@ -1493,7 +1493,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
 
     \b
     Example:
-      shaderball evaluate runs/smoke demo-out/smoke --limit 2 --report
+      shaderball evaluate runs/smoke demo-out/smoke --limit 2 --no-flip --report
     """
     _neural()
     from pipeline.neural.evaluate import EvaluateRequest, evaluate
