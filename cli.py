@@ -256,6 +256,11 @@ def main():
     Every sample pairs four screen-space material maps (diffuse, specular, roughness,
     normal) and a lighting vector (sun direction, turbidity) with a Mitsuba 3 path-traced
     render of the shaderball under a Hosek-Wilkie sun and sky.
+
+    \b
+    Examples:
+      shaderball build manifests/smoke.toml --out demo-out/smoke
+      shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
 
 
@@ -414,7 +419,12 @@ def light_options(*, full: bool):
 @variant_option()
 @_friendly_errors
 def scene_cmd(out_dir: str, resolution: int, variant: str):
-    """Write the shaderball mesh, its G-buffer and a preview picture."""
+    """Write the shaderball mesh, its G-buffer and a preview picture.
+
+    \b
+    Example:
+      shaderball scene --out demo-out/scene --resolution 64
+    """
 
     summary = write_scene(out_dir, resolution=resolution, variant=variant)
     for line in summary.lines():
@@ -472,7 +482,12 @@ def render_cmd(
     out,
     png,
 ):
-    """Render one material on the shaderball under one sun and sky."""
+    """Render one material on the shaderball under one sun and sky.
+
+    \b
+    Example:
+      shaderball render --out demo-out/ball.exr --png demo-out/ball.png --resolution 64 --spp 16 --elevation 30
+    """
 
     request = RenderRequest(
         diffuse=parse_triple("--diffuse", diffuse),
@@ -609,6 +624,10 @@ def build_cmd(
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
+
+    \b
+    Example:
+      shaderball build manifests/smoke.toml --out demo-out/smoke
     """
 
     options = ClusterOptions(
@@ -681,6 +700,11 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     for sanity (finite, in range, unit normals, non-negative renders, statistics), the
     whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
     Progress goes to stderr.
+
+    \b
+    Examples:
+      shaderball validate demo-out/smoke
+      shaderball validate demo-out/smoke --fast --json
     """
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
@@ -729,7 +753,12 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 )
 @_friendly_errors
 def preview_cmd(directory, out, samples, tile):
-    """A contact sheet of a dataset (complete or partial) for people to look at."""
+    """A contact sheet of a dataset (complete or partial) for people to look at.
+
+    \b
+    Example:
+      shaderball preview demo-out/smoke --out demo-out/smoke-preview.png
+    """
 
     for line in write_preview(directory, out, samples=samples, tile=tile).lines():
         click.echo(line)
@@ -743,6 +772,11 @@ def info_cmd(directory, as_json):
     """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds).
 
     Given a spec file instead: what `shaderball plan SPEC` prints without timing (counts, shards, disk).
+
+    \b
+    Examples:
+      shaderball info demo-out/smoke
+      shaderball info manifests/paper.toml
     """
 
     if os.path.isfile(directory):
@@ -793,8 +827,9 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     (seconds to minutes; nothing is kept), extrapolated per worker (docs/build.md).
 
     \b
-    Example:
-      shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
+    Examples:
+      shaderball plan manifests/smoke.toml
+      shaderball plan manifests/smoke.toml --cluster slurm --jobs 8 --cores 32
     """
     request = PlanRequest(
         spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
@@ -869,7 +904,13 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
 def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
-    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
+    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md).
+
+    \b
+    Example:
+      shaderball study manifests/smoke.toml --out demo-out/smoke-study --resolution 16 \\
+        --configs ladder --ladder 4 --reference-spp 64 --repeats 1 --no-flip
+    """
 
     req = StudyRequest(
         spec=spec,
@@ -950,7 +991,12 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path):
-    """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
+    """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md).
+
+    \b
+    Example:
+      shaderball bench manifests/smoke.toml --resolution 32 --spp 4 --workers 0
+    """
 
     if scale is not None:
         if out is None:
@@ -1029,6 +1075,10 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
 
     Deterministic WebDataset-convention tar shards, a samples table, a dataset card with a
     contact sheet, Croissant metadata and SHA256SUMS; the same folder publishes to the same bytes.
+
+    \b
+    Example:
+      shaderball publish demo-out/smoke --out demo-out/smoke-pub
     """
     summary = publish(
         directory,
@@ -1049,6 +1099,10 @@ def verify_cmd(pub, as_json):
     """Check a publication without extracting it: every file's SHA-256, every tar header and member.
 
     Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
+
+    \b
+    Example:
+      shaderball verify demo-out/smoke-pub
     """
     report = verify(pub, progress=say)
     _print_result(report, as_json)
@@ -1065,7 +1119,12 @@ def verify_cmd(pub, as_json):
 @json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
-    """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
+    """Restore the dataset folder of a publication, byte for byte, after verifying all of it.
+
+    \b
+    Example:
+      shaderball unpack demo-out/smoke-pub --out demo-out/smoke-copy
+    """
     summary = unpack(pub, out, validate_after=not no_validate, progress=say)
     _print_result(summary, as_json)
 
@@ -1257,7 +1316,12 @@ def train_cmd(
     benchmark,
     as_json,
 ):
-    """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run."""
+    """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run.
+
+    \b
+    Example:
+      shaderball train demo-out/smoke --out runs/smoke --epochs 1
+    """
     _neural()
     from pipeline.neural.train import TrainConfig, train
 
@@ -1312,7 +1376,7 @@ def train_cmd(
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
 @material_options(full=False)
 @light_options(full=False)
-@device_option()
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @json_option("Print the summary as JSON on stdout.")
 @click.option(
     "--checkpoint",
@@ -1339,7 +1403,12 @@ def infer_cmd(
     as_json,
     checkpoint,
 ):
-    """The trained network's picture of one material under one sun (no path tracing)."""
+    """The trained network's picture of one material under one sun (no path tracing).
+
+    \b
+    Example:
+      shaderball infer runs/smoke --out runs/smoke-ball.exr --png runs/smoke-ball.png --elevation 30 --roughness 0.2
+    """
     _neural()
     from pipeline.neural.infer import InferRequest, infer_to_files
 
@@ -1395,7 +1464,7 @@ def infer_cmd(
 )
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
-@device_option()
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @click.option(
     "--checkpoint",
     default="last",
@@ -1421,6 +1490,10 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
     the first-hit albedo and normal, and on the colour alone (docs/neural.md).
+
+    \b
+    Example:
+      shaderball evaluate runs/smoke demo-out/smoke --limit 2 --no-flip --report
     """
     _neural()
     from pipeline.neural.evaluate import EvaluateRequest, evaluate
@@ -1490,8 +1563,9 @@ def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats)
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
     \b
-    Example:
-      make serve-network && shaderball serve --run serve-out/run --dataset serve-out/smoke
+    Examples:
+      shaderball serve --run runs/smoke --dataset demo-out/smoke --benchmark
+      shaderball serve --run runs/smoke --dataset demo-out/smoke-pub
     """
     options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
