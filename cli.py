@@ -1678,7 +1678,7 @@ def figures_cmd(name, out, examples, resolution, seed, models, no_samplers, as_j
 
     \b
     Example:
-      shaderball figures contact-sheet --out figures/sheet.png --examples 1 --resolution 16
+      shaderball figures contact-sheet --out demo-out/sheet.png --examples 1 --resolution 16
     """
     given = {"examples": examples, "resolution": resolution, "seed": seed, "models": models, "no_samplers": no_samplers}
     for option, value in given.items():

@@ -136,10 +136,29 @@ def _section(command, name: str | None) -> list[str]:
 
 
 def command_names() -> list[str]:
-    """Every command of the group, in the order ``shaderball --help`` lists them."""
+    """Every command of the group, in the order ``shaderball --help`` lists them; a command group
+    (``neural-bench``) is followed by its subcommands, named ``"neural-bench loaders"``."""
+    import click
+
     from cli import main
 
-    return list(main.list_commands(_context(main, None)))
+    names = []
+    for name in main.list_commands(_context(main, None)):
+        names.append(name)
+        group = main.commands[name]
+        if isinstance(group, click.Group):
+            names += [f"{name} {sub}" for sub in group.list_commands(_context(group, name))]
+    return names
+
+
+def command_for(name: str):
+    """The click command of a name from ``command_names()``."""
+    from cli import main
+
+    command = main
+    for word in name.split():
+        command = command.commands[word]
+    return command
 
 
 def render() -> str:
@@ -156,12 +175,12 @@ def render() -> str:
         "it reads: `demo-out/smoke` is `manifests/smoke.toml` built, `demo-out/smoke-pub` its publication,",
         "`runs/smoke` a network trained on it.",
         "",
-        "Commands: " + ", ".join(f"[{n}](#{PROG}-{n})" for n in names) + ".",
+        "Commands: " + ", ".join(f"[{n}](#{PROG}-{n.replace(' ', '-')})" for n in names) + ".",
         "",
     ]
     lines += _section(main, None)
     for name in names:
-        lines += _section(main.commands[name], name)
+        lines += _section(command_for(name), name)
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

@@ -47,13 +47,13 @@ SERVER_START_S = 180
 
 
 def commands_in_order() -> list[str]:
-    names = list(main.commands)
+    names = cli_reference.command_names()
     first = [name for name in ORDER if name in names]
     return [*first, *sorted(set(names) - set(first)), GROUP]
 
 
 def help_text(name: str) -> str:
-    args = ["--help"] if name == GROUP else [name, "--help"]
+    args = ["--help"] if name == GROUP else [*name.split(), "--help"]
     result = CliRunner().invoke(main, args, prog_name=GROUP)
     assert result.exit_code == 0, result.output
     return result.output
