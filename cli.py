@@ -256,6 +256,11 @@ def main():
     Every sample pairs four screen-space material maps (diffuse, specular, roughness,
     normal) and a lighting vector (sun direction, turbidity) with a Mitsuba 3 path-traced
     render of the shaderball under a Hosek-Wilkie sun and sky.
+
+    \b
+    Examples:
+      shaderball build manifests/smoke.toml --out demo-out/smoke
+      shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
 
 
@@ -414,7 +419,12 @@ def light_options(*, full: bool):
 @variant_option()
 @_friendly_errors
 def scene_cmd(out_dir: str, resolution: int, variant: str):
-    """Write the shaderball mesh, its G-buffer and a preview picture."""
+    """Write the shaderball mesh, its G-buffer and a preview picture.
+
+    \b
+    Example:
+      shaderball scene --out demo-out/scene --resolution 64
+    """
 
     summary = write_scene(out_dir, resolution=resolution, variant=variant)
     for line in summary.lines():
@@ -472,7 +482,12 @@ def render_cmd(
     out,
     png,
 ):
-    """Render one material on the shaderball under one sun and sky."""
+    """Render one material on the shaderball under one sun and sky.
+
+    \b
+    Example:
+      shaderball render --out demo-out/ball.exr --png demo-out/ball.png --resolution 64 --spp 16 --elevation 30
+    """
 
     request = RenderRequest(
         diffuse=parse_triple("--diffuse", diffuse),
@@ -609,6 +624,10 @@ def build_cmd(
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
+
+    \b
+    Example:
+      shaderball build manifests/smoke.toml --out demo-out/smoke
     """
 
     options = ClusterOptions(
@@ -681,6 +700,11 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     for sanity (finite, in range, unit normals, non-negative renders, statistics), the
     whole against the plan (nothing missing, extra or duplicated; spec snapshot intact).
     Progress goes to stderr.
+
+    \b
+    Examples:
+      shaderball validate demo-out/smoke
+      shaderball validate demo-out/smoke --fast --json
     """
     if fast and fix:
         raise click.UsageError("--fast and --repair cannot be combined: a repair needs the full check")
@@ -729,7 +753,12 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 )
 @_friendly_errors
 def preview_cmd(directory, out, samples, tile):
-    """A contact sheet of a dataset (complete or partial) for people to look at."""
+    """A contact sheet of a dataset (complete or partial) for people to look at.
+
+    \b
+    Example:
+      shaderball preview demo-out/smoke --out demo-out/smoke-preview.png
+    """
 
     for line in write_preview(directory, out, samples=samples, tile=tile).lines():
         click.echo(line)
@@ -743,6 +772,11 @@ def info_cmd(directory, as_json):
     """Counts, sizes, spec summary and completion of a dataset folder (works on partial builds).
 
     Given a spec file instead: what `shaderball plan SPEC` prints without timing (counts, shards, disk).
+
+    \b
+    Examples:
+      shaderball info demo-out/smoke
+      shaderball info manifests/paper.toml
     """
 
     if os.path.isfile(directory):
@@ -793,8 +827,9 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     (seconds to minutes; nothing is kept), extrapolated per worker (docs/build.md).
 
     \b
-    Example:
-      shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
+    Examples:
+      shaderball plan manifests/smoke.toml
+      shaderball plan manifests/smoke.toml --cluster slurm --jobs 8 --cores 32
     """
     request = PlanRequest(
         spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
@@ -869,7 +904,13 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
 def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
-    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
+    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md).
+
+    \b
+    Example:
+      shaderball study manifests/smoke.toml --out demo-out/smoke-study --resolution 16 \\
+        --configs ladder --ladder 4 --reference-spp 64 --repeats 1 --no-flip
+    """
 
     req = StudyRequest(
         spec=spec,
@@ -950,7 +991,12 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @json_file_option("Also write the figures to this JSON file.")
 @_friendly_errors
 def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path):
-    """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
+    """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md).
+
+    \b
+    Example:
+      shaderball bench manifests/smoke.toml --resolution 32 --spp 4 --workers 0
+    """
 
     if scale is not None:
         if out is None:
@@ -1029,6 +1075,10 @@ def publish_cmd(directory, out, shard_bytes, license_id, url, as_json):
 
     Deterministic WebDataset-convention tar shards, a samples table, a dataset card with a
     contact sheet, Croissant metadata and SHA256SUMS; the same folder publishes to the same bytes.
+
+    \b
+    Example:
+      shaderball publish demo-out/smoke --out demo-out/smoke-pub
     """
     summary = publish(
         directory,
@@ -1049,6 +1099,10 @@ def verify_cmd(pub, as_json):
     """Check a publication without extracting it: every file's SHA-256, every tar header and member.
 
     Exit 0 if intact, 1 if refused (the first problem is named), 2 for bad usage.
+
+    \b
+    Example:
+      shaderball verify demo-out/smoke-pub
     """
     report = verify(pub, progress=say)
     _print_result(report, as_json)
@@ -1065,7 +1119,12 @@ def verify_cmd(pub, as_json):
 @json_option("Print the summary (or the refusal) as JSON only.")
 @_friendly_errors
 def unpack_cmd(pub, out, no_validate, as_json):
-    """Restore the dataset folder of a publication, byte for byte, after verifying all of it."""
+    """Restore the dataset folder of a publication, byte for byte, after verifying all of it.
+
+    \b
+    Example:
+      shaderball unpack demo-out/smoke-pub --out demo-out/smoke-copy
+    """
     summary = unpack(pub, out, validate_after=not no_validate, progress=say)
     _print_result(summary, as_json)
 
@@ -1257,7 +1316,12 @@ def train_cmd(
     benchmark,
     as_json,
 ):
-    """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run."""
+    """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run.
+
+    \b
+    Example:
+      shaderball train demo-out/smoke --out runs/smoke --epochs 1
+    """
     _neural()
     from pipeline.neural.train import TrainConfig, train
 
@@ -1312,7 +1376,7 @@ def train_cmd(
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
 @material_options(full=False)
 @light_options(full=False)
-@device_option()
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @json_option("Print the summary as JSON on stdout.")
 @click.option(
     "--checkpoint",
@@ -1339,7 +1403,12 @@ def infer_cmd(
     as_json,
     checkpoint,
 ):
-    """The trained network's picture of one material under one sun (no path tracing)."""
+    """The trained network's picture of one material under one sun (no path tracing).
+
+    \b
+    Example:
+      shaderball infer runs/smoke --out runs/smoke-ball.exr --png runs/smoke-ball.png --elevation 30 --roughness 0.2
+    """
     _neural()
     from pipeline.neural.infer import InferRequest, infer_to_files
 
@@ -1395,7 +1464,7 @@ def infer_cmd(
 )
 @click.option("--no-denoise", is_flag=True, help="Leave out the denoised (Intel OIDN) low-spp renders.")
 @click.option("--limit", type=int, default=None, help="Evaluate at most this many samples [default: all].")
-@device_option()
+@device_option("auto: cuda when torch sees a GPU, else cpu.")
 @click.option(
     "--checkpoint",
     default="last",
@@ -1421,6 +1490,10 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
     the first-hit albedo and normal, and on the colour alone (docs/neural.md).
+
+    \b
+    Example:
+      shaderball evaluate runs/smoke demo-out/smoke --limit 2 --no-flip --report
     """
     _neural()
     from pipeline.neural.evaluate import EvaluateRequest, evaluate
@@ -1490,8 +1563,9 @@ def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats)
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
     \b
-    Example:
-      make serve-network && shaderball serve --run serve-out/run --dataset serve-out/smoke
+    Examples:
+      shaderball serve --run runs/smoke --dataset demo-out/smoke --benchmark
+      shaderball serve --run runs/smoke --dataset demo-out/smoke-pub
     """
     options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
@@ -1510,6 +1584,278 @@ def _live_network(options):
         return LiveNetwork(options.run, checkpoint=options.checkpoint, threads=options.threads)
 
     return load
+
+
+# Commands over finished work: a network exported, runs compared, the docs' figures, the neural
+# stage's benchmarks. The library functions they call return; the printing is here.
+
+from pipeline.figures.albedo_table import markdown as albedo_markdown
+from pipeline.figures.albedo_table import models_markdown
+from pipeline.figures.contact_sheet import SHEET_SEED, write_contact_sheet
+from pipeline.figures.sun_positions import sun_positions
+from pipeline.neural.limits import TRAINING_VARIANTS
+from pipeline.store.atomic import write_text_atomic
+
+_CHECKPOINT_HELP = (
+    "The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of RUN."
+)
+
+
+@main.command("export")
+@click.argument("run", metavar="RUN", type=click.Path())
+@out_option("TorchScript file to write (.pt, .pth or .ts).", folder=False)
+@click.option("--checkpoint", default="last", show_default=True, metavar="last|best|FILE", help=_CHECKPOINT_HELP)
+@json_option("Print what the file's extra shaderball.json holds, and its path, as JSON on stdout.")
+@_friendly_errors
+def export_cmd(run, out, checkpoint, as_json):
+    """The trained network as a TorchScript file, for torch without this package (docs/neural.md).
+
+    \b
+    Example:
+      shaderball export runs/smoke --out runs/smoke/net.pt
+    """
+    _neural()
+    from pipeline.neural.export import export_torchscript
+
+    meta = export_torchscript(run, out, checkpoint)
+    if as_json:
+        _emit_json({"out": out, **meta})
+        return
+    click.echo(f"wrote {out}: TorchScript, {meta['resolution']}x{meta['resolution']}, {checkpoint} checkpoint")
+
+
+@main.command("sweep")
+@click.argument("reports", nargs=-1, required=True, metavar="REPORT.json...", type=click.Path(dir_okay=False))
+@out_option("Folder for sweep.md, sweep.json and data-size.png.", folder=True)
+@json_option("Print the summary (what sweep.json holds) as JSON on stdout instead of the table.")
+@_friendly_errors
+def sweep_cmd(reports, out, as_json):
+    """Runs of several training-set sizes and seeds side by side: the data-size curve (docs/neural.md).
+
+    Each REPORT.json is the report.json that `shaderball evaluate --report` wrote for a run;
+    all must be evaluated on the same held-out samples of the same dataset.
+
+    \b
+    Example:
+      shaderball sweep runs/smoke/evaluation-test/report.json --out runs/sweep
+    """
+    _neural()
+    from pipeline.neural.sweep import write_sweep
+
+    summary, text = write_sweep(list(reports), out)
+    if as_json:
+        _emit_json(summary)
+        return
+    click.echo(text, nl=False)
+
+
+#: `shaderball figures NAME`: the options each figure takes (beyond --out and --json).
+_FIGURE_OPTIONS = {
+    "sun-positions": (),
+    "contact-sheet": ("examples", "resolution", "seed"),
+    "albedo-table": ("models", "no_samplers"),
+}
+
+
+@main.command("figures")
+@click.argument("name", metavar="NAME", type=click.Choice(list(_FIGURE_OPTIONS)))
+@out_option(
+    "sun-positions, contact-sheet: the PNG file to write (required); albedo-table: a markdown file "
+    "[default: print the tables].",
+    folder=False,
+    required=False,
+)
+@click.option("--examples", type=int, default=None, help="contact-sheet: materials per family, 1 to 64 [4].")
+@click.option("--resolution", type=int, default=None, help="contact-sheet: map side in texels, 16 to 1024 [128].")
+@click.option("--seed", type=int, default=None, help="contact-sheet: the sheet's seed [2019].")
+@click.option("--models", is_flag=True, help="albedo-table: only the two material models side by side.")
+@click.option("--no-samplers", is_flag=True, help="albedo-table: leave out the sampler statistics.")
+@json_option("Print what was written (or the tables) as JSON on stdout.")
+@_friendly_errors
+def figures_cmd(name, out, examples, resolution, seed, models, no_samplers, as_json):
+    """A figure or table of the docs, reproduced: sun-positions (README, about 20 s at its size),
+    contact-sheet (docs/materials.md), albedo-table (docs/materials.md, about 10 s).
+
+    \b
+    Example:
+      shaderball figures contact-sheet --out demo-out/sheet.png --examples 1 --resolution 16
+    """
+    given = {"examples": examples, "resolution": resolution, "seed": seed, "models": models, "no_samplers": no_samplers}
+    for option, value in given.items():
+        if value not in (None, False) and option not in _FIGURE_OPTIONS[name]:
+            flag = "--" + option.replace("_", "-")
+            raise ShaderballError(f"{flag}: not an option of {name}; it takes {_figure_options_text(name)}")
+    if name != "albedo-table" and out is None:
+        raise ShaderballError(f"--out: missing; {name} writes a PNG file (e.g. --out figures/{name}.png)")
+    if name == "albedo-table":
+        text = models_markdown() if models else albedo_markdown(with_samplers=not no_samplers, progress=say)
+        if out is not None:
+            write_text_atomic(out, text + "\n")
+        if as_json:
+            _emit_json({"figure": name, "out": out, "markdown": text})
+        elif out is None:
+            click.echo(text)
+        else:
+            click.echo(f"wrote {out}")
+        return
+    if name == "sun-positions":
+        width, height = sun_positions(out, progress=say)
+    else:
+        width, height = write_contact_sheet(
+            out,
+            examples=4 if examples is None else examples,
+            resolution=128 if resolution is None else resolution,
+            seed=SHEET_SEED if seed is None else seed,
+            progress=say,
+        )
+    if as_json:
+        _emit_json({"figure": name, "out": out, "width": width, "height": height})
+        return
+    click.echo(f"wrote {out} ({width}x{height})")
+
+
+def _figure_options_text(name: str) -> str:
+    taken = ["--out", "--json", *("--" + o.replace("_", "-") for o in _FIGURE_OPTIONS[name])]
+    return ", ".join(taken)
+
+
+@main.group("neural-bench", cls=_Group)
+def neural_bench():
+    """The neural stage's measurements (docs/neural.md): KIND is loaders (a dataset folder
+    against its publication), collate (torch's collation against ours, idle and loaded), denoise
+    (what OIDN is fed) or train-options (training samples/s of each speed option).
+
+    \b
+    Example:
+      shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
+    """
+
+
+def _bench_output(result: dict, table: str, as_json: bool) -> None:
+    if as_json:
+        _emit_json(result)
+        return
+    click.echo(table, nl=False)
+
+
+@neural_bench.command("loaders")
+@click.argument("folder", metavar="DIR", type=click.Path())
+@click.argument("pub", metavar="PUB", type=click.Path())
+@click.option("--resolution", type=int, default=None, help="Network resolution in pixels [default: the dataset's].")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per batch.")
+@click.option("--loader-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
+@click.option("--repeats", type=int, default=3, show_default=True, help="Passes over each; the best counts.")
+@click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check.")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_loaders_cmd(folder, pub, resolution, batch_size, loader_workers, repeats, no_hash_check, as_json):
+    """The loader's samples/s on a dataset folder DIR and on its publication PUB, passes alternated.
+
+    \b
+    Example:
+      shaderball neural-bench loaders demo-out/smoke demo-out/smoke-pub --repeats 1
+    """
+    _neural()
+    from pipeline.neural.bench import compare_loaders, loaders_table
+
+    result = compare_loaders(
+        folder, pub, resolution, batch_size, loader_workers, repeats, not no_hash_check, progress=say
+    )
+    _bench_output(result, loaders_table(result), as_json)
+
+
+@neural_bench.command("collate")
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option(
+    "--busy", type=int, default=2, show_default=True, help="Spinning processes of the loaded passes, 0 to 64."
+)
+@click.option("--repeats", type=int, default=5, show_default=True, help="Rounds of passes; medians count.")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per batch.")
+@click.option("--loader-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
+@click.option("--resolution", type=int, default=None, help="Network resolution in pixels [default: the dataset's].")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_collate_cmd(dataset, busy, repeats, batch_size, loader_workers, resolution, as_json):
+    """The loader's samples/s with torch's default collation and with the project's, on the
+    machine as it is and with --busy spinning processes beside it.
+
+    \b
+    Example:
+      shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
+    """
+    _neural()
+    from pipeline.neural.bench import collation_table, compare_collation
+
+    result = compare_collation(dataset, busy, repeats, batch_size, loader_workers, resolution, progress=say)
+    _bench_output(result, collation_table(result), as_json)
+
+
+@neural_bench.command("denoise")
+@click.argument("dataset", metavar="DATASET", type=click.Path())
+@click.option("--limit", type=int, default=12, show_default=True, help="Samples compared, spread over the dataset.")
+@click.option("--spp", default="1,4,16", show_default=True, metavar="N,N,...", help="Path-tracing rates denoised.")
+@click.option("--reference-spp", type=int, default=256, show_default=True, help="Samples per pixel of the reference.")
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_denoise_cmd(dataset, limit, spp, reference_spp, as_json):
+    """OIDN fed each choice of auxiliary buffers, against fresh high-spp renders of the same
+    samples (the dataset must store texture maps).
+
+    \b
+    Example:
+      shaderball neural-bench denoise demo-out/smoke --limit 1 --spp 1 --reference-spp 4
+    """
+    _neural()
+    from pipeline.neural.bench import compare_denoisers, denoise_table
+
+    result = compare_denoisers(dataset, limit, parse_int_list("--spp", spp, SPP_RANGE), reference_spp, progress=say)
+    _bench_output(result, denoise_table(result), as_json)
+
+
+@neural_bench.command("train-options")
+@click.option("--resolution", type=int, default=64, show_default=True, help="Network resolution in pixels.")
+@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per step.")
+@click.option("--loss", default="l1+vgg", show_default=True, type=click.Choice(LOSS_CHOICES), help="Training loss.")
+@click.option("--repeats", type=int, default=5, show_default=True, help="Rounds of timed steps; medians count.")
+@click.option("--steps", type=int, default=3, show_default=True, help="Steps timed per variant and round.")
+@click.option(
+    "--threads", type=int, default=0, show_default=True, help="The baseline's torch threads (0: torch's default)."
+)
+@click.option(
+    "--variants",
+    default=None,
+    metavar="NAME,NAME,...",
+    help="Speed options compared, comma-separated, the first the baseline: "
+    + "; ".join(TRAINING_VARIANTS)
+    + " [default: all].",
+)
+@json_option("Print every figure as JSON on stdout instead of the table.")
+@_friendly_errors
+def neural_bench_train_options_cmd(resolution, batch_size, loss, repeats, steps, threads, variants, as_json):
+    """Training samples/s of each speed option (random inputs, a fresh network each), variants
+    alternated; a randomly initialised VGG16 stands in for ImageNet weights.
+
+    \b
+    Example:
+      shaderball neural-bench train-options --resolution 32 --loss l1 --repeats 1 --steps 1 --variants baseline,--channels-last
+    """
+    _neural()
+    from pipeline.neural.bench import compare_training, training_table
+    from pipeline.neural.train import TrainConfig
+
+    config = TrainConfig(
+        dataset="",
+        out="",
+        batch_size=batch_size,
+        loss=loss,
+        device="cpu",
+        threads=threads,
+        precision="fp32",
+        channels_last=False,
+    )
+    names = None if variants is None else [name.strip() for name in variants.split(",")]
+    result = compare_training(config, resolution, names, repeats, steps, progress=say)
+    _bench_output(result, training_table(result), as_json)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ Two models share these formulas (``model=``, :data:`MODELS`):
   ``D = alpha^2 / (pi max(0.001, (n.h)^2 (alpha^2 - 1) + 1)^2)`` and
   ``G1(x) = 1 / max(0.001, x (1 - k) + k)``. The first acts for every
   ``r < 0.001^(1/4) = 0.178`` and caps the peak of D, which then no longer
-  integrates to 1 (``python -m pipeline.figures.albedo_table`` measures the
+  integrates to 1 (``shaderball figures albedo-table`` measures the
   loss); the second only for ``r < 0.045`` at cosines below ~1e-3.
 
 Forms and floors that differ from the text above (each one is an exact

@@ -1,7 +1,8 @@
-"""Try every bad input in the table of docs/bad-inputs.md; print the table (markdown).
+"""Try every bad input of docs/results/bad-inputs.md; print its table (markdown).
 
-    .venv/bin/python scripts/bad_inputs.py > /tmp/table.md
-    .venv/bin/python scripts/bad_inputs.py --write     # replace the table in docs/bad-inputs.md
+    .venv/bin/python scripts/bad_inputs.py             # print the table
+    .venv/bin/python scripts/bad_inputs.py --write     # write docs/results/bad-inputs.md (headed by
+                                                       # this command, the machine and the date)
                                                        # and the count of cases in README.md
 
 Each case runs the real CLI (click's CliRunner, in this process) in a fresh folder and
@@ -20,6 +21,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
+from scripts.results_page import head  # noqa: E402
+
 SMOKE = (REPO / "manifests" / "smoke.toml").read_text()
 
 
@@ -271,12 +274,23 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_page(new_table: str, page: Path = REPO / "docs" / "bad-inputs.md") -> None:
-    """Replace the page's table (its header line to the first line that is not a row)."""
-    lines = page.read_text().splitlines(keepends=True)
-    start = next(i for i, line in enumerate(lines) if line.startswith("| # | bad input |"))
-    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
-    page.write_text("".join(lines[:start]) + new_table + "".join(lines[end:]))
+#: The generated page; docs/bad-inputs.md says what the exit codes mean and links here.
+PAGE = REPO / "docs" / "results" / "bad-inputs.md"
+
+
+def page_text(new_table: str, count: int) -> str:
+    return head("Bad inputs run through the CLI", ".venv/bin/python scripts/bad_inputs.py --write") + (
+        f"{count} cases, each a real run of the CLI (click's CliRunner) in a fresh folder (`DIR` below); spec cases "
+        "build `manifests/smoke.toml` with one line changed. `tests/test_bad_inputs.py` runs every case again, "
+        "asserts exit code 2, an error message and that nothing in the case's folder was created or changed, "
+        "and that this table is the one the script prints. What the exit codes mean: "
+        "[docs/bad-inputs.md](../bad-inputs.md).\n\n" + new_table
+    )
+
+
+def write_page(new_table: str, count: int, page: Path = PAGE) -> None:
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text(page_text(new_table, count))
 
 
 #: README.md's words for the count of rows in the table.
@@ -292,7 +306,7 @@ if __name__ == "__main__":
     rows = run_all()
     result = table(rows)
     if "--write" in sys.argv[1:]:
-        write_page(result)
+        write_page(result, len(rows))
         write_readme_count(len(rows))
     else:
         print(result, end="")

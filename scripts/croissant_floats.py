@@ -4,7 +4,7 @@
     python scripts/croissant_floats.py PUB
 
 Prints one JSON object: cells compared, cells that differ, the largest relative difference
-and where. docs/publish.md quotes its output for the smoke publication.
+and where (docs/publish.md, "Croissant").
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Which EXR readers installed here read a dataset's files: a render, a material's screen-space
 maps and its texture maps. One line per (reader, file): OK with what it returned, or FAILS
-with the reader's own message. docs/publish.md quotes the output.
+with the reader's own message (docs/publish.md, "EXR readers").
 
     python scripts/exr_readers.py DIR
 

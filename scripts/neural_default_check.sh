@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 22's check of the defaults: `manifests/smoke.toml` with 64 materials (128 renders at
+# A check of train's defaults: `manifests/smoke.toml` with 64 materials (128 renders at
 # 64x64, 16 spp), `shaderball train` with every default but --loss l1 (no VGG16 ImageNet
 # weights here) and --threads 1 (speed only: two torch threads beside other work collapse;
 # docs/neural.md, "Speed on a CPU"), then the last epoch's held-out PSNR against the training

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CPU-scale reproduction of the paper's experiment (issue 22; docs/neural.md, "A CPU-scale
+# The CPU-scale reproduction of the paper's experiment (docs/neural.md, "A CPU-scale
 # reproduction"): builds manifests/mini.toml, trains the recipe on three training-set sizes
 # (nested subsets of the training materials, one held-out set) with two seeds, evaluates
 # every run with a report, and writes the data-size sweep. Re-running continues: builds and
@@ -15,7 +15,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-repro}
 SB=${SHADERBALL:-.venv/bin/shaderball}
-PY=${PYTHON:-.venv/bin/python}
 mkdir -p "$OUT"
 # The recipe (docs/neural.md): the paper's L1 term (no VGG16 ImageNet weights here), Adam at
 # the released code's 1e-3 with a cosine decay, half the paper's channels, batch 6.
@@ -71,5 +70,5 @@ for size in "${SIZES[@]}"; do
   done
 done
 log "sweep"
-"$PY" -m pipeline.neural.sweep "${reports[@]}" --out "$OUT/sweep"
+"$SB" sweep "${reports[@]}" --out "$OUT/sweep"
 log "done"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Copies what scripts/neural_repro.sh and scripts/neural_default_check.sh wrote into
-# docs/neural-mini/ (the reports docs/neural.md quotes; tests/test_neural_docs.py checks that
+# docs/results/neural-mini/ (the reports docs/neural.md quotes; tests/test_neural_docs.py checks that
 # every table row it quotes is in them).
 #
 #   scripts/neural_repro_docs.sh [OUT] [DEFAULT_OUT]   (defaults: /tmp/neural-repro, /tmp/neural-default-check)
@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-repro}
 DEFAULT_OUT=${2:-/tmp/neural-default-check}
-DOCS=docs/neural-mini
+DOCS=docs/results/neural-mini
 rm -rf "$DOCS"
 mkdir -p "$DOCS/sweep"
 cp "$OUT/sweep/sweep.md" "$OUT/sweep/data-size.png" "$DOCS/sweep/"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The README's test command on a fresh clone, with two CPU-bound processes beside it (issue 20):
+# The README's test command on a fresh clone, with two CPU-bound processes beside it:
 # clones HEAD of this checkout into a scratch folder, starts two busy loops, runs .ci/run there
 # and prints its exit code, wall time and pytest's summary line; the whole log goes to LOG.
 #   scripts/suite_under_load.sh [LOG]      (default: suite-under-load.log)

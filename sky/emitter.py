@@ -23,7 +23,7 @@ import numpy as np
 from sky.errors import SkyError
 
 SUN_MODES = ("split", "sunsky")
-#: Chosen by measurement (docs/sky.md, `python -m pipeline.bench.sun_benchmark`).
+#: Chosen by measurement (docs/sky.md, `scripts/sun_benchmark.py`).
 DEFAULT_SUN = "split"
 #: Scene entry names of the emitters.
 SKY_KEY, SUN_KEY = "sky", "sun"
@@ -31,7 +31,7 @@ SKY_KEY, SUN_KEY = "sky", "sun"
 #: factor times the ratio of the sun's irradiance to the sky's radiant power (both
 #: luminance; a sphere's mean irradiance is a quarter of each). More than 1
 #: because BSDF sampling with MIS already covers the sky but can never hit a delta
-#: sun. Measured in docs/sky.md (`python -m pipeline.bench.sun_benchmark`).
+#: sun. Measured in docs/sky.md (`scripts/sun_benchmark.py`).
 SPLIT_SUN_WEIGHT_FACTOR = 3.0
 #: The ratio is raised to this power (1: proportional; 2 was tried and lost at low suns).
 SPLIT_SUN_WEIGHT_EXPONENT = 1.0

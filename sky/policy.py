@@ -28,7 +28,7 @@ from sky.lighting import TURBIDITY_RANGE, Light
 
 POLICY_NAME = "elevation-floor"
 POLICY_VERSION = 1
-#: What FLOOR_TABLE was measured on; regenerate with `python -m pipeline.bench.sky_floor --table`.
+#: What FLOOR_TABLE was measured on; regenerate with `scripts/sky_floor.py --table`.
 FLOOR_MEASURED_ON = "mitsuba 3.9.1, llvm_ad_rgb, sunsky albedo 0.3, sun_aperture 0.5358, complex_sun false"
 
 # fmt: off

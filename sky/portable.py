@@ -4,7 +4,7 @@ A plan must be a function of the spec alone (docs/spec.md, "The same plan on eve
 machine"). numpy's ``np.arcsin`` and libm's ``math.sin`` are not: their last bits depend
 on the SIMD kernel numpy dispatches to (AVX-512 builds use other kernels than AVX2 ones)
 and on libm's FMA variants, and a different last bit of one planned elevation changes
-the plan digest (issue 20: measured on an AMD AVX2 machine against an Intel AVX-512 one).
+the plan digest (measured on an AMD AVX2 machine against an Intel AVX-512 one).
 
 The functions here are built from the four operations and the square root only, each a
 separate numpy ufunc (or Python float operation) in a fixed order. IEEE 754 rounds every

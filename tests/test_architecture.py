@@ -241,7 +241,7 @@ def test_every_pipeline_sub_package_says_what_it_owns():
 )
 def test_readers_load_neither_training_code_nor_the_build(module, never):
     """Reading a publication, tone-mapping an image or validating a folder loads no torch, no
-    training stage, no build and no renderer (issue 21: readers low in the layers)."""
+    training stage, no build and no renderer (readers low in the layers)."""
     code = f"import sys, {module}\nprint(' '.join(sorted(m for m in sys.modules if m.startswith({never!r}))))\n"
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"importing {module} loaded: {out.stdout}"

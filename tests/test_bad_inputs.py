@@ -1,5 +1,5 @@
-"""Every bad input of docs/bad-inputs.md: non-zero exit, a message naming the input, nothing written;
-and the table in the docs is the one the script prints today."""
+"""Every bad input of docs/results/bad-inputs.md: non-zero exit, a message naming the input, nothing
+written; and the table of that generated page is the one the script prints today."""
 
 import importlib.util
 from pathlib import Path
@@ -22,9 +22,10 @@ def test_every_bad_input_is_refused_cleanly():
         assert row["exit_code"] == 2, row
         assert not row["wrote"], row
         assert "UNCAUGHT" not in row["message"] and ("error" in row["message"].lower()), row
-        if "--json" in row["argv"]:  # one JSON document on stdout (issue 24)
+        if "--json" in row["argv"]:  # one JSON document on stdout
             assert row["json"]["ok"] is False and row["json"]["exit"] == 2 and row["json"]["error"], row
-    page = (REPO / "docs" / "bad-inputs.md").read_text()
-    assert script.table(rows) in page, "docs/bad-inputs.md is stale: re-run scripts/bad_inputs.py"
+    page = script.PAGE.read_text()
+    assert script.table(rows) in page, "docs/results/bad-inputs.md is stale: re-run scripts/bad_inputs.py --write"
+    assert page.startswith("# Bad inputs run through the CLI\n\nWritten by `.venv/bin/python scripts/bad_inputs.py")
     readme = (REPO / "README.md").read_text()
     assert f"{len(rows)} bad inputs run through the CLI" in readme, "README.md's count is stale: --write it"

@@ -218,7 +218,7 @@ def test_power_of_two_passes():
 
 
 def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts(mi):
-    """Evidence for the determinism proposal of docs/build.md: a 150 spp render in one pass
+    """Evidence for docs/build.md, "Determinism": a 150 spp render in one pass
     is not bit-reproducible with 2 render threads (a pixel's samples straddle drjit's work
     blocks), the same samples in power-of-two passes are, whatever the thread count."""
     import drjit as dr

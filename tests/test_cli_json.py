@@ -1,4 +1,4 @@
-"""`--json` means exactly one JSON document on stdout, whatever happens (issue 24, item 5):
+"""`--json` means exactly one JSON document on stdout, whatever happens:
 the command's result, or ``{"ok": false, "exit": N, "error": "..."}`` for exits 1, 2, 3, 4,
 130 and an internal error (70); messages and library output go to stderr.
 

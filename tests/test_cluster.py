@@ -211,12 +211,18 @@ def test_recycled_workers_build_the_same_dataset(tmp_path, reference):
     crash.check_complete(out, reference)
 
 
-def test_memory_probe_reports_growth(capsys):
-    from pipeline.bench.memory_probe import main
-
-    assert main(["--memory-probe", "4", "--resolution", "16", "--spp", "1", "--every", "2"]) == 0
-    out = capsys.readouterr().out
-    assert "memory probe: 4 renders at 16x16" in out and "MiB per 100 renders" in out
+def test_memory_probe_reports_growth():
+    probe = [sys.executable, str(REPO / "scripts" / "memory_probe.py")]
+    done = subprocess.run(
+        [*probe, "--memory-probe", "4", "--resolution", "16", "--spp", "1", "--every", "2"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "memory probe: 4 renders at 16x16" in done.stdout and "MiB per 100 renders" in done.stdout
+    refused = subprocess.run([*probe, "--memory-probe", "1"], capture_output=True, text=True, timeout=600)
+    assert refused.returncode == 2 and "--memory-probe: 1 is not allowed" in refused.stderr
 
 
 def _logging_disabled_level() -> int:

@@ -1,5 +1,5 @@
 """A terminal's Ctrl-C reaches every local dask worker process, the ones a nanny starts again
-later included (issue 20: on a loaded machine a worker caught mid-import printed a
+later included (on a loaded machine a worker caught mid-import printed a
 KeyboardInterrupt traceback). Every spawned worker starts with SIGINT ignored; real
 processes, read from /proc."""
 

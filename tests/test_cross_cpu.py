@@ -1,6 +1,6 @@
-"""What another CPU changes, measured under emulated CPUs (issue 20; docs/build.md).
+"""What another CPU changes, measured under emulated CPUs (docs/build.md).
 
-Runs ``python -m pipeline.bench.cross_cpu`` on a 4-render cut of the smoke spec: four real
+Runs ``scripts/cross_cpu.py`` on a 4-render cut of the smoke spec: four real
 builds, each in a fresh process with fresh kernel and geometry caches. What must hold on any
 machine: the plan is the same under every emulation (plan format 2), and a render made for
 another CPU differs from this one's far inside its own noise. Which files stay byte-identical
@@ -24,7 +24,7 @@ def test_builds_for_another_cpu_have_the_same_plan_and_renders_within_their_nois
     spec.write_text(SMOKE.read_text().replace("materials = 8 ", "materials = 2 "))
     out = tmp_path / "cross"
     run = subprocess.run(
-        [sys.executable, "-m", "pipeline.bench.cross_cpu", str(spec), "--out", str(out), "--json"],
+        [sys.executable, str(REPO / "scripts" / "cross_cpu.py"), str(spec), "--out", str(out), "--json"],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -33,7 +33,10 @@ def test_builds_for_another_cpu_have_the_same_plan_and_renders_within_their_nois
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
     assert result == json.loads((out / "report.json").read_text())
-    assert (out / "report.md").read_text().startswith("# What another CPU changes")
+    report = (out / "report.md").read_text()
+    assert report.startswith("# What another CPU changes")
+    assert report.splitlines()[2] == f"Written by `{result['command']}` on {result['date']}."  # and the machine below
+    assert result["date"].startswith("20") and result["date"].endswith(" UTC")
     builds = result["builds"]
     assert {"native", "numpy-avx2"} <= set(builds)
     for name, row in builds.items():

@@ -5,7 +5,7 @@ bit-identical where the arithmetic is the same, equal to float32 rounding where 
 only in rounding, and within noise (a Z-test on the moment integrator's luminance
 variance, pipeline.bench.build_bench.compare_renders) otherwise. The specular lobe of a zero specular
 albedo is the exception the build keeps on purpose: its test shows the image changes.
-Render-time savings are measured by `python -m pipeline.bench.build_bench --effects` (docs/build.md).
+Render-time savings are measured by `shaderball bench --effects` (docs/build.md).
 """
 
 from __future__ import annotations

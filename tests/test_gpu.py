@@ -144,7 +144,7 @@ def _render_layers(root: Path) -> dict[str, np.ndarray]:
 
 def test_cuda_determinism_measured(cuda, tmp_path, record_property):
     """Builds the smoke spec twice on cuda and reports how many renders have equal bytes and
-    the largest relative difference (docs/build.md quotes the figures). The guarantee
+    the largest relative difference (`pytest -s` shows them). The guarantee
     recorded is within-noise, so only that is asserted: every pair agrees within noise."""
     from pipeline.bench.compare import Z_LIMIT
 

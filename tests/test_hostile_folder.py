@@ -1,4 +1,4 @@
-"""A dataset folder is untrusted input (issue 15): paths named in records and markers, symbolic
+"""A dataset folder is untrusted input: paths named in records and markers, symbolic
 links, FIFOs and malformed JSON. Every test spoils its own copy of the smoke dataset, runs the
 commands that read folders (build's resume, validate, --repair, info, preview, the training
 loader) and asserts the outcome: a clean message or problem, no traceback, nothing outside the
@@ -72,7 +72,7 @@ def outside(tmp_path) -> Path:
 
 @pytest.mark.slow
 def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_again(tmp_path, reference, outside):
-    """Issue 15: a record's ../../outside.txt was opened by build's resume and written into
+    """A record's ../../outside.txt is neither opened by build's resume nor written into
     COMPLETE.json and the manifest."""
     ds = copy_dataset(reference, tmp_path / "ds")
     secret = outside / "secret.txt"
@@ -100,7 +100,7 @@ def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_ag
 
 
 def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_says_so(tmp_path, reference, outside):
-    """Issue 15: preview displayed an outside file named in a marker."""
+    """preview never displays an outside file named in a marker."""
     ds = copy_dataset(reference, tmp_path / "ds")
     picture = outside / "picture.exr"
     shutil.copy(ds / "shards" / "s00001" / "m000002_l0.render.exr", picture)
@@ -192,7 +192,7 @@ def test_a_malformed_record_file_is_rendered_again(tmp_path, reference, content)
 
 
 def test_symlinks_inside_the_folder_are_reported_and_never_followed(tmp_path, reference, outside):
-    """Issue 15: a symlink to a non-empty outside directory left validate "valid"."""
+    """A symlink to a non-empty outside directory does not leave validate "valid"."""
     ds = copy_dataset(reference, tmp_path / "ds")
     (ds / "shards" / "s00000" / "evil").symlink_to(outside)
     (ds / "shards" / "s00001" / "notes.txt").symlink_to(outside / "secret.txt")
@@ -252,7 +252,7 @@ def test_a_shard_folder_that_is_a_symlink_is_not_written_through(tmp_path, refer
 
 @pytest.mark.parametrize("kind", ["dev-zero", "fifo", "huge"])
 def test_a_manifest_that_is_not_a_regular_file_neither_hangs_nor_exhausts_memory(tmp_path, reference, kind):
-    """Issue 15: manifest.jsonl -> /dev/zero ended in MemoryError, a FIFO hung validate and info."""
+    """manifest.jsonl -> /dev/zero must not end in MemoryError, nor a FIFO hang validate and info."""
     ds = copy_dataset(reference, tmp_path / "ds")
     manifest = ds / "manifest.jsonl"
     manifest.unlink()

@@ -1,4 +1,4 @@
-"""Specs, filesystem errors, machine-readable output and Ctrl-C (issue 15), with real
+"""Specs, filesystem errors, machine-readable output and Ctrl-C, with real
 processes: a spec read once from a pipe, the plan made lazily (and still the same plan),
 a folder made read-only with chattr +i, a full disk (ulimit -f: EFBIG), corrupt EXRs of every
 kind under `validate --json`, and SIGINT of a build. Each ends with a one-line message, its
@@ -98,7 +98,7 @@ def test_the_duplicate_check_of_a_list_field_is_linear():
 
 @pytest.mark.slow
 def test_a_spec_from_a_pipe_or_stdin_is_read_once(tmp_path, reference):
-    """Issue 15: `<(cat spec.toml)` and /dev/stdin gave "[dataset]: missing" (read twice)."""
+    """`<(cat spec.toml)` and /dev/stdin are read once (read twice, the second read gives "[dataset]: missing")."""
     ds = copy_dataset(reference, tmp_path / "ds")
     for how in (f"build <(cat {SMOKE}) --out {ds} --workers 0", f"build /dev/stdin --out {ds} --workers 0 < {SMOKE}"):
         done = run_shell(f"{sys.executable} -m cli {how}")
@@ -210,8 +210,8 @@ KINDS = ("flipped byte in the pixel data", "zeroed pixel chunks", "truncated", "
 
 
 def test_validate_json_prints_json_alone_whatever_the_exr_library_prints(tmp_path, reference):
-    """Issue 15: OpenEXR printed `Warning: Exception raised reading pixel data ...` on stdout
-    before the report. Corrupt maps, texture and render files, each corrupt another way, in
+    """OpenEXR prints `Warning: Exception raised reading pixel data ...` on stdout: never before
+    the report. Corrupt maps, texture and render files, each corrupt another way, in
     one dataset (their records agree with them, so each one is decoded)."""
     ds = copy_dataset(reference, tmp_path / "ds")
     files = sorted(p.relative_to(ds).as_posix() for p in ds.glob("shards/*/*.exr"))
@@ -261,7 +261,7 @@ def _interrupt(command: list[str], ready, delay_s: float) -> subprocess.Complete
 
 @contextlib.contextmanager
 def busy_processes(n: int):
-    """``n`` CPU-bound processes beside the test: a loaded machine (issue 20)."""
+    """``n`` CPU-bound processes beside the test: a loaded machine."""
     procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
     try:
         yield

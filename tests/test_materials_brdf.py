@@ -232,7 +232,7 @@ def _a1_normal_incidence(r, model):
     [(0.05, 1.000, 0.012), (0.10, 1.00, 0.19), (0.15, 1.00, 0.76), (0.178, None, None), (0.3, None, None)],
 )
 def test_floored_model_loses_the_light_of_smooth_surfaces(r, default, floored):
-    """Issue 17's numbers: A1 (F = 1) at normal incidence, 0.012 / 0.19 / 0.76 against 1, equal from 0.178."""
+    """The docs' numbers: A1 (F = 1) at normal incidence, 0.012 / 0.19 / 0.76 against 1, equal from 0.178."""
     exact = {}
     for model, documented in (("shaderball", default), ("deschaintre2018", floored)):
         exact[model] = _a1_normal_incidence(r, model)

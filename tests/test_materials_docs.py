@@ -1,4 +1,5 @@
-"""The figures in docs/materials.md are what their generators produce now."""
+"""The figures docs/materials.md shows are what their generators produce now: the albedo tables of
+its results page (docs/results/albedo.md) and its contact sheet."""
 
 from pathlib import Path
 
@@ -10,6 +11,7 @@ from pipeline.figures import albedo_table, contact_sheet
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "materials.md"
+ALBEDO_PAGE = ROOT / "docs" / "results" / "albedo.md"
 SHEET = ROOT / "docs" / "img" / "materials_contact_sheet.png"
 SHEET_ARGS = dict(examples=4, resolution=128)  # what docs/materials.md says to run
 
@@ -17,12 +19,14 @@ SHEET_ARGS = dict(examples=4, resolution=128)  # what docs/materials.md says to 
 @pytest.mark.slow  # ~5 s warm, ~9 s on a loaded 2-core machine (quadrature of 456 albedos)
 def test_albedo_tables_in_docs_are_current():
     tables = albedo_table.markdown()
-    doc = DOC.read_text()
-    missing = [line for line in tables.splitlines() if line.strip() and line not in doc]
+    page = ALBEDO_PAGE.read_text()
+    assert page.startswith("# Directional albedo of the material model\n\nWritten by `")
+    missing = [line for line in tables.splitlines() if line.strip() and line not in page]
     assert not missing, (
-        f"{DOC} is out of date; re-run `python -m pipeline.figures.albedo_table` and paste its output. "
+        f"{ALBEDO_PAGE} is out of date; re-run `.venv/bin/python scripts/albedo_results.py --write`. "
         f"First missing line: {missing[0]!r}"
     )
+    assert "results/albedo.md" in DOC.read_text(), "docs/materials.md no longer links its albedo tables"
 
 
 def test_albedo_lut_numbers():
@@ -36,7 +40,7 @@ def test_albedo_lut_numbers():
 
 
 def test_model_comparison_numbers():
-    # Issue 17: A1 at normal incidence 0.012 / 0.19 / 0.76 with Deschaintre et al.'s floors, ~1 without.
+    # A1 at normal incidence 0.012 / 0.19 / 0.76 with Deschaintre et al.'s floors, ~1 without.
     a1 = albedo_table.model_comparison(roughness=(0.05, 0.1, 0.15, 0.2))
     np.testing.assert_allclose(a1["shaderball"], 1.0, atol=3e-3)
     np.testing.assert_allclose(a1["deschaintre2018"][:3], [0.012, 0.190, 0.755], atol=2e-3)
@@ -51,6 +55,6 @@ def test_contact_sheet_is_reproducible_and_current():
     current = contact_sheet.contact_sheet(**SHEET_ARGS)
     stored = np.asarray(Image.open(SHEET).convert("RGB"))
     assert np.array_equal(current, stored), (
-        f"{SHEET} is out of date; re-run `python -m pipeline.figures.contact_sheet --out {SHEET.relative_to(ROOT)} "
+        f"{SHEET} is out of date; re-run `shaderball figures contact-sheet --out {SHEET.relative_to(ROOT)} "
         "--examples 4`"
     )

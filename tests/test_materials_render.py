@@ -108,7 +108,7 @@ def test_white_furnace_render_matches_reference_albedo(mi, d, s, r, model):
 @pytest.mark.parametrize("r, kept", [(0.05, 0.012), (0.1, 0.190), (0.15, 0.755)])
 def test_floored_model_fails_the_white_furnace_by_design(mi, record_property, r, kept):
     """A mirror-like metal (d = 0, s = 1) in a white furnace: the default model keeps ~all the light
-    at normal incidence, deschaintre2018 keeps only A1 of the docs' table (issue 17: 0.012, 0.19,
+    at normal incidence, deschaintre2018 keeps only A1 of the docs' table (0.012, 0.19,
     0.76 at r = 0.05, 0.1, 0.15), by design: its floors cap GGX's peak."""
     centre = np.hypot(*np.meshgrid(np.arange(RES) + 0.5 - RES / 2, np.arange(RES) + 0.5 - RES / 2)) < 0.2 * RES / 2
     means = {}

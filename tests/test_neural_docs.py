@@ -1,5 +1,5 @@
 """docs/neural.md's CPU-scale reproduction quotes the reports its commands wrote: every table
-row of that section is a row of a file in docs/neural-mini/ (copied by
+row of that section is a row of a file in docs/results/neural-mini/ (copied by
 scripts/neural_repro_docs.sh, never retyped), and every picture it shows is shipped."""
 
 import glob
@@ -8,7 +8,7 @@ import re
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOC = os.path.join(REPO, "docs", "neural.md")
-SHIPPED = os.path.join(REPO, "docs", "neural-mini")
+SHIPPED = os.path.join(REPO, "docs", "results", "neural-mini")
 SECTION = "## A CPU-scale reproduction"
 
 
@@ -32,7 +32,7 @@ def test_every_quoted_table_row_is_in_a_shipped_report():
     rows = [line.rstrip() for line in _section().splitlines() if line.startswith("| ") and re.search(r"\d", line)]
     assert len(rows) >= 10
     missing = [row for row in rows if row not in shipped]
-    assert not missing, "rows not in docs/neural-mini/ (rerun scripts/neural_repro_docs.sh):\n" + "\n".join(missing)
+    assert not missing, "rows not in docs/results/neural-mini/ (scripts/neural_repro_docs.sh):\n" + "\n".join(missing)
 
 
 def test_every_picture_and_script_it_names_exists():
@@ -44,3 +44,19 @@ def test_every_picture_and_script_it_names_exists():
     for script in set(re.findall(r"scripts/[\w.]+\.(?:sh|py)", section)):
         path = os.path.join(REPO, script)
         assert os.path.isfile(path) and os.access(path, os.X_OK), script
+
+
+def test_the_equal_time_description_is_the_codes():
+    """docs/neural.md says how `evaluate` measures equal time with the constants the code uses:
+    how many CPU times it takes the least of, and the two spp it probes path tracing at."""
+    from pipeline.neural.evaluate import EQUAL_TIME_PROBE_SPP, EQUAL_TIME_REPEATS
+
+    text = " ".join(open(DOC, encoding="utf-8").read().split())  # prose wraps: single spaces
+    said = re.search(
+        r"the least of (\d+) CPU times of the network .*? path tracing at (\d+) spp and at (\d+) spp", text
+    )
+    assert said, "docs/neural.md no longer describes how equal time is measured"
+    repeats, lo, hi = (int(g) for g in said.groups())
+    assert repeats == EQUAL_TIME_REPEATS
+    assert (lo, hi) == tuple(EQUAL_TIME_PROBE_SPP)
+    assert "median of" not in text

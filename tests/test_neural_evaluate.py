@@ -1,4 +1,4 @@
-"""`shaderball evaluate` (issue 22): refusals that name what the user can do, the reference's
+"""`shaderball evaluate`: refusals that name what the user can do, the reference's
 spp, the equal-time and mean-image rows, intervals, relMSE of a saturated network."""
 
 import json
@@ -115,7 +115,7 @@ def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
     net = data["mean"]["network"]
     assert net["saturated"] == 1.0
     assert any(n.startswith("network: 100.0% of its output values are saturated") for n in data["notes"])
-    # uncapped, an output of 1 inverts to 2.5e5 and relMSE is ~1e12 (issue 22); capped, at most
+    # uncapped, an output of 1 inverts to 2.5e5 and relMSE is ~1e12; capped, at most
     # (the cap's radiance)^2 / 0.01 whatever the reference
     cap = float(inverse_tonemap(np.float32(NETWORK_Y_CAP), 4.0))
     assert net["relmse"] <= cap**2 / 0.01 < 1e6
@@ -157,6 +157,11 @@ def test_evaluate_report_has_classes_with_intervals_a_learning_curve_and_a_grid(
     assert curve[0].split(",") == list(runfiles.CSV_COLUMNS) and len(curve) == 2
     text = (report_dir / "report.md").read_text()
     assert "## Per material class" in text and "![grid](grid.png)" in text
+    # headed by the command that wrote it (the same options again), the machine and the date
+    head = text.splitlines()[2]
+    command = f"shaderball evaluate {trained} {reference} --split all --out {report_dir} --spp 1 --limit 8 --report"
+    assert head.startswith(f"Written by `{command}` on 20") and head.endswith(" UTC.")
+    assert text.splitlines()[4].startswith("Machine: ") and "torch device cpu" in text.splitlines()[4]
     assert "path tracing, equal CPU time" in text and "+ OIDN (its time added)" in text
     # the table shows the CPU times the equal-time row matched, as results.json has them
     equal = data["equal_time"]
@@ -184,7 +189,7 @@ def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
     # 0.1 s fixed + 0.01 s per spp: the network's 0.3 s buys 20 spp; less than 1 spp's time: 1
     assert equal_time_spp(0.3, {1: 0.11, 64: 0.74}) == 20
     assert equal_time_spp(0.01, {1: 0.11, 64: 0.74}) == 1
-    # issue 22: measured beside other work, 64 spp took less CPU than 1 spp; the old fit gave 4096
+    # measured beside other work, 64 spp took less CPU than 1 spp; a fit through both would give 4096
     assert equal_time_spp(0.42, {1: 0.121, 64: 0.115}) == round(0.42 / (0.115 / 64))
     assert equal_time_spp(0.018, {1: 0.121, 64: 0.115}) == 1  # faster than either render
     assert equal_time_spp(1e9, {1: 0.11, 64: 0.74}) == 4096  # the ladder's top, no further

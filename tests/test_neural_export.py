@@ -1,4 +1,4 @@
-"""A trained network exported as TorchScript (issue 22) computes what the model computes,
+"""A trained network exported as TorchScript computes what the model computes,
 loaded by torch alone."""
 
 import json

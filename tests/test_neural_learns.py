@@ -1,4 +1,4 @@
-"""The network learns (issue 22, done-when): on a tiny dataset this test builds itself
+"""The network learns: on a tiny dataset this test builds itself
 (24 uniform materials x 2 lightings at 32x32, 4 spp), 16 epochs at the default lr (about
 40 s of CPU) end with a held-out PSNR above the training set's mean image's."""
 

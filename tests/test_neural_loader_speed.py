@@ -1,6 +1,6 @@
-"""The loader under load (issue 22, item 4): collation is numpy's, on the calling thread, with
+"""The loader under load: collation is numpy's, on the calling thread, with
 the values of torch's default; and the loader's rate with two busy processes beside it stays
-a fair share of its rate without them. The figures: ``python -m pipeline.neural.bench collate``
+a fair share of its rate without them. The figures: ``shaderball neural-bench collate``
 (docs/neural.md, "Speed on a CPU")."""
 
 import json
@@ -59,7 +59,7 @@ def test_worker_batches_equal_in_process_ones_and_lie_in_shared_memory(reference
 def test_the_loader_keeps_a_fair_share_with_two_busy_processes(reference):
     """Best of 3 passes each, alternated, with the intra-op threads at the core count: the loaded
     rate stays above a quarter of the unloaded one. A fair share of 2 cores against 2 spinners is
-    about 2/3; torch's collation fell to 1/15 (issue 22: 643 -> 42 samples/s)."""
+    about 2/3; torch's collation fell to 1/15 (643 -> 42 samples/s)."""
     before = torch.get_num_threads()
     torch.set_num_threads(os.cpu_count() or 1)
     try:

@@ -1,4 +1,4 @@
-"""Issue 22's options for a CPU-scale reproduction: --width, --split-seed, --train-materials,
+"""The options for a CPU-scale reproduction: --width, --split-seed, --train-materials,
 --schedule/--warmup-epochs, the training PSNR per epoch, and a run made before them that
 still resumes (its identity unchanged)."""
 
@@ -117,7 +117,7 @@ def test_seeds_share_one_held_out_set_with_a_split_seed(tmp_path):
 
 
 def test_a_run_made_before_these_options_keeps_its_identity():
-    """Issue 22's options join the identity only when not their defaults: an older run's
+    """These options join the identity only when not their defaults: an older run's
     config.json digest is unchanged, so it resumes."""
     identity = run_identity(TrainConfig(dataset="d", out="o"), {"x": 1}, 64, None)
     assert set(identity) == {*IDENTITY_FIELDS, "dataset", "vgg_sha256"}

@@ -1,4 +1,4 @@
-"""A run folder across commands (issue 22): fewer --epochs than done, the CSV log, the best
+"""A run folder across commands: fewer --epochs than done, the CSV log, the best
 checkpoint beside the last, the warnings of a run that does not learn."""
 
 import json

@@ -1,6 +1,6 @@
-"""train's speed options (issue 22, item 4): bf16 autocast still learns, channels-last
+"""train's speed options: bf16 autocast still learns, channels-last
 computes the same step, --threads holds for the call only, and what a CPU cannot do is refused.
-Their rates: ``python -m pipeline.neural.bench train-options`` (docs/neural.md, "Speed on a CPU")."""
+Their rates: ``shaderball neural-bench train-options`` (docs/neural.md, "Speed on a CPU")."""
 
 import pytest
 import torch

@@ -1,4 +1,4 @@
-"""`python -m pipeline.neural.sweep`: the data-size table from several runs' reports, paired
+"""`shaderball sweep`: the data-size table from several runs' reports, paired
 differences with the baselines, seeds pooled, and runs on other held-out sets refused."""
 
 import json
@@ -46,7 +46,8 @@ def _report(tmp_path, seed, renders, offset, materials=6, lights=2):
 def test_a_sweep_orders_runs_pairs_differences_and_pools_seeds(tmp_path):
     paths = [_report(tmp_path, s, n, off) for s in (1, 2) for n, off in ((100, 1.0), (400, 3.0))]
     out = tmp_path / "out"
-    assert sweep.main([*paths, "--out", str(out)]) == 0
+    summary, text = sweep.write_sweep(paths, str(out))
+    assert summary == json.loads((out / "sweep.json").read_text()) and text == (out / "sweep.md").read_text()
     data = json.loads((out / "sweep.json").read_text())
     assert [(r["train_renders"], r["seed"]) for r in data["runs"]] == [(100, 1), (100, 2), (400, 1), (400, 2)]
     for r in data["runs"]:  # the network is the mean image + offset on every sample: the difference is exact
@@ -59,7 +60,11 @@ def test_a_sweep_orders_runs_pairs_differences_and_pools_seeds(tmp_path):
     lo, hi = pooled[400]["network"]["ci95"]
     assert lo <= pooled[400]["network"]["psnr"] <= hi
     assert (out / "data-size.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "| 400 | 2 |" in (out / "sweep.md").read_text()
+    text = (out / "sweep.md").read_text()
+    assert "| 400 | 2 |" in text
+    # headed by the command that wrote it, the machine and the date
+    command = " ".join(["shaderball sweep", *paths, "--out", str(out)])
+    assert text.splitlines()[2].startswith(f"Written by `{command}` on 20") and "CPUs" in text.splitlines()[2]
 
 
 def test_reports_on_other_held_out_samples_are_refused(tmp_path):
@@ -67,5 +72,6 @@ def test_reports_on_other_held_out_samples_are_refused(tmp_path):
     b = _report(tmp_path, 2, 100, 1.0, materials=5)
     with pytest.raises(ShaderballError, match="different samples"):
         sweep.summarise([(p, sweep._load(p)) for p in (a, b)])
-    assert sweep.main([a, b, "--out", str(tmp_path / "o")]) == 2
+    with pytest.raises(ShaderballError, match="different samples"):
+        sweep.write_sweep([a, b], str(tmp_path / "o"))
     assert not (tmp_path / "o").exists()

@@ -1,4 +1,4 @@
-"""A plan is a function of the spec alone, on every machine (issue 20).
+"""A plan is a function of the spec alone, on every machine.
 
 numpy's vectorised transcendental functions give other last bits on other CPUs (AVX-512
 kernels vs AVX2 ones; measured here: ``np.arcsin`` of 100,000 values changes with

@@ -257,7 +257,7 @@ def test_resume_by_another_installation_is_refused(tmp_path, reference, change, 
     ],
 )
 def test_resume_of_a_dataset_of_another_plan_format_is_refused(tmp_path, reference, change, message):
-    """Plan format 1 planned CPU-dependent elevations: never mixed with format 2's (issue 20)."""
+    """Plan format 1 planned CPU-dependent elevations: never mixed with format 2's."""
     import json
 
     out = tmp_path / "ds"
@@ -294,7 +294,7 @@ def test_validate_names_another_plan_format_instead_of_every_record(tmp_path, re
 
 
 def test_a_dataset_started_on_another_cpu_resumes(tmp_path, reference):
-    """Renders of one plan from two CPU types are equally valid samples (issue 20): the
+    """Renders of one plan from two CPU types are equally valid samples: the
     machine is recorded (dataset.json, each marker), never a reason to refuse a resume."""
     import json
 

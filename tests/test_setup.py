@@ -1,4 +1,4 @@
-"""Set-up runs on a bare Python, and installs what the lock file pins (issue 20).
+"""Set-up runs on a bare Python, and installs what the lock file pins.
 
 ``make`` runs scripts/ensure_llvm.py, ensure_slurm.py and ensure_chromium.py with the machine's own
 python3 before the virtual environment exists: on a bare Debian that python3 has nothing

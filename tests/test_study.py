@@ -40,7 +40,7 @@ from pipeline.render.renderer import (
     scene_dict,
 )
 from pipeline.study.configs import study_configs
-from pipeline.study.run import StudyRequest, run_study
+from pipeline.study.run import StudyRequest, run_study, study_command
 from sky import Light
 from support import VARIANT
 
@@ -140,6 +140,12 @@ def test_tiny_study_writes_its_outputs_and_resumes(tiny_study):
         assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     report = open(os.path.join(out, "report.md"), encoding="utf-8").read()
     assert "paper recipe" in report and "independent/16" in report
+    # Headed by the command that wrote it (the same request again), the machine and the date.
+    head = report.splitlines()[2]
+    assert head.startswith(f"Written by `{study_command(req)}` on 20") and head.endswith(" UTC.")
+    assert study_command(req).startswith(f"shaderball study {req.spec} --out {req.out} --draws 3 ")
+    assert "--resolution 32" in head and "--configs ladder,denoise" in head and "--no-flip" in head
+    assert report.splitlines()[4].startswith("Machine: ") and "CPUs" in report.splitlines()[4]
     # A study killed after its references and one sample: the rest is measured, the rest kept.
     first = doc["meta"]["selection"][0]["sample_id"]
     os.remove(os.path.join(out, "rows", f"{first}.json"))

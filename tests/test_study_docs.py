@@ -1,12 +1,12 @@
 """docs/accuracy.md and the specs' comments quote the study's reports, never retype them.
 
 - Every block of docs/accuracy.md marked ``<!-- copied from REPORT -->`` ... ``<!-- end of
-  copy -->`` appears verbatim in that shipped report (docs/REPORT).
+  copy -->`` appears verbatim in that shipped report (docs/results/REPORT).
 - Every recipe claim (a line "CONFIG against RECIPE (..., 95% intervals): ...") in
   docs/accuracy.md and in manifests/*.toml is one of a shipped report's claim lines; a
   paper-fast spec ships only with its claim that it replaces the recipe (in the docs and
   its comments), and a withdrawn one's claim is quoted with the withdrawal.
-- The 400x400 single-seed check (docs/accuracy-report-400px-8.md): the docs' count of the
+- The 400x400 single-seed check (docs/results/accuracy-400px-8/report.md): the docs' count of the
   samples where multijitter/64 is worse than the paper recipe is that report's count.
 """
 
@@ -20,8 +20,9 @@ import tomllib
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOCS = os.path.join(REPO, "docs")
+RESULTS = os.path.join(DOCS, "results")
 ACCURACY = os.path.join(DOCS, "accuracy.md")
-COPY = re.compile(r"<!-- copied from ([\w.-]+) -->\n(.*?)\n<!-- end of copy -->", re.S)
+COPY = re.compile(r"<!-- copied from ([\w./-]+) -->\n(.*?)\n<!-- end of copy -->", re.S)
 CLAIM = re.compile(r"(?:A/A )?\S+ against independent/\d+ \(\d+x\d+, \d+ samples x \d+ seeds, 95% intervals\): .*")
 
 
@@ -32,7 +33,7 @@ def _read(path):
 
 def report_claims() -> set[str]:
     claims = set()
-    for path in glob.glob(os.path.join(DOCS, "accuracy-report-*.md")):
+    for path in glob.glob(os.path.join(RESULTS, "accuracy-*", "report.md")):
         text = _read(path)
         if "### Claims" in text:
             section = text.split("### Claims", 1)[1]
@@ -49,7 +50,7 @@ def test_copied_blocks_are_verbatim_copies_of_the_shipped_reports():
     blocks = COPY.findall(doc)
     assert blocks, "docs/accuracy.md quotes no report"
     for name, body in blocks:
-        assert body.strip() in _read(os.path.join(DOCS, name)), f"block copied from {name} differs from it"
+        assert body.strip() in _read(os.path.join(RESULTS, name)), f"block copied from {name} differs from it"
 
 
 #: The recipe paper-fast.toml had (multijitter, 64 spp): withdrawn by the 128-px decision.
@@ -92,7 +93,7 @@ def _class_table(text: str) -> dict[str, list[float]]:
 
 
 def test_the_400px_count_is_the_reports():
-    table = _class_table(_read(os.path.join(DOCS, "accuracy-report-400px-8.md")))
+    table = _class_table(_read(os.path.join(RESULTS, "accuracy-400px-8", "report.md")))
     fast, paper = table["multijitter/64"], table["independent/150"]
     worse = sum(f > p for f, p in zip(fast, paper))
     mean_fast, mean_paper = sum(fast) / len(fast), sum(paper) / len(paper)

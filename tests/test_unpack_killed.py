@@ -1,5 +1,5 @@
 """A `shaderball unpack` killed with SIGKILL at any point leaves a folder that every command
-sees as incomplete (issue 24, item 1): unpack writes what a build writes first (spec.toml,
+sees as incomplete: unpack writes what a build writes first (spec.toml,
 dataset.json), then the data files (a sample's record after its render), then the shard
 markers, and manifest.jsonl last.
 

@@ -1,4 +1,4 @@
-"""One writer per dataset folder (pipeline.store.lock; issue 15): a second writer is refused
+"""One writer per dataset folder (pipeline.store.lock): a second writer is refused
 naming the holder, readers run beside a writer, and a writer killed with kill -9 never
 blocks the next one. Every case runs real processes."""
 
@@ -191,7 +191,7 @@ def _spec_with_seed(tmp_path: Path, seed: int) -> Path:
 
 @pytest.mark.slow
 def test_two_builds_of_different_specs_on_one_new_folder_one_is_refused(tmp_path, reference):
-    """Issue 15's first data loss: both builds saw a new folder and mixed two datasets."""
+    """Without the lock both builds would see a new folder and mix two datasets."""
     from conftest import crash_module
 
     out = tmp_path / "mix"
@@ -212,7 +212,7 @@ def test_two_builds_of_different_specs_on_one_new_folder_one_is_refused(tmp_path
 
 @pytest.mark.slow
 def test_repair_and_a_second_build_during_a_build_are_refused_and_readers_run_beside_it(tmp_path):
-    """Issue 15's second data loss (repair deleting a live build's files), deterministically:
+    """Without the lock repair would delete a live build's files; deterministically:
     the writers start once the build holds the folder."""
     out = tmp_path / "ds"
     build = start(cli("build", SMOKE, "--out", out, "--workers", 0))

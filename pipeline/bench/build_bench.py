@@ -1,6 +1,6 @@
 """The build benchmark: a build's overhead over bare Mitsuba renders of the same samples.
 
-``shaderball bench SPEC`` (or ``python -m pipeline.bench.build_bench SPEC``)
+``shaderball bench SPEC``
     Builds SPEC (optionally cut to about ``--samples`` renders, at another
     ``--resolution`` / ``--spp`` / ``--shard-size``) into a fresh folder, then renders the
     same samples with bare ``mi.render`` calls: the same scene dicts
@@ -25,13 +25,11 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
 import os
 import shutil
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -43,7 +41,7 @@ from pipeline.bench.effects import run_effects_bench
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import MAX_MATERIALS, spec_to_toml
-from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
@@ -710,25 +708,6 @@ def run_build_bench(
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-# --------------------------------------------------------------------------- python -m pipeline.bench.build_bench
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m pipeline.bench.build_bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("spec", nargs="?", help="spec file to build (not needed with --effects)")
-    p.add_argument("--samples", type=int, help="cut the spec to about this many renders (whole materials)")
-    p.add_argument("--resolution", type=int, help="override render.resolution (effects: default 128)")
-    p.add_argument("--spp", type=int, help="override render.spp (effects: default 64)")
-    p.add_argument("--workers", type=int, help="as `shaderball build --workers` (default: the build's)")
-    p.add_argument("--shard-size", type=int, help="override dataset.shard_size (materials per shard)")
-    p.add_argument("--out", help="keep the benchmark's dataset here (a new or empty folder)")
-    p.add_argument("--profile", action="store_true", help="also time scene reuse and moment vs path")
-    p.add_argument("--effects", action="store_true", help="run the effects benchmark instead")
-    p.add_argument("--repeats", type=int, help="effects: timed renders per variant (default 5)")
-    p.add_argument("--json", dest="json_path", help="also write the figures to this JSON file")
-    return p
-
-
 def run_from_args(
     spec=None,
     *,
@@ -744,7 +723,7 @@ def run_from_args(
     json_path=None,
     progress=None,
 ):
-    """What `shaderball bench` and `python -m pipeline.bench.build_bench` do; returns the result object."""
+    """What `shaderball bench` does; returns the result object."""
     if effects:
         result = run_effects_bench(resolution=resolution, spp=spp, repeats=repeats, progress=progress)
     else:
@@ -767,18 +746,3 @@ def run_from_args(
     if json_path:
         write_text_atomic(json_path, dumps(result.to_dict()) + "\n")
     return result
-
-
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        result = run_from_args(**vars(args), progress=lambda m: print(m, file=sys.stderr, flush=True))
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    print("\n".join(result.lines()))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

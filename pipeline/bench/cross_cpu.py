@@ -1,7 +1,7 @@
-"""What another CPU changes in a dataset, measured on this one (issue 20; docs/build.md).
+"""What another CPU changes in a dataset, measured on this one (docs/build.md).
 
-A user's laptop, CI and a cluster's nodes have other CPUs: AVX2 without AVX-512 (the AMD
-EPYC where the issue was found), AVX-512 (the machine here), aarch64. Two things in a build
+A user's laptop, CI and a cluster's nodes have other CPUs: AVX2 without AVX-512 (an AMD
+EPYC), AVX-512 (the machine here), aarch64. Two things in a build
 depend on the CPU: numpy's SIMD kernels (the last bits of its transcendental functions, used
 by the material samplers and map generators) and drjit's LLVM JIT, which compiles every
 kernel for the host (``rocketlake`` with 16 lanes here, ``znver3`` with 8 on that EPYC).
@@ -15,15 +15,17 @@ byte for byte, and where a render differs, the size of the difference against th
 own noise (``stats.noise_rmse``, the RMSE of the render against its expectation: two
 independent renders differ by about 1.41 times it).
 
-    python -m pipeline.bench.cross_cpu manifests/smoke.toml --out /tmp/cross-cpu
+    .venv/bin/python scripts/cross_cpu.py manifests/smoke.toml --out /tmp/cross-cpu
 
-writes ``report.md`` and ``report.json`` there (about a minute for the smoke spec).
+writes ``report.md`` and ``report.json`` there (about a minute for the smoke spec,
+:func:`cross_cpu_report`). Each build runs in a child process: ``scripts/cross_cpu.py --child``
+(:func:`child`).
 """
 
 from __future__ import annotations
 
-import argparse
 import ctypes
+import datetime
 import json
 import math
 import os
@@ -34,7 +36,7 @@ import time
 
 import numpy as np
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value
 from pipeline.render.mitsuba_env import (
     LLVM_VARIANT,
     llvm_target,
@@ -43,6 +45,7 @@ from pipeline.render.mitsuba_env import (
     numpy_dispatch_targets,
 )
 from pipeline.run.build import build
+from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr
 from pipeline.store.layout import Layout
 
@@ -53,8 +56,14 @@ EMULATIONS = {
     "llvm-avx2": (False, True),
     "avx2": (True, True),
 }
-AVX2_CPU = "znver3"  # an AMD EPYC of the kind the issue was measured on (AVX2, FMA, no AVX-512)
+AVX2_CPU = "znver3"  # an AMD EPYC (AVX2, FMA, no AVX-512)
 AVX2_WIDTH = 8
+#: The script whose ``--child`` mode runs one build (:func:`child`) in a fresh process.
+CHILD_SCRIPT = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "scripts", "cross_cpu.py"
+)
+#: How a user re-runs the measurement (the report's header).
+COMMAND = ".venv/bin/python scripts/cross_cpu.py {spec} --out DIR"
 
 
 def emulations() -> dict[str, tuple[bool, bool]]:
@@ -114,7 +123,7 @@ def run_emulation(spec: str, out: str, name: str) -> float:
         env["NPY_DISABLE_CPU_FEATURES"] = numpy_without_avx512()
     else:
         env.pop("NPY_DISABLE_CPU_FEATURES", None)
-    command = [sys.executable, "-m", "pipeline.bench.cross_cpu", "--child", spec, os.path.join(out, name)]
+    command = [sys.executable, CHILD_SCRIPT, "--child", spec, os.path.join(out, name)]
     if llvm_avx2:
         command.append("--llvm-avx2")
     start = time.perf_counter()
@@ -191,6 +200,8 @@ def report_markdown(result: dict) -> str:
     lines = [
         "# What another CPU changes: builds of one spec under emulated CPUs",
         "",
+        f"Written by `{result['command']}` on {result['date']}.",
+        "",
         f"Spec `{result['spec']}` on {result['host']['cpu_model']} (LLVM target "
         f"{result['host']['llvm_target_cpu']}, {result['host']['llvm_vector_width']} lanes; numpy SIMD "
         f"{', '.join(result['host']['numpy_simd'])}). Re-run: `{result['command']}`.",
@@ -235,44 +246,25 @@ def report_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench.cross_cpu", description=__doc__.split("\n\n")[0])
-    parser.add_argument("spec", help="dataset spec (TOML); a small one: manifests/smoke.toml")
-    parser.add_argument("out", nargs="?", help=argparse.SUPPRESS)
-    parser.add_argument("--out", dest="out_opt", help="folder for the four builds and the report (must not exist)")
-    parser.add_argument("--json", action="store_true", help="print the report as JSON only")
-    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--llvm-avx2", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.child:
-        child(args.spec, args.out, args.llvm_avx2)
-        return 0
-    out = args.out_opt
-    if not out:
-        parser.error("--out is required")
+def cross_cpu_report(spec: str, out: str) -> dict:
+    """Build ``spec`` under every emulation into the new folder ``out``, compare each with the
+    native build, write report.json and report.md there; returns the report."""
     if os.path.exists(out):
-        parser.error(f"--out: {out!r} exists; give a new folder")
+        raise bad_value("--out", out, "a folder that does not exist yet")
     os.makedirs(out)
     load_mitsuba(LLVM_VARIANT)
-    seconds = {name: run_emulation(args.spec, out, name) for name in emulations()}
+    seconds = {name: run_emulation(spec, out, name) for name in emulations()}
     native = os.path.join(out, "native")
     result = {
-        "spec": args.spec,
-        "command": f"python -m pipeline.bench.cross_cpu {args.spec} --out DIR",
+        "spec": spec,
+        "command": COMMAND.format(spec=spec),
         "host": machine_fingerprint(),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "avx2_target": {"cpu": AVX2_CPU, "vector_width": AVX2_WIDTH, "numpy_disabled": numpy_without_avx512()},
         "builds": {
             name: {"seconds": round(seconds[name], 1), **compare(native, os.path.join(out, name))} for name in seconds
         },
     }
-    with open(os.path.join(out, "report.json"), "w", encoding="utf-8") as f:
-        json.dump(result, f, indent=1)
-    text = report_markdown(result)
-    with open(os.path.join(out, "report.md"), "w", encoding="utf-8") as f:
-        f.write(text)
-    print(json.dumps(result) if args.json else text)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    write_text_atomic(os.path.join(out, "report.json"), json.dumps(result, indent=1))
+    write_text_atomic(os.path.join(out, "report.md"), report_markdown(result))
+    return result

@@ -1,6 +1,6 @@
 """What the effects the build leaves out would cost: ``shaderball bench --effects``.
 
-``shaderball bench --effects`` (or ``python -m pipeline.bench.build_bench --effects``)
+``shaderball bench --effects``
     Renders a few materials with each effect the build leaves out present and absent
     (:class:`pipeline.render.renderer.EffectPlan`) and reports the render time saved by each
     omission and whether the two images agree: bit-identical, equal to float rounding,

@@ -1,17 +1,15 @@
 """How a render worker's resident memory grows over many renders (docs/cluster.md).
 
 Rendering in a loop grows memory in Mitsuba (mitsuba3#1890); this probe renders N
-samples in one process, shard after shard, and prints RSS as it goes:
-``python -m pipeline.bench.memory_probe --memory-probe 200 --resolution 400 --spp 16``.
+samples in one process, shard after shard, and reports RSS as it goes:
+``scripts/memory_probe.py --memory-probe 200 --resolution 400 --spp 16``.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import shutil
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -19,10 +17,13 @@ from pathlib import Path
 
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
-from pipeline.errors import USER_ERRORS, check_int
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE, span
+from pipeline.errors import check_int
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.run.build import prepare
 from pipeline.run.shard import run_shard_in_process
+
+#: The most renders one probe runs.
+MAX_PROBE_RENDERS = 100_000
 
 
 def rss_mb(pid: int | str = "self") -> float:
@@ -88,7 +89,11 @@ def probe_spec(renders: int, resolution: int, spp: int):
 
 
 def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=None) -> MemoryProbe:
-    """Render ``renders`` samples in this process, one shard after another; track RSS."""
+    """Render ``renders`` samples in this process, one shard after another; track RSS.
+    ``progress(done, rss_mib)`` after each shard."""
+    check_int("--memory-probe", renders, 2, MAX_PROBE_RENDERS)
+    check_int("--resolution", resolution, *RESOLUTION_RANGE)
+    check_int("--spp", spp, *SPP_RANGE)
     spec = probe_spec(renders, resolution, spp)
     plans = plan_dataset(spec)
     out = tempfile.mkdtemp(prefix="shaderball-memory-probe-")
@@ -104,40 +109,3 @@ def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=Non
     finally:
         shutil.rmtree(out, ignore_errors=True)
     return MemoryProbe(done, resolution, spp, samples, time.perf_counter() - start)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.bench.memory_probe", description="Measure a render worker's resident memory."
-    )
-    parser.add_argument(
-        "--memory-probe",
-        type=int,
-        metavar="N",
-        required=True,
-        help="renders to run in one process (2 per material), 2 to 100000",
-    )
-    parser.add_argument("--resolution", type=int, default=64, help=f"pixels, {span(RESOLUTION_RANGE)} (default 64)")
-    parser.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    parser.add_argument("--every", type=int, default=20, help="print RSS every N renders (default 20)")
-    args = parser.parse_args(argv)
-    try:
-        check_int("--memory-probe", args.memory_probe, 2, 100_000)
-        check_int("--resolution", args.resolution, *RESOLUTION_RANGE)
-        check_int("--spp", args.spp, *SPP_RANGE)
-
-        def show(done, rss):
-            if done % max(1, args.every) < 2:
-                print(f"{done:6d} renders  RSS {rss:8.1f} MiB", flush=True)
-
-        result = memory_probe(args.memory_probe, args.resolution, args.spp, progress=show)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    for line in result.lines():
-        print(line)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

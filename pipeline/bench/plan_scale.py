@@ -1,7 +1,7 @@
-"""How a spec of millions of renders plans and starts building (issue 15): a measurement,
-printed, not a timed test.
+"""How a spec of millions of renders plans and starts building: a measurement, reported,
+not a timed test.
 
-    .venv/bin/python -m pipeline.bench.plan_scale [--materials 1000000] [--lights 10]
+    .venv/bin/python scripts/plan_scale.py [--materials 1000000] [--lights 10]
 
 In fresh processes (so peak memory is the plan's, not this one's):
 
@@ -15,7 +15,6 @@ In fresh processes (so peak memory is the plan's, not this one's):
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -94,33 +93,36 @@ def first_progress(spec: Path, out: Path, timeout_s: float = 120.0) -> tuple[flo
         proc.wait()
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--materials", type=int, default=1_000_000)
-    parser.add_argument("--lights", type=int, default=10)
-    parser.add_argument("--shard-size", type=int, default=20)
-    args = parser.parse_args(argv)
+def measure_plan_scale(materials: int = 1_000_000, lights: int = 10, shard_size: int = 20) -> dict:
+    """Steps 1 to 3 on a spec of ``materials`` x ``lights`` renders in a temporary folder:
+    ``{"materials", "lights", "plan": {...}, "digest": {...}, "first_progress_s", "first_progress_line"}``."""
     with tempfile.TemporaryDirectory(prefix="plan-scale-") as tmp:
         spec = Path(tmp) / "scale.toml"
-        spec.write_text(spec_text(args.materials, args.lights, args.shard_size))
+        spec.write_text(spec_text(materials, lights, shard_size))
         plan = measure_plan(spec, digest=False)
-        print(
-            f"spec: {args.materials} materials x {args.lights} lightings = {plan['renders']} renders in "
-            f"{plan['shards']} shards"
-        )
-        print(
-            f"planning (plan_dataset + summary + one shard): {plan['plan_s']:.2f} s, peak RSS of the process "
-            f"{plan['peak_rss_mib']:.0f} MiB (imports included)"
-        )
         digest = measure_plan(spec, digest=True)
-        print(
-            f"plan digest (every shard planned and hashed, streamed): {digest['digest_s']:.1f} s, peak RSS "
-            f"{digest['peak_rss_mib']:.0f} MiB"
-        )
         seconds, line = first_progress(spec, Path(tmp) / "out")
-        print(f"shaderball build: first progress line after {seconds:.1f} s: {line}")
         shutil.rmtree(Path(tmp) / "out", ignore_errors=True)
+    return {
+        "materials": materials,
+        "lights": lights,
+        "plan": plan,
+        "digest": digest,
+        "first_progress_s": seconds,
+        "first_progress_line": line,
+    }
 
 
-if __name__ == "__main__":
-    main()
+def plan_scale_lines(result: dict) -> list[str]:
+    """The measurement of :func:`measure_plan_scale` as lines for people."""
+    plan, digest = result["plan"], result["digest"]
+    return [
+        f"spec: {result['materials']} materials x {result['lights']} lightings = {plan['renders']} renders in "
+        f"{plan['shards']} shards",
+        f"planning (plan_dataset + summary + one shard): {plan['plan_s']:.2f} s, peak RSS of the process "
+        f"{plan['peak_rss_mib']:.0f} MiB (imports included)",
+        f"plan digest (every shard planned and hashed, streamed): {digest['digest_s']:.1f} s, peak RSS "
+        f"{digest['peak_rss_mib']:.0f} MiB",
+        f"shaderball build: first progress line after {result['first_progress_s']:.1f} s: "
+        f"{result['first_progress_line']}",
+    ]

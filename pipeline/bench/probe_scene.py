@@ -1,6 +1,6 @@
 """A tiny test scene for the sky: a unit ball standing on a square of ground.
 
-Used by the sky tests and ``python -m pipeline.bench.sun_benchmark``; the dataset's scene is
+Used by the sky tests and ``scripts/sun_benchmark.py``; the dataset's scene is
 built by ``pipeline/``. Mitsuba's own BSDFs stand in for the project's material
 (diffuse, glossy, near-mirror). Frame as in docs/conventions.md: z up, ground at
 z = 0, the ball centred on the z axis.

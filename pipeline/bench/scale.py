@@ -46,6 +46,8 @@ from pipeline.store.records import dumps
 #: The repository root: where ``python -m cli`` runs (and the default spec lives).
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_SPEC = os.path.join("manifests", "paper.toml")
+#: The script that measures the neural stage's opening of a dataset in a process of its own.
+OPEN_PROBE = os.path.join(ROOT, "scripts", "open_probe.py")
 DEFAULT_SIZES = (1000, 10000, 50000)
 SIZE_RANGE = (2, 10_000_000)
 DEFAULT_RESOLUTION, DEFAULT_SPP = 16, 1
@@ -64,8 +66,8 @@ def _commands(data: str, pub: str, work: str) -> list[tuple[str, list[str]]]:
         ("publish", [*cli, "publish", data, "--out", pub]),
         ("verify", [*cli, "verify", pub]),
         ("unpack", [*cli, "unpack", pub, "--out", os.path.join(work, "unpacked")]),
-        ("loader (open + one pass)", ["-m", "pipeline.neural.open_probe", "loader", data]),
-        ("evaluate set-up", ["-m", "pipeline.neural.open_probe", "evaluate-setup", data]),
+        ("loader (open + one pass)", [OPEN_PROBE, "loader", data]),
+        ("evaluate set-up", [OPEN_PROBE, "evaluate-setup", data]),
     ]
 
 

@@ -1,7 +1,7 @@
 """Measure where Mitsuba's RGB ``sunsky`` goes negative, and regenerate the floor table.
 
-``python -m pipeline.bench.sky_floor`` prints the raw emitter's behaviour on the hard-case
-sweep and what the policy does there (the table in docs/sky.md); ``python -m pipeline.bench.sky_floor --table`` measures
+``scripts/sky_floor.py`` prints the raw emitter's behaviour on the hard-case sweep and what
+the policy does there (the table in docs/sky.md); ``scripts/sky_floor.py --table`` measures
 the elevation floor per turbidity and prints the literal pasted into
 ``sky/policy.py`` (``FLOOR_TABLE``). Slow (minutes): it evaluates the emitter on
 ~26,000 directions at several thousand (elevation, turbidity) points.
@@ -16,14 +16,11 @@ turbidities; tests/test_sky_policy.py samples the rest at random.
 
 from __future__ import annotations
 
-import argparse
 import logging
-import sys
 
 import numpy as np
 
 from pipeline.errors import USER_ERRORS
-from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
 from pipeline.render.sky_probe import SunskyProbe
 from sky.directions import sun_direction
 from sky.lighting import Light
@@ -107,38 +104,24 @@ def sweep_rows(probe: SunskyProbe):
     return rows
 
 
-def _print_sweep(probe: SunskyProbe) -> None:
+def sweep_markdown(rows) -> str:
+    """:func:`sweep_rows` as the markdown table of docs/sky.md."""
     fmt = lambda v: "(" + ", ".join(f"{x:.3g}" for x in v) + ")"  # noqa: E731
-    print("| turbidity | elevation deg | raw sun disk RGB | raw sky min RGB | policy |")
-    print("|---|---|---|---|---|")
-    for row in sweep_rows(probe):
+    lines = ["| turbidity | elevation deg | raw sun disk RGB | raw sky min RGB | policy |", "|---|---|---|---|---|"]
+    for row in rows:
         if "raw_sun_rgb" not in row:
-            print(f"| {row['turbidity']} | {row['elevation_deg']} | | | {row['outcome']} |")
+            lines.append(f"| {row['turbidity']} | {row['elevation_deg']} | | | {row['outcome']} |")
             continue
-        print(
+        lines.append(
             f"| {row['turbidity']} | {row['elevation_deg']} | {fmt(row['raw_sun_rgb'])} | "
             f"{fmt(row['raw_sky_min_rgb'])} | {row['outcome']} |"
         )
+    return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--table", action="store_true", help="measure the elevation floor table (slow)")
-    parser.add_argument("--fine-step", type=float, default=0.05, help="turbidity step of the measurement")
-    parser.add_argument("--variant", default="auto", choices=VARIANT_CHOICES, help="Mitsuba variant (default auto)")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    probe = SunskyProbe(resolve_variant(args.variant))
-    if not args.table:
-        _print_sweep(probe)
-        return 0
-    rows, _ = floor_table(probe, fine_step=args.fine_step)
-    print("FLOOR_TABLE = (  # (turbidity lo, turbidity hi, floor degrees), measured")
-    for a, b, v in rows:
-        print(f"    ({a:.2f}, {b:.2f}, {v:.3f}),")
-    print(")")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+def floor_table_literal(rows) -> str:
+    """:func:`floor_table`'s rows as the literal pasted into sky/policy.py."""
+    lines = ["FLOOR_TABLE = (  # (turbidity lo, turbidity hi, floor degrees), measured"]
+    lines += [f"    ({a:.2f}, {b:.2f}, {v:.3f})," for a, b, v in rows]
+    lines.append(")")
+    return "\n".join(lines)

@@ -1,7 +1,7 @@
 """Sun inside ``sunsky`` vs the split (directional sun + sky-only ``sunsky``): noise, bias, time.
 
-``python -m pipeline.bench.sun_benchmark`` renders the probe scene (pipeline.bench.probe_scene: a ball on
-a ground square, seen from the side) and prints two tables.
+``scripts/sun_benchmark.py`` renders the probe scene (pipeline.bench.probe_scene: a ball on
+a ground square, seen from the side) and prints two tables (:func:`format_noise`, :func:`format_time`).
 
 Noise: for each light, material and configuration, RMSE at a few spp against a
 high-spp reference of the *same* configuration, so it measures noise, not the
@@ -21,16 +21,12 @@ weights (pipeline.render.emitter.split_sampling_weights).
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 
 import numpy as np
 
 import pipeline.render.emitter as emitter
-import sky.emitter as sky_emitter
 from pipeline.bench.probe_scene import probe_scene_dict
-from pipeline.render.mitsuba_env import VARIANT_CHOICES, load_mitsuba, resolve_variant
 from sky.lighting import Light
 
 #: name -> (sun mode, fixed (sun, sky) sampling weights or None for the emitter's own)
@@ -141,33 +137,3 @@ def format_time(rows, resolution, spp) -> str:
     for material, config, wall, cpu in rows:
         lines.append(f"| {material} | {config} | {wall:.3f} | {cpu:.3f} |")
     return "\n".join(lines)
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resolution", type=int, default=64, help="noise table image size")
-    parser.add_argument("--spp", type=int, nargs="+", default=[16, 150], help="noise table spp levels")
-    parser.add_argument("--ref-spp", type=int, default=2048)
-    parser.add_argument("--time-resolution", type=int, default=256)
-    parser.add_argument("--time-spp", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=3, help="timed renders per point (median)")
-    parser.add_argument("--sun-weight-factor", type=float, default=sky_emitter.SPLIT_SUN_WEIGHT_FACTOR)
-    parser.add_argument("--sun-weight-exponent", type=float, default=sky_emitter.SPLIT_SUN_WEIGHT_EXPONENT)
-    parser.add_argument("--variant", default="auto", choices=VARIANT_CHOICES, help="Mitsuba variant (default auto)")
-    parser.add_argument("--skip-time", action="store_true")
-    args = parser.parse_args(argv)
-
-    mi = load_mitsuba(resolve_variant(args.variant))
-    sky_emitter.SPLIT_SUN_WEIGHT_FACTOR = args.sun_weight_factor
-    sky_emitter.SPLIT_SUN_WEIGHT_EXPONENT = args.sun_weight_exponent
-    print(f"split sun weight = {args.sun_weight_factor:g} x (sun / sky)^{args.sun_weight_exponent:g}\n")
-    print(format_noise(noise_table(mi, args.resolution, tuple(args.spp), args.ref_spp)))
-    if not args.skip_time:
-        rows = time_table(mi, args.time_resolution, args.time_spp, args.repeats)
-        print()
-        print(format_time(rows, args.time_resolution, args.time_spp))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

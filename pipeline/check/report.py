@@ -7,7 +7,7 @@ import json
 from collections import Counter
 from dataclasses import dataclass, field
 
-#: Every problem kind, with what it means (docs/validate.md gives an example message for each).
+#: Every problem kind, with what it means (docs/validate.md lists them).
 PROBLEM_KINDS: dict[str, str] = {
     "missing_file": "a file a record lists does not exist",
     "size_mismatch": "a file's size differs from its record (truncated, or appended to)",

@@ -1,6 +1,6 @@
 """`shaderball validate`: a dataset directory checked against its manifest, its plan and itself.
 
-Three layers of checks (docs/validate.md lists every problem kind with its message):
+Three layers of checks (docs/validate.md lists every problem kind):
 
 - every file against the manifest: it exists, its size and SHA-256 match the record, it
   decodes, its layers, channels, shapes and sample types are the ones the spec asks for;

@@ -313,10 +313,10 @@ def _light_arrays(spec: DatasetSpec, light_seeds: np.ndarray):
 class Plan(Sequence):
     """Every shard of a spec, in order: a sequence of :class:`ShardPlan` made on demand.
 
-    Planning is lazy (issue 15): making the plan costs the SVBRDF assignment only (two
+    Planning is lazy: making the plan costs the SVBRDF assignment only (two
     int32 arrays of ``materials`` entries); each shard's materials, seeds and lightings are
     computed when the shard is asked for, and not kept. A plan of 10 million renders is made
-    in well under a second and a few tens of MB (``python -m pipeline.bench.plan_scale``).
+    in well under a second and a few tens of MB (``scripts/plan_scale.py``).
     Counts, shard ids and sample ids come from arithmetic (:meth:`shard_counts`,
     :meth:`shard_sample_ids`, :meth:`summary`), so a build's bookkeeping never builds the
     whole plan. Iterating it builds every shard once (a build's plan digest does that,

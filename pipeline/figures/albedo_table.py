@@ -1,4 +1,4 @@
-"""Directional albedo of the model: ``python -m pipeline.figures.albedo_table`` prints the docs' tables.
+"""Directional albedo of the model: ``shaderball figures albedo-table`` prints the docs' tables.
 
 The directional albedo ``a(wi) = int f(wi, wo) cos(theta_o) dwo`` (the white
 furnace value) is computed with the numpy reference by deterministic
@@ -19,7 +19,6 @@ share of the samplers' materials (texels) where that floor acts.
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,8 +176,10 @@ def models_markdown() -> str:
     return "\n".join(lines)
 
 
-def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str:
-    """All tables of docs/materials.md, as markdown."""
+def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True, progress=None) -> str:
+    """All tables of docs/results/albedo.md, as markdown; ``progress`` gets a line before each step."""
+    say = progress or (lambda message: None)
+    say("albedo of the model (quadrature) ...")
     lut = build_lut() if lut is None else lut
     parts = [
         _table("A1: specular albedo with F = 1 (s = 1, d = 0; a mirror-like metal)", _rows(lut, lut.a1), lut),
@@ -188,6 +189,7 @@ def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str
         total = d * (1.0 - s) + s * lut.a1 + (1.0 - s) * lut.a0
         parts.append(_table(f"total albedo, d = {d:g}, s = {s:g}", _rows(lut, total), lut))
     if with_samplers:
+        say("the samplers' materials ...")
         stats = sampler_exceedance(lut)
         head = "| sampler | " + " | ".join(f"{t:g} deg" for t in lut.incidence_deg) + " |"
         lines = [
@@ -201,6 +203,7 @@ def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str
             cells = [f"{100 * p:.1f}% / {m:.2f}" for p, m in zip(share, largest)]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
+    say("the deschaintre2018 model ...")
     floored = build_lut(ROUGHNESS, lut.incidence_deg, model="deschaintre2018")
     parts += [
         _table("deschaintre2018: A1, specular albedo with F = 1", floored.a1, floored),
@@ -208,18 +211,3 @@ def markdown(lut: AlbedoLUT | None = None, *, with_samplers: bool = True) -> str
         models_markdown(),
     ]
     return "\n\n".join(parts)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--no-samplers", action="store_true", help="skip the sampler statistics")
-    parser.add_argument(
-        "--models", action="store_true", help="print only the comparison of the material models (a few seconds)"
-    )
-    args = parser.parse_args(argv)
-    print(models_markdown() if args.models else markdown(with_samplers=not args.no_samplers))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

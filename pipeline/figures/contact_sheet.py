@@ -1,4 +1,4 @@
-"""Contact sheet of procedural SVBRDF examples: ``python -m pipeline.figures.contact_sheet --out PATH``.
+"""Contact sheet of procedural SVBRDF examples: ``shaderball figures contact-sheet --out PATH``.
 
 One row per family, ``--examples`` materials per row (example k of family f is
 drawn from ``SeedSequence([seed, f, k])``). Each
@@ -11,18 +11,23 @@ and specular (sRGB-encoded for display), roughness (grey) and the normal
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
+import io
+from collections.abc import Callable
 
 import numpy as np
 
 from materials.brdf_ref import eval_brdf
 from materials.maps import MaterialMaps, encode_normal_map
-from materials.svbrdf import SVBRDF_FAMILIES, sample_svbrdf
+from materials.svbrdf import MIN_RESOLUTION, SVBRDF_FAMILIES, sample_svbrdf
+from pipeline.errors import check_int
 from pipeline.image.srgb import srgb_encode
+from pipeline.store.atomic import write_bytes_atomic
 
 #: Seed of example k of family f: SeedSequence([SHEET_SEED, f, k]).
 SHEET_SEED = 2019
+#: Materials per family, and the side of their maps in texels.
+EXAMPLES_RANGE = (1, 64)
+RESOLUTION_RANGE = (MIN_RESOLUTION, 1024)
 
 
 def flash_preview(maps: MaterialMaps, *, tiles: int = 2, light_intensity: float = 6.0) -> np.ndarray:
@@ -74,10 +79,14 @@ def material_tile(maps: MaterialMaps) -> np.ndarray:
     return np.concatenate([preview_img, block], axis=1)
 
 
-def contact_sheet(*, examples: int = 4, resolution: int = 128, seed: int = SHEET_SEED) -> np.ndarray:
-    """The sheet as a uint8 (H, W, 3) array: rows are families, with a label column."""
+def contact_sheet(
+    *, examples: int = 4, resolution: int = 128, seed: int = SHEET_SEED, progress: Callable[[str], None] | None = None
+) -> np.ndarray:
+    """The sheet as a uint8 (H, W, 3) array: rows are families, with a label column.
+    ``progress`` gets a line before each family's row."""
     from PIL import Image, ImageDraw
 
+    say = progress or (lambda message: None)
     gap, label_width = 8, 120
     block_h, block_w = 2 * resolution, 4 * resolution
     sheet_h = len(SVBRDF_FAMILIES) * (block_h + gap) + gap + 20
@@ -90,6 +99,7 @@ def contact_sheet(*, examples: int = 4, resolution: int = 128, seed: int = SHEET
         fill=(0, 0, 0),
     )
     for f, family in enumerate(SVBRDF_FAMILIES):
+        say(f"family {f + 1}/{len(SVBRDF_FAMILIES)}: {family}")
         top = 20 + gap + f * (block_h + gap)
         draw.text((8, top + block_h // 2 - 6), family, fill=(0, 0, 0))
         for k in range(examples):
@@ -99,21 +109,23 @@ def contact_sheet(*, examples: int = 4, resolution: int = 128, seed: int = SHEET
     return np.asarray(sheet)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/img/materials_contact_sheet.png"))
-    parser.add_argument("--examples", type=int, default=4, help="materials per family")
-    parser.add_argument("--resolution", type=int, default=128, help="map side in texels")
-    parser.add_argument("--seed", type=int, default=SHEET_SEED)
-    args = parser.parse_args(argv)
+def write_contact_sheet(
+    out: str,
+    *,
+    examples: int = 4,
+    resolution: int = 128,
+    seed: int = SHEET_SEED,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[int, int]:
+    """The sheet as a PNG at ``out`` (written atomically); returns its (width, height)."""
     from PIL import Image
 
-    image = contact_sheet(examples=args.examples, resolution=args.resolution, seed=args.seed)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(image).save(args.out)
-    print(f"wrote {args.out} ({image.shape[1]}x{image.shape[0]})")
-    return 0
+    check_int("--examples", examples, *EXAMPLES_RANGE)
+    check_int("--resolution", resolution, *RESOLUTION_RANGE)
+    check_int("--seed", seed, 0, 2**63 - 1)
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    image = contact_sheet(examples=examples, resolution=resolution, seed=seed, progress=progress)
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    write_bytes_atomic(out, buffer.getvalue())
+    return image.shape[1], image.shape[0]

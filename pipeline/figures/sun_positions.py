@@ -1,12 +1,12 @@
 """The README's figure of one material under three suns.
 
-python -m pipeline.figures sun-positions --out docs/img/sun_positions.png
+shaderball figures sun-positions --out docs/img/sun_positions.png
 """
 
 from __future__ import annotations
 
-import argparse
 import io
+from collections.abc import Callable
 
 import numpy as np
 
@@ -32,34 +32,32 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(pil)
 
 
-def sun_positions(out: str, resolution: int = 240, spp: int = 128, variant: str = "auto") -> None:
-    """One copper-ish glossy material under three suns, with one shared exposure."""
+def sun_positions(
+    out: str,
+    resolution: int = 240,
+    spp: int = 128,
+    variant: str = "auto",
+    progress: Callable[[str], None] | None = None,
+) -> tuple[int, int]:
+    """One copper-ish glossy material under three suns, with one shared exposure, as a PNG at
+    ``out``; returns its (width, height). ``progress`` gets a line before each render."""
     from PIL import Image
 
+    say = progress or (lambda message: None)
     ball, camera = build_shaderball(), default_camera()
     maps = UniformMaterial((0.35, 0.12, 0.05), (0.25, 0.15, 0.1), 0.3).to_maps(1)
     settings = RenderSettings(resolution=resolution, spp=spp, variant=resolve_variant(variant))
-    images = [
-        render_sample(ball, camera, maps, Light(*sun), settings, seed=i).image for i, sun in enumerate(SUN_POSITIONS)
-    ]
+    images = []
+    for i, sun in enumerate(SUN_POSITIONS):
+        say(f"render {i + 1}/{len(SUN_POSITIONS)}: elevation {sun[0]:g}, azimuth {sun[1]:g}, turbidity {sun[2]:g}")
+        images.append(render_sample(ball, camera, maps, Light(*sun), settings, seed=i).image)
     exposure = exposure_for(images[1])
     tiles = [
         label(preview_srgb8(img, exposure), f"elev {e:g}  azim {a:g}  turb {t:g}")
         for img, (e, a, t) in zip(images, SUN_POSITIONS)
     ]
+    sheet = np.concatenate(tiles, axis=1)
     buffer = io.BytesIO()
-    Image.fromarray(np.concatenate(tiles, axis=1)).save(buffer, format="PNG")
+    Image.fromarray(sheet).save(buffer, format="PNG")
     write_bytes_atomic(out, buffer.getvalue())
-
-
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("figure", choices=["sun-positions"])
-    parser.add_argument("--out", required=True)
-    args = parser.parse_args(argv)
-    if args.figure == "sun-positions":
-        sun_positions(args.out)
-
-
-if __name__ == "__main__":
-    main()
+    return sheet.shape[1], sheet.shape[0]

@@ -12,18 +12,16 @@
   rate does not depend on the weights' values);
 - inference: the network at batch 1, mean of repeated timed calls after a warm-up.
 
-``python -m pipeline.neural.bench loaders DIR PUB`` compares the loader alone on a dataset
+``shaderball neural-bench loaders DIR PUB`` compares the loader alone on a dataset
 folder and its publication (:func:`compare_loaders`): the same samples, best of a few passes
-each. ``python -m pipeline.neural.bench denoise DATASET`` compares what OIDN is fed
+each. ``shaderball neural-bench denoise DATASET`` compares what OIDN is fed
 (:func:`compare_denoisers`) against fresh high-spp renders of the same samples.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
-import json
 import statistics
 import subprocess
 import sys
@@ -34,7 +32,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, default_collate
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
@@ -42,11 +40,30 @@ from pipeline.neural import speed
 from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
+from pipeline.neural.limits import INTEGER_RANGES, TRAINING_VARIANTS
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import TrainConfig, choose_loss, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
+from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import resolve_variant
+
+#: Ranges of the comparisons' counts (`shaderball neural-bench`).
+REPEATS_RANGE = (1, 1000)
+STEPS_RANGE = (1, 10_000)
+BUSY_RANGE = (0, 64)
+DENOISE_SAMPLES_RANGE = (1, 100_000)
+
+
+def _check_loader_options(resolution, batch_size, workers, repeats) -> None:
+    check_int("--resolution", resolution, *RESOLUTION_RANGE)
+    check_int("--batch-size", batch_size, *INTEGER_RANGES["batch_size"])
+    check_int("--loader-workers", workers, *INTEGER_RANGES["workers"])
+    check_int("--repeats", repeats, *REPEATS_RANGE)
+
+
+def _say(progress):
+    return progress or (lambda message: None)
 
 
 @dataclass
@@ -213,38 +230,34 @@ class TrainingSteps:
             return steps * self.config.batch_size / (time.perf_counter() - started)
 
 
-#: Rows of :func:`compare_training`: the options each changes from the baseline (the config's:
-#: fp32, NCHW, eager and its --threads, unless given otherwise).
-TRAINING_VARIANTS = {
-    "baseline": {},
-    "--channels-last": {"channels_last": True},
-    "--precision bf16": {"precision": "bf16"},
-    "--precision bf16 --channels-last": {"precision": "bf16", "channels_last": True},
-    "--threads 1": {"threads": 1},
-    "--threads 2": {"threads": 2},
-    "--compile": {"compile": True},
-    "--width 0.5": {"width": 0.5},
-    "--width 0.25": {"width": 0.25},
-}
-
-
-def compare_training(config: TrainConfig, resolution: int, variants=None, repeats: int = 5, steps: int = 3) -> dict:
+def compare_training(
+    config: TrainConfig, resolution: int, variants=None, repeats: int = 5, steps: int = 3, progress=None
+) -> dict:
     """Training samples/s of each variant (``TRAINING_VARIANTS``' names; default all), each a
     fresh network warmed up first, then timed ``steps`` steps at a time, variants alternated
     ``repeats`` times; medians, all passes and the load average after each round."""
+    check_int("--resolution", resolution, *RESOLUTION_RANGE)
+    check_int("--repeats", repeats, *REPEATS_RANGE)
+    check_int("--steps", steps, *STEPS_RANGE)
     config.check()
+    say = _say(progress)
     device = pick_device(config.device)
     names = list(variants or TRAINING_VARIANTS)
+    for name in names:
+        if name not in TRAINING_VARIANTS:
+            raise bad_value("--variants", name, ", ".join(TRAINING_VARIANTS))
     runners, compile_s = {}, {}
     for name in names:
         variant = dataclasses.replace(config, **TRAINING_VARIANTS[name])
         variant = dataclasses.replace(variant, precision=speed.resolve_precision(variant.precision, device))
+        say(f"warming up: {name}")
         started = time.perf_counter()
         runners[name] = TrainingSteps(variant, device, resolution)
         compile_s[name] = time.perf_counter() - started
     rates: dict[str, list[float]] = {name: [] for name in names}
     loads = []
-    for _ in range(repeats):
+    for k in range(repeats):
+        say(f"pass {k + 1}/{repeats}")
         for name in names:
             rates[name].append(runners[name].samples_per_s(steps))
         loads.append(_load_average())
@@ -334,12 +347,16 @@ def compare_loaders(
     repeats: int = 3,
     check_hashes: bool = True,
     exposure: float = DEFAULT_EXPOSURE,
+    progress=None,
 ) -> dict:
     """The loader's samples/s on a dataset folder and on its publication, passes alternated,
     best of ``repeats`` each (a shared machine's load only slows a pass); the publication's
     opening (every tar checked) is reported apart. Both must yield the same sample ids."""
+    _check_loader_options(resolution, batch_size, workers, repeats)
+    say = _say(progress)
     runs: dict[str, list[LoaderRate]] = {"folder": [], "publication": []}
-    for _ in range(repeats):
+    for k in range(repeats):
+        say(f"pass {k + 1}/{repeats}")
         runs["folder"].append(measure_loader(folder, resolution, exposure, check_hashes, batch_size, workers))
         runs["publication"].append(measure_loader(pub, resolution, exposure, check_hashes, batch_size, workers))
     if runs["folder"][0].source != "dataset folder" or runs["publication"][0].source != "publication":
@@ -389,13 +406,18 @@ def compare_collation(
     resolution: int | None = None,
     check_hashes: bool = True,
     exposure: float = DEFAULT_EXPOSURE,
+    progress=None,
 ) -> dict:
     """The loader's samples/s with torch's default collation and with :func:`collate_samples`,
     on the machine as it is and with ``busy`` spinning processes beside it; passes alternated
     (idle A, idle B, loaded A, loaded B, ...) ``repeats`` times; medians and all passes."""
+    _check_loader_options(resolution, batch_size, workers, repeats)
+    check_int("--busy", busy, *BUSY_RANGE)
+    say = _say(progress)
     rates: dict[tuple[str, str], list[float]] = {}
     loads = []
-    for _ in range(repeats):
+    for k in range(repeats):
+        say(f"pass {k + 1}/{repeats}")
         for label, spinners in (("as is", 0), (f"{busy} busy processes", busy)):
             with busy_processes(spinners):
                 for name, collate in COLLATIONS.items():
@@ -439,6 +461,10 @@ def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_s
     """Mean PSNR, SSIM (8-bit sRGB) and relMSE of OIDN's output against ``reference_spp`` renders
     of ``samples`` samples spread over the dataset (which must store texture maps), for each
     row of :data:`DENOISE_VARIANTS` and each spp."""
+    check_int("--limit", samples, *DENOISE_SAMPLES_RANGE)
+    check_int("--reference-spp", reference_spp, *SPP_RANGE)
+    for spp in spps:
+        check_int("--spp", spp, *SPP_RANGE)
     dataset = open_dataset(root)
     variant = resolve_variant(dataset_variant(dataset.records))
     tracer = PathTracer(dataset, variant)
@@ -494,78 +520,47 @@ def denoise_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.neural.bench",
-        description="The loader on a dataset folder and on its publication; what OIDN is fed.",
-    )
-    commands = parser.add_subparsers(dest="command", required=True)
-    loaders = commands.add_parser("loaders", help="loader samples/s on a dataset folder and on its publication")
-    loaders.add_argument("folder")
-    loaders.add_argument("pub")
-    loaders.add_argument("--resolution", type=int, default=None)
-    loaders.add_argument("--batch-size", type=int, default=6)
-    loaders.add_argument("--workers", type=int, default=0)
-    loaders.add_argument("--repeats", type=int, default=3)
-    loaders.add_argument("--no-hash-check", action="store_true")
-    collation = commands.add_parser("collate", help="loader samples/s, torch's collation against ours, idle and loaded")
-    collation.add_argument("dataset")
-    collation.add_argument("--busy", type=int, default=2)
-    collation.add_argument("--repeats", type=int, default=5)
-    collation.add_argument("--batch-size", type=int, default=6)
-    collation.add_argument("--workers", type=int, default=0)
-    collation.add_argument("--resolution", type=int, default=None)
-    training = commands.add_parser("train-options", help="training samples/s of each speed option, alternated")
-    training.add_argument("--resolution", type=int, default=64)
-    training.add_argument("--batch-size", type=int, default=6)
-    training.add_argument("--loss", default="l1+vgg")
-    training.add_argument("--repeats", type=int, default=5)
-    training.add_argument("--steps", type=int, default=3)
-    training.add_argument("--threads", type=int, default=0, help="the baseline's (0: torch's default)")
-    training.add_argument("--variants", default=",".join(TRAINING_VARIANTS), help="names, comma-separated")
-    denoising = commands.add_parser("denoise", help="OIDN with each choice of auxiliary buffers")
-    denoising.add_argument("dataset")
-    denoising.add_argument("--samples", type=int, default=12)
-    denoising.add_argument("--spp", default="1,4,16")
-    denoising.add_argument("--reference-spp", type=int, default=256)
-    args = parser.parse_args(argv)
-    if args.command == "loaders":
-        result = compare_loaders(
-            args.folder, args.pub, args.resolution, args.batch_size, args.workers, args.repeats, not args.no_hash_check
-        )
-        print(json.dumps(result, indent=1, sort_keys=True))
-        return
-    if args.command == "train-options":
-        config = TrainConfig(
-            dataset="",
-            out="",
-            batch_size=args.batch_size,
-            loss=args.loss,
-            device="cpu",
-            threads=args.threads,
-            precision="fp32",
-            channels_last=False,
-        )
-        variants = [name.strip() for name in args.variants.split(",")]
-        result = compare_training(config, args.resolution, variants, args.repeats, args.steps)
-        print(json.dumps(result, indent=1, sort_keys=True))
-        return
-    if args.command == "collate":
-        result = compare_collation(
-            args.dataset, args.busy, args.repeats, args.batch_size, args.workers, args.resolution
-        )
-        print(json.dumps(result, indent=1, sort_keys=True))
-        return
-    result = compare_denoisers(
-        args.dataset,
-        args.samples,
-        tuple(int(x) for x in args.spp.split(",")),
-        args.reference_spp,
-        progress=lambda line: print(line, file=sys.stderr),
-    )
-    print(json.dumps(result, indent=1, sort_keys=True))
-    print(denoise_table(result), end="")
+def loaders_table(result: dict) -> str:
+    """:func:`compare_loaders`' result as markdown."""
+    lines = [
+        f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
+        f"{result['workers']} loader workers, best of {result['repeats']}",
+        "",
+        "| source | samples/s | opening (s) |",
+        "|---|---|---|",
+    ]
+    for name in ("folder", "publication"):
+        row = result[name]
+        lines.append(f"| {name} | {row['samples_per_s']:.1f} | {row['open_s']:.2f} |")
+    return "\n".join(lines) + "\n"
 
 
-if __name__ == "__main__":
-    main()
+def collation_table(result: dict) -> str:
+    """:func:`compare_collation`'s result as markdown."""
+    lines = [
+        f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
+        f"{result['workers']} loader workers, median of {result['repeats']}",
+        "",
+        "| machine | collation | samples/s |",
+        "|---|---|---|",
+    ]
+    for row in result["rows"]:
+        lines.append(f"| {row['machine']} | {row['collation']} | {row['samples_per_s_median']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def training_table(result: dict) -> str:
+    """:func:`compare_training`'s result as markdown."""
+    ratio = next(k for k in result["rows"][0] if k.startswith("ratio_to_"))
+    lines = [
+        f"{result['resolution']} px, batch {result['batch_size']}, loss {result['loss']}, {result['device']}, "
+        f"median of {result['repeats']} x {result['steps']} steps",
+        "",
+        f"| options | samples/s | {ratio.replace('_', ' ')} | first step (s) |",
+        "|---|---|---|---|",
+    ]
+    for row in result["rows"]:
+        lines.append(
+            f"| {row['options']} | {row['samples_per_s_median']:.2f} | {row[ratio]:.3f} | {row['first_step_s']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"

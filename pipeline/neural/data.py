@@ -135,7 +135,7 @@ def collate_samples(samples: list[dict]) -> dict:
     numpy stacks into a preallocated tensor (in shared memory inside a worker, as the default
     does, so the batch crosses to the main process without a copy). torch's default stacks with
     ``torch.stack``, whose intra-op threads spin against any other busy process on a small
-    machine: issue 22 saw the loader fall from 643 to 42 samples/s, 318 of 473 ms in the stack.
+    machine: the loader was measured falling from 643 to 42 samples/s, 318 of 473 ms in the stack.
     numpy's copy runs on the calling thread alone."""
     batch = {}
     for key, first in samples[0].items():

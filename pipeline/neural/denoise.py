@@ -52,7 +52,7 @@ class AuxBuffers:
     """The first-hit albedo and normal of renders at ``resolution`` (the renderer's), box-averaged
     by ``factor`` more (the network's resolution), for any material.
 
-    The variants `python -m pipeline.neural.bench denoise` compares with the one used:
+    The variants `shaderball neural-bench denoise` compares with the one used:
     ``supersample=1`` (pixel centres only, like the dataset's maps), ``surroundings=False``
     (albedo and normal 0 off the material, like the G-buffer), ``albedo="diffuse"`` (``d``).
     """

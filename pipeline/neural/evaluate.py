@@ -19,8 +19,10 @@ curve (:mod:`pipeline.neural.report`).
 
 from __future__ import annotations
 
+import datetime
 import functools
 import os
+import shlex
 import time
 from dataclasses import dataclass, field
 
@@ -40,7 +42,7 @@ from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
-from pipeline.render.mitsuba_env import resolve_variant
+from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
@@ -60,7 +62,7 @@ NETWORK_Y_CAP = 254.5 / 255.0
 #: spp at which path tracing's CPU time is measured to fit t(spp) = a + b spp (equal time).
 EQUAL_TIME_PROBE_SPP = (1, 64)
 #: Each probe is timed this many times and the least CPU time kept: other work on the machine
-#: only adds time (spinning threads, cache), so the minimum is the cost (issue 22: a median of
+#: only adds time (spinning threads, cache), so the minimum is the cost (measured: a median of
 #: 3 taken beside two training runs gave the network 0.42 s instead of 0.018 s, and 8 spp less
 #: time than 1, which sent the fit to 4096 spp).
 EQUAL_TIME_REPEATS = 5
@@ -86,6 +88,25 @@ class EvaluateRequest:
     checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
     report: bool = False  # also write report.md/.json (per-class table) and the learning curve into out_dir
     flip: bool = True  # HDR-FLIP (the slowest metric: most of an evaluation's time at 64x64)
+
+
+def evaluate_command(req: EvaluateRequest, out_dir: str) -> str:
+    """The command line that makes ``req``'s results in ``out_dir``: the heading of its report."""
+    argv = ["shaderball", "evaluate", req.run, req.dataset, "--split", req.split, "--out", out_dir]
+    argv += ["--spp", ",".join(map(str, req.spp)) if req.spp else "none"]
+    argv += [] if req.denoise else ["--no-denoise"]
+    argv += [] if req.limit is None else ["--limit", str(req.limit)]
+    argv += [] if req.checkpoint == "last" else ["--checkpoint", req.checkpoint]
+    argv += [] if req.device == "auto" else ["--device", req.device]
+    argv += ["--report"] if req.report else []
+    argv += [] if req.flip else ["--no-flip"]
+    return shlex.join(argv)
+
+
+def machine_line(device) -> str:
+    """The machine an evaluation ran on, as its report's heading names it."""
+    cpu = machine_fingerprint()
+    return f"{cpu['cpu_model']} ({os.cpu_count()} CPUs, {cpu['arch']}), torch device {device}"
 
 
 @dataclass
@@ -401,6 +422,9 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
                 f"least {4 * spp} spp to compare it"
             )
     result = {
+        "command": evaluate_command(req, out_dir),
+        "machine": machine_line(device),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "run": os.path.abspath(req.run),
         "dataset": os.path.abspath(req.dataset),
         "split": req.split,

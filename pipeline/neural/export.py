@@ -1,4 +1,4 @@
-"""A trained network as a TorchScript file, for use without this package (issue 22).
+"""A trained network as a TorchScript file, for use without this package.
 
 ``export_torchscript(run, out)`` traces the run's network (``--checkpoint last|best|FILE``,
 as `infer`) in eval mode and saves it with ``torch.jit.save``. The file needs only torch:
@@ -12,19 +12,18 @@ direction scaled to length 3 (``network.light_input``); the output is the tone-m
 image in [0, 1] (``pipeline.image.tonemap``; the exposure is in the file's extra
 ``shaderball.json``). Tracing records one resolution: the run's.
 
-    python -m pipeline.neural.export RUN --out net.pt [--checkpoint best]
+    shaderball export RUN --out net.pt [--checkpoint best]
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
-import sys
+import warnings
 
 import torch
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import bad_value
 from pipeline.neural.infer import load_run_model
 from pipeline.neural.network import INPUT_CHANNELS, LIGHT_CHANNELS
 from pipeline.store.atomic import write_bytes_atomic
@@ -56,28 +55,12 @@ def export_torchscript(run: str, out: str, checkpoint: str = "last") -> dict:
         "identity_digest": config.get("identity_digest"),
         "torch": torch.__version__,
     }
-    with torch.no_grad():
+    # The tracer warns where the network turns a tensor into a Python number (its resolution
+    # checks): true for every input of the traced resolution, which is the only one the file takes.
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
         traced = torch.jit.trace(model, example_inputs(model.resolution), check_trace=False)
     buffer = io.BytesIO()
     torch.jit.save(traced, buffer, _extra_files={EXTRA: json.dumps(meta, sort_keys=True)})
     write_bytes_atomic(out, buffer.getvalue())
     return meta
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.export", description=__doc__.split("\n")[0])
-    parser.add_argument("run", help="training run folder")
-    parser.add_argument("--out", required=True, help="TorchScript file to write (.pt)")
-    parser.add_argument("--checkpoint", default="last", help="last, best or a checkpoint file of RUN [last]")
-    args = parser.parse_args(argv)
-    try:
-        meta = export_torchscript(args.run, args.out, args.checkpoint)
-    except ShaderballError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {args.out}: TorchScript, {meta['resolution']}x{meta['resolution']}, {meta['checkpoint']} checkpoint")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

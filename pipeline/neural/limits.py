@@ -1,6 +1,6 @@
 """The neural commands' option ranges and choices, without torch: `cli.py` builds their
 --help from these before torch is loaded, and the checks in ``train`` and ``evaluate`` use
-the same values (one owner per range, issue 21)."""
+the same values (one owner per range)."""
 
 from __future__ import annotations
 
@@ -22,3 +22,16 @@ INTEGER_RANGES = {
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 #: evaluate --spp: each low-spp path-tracing rate compared with the network.
 SPP_LADDER_RANGE = (1, 4096)
+#: Rows of :func:`pipeline.neural.bench.compare_training` (`shaderball neural-bench train-options`): the options each changes from the baseline (the config's:
+#: fp32, NCHW, eager and its --threads, unless given otherwise).
+TRAINING_VARIANTS = {
+    "baseline": {},
+    "--channels-last": {"channels_last": True},
+    "--precision bf16": {"precision": "bf16"},
+    "--precision bf16 --channels-last": {"precision": "bf16", "channels_last": True},
+    "--threads 1": {"threads": 1},
+    "--threads 2": {"threads": 2},
+    "--compile": {"compile": True},
+    "--width 0.5": {"width": 0.5},
+    "--width 0.25": {"width": 0.25},
+}

@@ -14,7 +14,7 @@ covers the bottleneck one value per pixel, so the parameter count depends on R (
 11,595,891 at 64x64).
 
 ``width`` scales every convolution's channels and the light map's copies (the paper's
-network: 1.0): a narrower network for CPU-scale runs (issue 22; at 0.5 about a quarter of
+network: 1.0): a narrower network for CPU-scale runs (at 0.5 about a quarter of
 the convolutions' work). The light branch's MLP is the paper's at every width.
 """
 

@@ -1,10 +1,10 @@
 """What the neural stage does to a dataset before its first step, as one process to measure.
 
-``python -m pipeline.neural.open_probe loader DATASET``
+``scripts/open_probe.py loader DATASET``
     Opens DATASET (a folder or a publication) as ``train`` does and reads every sample once
     through a DataLoader in this process (no workers, SHA-256 checked): the training
     loader's open and one pass.
-``python -m pipeline.neural.open_probe evaluate-setup DATASET``
+``scripts/open_probe.py evaluate-setup DATASET``
     What ``evaluate`` does before its first sample: opens DATASET and splits it by material
     (the default held-out fraction) into its test subset.
 
@@ -15,14 +15,10 @@ peak memory.
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 import time
 
 from torch.utils.data import DataLoader
 
-from pipeline.errors import USER_ERRORS
 from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.splits import split_materials
 from pipeline.neural.train import TrainConfig
@@ -50,19 +46,6 @@ def evaluate_setup(root: str) -> dict:
     return {"samples": len(dataset), "test": len(test), "setup_s": time.perf_counter() - started}
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m pipeline.neural.open_probe", description=__doc__.split("\n\n")[0])
-    p.add_argument("probe", choices=PROBES)
-    p.add_argument("dataset")
-    args = p.parse_args(argv)
-    try:
-        result = loader_pass(args.dataset) if args.probe == "loader" else evaluate_setup(args.dataset)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    print(json.dumps(result))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+def run_probe(probe: str, root: str) -> dict:
+    """One of :data:`PROBES` on ``root``."""
+    return loader_pass(root) if probe == "loader" else evaluate_setup(root)

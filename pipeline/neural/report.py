@@ -200,6 +200,10 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     lines = [
         f"# Evaluation report: {os.path.basename(os.path.abspath(run_dir))}",
         "",
+        f"Written by `{result['command']}` on {result['date']}.",
+        "",
+        f"Machine: {result['machine']}.",
+        "",
         f"Run: `{os.path.abspath(run_dir)}` ({config['network'].get('parameters', 0):,} parameters, width "
         f"{config['network'].get('width', 1.0)}, {config['network']['resolution']} px); trained "
         f"{last.get('epoch', 0)} epochs on {len(split.get('train', []))} materials, seed {options.get('seed')}, "

@@ -1,7 +1,7 @@
 """How a training step runs, not what it computes: torch threads, memory format, precision
-and compilation (`shaderball train --threads/--channels-last/--precision/--compile`; issue
-22, item 4). The measured effect of each on the project's CPU is in docs/neural.md ("Speed
-on a CPU"); the defaults are what helped there.
+and compilation (`shaderball train --threads/--channels-last/--precision/--compile`).
+`shaderball neural-bench train-options` measures the effect of each on a machine
+(docs/neural.md, "Speed on a CPU").
 
 - precision ``bf16``: autocast to bfloat16 (CPU or CUDA); ``fp16``: autocast to float16 with
   a gradient scaler, CUDA only. Weights, optimiser state and the loss stay float32.

@@ -1,6 +1,6 @@
 """Runs of several training-set sizes and seeds, side by side: the data-size curve.
 
-``python -m pipeline.neural.sweep REPORT.json ... --out DIR`` reads the report.json that
+``shaderball sweep REPORT.json ... --out DIR`` reads the report.json that
 `shaderball evaluate --report` wrote for each run (all evaluated on the same held-out
 samples) and writes into DIR:
 
@@ -17,10 +17,11 @@ Which runs belong together is checked: the same held-out samples, the same datas
 
 from __future__ import annotations
 
-import argparse
+import datetime
 import json
 import os
-import sys
+import platform
+import shlex
 
 import numpy as np
 
@@ -126,8 +127,21 @@ def _ci(v: dict | None) -> str:
     return f"{v['psnr']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else f"{v['psnr']:.2f}"
 
 
+def heading(reports: list[str], out: str) -> dict:
+    """What heads sweep.md: the command that writes it, the machine and the date."""
+    return {
+        "command": shlex.join(["shaderball", "sweep", *reports, "--out", out]),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
 def markdown(summary: dict) -> str:
     lines = [
+        "# Data-size sweep",
+        "",
+        f"Written by `{summary['command']}` on {summary['date']}; machine: {summary['machine']}.",
+        "",
         "Held-out PSNR (dB, 8-bit sRGB) with 95% intervals (bootstrap over held-out materials); "
         "differences are paired per sample.",
         "",
@@ -192,26 +206,13 @@ def data_size_png(summary: dict) -> bytes:
     )
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.neural.sweep", description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "reports", nargs="+", metavar="REPORT.json", help="report.json of `shaderball evaluate --report`"
-    )
-    parser.add_argument("--out", required=True, metavar="DIR", help="folder for sweep.md, sweep.json, data-size.png")
-    args = parser.parse_args(argv)
-    try:
-        summary = summarise([(p, _load(p)) for p in args.reports])
-    except ShaderballError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    os.makedirs(args.out, exist_ok=True)
+def write_sweep(reports: list[str], out: str) -> tuple[dict, str]:
+    """Read ``reports`` (report.json files), write sweep.md, sweep.json and data-size.png into
+    ``out``; returns the summary and the markdown. Nothing is written when a report is refused."""
+    summary = {**heading(reports, out), **summarise([(p, _load(p)) for p in reports])}
+    os.makedirs(out, exist_ok=True)
     text = markdown(summary)
-    write_bytes_atomic(os.path.join(args.out, "sweep.md"), text.encode())
-    runfiles.write_json(os.path.join(args.out, "sweep.json"), summary)
-    write_bytes_atomic(os.path.join(args.out, "data-size.png"), data_size_png(summary))
-    print(text, end="")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    write_bytes_atomic(os.path.join(out, "sweep.md"), text.encode())
+    runfiles.write_json(os.path.join(out, "sweep.json"), summary)
+    write_bytes_atomic(os.path.join(out, "data-size.png"), data_size_png(summary))
+    return summary, text

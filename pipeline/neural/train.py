@@ -45,7 +45,7 @@ from pipeline.store.atomic import write_bytes_atomic
 
 #: Config fields that change what a run computes: a resume must match them.
 IDENTITY_FIELDS = ("batch_size", "lr", "loss", "vgg_weight", "seed", "resolution", "test_fraction", "exposure")
-#: Identity fields added in issue 22 with their defaults: part of a run's identity only when
+#: Identity fields with their defaults that join a run's identity only when
 #: not the default, so a run made before them resumes. ``epochs`` joins with a cosine
 #: schedule, whose learning rate depends on where the run ends.
 OPTIONAL_IDENTITY = {
@@ -359,7 +359,7 @@ def diverged(what: str, epoch: int, lr: float) -> Diverged:
 
 def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
     """What says a run is not learning after an epoch: saturated held-out outputs, or a
-    held-out loss that did not move (issue 22: the paper's lr 1e-2 does both)."""
+    held-out loss that did not move (the paper's lr 1e-2 does both)."""
     hint = "try " + smaller_lr(entry.get("lr"))
     out = []
     if entry.get("test_saturated") is not None and entry["test_saturated"] > SATURATED_FRACTION:
@@ -389,7 +389,7 @@ def _check_run_dir(run_dir: str) -> None:
 
 
 def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -> dict:
-    """What a run computes: a resume must match it. Issue 22's options join only when not
+    """What a run computes: a resume must match it. The options of OPTIONAL_IDENTITY join only when not
     their defaults, so older runs keep their digest."""
     identity = {k: getattr(config, k) for k in IDENTITY_FIELDS}
     identity.update(resolution=resolution, dataset=source_identity, vgg_sha256=vgg_sha256)
@@ -507,7 +507,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
             done = int(ckpt["epoch"])
             if done > config.epochs:
                 # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
-                # options.epochs the run's (issue 22: it was rewritten 2 -> 1).
+                # options.epochs the run's (not rewritten, e.g. 2 -> 1).
                 raise bad_value(
                     "--epochs",
                     config.epochs,

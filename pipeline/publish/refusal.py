@@ -11,7 +11,7 @@ from pipeline.store.folder import MAX_JSON_BYTES, RECORD_CONTAINERS, RECORD_VALU
 class Refused(ShaderballError):
     """A publication (or the dataset to publish) that is not accepted: exit code 1.
 
-    ``kind`` names the reason (docs/publish.md lists them); the message names the file,
+    ``kind`` names the reason in a word (``dotdot``, ``member_checksum``, ...); the message names the file,
     the member and what was expected.
     """
 

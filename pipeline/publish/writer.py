@@ -4,7 +4,7 @@ table, a dataset card, Croissant metadata and checksums (layout: pipeline.publis
 The same folder gives the same bytes: members in plan order with fixed metadata
 (pipeline.publish.tarsafe), JSON with sorted keys, nothing from the clock, the host or
 the user. A material's maps are stored once, before its lightings, in the same tar
-(docs/publish.md measures what repeating them per sample would cost).
+(the card's Files section gives what repeating them per sample would cost).
 
 PUB is held for writing (pipeline.store.lock) from its first check to its last file, as
 unpack holds its DIR: a second publish into it is refused (exit code 3) naming the first.

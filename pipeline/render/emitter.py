@@ -88,7 +88,7 @@ def _emitter_state(effective: Light, sun: str, policy: LightingPolicy, variant: 
             f"the sky emitter for {effective.to_dict()} has negative radiance "
             f"{state['emitter_min'].tolist()} although the elevation floor holds: the floor table in "
             "sky/policy.py does not fit this Mitsuba version; regenerate it with "
-            "`python -m pipeline.bench.sky_floor --table`"
+            "`scripts/sky_floor.py --table`"
         )
     return state
 

@@ -215,7 +215,7 @@ def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = 
     power-of-two passes a pixel's samples never straddle; the passes are averaged in
     float64, weighted by their spp: exact for every channel of the moment integrator,
     whose channels are per-pixel means too. Cost: one kernel per distinct pass size
-    (cached) and about +10% at 150 spp (docs/build.md). ``passes`` (:func:`pass_plan`) may
+    (cached) and a little render time at 150 spp (`shaderball bench` measures it). ``passes`` (:func:`pass_plan`) may
     say otherwise; a single pass is seeded like the first of several.
     """
     passes = power_of_two_passes(spp) if passes is None else passes

@@ -254,7 +254,7 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str, scen
                 (len(slots) - 1, material, [r if ok else None for r, ok in zip(existing, verified)], render_kept)
             )
     # The next material's maps are made on their own thread while this one renders (numpy:
-    # ~65 ms a material, a tenth of a material's renders on a GPU, issue 11).
+    # ~65 ms a material, a tenth of a material's renders on a GPU).
     with (
         OrderedWriter() as writer,
         ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker,

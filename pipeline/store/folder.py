@@ -6,7 +6,7 @@ Build (progress, resume, the sweep of temporary files), info, preview, validate,
 training loader and the crash harness read folders through this module, so they agree on
 what a file is and on what is safe to open.
 
-A dataset folder is untrusted input (issue 15): anyone may have edited it. So:
+A dataset folder is untrusted input: anyone may have edited it. So:
 
 - a path named in a manifest, record or marker is opened only through :func:`resolve_inside`:
   a plain relative path (no ``..``, not absolute, no backslash), every component of it inside

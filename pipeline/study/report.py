@@ -478,6 +478,10 @@ def report_markdown(
     L = [
         f"# Accuracy study: {os.path.basename(meta['spec'])}",
         "",
+        f"Written by `{meta['command']}` on {meta['date']}.",
+        "",
+        f"Machine: {meta['machine']}.",
+        "",
         f"{len(meta['selection'])} samples x {meta.get('repeats', 1)} seeds, {req['resolution']}x{req['resolution']}, "
         f"references at "
         f"{req['reference_spp']} spp (two halves), variant {meta['variant']}, {meta['cpu_count']} CPUs. "

@@ -28,10 +28,12 @@ the same passes for the other samplers, whose kernels do), so the render's own t
 
 from __future__ import annotations
 
+import datetime
 import io
 import json
 import math
 import os
+import shlex
 import time
 import zlib
 from dataclasses import asdict, dataclass, field, replace
@@ -47,7 +49,7 @@ from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.limits import RESOLUTION_RANGE
-from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
+from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint, resolve_variant
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import (
     MaterialScene,
@@ -189,6 +191,27 @@ def request_record(req: StudyRequest, spec) -> dict:
         "repeats": req.repeats,
         **({"only": list(req.only)} if req.only else {}),
     }
+
+
+def study_command(req: StudyRequest) -> str:
+    """The command line that makes ``req``: the first line of the report it writes."""
+    argv = ["shaderball", "study", req.spec, "--out", req.out, "--draws", str(req.samples)]
+    argv += ["--reference-spp", str(req.reference_spp)]
+    if req.resolution is not None:
+        argv += ["--resolution", str(req.resolution)]
+    argv += ["--ladder", ",".join(map(str, req.ladder)), "--configs", ",".join(req.families)]
+    if req.only:
+        argv += ["--only", ",".join(req.only)]
+    argv += ["--repeats", str(req.repeats)]
+    if not req.flip:
+        argv.append("--no-flip")
+    return shlex.join(argv)
+
+
+def machine_line(variant: str) -> str:
+    """The machine a study ran on, as its report's heading names it."""
+    cpu = machine_fingerprint()
+    return f"{cpu['cpu_model']} ({os.cpu_count()} CPUs, {cpu['arch']}), Mitsuba variant {variant}"
 
 
 def check_resumable(out: str, record: dict) -> None:
@@ -576,6 +599,9 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         "repeats": req.repeats,
         "renders_per_worker": ctx.renders_per_worker,
         "lights_per_material": ctx.lights_per_material,
+        "command": study_command(req),
+        "machine": machine_line(variant),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     }
     recommendations = write_outputs(req.out, meta, rows, configs)
     return StudySummary(

@@ -1,4 +1,4 @@
-"""Helpers for the hostile-input tests (issue 15): see which files outside a dataset a
+"""Helpers for the hostile-input tests: see which files outside a dataset a
 command opens (Linux inotify through ctypes), and make a dataset copy to spoil."""
 
 from __future__ import annotations

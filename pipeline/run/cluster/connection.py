@@ -12,10 +12,10 @@ task per shard to the client this module connects (the only module that runs das
 Worker memory is bounded twice: the nanny restarts a worker whose memory passes 95 % of its
 limit (its unfinished shard runs again), and ``recycle_after`` restarts a worker process,
 between shards, once it has rendered that many samples (Mitsuba's memory grows slowly when
-it renders in a long loop; docs/cluster.md has the measurement). Re-running a shard is safe
+it renders in a long loop; scripts/memory_probe.py measures it, docs/cluster.md). Re-running a shard is safe
 because shard tasks are idempotent (:mod:`pipeline.run.shard`).
 
-``python -m pipeline.bench.memory_probe --memory-probe 200`` re-measures the growth. The options are checked in
+``scripts/memory_probe.py --memory-probe 200`` re-measures the growth. The options are checked in
 :mod:`pipeline.run.cluster.options`; batch jobs are watched by :mod:`pipeline.run.cluster.watch`.
 """
 
@@ -265,7 +265,7 @@ def spawned_ignoring_sigint() -> Iterator[None]:
     again later: recycling, a memory restart) starts with SIGINT ignored and blocked.
 
     A terminal's Ctrl-C reaches the whole process group; a worker process caught while it
-    imports printed a KeyboardInterrupt traceback (seen on a loaded machine, issue 20). An
+    imports printed a KeyboardInterrupt traceback (seen on a loaded machine). An
     ignored signal stays ignored across exec and Python then installs no handler of its own,
     so the spawn start method runs a wrapper that ignores SIGINT and execs this Python. Ignored
     is not enough while Mitsuba renders: it installs its own SIGINT handler for the length of

@@ -1,0 +1,29 @@
+"""The head of a generated results page (docs/results/): the command that wrote it, the date and
+the machine, so a number quoted from it can be traced and re-measured.
+
+    from scripts.results_page import head
+    text = head("Title", ".venv/bin/python scripts/x.py --write") + body
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+
+
+def machine() -> str:
+    """CPU model and count, system, Python version: what a measurement on this machine depends on."""
+    cpu = "?"
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "?")
+    except OSError:
+        pass
+    system = f"{platform.system()} {platform.release()} {platform.machine()}"
+    return f"{cpu} ({os.cpu_count()} CPUs), {system}, Python {platform.python_version()}"
+
+
+def head(title: str, command: str) -> str:
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return f"# {title}\n\nWritten by `{command}` on {date}.\n\nMachine: {machine()}.\n\n"
