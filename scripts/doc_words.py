@@ -4,7 +4,8 @@
 
 Which pages are hand-written, by one rule: a page is generated when it lives under
 docs/results/ (every results page is written there by the command named in its first
-lines); every other page of README.md and docs/*.md is hand-written. Pages in other
+lines) or when its first lines say "do not edit by hand" (docs/cli.md, written from the
+click commands); every other page of README.md and docs/*.md is hand-written. Pages in other
 folders under docs/ (shipped reports, pictures) are not pages of the docs' text and are
 not counted either: only README.md and the files directly in docs/ are.
 
@@ -31,10 +32,20 @@ ISSUE_REFERENCE = re.compile(r"\bissue[ _-]?#?\d+", re.IGNORECASE)
 PYTHON_PATCH = re.compile(r"\bPython\b[^.\n]{0,40}?\b(\d+\.\d+\.\d+)")
 
 
+#: What the head of a generated page outside docs/results/ says.
+GENERATED_MARK = "do not edit by hand"
+
+
+def _generated(page: Path) -> bool:
+    with page.open(encoding="utf-8") as fh:
+        head = " ".join(line for _, line in zip(range(5), fh))
+    return GENERATED_MARK in " ".join(head.split())
+
+
 def hand_written_pages(repo: Path = REPO) -> list[Path]:
-    """README.md and docs/*.md; nothing under docs/results/ (generated) or other sub-folders."""
+    """README.md and docs/*.md but generated ones; nothing under docs/results/ or other sub-folders."""
     pages = [repo / "README.md"] + sorted((repo / "docs").glob("*.md"))
-    return [page for page in pages if page.is_file()]
+    return [page for page in pages if page.is_file() and not _generated(page)]
 
 
 def words(text: str) -> int:

@@ -24,6 +24,9 @@ def test_the_counting_rule_counts_what_it_says(tmp_path):
     (tmp_path / "docs" / "page.md").write_text("four  five\nsix\n")
     (tmp_path / "docs" / "results" / "bad-inputs.md").write_text("generated " * 5000)
     (tmp_path / "docs" / "results" / "x" / "README.md").write_text("generated " * 5000)
+    (tmp_path / "docs" / "cli.md").write_text(
+        "# Reference\n\nWritten by `x --write`; do not edit\nby hand.\n" + "w " * 5000
+    )
     assert script.counts(tmp_path) == {"README.md": 3, "docs/page.md": 3}
     assert script.ISSUE_REFERENCE.search("as Issue 22 asked") and script.ISSUE_REFERENCE.search("issue_31")
     assert not script.ISSUE_REFERENCE.search("an issue with 3 parts")
