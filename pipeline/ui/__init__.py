@@ -3,6 +3,6 @@ stderr (:mod:`pipeline.ui.progress`) and option values that need parsing
 (:mod:`pipeline.ui.values`). The command (``cli.py``) uses it; library code never does, since
 library code never prints.
 
-Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
-``pipeline.errors``; nothing else of the project.
+Layer 4 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``, ``pipeline.fields``; nothing else of the project.
 """
