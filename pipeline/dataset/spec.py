@@ -5,7 +5,8 @@ A spec has five sections, one dataclass each::
     [dataset]    DatasetSection    name, version, seed, counts, uniform/SVBRDF split, shard size
     [materials]  MaterialsSection  uniform-material ranges, SVBRDF sources, texture size
     [lighting]   LightingSection   sun elevation/azimuth and turbidity ranges, scheme, sun form
-    [render]     RenderSection     resolution, spp, max depth, integrator, Mitsuba variant
+    [render]     RenderSettings    resolution, spp, max depth, integrator, Mitsuba variant, sampler, ...
+                                   (the renderer's settings type, pipeline.render.settings)
     [storage]    StorageSection    EXR compression, stored layers, texture-space maps, half maps
 
 Each section checks its own fields in ``__post_init__`` (so a section built from Python
@@ -56,18 +57,8 @@ from pipeline.fields import (
     format_value,
 )
 from pipeline.image.formats import EXR_COMPRESSIONS
-from pipeline.render.limits import (
-    CLAMP_RANGE,
-    DEFAULT_RR_DEPTH,
-    INTEGRATORS,
-    MAX_DEPTH_RANGE,
-    RESOLUTION_RANGE,
-    RR_DEPTH_RANGE,
-    SAMPLERS,
-    SPP_RANGE,
-    TARGET_ERROR_RANGE,
-)
-from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
+from pipeline.render.limits import DEFAULT_RR_DEPTH, RESOLUTION_RANGE  # noqa: F401 - RESOLUTION_RANGE: the spec's
+from pipeline.render.settings import RenderSettings
 from sky.emitter import SUN_MODES
 from sky.lighting import SCHEMES, LightingRanges
 
@@ -115,7 +106,7 @@ class SpecError(FieldError):
         self.source = source
         where = f"{section}.{field_name}" if field_name else f"[{section}]"
         prefix = f"{source}: " if source else ""
-        super().__init__(prefix + where, value, allowed, what=what)
+        super().__init__(prefix + where, value, allowed, what=what, name=field_name)
         self.what = what
 
     def with_source(self, source: str) -> SpecError:
@@ -474,72 +465,8 @@ class LightingSection(_Section):
         )
 
 
-VARIANTS: tuple[str, ...] = VARIANT_CHOICES
-
-
-@dataclass(frozen=True)
-class RenderSection(_Section):
-    """[render]: how each target image is path traced."""
-
-    SECTION: ClassVar[str] = "render"
-
-    resolution: int = field(
-        400,
-        rule=Int(*RESOLUTION_RANGE),
-        doc="Width and height of renders and screen-space maps; the paper: 400.",
-        unit="pixels",
-    )
-    spp: int = field(
-        150, rule=Int(*SPP_RANGE), doc="Samples per pixel of each render; the paper: 150.", unit="samples per pixel"
-    )
-    max_depth: int = field(
-        8,
-        rule=Int(*MAX_DEPTH_RANGE, also=(-1,), also_text="-1 (unlimited, Russian roulette ends paths)"),
-        doc="Longest light path, in Mitsuba's convention (1: emitters "
-        "seen directly only, 2: direct lighting, ...). -1: no limit.",
-        unit="path vertices",
-    )
-    integrator: str = field("path", rule=Choice(INTEGRATORS), doc="Mitsuba integrator.")
-    variant: str = field(
-        "auto",
-        rule=Choice(VARIANTS),
-        doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
-        + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
-        + ". Renders are reproducible for one backend and machine only.",
-    )
-    sampler: str = field(
-        "independent",
-        rule=Choice(SAMPLERS),
-        doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
-        "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
-        "squared, ldsampler to a power-of-two square): each render records the spp used "
-        "(docs/accuracy.md compares them). Byte-reproducible with several render threads "
-        "only when every power-of-two pass stays a power of two after rounding (e.g. "
-        "multijitter or stratified at 64).",
-    )
-    rr_depth: int = field(
-        DEFAULT_RR_DEPTH,
-        rule=Int(*RR_DEPTH_RANGE),
-        doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above max_depth there is none.",
-        unit="path vertices",
-    )
-    clamp: float = field(
-        0.0,
-        rule=Float(*CLAMP_RANGE),
-        doc="Firefly clamp: each camera path's radiance is scaled down to this luminance "
-        "when brighter (pipeline.render.clamp); 0: off. Biased: it removes real light "
-        "(docs/accuracy.md measures how much).",
-        unit="radiance (W m^-2 sr^-1)",
-    )
-    target_error: float = field(
-        0.0,
-        rule=Float(*TARGET_ERROR_RANGE),
-        doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
-        "the moment integrator's estimate of the relative RMS error of the luminance on "
-        "the ball, sqrt(mean(var / (Y^2 + 0.01))), the square root of the relMSE the "
-        "study ranks by, is at most this, or spp (then the cap) is reached; each "
-        "render records the spp used. 0: off, every render takes spp.",
-    )
+#: The [render] section is the renderer's settings type, declared in pipeline.render.settings.
+RenderSection = RenderSettings
 
 
 @dataclass(frozen=True)
@@ -565,7 +492,7 @@ class StorageSection(_Section):
         object.__setattr__(self, "layers", tuple(n for n in MAP_LAYERS if n in self.layers))
 
 
-SECTIONS: dict[str, type[_Section]] = {
+SECTIONS: dict[str, type[Checked]] = {
     "dataset": DatasetSection,
     "materials": MaterialsSection,
     "lighting": LightingSection,
@@ -581,13 +508,17 @@ class DatasetSpec:
     dataset: DatasetSection
     materials: MaterialsSection = dataclasses.field(default_factory=MaterialsSection)
     lighting: LightingSection = dataclasses.field(default_factory=LightingSection)
-    render: RenderSection = dataclasses.field(default_factory=RenderSection)
+    #: Its ``sun`` and ``model`` are filled in from ``lighting.sun`` and ``materials.model``.
+    render: RenderSettings = dataclasses.field(default_factory=RenderSettings)
     storage: StorageSection = dataclasses.field(default_factory=StorageSection)
 
     def __post_init__(self):
         for name, cls in SECTIONS.items():
             if not isinstance(getattr(self, name), cls):
                 raise TypeError(f"DatasetSpec.{name} must be a {cls.__name__}")
+        if (self.render.sun, self.render.model) != (self.lighting.sun, self.materials.model):
+            render = dataclasses.replace(self.render, sun=self.lighting.sun, model=self.materials.model)
+            object.__setattr__(self, "render", render)
         n_svbrdf = self.dataset.n_svbrdf
         if n_svbrdf and not self.materials.has_svbrdf_source:
             raise SpecError(
@@ -718,8 +649,8 @@ def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
     return DatasetSpec(**sections)
 
 
-def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
-    known = {f.name: f for f in fields(cls)}
+def _section_from_table(cls: type[Checked], raw: dict[str, Any]) -> Checked:
+    known = {f.name: f for f in fields(cls) if f.metadata["in_file"]}
     for key, value in raw.items():
         if key not in known:
             raise SpecError(
@@ -732,7 +663,12 @@ def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
     for name, f in known.items():
         if name not in raw and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise SpecError(cls.SECTION, name, MISSING, "required: " + f.metadata["rule"].allowed, what="missing")
-    return cls(**raw)
+    try:
+        return cls(**raw)
+    except SpecError:
+        raise
+    except FieldError as exc:  # a section declared outside this module (the renderer's settings)
+        raise SpecError(cls.SECTION, exc.name, exc.value, exc.allowed, what=exc.what) from None
 
 
 def _did_you_mean(word: str, options) -> str:
@@ -805,6 +741,8 @@ def reference_rows() -> list[tuple[str, str, str, str, str]]:
     rows = []
     for name, cls in SECTIONS.items():
         for f in fields(cls):
+            if not f.metadata["in_file"]:
+                continue
             rule: Rule = f.metadata["rule"]
             if f.metadata["doc_default"] is not None:
                 default = f.metadata["doc_default"]

@@ -14,16 +14,18 @@ import numpy as np
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial, load_deschaintre
-from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import bad_value, check_int
+from pipeline.fields import FieldError
 from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import RenderSettings, render_sample
+from pipeline.render.renderer import render_sample
+from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
+from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 SEED_RANGE = (0, 2**32 - 1)
 #: Sun azimuth in degrees: any turn is one of these (a slip of a turn stays valid).
@@ -77,13 +79,13 @@ class RenderRequest:
     elevation_deg: float = 45.0
     azimuth_deg: float = 270.0
     turbidity: float = 3.0
-    spp: int = 150
-    resolution: int = 400
-    max_depth: int = 8
+    spp: int = RenderSettings.spp
+    resolution: int = RenderSettings.resolution
+    max_depth: int = RenderSettings.max_depth
     seed: int = 0
-    sun: str = "split"
-    model: str = DEFAULT_MODEL
-    variant: str = "auto"
+    sun: str = RenderSettings.sun
+    model: str = RenderSettings.model
+    variant: str = RenderSettings.variant
     out: str = "render.exr"
     png: str | None = None
 
@@ -131,6 +133,18 @@ def load_material(req: RenderRequest):
     return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
 
 
+def render_settings(req: RenderRequest) -> RenderSettings:
+    """The request's render settings (the variant as requested)."""
+    return RenderSettings(
+        resolution=req.resolution,
+        spp=req.spp,
+        max_depth=req.max_depth,
+        variant=req.variant,
+        sun=req.sun,
+        model=req.model,
+    )
+
+
 def check_request(req: RenderRequest) -> None:
     """Check every field of ``req``; raise ShaderballError naming the option."""
 
@@ -142,20 +156,16 @@ def check_request(req: RenderRequest) -> None:
         raise bad_value("--normal", ",".join(map(str, req.normal)), "a tangent-space direction X,Y,Z with Z > 0")
     if req.svbrdf is not None and not os.path.exists(req.svbrdf):
         raise bad_value("--svbrdf", req.svbrdf, "an existing PNG strip or folder of maps")
-    check_number("--elevation", req.elevation_deg, 0.0, 90.0, " degrees")
+    check_number("--elevation", req.elevation_deg, *ELEVATION_RANGE, " degrees")
     check_number("--azimuth", req.azimuth_deg, *AZIMUTH_RANGE, " degrees")
-    check_number("--turbidity", req.turbidity, 1.0, 10.0)
+    check_number("--turbidity", req.turbidity, *TURBIDITY_RANGE)
     check_int("--seed", req.seed, *SEED_RANGE)
     if req.variant not in VARIANT_CHOICES:
         raise bad_value("--variant", req.variant, ", ".join(VARIANT_CHOICES))
-    RenderSettings(
-        resolution=req.resolution,
-        spp=req.spp,
-        max_depth=req.max_depth,
-        variant=req.variant,
-        sun=req.sun,
-        model=req.model,
-    ).check(lambda name: "--" + name.replace("_", "-"))
+    try:
+        render_settings(req)
+    except FieldError as exc:  # named as the command's option
+        raise FieldError("--" + exc.name.replace("_", "-"), exc.value, exc.allowed, what=exc.what) from None
     Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     check_output("--out", req.out, ".exr")
     if req.png is not None:
@@ -171,9 +181,7 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
     variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
-    settings = RenderSettings(
-        resolution=req.resolution, spp=req.spp, max_depth=req.max_depth, variant=variant, sun=req.sun, model=req.model
-    )
+    settings = render_settings(req).resolved(variant)
     light = Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     result = render_sample(ball, camera, maps, light, settings, req.seed, mask=gbuffer.mask)
     screen = project_material(maps, gbuffer)

@@ -480,14 +480,10 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     resolution = record["resolution"]
     gbuffer = load_gbuffer(ball, camera, resolution, variant)
     r = spec.render
+    # the paper's recipe at the study's resolution: the spec's sampler, clamp and target are the configs' to vary
     base = RenderSettings(
-        resolution=resolution,
-        spp=r.spp,
-        max_depth=r.max_depth,
-        integrator=r.integrator,
-        sun=spec.lighting.sun,
-        variant=variant,
-    ).check()
+        resolution=resolution, spp=r.spp, max_depth=r.max_depth, integrator=r.integrator, sun=r.sun, variant=variant
+    )
     shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
     ctx = Context(
         spec,
