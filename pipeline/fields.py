@@ -71,8 +71,10 @@ def format_value(value: Any) -> str:
 class FieldError(ShaderballError):
     """A refused field value: ``<where>: <value> is not allowed; <allowed>``."""
 
-    def __init__(self, where: str, value: Any, allowed: str, *, what: str | None = None):
+    def __init__(self, where: str, value: Any, allowed: str, *, what: str | None = None, name: str = ""):
         self.where = where
+        #: The field's own name (``spp``), however ``where`` spells it.
+        self.name = name
         self.value = value
         self.allowed = allowed
         self.what = what
@@ -372,7 +374,7 @@ class Checked:
 
     @classmethod
     def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> FieldError:
-        return FieldError(cls.field_label(name), value, allowed, what=what)
+        return FieldError(cls.field_label(name), value, allowed, what=what, name=name)
 
     def check_fields(self):
         for f in fields(self):
