@@ -38,12 +38,12 @@ if __name__ == "__main__":  # `python -m cli`; Python's own handler is back befo
 
 import contextlib
 import ctypes
+import dataclasses
 import functools
 import traceback
 
 import click
 
-from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
 from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
@@ -55,16 +55,17 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, SPP_LADDER_RANGE
+from pipeline.neural.config import TrainConfig
+from pipeline.neural.limits import DEVICES, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
 from pipeline.render.command import AZIMUTH_RANGE, SEED_RANGE, RenderRequest, parse_triple, render_to_files
-from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, interval, span
-from pipeline.render.mitsuba_env import VARIANT_CHOICES
+from pipeline.render.limits import interval, span
 from pipeline.render.scene_command import write_scene
+from pipeline.render.settings import RenderSettings
 from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
 from pipeline.run.cluster.options import (
@@ -91,6 +92,7 @@ from pipeline.study.run import (
     run_study,
 )
 from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
+from pipeline.ui.options import option_from, options_from
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -100,7 +102,6 @@ from pipeline.ui.progress import (
     validate_progress,
 )
 from pipeline.ui.values import parse_int_list
-from sky.emitter import DEFAULT_SUN, SUN_MODES
 from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
@@ -235,6 +236,7 @@ class _Command(click.Command):
             and "--json" in args[: args.index("--") if "--" in args else len(args)]
         )
         try:
+            _refuse_json_with_a_value(self, info_name, args, parent)
             return super().make_context(info_name, args, parent=parent, **extra)
         except click.ClickException as exc:
             if not wants_json:
@@ -242,6 +244,21 @@ class _Command(click.Command):
             exc.show()
             _write_json({"ok": False, "exit": exc.exit_code, "error": exc.format_message()})
             sys.exit(exc.exit_code)
+
+
+def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
+    """``--json FILE`` (a file name ending in .json after --json) where the command writes a
+    file with ``--json-out``: a usage error naming the new spelling, before anything runs."""
+    if not any("--json-out" in p.opts for p in command.params):
+        return
+    head = args[: args.index("--") if "--" in args else len(args)]
+    for flag, value in zip(head, head[1:]):
+        if flag == "--json" and value.lower().endswith(".json"):
+            ctx = click.Context(command, info_name=info_name, parent=parent)
+            raise click.UsageError(
+                f"--json {value}: --json is a flag (one JSON document on stdout); write the file with --json-out FILE",
+                ctx,
+            )
 
 
 class _Group(click.Group):
@@ -279,8 +296,8 @@ def json_option(help: str):
 
 
 def json_file_option(help: str):
-    """``--json PATH`` (``json_path``): also write the figures to a JSON file."""
-    return click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
+    """``--json-out FILE`` (``json_path``): also write the figures to a JSON file."""
+    return click.option("--json-out", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
 
 
 def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "out"):
@@ -289,28 +306,30 @@ def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "o
     return click.option("--out", dest, required=required, type=kind, default=None, help=help)
 
 
-def variant_option():
+def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True):
+    """An old spelling of an option, hidden: given, it exits 2 naming the new one."""
+
+    def refuse(ctx, param, value):
+        if value is not None and value is not False:
+            raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
+
     return click.option(
-        "--variant",
-        default="auto",
-        show_default=True,
-        type=click.Choice(VARIANT_CHOICES),
-        help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
+        old, default=None, hidden=True, expose_value=False, is_flag=not takes_value, callback=refuse, is_eager=True
+    )
+
+
+def variant_option():
+    return option_from(
+        RenderSettings, "variant", help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
     )
 
 
 def resolution_option():
-    return click.option(
-        "--resolution",
-        default=400,
-        show_default=True,
-        type=int,
-        help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-    )
+    return option_from(RenderSettings, "resolution")
 
 
-def device_option(help: str | None = None):
-    """torch's device (train, infer, evaluate)."""
+def device_option(help: str = "Where the network runs: auto (cuda when torch sees a GPU, else cpu), cpu or cuda."):
+    """torch's device (infer, evaluate)."""
     return click.option("--device", default="auto", show_default=True, type=click.Choice(DEVICES), help=help)
 
 
@@ -424,33 +443,25 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 @main.command("render")
 @material_options(full=True)
 @light_options(full=True)
-@click.option(
-    "--spp", default=150, show_default=True, type=int, help=f"Samples per pixel, {span(SPP_RANGE)} (the paper: 150)."
-)
-@resolution_option()
-@click.option(
-    "--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}."
-)
+@options_from(RenderSettings, "spp", "resolution", "max_depth")
 @click.option("--seed", default=0, show_default=True, type=int, help=f"Render seed, {span(SEED_RANGE)}.")
 @variant_option()
-@click.option(
-    "--sun",
-    type=click.Choice(SUN_MODES),
-    default=DEFAULT_SUN,
-    show_default=True,
-    help="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.",
+@options_from(
+    RenderSettings,
+    "sun",
+    "model",
+    sun={
+        "help": "split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky."
+    },
+    model={
+        "help": "Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
+        "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
+        "roughness 0.178; docs/materials.md). A spec's materials.model."
+    },
 )
-@click.option(
-    "--model",
-    type=click.Choice(MODELS),
-    default=DEFAULT_MODEL,
-    show_default=True,
-    help="Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
-    "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
-    "roughness 0.178; docs/materials.md). A spec's materials.model.",
-)
-@out_option("Output EXR: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
+@out_option("Output EXR file: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
+@json_option("Print what was written (files, render statistics and time, lighting, effects) as JSON on stdout.")
 @_friendly_errors
 def render_cmd(
     diffuse,
@@ -471,6 +482,7 @@ def render_cmd(
     model,
     out,
     png,
+    as_json,
 ):
     """Render one material on the shaderball under one sun and sky."""
 
@@ -494,14 +506,18 @@ def render_cmd(
         out=out,
         png=png,
     )
-    for line in render_to_files(request).lines():
+    summary = render_to_files(request)
+    if as_json:
+        _emit_json(dataclasses.asdict(summary))
+        return
+    for line in summary.lines():
         click.echo(line)
 
 
 @main.command("build")
 @click.argument("spec", type=click.Path(dir_okay=False))
 @out_option(
-    "Dataset directory. Created if missing; an existing one built from the same spec is "
+    "Dataset folder. Created if missing; an existing one built from the same spec is "
     "resumed (only missing or unverified samples are rendered); another spec is refused.",
     folder=True,
 )
@@ -587,6 +603,7 @@ def render_cmd(
     is_flag=True,
     help="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.",
 )
+@json_option("Print what was built (folder, manifest, counts, seconds) as JSON on stdout; progress stays on stderr.")
 @_friendly_errors
 def build_cmd(
     spec,
@@ -605,6 +622,7 @@ def build_cmd(
     recycle_after,
     start_timeout,
     print_job_script,
+    as_json,
 ):
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
@@ -637,6 +655,9 @@ def build_cmd(
     summary = build(
         spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=build_progress(), on_start=started
     )
+    if as_json:
+        _emit_json({**dataclasses.asdict(summary), "manifest": os.path.join(summary.out, "manifest.jsonl")})
+        return
     for line in summary.lines():
         click.echo(line)
 
@@ -710,17 +731,18 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 @main.command("preview")
 @click.argument("directory", metavar="DIR", type=click.Path())
 @out_option(
-    "PNG to write: one row per sample, its tone-mapped render beside its four maps, "
+    "PNG file to write: one row per sample, its tone-mapped render beside its four maps, "
     "labelled with its id, material and lighting.",
     folder=False,
 )
 @click.option(
-    "--samples",
+    "--limit",
     default=8,
     show_default=True,
     type=int,
-    help=f"Rows, {span(SAMPLES_RANGE)}: samples spread evenly over the renders recorded so far.",
+    help=f"Rows, {span(SAMPLES_RANGE)}: this many samples, spread evenly over the renders recorded so far.",
 )
+@renamed_option("--samples", "--limit")
 @click.option(
     "--tile",
     default=None,
@@ -728,10 +750,10 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     help=f"Picture size in pixels, {span(TILE_RANGE)} [default: the render size, scaled to 128-256].",
 )
 @_friendly_errors
-def preview_cmd(directory, out, samples, tile):
+def preview_cmd(directory, out, limit, tile):
     """A contact sheet of a dataset (complete or partial) for people to look at."""
 
-    for line in write_preview(directory, out, samples=samples, tile=tile).lines():
+    for line in write_preview(directory, out, samples=limit, tile=tile).lines():
         click.echo(line)
 
 
@@ -759,12 +781,13 @@ def info_cmd(directory, as_json):
 @main.command("plan")
 @click.argument("spec", type=click.Path(dir_okay=False))
 @click.option(
-    "--samples",
+    "--limit",
     default=DEFAULT_SAMPLES,
     show_default=True,
     type=int,
     help=f"Renders to time, {span(PLAN_SAMPLES_RANGE)}: the spec's first materials, whole (so at least this many).",
 )
+@renamed_option("--samples", "--limit")
 @click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
 @click.option(
     "--cluster",
@@ -786,7 +809,7 @@ def info_cmd(directory, as_json):
 )
 @json_option("Print the plan as JSON on stdout.")
 @_friendly_errors
-def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_json):
+def plan_cmd(spec, limit, no_timing, cluster_kind, workers, jobs, cores, as_json):
     """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
 
     The time comes from the spec's own first renders, built here at the spec's settings
@@ -797,7 +820,7 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
       shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
     """
     request = PlanRequest(
-        spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
+        spec=spec, timed=not no_timing, samples=limit, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
     )
     report = plan_spec(request, progress=say)
     if as_json:
@@ -815,13 +838,14 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     folder=True,
 )
 @click.option(
-    "--samples",
+    "--draws",
     type=int,
     default=12,
     show_default=True,
     help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; "
     f"{span(STUDY_SAMPLES_RANGE)}.",
 )
+@renamed_option("--samples", "--draws")
 @click.option(
     "--reference-spp",
     type=int,
@@ -830,12 +854,7 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
     f"studied, at most {MAX_REFERENCE_SPP}.",
 )
-@click.option(
-    "--resolution",
-    type=int,
-    default=None,
-    help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's].",
-)
+@options_from(RenderSettings, "resolution", resolution={"unset": "the spec's"})
 @click.option(
     "--ladder",
     default=",".join(map(str, DEFAULT_LADDER)),
@@ -868,13 +887,13 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
 @click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
+def study_cmd(spec, out, draws, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
 
     req = StudyRequest(
         spec=spec,
         out=out,
-        samples=samples,
+        samples=draws,
         reference_spp=reference_spp,
         resolution=resolution,
         ladder=parse_ladder(ladder),
@@ -894,22 +913,18 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @main.command("bench")
 @click.argument("spec", required=False, type=click.Path(dir_okay=False))
 @click.option(
-    "--samples",
+    "--limit",
     type=int,
     default=None,
     help="Cut the spec to about this many renders (whole materials, all their lightings) [default: all of them].",
 )
-@click.option(
-    "--resolution",
-    type=int,
-    default=None,
-    help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's; with --effects 128].",
-)
-@click.option(
-    "--spp",
-    type=int,
-    default=None,
-    help=f"Samples per pixel, {span(SPP_RANGE)} [default: the spec's; with --effects 64].",
+@renamed_option("--samples", "--limit")
+@options_from(
+    RenderSettings,
+    "resolution",
+    "spp",
+    resolution={"unset": "the spec's; with --effects 128"},
+    spp={"unset": "the spec's; with --effects 64"},
 )
 @click.option(
     "--workers",
@@ -948,8 +963,11 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     "every command over each and write README.md, scale.png and scale.json to --out (docs/results/scale/).",
 )
 @json_file_option("Also write the figures to this JSON file.")
+@json_option("Print the figures as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path):
+def bench_cmd(
+    spec, limit, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path, as_json
+):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md)."""
 
     if scale is not None:
@@ -964,13 +982,12 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
             json_path=json_path,
             progress=say,
         )
-        for line in result.lines():
-            click.echo(line)
+        _print_result(result, as_json)
         return
     result = run_from_args(
         spec,
         effects=effects,
-        samples=samples,
+        samples=limit,
         resolution=resolution,
         spp=spp,
         workers=workers,
@@ -981,8 +998,7 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
         json_path=json_path,
         progress=say,
     )
-    for line in result.lines():
-        click.echo(line)
+    _print_result(result, as_json)
 
 
 def _print_result(result, as_json: bool) -> None:
@@ -1087,141 +1103,16 @@ def _neural():
     folder=True,
     required=False,
 )
-@click.option(
-    "--epochs",
-    default=30,
-    show_default=True,
-    type=int,
-    help=f"Epochs to reach, {span(INTEGER_RANGES['epochs'])}; running again with more continues the run.",
+@options_from(
+    TrainConfig,
+    *("epochs", "batch_size", "lr", "loss", "vgg_weights", "vgg_sha256", "vgg_weight", "device", "loader_workers"),
+    *("seed", "resolution", "test_fraction", "split_seed", "train_materials", "width", "schedule", "warmup_epochs"),
+    *("check_hashes", "threads", "precision", "channels_last", "compile"),
+    vgg_weights={"metavar": "FILE"},
+    vgg_sha256={"metavar": "HEX"},
+    check_hashes={"flag": "--hash-check/--no-hash-check"},
 )
-@click.option(
-    "--batch-size",
-    default=6,
-    show_default=True,
-    type=int,
-    help=f"Samples per step, {span(INTEGER_RANGES['batch_size'])} (the paper: 6).",
-)
-@click.option(
-    "--lr",
-    default=1e-3,
-    show_default=True,
-    type=float,
-    help="Adam learning rate in (0, 10] (the released code's; the paper's text: 1e-2, which saturates; docs/neural.md).",
-)
-@click.option(
-    "--loss",
-    default="auto",
-    show_default=True,
-    type=click.Choice(LOSS_CHOICES),
-    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
-    "auto: l1+vgg where the weights are found (--vgg-weights or torch hub's cache), else l1, and says which.",
-)
-@click.option(
-    "--vgg-weights",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="torchvision's vgg16 state dict (vgg16-397923af.pth) [default: torch hub's cache, "
-    "$TORCH_HOME/hub/checkpoints/]. Never downloaded.",
-)
-@click.option(
-    "--vgg-sha256",
-    default=None,
-    metavar="HEX",
-    help="Expected SHA-256 of --vgg-weights [default: torchvision's ImageNet file's].",
-)
-@click.option(
-    "--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0."
-)
-@device_option("auto: cuda when torch sees a GPU, else cpu.")
-@click.option(
-    "--workers",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"DataLoader worker processes, {span(INTEGER_RANGES['workers'])}.",
-)
-@click.option(
-    "--seed",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"Seeds weights, order and split, {span(INTEGER_RANGES['seed'])}.",
-)
-@click.option(
-    "--resolution",
-    default=None,
-    type=int,
-    help="Network resolution, a multiple of 16 dividing the dataset's (images box-averaged) [default: the dataset's].",
-)
-@click.option(
-    "--test-fraction",
-    default=0.2,
-    show_default=True,
-    type=float,
-    help="Fraction of materials held out for testing, in [0, 1).",
-)
-@click.option(
-    "--split-seed",
-    default=None,
-    type=int,
-    help="Seeds the split by material (and --train-materials' choice) apart from --seed, so runs of "
-    "several seeds share one held-out set [default: --seed].",
-)
-@click.option(
-    "--train-materials",
-    default=None,
-    type=int,
-    help="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
-    "larger one; the held-out set stays) [default: all].",
-)
-@click.option(
-    "--width",
-    default=1.0,
-    show_default=True,
-    type=float,
-    help="Fraction of the paper's channels in (0, 1]; 1 is the paper's network, 0.5 about a quarter of its "
-    "work for CPU-scale runs (docs/neural.md).",
-)
-@click.option(
-    "--schedule",
-    default="constant",
-    show_default=True,
-    type=click.Choice(["constant", "cosine"]),
-    help="Learning rate after the warm-up: constant, or a cosine decay reaching 0 at --epochs (the run then "
-    "ends at --epochs: a longer run is another configuration).",
-)
-@click.option(
-    "--warmup-epochs",
-    default=0.0,
-    show_default=True,
-    type=float,
-    help="Linear warm-up of the learning rate over this many epochs (fractions allowed), 0 to --epochs.",
-)
-@click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check on first read.")
-@click.option(
-    "--threads",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"torch intra-op threads, {span(INTEGER_RANGES['threads'])} (0: torch's default, the core count; "
-    "docs/neural.md, Speed on a CPU).",
-)
-@click.option(
-    "--precision",
-    default="fp32",
-    show_default=True,
-    type=click.Choice(PRECISIONS),
-    help="fp32: the same computation on every CPU; bf16: autocast to bfloat16 (CPU or CUDA; 1.7x here, 2.1x with "
-    "--channels-last); auto: bf16 on a CPU with bfloat16 kernels, else fp32; "
-    "fp16: autocast to float16 with a gradient scaler (CUDA).",
-)
-@click.option(
-    "--channels-last/--no-channels-last",
-    default=True,
-    show_default=True,
-    help="Network, VGG and batches in channels-last (NHWC) memory format.",
-)
-@click.option("--compile", "compile_", is_flag=True, help="torch.compile the network for the training step.")
+@renamed_option("--workers", "--loader-workers", "--workers means dask worker processes; train has none")
 @click.option(
     "--benchmark",
     is_flag=True,
@@ -1229,66 +1120,14 @@ def _neural():
 )
 @json_option("Print the summary (or benchmark) as JSON on stdout.")
 @_friendly_errors
-def train_cmd(
-    dataset,
-    out,
-    epochs,
-    batch_size,
-    lr,
-    loss,
-    vgg_weights,
-    vgg_sha256,
-    vgg_weight,
-    device,
-    workers,
-    seed,
-    resolution,
-    test_fraction,
-    split_seed,
-    train_materials,
-    width,
-    schedule,
-    warmup_epochs,
-    no_hash_check,
-    threads,
-    precision,
-    channels_last,
-    compile_,
-    benchmark,
-    as_json,
-):
+def train_cmd(dataset, out, benchmark, as_json, **options):
     """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run."""
     _neural()
-    from pipeline.neural.train import TrainConfig, train
+    from pipeline.neural.train import train
 
     if out is None and not benchmark:
         raise ShaderballError("--out: missing; name the run folder (or pass --benchmark)")
-    config = TrainConfig(
-        dataset=dataset,
-        out=out or "",
-        epochs=epochs,
-        batch_size=batch_size,
-        lr=lr,
-        loss=loss,
-        vgg_weights=vgg_weights,
-        vgg_sha256=vgg_sha256,
-        vgg_weight=vgg_weight,
-        device=device,
-        workers=workers,
-        seed=seed,
-        resolution=resolution,
-        test_fraction=test_fraction,
-        split_seed=split_seed,
-        train_materials=train_materials,
-        width=width,
-        schedule=schedule,
-        warmup_epochs=warmup_epochs,
-        check_hashes=not no_hash_check,
-        threads=threads,
-        precision=precision,
-        channels_last=channels_last,
-        compile=compile_,
-    )
+    config = TrainConfig(dataset=dataset, out=out or "", **options)
     if benchmark:
         from pipeline.neural.bench import benchmark as run_benchmark
 
@@ -1307,7 +1146,8 @@ def train_cmd(
 @main.command("infer")
 @click.argument("run", metavar="RUN", type=click.Path())
 @out_option(
-    "Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.", folder=False
+    "Output EXR file: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
+    folder=False,
 )
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
 @material_options(full=False)
@@ -1386,6 +1226,7 @@ def infer_cmd(
     dest="out_dir",
 )
 @json_file_option("Also write the results (per sample and mean) to this JSON file.")
+@json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @click.option(
     "--spp",
     default="1,2,4,16",
@@ -1416,7 +1257,9 @@ def infer_cmd(
     help="Leave out HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).",
 )
 @_friendly_errors
-def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip):
+def evaluate_cmd(
+    run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip, as_json
+):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1441,6 +1284,9 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         flip=not no_flip,
     )
     summary = evaluate(request, progress=evaluate_progress())
+    if as_json:
+        _emit_json(dataclasses.asdict(summary))
+        return
     for line in summary.lines():
         click.echo(line)
 

@@ -144,10 +144,10 @@ class Int(Rule):
 
     @property
     def brief(self) -> str:
-        return f"{self.lo} to {self.hi}" + (f", or {self.also_text_short()}" if self.also else "")
-
-    def also_text_short(self) -> str:
-        return ", ".join(str(a) for a in self.also)
+        hi = self.hi
+        # a top of 2^k - 1 (a seed's) reads as such
+        top = f"2^{hi.bit_length()}-1" if hi >= 2**16 - 1 and hi & (hi + 1) == 0 else str(hi)
+        return f"{self.lo} to {top}" + ("".join(f", or {a}" for a in self.also))
 
 
 class Float(Rule):
@@ -239,11 +239,12 @@ class Text(Rule):
 class Path(Rule):
     """A non-empty path (file or folder); whether it exists is the consumer's business."""
 
-    def __init__(self, what: str = "a path"):
+    def __init__(self, what: str = "a path", *, empty_ok: bool = False):
         self.allowed = what
+        self.empty_ok = empty_ok
 
     def check(self, value):
-        if not isinstance(value, str) or not value:
+        if not isinstance(value, str) or not (value or self.empty_ok):
             raise Reject()
         return value
 
