@@ -26,7 +26,10 @@ from support.publishing import smoke_build
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
 REPO = Path(__file__).resolve().parents[1]
-JSON_COMMANDS = ("validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study")
+JSON_COMMANDS = (
+    *("build", "render", "validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study"),
+    *("bench", "evaluate"),
+)
 
 
 @pytest.fixture(scope="module")

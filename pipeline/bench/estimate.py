@@ -38,7 +38,7 @@ from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
 from pipeline.store.layout import MARKER_FILE, Layout
 
-#: --samples: renders timed (whole materials, so at least this many).
+#: --limit: renders timed (whole materials, so at least this many).
 SAMPLES_RANGE = (1, 1000)
 DEFAULT_SAMPLES = 4
 
@@ -56,7 +56,7 @@ class PlanRequest:
     def check(self) -> PlanRequest:
         if self.cluster not in KINDS:
             raise bad_value("--cluster", self.cluster, ", ".join(KINDS))
-        check_int("--samples", self.samples, *SAMPLES_RANGE)
+        check_int("--limit", self.samples, *SAMPLES_RANGE)
         check_int("--workers", self.workers, *WORKERS_RANGE)
         check_int("--jobs", self.jobs, *JOBS_RANGE)
         check_int("--cores", self.cores, *CORES_RANGE)

@@ -67,7 +67,7 @@ from sky import Light
 
 REQUEST_FILE = "request.json"
 MAX_LADDER_SPP = 16384
-#: --samples: samples drawn from the plan.
+#: --draws: samples drawn from the plan.
 SAMPLES_RANGE = (1, 1000)
 #: --reference-spp's largest value.
 MAX_REFERENCE_SPP = 65536
@@ -142,7 +142,7 @@ def parse_families(text: str) -> tuple[str, ...]:
 
 def check_request(req: StudyRequest):
     """The parsed spec; raises a ShaderballError naming the option, value and what is allowed."""
-    check_int("--samples", req.samples, *SAMPLES_RANGE)
+    check_int("--draws", req.samples, *SAMPLES_RANGE)
     if req.resolution is not None:
         check_int("--resolution", req.resolution, *RESOLUTION_RANGE)
     check_int("--scan", req.scan, 1, 100000)
