@@ -69,14 +69,6 @@ from pipeline.render.settings import RenderSettings
 from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
 from pipeline.run.cluster.options import (
-    CORES_RANGE,
-    DEFAULT_RECYCLE_AFTER,
-    DEFAULT_SCRATCH,
-    JOBS_RANGE,
-    RECYCLE_AFTER_RANGE,
-    START_TIMEOUT_RANGE,
-    WALLTIME_SPAN,
-    WORKERS_RANGE,
     ClusterOptions,
 )
 from pipeline.run.repair import repair
@@ -521,19 +513,8 @@ def render_cmd(
     "resumed (only missing or unverified samples are rendered); another spec is refused.",
     folder=True,
 )
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help=f"Local dask worker processes, {span(WORKERS_RANGE)} [default: one per 2 cores]. 0 runs in this "
-    "process without dask. Ignored with --scheduler.",
-)
-@click.option(
-    "--scheduler",
-    default=None,
-    metavar="ADDRESS",
-    help="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
-    "(its workers need DIR at the same path; docs/cluster.md).",
+@options_from(
+    ClusterOptions, "workers", "scheduler", workers={"unset": "one per 2 cores"}, scheduler={"metavar": "ADDRESS"}
 )
 @click.option(
     "--allow-spec-change",
@@ -541,62 +522,14 @@ def render_cmd(
     help="Accept a spec that differs from DIR/spec.toml in dataset.name or dataset.version only "
     "(no sample depends on them); any other difference is refused.",
 )
-@click.option(
-    "--cluster",
-    "cluster_kind",
-    type=click.Choice(["local", "slurm", "pbs"]),
-    default="local",
-    show_default=True,
-    help="Where workers run: this machine, or batch jobs via dask-jobqueue.",
-)
-@click.option(
-    "--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs (nodes), {span(JOBS_RANGE)}; one worker each."
-)
-@click.option(
-    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; every render uses all."
-)
-@click.option(
-    "--memory",
-    default=None,
-    metavar="SIZE",
-    help="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
-    "its limit is restarted and its shard runs again.",
-)
-@click.option(
-    "--walltime",
-    default=None,
-    metavar="HH:MM:SS",
-    help=f"slurm/pbs: wall-clock limit per job, {WALLTIME_SPAN}; workers retire about 5 min "
-    "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
-)
-@click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
-@click.option("--account", default=None, help="slurm/pbs: account to charge.")
-@click.option(
-    "--scratch",
-    default=None,
-    metavar="DIR",
-    help="slurm/pbs: node-local folder for the kernel cache and dask's files "
-    f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
-)
-@click.option(
-    "--recycle-after",
-    type=int,
-    default=DEFAULT_RECYCLE_AFTER,
-    show_default=True,
-    metavar="RENDERS",
-    help="Restart a dask worker process once it has rendered this many samples, "
-    f"{span(RECYCLE_AFTER_RANGE)} "
-    "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
-)
-@click.option(
-    "--start-timeout",
-    type=int,
-    default=None,
-    metavar="SECONDS",
-    help="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
-    f"this long, {span(START_TIMEOUT_RANGE)}: before the first one arrives, or after the last one left "
-    "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
-    "as long as it takes]",
+@options_from(
+    ClusterOptions,
+    *("kind", "jobs", "cores", "memory", "walltime", "queue", "account", "scratch", "recycle_after", "start_timeout"),
+    memory={"metavar": "SIZE"},
+    walltime={"metavar": "HH:MM:SS"},
+    scratch={"metavar": "DIR"},
+    recycle_after={"metavar": "RENDERS"},
+    start_timeout={"metavar": "SECONDS"},
 )
 @click.option(
     "--print-job-script",
@@ -605,44 +538,13 @@ def render_cmd(
 )
 @json_option("Print what was built (folder, manifest, counts, seconds) as JSON on stdout; progress stays on stderr.")
 @_friendly_errors
-def build_cmd(
-    spec,
-    out,
-    workers,
-    scheduler,
-    allow_spec_change,
-    cluster_kind,
-    jobs,
-    cores,
-    memory,
-    walltime,
-    queue,
-    account,
-    scratch,
-    recycle_after,
-    start_timeout,
-    print_job_script,
-    as_json,
-):
+def build_cmd(spec, out, allow_spec_change, print_job_script, as_json, **cluster):
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
     """
 
-    options = ClusterOptions(
-        kind=cluster_kind,
-        workers=workers,
-        scheduler=scheduler,
-        jobs=jobs,
-        cores=cores,
-        memory=memory,
-        walltime=walltime,
-        queue=queue,
-        account=account,
-        scratch=scratch,
-        recycle_after=recycle_after,
-        start_timeout=start_timeout,
-    ).check()
+    options = ClusterOptions(**cluster).check()
     if print_job_script:
         if not options.is_jobqueue:
             raise click.UsageError("--print-job-script needs --cluster slurm or --cluster pbs")
@@ -679,12 +581,14 @@ def build_cmd(
 @click.option(
     "--fast", is_flag=True, help="Check sizes, markers and records only; read no file (no SHA-256, no decoding)."
 )
-@click.option(
-    "--workers",
-    type=int,
-    default=0,
-    show_default=True,
-    help="With --repair: local dask worker processes for re-rendering; 0 renders in this process.",
+@options_from(
+    ClusterOptions,
+    "workers",
+    workers={
+        "default": 0,
+        "show_default": True,
+        "help": "With --repair: local dask worker processes for re-rendering; 0 renders in this process.",
+    },
 )
 @click.option(
     "--spec",
@@ -789,27 +693,20 @@ def info_cmd(directory, as_json):
 )
 @renamed_option("--samples", "--limit")
 @click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
-@click.option(
-    "--cluster",
-    "cluster_kind",
-    type=click.Choice(["local", "slurm", "pbs"]),
-    default="local",
-    show_default=True,
-    help="Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them.",
-)
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help=f"Local dask worker processes to estimate for, {span(WORKERS_RANGE)} [default: one per 2 cores, as build].",
-)
-@click.option("--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs, {span(JOBS_RANGE)}; one worker each.")
-@click.option(
-    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; taken as fast as one here."
+@options_from(
+    ClusterOptions,
+    "kind",
+    "workers",
+    "jobs",
+    "cores",
+    kind={
+        "help": "Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them."
+    },
+    workers={"unset": "one per 2 cores, as build"},
 )
 @json_option("Print the plan as JSON on stdout.")
 @_friendly_errors
-def plan_cmd(spec, limit, no_timing, cluster_kind, workers, jobs, cores, as_json):
+def plan_cmd(spec, limit, no_timing, kind, workers, jobs, cores, as_json):
     """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
 
     The time comes from the spec's own first renders, built here at the spec's settings
@@ -820,7 +717,7 @@ def plan_cmd(spec, limit, no_timing, cluster_kind, workers, jobs, cores, as_json
       shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
     """
     request = PlanRequest(
-        spec=spec, timed=not no_timing, samples=limit, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
+        spec=spec, timed=not no_timing, samples=limit, cluster=kind, workers=workers, jobs=jobs, cores=cores
     )
     report = plan_spec(request, progress=say)
     if as_json:
@@ -926,12 +823,7 @@ def study_cmd(spec, out, draws, reference_spp, resolution, ladder, families, onl
     resolution={"unset": "the spec's; with --effects 128"},
     spp={"unset": "the spec's; with --effects 64"},
 )
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help="As `shaderball build --workers` (0: in this process) [default: the build's].",
-)
+@options_from(ClusterOptions, "workers", workers={"unset": "the build's"})
 @click.option(
     "--shard-size",
     type=int,

@@ -366,9 +366,13 @@ class Checked:
     #: How a refusal names a field: ``"--"`` makes ``--split-seed`` of ``split_seed``;
     #: anything else is a prefix (``"render."`` makes ``render.spp``).
     FIELD_PREFIX: ClassVar[str] = ""
+    #: Labels other than the prefix makes (``{"kind": "--cluster"}``).
+    FIELD_LABELS: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def field_label(cls, name: str) -> str:
+        if name in cls.FIELD_LABELS:
+            return cls.FIELD_LABELS[name]
         if cls.FIELD_PREFIX == "--":
             return "--" + name.replace("_", "-")
         return cls.FIELD_PREFIX + name

@@ -66,7 +66,7 @@ def option_from(cls, name: str, *, flag: str | None = None, unset: str | None = 
     f = declared(cls)[name]
     rule = f.metadata["rule"]
     default = default_of(f)
-    spelled = "--" + name.replace("_", "-")
+    spelled = cls.field_label(name) if cls.FIELD_PREFIX == "--" else "--" + name.replace("_", "-")
     if isinstance(rule, Bool):
         decl = flag or (f"{spelled}/--no-{name.replace('_', '-')}" if default else spelled)
         kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default) and "/" in decl)
