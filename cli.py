@@ -999,7 +999,7 @@ def _neural():
     TrainConfig,
     *("epochs", "batch_size", "lr", "loss", "vgg_weights", "vgg_sha256", "vgg_weight", "device", "loader_workers"),
     *("seed", "resolution", "test_fraction", "split_seed", "train_materials", "width", "schedule", "warmup_epochs"),
-    *("check_hashes", "threads", "precision", "channels_last", "compile"),
+    *("exposure", "check_hashes", "threads", "precision", "channels_last", "compile"),
     vgg_weights={"metavar": "FILE"},
     vgg_sha256={"metavar": "HEX"},
     check_hashes={"flag": "--hash-check/--no-hash-check"},
