@@ -46,8 +46,7 @@ import click
 
 from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
-from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
-from pipeline.bench.estimate import SAMPLES_RANGE as PLAN_SAMPLES_RANGE
+from pipeline.bench.estimate import PlanRequest, plan_spec
 from pipeline.bench.scale import SIZE_RANGE as SCALE_SIZE_RANGE
 from pipeline.bench.scale import run_scale_bench
 from pipeline.check.info import dataset_info
@@ -306,7 +305,14 @@ def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = Tru
             raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
 
     return click.option(
-        old, default=None, hidden=True, expose_value=False, is_flag=not takes_value, callback=refuse, is_eager=True
+        old,
+        "renamed_" + old.lstrip("-").replace("-", "_"),  # its own name: the new option may take the old one's
+        default=None,
+        hidden=True,
+        expose_value=False,
+        is_flag=not takes_value,
+        callback=refuse,
+        is_eager=True,
     )
 
 
@@ -684,29 +690,23 @@ def info_cmd(directory, as_json):
 
 @main.command("plan")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--limit",
-    default=DEFAULT_SAMPLES,
-    show_default=True,
-    type=int,
-    help=f"Renders to time, {span(PLAN_SAMPLES_RANGE)}: the spec's first materials, whole (so at least this many).",
-)
+@options_from(PlanRequest, "samples")
 @renamed_option("--samples", "--limit")
 @click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
 @options_from(
-    ClusterOptions,
-    "kind",
+    PlanRequest,
+    "cluster",
     "workers",
     "jobs",
     "cores",
-    kind={
+    cluster={
         "help": "Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them."
     },
     workers={"unset": "one per 2 cores, as build"},
 )
 @json_option("Print the plan as JSON on stdout.")
 @_friendly_errors
-def plan_cmd(spec, limit, no_timing, kind, workers, jobs, cores, as_json):
+def plan_cmd(spec, no_timing, as_json, **options):
     """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
 
     The time comes from the spec's own first renders, built here at the spec's settings
@@ -716,9 +716,7 @@ def plan_cmd(spec, limit, no_timing, kind, workers, jobs, cores, as_json):
     Example:
       shaderball plan manifests/paper.toml --cluster slurm --jobs 8 --cores 32
     """
-    request = PlanRequest(
-        spec=spec, timed=not no_timing, samples=limit, cluster=kind, workers=workers, jobs=jobs, cores=cores
-    )
+    request = PlanRequest(spec=spec, timed=not no_timing, **options)
     report = plan_spec(request, progress=say)
     if as_json:
         _emit_json(report.to_dict())

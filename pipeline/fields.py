@@ -344,6 +344,20 @@ def field(
     return dataclasses.field(default=default, metadata=meta, **extra)
 
 
+def same_as(cls, name: str, *, unset: str | None = None, **changes):
+    """A field declared as ``cls``'s field ``name`` is (its rule, help, unit, default): one
+    declaration, read by another class. ``unset``: the field is optional, default None,
+    which means this (``"the spec's"``); ``changes`` replace keywords of :func:`field`."""
+    f = declared(cls)[name]
+    meta = dict(f.metadata)
+    kwargs = dict(rule=meta["rule"], doc=meta["doc"], unit=meta["unit"], doc_default=meta["doc_default"])
+    default = default_of(f)
+    if unset is not None:
+        kwargs["rule"], default = Optional(meta["rule"], f"unset ({unset})"), None
+    kwargs.update(changes)
+    return field(changes.pop("default", default), **{k: v for k, v in kwargs.items() if k != "default"})
+
+
 def declared(cls) -> dict[str, dataclasses.Field]:
     """The fields of ``cls`` declared with :func:`field`, by name."""
     return {f.name: f for f in fields(cls) if "rule" in f.metadata}
