@@ -75,14 +75,11 @@ from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.configs import DEFAULT_LADDER
 from pipeline.study.run import (
     MAX_LADDER_SPP,
-    MAX_REFERENCE_SPP,
-    MAX_REPEATS,
     StudyRequest,
     parse_families,
     parse_ladder,
     run_study,
 )
-from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
 from pipeline.ui.options import option_from, options_from
 from pipeline.ui.progress import (
     build_progress,
@@ -732,24 +729,8 @@ def plan_cmd(spec, no_timing, as_json, **options):
     "report.md. Re-running the same command resumes; another request is refused.",
     folder=True,
 )
-@click.option(
-    "--draws",
-    type=int,
-    default=12,
-    show_default=True,
-    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; "
-    f"{span(STUDY_SAMPLES_RANGE)}.",
-)
+@options_from(StudyRequest, "samples", "reference_spp", "resolution")
 @renamed_option("--samples", "--draws")
-@click.option(
-    "--reference-spp",
-    type=int,
-    default=4096,
-    show_default=True,
-    help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
-    f"studied, at most {MAX_REFERENCE_SPP}.",
-)
-@options_from(RenderSettings, "resolution", resolution={"unset": "the spec's"})
 @click.option(
     "--ladder",
     default=",".join(map(str, DEFAULT_LADDER)),
@@ -771,31 +752,19 @@ def plan_cmd(spec, no_timing, as_json, **options):
     help="Only these configurations (comma-separated names as the report writes them, e.g. "
     "multijitter/64); the spec's recipe is always measured.",
 )
-@click.option(
-    "--repeats",
-    type=int,
-    default=3,
-    show_default=True,
-    help=f"Independent seeds per sample and configuration, {span((1, MAX_REPEATS))} (the cost grows in proportion); "
-    "every figure carries a 95% interval over samples and seeds.",
-)
-@click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
+@options_from(StudyRequest, "repeats", "flip", flip={"flag": "--flip/--no-flip"})
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def study_cmd(spec, out, draws, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
+def study_cmd(spec, out, ladder, families, only, as_json, **options):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md)."""
 
     req = StudyRequest(
         spec=spec,
         out=out,
-        samples=draws,
-        reference_spp=reference_spp,
-        resolution=resolution,
         ladder=parse_ladder(ladder),
         families=parse_families(families),
         only=tuple(n for n in only.split(",") if n),
-        flip=not no_flip,
-        repeats=repeats,
+        **options,
     )
     summary = run_study(req, progress=study_progress)
     if as_json:

@@ -262,9 +262,11 @@ class Bool(Rule):
 class Optional(Rule):
     """``rule``'s values or None (the field's default then applies elsewhere)."""
 
-    def __init__(self, rule: Rule, none_text: str = "unset"):
+    def __init__(self, rule: Rule, none_text: str = "unset", *, default_text: str | None = None):
         self.rule = rule
         self.none_text = none_text
+        #: What None means, as --help says it ("the spec's").
+        self.default_text = default_text
         self.py_type = rule.py_type
 
     @property
@@ -353,7 +355,7 @@ def same_as(cls, name: str, *, unset: str | None = None, **changes):
     kwargs = dict(rule=meta["rule"], doc=meta["doc"], unit=meta["unit"], doc_default=meta["doc_default"])
     default = default_of(f)
     if unset is not None:
-        kwargs["rule"], default = Optional(meta["rule"], f"unset ({unset})"), None
+        kwargs["rule"], default = Optional(meta["rule"], f"unset ({unset})", default_text=unset), None
     kwargs.update(changes)
     return field(changes.pop("default", default), **{k: v for k, v in kwargs.items() if k != "default"})
 

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 import cli
-from pipeline.fields import FieldError, declared, default_of
+from pipeline.fields import FieldError, Optional, declared, default_of
 from pipeline.neural.config import TrainConfig
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
@@ -23,7 +23,9 @@ def options_of(command: str) -> dict[str, click.Option]:
 
 
 def rule_of(option: click.Option):
-    return option.type.rule if isinstance(option.type, FieldType) else None
+    """The rule an option is checked by (an optional one's inner rule: None is "unset")."""
+    rule = option.type.rule if isinstance(option.type, FieldType) else None
+    return rule.rule if isinstance(rule, Optional) else rule
 
 
 @pytest.mark.parametrize("name", [n for n in declared(TrainConfig) if n not in ("dataset", "out")])
@@ -33,7 +35,7 @@ def test_every_train_config_field_is_an_option_with_its_default_and_rule(name):
     field = declared(TrainConfig)[name]
     assert option.default == default_of(field), f"--{name}: the command's default is not TrainConfig's"
     if not option.is_flag:
-        assert rule_of(option) is field.metadata["rule"], f"--{name} is not checked by TrainConfig's rule"
+        assert option.type.rule is field.metadata["rule"], f"--{name} is not checked by TrainConfig's rule"
 
 
 @pytest.mark.parametrize("command", ["render", "scene", "bench", "study"])
@@ -52,7 +54,7 @@ def test_render_settings_options_carry_the_settings_default_and_rule(command):
 @pytest.mark.parametrize("command", ["build", "plan", "bench", "validate"])
 def test_workers_is_declared_once_in_cluster_options(command):
     option = options_of(command)["workers"]
-    assert rule_of(option) is declared(ClusterOptions)["workers"].metadata["rule"]
+    assert option.type.rule is declared(ClusterOptions)["workers"].metadata["rule"]
 
 
 def test_build_cluster_options_are_the_dataclass_fields():

@@ -54,9 +54,11 @@ def option_help(f) -> str:
     rule, unit = f.metadata["rule"], f.metadata["unit"]
     text = f.metadata["doc"].rstrip()
     inner = rule.rule if isinstance(rule, Optional) else rule
-    if isinstance(inner, (Bool, Choice, Path)):
-        return text
-    return f"{text} Allowed: {rule.brief}{' ' + unit if unit else ''}."
+    if not isinstance(inner, (Bool, Choice, Path)):
+        text = f"{text} Allowed: {rule.brief}{' ' + unit if unit else ''}."
+    if isinstance(rule, Optional) and rule.default_text and "[default:" not in text:
+        text = f"{text} [default: {rule.default_text}]"
+    return text
 
 
 def option_from(cls, name: str, *, flag: str | None = None, unset: str | None = None, **changes) -> click.Option:
