@@ -1151,38 +1151,12 @@ def evaluate_cmd(
 
 
 @main.command("serve")
-@click.option(
-    "--run",
-    type=click.Path(),
-    default=None,
-    help="A training run folder: the network shown beside path tracing [default: none, a path-traced previewer].",
-)
-@click.option(
-    "--checkpoint",
-    default="last",
-    show_default=True,
-    metavar="last|best|FILE",
-    help="--run's weights, as `shaderball infer --checkpoint`.",
-)
-@click.option(
-    "--dataset",
-    type=click.Path(),
-    default=None,
-    help="A dataset folder or its publication, whose samples the page offers by id.",
-)
-@click.option(
-    "--host",
-    default="127.0.0.1",
-    show_default=True,
-    help="Address to bind; another than 127.0.0.1 lets other machines in.",
-)
-@click.option("--port", default=8765, show_default=True, type=int, help="Port, 0 to 65535 (0: any free one).")
-@click.option(
-    "--threads",
-    default=0,
-    show_default=True,
-    type=int,
-    help="torch threads for the network, 0 to 256 (0: torch's default).",
+@options_from(
+    ServeOptions,
+    *("run", "checkpoint", "dataset", "host", "port", "threads"),
+    run={"metavar": "RUN"},
+    checkpoint={"metavar": "last|best|FILE"},
+    dataset={"metavar": "DIR|PUB"},
 )
 @click.option(
     "--benchmark",
@@ -1191,14 +1165,14 @@ def evaluate_cmd(
 )
 @click.option("--repeats", default=9, show_default=True, type=int, help="--benchmark: slider moves timed, 1 to 100.")
 @_friendly_errors
-def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats):
+def serve_cmd(benchmark, repeats, **options):
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
     \b
     Example:
       make serve-network && shaderball serve --run serve-out/run --dataset serve-out/smoke
     """
-    options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
+    options = ServeOptions(**options)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
         click.echo(line)
 

@@ -146,7 +146,7 @@ class Int(Rule):
     def brief(self) -> str:
         hi = self.hi
         # a top of 2^k - 1 (a seed's) reads as such
-        top = f"2^{hi.bit_length()}-1" if hi >= 2**16 - 1 and hi & (hi + 1) == 0 else str(hi)
+        top = f"2^{hi.bit_length()}-1" if hi >= 2**31 - 1 and hi & (hi + 1) == 0 else str(hi)
         return f"{self.lo} to {top}" + ("".join(f", or {a}" for a in self.also))
 
 
