@@ -61,8 +61,8 @@ from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
-from pipeline.render.command import AZIMUTH_RANGE, SEED_RANGE, RenderRequest, parse_triple, render_to_files
-from pipeline.render.limits import interval, span
+from pipeline.render.command import RenderRequest, render_to_files
+from pipeline.render.limits import span
 from pipeline.render.scene_command import write_scene
 from pipeline.render.settings import RenderSettings
 from pipeline.run.build import build
@@ -90,7 +90,6 @@ from pipeline.ui.progress import (
     validate_progress,
 )
 from pipeline.ui.values import parse_int_list
-from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
@@ -232,6 +231,11 @@ class _Command(click.Command):
             exc.show()
             _write_json({"ok": False, "exit": exc.exit_code, "error": exc.format_message()})
             sys.exit(exc.exit_code)
+        except USER_ERRORS as exc:  # an option's value refused by its declaration (pipeline.ui.options)
+            click.echo(f"error: {exc}", err=True)
+            if wants_json:
+                _write_json({"ok": False, "exit": exc.exit_code, "error": str(exc)})
+            sys.exit(exc.exit_code)
 
 
 def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
@@ -328,96 +332,15 @@ def device_option(help: str = "Where the network runs: auto (cuda when torch see
     return click.option("--device", default="auto", show_default=True, type=click.Choice(DEVICES), help=help)
 
 
-def material_options(*, full: bool):
+def material_options():
     """The uniform material (--diffuse, --specular, --roughness, --normal) or --svbrdf maps, of
-    `render` and `infer`; ``full``: render's help, which infer's refers to."""
-    return _options(
-        click.option(
-            "--diffuse",
-            default="0.5,0.5,0.5",
-            show_default=True,
-            metavar="R,G,B",
-            help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-        ),
-        click.option(
-            "--specular",
-            default="0.04,0.04,0.04",
-            show_default=True,
-            metavar="R,G,B",
-            help="Uniform specular albedo (F0), linear RGB, each in [0, 1]."
-            + (" 0.04 is a typical dielectric." if full else ""),
-        ),
-        click.option(
-            "--roughness",
-            default=0.3,
-            show_default=True,
-            type=float,
-            help="Uniform roughness in [0, 1]" + ("; GGX alpha = roughness^2." if full else "."),
-        ),
-        click.option(
-            "--normal",
-            default="0,0,1",
-            show_default=True,
-            metavar="X,Y,Z",
-            help="Uniform tangent-space normal (Z > 0; normalised).",
-        ),
-        click.option(
-            "--svbrdf",
-            type=click.Path(),
-            default=None,
-            help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
-            "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps."
-            if full
-            else "Spatially varying material, as `shaderball render --svbrdf`.",
-        ),
-        click.option(
-            "--svbrdf-colorspace",
-            type=click.Choice(["raw", "srgb"]),
-            default="raw",
-            show_default=True,
-            help="How 8-bit albedo maps of --svbrdf are decoded"
-            + (": raw (as Deschaintre's renderer) or sRGB." if full else "."),
-        ),
-    )
+    `render` and `infer`: RenderRequest's declarations."""
+    return options_from(RenderRequest, "diffuse", "specular", "roughness", "normal", "svbrdf", "svbrdf_colorspace")
 
 
-def light_options(*, full: bool):
-    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`; ``full``:
-    render's help, which infer's refers to."""
-    return _options(
-        click.option(
-            "--elevation",
-            default=45.0,
-            show_default=True,
-            type=float,
-            help=f"Sun elevation above the horizon, degrees in {interval(ELEVATION_RANGE)}. Below ~2.4-7 degrees "
-            "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
-            "the move is printed and recorded."
-            if full
-            else f"Sun elevation, degrees in {interval(ELEVATION_RANGE)} (raised to the low-sun floor as `shaderball render` does).",
-        ),
-        click.option(
-            "--azimuth",
-            default=270.0,
-            show_default=True,
-            type=float,
-            help=f"Sun azimuth, degrees in {interval(AZIMUTH_RANGE)}"
-            + (
-                ", counter-clockwise from +x seen from above: "
-                "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side."
-                if full
-                else "."
-            ),
-        ),
-        click.option(
-            "--turbidity",
-            default=3.0,
-            show_default=True,
-            type=float,
-            help=f"Atmospheric turbidity in {interval(TURBIDITY_RANGE)}"
-            + (" (1: very clear, 10: hazy)." if full else "."),
-        ),
-    )
+def light_options():
+    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`."""
+    return options_from(RenderRequest, "elevation_deg", "azimuth_deg", "turbidity")
 
 
 @main.command("scene")
@@ -436,15 +359,12 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 
 
 @main.command("render")
-@material_options(full=True)
-@light_options(full=True)
-@options_from(RenderSettings, "spp", "resolution", "max_depth")
-@click.option("--seed", default=0, show_default=True, type=int, help=f"Render seed, {span(SEED_RANGE)}.")
-@variant_option()
+@material_options()
+@light_options()
 @options_from(
-    RenderSettings,
-    "sun",
-    "model",
+    RenderRequest,
+    *("spp", "resolution", "max_depth", "seed", "variant", "sun", "model"),
+    variant={"help": "Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."},
     sun={
         "help": "split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky."
     },
@@ -458,49 +378,10 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
 @json_option("Print what was written (files, render statistics and time, lighting, effects) as JSON on stdout.")
 @_friendly_errors
-def render_cmd(
-    diffuse,
-    specular,
-    roughness,
-    normal,
-    svbrdf,
-    svbrdf_colorspace,
-    elevation,
-    azimuth,
-    turbidity,
-    spp,
-    resolution,
-    max_depth,
-    seed,
-    variant,
-    sun,
-    model,
-    out,
-    png,
-    as_json,
-):
+def render_cmd(as_json, **options):
     """Render one material on the shaderball under one sun and sky."""
 
-    request = RenderRequest(
-        diffuse=parse_triple("--diffuse", diffuse),
-        specular=parse_triple("--specular", specular),
-        roughness=roughness,
-        normal=parse_triple("--normal", normal, None, None),
-        svbrdf=svbrdf,
-        svbrdf_colorspace=svbrdf_colorspace,
-        elevation_deg=elevation,
-        azimuth_deg=azimuth,
-        turbidity=turbidity,
-        spp=spp,
-        resolution=resolution,
-        max_depth=max_depth,
-        seed=seed,
-        sun=sun,
-        variant=variant,
-        model=model,
-        out=out,
-        png=png,
-    )
+    request = RenderRequest(**options)
     summary = render_to_files(request)
     if as_json:
         _emit_json(dataclasses.asdict(summary))
@@ -1009,8 +890,8 @@ def train_cmd(dataset, out, benchmark, as_json, **options):
     folder=False,
 )
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
-@material_options(full=False)
-@light_options(full=False)
+@material_options()
+@light_options()
 @device_option()
 @json_option("Print the summary as JSON on stdout.")
 @click.option(
@@ -1021,43 +902,12 @@ def train_cmd(dataset, out, benchmark, as_json, **options):
     help="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of RUN.",
 )
 @_friendly_errors
-def infer_cmd(
-    run,
-    out,
-    png,
-    diffuse,
-    specular,
-    roughness,
-    normal,
-    svbrdf,
-    svbrdf_colorspace,
-    elevation,
-    azimuth,
-    turbidity,
-    device,
-    as_json,
-    checkpoint,
-):
+def infer_cmd(run, out, png, device, as_json, checkpoint, **picture):
     """The trained network's picture of one material under one sun (no path tracing)."""
     _neural()
     from pipeline.neural.infer import InferRequest, infer_to_files
 
-    request = InferRequest(
-        run=run,
-        out=out,
-        png=png,
-        diffuse=parse_triple("--diffuse", diffuse),
-        specular=parse_triple("--specular", specular),
-        roughness=roughness,
-        normal=parse_triple("--normal", normal, None, None),
-        svbrdf=svbrdf,
-        svbrdf_colorspace=svbrdf_colorspace,
-        elevation_deg=elevation,
-        azimuth_deg=azimuth,
-        turbidity=turbidity,
-        device=device,
-        checkpoint=checkpoint,
-    )
+    request = InferRequest(run=run, out=out, png=png, device=device, checkpoint=checkpoint, **picture)
     summary = infer_to_files(request)
     if as_json:
         _emit_json(dict(summary.__dict__))

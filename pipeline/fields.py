@@ -116,6 +116,10 @@ class Rule:
     def check(self, value: Any) -> Any:
         raise NotImplementedError
 
+    def parse(self, text: str) -> Any:
+        """A command-line word as the value :meth:`check` takes (ValueError: not one)."""
+        return self.py_type(text)
+
     @staticmethod
     def plain(value: Any) -> Any:
         """The value as plain TOML/JSON data (tuples become lists)."""
@@ -200,6 +204,30 @@ class Pair(Rule):
         return (lo, hi)
 
 
+class Triple(Rule):
+    """Three finite numbers, each in [lo, hi] (None: unbounded); ``R,G,B`` on a command line."""
+
+    def __init__(self, lo: float | None = 0.0, hi: float | None = 1.0, allowed: str | None = None):
+        self.lo, self.hi = lo, hi
+        self.allowed = allowed or "three comma-separated numbers" + (f" in [{lo:g}, {hi:g}]" if lo is not None else "")
+
+    def parse(self, text: str):
+        return tuple(float(x) for x in text.split(","))
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            raise Reject()
+        if not all(is_number(v) and math.isfinite(v) for v in value):
+            raise Reject()
+        if self.lo is not None and not all(self.lo <= v <= self.hi for v in value):
+            raise Reject()
+        return tuple(float(v) for v in value)
+
+    @property
+    def brief(self) -> str:
+        return self.allowed
+
+
 class Choice(Rule):
     """One string from ``options`` (a tuple, or a callable asked at check time)."""
 
@@ -279,6 +307,9 @@ class Optional(Rule):
 
     def check(self, value):
         return None if value is None else self.rule.check(value)
+
+    def parse(self, text: str):
+        return self.rule.parse(text)
 
 
 class StrList(Rule):

@@ -13,6 +13,7 @@ from click.testing import CliRunner
 import cli
 from pipeline.fields import FieldError, Optional, declared, default_of
 from pipeline.neural.config import TrainConfig
+from pipeline.render.command import RenderRequest
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.ui.options import FieldType
@@ -20,6 +21,14 @@ from pipeline.ui.options import FieldType
 
 def options_of(command: str) -> dict[str, click.Option]:
     return {p.name: p for p in cli.main.commands[command].params if isinstance(p, click.Option)}
+
+
+def default_value(option: click.Option):
+    """The value an option gives when it is not on the command line (a default typed as
+    text, "0.5,0.5,0.5", parsed as the command line is)."""
+    if isinstance(option.default, str) and isinstance(option.type, FieldType):
+        return option.type.convert(option.default, option, None)
+    return option.default
 
 
 def rule_of(option: click.Option):
@@ -33,7 +42,7 @@ def test_every_train_config_field_is_an_option_with_its_default_and_rule(name):
     option = options_of("train").get(name)
     assert option is not None, f"TrainConfig.{name} has no option of `train`"
     field = declared(TrainConfig)[name]
-    assert option.default == default_of(field), f"--{name}: the command's default is not TrainConfig's"
+    assert default_value(option) == default_of(field), f"--{name}: the command's default is not TrainConfig's"
     if not option.is_flag:
         assert option.type.rule is field.metadata["rule"], f"--{name} is not checked by TrainConfig's rule"
 
@@ -48,7 +57,16 @@ def test_render_settings_options_carry_the_settings_default_and_rule(command):
         if option.default is None:  # the spec's value
             assert "[default: the spec's" in option.help, f"{command} --{name}"
         else:
-            assert option.default == default_of(fields[name]), f"{command} --{name}"
+            assert default_value(option) == default_of(fields[name]), f"{command} --{name}"
+
+
+@pytest.mark.parametrize("command", ["render", "infer"])
+def test_render_and_infer_take_the_render_request_declarations(command):
+    fields = declared(RenderRequest)
+    options = options_of(command)
+    for name in ("diffuse", "specular", "roughness", "normal", "svbrdf", "elevation_deg", "azimuth_deg", "turbidity"):
+        assert options[name].type.rule is fields[name].metadata["rule"], f"{command} {name}"
+        assert default_value(options[name]) == default_of(fields[name]), f"{command} {name}"
 
 
 @pytest.mark.parametrize("command", ["build", "plan", "bench", "validate"])
@@ -61,7 +79,7 @@ def test_build_cluster_options_are_the_dataclass_fields():
     options = options_of("build")
     for name, field in declared(ClusterOptions).items():
         assert name in options, f"ClusterOptions.{name} has no option of `build`"
-        assert options[name].default == default_of(field), name
+        assert default_value(options[name]) == default_of(field), name
 
 
 @pytest.mark.parametrize(

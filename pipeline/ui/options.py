@@ -4,8 +4,8 @@ once, in the dataclass that owns it, and the command line reads that declaration
 ``options_from(TrainConfig, "epochs", "lr")`` makes ``--epochs`` and ``--lr`` with the
 field's type, default and help (its text, then what it allows and its unit); the value is
 checked by the field's rule while the command line is parsed, and a refusal reads as the
-class's own: ``--epochs: 0 is not allowed; an integer from 1 to 100000`` (exit code 2,
-before anything runs). The command's parameter is the field's name,
+class's own, a :class:`pipeline.fields.FieldError`: ``error: --epochs: 0 is not allowed;
+an integer from 1 to 100000`` (exit code 2, before anything runs). The command's parameter is the field's name,
 so ``TrainConfig(**options)`` takes them as they come.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import click
 
-from pipeline.fields import Bool, Choice, Optional, Path, Reject, Rule, declared, default_of, format_value
+from pipeline.fields import Bool, Choice, FieldError, Optional, Path, Reject, Rule, declared, default_of
 
 
 class FieldType(click.ParamType):
@@ -28,13 +28,15 @@ class FieldType(click.ParamType):
     def get_metavar(self, param, ctx=None) -> str | None:
         if isinstance(self.inner, Choice):
             return "[" + "|".join(self.inner.options) + "]"
-        return {int: "INTEGER", float: "FLOAT"}.get(self.inner.py_type, "TEXT")
+        if isinstance(self.inner, Path):
+            return "PATH"
+        return getattr(self.inner, "metavar", None) or {int: "INTEGER", float: "FLOAT"}.get(self.inner.py_type, "TEXT")
 
     def convert(self, value, param, ctx):
         if not isinstance(value, str):
             return value  # a default, or a value given from Python: the class checks it
         try:
-            parsed = self.inner.py_type(value)
+            parsed = self.inner.parse(value)
         except ValueError:
             raise refused(param, ctx, value, self.rule.allowed) from None
         try:
@@ -43,10 +45,11 @@ class FieldType(click.ParamType):
             raise refused(param, ctx, parsed, self.rule.allowed + (f" {exc.detail}" if exc.detail else "")) from None
 
 
-def refused(param, ctx, value, allowed: str) -> click.UsageError:
-    """The project's one wording of a refused value, as a usage error (exit code 2):
-    ``--epochs: 0 is not allowed; an integer from 1 to 100000``."""
-    return click.UsageError(f"{param.opts[0]}: {format_value(value)} is not allowed; {allowed}", ctx)
+def refused(param, ctx, value, allowed: str) -> FieldError:
+    """The refusal the dataclass itself would raise, naming the option as it is spelled:
+    ``--epochs: 0 is not allowed; an integer from 1 to 100000`` (the command reports it as
+    it reports every user error: ``error: ...``, exit code 2)."""
+    return FieldError(param.opts[0], value, allowed, name=param.name)
 
 
 def option_help(f) -> str:
@@ -55,7 +58,10 @@ def option_help(f) -> str:
     text = f.metadata["doc"].rstrip()
     inner = rule.rule if isinstance(rule, Optional) else rule
     if not isinstance(inner, (Bool, Choice, Path)):
-        text = f"{text} Allowed: {rule.brief}{' ' + unit if unit else ''}."
+        brief = rule.brief
+        if unit:  # "degrees in [0, 90]", "1 to 65536 samples per pixel"
+            brief = f"{unit} in {brief}" if brief[0] in "[(" else f"{brief} {unit}"
+        text = f"{text} Allowed: {brief}."
     if isinstance(rule, Optional) and rule.default_text and "[default:" not in text:
         text = f"{text} [default: {rule.default_text}]"
     return text
@@ -73,8 +79,9 @@ def option_from(cls, name: str, *, flag: str | None = None, unset: str | None = 
         decl = flag or (f"{spelled}/--no-{name.replace('_', '-')}" if default else spelled)
         kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default) and "/" in decl)
     else:
-        kwargs = dict(type=FieldType(rule), default=None if default is None else default)
-        kwargs["show_default"] = default is not None
+        if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5"
+            default = ",".join(f"{v:g}" for v in default)
+        kwargs = dict(type=FieldType(rule), default=default, show_default=default is not None)
         decl = spelled
     kwargs["help"] = option_help(f)
     if unset is not None:
