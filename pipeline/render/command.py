@@ -100,7 +100,7 @@ class RenderRequest(Checked):
     )
     svbrdf: str | None = field(
         None,
-        rule=Optional(_Exists("an existing PNG strip or folder of maps")),
+        rule=Optional(_Exists("an existing PNG strip or folder of maps"), "unset (the uniform values)"),
         doc="Spatially varying material instead of the uniform values: a Deschaintre et al. "
         "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
     )
