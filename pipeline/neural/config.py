@@ -54,7 +54,10 @@ class TrainConfig(Checked):
 
     FIELD_PREFIX: ClassVar[str] = "--"
 
-    dataset: str = field(rule=Path("a dataset folder or its publication"), doc="Dataset folder written by `build`.")
+    # empty: no dataset (the training-speed benchmark of synthetic batches); train() refuses it
+    dataset: str = field(
+        rule=Path("a dataset folder or its publication", empty_ok=True), doc="Dataset folder written by `build`."
+    )
     out: str = field(
         rule=Path("a run folder", empty_ok=True),
         doc="Run folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png.",
