@@ -162,6 +162,19 @@ def test_success_is_one_document(smoke, pub, tmp_path):
     assert report["ok"] is True and report["exit"] == 0
 
 
+def test_build_and_render_report_what_they_wrote_as_one_document(tmp_path):
+    built = shaderball("build", str(REPO / "manifests" / "smoke.toml"), "--out", str(tmp_path / "ds"), "--json")
+    assert built.returncode == 0, built.stderr
+    doc = one_document(built)
+    assert doc["rendered"] == doc["total"] == 16 and doc["shards"] == 4 and doc["seconds"] > 0
+    assert doc["manifest"] == str(tmp_path / "ds" / "manifest.jsonl") and os.path.isfile(doc["manifest"])
+    out = tmp_path / "one.exr"
+    rendered = shaderball("render", "--resolution", "16", "--spp", "1", "--out", str(out), "--json")
+    assert rendered.returncode == 0, rendered.stderr
+    doc = one_document(rendered)
+    assert doc["out"] == str(out) and out.is_file() and doc["stats"]["time_s"] > 0 and doc["stats"]["spp"] == 1
+
+
 def test_every_json_command_goes_through_the_wrapper():
     """Each command with a --json flag is a _Command (usage errors as JSON) wrapped by
     _friendly_errors (every other exit as JSON)."""
