@@ -349,13 +349,12 @@ def light_options():
 )
 @resolution_option()
 @variant_option()
+@json_option("Print what was written (files, mesh and atlas figures, times) as JSON on stdout.")
 @_friendly_errors
-def scene_cmd(out_dir: str, resolution: int, variant: str):
+def scene_cmd(out_dir: str, resolution: int, variant: str, as_json: bool):
     """Write the shaderball mesh, its G-buffer and a preview picture."""
 
-    summary = write_scene(out_dir, resolution=resolution, variant=variant)
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(write_scene(out_dir, resolution=resolution, variant=variant), as_json)
 
 
 @main.command("render")
@@ -382,12 +381,7 @@ def render_cmd(as_json, **options):
     """Render one material on the shaderball under one sun and sky."""
 
     request = RenderRequest(**options)
-    summary = render_to_files(request)
-    if as_json:
-        _emit_json(dataclasses.asdict(summary))
-        return
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(render_to_files(request), as_json)
 
 
 @main.command("build")
@@ -441,11 +435,7 @@ def build_cmd(spec, out, allow_spec_change, print_job_script, as_json, **cluster
     summary = build(
         spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=build_progress(), on_start=started
     )
-    if as_json:
-        _emit_json({**dataclasses.asdict(summary), "manifest": os.path.join(summary.out, "manifest.jsonl")})
-        return
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(summary, as_json, manifest=os.path.join(summary.out, "manifest.jsonl"))
 
 
 @main.command("validate")
@@ -537,12 +527,12 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
     type=int,
     help=f"Picture size in pixels, {span(TILE_RANGE)} [default: the render size, scaled to 128-256].",
 )
+@json_option("Print what was written (the picture, its samples, what was left out) as JSON on stdout.")
 @_friendly_errors
-def preview_cmd(directory, out, limit, tile):
+def preview_cmd(directory, out, limit, tile, as_json):
     """A contact sheet of a dataset (complete or partial) for people to look at."""
 
-    for line in write_preview(directory, out, samples=limit, tile=tile).lines():
-        click.echo(line)
+    _print_result(write_preview(directory, out, samples=limit, tile=tile), as_json)
 
 
 @main.command("info")
@@ -741,9 +731,10 @@ def bench_cmd(
     _print_result(result, as_json)
 
 
-def _print_result(result, as_json: bool) -> None:
+def _print_result(result, as_json: bool, **extra) -> None:
+    """A command's summary: its lines, or with --json its fields (and ``extra``) as one document."""
     if as_json:
-        _emit_json(result.to_dict())
+        _emit_json({**(result.to_dict() if hasattr(result, "to_dict") else dataclasses.asdict(result)), **extra})
         return
     for line in result.lines():
         click.echo(line)
@@ -992,12 +983,7 @@ def evaluate_cmd(
         report=report,
         flip=not no_flip,
     )
-    summary = evaluate(request, progress=evaluate_progress())
-    if as_json:
-        _emit_json(dataclasses.asdict(summary))
-        return
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(evaluate(request, progress=evaluate_progress()), as_json)
 
 
 @main.command("serve")

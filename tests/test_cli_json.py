@@ -28,7 +28,7 @@ pytestmark = pytest.mark.slow  # a smoke build (once per session)
 REPO = Path(__file__).resolve().parents[1]
 JSON_COMMANDS = (
     *("build", "render", "validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study"),
-    *("bench", "evaluate"),
+    *("bench", "evaluate", "scene", "preview"),
 )
 
 
