@@ -101,11 +101,10 @@ def test_json_prints_exactly_one_document_on_success(args):
         (["evaluate", "RUN", "DATA", "--json", "results.json"], "--json-out"),
     ],
 )
-def test_an_old_spelling_exits_2_naming_the_new_one(args, new, tmp_path):
-    runner = CliRunner()
-    with runner.isolated_filesystem(temp_dir=tmp_path) as here:
-        result = runner.invoke(cli.main, args)
-        assert not list(Path(here).iterdir()), "nothing is written"
+def test_an_old_spelling_exits_2_naming_the_new_one(args, new, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the relative paths above
+    result = CliRunner().invoke(cli.main, args)
+    assert not list(tmp_path.iterdir()), "nothing is written"
     assert result.exit_code == 2, result.output
     assert new in result.output and "Traceback" not in result.output, result.output
     assert result.exception is None or isinstance(result.exception, SystemExit)
