@@ -21,6 +21,8 @@ few hundred lines, and neither words its refusals in the project's one form (fie
 what is allowed) nor keeps the spec's TOML rules (``true`` is no integer, ``8.0`` no
 count, a list of distinct names, a closed interval) without as much code again in
 validators. The standard library's dataclasses carry the metadata; this module reads it.
+It stands one layer above ``pipeline.errors``, so a refusal is a ``ShaderballError`` like
+every other user error (exit code 2 at the command line).
 
 Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``; nothing else of the project.
