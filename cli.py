@@ -38,16 +38,15 @@ if __name__ == "__main__":  # `python -m cli`; Python's own handler is back befo
 
 import contextlib
 import ctypes
+import dataclasses
 import functools
 import traceback
 
 import click
 
-from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.bench.build_bench import run_from_args
 from pipeline.bench.effects import REPEATS_RANGE
-from pipeline.bench.estimate import DEFAULT_SAMPLES, PlanRequest, plan_spec
-from pipeline.bench.estimate import SAMPLES_RANGE as PLAN_SAMPLES_RANGE
+from pipeline.bench.estimate import PlanRequest, plan_spec
 from pipeline.bench.scale import SIZE_RANGE as SCALE_SIZE_RANGE
 from pipeline.bench.scale import run_scale_bench
 from pipeline.check.info import dataset_info
@@ -55,27 +54,20 @@ from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
 from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, SPP_LADDER_RANGE
+from pipeline.neural.config import TrainConfig
+from pipeline.neural.limits import DEVICES, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
 from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
-from pipeline.render.command import AZIMUTH_RANGE, SEED_RANGE, RenderRequest, parse_triple, render_to_files
-from pipeline.render.limits import MAX_DEPTH_RANGE, RESOLUTION_RANGE, SPP_RANGE, interval, span
-from pipeline.render.mitsuba_env import VARIANT_CHOICES
+from pipeline.render.command import RenderRequest, render_to_files
+from pipeline.render.limits import SPP_RANGE, span
 from pipeline.render.scene_command import write_scene
+from pipeline.render.settings import RenderSettings
 from pipeline.run.build import build
 from pipeline.run.cluster.connection import job_script
 from pipeline.run.cluster.options import (
-    CORES_RANGE,
-    DEFAULT_RECYCLE_AFTER,
-    DEFAULT_SCRATCH,
-    JOBS_RANGE,
-    RECYCLE_AFTER_RANGE,
-    START_TIMEOUT_RANGE,
-    WALLTIME_SPAN,
-    WORKERS_RANGE,
     ClusterOptions,
 )
 from pipeline.run.repair import repair
@@ -83,14 +75,12 @@ from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.configs import DEFAULT_LADDER
 from pipeline.study.run import (
     MAX_LADDER_SPP,
-    MAX_REFERENCE_SPP,
-    MAX_REPEATS,
     StudyRequest,
     parse_families,
     parse_ladder,
     run_study,
 )
-from pipeline.study.run import SAMPLES_RANGE as STUDY_SAMPLES_RANGE
+from pipeline.ui.options import option_from, options_from
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -100,8 +90,6 @@ from pipeline.ui.progress import (
     validate_progress,
 )
 from pipeline.ui.values import parse_int_list
-from sky.emitter import DEFAULT_SUN, SUN_MODES
-from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
@@ -235,6 +223,7 @@ class _Command(click.Command):
             and "--json" in args[: args.index("--") if "--" in args else len(args)]
         )
         try:
+            _refuse_json_with_a_value(self, info_name, args, parent)
             return super().make_context(info_name, args, parent=parent, **extra)
         except click.ClickException as exc:
             if not wants_json:
@@ -242,6 +231,26 @@ class _Command(click.Command):
             exc.show()
             _write_json({"ok": False, "exit": exc.exit_code, "error": exc.format_message()})
             sys.exit(exc.exit_code)
+        except USER_ERRORS as exc:  # an option's value refused by its declaration (pipeline.ui.options)
+            click.echo(f"error: {exc}", err=True)
+            if wants_json:
+                _write_json({"ok": False, "exit": exc.exit_code, "error": str(exc)})
+            sys.exit(exc.exit_code)
+
+
+def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
+    """``--json FILE`` (a file name ending in .json after --json) where the command writes a
+    file with ``--json-out``: a usage error naming the new spelling, before anything runs."""
+    if not any("--json-out" in p.opts for p in command.params):
+        return
+    head = args[: args.index("--") if "--" in args else len(args)]
+    for flag, value in zip(head, head[1:]):
+        if flag == "--json" and value.lower().endswith(".json"):
+            ctx = click.Context(command, info_name=info_name, parent=parent)
+            raise click.UsageError(
+                f"--json {value}: --json is a flag (one JSON document on stdout); write the file with --json-out FILE",
+                ctx,
+            )
 
 
 class _Group(click.Group):
@@ -284,8 +293,8 @@ def json_option(help: str):
 
 
 def json_file_option(help: str):
-    """``--json PATH`` (``json_path``): also write the figures to a JSON file."""
-    return click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
+    """``--json-out FILE`` (``json_path``): also write the figures to a JSON file."""
+    return click.option("--json-out", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
 
 
 def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "out"):
@@ -294,121 +303,49 @@ def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "o
     return click.option("--out", dest, required=required, type=kind, default=None, help=help)
 
 
-def variant_option():
+def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True):
+    """An old spelling of an option, hidden: given, it exits 2 naming the new one."""
+
+    def refuse(ctx, param, value):
+        if value is not None and value is not False:
+            raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
+
     return click.option(
-        "--variant",
-        default="auto",
-        show_default=True,
-        type=click.Choice(VARIANT_CHOICES),
-        help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU).",
+        old,
+        "renamed_" + old.lstrip("-").replace("-", "_"),  # its own name: the new option may take the old one's
+        default=None,
+        hidden=True,
+        expose_value=False,
+        is_flag=not takes_value,
+        callback=refuse,
+        is_eager=True,
+    )
+
+
+def variant_option():
+    return option_from(
+        RenderSettings, "variant", help="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
     )
 
 
 def resolution_option():
-    return click.option(
-        "--resolution",
-        default=400,
-        show_default=True,
-        type=int,
-        help=f"Image width and height in pixels, {span(RESOLUTION_RANGE)}.",
-    )
+    return option_from(RenderSettings, "resolution")
 
 
-def device_option(help: str | None = None):
-    """torch's device (train, infer, evaluate)."""
+def device_option(help: str = "Where the network runs: auto (cuda when torch sees a GPU, else cpu), cpu or cuda."):
+    """torch's device (infer, evaluate)."""
     return click.option("--device", default="auto", show_default=True, type=click.Choice(DEVICES), help=help)
 
 
-def material_options(*, full: bool):
+def material_options():
     """The uniform material (--diffuse, --specular, --roughness, --normal) or --svbrdf maps, of
-    `render` and `infer`; ``full``: render's help, which infer's refers to."""
-    return _options(
-        click.option(
-            "--diffuse",
-            default="0.5,0.5,0.5",
-            show_default=True,
-            metavar="R,G,B",
-            help="Uniform diffuse albedo, linear RGB, each in [0, 1].",
-        ),
-        click.option(
-            "--specular",
-            default="0.04,0.04,0.04",
-            show_default=True,
-            metavar="R,G,B",
-            help="Uniform specular albedo (F0), linear RGB, each in [0, 1]."
-            + (" 0.04 is a typical dielectric." if full else ""),
-        ),
-        click.option(
-            "--roughness",
-            default=0.3,
-            show_default=True,
-            type=float,
-            help="Uniform roughness in [0, 1]" + ("; GGX alpha = roughness^2." if full else "."),
-        ),
-        click.option(
-            "--normal",
-            default="0,0,1",
-            show_default=True,
-            metavar="X,Y,Z",
-            help="Uniform tangent-space normal (Z > 0; normalised).",
-        ),
-        click.option(
-            "--svbrdf",
-            type=click.Path(),
-            default=None,
-            help="Spatially varying material instead of the uniform values: a Deschaintre et al. "
-            "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps."
-            if full
-            else "Spatially varying material, as `shaderball render --svbrdf`.",
-        ),
-        click.option(
-            "--svbrdf-colorspace",
-            type=click.Choice(["raw", "srgb"]),
-            default="raw",
-            show_default=True,
-            help="How 8-bit albedo maps of --svbrdf are decoded"
-            + (": raw (as Deschaintre's renderer) or sRGB." if full else "."),
-        ),
-    )
+    `render` and `infer`: RenderRequest's declarations."""
+    return options_from(RenderRequest, "diffuse", "specular", "roughness", "normal", "svbrdf", "svbrdf_colorspace")
 
 
-def light_options(*, full: bool):
-    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`; ``full``:
-    render's help, which infer's refers to."""
-    return _options(
-        click.option(
-            "--elevation",
-            default=45.0,
-            show_default=True,
-            type=float,
-            help=f"Sun elevation above the horizon, degrees in {interval(ELEVATION_RANGE)}. Below ~2.4-7 degrees "
-            "(by turbidity) the sun is raised to the floor where Mitsuba's sky is non-negative; "
-            "the move is printed and recorded."
-            if full
-            else f"Sun elevation, degrees in {interval(ELEVATION_RANGE)} (raised to the low-sun floor as `shaderball render` does).",
-        ),
-        click.option(
-            "--azimuth",
-            default=270.0,
-            show_default=True,
-            type=float,
-            help=f"Sun azimuth, degrees in {interval(AZIMUTH_RANGE)}"
-            + (
-                ", counter-clockwise from +x seen from above: "
-                "0 lights the ball from the image's right, 90 from behind, 270 from the camera's side."
-                if full
-                else "."
-            ),
-        ),
-        click.option(
-            "--turbidity",
-            default=3.0,
-            show_default=True,
-            type=float,
-            help=f"Atmospheric turbidity in {interval(TURBIDITY_RANGE)}"
-            + (" (1: very clear, 10: hazy)." if full else "."),
-        ),
-    )
+def light_options():
+    """The sun and sky (--elevation, --azimuth, --turbidity) of `render` and `infer`."""
+    return options_from(RenderRequest, "elevation_deg", "azimuth_deg", "turbidity")
 
 
 @main.command("scene")
@@ -417,8 +354,9 @@ def light_options(*, full: bool):
 )
 @resolution_option()
 @variant_option()
+@json_option("Print what was written (files, mesh and atlas figures, times) as JSON on stdout.")
 @_friendly_errors
-def scene_cmd(out_dir: str, resolution: int, variant: str):
+def scene_cmd(out_dir: str, resolution: int, variant: str, as_json: bool):
     """Write the shaderball mesh, its G-buffer and a preview picture.
 
     \b
@@ -426,62 +364,30 @@ def scene_cmd(out_dir: str, resolution: int, variant: str):
       shaderball scene --out demo-out/scene --resolution 64
     """
 
-    summary = write_scene(out_dir, resolution=resolution, variant=variant)
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(write_scene(out_dir, resolution=resolution, variant=variant), as_json)
 
 
 @main.command("render")
-@material_options(full=True)
-@light_options(full=True)
-@click.option(
-    "--spp", default=150, show_default=True, type=int, help=f"Samples per pixel, {span(SPP_RANGE)} (the paper: 150)."
+@material_options()
+@light_options()
+@options_from(
+    RenderRequest,
+    *("spp", "resolution", "max_depth", "seed", "variant", "sun", "model"),
+    variant={"help": "Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."},
+    sun={
+        "help": "split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky."
+    },
+    model={
+        "help": "Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
+        "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
+        "roughness 0.178; docs/materials.md). A spec's materials.model."
+    },
 )
-@resolution_option()
-@click.option(
-    "--max-depth", default=8, show_default=True, type=int, help=f"Path length limit, {span(MAX_DEPTH_RANGE)}."
-)
-@click.option("--seed", default=0, show_default=True, type=int, help=f"Render seed, {span(SEED_RANGE)}.")
-@variant_option()
-@click.option(
-    "--sun",
-    type=click.Choice(SUN_MODES),
-    default=DEFAULT_SUN,
-    show_default=True,
-    help="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.",
-)
-@click.option(
-    "--model",
-    type=click.Choice(MODELS),
-    default=DEFAULT_MODEL,
-    show_default=True,
-    help="Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
-    "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
-    "roughness 0.178; docs/materials.md). A spec's materials.model.",
-)
-@out_option("Output EXR: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
+@out_option("Output EXR file: layers render.R/G/B (float32) and the screen-space maps.", folder=False)
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write a tone-mapped PNG for people.")
+@json_option("Print what was written (files, render statistics and time, lighting, effects) as JSON on stdout.")
 @_friendly_errors
-def render_cmd(
-    diffuse,
-    specular,
-    roughness,
-    normal,
-    svbrdf,
-    svbrdf_colorspace,
-    elevation,
-    azimuth,
-    turbidity,
-    spp,
-    resolution,
-    max_depth,
-    seed,
-    variant,
-    sun,
-    model,
-    out,
-    png,
-):
+def render_cmd(as_json, **options):
     """Render one material on the shaderball under one sun and sky.
 
     \b
@@ -489,50 +395,19 @@ def render_cmd(
       shaderball render --out demo-out/ball.exr --png demo-out/ball.png --resolution 64 --spp 16 --elevation 30
     """
 
-    request = RenderRequest(
-        diffuse=parse_triple("--diffuse", diffuse),
-        specular=parse_triple("--specular", specular),
-        roughness=roughness,
-        normal=parse_triple("--normal", normal, None, None),
-        svbrdf=svbrdf,
-        svbrdf_colorspace=svbrdf_colorspace,
-        elevation_deg=elevation,
-        azimuth_deg=azimuth,
-        turbidity=turbidity,
-        spp=spp,
-        resolution=resolution,
-        max_depth=max_depth,
-        seed=seed,
-        sun=sun,
-        variant=variant,
-        model=model,
-        out=out,
-        png=png,
-    )
-    for line in render_to_files(request).lines():
-        click.echo(line)
+    request = RenderRequest(**options)
+    _print_result(render_to_files(request), as_json)
 
 
 @main.command("build")
 @click.argument("spec", type=click.Path(dir_okay=False))
 @out_option(
-    "Dataset directory. Created if missing; an existing one built from the same spec is "
+    "Dataset folder. Created if missing; an existing one built from the same spec is "
     "resumed (only missing or unverified samples are rendered); another spec is refused.",
     folder=True,
 )
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help=f"Local dask worker processes, {span(WORKERS_RANGE)} [default: one per 2 cores]. 0 runs in this "
-    "process without dask. Ignored with --scheduler.",
-)
-@click.option(
-    "--scheduler",
-    default=None,
-    metavar="ADDRESS",
-    help="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
-    "(its workers need DIR at the same path; docs/cluster.md).",
+@options_from(
+    ClusterOptions, "workers", "scheduler", workers={"unset": "one per 2 cores"}, scheduler={"metavar": "ADDRESS"}
 )
 @click.option(
     "--allow-spec-change",
@@ -540,87 +415,23 @@ def render_cmd(
     help="Accept a spec that differs from DIR/spec.toml in dataset.name or dataset.version only "
     "(no sample depends on them); any other difference is refused.",
 )
-@click.option(
-    "--cluster",
-    "cluster_kind",
-    type=click.Choice(["local", "slurm", "pbs"]),
-    default="local",
-    show_default=True,
-    help="Where workers run: this machine, or batch jobs via dask-jobqueue.",
-)
-@click.option(
-    "--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs (nodes), {span(JOBS_RANGE)}; one worker each."
-)
-@click.option(
-    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; every render uses all."
-)
-@click.option(
-    "--memory",
-    default=None,
-    metavar="SIZE",
-    help="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
-    "its limit is restarted and its shard runs again.",
-)
-@click.option(
-    "--walltime",
-    default=None,
-    metavar="HH:MM:SS",
-    help=f"slurm/pbs: wall-clock limit per job, {WALLTIME_SPAN}; workers retire about 5 min "
-    "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
-)
-@click.option("--queue", default=None, help="slurm/pbs: partition or queue.")
-@click.option("--account", default=None, help="slurm/pbs: account to charge.")
-@click.option(
-    "--scratch",
-    default=None,
-    metavar="DIR",
-    help="slurm/pbs: node-local folder for the kernel cache and dask's files "
-    f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
-)
-@click.option(
-    "--recycle-after",
-    type=int,
-    default=DEFAULT_RECYCLE_AFTER,
-    show_default=True,
-    metavar="RENDERS",
-    help="Restart a dask worker process once it has rendered this many samples, "
-    f"{span(RECYCLE_AFTER_RANGE)} "
-    "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
-)
-@click.option(
-    "--start-timeout",
-    type=int,
-    default=None,
-    metavar="SECONDS",
-    help="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
-    f"this long, {span(START_TIMEOUT_RANGE)}: before the first one arrives, or after the last one left "
-    "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
-    "as long as it takes]",
+@options_from(
+    ClusterOptions,
+    *("kind", "jobs", "cores", "memory", "walltime", "queue", "account", "scratch", "recycle_after", "start_timeout"),
+    memory={"metavar": "SIZE"},
+    walltime={"metavar": "HH:MM:SS"},
+    scratch={"metavar": "DIR"},
+    recycle_after={"metavar": "RENDERS"},
+    start_timeout={"metavar": "SECONDS"},
 )
 @click.option(
     "--print-job-script",
     is_flag=True,
     help="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.",
 )
+@json_option("Print what was built (folder, manifest, counts, seconds) as JSON on stdout; progress stays on stderr.")
 @_friendly_errors
-def build_cmd(
-    spec,
-    out,
-    workers,
-    scheduler,
-    allow_spec_change,
-    cluster_kind,
-    jobs,
-    cores,
-    memory,
-    walltime,
-    queue,
-    account,
-    scratch,
-    recycle_after,
-    start_timeout,
-    print_job_script,
-):
+def build_cmd(spec, out, allow_spec_change, print_job_script, as_json, **cluster):
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
     Clusters, SLURM/PBS and worker memory: docs/cluster.md. Resume and crash safety: docs/resume.md.
@@ -630,20 +441,7 @@ def build_cmd(
       shaderball build manifests/smoke.toml --out demo-out/smoke
     """
 
-    options = ClusterOptions(
-        kind=cluster_kind,
-        workers=workers,
-        scheduler=scheduler,
-        jobs=jobs,
-        cores=cores,
-        memory=memory,
-        walltime=walltime,
-        queue=queue,
-        account=account,
-        scratch=scratch,
-        recycle_after=recycle_after,
-        start_timeout=start_timeout,
-    ).check()
+    options = ClusterOptions(**cluster).check()
     if print_job_script:
         if not options.is_jobqueue:
             raise click.UsageError("--print-job-script needs --cluster slurm or --cluster pbs")
@@ -656,8 +454,7 @@ def build_cmd(
     summary = build(
         spec, out, cluster=options, allow_spec_change=allow_spec_change, progress=build_progress(), on_start=started
     )
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(summary, as_json, manifest=os.path.join(summary.out, "manifest.jsonl"))
 
 
 @main.command("validate")
@@ -677,12 +474,14 @@ def build_cmd(
 @click.option(
     "--fast", is_flag=True, help="Check sizes, markers and records only; read no file (no SHA-256, no decoding)."
 )
-@click.option(
-    "--workers",
-    type=int,
-    default=0,
-    show_default=True,
-    help="With --repair: local dask worker processes for re-rendering; 0 renders in this process.",
+@options_from(
+    ClusterOptions,
+    "workers",
+    workers={
+        "default": 0,
+        "show_default": True,
+        "help": "With --repair: local dask worker processes for re-rendering; 0 renders in this process.",
+    },
 )
 @click.option(
     "--spec",
@@ -734,25 +533,27 @@ def validate_cmd(directory, as_json, fix, fast, workers, spec_path):
 @main.command("preview")
 @click.argument("directory", metavar="DIR", type=click.Path())
 @out_option(
-    "PNG to write: one row per sample, its tone-mapped render beside its four maps, "
+    "PNG file to write: one row per sample, its tone-mapped render beside its four maps, "
     "labelled with its id, material and lighting.",
     folder=False,
 )
 @click.option(
-    "--samples",
+    "--limit",
     default=8,
     show_default=True,
     type=int,
-    help=f"Rows, {span(SAMPLES_RANGE)}: samples spread evenly over the renders recorded so far.",
+    help=f"Rows, {span(SAMPLES_RANGE)}: this many samples, spread evenly over the renders recorded so far.",
 )
+@renamed_option("--samples", "--limit")
 @click.option(
     "--tile",
     default=None,
     type=int,
     help=f"Picture size in pixels, {span(TILE_RANGE)} [default: the render size, scaled to 128-256].",
 )
+@json_option("Print what was written (the picture, its samples, what was left out) as JSON on stdout.")
 @_friendly_errors
-def preview_cmd(directory, out, samples, tile):
+def preview_cmd(directory, out, limit, tile, as_json):
     """A contact sheet of a dataset (complete or partial) for people to look at.
 
     \b
@@ -760,8 +561,7 @@ def preview_cmd(directory, out, samples, tile):
       shaderball preview demo-out/smoke --out demo-out/smoke-preview.png
     """
 
-    for line in write_preview(directory, out, samples=samples, tile=tile).lines():
-        click.echo(line)
+    _print_result(write_preview(directory, out, samples=limit, tile=tile), as_json)
 
 
 @main.command("info")
@@ -792,35 +592,23 @@ def info_cmd(directory, as_json):
 
 @main.command("plan")
 @click.argument("spec", type=click.Path(dir_okay=False))
-@click.option(
-    "--samples",
-    default=DEFAULT_SAMPLES,
-    show_default=True,
-    type=int,
-    help=f"Renders to time, {span(PLAN_SAMPLES_RANGE)}: the spec's first materials, whole (so at least this many).",
-)
+@options_from(PlanRequest, "samples")
+@renamed_option("--samples", "--limit")
 @click.option("--no-timing", is_flag=True, help="Counts and disk only; render nothing (what `info SPEC` prints).")
-@click.option(
-    "--cluster",
-    "cluster_kind",
-    type=click.Choice(["local", "slurm", "pbs"]),
-    default="local",
-    show_default=True,
-    help="Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them.",
-)
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help=f"Local dask worker processes to estimate for, {span(WORKERS_RANGE)} [default: one per 2 cores, as build].",
-)
-@click.option("--jobs", type=int, default=None, help=f"slurm/pbs: batch jobs, {span(JOBS_RANGE)}; one worker each.")
-@click.option(
-    "--cores", type=int, default=None, help=f"slurm/pbs: cores per job, {span(CORES_RANGE)}; taken as fast as one here."
+@options_from(
+    PlanRequest,
+    "cluster",
+    "workers",
+    "jobs",
+    "cores",
+    cluster={
+        "help": "Also estimate the time on batch jobs (with --jobs and --cores), as `build --cluster` would run them."
+    },
+    workers={"unset": "one per 2 cores, as build"},
 )
 @json_option("Print the plan as JSON on stdout.")
 @_friendly_errors
-def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_json):
+def plan_cmd(spec, no_timing, as_json, **options):
     """What building SPEC takes, before building it: renders, materials, lightings, shards, disk, time.
 
     The time comes from the spec's own first renders, built here at the spec's settings
@@ -831,9 +619,7 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
       shaderball plan manifests/smoke.toml
       shaderball plan manifests/smoke.toml --cluster slurm --jobs 8 --cores 32
     """
-    request = PlanRequest(
-        spec=spec, timed=not no_timing, samples=samples, cluster=cluster_kind, workers=workers, jobs=jobs, cores=cores
-    )
+    request = PlanRequest(spec=spec, timed=not no_timing, **options)
     report = plan_spec(request, progress=say)
     if as_json:
         _emit_json(report.to_dict())
@@ -849,28 +635,8 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     "report.md. Re-running the same command resumes; another request is refused.",
     folder=True,
 )
-@click.option(
-    "--samples",
-    type=int,
-    default=12,
-    show_default=True,
-    help="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness; "
-    f"{span(STUDY_SAMPLES_RANGE)}.",
-)
-@click.option(
-    "--reference-spp",
-    type=int,
-    default=4096,
-    show_default=True,
-    help="Samples per pixel of each reference (two halves); even, at least twice the largest spp "
-    f"studied, at most {MAX_REFERENCE_SPP}.",
-)
-@click.option(
-    "--resolution",
-    type=int,
-    default=None,
-    help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's].",
-)
+@options_from(StudyRequest, "samples", "reference_spp", "resolution")
+@renamed_option("--samples", "--draws")
 @click.option(
     "--ladder",
     default=",".join(map(str, DEFAULT_LADDER)),
@@ -892,18 +658,10 @@ def plan_cmd(spec, samples, no_timing, cluster_kind, workers, jobs, cores, as_js
     help="Only these configurations (comma-separated names as the report writes them, e.g. "
     "multijitter/64); the spec's recipe is always measured.",
 )
-@click.option(
-    "--repeats",
-    type=int,
-    default=3,
-    show_default=True,
-    help=f"Independent seeds per sample and configuration, {span((1, MAX_REPEATS))} (the cost grows in proportion); "
-    "every figure carries a 95% interval over samples and seeds.",
-)
-@click.option("--no-flip", is_flag=True, help="Leave HDR-FLIP out (the slowest metric).")
+@options_from(StudyRequest, "repeats", "flip", flip={"flag": "--flip/--no-flip"})
 @json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, only, repeats, no_flip, as_json):
+def study_cmd(spec, out, ladder, families, only, as_json, **options):
     """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md).
 
     \b
@@ -915,14 +673,10 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     req = StudyRequest(
         spec=spec,
         out=out,
-        samples=samples,
-        reference_spp=reference_spp,
-        resolution=resolution,
         ladder=parse_ladder(ladder),
         families=parse_families(families),
         only=tuple(n for n in only.split(",") if n),
-        flip=not no_flip,
-        repeats=repeats,
+        **options,
     )
     summary = run_study(req, progress=study_progress)
     if as_json:
@@ -935,29 +689,20 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
 @main.command("bench")
 @click.argument("spec", required=False, type=click.Path(dir_okay=False))
 @click.option(
-    "--samples",
+    "--limit",
     type=int,
     default=None,
     help="Cut the spec to about this many renders (whole materials, all their lightings) [default: all of them].",
 )
-@click.option(
-    "--resolution",
-    type=int,
-    default=None,
-    help=f"Render size in pixels, {span(RESOLUTION_RANGE)} [default: the spec's; with --effects 128].",
+@renamed_option("--samples", "--limit")
+@options_from(
+    RenderSettings,
+    "resolution",
+    "spp",
+    resolution={"unset": "the spec's; with --effects 128"},
+    spp={"unset": "the spec's; with --effects 64"},
 )
-@click.option(
-    "--spp",
-    type=int,
-    default=None,
-    help=f"Samples per pixel, {span(SPP_RANGE)} [default: the spec's; with --effects 64].",
-)
-@click.option(
-    "--workers",
-    type=int,
-    default=None,
-    help="As `shaderball build --workers` (0: in this process) [default: the build's].",
-)
+@options_from(ClusterOptions, "workers", workers={"unset": "the build's"})
 @click.option(
     "--shard-size",
     type=int,
@@ -989,8 +734,11 @@ def study_cmd(spec, out, samples, reference_spp, resolution, ladder, families, o
     "every command over each and write README.md, scale.png and scale.json to --out (docs/results/scale/).",
 )
 @json_file_option("Also write the figures to this JSON file.")
+@json_option("Print the figures as JSON on stdout (progress stays on stderr).")
 @_friendly_errors
-def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path):
+def bench_cmd(
+    spec, limit, resolution, spp, workers, shard_size, out, profile, effects, repeats, scale, json_path, as_json
+):
     """Build time over the summed time of bare Mitsuba renders of the same samples (docs/build.md).
 
     \b
@@ -1010,13 +758,12 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
             json_path=json_path,
             progress=say,
         )
-        for line in result.lines():
-            click.echo(line)
+        _print_result(result, as_json)
         return
     result = run_from_args(
         spec,
         effects=effects,
-        samples=samples,
+        samples=limit,
         resolution=resolution,
         spp=spp,
         workers=workers,
@@ -1027,13 +774,13 @@ def bench_cmd(spec, samples, resolution, spp, workers, shard_size, out, profile,
         json_path=json_path,
         progress=say,
     )
-    for line in result.lines():
-        click.echo(line)
+    _print_result(result, as_json)
 
 
-def _print_result(result, as_json: bool) -> None:
+def _print_result(result, as_json: bool, **extra) -> None:
+    """A command's summary: its lines, or with --json its fields (and ``extra``) as one document."""
     if as_json:
-        _emit_json(result.to_dict())
+        _emit_json({**(result.to_dict() if hasattr(result, "to_dict") else dataclasses.asdict(result)), **extra})
         return
     for line in result.lines():
         click.echo(line)
@@ -1146,141 +893,16 @@ def _neural():
     folder=True,
     required=False,
 )
-@click.option(
-    "--epochs",
-    default=30,
-    show_default=True,
-    type=int,
-    help=f"Epochs to reach, {span(INTEGER_RANGES['epochs'])}; running again with more continues the run.",
+@options_from(
+    TrainConfig,
+    *("epochs", "batch_size", "lr", "loss", "vgg_weights", "vgg_sha256", "vgg_weight", "device", "loader_workers"),
+    *("seed", "resolution", "test_fraction", "split_seed", "train_materials", "width", "schedule", "warmup_epochs"),
+    *("exposure", "check_hashes", "threads", "precision", "channels_last", "compile"),
+    vgg_weights={"metavar": "FILE"},
+    vgg_sha256={"metavar": "HEX"},
+    check_hashes={"flag": "--hash-check/--no-hash-check"},
 )
-@click.option(
-    "--batch-size",
-    default=6,
-    show_default=True,
-    type=int,
-    help=f"Samples per step, {span(INTEGER_RANGES['batch_size'])} (the paper: 6).",
-)
-@click.option(
-    "--lr",
-    default=1e-3,
-    show_default=True,
-    type=float,
-    help="Adam learning rate in (0, 10] (the released code's; the paper's text: 1e-2, which saturates; docs/neural.md).",
-)
-@click.option(
-    "--loss",
-    default="auto",
-    show_default=True,
-    type=click.Choice(LOSS_CHOICES),
-    help="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
-    "auto: l1+vgg where the weights are found (--vgg-weights or torch hub's cache), else l1, and says which.",
-)
-@click.option(
-    "--vgg-weights",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="torchvision's vgg16 state dict (vgg16-397923af.pth) [default: torch hub's cache, "
-    "$TORCH_HOME/hub/checkpoints/]. Never downloaded.",
-)
-@click.option(
-    "--vgg-sha256",
-    default=None,
-    metavar="HEX",
-    help="Expected SHA-256 of --vgg-weights [default: torchvision's ImageNet file's].",
-)
-@click.option(
-    "--vgg-weight", default=1.0, show_default=True, type=float, help="Weight of the VGG term beside L1, >= 0."
-)
-@device_option("auto: cuda when torch sees a GPU, else cpu.")
-@click.option(
-    "--workers",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"DataLoader worker processes, {span(INTEGER_RANGES['workers'])}.",
-)
-@click.option(
-    "--seed",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"Seeds weights, order and split, {span(INTEGER_RANGES['seed'])}.",
-)
-@click.option(
-    "--resolution",
-    default=None,
-    type=int,
-    help="Network resolution, a multiple of 16 dividing the dataset's (images box-averaged) [default: the dataset's].",
-)
-@click.option(
-    "--test-fraction",
-    default=0.2,
-    show_default=True,
-    type=float,
-    help="Fraction of materials held out for testing, in [0, 1).",
-)
-@click.option(
-    "--split-seed",
-    default=None,
-    type=int,
-    help="Seeds the split by material (and --train-materials' choice) apart from --seed, so runs of "
-    "several seeds share one held-out set [default: --seed].",
-)
-@click.option(
-    "--train-materials",
-    default=None,
-    type=int,
-    help="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
-    "larger one; the held-out set stays) [default: all].",
-)
-@click.option(
-    "--width",
-    default=1.0,
-    show_default=True,
-    type=float,
-    help="Fraction of the paper's channels in (0, 1]; 1 is the paper's network, 0.5 about a quarter of its "
-    "work for CPU-scale runs (docs/neural.md).",
-)
-@click.option(
-    "--schedule",
-    default="constant",
-    show_default=True,
-    type=click.Choice(["constant", "cosine"]),
-    help="Learning rate after the warm-up: constant, or a cosine decay reaching 0 at --epochs (the run then "
-    "ends at --epochs: a longer run is another configuration).",
-)
-@click.option(
-    "--warmup-epochs",
-    default=0.0,
-    show_default=True,
-    type=float,
-    help="Linear warm-up of the learning rate over this many epochs (fractions allowed), 0 to --epochs.",
-)
-@click.option("--no-hash-check", is_flag=True, help="Skip each file's SHA-256 check on first read.")
-@click.option(
-    "--threads",
-    default=0,
-    show_default=True,
-    type=int,
-    help=f"torch intra-op threads, {span(INTEGER_RANGES['threads'])} (0: torch's default, the core count; "
-    "docs/neural.md, Speed on a CPU).",
-)
-@click.option(
-    "--precision",
-    default="fp32",
-    show_default=True,
-    type=click.Choice(PRECISIONS),
-    help="fp32: the same computation on every CPU; bf16: autocast to bfloat16 (CPU or CUDA; 1.7x here, 2.1x with "
-    "--channels-last); auto: bf16 on a CPU with bfloat16 kernels, else fp32; "
-    "fp16: autocast to float16 with a gradient scaler (CUDA).",
-)
-@click.option(
-    "--channels-last/--no-channels-last",
-    default=True,
-    show_default=True,
-    help="Network, VGG and batches in channels-last (NHWC) memory format.",
-)
-@click.option("--compile", "compile_", is_flag=True, help="torch.compile the network for the training step.")
+@renamed_option("--workers", "--loader-workers", "--workers means dask worker processes; train has none")
 @click.option(
     "--benchmark",
     is_flag=True,
@@ -1288,34 +910,7 @@ def _neural():
 )
 @json_option("Print the summary (or benchmark) as JSON on stdout.")
 @_friendly_errors
-def train_cmd(
-    dataset,
-    out,
-    epochs,
-    batch_size,
-    lr,
-    loss,
-    vgg_weights,
-    vgg_sha256,
-    vgg_weight,
-    device,
-    workers,
-    seed,
-    resolution,
-    test_fraction,
-    split_seed,
-    train_materials,
-    width,
-    schedule,
-    warmup_epochs,
-    no_hash_check,
-    threads,
-    precision,
-    channels_last,
-    compile_,
-    benchmark,
-    as_json,
-):
+def train_cmd(dataset, out, benchmark, as_json, **options):
     """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run.
 
     \b
@@ -1323,36 +918,11 @@ def train_cmd(
       shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
     _neural()
-    from pipeline.neural.train import TrainConfig, train
+    from pipeline.neural.train import train
 
     if out is None and not benchmark:
         raise ShaderballError("--out: missing; name the run folder (or pass --benchmark)")
-    config = TrainConfig(
-        dataset=dataset,
-        out=out or "",
-        epochs=epochs,
-        batch_size=batch_size,
-        lr=lr,
-        loss=loss,
-        vgg_weights=vgg_weights,
-        vgg_sha256=vgg_sha256,
-        vgg_weight=vgg_weight,
-        device=device,
-        workers=workers,
-        seed=seed,
-        resolution=resolution,
-        test_fraction=test_fraction,
-        split_seed=split_seed,
-        train_materials=train_materials,
-        width=width,
-        schedule=schedule,
-        warmup_epochs=warmup_epochs,
-        check_hashes=not no_hash_check,
-        threads=threads,
-        precision=precision,
-        channels_last=channels_last,
-        compile=compile_,
-    )
+    config = TrainConfig(dataset=dataset, out=out or "", **options)
     if benchmark:
         from pipeline.neural.bench import benchmark as run_benchmark
 
@@ -1371,12 +941,13 @@ def train_cmd(
 @main.command("infer")
 @click.argument("run", metavar="RUN", type=click.Path())
 @out_option(
-    "Output EXR: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.", folder=False
+    "Output EXR file: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
+    folder=False,
 )
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Also write the network's picture as PNG.")
-@material_options(full=False)
-@light_options(full=False)
-@device_option("auto: cuda when torch sees a GPU, else cpu.")
+@material_options()
+@light_options()
+@device_option()
 @json_option("Print the summary as JSON on stdout.")
 @click.option(
     "--checkpoint",
@@ -1386,23 +957,7 @@ def train_cmd(
     help="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of RUN.",
 )
 @_friendly_errors
-def infer_cmd(
-    run,
-    out,
-    png,
-    diffuse,
-    specular,
-    roughness,
-    normal,
-    svbrdf,
-    svbrdf_colorspace,
-    elevation,
-    azimuth,
-    turbidity,
-    device,
-    as_json,
-    checkpoint,
-):
+def infer_cmd(run, out, png, device, as_json, checkpoint, **picture):
     """The trained network's picture of one material under one sun (no path tracing).
 
     \b
@@ -1412,22 +967,7 @@ def infer_cmd(
     _neural()
     from pipeline.neural.infer import InferRequest, infer_to_files
 
-    request = InferRequest(
-        run=run,
-        out=out,
-        png=png,
-        diffuse=parse_triple("--diffuse", diffuse),
-        specular=parse_triple("--specular", specular),
-        roughness=roughness,
-        normal=parse_triple("--normal", normal, None, None),
-        svbrdf=svbrdf,
-        svbrdf_colorspace=svbrdf_colorspace,
-        elevation_deg=elevation,
-        azimuth_deg=azimuth,
-        turbidity=turbidity,
-        device=device,
-        checkpoint=checkpoint,
-    )
+    request = InferRequest(run=run, out=out, png=png, device=device, checkpoint=checkpoint, **picture)
     summary = infer_to_files(request)
     if as_json:
         _emit_json(dict(summary.__dict__))
@@ -1455,6 +995,7 @@ def infer_cmd(
     dest="out_dir",
 )
 @json_file_option("Also write the results (per sample and mean) to this JSON file.")
+@json_option("Print the summary as JSON on stdout (progress stays on stderr).")
 @click.option(
     "--spp",
     default="1,2,4,16",
@@ -1485,7 +1026,9 @@ def infer_cmd(
     help="Leave out HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).",
 )
 @_friendly_errors
-def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip):
+def evaluate_cmd(
+    run, dataset, split, out_dir, json_path, spp, no_denoise, limit, device, checkpoint, report, no_flip, as_json
+):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
 
     DATASET: a dataset folder or its publication. Low-spp renders are denoised with OIDN fed
@@ -1513,44 +1056,16 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
         report=report,
         flip=not no_flip,
     )
-    summary = evaluate(request, progress=evaluate_progress())
-    for line in summary.lines():
-        click.echo(line)
+    _print_result(evaluate(request, progress=evaluate_progress()), as_json)
 
 
 @main.command("serve")
-@click.option(
-    "--run",
-    type=click.Path(),
-    default=None,
-    help="A training run folder: the network shown beside path tracing [default: none, a path-traced previewer].",
-)
-@click.option(
-    "--checkpoint",
-    default="last",
-    show_default=True,
-    metavar="last|best|FILE",
-    help="--run's weights, as `shaderball infer --checkpoint`.",
-)
-@click.option(
-    "--dataset",
-    type=click.Path(),
-    default=None,
-    help="A dataset folder or its publication, whose samples the page offers by id.",
-)
-@click.option(
-    "--host",
-    default="127.0.0.1",
-    show_default=True,
-    help="Address to bind; another than 127.0.0.1 lets other machines in.",
-)
-@click.option("--port", default=8765, show_default=True, type=int, help="Port, 0 to 65535 (0: any free one).")
-@click.option(
-    "--threads",
-    default=0,
-    show_default=True,
-    type=int,
-    help="torch threads for the network, 0 to 256 (0: torch's default).",
+@options_from(
+    ServeOptions,
+    *("run", "checkpoint", "dataset", "host", "port", "threads"),
+    run={"metavar": "RUN"},
+    checkpoint={"metavar": "last|best|FILE"},
+    dataset={"metavar": "DIR|PUB"},
 )
 @click.option(
     "--benchmark",
@@ -1559,7 +1074,7 @@ def evaluate_cmd(run, dataset, split, out_dir, json_path, spp, no_denoise, limit
 )
 @click.option("--repeats", default=9, show_default=True, type=int, help="--benchmark: slider moves timed, 1 to 100.")
 @_friendly_errors
-def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats):
+def serve_cmd(benchmark, repeats, **options):
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
     \b
@@ -1567,7 +1082,7 @@ def serve_cmd(run, checkpoint, dataset, host, port, threads, benchmark, repeats)
       shaderball serve --run runs/smoke --dataset demo-out/smoke --benchmark
       shaderball serve --run runs/smoke --dataset demo-out/smoke-pub
     """
-    options = ServeOptions(run=run, dataset=dataset, host=host, port=port, checkpoint=checkpoint, threads=threads)
+    options = ServeOptions(**options)
     for line in serve_command(options, _live_network(options), benchmark, repeats, say=say).lines():
         click.echo(line)
 
@@ -1814,13 +1329,10 @@ def neural_bench_denoise_cmd(dataset, limit, spp, reference_spp, as_json):
 
 @neural_bench.command("train-options")
 @click.option("--resolution", type=int, default=64, show_default=True, help="Network resolution in pixels.")
-@click.option("--batch-size", type=int, default=6, show_default=True, help="Samples per step.")
-@click.option("--loss", default="l1+vgg", show_default=True, type=click.Choice(LOSS_CHOICES), help="Training loss.")
+@options_from(TrainConfig, "batch_size", "loss", **{"loss": {"default": "l1+vgg"}})
 @click.option("--repeats", type=int, default=5, show_default=True, help="Rounds of timed steps; medians count.")
 @click.option("--steps", type=int, default=3, show_default=True, help="Steps timed per variant and round.")
-@click.option(
-    "--threads", type=int, default=0, show_default=True, help="The baseline's torch threads (0: torch's default)."
-)
+@options_from(TrainConfig, "threads")
 @click.option(
     "--variants",
     default=None,

@@ -37,9 +37,9 @@ def test_derive_spec_cuts_whole_materials_and_resizes():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--samples", "0"], "--samples: 0 is not allowed; allowed: an integer from 1 to 1000000"),
+        (["--limit", "0"], "--limit: 0 is not allowed; allowed: an integer from 1 to 1000000"),
         (["--spp", "0"], "--spp: 0 is not allowed"),
-        (["--resolution", "9"], "--resolution: 9 is not allowed; allowed: an integer from 16 to 4096"),
+        (["--resolution", "9"], "--resolution: 9 is not allowed; an integer from 16 to 4096"),
         (["--workers", "-1"], "--workers: -1 is not allowed"),
     ],
 )

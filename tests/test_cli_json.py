@@ -26,7 +26,10 @@ from support.publishing import smoke_build
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
 REPO = Path(__file__).resolve().parents[1]
-JSON_COMMANDS = ("validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study")
+JSON_COMMANDS = (
+    *("build", "render", "validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study"),
+    *("bench", "evaluate", "scene", "preview"),
+)
 
 
 @pytest.fixture(scope="module")
@@ -157,6 +160,19 @@ def test_success_is_one_document(smoke, pub, tmp_path):
     assert one_document(shaderball("verify", str(pub), "--json"))["ok"] is True
     report = one_document(shaderball("validate", str(smoke), "--json", "--fast"))
     assert report["ok"] is True and report["exit"] == 0
+
+
+def test_build_and_render_report_what_they_wrote_as_one_document(tmp_path):
+    built = shaderball("build", str(REPO / "manifests" / "smoke.toml"), "--out", str(tmp_path / "ds"), "--json")
+    assert built.returncode == 0, built.stderr
+    doc = one_document(built)
+    assert doc["rendered"] == doc["total"] == 16 and doc["shards"] == 4 and doc["seconds"] > 0
+    assert doc["manifest"] == str(tmp_path / "ds" / "manifest.jsonl") and os.path.isfile(doc["manifest"])
+    out = tmp_path / "one.exr"
+    rendered = shaderball("render", "--resolution", "16", "--spp", "1", "--out", str(out), "--json")
+    assert rendered.returncode == 0, rendered.stderr
+    doc = one_document(rendered)
+    assert doc["out"] == str(out) and out.is_file() and doc["stats"]["time_s"] > 0 and doc["stats"]["spp"] == 1
 
 
 def test_every_json_command_goes_through_the_wrapper():

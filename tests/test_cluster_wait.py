@@ -184,7 +184,7 @@ def test_describe_jobs_keeps_the_line_short():
 @pytest.mark.parametrize(
     "changes,message",
     [
-        ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; allowed: an integer from 10 to 10000000"),
+        ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; an integer from 10 to 10000000"),
         (
             {"kind": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
             "--start-timeout: not allowed with --workers 0",

@@ -57,7 +57,7 @@ def test_infer_writes_the_estimate_and_says_the_time_split(run, tmp_path):
 def test_evaluate_writes_table_grid_and_json(run, reference, tmp_path):
     json_path = tmp_path / "eval.json"
     result = _invoke(
-        "evaluate", run, reference, "--spp", "1,2", "--limit", 2, "--json", json_path, "--out", tmp_path / "ev"
+        "evaluate", run, reference, "--spp", "1,2", "--limit", 2, "--json-out", json_path, "--out", tmp_path / "ev"
     )
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())

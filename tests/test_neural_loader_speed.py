@@ -94,7 +94,7 @@ def test_the_loader_rate_leaves_start_up_out(reference):
 
 def test_train_benchmark_prints_start_up_on_its_own_line(reference):
     args = ["train", str(reference), "--benchmark", "--loss", "l1", "--resolution", "32", "--batch-size", "4"]
-    args += ["--workers", "1"]
+    args += ["--loader-workers", "1"]
     text = CliRunner().invoke(main, args)
     assert text.exit_code == 0, text.output
     lines = text.output.splitlines()

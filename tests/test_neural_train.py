@@ -121,7 +121,7 @@ def test_a_folder_with_other_files_is_refused(tmp_path):
         ("resolution", 50),
         ("test_fraction", 1.0),
         ("seed", -1),
-        ("workers", -1),
+        ("loader_workers", -1),
     ],
 )
 def test_bad_options_name_themselves(tmp_path, field, value):

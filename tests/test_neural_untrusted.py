@@ -139,7 +139,9 @@ def test_train_on_a_sample_validate_refuses_exits_2_naming_it_and_writes_nothing
 
 
 def test_a_worker_process_that_meets_it_gives_the_same_one_line(forged, tmp_path):
-    result = _invoke("train", forged["nan-maps"], "--out", tmp_path / "run", "--epochs", 1, "--workers", 1, *TINY)
+    result = _invoke(
+        "train", forged["nan-maps"], "--out", tmp_path / "run", "--epochs", 1, "--loader-workers", 1, *TINY
+    )
     assert result.exit_code == 2, result.output
     lines = [line for line in result.output.splitlines() if line.startswith("error:")]
     assert len(lines) == 1 and lines[0].startswith(f"error: DATASET: {forged['nan-maps'] / MAPS}: layer diffuse")

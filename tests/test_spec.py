@@ -35,6 +35,7 @@ from pipeline.dataset.spec import (
     svbrdf_family_names,
 )
 from pipeline.errors import ShaderballError
+from pipeline.fields import FieldError
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
@@ -255,7 +256,8 @@ def test_error_from_text_names_its_source():
 
 
 def test_sections_check_themselves_when_built_in_python():
-    with pytest.raises(SpecError, match=r"^render\.spp: 0 is not allowed; an integer from 1"):
+    # the [render] section is the renderer's settings type: the same words, from pipeline.fields
+    with pytest.raises(FieldError, match=r"^render\.spp: 0 is not allowed; an integer from 1"):
         RenderSection(spp=0)
     with pytest.raises(SpecError, match=r"lighting\.turbidity: \[3, 2\]"):
         LightingSection(turbidity=[3, 2])
@@ -264,6 +266,23 @@ def test_sections_check_themselves_when_built_in_python():
     assert all(type(v) is float for v in section.elevation_deg)
     with pytest.raises(dataclasses.FrozenInstanceError):
         section.scheme = "sobol"
+
+
+def test_the_render_section_is_the_renderers_settings():
+    """spec.render is what the renderer takes: the [render] table plus lighting.sun and
+    materials.model; -1 (unlimited depth) passes the spec and the renderer alike."""
+    from pipeline.render.settings import RenderSettings
+
+    with open(SMOKE, encoding="utf-8") as fh:
+        text = fh.read()
+    text = text.replace("max_depth = 8", "max_depth = -1").replace('sun = "split"', 'sun = "sunsky"')
+    spec = parse_spec_text(text)
+    assert type(spec.render) is RenderSettings
+    assert (spec.render.sun, spec.render.model, spec.render.max_depth) == ("sunsky", spec.materials.model, -1)
+    resolved = spec.render.resolved("llvm_ad_rgb")
+    assert resolved.variant == "llvm_ad_rgb" and resolved.max_depth == -1
+    assert "sun" not in spec_to_dict(spec)["render"] and "model" not in spec_to_dict(spec)["render"]
+    assert parse_spec_text(spec_to_toml(spec)) == spec
 
 
 # --------------------------------------------------------------------------- folders

@@ -304,7 +304,7 @@ def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setu
 @pytest.mark.parametrize(
     "args, option",
     [
-        (["--samples", "0"], "--samples"),
+        (["--draws", "0"], "--draws"),
         (["--reference-spp", "3"], "--reference-spp"),
         (["--reference-spp", "1000"], "--reference-spp"),  # less than twice the largest spp (1024)
         (["--resolution", "8"], "--resolution"),

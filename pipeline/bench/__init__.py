@@ -9,6 +9,7 @@ and tests.
 
 Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.image``, ``pipeline.errors``,
-``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``, ``pipeline.check``,
-``pipeline.study``, ``pipeline.run``, ``pipeline.publish``; nothing else of the project.
+``pipeline.fields``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
+``pipeline.check``, ``pipeline.study``, ``pipeline.run``, ``pipeline.publish``; nothing else
+of the project.
 """

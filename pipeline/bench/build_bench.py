@@ -1,7 +1,7 @@
 """The build benchmark: a build's overhead over bare Mitsuba renders of the same samples.
 
 ``shaderball bench SPEC``
-    Builds SPEC (optionally cut to about ``--samples`` renders, at another
+    Builds SPEC (optionally cut to about ``--limit`` renders, at another
     ``--resolution`` / ``--spp`` / ``--shard-size``) into a fresh folder, then renders the
     same samples with bare ``mi.render`` calls: the same scene dicts
     (:func:`pipeline.render.renderer.scene_dict`), each loaded once, one scene alive at a time,
@@ -290,7 +290,7 @@ class BuildBench:
         if e["scaled_by"] != 1:
             return (
                 f"paper scale: run at {PAPER_RESOLUTION}x{PAPER_RESOLUTION}, {PAPER_SPP} spp for the estimate "
-                f"(e.g. --samples 10 of manifests/paper.toml); scaling this {self.resolution}x{self.resolution}, "
+                f"(e.g. --limit 10 of manifests/paper.toml); scaling this {self.resolution}x{self.resolution}, "
                 f"{self.spp} spp run by pixels x spp gives {e['hours']:.0f} h at the build's rate, "
                 f"{e['hours_bare']:.0f} h from the bare renders, overestimates: fixed costs scale too"
             )
@@ -627,7 +627,7 @@ def run_build_bench(
 ) -> BuildBench:
     """Build a spec and time the same renders bare; see the module docstring."""
 
-    samples = check_int("--samples", samples, 1, 1_000_000)
+    samples = check_int("--limit", samples, 1, 1_000_000)
     resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE)
     spp = check_int("--spp", spp, *SPP_RANGE)
     workers = check_int("--workers", workers, *WORKERS_RANGE)

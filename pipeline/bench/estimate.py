@@ -20,46 +20,56 @@ worker's cores; a remote core is taken to be as fast as one here).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import shutil
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
+from typing import ClassVar
 
 from pipeline.bench.build_bench import warm_kernels
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError
+from pipeline.fields import Bool, Checked, Int, Path, field, same_as
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.build import read_spec_text
-from pipeline.run.cluster.options import CORES_RANGE, JOBQUEUE_KINDS, JOBS_RANGE, KINDS, WORKERS_RANGE
+from pipeline.run.cluster.options import JOBQUEUE_KINDS, ClusterOptions
 from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
 from pipeline.store.layout import MARKER_FILE, Layout
 
-#: --samples: renders timed (whole materials, so at least this many).
+#: --limit: renders timed (whole materials, so at least this many).
 SAMPLES_RANGE = (1, 1000)
 DEFAULT_SAMPLES = 4
 
 
 @dataclass(frozen=True)
-class PlanRequest:
-    spec: str  # the spec file
-    timed: bool = True  # render the first samples and time them
-    samples: int = DEFAULT_SAMPLES  # renders to time, whole materials
-    cluster: str = "local"  # local, slurm or pbs
-    workers: int | None = None  # local worker processes (default: one per 2 cores); 0: this process
-    jobs: int | None = None  # slurm/pbs: batch jobs, one worker each
-    cores: int | None = None  # slurm/pbs: cores per job
+class PlanRequest(Checked):
+    """What `shaderball plan` is asked; the cluster options are ClusterOptions' declarations."""
+
+    FIELD_PREFIX: ClassVar[str] = "--"
+    FIELD_LABELS: ClassVar[dict[str, str]] = {"samples": "--limit", "cluster": "--cluster", "timed": "--no-timing"}
+
+    spec: str = field(rule=Path("a spec file"), doc="The spec file.")
+    timed: bool = field(True, rule=Bool(), doc="Render the first samples and time them.")
+    samples: int = field(
+        DEFAULT_SAMPLES,
+        rule=Int(*SAMPLES_RANGE),
+        doc="Renders to time: the spec's first materials, whole (so at least this many).",
+        unit="renders",
+    )
+    cluster: str = same_as(ClusterOptions, "kind")
+    workers: int | None = same_as(ClusterOptions, "workers")
+    jobs: int | None = same_as(ClusterOptions, "jobs")
+    cores: int | None = same_as(ClusterOptions, "cores")
 
     def check(self) -> PlanRequest:
-        if self.cluster not in KINDS:
-            raise bad_value("--cluster", self.cluster, ", ".join(KINDS))
-        check_int("--samples", self.samples, *SAMPLES_RANGE)
-        check_int("--workers", self.workers, *WORKERS_RANGE)
-        check_int("--jobs", self.jobs, *JOBS_RANGE)
-        check_int("--cores", self.cores, *CORES_RANGE)
+        return self.check_fields()
+
+    def check_cross(self) -> None:
         if self.cluster in JOBQUEUE_KINDS:
             if self.workers is not None:
                 raise ShaderballError(f"--workers: not allowed with --cluster {self.cluster}; use --jobs")
@@ -70,7 +80,6 @@ class PlanRequest:
             for option, value in (("--jobs", self.jobs), ("--cores", self.cores)):
                 if value is not None:
                     raise ShaderballError(f"{option}: only with --cluster slurm or --cluster pbs")
-        return self
 
 
 @dataclass
@@ -91,7 +100,7 @@ class Timing:
     bytes_per_render: float  # what a dataset holds per render: EXRs, records, markers, manifest line
     #: "uniform"/"svbrdf" -> materials, renders, seconds, seconds_per_render, cpu_seconds_per_render,
     #: bytes_per_render of that kind's timed materials; the figures above weigh them by the spec's counts
-    by_kind: dict = field(default_factory=dict)
+    by_kind: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclass
@@ -123,8 +132,8 @@ class PlanReport:
     variant: str  # the spec's (auto, llvm, cuda, ...)
     disk: dict
     timing: Timing | None = None
-    estimates: list[Estimate] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
+    estimates: list[Estimate] = dataclasses.field(default_factory=list)
+    notes: list[str] = dataclasses.field(default_factory=list)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -26,7 +26,7 @@ from pipeline.store.folder import manifest_record_count, read_bytes, resolve_ins
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
-#: Rows (--samples) and picture size in pixels (--tile), defined once (checks; the CLI help).
+#: Rows (--limit) and picture size in pixels (--tile), defined once (checks; the CLI help).
 SAMPLES_RANGE = (1, 200)
 TILE_RANGE = (32, 1024)
 LABEL_WIDTH = 190
@@ -264,7 +264,7 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     from PIL import Image
 
     if isinstance(samples, bool) or not isinstance(samples, int) or not SAMPLES_RANGE[0] <= samples <= SAMPLES_RANGE[1]:
-        raise bad_value("--samples", samples, f"an integer from {SAMPLES_RANGE[0]} to {SAMPLES_RANGE[1]}")
+        raise bad_value("--limit", samples, f"an integer from {SAMPLES_RANGE[0]} to {SAMPLES_RANGE[1]}")
     if tile is not None and (
         isinstance(tile, bool) or not isinstance(tile, int) or not TILE_RANGE[0] <= tile <= TILE_RANGE[1]
     ):

@@ -5,7 +5,8 @@ A spec has five sections, one dataclass each::
     [dataset]    DatasetSection    name, version, seed, counts, uniform/SVBRDF split, shard size
     [materials]  MaterialsSection  uniform-material ranges, SVBRDF sources, texture size
     [lighting]   LightingSection   sun elevation/azimuth and turbidity ranges, scheme, sun form
-    [render]     RenderSection     resolution, spp, max depth, integrator, Mitsuba variant
+    [render]     RenderSettings    resolution, spp, max depth, integrator, Mitsuba variant, sampler, ...
+                                   (the renderer's settings type, pipeline.render.settings)
     [storage]    StorageSection    EXR compression, stored layers, texture-space maps, half maps
 
 Each section checks its own fields in ``__post_init__`` (so a section built from Python
@@ -24,17 +25,14 @@ else. No Mitsuba, no dask.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import difflib
 import hashlib
 import json
 import math
-import numbers
 import os
-import re
 import stat
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import tomllib
@@ -42,19 +40,25 @@ import tomllib
 from materials import SVBRDF_FAMILIES, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError
-from pipeline.image.formats import EXR_COMPRESSIONS
-from pipeline.render.limits import (
-    CLAMP_RANGE,
-    DEFAULT_RR_DEPTH,
-    INTEGRATORS,
-    MAX_DEPTH_RANGE,
-    RESOLUTION_RANGE,
-    RR_DEPTH_RANGE,
-    SAMPLERS,
-    SPP_RANGE,
-    TARGET_ERROR_RANGE,
+from pipeline.fields import (
+    MISSING,
+    Bool,
+    Checked,
+    Choice,
+    FieldError,
+    Float,
+    Int,
+    Pair,
+    Reject,
+    Rule,
+    StrList,
+    Text,
+    field,
+    format_value,
 )
-from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
+from pipeline.image.formats import EXR_COMPRESSIONS
+from pipeline.render.limits import DEFAULT_RR_DEPTH, RESOLUTION_RANGE  # noqa: F401 - RESOLUTION_RANGE: the spec's
+from pipeline.render.settings import RenderSettings
 from sky.emitter import SUN_MODES
 from sky.lighting import SCHEMES, LightingRanges
 
@@ -84,30 +88,7 @@ SEED_MAX = 2**63 - 1
 # --------------------------------------------------------------------------- errors
 
 
-def format_value(value: Any) -> str:
-    """A value as TOML would spell it, shortened for a one-line message."""
-    if value is _MISSING:
-        text = "(missing)"
-    elif isinstance(value, bool):
-        text = "true" if value else "false"
-    elif isinstance(value, str):
-        text = json.dumps(value, ensure_ascii=False)
-    elif isinstance(value, float):
-        text = (
-            "nan"
-            if math.isnan(value)
-            else ("inf" if value == math.inf else "-inf" if value == -math.inf else repr(value))
-        )
-    elif isinstance(value, (list, tuple)):
-        text = "[" + ", ".join(format_value(v) for v in value) + "]"
-    elif isinstance(value, dict):
-        text = "{" + ", ".join(f"{k} = {format_value(v)}" for k, v in value.items()) + "}"
-    else:
-        text = repr(value)
-    return text if len(text) <= 120 else text[:117] + "..."
-
-
-class SpecError(ShaderballError):
+class SpecError(FieldError):
     """A bad spec field: names the file, the field, the value and what is allowed."""
 
     def __init__(
@@ -122,186 +103,17 @@ class SpecError(ShaderballError):
     ):
         self.section = section
         self.field_name = field_name
-        self.value = value
-        self.allowed = allowed
         self.source = source
-        self.what = what
         where = f"{section}.{field_name}" if field_name else f"[{section}]"
         prefix = f"{source}: " if source else ""
-        if what is None:
-            what = f"{format_value(value)} is not allowed"
-        super().__init__(f"{prefix}{where}: {what}; {allowed}")
+        super().__init__(prefix + where, value, allowed, what=what, name=field_name)
+        self.what = what
 
     def with_source(self, source: str) -> SpecError:
         return SpecError(self.section, self.field_name, self.value, self.allowed, source, what=self.what)
 
 
-class _Reject(Exception):
-    """Raised by a rule; the section turns it into a SpecError naming the field."""
-
-    def __init__(self, detail: str = ""):
-        super().__init__(detail)
-        self.detail = detail
-
-
-_MISSING = object()
-
-
-# --------------------------------------------------------------------------- rules
-
-
-def _is_number(v: Any) -> bool:
-    # bool is an int subclass in Python: `spp = true` must not pass as 1.
-    return isinstance(v, numbers.Real) and not isinstance(v, bool)
-
-
-def _is_integer(v: Any) -> bool:
-    # numbers.Integral admits numpy integers (from Python callers) but not floats like 8.0.
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
-
-
-class _Rule:
-    allowed: str
-    #: What the reference page says is allowed, when ``allowed`` is computed at run time.
-    doc_allowed: str | None = None
-
-    def check(self, value: Any) -> Any:  # returns the normalised value or raises _Reject
-        raise NotImplementedError
-
-    @staticmethod
-    def plain(value: Any) -> Any:
-        """The value as plain TOML/JSON data (tuples become lists)."""
-        return list(value) if isinstance(value, tuple) else value
-
-
-class _Int(_Rule):
-    def __init__(self, lo: int, hi: int, also: tuple[int, ...] = (), also_text: str = ""):
-        self.lo, self.hi, self.also = lo, hi, also
-        self.allowed = f"an integer from {lo} to {hi}" + (f", or {also_text}" if also else "")
-
-    def check(self, value):
-        if not _is_integer(value):
-            raise _Reject()
-        value = int(value)
-        if value in self.also or self.lo <= value <= self.hi:
-            return value
-        raise _Reject()
-
-
-class _Float(_Rule):
-    def __init__(self, lo: float, hi: float):
-        self.lo, self.hi = lo, hi
-        self.allowed = f"a finite number from {lo:g} to {hi:g}"
-
-    def check(self, value):
-        if not _is_number(value) or not math.isfinite(value) or not self.lo <= value <= self.hi:
-            raise _Reject()
-        return float(value)
-
-
-class _Pair(_Rule):
-    """A closed interval [lo, hi]; lo == hi fixes the value."""
-
-    def __init__(self, lo: float, hi: float, max_span: float | None = None):
-        self.lo, self.hi, self.max_span = lo, hi, max_span
-        self.allowed = f"a pair [lo, hi] of finite numbers with {lo:g} <= lo <= hi <= {hi:g}"
-        if max_span is not None:
-            self.allowed += f" and hi - lo <= {max_span:g}"
-
-    def check(self, value):
-        if not isinstance(value, (list, tuple)) or len(value) != 2:
-            raise _Reject()
-        if not all(_is_number(v) and math.isfinite(v) for v in value):
-            raise _Reject()
-        lo, hi = float(value[0]), float(value[1])
-        if lo > hi:
-            raise _Reject(f"(lo {lo:g} > hi {hi:g}: the range is inverted)")
-        if lo < self.lo or hi > self.hi:
-            raise _Reject()
-        if self.max_span is not None and hi - lo > self.max_span:
-            raise _Reject(f"(span {hi - lo:g})")
-        return (lo, hi)
-
-
-class _Choice(_Rule):
-    """One string from ``options`` (a tuple, or a callable asked at check time)."""
-
-    def __init__(self, options, doc_allowed: str | None = None):
-        self._options = options
-        self.doc_allowed = doc_allowed
-
-    @property
-    def options(self) -> tuple[str, ...]:
-        return tuple(self._options() if callable(self._options) else self._options)
-
-    @property
-    def allowed(self) -> str:
-        return "one of " + ", ".join(json.dumps(o) for o in self.options)
-
-    def check(self, value):
-        if not isinstance(value, str) or value not in self.options:
-            raise _Reject()
-        return value
-
-
-class _Text(_Rule):
-    def __init__(self, pattern: str, text: str):
-        self.pattern = re.compile(pattern)
-        self.allowed = text
-
-    def check(self, value):
-        if not isinstance(value, str) or not self.pattern.fullmatch(value):
-            raise _Reject()
-        return value
-
-
-class _Bool(_Rule):
-    allowed = "true or false"
-
-    def check(self, value):
-        if not isinstance(value, bool):
-            raise _Reject()
-        return value
-
-
-class _StrList(_Rule):
-    """A list of distinct strings, optionally from a set; stored as a tuple.
-
-    ``options`` may be a callable, asked at check time, so the allowed set can come from
-    a package imported lazily.
-    """
-
-    def __init__(self, options, what: str, doc_allowed: str | None = None):
-        self._options = options
-        self._what = what
-        self.doc_allowed = doc_allowed
-
-    @property
-    def options(self) -> tuple[str, ...] | None:
-        return self._options() if callable(self._options) else self._options
-
-    @property
-    def allowed(self) -> str:
-        options = self.options
-        if options is None:
-            return f"a list of distinct {self._what}"
-        return f"a list of distinct {self._what} from " + ", ".join(json.dumps(o) for o in options)
-
-    def check(self, value):
-        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-            raise _Reject()
-        if len(set(value)) != len(value):  # counted in one pass: 20,000 entries took 10 s with list.count
-            dupes = sorted(v for v, n in collections.Counter(value).items() if n > 1)
-            raise _Reject("(repeated: " + ", ".join(json.dumps(d) for d in dupes) + ")")
-        options = self.options
-        if options is not None:
-            bad = [v for v in value if v not in options]
-            if bad:
-                raise _Reject("(unknown: " + ", ".join(json.dumps(b) for b in bad) + ")")
-        return tuple(value)
-
-
-class _Folders(_StrList):
+class _Folders(StrList):
     def __init__(self):
         super().__init__(
             None,
@@ -313,9 +125,9 @@ class _Folders(_StrList):
         value = super().check(value)
         for folder in value:
             if not folder or not os.path.isdir(folder):
-                raise _Reject(f"({json.dumps(folder)} is not a folder)")
+                raise Reject(f"({json.dumps(folder)} is not a folder)")
             if not list_map_files(folder):
-                raise _Reject(f"({json.dumps(folder)} holds no " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
+                raise Reject(f"({json.dumps(folder)} holds no " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
         return value
 
 
@@ -341,48 +153,20 @@ def svbrdf_family_names() -> tuple[str, ...]:
     return tuple(SVBRDF_FAMILIES)
 
 
-def _field(
-    default: Any = _MISSING,
-    *,
-    rule: _Rule,
-    doc: str,
-    unit: str = "",
-    factory: Any = None,
-    doc_default: str | None = None,
-):
-    meta = {"rule": rule, "doc": doc, "unit": unit, "doc_default": doc_default}
-    if factory is not None:
-        return field(default_factory=factory, metadata=meta)
-    if default is _MISSING:
-        return field(metadata=meta)
-    return field(default=default, metadata=meta)
-
-
 # --------------------------------------------------------------------------- sections
 
 
-class _Section:
-    """Mixin: check every field by its rule, then the section's own cross-field rules."""
+class _Section(Checked):
+    """Mixin: a spec section, checked when built; a refusal names ``section.field``."""
 
     SECTION: ClassVar[str]
 
     def __post_init__(self):
-        for f in fields(self):
-            rule: _Rule = f.metadata["rule"]
-            value = getattr(self, f.name)
-            try:
-                normalised = rule.check(value)
-            except _Reject as exc:
-                allowed = rule.allowed + (f" {exc.detail}" if exc.detail else "")
-                raise SpecError(self.SECTION, f.name, value, allowed) from None
-            object.__setattr__(self, f.name, normalised)
-        self._check_section()
+        self.check_fields()
 
-    def _check_section(self) -> None:
-        pass
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: f.metadata["rule"].plain(getattr(self, f.name)) for f in fields(self)}
+    @classmethod
+    def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> SpecError:
+        return SpecError(cls.SECTION, name, value, allowed, what=what)
 
 
 @dataclass(frozen=True)
@@ -391,40 +175,40 @@ class DatasetSection(_Section):
 
     SECTION: ClassVar[str] = "dataset"
 
-    name: str = _field(
-        rule=_Text(r"[a-z0-9_-]{1,64}", "1 to 64 characters from a-z, 0-9, _ and -"),
+    name: str = field(
+        rule=Text(r"[a-z0-9_-]{1,64}", "1 to 64 characters from a-z, 0-9, _ and -"),
         doc="Dataset name; used in file names and the published description.",
     )
-    seed: int = _field(
-        rule=_Int(0, SEED_MAX), doc="Root of every random stream of the dataset (see the seed derivation below)."
+    seed: int = field(
+        rule=Int(0, SEED_MAX), doc="Root of every random stream of the dataset (see the seed derivation below)."
     )
-    materials: int = _field(
-        rule=_Int(1, MAX_MATERIALS), doc="Number of materials; ids m000000 to m(materials-1).", unit="materials"
+    materials: int = field(
+        rule=Int(1, MAX_MATERIALS), doc="Number of materials; ids m000000 to m(materials-1).", unit="materials"
     )
-    version: str = _field(
+    version: str = field(
         "1",
-        rule=_Text(
+        rule=Text(
             r"[A-Za-z0-9][A-Za-z0-9._+-]{0,31}",
             "1 to 32 characters from A-Z, a-z, 0-9, . _ + -, starting with a letter or digit",
         ),
         doc="Version of the dataset, recorded in its description.",
     )
-    lights_per_material: int = _field(
+    lights_per_material: int = field(
         5,
-        rule=_Int(1, 1000),
+        rule=Int(1, 1000),
         doc="Lightings (sun direction + turbidity) rendered per material; the paper uses 5.",
         unit="lightings",
     )
-    svbrdf_fraction: float = _field(
+    svbrdf_fraction: float = field(
         0.5,
-        rule=_Float(0.0, 1.0),
+        rule=Float(0.0, 1.0),
         doc="Share of materials that are spatially varying; "
         "exactly floor(fraction x materials + 0.5) of them. "
         "The paper: 0.5.",
     )
-    shard_size: int = _field(
+    shard_size: int = field(
         20,
-        rule=_Int(1, MAX_MATERIALS),
+        rule=Int(1, MAX_MATERIALS),
         doc="Materials per shard, the unit of work; all lightings of a "
         "material are in its shard. Changes grouping only, never "
         "seeds. At most 100000 shards.",
@@ -444,7 +228,7 @@ class DatasetSection(_Section):
     def n_renders(self) -> int:
         return self.materials * self.lights_per_material
 
-    def _check_section(self):
+    def check_cross(self):
         if self.n_shards > MAX_SHARDS:
             need = -(-self.materials // MAX_SHARDS)
             raise SpecError(
@@ -484,72 +268,72 @@ class MaterialsSection(_Section):
     # (a test keeps them equal). The model: a dielectric (grey specular of a few percent,
     # coloured diffuse) or, with probability metal_probability, a metal (coloured
     # specular, almost no diffuse); colours drawn in HSV with V in sRGB-encoded units.
-    roughness: tuple[float, float] = _field(
+    roughness: tuple[float, float] = field(
         (0.05, 1.0),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a uniform material's roughness r, drawn uniformly (GGX alpha = r^2). "
         "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.",
     )
-    metal_probability: float = _field(
+    metal_probability: float = field(
         0.3,
-        rule=_Float(0.0, 1.0),
+        rule=Float(0.0, 1.0),
         doc="Probability that a uniform material is a metal (coloured specular, ~no diffuse).",
         unit="probability",
     )
-    dielectric_specular: tuple[float, float] = _field(
+    dielectric_specular: tuple[float, float] = field(
         (0.02, 0.08),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, gems ~0.08+).",
         unit="linear albedo",
     )
-    diffuse_value_srgb: tuple[float, float] = _field(
+    diffuse_value_srgb: tuple[float, float] = field(
         (0.15, 0.95),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a dielectric's diffuse brightness, HSV value in sRGB-encoded units "
         "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
         unit="sRGB-encoded value",
     )
-    diffuse_saturation: tuple[float, float] = _field(
-        (0.0, 0.85), rule=_Pair(0.0, 1.0), doc="Range of a dielectric's diffuse saturation (HSV)."
+    diffuse_saturation: tuple[float, float] = field(
+        (0.0, 0.85), rule=Pair(0.0, 1.0), doc="Range of a dielectric's diffuse saturation (HSV)."
     )
-    metal_value_srgb: tuple[float, float] = _field(
+    metal_value_srgb: tuple[float, float] = field(
         (0.55, 1.0),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a metal's specular brightness, HSV value in sRGB-encoded units "
         "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
         unit="sRGB-encoded value",
     )
-    metal_saturation: tuple[float, float] = _field(
+    metal_saturation: tuple[float, float] = field(
         (0.0, 0.5),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.",
     )
-    metal_hue: tuple[float, float] = _field(
+    metal_hue: tuple[float, float] = field(
         (0.0, 0.17),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a metal's specular hue (HSV, 0 = red, 1/6 = yellow): copper, gold and "
         "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.",
     )
-    metal_diffuse_fraction: tuple[float, float] = _field(
+    metal_diffuse_fraction: tuple[float, float] = field(
         (0.0, 0.1),
-        rule=_Pair(0.0, 1.0),
+        rule=Pair(0.0, 1.0),
         doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular (dirt, oxide).",
     )
-    flat_normal_probability: float = _field(
+    flat_normal_probability: float = field(
         0.5,
-        rule=_Float(0.0, 1.0),
+        rule=Float(0.0, 1.0),
         doc="Probability that a uniform material's normal is flat, (0, 0, 1).",
         unit="probability",
     )
-    normal_tilt_max_deg: float = _field(
+    normal_tilt_max_deg: float = field(
         20.0,
-        rule=_Float(0.0, 80.0),
+        rule=Float(0.0, 80.0),
         doc="Largest tilt from (0, 0, 1) of a non-flat uniform normal; the tilt is uniform in "
         "solid angle, towards a uniform azimuth.",
         unit="degrees",
     )
-    svbrdf_families: tuple[str, ...] = _field(
-        rule=_StrList(
+    svbrdf_families: tuple[str, ...] = field(
+        rule=StrList(
             svbrdf_family_names,
             "procedural family names",
             doc_allowed="a list of distinct names from materials.SVBRDF_FAMILIES",
@@ -559,19 +343,19 @@ class MaterialsSection(_Section):
         doc="Procedural SVBRDF families SVBRDF materials are drawn from (default: all). "
         "May be empty when svbrdf_folders is not.",
     )
-    svbrdf_folders: tuple[str, ...] = _field(
+    svbrdf_folders: tuple[str, ...] = field(
         (),
         rule=_Folders(),
         doc="Folders of imported SVBRDF maps in Deschaintre et al. 2018's layout "
         "(one .png per material), checked when the spec is read. Stored as "
         "absolute paths in the canonical form.",
     )
-    texture_resolution: int = _field(
-        256, rule=_Int(16, 4096), doc="Width and height of a material's texture-space (UV) maps.", unit="texels"
+    texture_resolution: int = field(
+        256, rule=Int(16, 4096), doc="Width and height of a material's texture-space (UV) maps.", unit="texels"
     )
-    model: str = _field(
+    model: str = field(
         DEFAULT_MODEL,
-        rule=_Choice(MODELS),
+        rule=Choice(MODELS),
         doc="The BRDF every material is rendered with: shaderball (Cook-Torrance as "
         "published, GGX normalised, energy-conserving) or deschaintre2018 (the same with "
         "the two floors of Deschaintre et al.'s code on GGX D and Smith G1, to match data "
@@ -623,30 +407,30 @@ class LightingSection(_Section):
 
     SECTION: ClassVar[str] = "lighting"
 
-    elevation_deg: tuple[float, float] = _field(
+    elevation_deg: tuple[float, float] = field(
         (5.0, 90.0),
-        rule=_Pair(0.0, 90.0),
+        rule=Pair(0.0, 90.0),
         doc="Range of the sun's elevation above the horizon. Mitsuba's RGB sunsky is black at "
         "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
         "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
         "(2.5 to 7.0 by turbidity; docs/sky.md) are raised to it, and the move is recorded.",
         unit="degrees",
     )
-    azimuth_deg: tuple[float, float] = _field(
+    azimuth_deg: tuple[float, float] = field(
         (0.0, 360.0),
-        rule=_Pair(-360.0, 360.0, max_span=360.0),
+        rule=Pair(-360.0, 360.0, max_span=360.0),
         doc="Range of the sun's azimuth, counter-clockwise from +x seen from above "
         "(0: from the image's right, 90: from behind, 270: from the camera's side).",
         unit="degrees",
     )
-    turbidity: tuple[float, float] = _field(
+    turbidity: tuple[float, float] = field(
         (1.0, 10.0),
-        rule=_Pair(1.0, 10.0),
+        rule=Pair(1.0, 10.0),
         doc="Range of the atmosphere's turbidity (Hosek-Wilkie; Mitsuba accepts 1 to 10).",
     )
-    scheme: str = _field(
+    scheme: str = field(
         "uniform_hemisphere",
-        rule=_Choice(
+        rule=Choice(
             light_scheme_names,
             doc_allowed="one of " + ", ".join(f'"{x}"' for x in FALLBACK_LIGHT_SCHEMES) + " (sky.SCHEMES)",
         ),
@@ -656,16 +440,16 @@ class LightingSection(_Section):
         "hypercube over sin(elevation), azimuth and turbidity), sobol (scrambled Sobol' "
         "points). Turbidity is uniform in every scheme.",
     )
-    turbidity_per: str = _field(
+    turbidity_per: str = field(
         "material",
-        rule=_Choice(("material", "light")),
+        rule=Choice(("material", "light")),
         doc="material: one turbidity per material, shared by all its lightings (the paper: "
         "'a random turbidity per material'; drawn with its first lighting); light: a "
         "turbidity drawn for every lighting.",
     )
-    sun: str = _field(
+    sun: str = field(
         "split",
-        rule=_Choice(SUN_FORMS),
+        rule=Choice(SUN_FORMS),
         doc="Sun representation (pipeline.render.emitter): split (a sky-only sunsky plus a directional "
         "sun of the same irradiance; sky's measured default) or sunsky (one Mitsuba "
         "sunsky emitter, its sun an area light of 0.5358 degrees).",
@@ -681,72 +465,8 @@ class LightingSection(_Section):
         )
 
 
-VARIANTS: tuple[str, ...] = VARIANT_CHOICES
-
-
-@dataclass(frozen=True)
-class RenderSection(_Section):
-    """[render]: how each target image is path traced."""
-
-    SECTION: ClassVar[str] = "render"
-
-    resolution: int = _field(
-        400,
-        rule=_Int(*RESOLUTION_RANGE),
-        doc="Width and height of renders and screen-space maps; the paper: 400.",
-        unit="pixels",
-    )
-    spp: int = _field(
-        150, rule=_Int(*SPP_RANGE), doc="Samples per pixel of each render; the paper: 150.", unit="samples per pixel"
-    )
-    max_depth: int = _field(
-        8,
-        rule=_Int(*MAX_DEPTH_RANGE, also=(-1,), also_text="-1 (unlimited, Russian roulette ends paths)"),
-        doc="Longest light path, in Mitsuba's convention (1: emitters "
-        "seen directly only, 2: direct lighting, ...). -1: no limit.",
-        unit="path vertices",
-    )
-    integrator: str = _field("path", rule=_Choice(INTEGRATORS), doc="Mitsuba integrator.")
-    variant: str = _field(
-        "auto",
-        rule=_Choice(VARIANTS),
-        doc="Mitsuba backend: auto (cuda if a GPU is usable, else llvm), "
-        + ", ".join(f"{k} ({v})" for k, v in SHORT_VARIANTS.items())
-        + ". Renders are reproducible for one backend and machine only.",
-    )
-    sampler: str = _field(
-        "independent",
-        rule=_Choice(SAMPLERS),
-        doc="Mitsuba sampler: independent (the paper), stratified, multijitter, orthogonal, "
-        "ldsampler. Mitsuba rounds some spp (stratified to a square, orthogonal to a prime "
-        "squared, ldsampler to a power-of-two square): each render records the spp used "
-        "(docs/accuracy.md compares them). Byte-reproducible with several render threads "
-        "only when every power-of-two pass stays a power of two after rounding (e.g. "
-        "multijitter or stratified at 64).",
-    )
-    rr_depth: int = _field(
-        DEFAULT_RR_DEPTH,
-        rule=_Int(*RR_DEPTH_RANGE),
-        doc="Path depth at which Russian roulette starts (Mitsuba's default); at or above max_depth there is none.",
-        unit="path vertices",
-    )
-    clamp: float = _field(
-        0.0,
-        rule=_Float(*CLAMP_RANGE),
-        doc="Firefly clamp: each camera path's radiance is scaled down to this luminance "
-        "when brighter (pipeline.render.clamp); 0: off. Biased: it removes real light "
-        "(docs/accuracy.md measures how much).",
-        unit="radiance (W m^-2 sr^-1)",
-    )
-    target_error: float = _field(
-        0.0,
-        rule=_Float(*TARGET_ERROR_RANGE),
-        doc="Adaptive rendering: render power-of-two passes (16 spp, then doubling) until "
-        "the moment integrator's estimate of the relative RMS error of the luminance on "
-        "the ball, sqrt(mean(var / (Y^2 + 0.01))), the square root of the relMSE the "
-        "study ranks by, is at most this, or spp (then the cap) is reached; each "
-        "render records the spp used. 0: off, every render takes spp.",
-    )
+#: The [render] section is the renderer's settings type, declared in pipeline.render.settings.
+RenderSection = RenderSettings
 
 
 @dataclass(frozen=True)
@@ -755,24 +475,24 @@ class StorageSection(_Section):
 
     SECTION: ClassVar[str] = "storage"
 
-    compression: str = _field(
-        "zip", rule=_Choice(tuple(EXR_COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
+    compression: str = field(
+        "zip", rule=Choice(tuple(EXR_COMPRESSIONS)), doc="EXR compression of every file (all lossless)."
     )
-    layers: tuple[str, ...] = _field(
+    layers: tuple[str, ...] = field(
         MAP_LAYERS,
-        rule=_StrList(MAP_LAYERS, "map layer names"),
+        rule=StrList(MAP_LAYERS, "map layer names"),
         doc="Screen-space maps stored per material (renders are always stored). Canonical order: as listed here.",
     )
-    texture_maps: bool = _field(True, rule=_Bool(), doc="Also store each material's texture-space (UV) maps.")
-    maps_half: bool = _field(True, rule=_Bool(), doc="Store maps as half floats (renders are always float32).")
+    texture_maps: bool = field(True, rule=Bool(), doc="Also store each material's texture-space (UV) maps.")
+    maps_half: bool = field(True, rule=Bool(), doc="Store maps as half floats (renders are always float32).")
 
-    def _check_section(self):
+    def check_cross(self):
         # One canonical order, so ["normal", "diffuse"] and ["diffuse", "normal"] are the
         # same spec with the same digest.
         object.__setattr__(self, "layers", tuple(n for n in MAP_LAYERS if n in self.layers))
 
 
-SECTIONS: dict[str, type[_Section]] = {
+SECTIONS: dict[str, type[Checked]] = {
     "dataset": DatasetSection,
     "materials": MaterialsSection,
     "lighting": LightingSection,
@@ -786,15 +506,19 @@ class DatasetSpec:
     """A whole, checked spec. Build one with :func:`parse_spec` or :func:`parse_spec_text`."""
 
     dataset: DatasetSection
-    materials: MaterialsSection = field(default_factory=MaterialsSection)
-    lighting: LightingSection = field(default_factory=LightingSection)
-    render: RenderSection = field(default_factory=RenderSection)
-    storage: StorageSection = field(default_factory=StorageSection)
+    materials: MaterialsSection = dataclasses.field(default_factory=MaterialsSection)
+    lighting: LightingSection = dataclasses.field(default_factory=LightingSection)
+    #: Its ``sun`` and ``model`` are filled in from ``lighting.sun`` and ``materials.model``.
+    render: RenderSettings = dataclasses.field(default_factory=RenderSettings)
+    storage: StorageSection = dataclasses.field(default_factory=StorageSection)
 
     def __post_init__(self):
         for name, cls in SECTIONS.items():
             if not isinstance(getattr(self, name), cls):
                 raise TypeError(f"DatasetSpec.{name} must be a {cls.__name__}")
+        if (self.render.sun, self.render.model) != (self.lighting.sun, self.materials.model):
+            render = dataclasses.replace(self.render, sun=self.lighting.sun, model=self.materials.model)
+            object.__setattr__(self, "render", render)
         n_svbrdf = self.dataset.n_svbrdf
         if n_svbrdf and not self.materials.has_svbrdf_source:
             raise SpecError(
@@ -909,7 +633,7 @@ def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
         raise SpecError(
             "dataset",
             "",
-            _MISSING,
+            MISSING,
             "a [dataset] section with at least name, seed and materials is required",
             what="missing",
         )
@@ -925,8 +649,8 @@ def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
     return DatasetSpec(**sections)
 
 
-def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
-    known = {f.name: f for f in fields(cls)}
+def _section_from_table(cls: type[Checked], raw: dict[str, Any]) -> Checked:
+    known = {f.name: f for f in fields(cls) if f.metadata["in_file"]}
     for key, value in raw.items():
         if key not in known:
             raise SpecError(
@@ -938,8 +662,13 @@ def _section_from_table(cls: type[_Section], raw: dict[str, Any]) -> _Section:
             )
     for name, f in known.items():
         if name not in raw and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise SpecError(cls.SECTION, name, _MISSING, "required: " + f.metadata["rule"].allowed, what="missing")
-    return cls(**raw)
+            raise SpecError(cls.SECTION, name, MISSING, "required: " + f.metadata["rule"].allowed, what="missing")
+    try:
+        return cls(**raw)
+    except SpecError:
+        raise
+    except FieldError as exc:  # a section declared outside this module (the renderer's settings)
+        raise SpecError(cls.SECTION, exc.name, exc.value, exc.allowed, what=exc.what) from None
 
 
 def _did_you_mean(word: str, options) -> str:
@@ -1012,7 +741,9 @@ def reference_rows() -> list[tuple[str, str, str, str, str]]:
     rows = []
     for name, cls in SECTIONS.items():
         for f in fields(cls):
-            rule: _Rule = f.metadata["rule"]
+            if not f.metadata["in_file"]:
+                continue
+            rule: Rule = f.metadata["rule"]
             if f.metadata["doc_default"] is not None:
                 default = f.metadata["doc_default"]
             elif f.default is not dataclasses.MISSING:

@@ -135,7 +135,12 @@ class LoaderRate:
 
 def loader_rate(config: TrainConfig) -> LoaderRate:
     return measure_loader(
-        config.dataset, config.resolution, config.exposure, config.check_hashes, config.batch_size, config.workers
+        config.dataset,
+        config.resolution,
+        config.exposure,
+        config.check_hashes,
+        config.batch_size,
+        config.loader_workers,
     )
 
 
@@ -319,7 +324,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
     return BenchResult(
         resolution,
         str(device),
-        config.workers,
+        config.loader_workers,
         loaded.samples,
         loaded.steady_samples_per_s,
         config.check_hashes,

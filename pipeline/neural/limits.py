@@ -7,13 +7,15 @@ from __future__ import annotations
 #: --loss: auto (the default: the paper's l1+vgg where VGG16's ImageNet weights are found, else l1),
 #: l1+vgg (the paper's L1 + VGG16 relu3_3 feature loss; refused without the weights) or l1.
 LOSS_CHOICES = ("auto", "l1+vgg", "l1")
+#: --width: the fraction of the paper's channels, (0, 1] (1: the paper's network).
+WIDTH_RANGE = (0.0, 1.0)
 #: --device: where the network runs ("auto": cuda where torch sees a device, else cpu).
 DEVICES = ("auto", "cpu", "cuda")
 #: train's integer options and their inclusive ranges.
 INTEGER_RANGES = {
     "epochs": (1, 100_000),
     "batch_size": (1, 4096),
-    "workers": (0, 64),
+    "loader_workers": (0, 64),
     "seed": (0, 2**63 - 1),
     "threads": (0, 256),
 }

@@ -25,6 +25,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from pipeline.errors import bad_value
+from pipeline.neural.limits import WIDTH_RANGE
 
 #: Input channels in order: diffuse RGB, specular RGB, normal-map colour RGB, roughness x3.
 INPUT_CHANNELS = 12
@@ -37,8 +38,6 @@ ENCODER_CHANNELS = (64, 128, 256, 512)
 SUN_DIRECTION_SCALE = 3.0
 PAPER_RESOLUTION = 400
 PAPER_PARAMETERS = 11_752_404
-#: --width: the fraction of the paper's channels, (0, 1] (1: the paper's network).
-WIDTH_RANGE = (0.0, 1.0)
 
 
 def check_width(width, field: str = "--width") -> float:

@@ -24,17 +24,15 @@ import numpy as np
 import torch
 from torch.utils.data import Subset
 
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError, bad_value
 from pipeline.image.metrics import psnr8
-from pipeline.image.tonemap import DEFAULT_EXPOSURE, to_srgb8
+from pipeline.image.tonemap import to_srgb8
 from pipeline.neural import runfiles, speed
+from pipeline.neural.config import TrainConfig
 from pipeline.neural.data import batches, open_dataset
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import (
     NeuralRenderer,
-    check_network_resolution,
-    check_width,
     light_input,
     parameter_count,
 )
@@ -55,8 +53,6 @@ OPTIONAL_IDENTITY = {
     "schedule": "constant",
     "warmup_epochs": 0.0,
 }
-#: --schedule: constant (after any warm-up), or cosine decay to 0 at the last epoch.
-SCHEDULES = ("constant", "cosine")
 #: Key of the stream that orders the training materials for --train-materials (nested subsets).
 SUBSET_STREAM = 0x5B5E
 #: At most this many training samples are scored after every epoch (the training curve).
@@ -68,81 +64,6 @@ STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Options of `shaderball train`; each field's comment is its help text."""
-
-    dataset: str  # dataset folder written by `shaderball build`
-    out: str  # run folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png
-    epochs: int = 30  # epochs to reach; a resumed run continues up to this number
-    batch_size: int = 6  # samples per step (the paper's 6)
-    lr: float = 1e-3  # Adam learning rate (the released code's 1e-3; the paper's text says 1e-2, which saturates)
-    loss: str = "auto"  # "auto" (l1+vgg where VGG16's weights are found, else l1), "l1+vgg" (the paper's) or "l1"
-    vgg_weights: str | None = None  # torchvision vgg16 state dict; default: torch hub's cache
-    vgg_sha256: str | None = None  # expected SHA-256 of the VGG weights; default: torchvision's file
-    vgg_weight: float = 1.0  # weight of the VGG relu3_3 term beside L1
-    device: str = "auto"  # auto (cuda when present), cpu or cuda
-    workers: int = 0  # DataLoader worker processes (0: load in the main process)
-    seed: int = 0  # seeds the weights, the per-epoch order and the split
-    resolution: int | None = None  # network resolution; default the dataset's; must divide it
-    test_fraction: float = 0.2  # fraction of materials held out for testing
-    exposure: float = DEFAULT_EXPOSURE  # tone map exposure of the targets (pipeline.image.tonemap)
-    check_hashes: bool = True  # check each file's SHA-256 against the manifest on first read
-    threads: int = 0  # torch intra-op threads (0: torch's default, the core count)
-    precision: str = (
-        "fp32"  # fp32 (the same numbers on every CPU), bf16, fp16 (CUDA), or auto (bf16 where a CPU has bf16 kernels)
-    )
-    channels_last: bool = True  # network, VGG and batches in NHWC memory format
-    compile: bool = False  # torch.compile the network for the training step
-    width: float = 1.0  # fraction of the paper's channels (1: the paper's network)
-    split_seed: int | None = None  # seeds the split by material; default --seed
-    train_materials: int | None = None  # train on this many of the training split's materials (nested subsets)
-    schedule: str = "constant"  # learning rate: constant, or cosine decay to 0 at --epochs
-    warmup_epochs: float = 0.0  # linear warm-up of the learning rate over this many epochs
-
-    def check(self) -> TrainConfig:
-        def number(name, lo, hi, lo_open=False):
-            v = getattr(self, name)
-            ok = (
-                isinstance(v, (int, float))
-                and not isinstance(v, bool)
-                and math.isfinite(v)
-                and (v > lo if lo_open else v >= lo)
-                and v <= hi
-            )
-            if not ok:
-                raise bad_value(f"--{name.replace('_', '-')}", v, f"a number in {'(' if lo_open else '['}{lo}, {hi}]")
-
-        for name, (lo, hi) in INTEGER_RANGES.items():
-            check_int(f"--{name.replace('_', '-')}", getattr(self, name), lo, hi)
-        number("lr", 0.0, 10.0, lo_open=True)
-        number("vgg_weight", 0.0, 1e6)
-        number("exposure", 0.0, 1e6, lo_open=True)
-        if not (isinstance(self.test_fraction, (int, float)) and 0.0 <= self.test_fraction < 1.0):
-            raise bad_value("--test-fraction", self.test_fraction, "a fraction in [0, 1)")
-        if self.loss not in LOSS_CHOICES:
-            raise bad_value("--loss", self.loss, ", ".join(LOSS_CHOICES))
-        if self.precision not in PRECISIONS:
-            raise bad_value("--precision", self.precision, ", ".join(PRECISIONS))
-        if self.device not in DEVICES:
-            raise bad_value("--device", self.device, ", ".join(DEVICES))
-        if self.resolution is not None:
-            check_network_resolution(self.resolution, "--resolution")
-        check_width(self.width)
-        if self.split_seed is not None:
-            check_int("--split-seed", self.split_seed, *INTEGER_RANGES["seed"])
-        if self.train_materials is not None:
-            check_int("--train-materials", self.train_materials, 1, 10**9)
-        if self.schedule not in SCHEDULES:
-            raise bad_value("--schedule", self.schedule, " or ".join(SCHEDULES))
-        number("warmup_epochs", 0.0, float(self.epochs))
-        return self
-
-    @property
-    def splitting_seed(self) -> int:
-        return self.seed if self.split_seed is None else self.split_seed
 
 
 @dataclass
@@ -530,10 +451,10 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     test_set = source.subset(test_ids) if test_ids else None
     train_probe = training_probe(train_set, config.splitting_seed)
     if not fresh.get("baseline"):
-        mean_target = mean_image(train_set, config.workers)
+        mean_target = mean_image(train_set, config.loader_workers)
         fresh["baseline"] = {
             "kind": "training-set mean image",
-            "test_psnr": baseline_psnr(mean_target, test_set, config.workers),
+            "test_psnr": baseline_psnr(mean_target, test_set, config.loader_workers),
         }
     os.makedirs(config.out, exist_ok=True)
     runfiles.write_json(config_path, fresh)
@@ -545,10 +466,10 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
             if bad:
                 raise diverged(f"{bad:,} weight value(s) are NaN or infinite", epoch, entry["lr"])
             if train_probe is not None:
-                seen = evaluate_split(model, loss_fn, train_probe, device, config.batch_size, config.workers)
+                seen = evaluate_split(model, loss_fn, train_probe, device, config.batch_size, config.loader_workers)
                 entry.update(train_eval_loss=seen["loss"], train_psnr=seen["psnr"])
             if test_set is not None:
-                held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.workers)
+                held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.loader_workers)
                 entry.update(
                     test_loss=held_out["loss"], test_psnr=held_out["psnr"], test_saturated=held_out["saturated"]
                 )
@@ -650,7 +571,9 @@ def train_epoch(
     model.train()
     loss_fn.train()
     order = epoch_order(len(train_set), config.seed, epoch)
-    loader = batches(Subset(train_set, order), config.batch_size, config.workers, pin_memory=device.type == "cuda")
+    loader = batches(
+        Subset(train_set, order), config.batch_size, config.loader_workers, pin_memory=device.type == "cuda"
+    )
     count = len(loader)
     lr = config.lr
     sums: dict[str, float] = {}

@@ -10,5 +10,5 @@ screen-space maps), ``renderer`` (one sample, its effects, its retries), ``limit
 
 Layer 4 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
-``pipeline.store``; nothing else of the project.
+``pipeline.store``, ``pipeline.fields``; nothing else of the project.
 """

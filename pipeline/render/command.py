@@ -6,48 +6,32 @@ ShaderballError naming the option, the value and the allowed range.
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from geometry import build_shaderball, default_camera
 from materials import UniformMaterial, load_deschaintre
-from materials.brdf_ref import DEFAULT_MODEL
-from pipeline.errors import bad_value, check_int
+from pipeline.errors import bad_value
+from pipeline.fields import Checked, Choice, Float, Int, Optional, Reject, Triple, field, same_as
+from pipeline.fields import Path as PathRule
 from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
-from pipeline.render.mitsuba_env import VARIANT_CHOICES, resolve_variant
+from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import RenderSettings, render_sample
+from pipeline.render.renderer import render_sample
+from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
+from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
 
 SEED_RANGE = (0, 2**32 - 1)
 #: Sun azimuth in degrees: any turn is one of these (a slip of a turn stays valid).
 AZIMUTH_RANGE = (-360.0, 720.0)
-
-
-def parse_triple(option: str, text: str, lo: float | None = 0.0, hi: float | None = 1.0) -> tuple[float, ...]:
-    """'R,G,B' -> three finite floats within [lo, hi] (None: unbounded)."""
-    allowed = "three comma-separated numbers" + (f" in [{lo}, {hi}]" if lo is not None else "")
-    try:
-        values = tuple(float(x) for x in str(text).split(","))
-    except ValueError:
-        raise bad_value(option, text, allowed) from None
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise bad_value(option, text, allowed)
-    if lo is not None and not all(lo <= v <= hi for v in values):
-        raise bad_value(option, text, allowed)
-    return values
-
-
-def check_number(option: str, value, lo: float, hi: float, unit: str = "") -> float:
-    if value is None or not math.isfinite(float(value)) or not lo <= float(value) <= hi:
-        raise bad_value(option, value, f"a number in [{lo}, {hi}]{unit}")
-    return float(value)
 
 
 def check_output(option: str, path: str, suffix: str) -> str:
@@ -64,28 +48,91 @@ def check_output(option: str, path: str, suffix: str) -> str:
     return path
 
 
-@dataclass(frozen=True)
-class RenderRequest:
-    """Everything `shaderball render` needs, already checked."""
+class _Normal(Triple):
+    """A tangent-space direction: three numbers with Z > 0 (normalised when used)."""
 
-    diffuse: tuple[float, float, float] = (0.5, 0.5, 0.5)
-    specular: tuple[float, float, float] = (0.04, 0.04, 0.04)
-    roughness: float = 0.3
-    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    svbrdf: str | None = None
-    svbrdf_colorspace: str = "raw"
-    elevation_deg: float = 45.0
-    azimuth_deg: float = 270.0
-    turbidity: float = 3.0
-    spp: int = 150
-    resolution: int = 400
-    max_depth: int = 8
-    seed: int = 0
-    sun: str = "split"
-    model: str = DEFAULT_MODEL
-    variant: str = "auto"
-    out: str = "render.exr"
-    png: str | None = None
+    metavar = "X,Y,Z"
+
+    def __init__(self):
+        super().__init__(None, None, "a tangent-space direction X,Y,Z with Z > 0")
+
+    def check(self, value):
+        value = super().check(value)
+        if value[2] <= 0:
+            raise Reject()
+        return value
+
+
+class _Colour(Triple):
+    metavar = "R,G,B"
+
+
+class _Exists(PathRule):
+    def check(self, value):
+        value = super().check(value)
+        if not os.path.exists(value):
+            raise Reject()
+        return value
+
+
+@dataclass(frozen=True)
+class RenderRequest(Checked):
+    """Everything `shaderball render` needs, each option declared once (pipeline.fields);
+    checked by :func:`check_request`."""
+
+    FIELD_PREFIX: ClassVar[str] = "--"
+    FIELD_LABELS: ClassVar[dict[str, str]] = {
+        "elevation_deg": "--elevation",
+        "azimuth_deg": "--azimuth",
+    }
+
+    diffuse: tuple[float, float, float] = field(
+        (0.5, 0.5, 0.5), rule=_Colour(), doc="Uniform diffuse albedo, linear RGB."
+    )
+    specular: tuple[float, float, float] = field(
+        (0.04, 0.04, 0.04),
+        rule=_Colour(),
+        doc="Uniform specular albedo (F0), linear RGB; 0.04 is a typical dielectric.",
+    )
+    roughness: float = field(0.3, rule=Float(0.0, 1.0), doc="Uniform roughness; GGX alpha = roughness^2.")
+    normal: tuple[float, float, float] = field(
+        (0.0, 0.0, 1.0), rule=_Normal(), doc="Uniform tangent-space normal (normalised)."
+    )
+    svbrdf: str | None = field(
+        None,
+        rule=Optional(_Exists("an existing PNG strip or folder of maps"), "unset (the uniform values)"),
+        doc="Spatially varying material instead of the uniform values: a Deschaintre et al. "
+        "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
+    )
+    svbrdf_colorspace: str = field(
+        "raw",
+        rule=Choice(("raw", "srgb")),
+        doc="How 8-bit albedo maps of --svbrdf are decoded: raw (as Deschaintre's renderer) or sRGB.",
+    )
+    elevation_deg: float = field(
+        45.0,
+        rule=Float(*ELEVATION_RANGE),
+        doc="Sun elevation above the horizon. Below ~2.4-7 degrees (by turbidity) the sun is raised to the "
+        "floor where Mitsuba's sky is non-negative; the move is printed and recorded.",
+        unit="degrees",
+    )
+    azimuth_deg: float = field(
+        270.0,
+        rule=Float(*AZIMUTH_RANGE),
+        doc="Sun azimuth, counter-clockwise from +x seen from above: 0 lights the ball from the image's "
+        "right, 90 from behind, 270 from the camera's side.",
+        unit="degrees",
+    )
+    turbidity: float = field(3.0, rule=Float(*TURBIDITY_RANGE), doc="Atmospheric turbidity (1: very clear, 10: hazy).")
+    spp: int = same_as(RenderSettings, "spp")
+    resolution: int = same_as(RenderSettings, "resolution")
+    max_depth: int = same_as(RenderSettings, "max_depth")
+    seed: int = field(0, rule=Int(*SEED_RANGE), doc="Render seed.")
+    sun: str = same_as(RenderSettings, "sun")
+    model: str = same_as(RenderSettings, "model")
+    variant: str = same_as(RenderSettings, "variant")
+    out: str = field("render.exr", rule=PathRule("a file name ending in .exr"), doc="The EXR file written.")
+    png: str | None = field(None, rule=Optional(PathRule("a file name ending in .png")), doc="The PNG written.")
 
 
 @dataclass
@@ -95,7 +142,7 @@ class RenderSummary:
     stats: dict
     lighting: dict
     effects: dict
-    extra: list = field(default_factory=list)
+    extra: list = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
         s, light = self.stats, self.lighting
@@ -131,31 +178,21 @@ def load_material(req: RenderRequest):
     return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
 
 
-def check_request(req: RenderRequest) -> None:
-    """Check every field of ``req``; raise ShaderballError naming the option."""
-
-    parse_triple("--diffuse", ",".join(map(str, req.diffuse)))
-    parse_triple("--specular", ",".join(map(str, req.specular)))
-    check_number("--roughness", req.roughness, 0.0, 1.0)
-    normal = parse_triple("--normal", ",".join(map(str, req.normal)), None, None)
-    if normal[2] <= 0 or np.linalg.norm(normal) == 0:
-        raise bad_value("--normal", ",".join(map(str, req.normal)), "a tangent-space direction X,Y,Z with Z > 0")
-    if req.svbrdf is not None and not os.path.exists(req.svbrdf):
-        raise bad_value("--svbrdf", req.svbrdf, "an existing PNG strip or folder of maps")
-    check_number("--elevation", req.elevation_deg, 0.0, 90.0, " degrees")
-    check_number("--azimuth", req.azimuth_deg, *AZIMUTH_RANGE, " degrees")
-    check_number("--turbidity", req.turbidity, 1.0, 10.0)
-    check_int("--seed", req.seed, *SEED_RANGE)
-    if req.variant not in VARIANT_CHOICES:
-        raise bad_value("--variant", req.variant, ", ".join(VARIANT_CHOICES))
-    RenderSettings(
+def render_settings(req: RenderRequest) -> RenderSettings:
+    """The request's render settings (the variant as requested)."""
+    return RenderSettings(
         resolution=req.resolution,
         spp=req.spp,
         max_depth=req.max_depth,
         variant=req.variant,
         sun=req.sun,
         model=req.model,
-    ).check(lambda name: "--" + name.replace("_", "-"))
+    )
+
+
+def check_request(req: RenderRequest) -> None:
+    """Check every field of ``req``; raise ShaderballError naming the option."""
+    req.check_fields()
     Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     check_output("--out", req.out, ".exr")
     if req.png is not None:
@@ -171,9 +208,7 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
     variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
-    settings = RenderSettings(
-        resolution=req.resolution, spp=req.spp, max_depth=req.max_depth, variant=variant, sun=req.sun, model=req.model
-    )
+    settings = render_settings(req).resolved(variant)
     light = Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
     result = render_sample(ball, camera, maps, light, settings, req.seed, mask=gbuffer.mask)
     screen = project_material(maps, gbuffer)

@@ -22,32 +22,24 @@ from __future__ import annotations
 import math
 import signal
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from materials.brdf_ref import DEFAULT_MODEL, MODELS
-from pipeline.errors import bad_value, caused_by_interrupt, check_int
+from materials.brdf_ref import DEFAULT_MODEL
+from pipeline.errors import caused_by_interrupt
 from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
 from pipeline.render.emitter import emitter_dicts, update_emitter_params
 from pipeline.render.limits import (
-    CLAMP_RANGE,
     DEFAULT_RR_DEPTH,
-    INTEGRATORS,
-    MAX_DEPTH_RANGE,
-    RESOLUTION_RANGE,
-    RR_DEPTH_RANGE,
-    SAMPLERS,
-    SPP_RANGE,
-    TARGET_ERROR_RANGE,
 )
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
-from sky.emitter import SUN_MODES
+from pipeline.render.settings import RenderSettings
 
 #: A render with NaN, Inf or negative pixels is re-rendered with a new, recorded seed
 #: up to this many times in all; if every attempt is bad it is kept and flagged.
@@ -59,54 +51,6 @@ ADAPTIVE_FIRST_SPP = 16
 #: eps of relMSE = mean (x - ref)^2 / (ref^2 + eps): the accuracy study's (and the neural
 #: stage's) definition, radiance units; the adaptive statistic estimates it.
 RELMSE_EPS = 0.01
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """How a sample is rendered. Field names are the spec's `render` section's."""
-
-    resolution: int = 400
-    spp: int = 150
-    max_depth: int = 8
-    integrator: str = "path"
-    sun: str = "split"
-    #: The material model (materials.brdf_ref.MODELS; the spec's ``materials.model``).
-    model: str = DEFAULT_MODEL
-    #: Mitsuba sampler (pipeline.render.limits.SAMPLERS); some round the spp (recorded).
-    sampler: str = "independent"
-    #: Path depth at which Russian roulette starts (Mitsuba's default 5).
-    rr_depth: int = DEFAULT_RR_DEPTH
-    #: Luminance clamp of each camera path's contribution; 0: none (biased when on).
-    clamp: float = 0.0
-    #: Adaptive rendering: the estimated relative RMS error on the ball to stop at; 0: off
-    #: (then ``spp`` is rendered, else ``spp`` is the cap).
-    target_error: float = 0.0
-    #: The resolved Mitsuba variant (pipeline.render.mitsuba_env.resolve_variant), chosen once.
-    variant: str = field(kw_only=True)
-
-    def check(self, field_name=lambda name: f"render.{name}") -> RenderSettings:
-        """Raise naming the field as ``field_name(name)`` says (a spec field, a CLI option); else self."""
-
-        for name, (lo, hi) in (("resolution", RESOLUTION_RANGE), ("spp", SPP_RANGE), ("max_depth", MAX_DEPTH_RANGE)):
-            check_int(field_name(name), getattr(self, name), lo, hi)
-        if self.integrator not in INTEGRATORS:
-            raise bad_value(field_name("integrator"), self.integrator, ", ".join(INTEGRATORS))
-        if self.sun not in SUN_MODES:
-            raise bad_value(field_name("sun"), self.sun, ", ".join(SUN_MODES))
-        if self.model not in MODELS:
-            raise bad_value(field_name("model"), self.model, ", ".join(MODELS))
-        if self.sampler not in SAMPLERS:
-            raise bad_value(field_name("sampler"), self.sampler, ", ".join(SAMPLERS))
-        check_int(field_name("rr_depth"), self.rr_depth, *RR_DEPTH_RANGE)
-        for name, (lo, hi) in (("clamp", CLAMP_RANGE), ("target_error", TARGET_ERROR_RANGE)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
-                raise bad_value(field_name(name), value, f"a number from {lo:g} to {hi:g} (0: off)")
-        return self
-
-    @property
-    def adaptive(self) -> bool:
-        return self.target_error > 0
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from pipeline.dataset.spec import (
     spec_to_dict,
     spec_to_toml,
 )
-from pipeline.errors import USER_ERRORS, ShaderballError, check_int, filesystem_error, short_repr
+from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, short_repr
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,
@@ -449,7 +449,6 @@ def build(
     passes the dataset's recorded one).
     """
     spec, _text = read_spec_text(spec_path)
-    check_int("--workers", workers, 0, 1024)
     if cluster is None:
         cluster = ClusterOptions(workers=workers, scheduler=scheduler)
     elif workers is not None or scheduler is not None:

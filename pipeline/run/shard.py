@@ -59,45 +59,18 @@ class WorkerContext:
     variant: str
 
 
-_CONTEXTS: dict[tuple, WorkerContext] = {}
+_CONTEXTS: dict[RenderSettings, WorkerContext] = {}
 
 
 def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
     """This process's context for ``spec``; ``variant`` is the one the build's driver resolved."""
-    r = spec.render
-    key = (
-        r.resolution,
-        r.spp,
-        r.max_depth,
-        r.integrator,
-        variant,
-        spec.lighting.sun,
-        r.sampler,
-        r.rr_depth,
-        r.clamp,
-        r.target_error,
-        spec.materials.model,
-    )
-    if key not in _CONTEXTS:
+    settings = spec.render.resolved(variant)  # the spec's [render] with lighting.sun and materials.model
+    if settings not in _CONTEXTS:
         load_mitsuba(variant)
         ball, camera = build_shaderball(), default_camera()
-        settings = RenderSettings(
-            resolution=r.resolution,
-            spp=r.spp,
-            max_depth=r.max_depth,
-            integrator=r.integrator,
-            variant=variant,
-            sun=spec.lighting.sun,
-            sampler=r.sampler,
-            rr_depth=r.rr_depth,
-            clamp=r.clamp,
-            target_error=r.target_error,
-            model=spec.materials.model,
-        )
-        _CONTEXTS[key] = WorkerContext(
-            ball, camera, load_gbuffer(ball, camera, r.resolution, variant), settings.check(), variant
-        )
-    return _CONTEXTS[key]
+        gbuffer = load_gbuffer(ball, camera, settings.resolution, variant)
+        _CONTEXTS[settings] = WorkerContext(ball, camera, gbuffer, settings, variant)
+    return _CONTEXTS[settings]
 
 
 class OrderedWriter:

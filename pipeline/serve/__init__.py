@@ -6,7 +6,7 @@ thread for Mitsuba, one for the network. The network is handed in (pipeline.neur
 this package never imports torch and serves a path-traced previewer without one.
 
 Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
-``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
-``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``, ``pipeline.publish.names``;
-nothing else of the project.
+``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.fields``,
+``pipeline.image``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
+``pipeline.publish.names``; nothing else of the project.
 """

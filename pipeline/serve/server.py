@@ -23,10 +23,12 @@ from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
+from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 from materials import SVBRDF_FAMILIES
-from pipeline.errors import USER_ERRORS, ShaderballError, bad_value, check_int
+from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.fields import Checked, Int, Optional, Path, Text, field
 from pipeline.serve import view as views
 from pipeline.serve.materials import MAX_UPLOAD_BYTES, DatasetSamples, decode_upload, material_maps
 from pipeline.serve.view import RequestError, client_id, parse_view, refused
@@ -57,21 +59,38 @@ class QuietServer(ThreadingHTTPServer):
 
 
 @dataclass(frozen=True)
-class ServeOptions:
-    run: str | None = None
-    dataset: str | None = None
-    host: str = "127.0.0.1"
-    port: int = 8765
-    checkpoint: str = "last"
-    threads: int = 0
+class ServeOptions(Checked):
+    """What `shaderball serve` is asked; each option declared once (pipeline.fields)."""
+
+    FIELD_PREFIX: ClassVar[str] = "--"
+
+    run: str | None = field(
+        None,
+        rule=Optional(Path("a run folder"), default_text="none, a path-traced previewer"),
+        doc="A training run folder: the network shown beside path tracing.",
+    )
+    dataset: str | None = field(
+        None,
+        rule=Optional(Path("a dataset folder or a publication")),
+        doc="A dataset folder or its publication, whose samples the page offers by id.",
+    )
+    host: str = field(
+        "127.0.0.1",
+        rule=Text(r"\S+", "an address to bind, such as 127.0.0.1"),
+        doc="Address to bind; another than 127.0.0.1 lets other machines in.",
+    )
+    port: int = field(8765, rule=Int(*PORT_RANGE), doc="Port (0: any free one).")
+    checkpoint: str = field(
+        "last",
+        rule=Text(r".+", "last, best or a checkpoint file"),
+        doc="--run's weights, as `shaderball infer --checkpoint`.",
+    )
+    threads: int = field(0, rule=Int(0, 256), doc="torch threads for the network (0: torch's default).", unit="threads")
+    #: The path tracer's Mitsuba variant (not a command-line option).
     variant: str = "llvm"
 
     def check(self) -> ServeOptions:
-        check_int("--port", self.port, *PORT_RANGE)
-        check_int("--threads", self.threads, 0, 256)
-        if not isinstance(self.host, str) or not self.host or any(c.isspace() for c in self.host):
-            raise bad_value("--host", self.host, "an address to bind, such as 127.0.0.1")
-        return self
+        return self.check_fields()
 
 
 class App:

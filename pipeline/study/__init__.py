@@ -13,6 +13,7 @@ study's edge); its LDR metrics are those of the images the network is trained on
 (``pipeline.image``). Never dask, ``pipeline.run``, ``pipeline.check`` or ``pipeline.neural``.
 
 Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
-``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
-``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``; nothing else of the project.
+``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.fields``,
+``pipeline.image``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``; nothing
+else of the project.
 """

@@ -28,6 +28,7 @@ the same passes for the other samplers, whose kernels do), so the render's own t
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import io
 import json
@@ -36,7 +37,8 @@ import os
 import shlex
 import time
 import zlib
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -44,11 +46,12 @@ from geometry import build_shaderball, default_camera
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.fields import Bool, Checked, Int, field, same_as
+from pipeline.fields import Path as PathRule
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.render.gbuffer import load_gbuffer
-from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint, resolve_variant
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import (
@@ -69,7 +72,7 @@ from sky import Light
 
 REQUEST_FILE = "request.json"
 MAX_LADDER_SPP = 16384
-#: --samples: samples drawn from the plan.
+#: --draws: samples drawn from the plan.
 SAMPLES_RANGE = (1, 1000)
 #: --reference-spp's largest value.
 MAX_REFERENCE_SPP = 65536
@@ -77,21 +80,41 @@ MAX_REPEATS = 64
 
 
 @dataclass(frozen=True)
-class StudyRequest:
-    spec: str
-    out: str
-    samples: int = 12
-    reference_spp: int = 4096
-    resolution: int | None = None  # default: the spec's
+class StudyRequest(Checked):
+    """What `shaderball study` is asked; each option declared once (pipeline.fields)."""
+
+    FIELD_PREFIX: ClassVar[str] = "--"
+    FIELD_LABELS: ClassVar[dict[str, str]] = {"samples": "--draws", "flip": "--no-flip"}
+
+    spec: str = field(rule=PathRule("a spec file"), doc="The spec file.")
+    out: str = field(rule=PathRule("a folder"), doc="The study folder.")
+    samples: int = field(
+        12,
+        rule=Int(*SAMPLES_RANGE),
+        doc="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness.",
+        unit="draws",
+    )
+    reference_spp: int = field(
+        4096,
+        rule=Int(2, MAX_REFERENCE_SPP),
+        doc="Samples per pixel of each reference (two halves); even, at least twice the largest spp studied.",
+        unit="samples per pixel",
+    )
+    resolution: int | None = same_as(RenderSettings, "resolution", unset="the spec's")
     ladder: tuple[int, ...] = DEFAULT_LADDER
     families: tuple[str, ...] = FAMILIES
     #: Only these configurations of the families (names as in the report); the spec's recipe
     #: is always measured. Empty: all of them.
     only: tuple[str, ...] = ()
-    scan: int = 60  # materials of the plan whose lightings are candidates
-    flip: bool = True  # HDR-FLIP (the slowest metric)
-    #: Independent seeds per sample and configuration (the A/A configuration has as many).
-    repeats: int = 3
+    scan: int = field(60, rule=Int(1, 100000), doc="Materials of the plan whose lightings are candidates.")
+    flip: bool = field(True, rule=Bool(), doc="HDR-FLIP (the slowest metric).")
+    repeats: int = field(
+        3,
+        rule=Int(1, MAX_REPEATS),
+        doc="Independent seeds per sample and configuration (the cost grows in proportion); "
+        "every figure carries a 95% interval over samples and seeds.",
+        unit="seeds",
+    )
 
 
 @dataclass
@@ -103,7 +126,7 @@ class StudySummary:
     rendered: int
     reused: int
     seconds: float
-    recommendations: dict = field(default_factory=dict)
+    recommendations: dict = dataclasses.field(default_factory=dict)
 
     def lines(self) -> list[str]:
         out = [
@@ -144,11 +167,7 @@ def parse_families(text: str) -> tuple[str, ...]:
 
 def check_request(req: StudyRequest):
     """The parsed spec; raises a ShaderballError naming the option, value and what is allowed."""
-    check_int("--samples", req.samples, *SAMPLES_RANGE)
-    if req.resolution is not None:
-        check_int("--resolution", req.resolution, *RESOLUTION_RANGE)
-    check_int("--scan", req.scan, 1, 100000)
-    check_int("--repeats", req.repeats, 1, MAX_REPEATS)
+    req.check_fields()
     parse_families(",".join(req.families))
     parse_ladder(",".join(map(str, req.ladder)))
     spec = parse_spec(req.spec)
@@ -360,7 +379,7 @@ class Context:
     #: Lightings of a material that share one loaded scene in a build.
     lights_per_material: int = 1
     #: Settings keys already rendered in this process (their kernels compiled once).
-    warmed: set = field(default_factory=set)
+    warmed: set = dataclasses.field(default_factory=set)
 
 
 def robust_combine(passes: list[np.ndarray], post: str) -> np.ndarray:
@@ -503,14 +522,10 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     resolution = record["resolution"]
     gbuffer = load_gbuffer(ball, camera, resolution, variant)
     r = spec.render
+    # the paper's recipe at the study's resolution: the spec's sampler, clamp and target are the configs' to vary
     base = RenderSettings(
-        resolution=resolution,
-        spp=r.spp,
-        max_depth=r.max_depth,
-        integrator=r.integrator,
-        sun=spec.lighting.sun,
-        variant=variant,
-    ).check()
+        resolution=resolution, spp=r.spp, max_depth=r.max_depth, integrator=r.integrator, sun=r.sun, variant=variant
+    )
     shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
     ctx = Context(
         spec,

@@ -1,7 +1,9 @@
 """The cluster options of a build (``shaderball build --cluster/--workers/--jobs/...``), checked.
 
-:class:`ClusterOptions` is what the user asked for; :meth:`ClusterOptions.check` refuses a
-bad value or a mix of kinds with a message naming the option, before anything starts.
+:class:`ClusterOptions` is what the user asked for, each option declared once
+(``pipeline.fields``; the command's options are generated from it);
+:meth:`ClusterOptions.check` refuses a bad value or a mix of kinds with a message naming
+the option, before anything starts.
 ``--memory`` takes dask's units (the value is handed to dask), so it is parsed with dask's
 own parser; nothing else here touches dask.
 """
@@ -11,8 +13,10 @@ from __future__ import annotations
 import re
 import socket
 from dataclasses import dataclass
+from typing import ClassVar
 
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError, bad_value
+from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
@@ -39,35 +43,125 @@ START_TIMEOUT_RANGE = (10, 10_000_000)
 _MIN_MEMORY, _MAX_MEMORY = 256 * 2**20, 64 * 2**40
 
 
+class _Memory(Rule):
+    allowed = "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB"
+
+    def check(self, value):
+        if not isinstance(value, str):
+            raise Reject()
+        try:
+            memory_bytes(value)
+        except ShaderballError:
+            raise Reject() from None
+        return value
+
+
+class _Walltime(Rule):
+    allowed = f"HH:MM:SS from {WALLTIME_SPAN}"
+
+    def check(self, value):
+        if not isinstance(value, str):
+            raise Reject()
+        try:
+            walltime_seconds(value)
+        except ShaderballError:
+            raise Reject() from None
+        return value
+
+
+class _Scheduler(Rule):
+    allowed = "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
+
+    def check(self, value):
+        if not isinstance(value, str):
+            raise Reject()
+        try:
+            scheduler_host_port(value)
+        except ShaderballError:
+            raise Reject() from None
+        return value
+
+
+_SHELL_WORD_TEXT = "1 to 128 characters from A-Z a-z 0-9 _ . @ : + -"
+
+
 @dataclass(frozen=True)
-class ClusterOptions:
+class ClusterOptions(Checked):
     """Where the workers of a build come from (the ``build`` command's cluster options).
 
     Options of another kind of cluster left at None; :meth:`check` refuses a mix.
     """
 
-    kind: str = "local"
-    #: local worker processes (default: one per 2 cores); 0 renders in this process.
-    workers: int | None = None
-    #: address of an existing scheduler, e.g. tcp://10.0.0.1:8786 (kind "local" only).
-    scheduler: str | None = None
-    #: batch jobs (= nodes) for slurm/pbs; each runs one worker process.
-    jobs: int | None = None
-    #: cores per job (slurm/pbs): every render of the job's worker uses them all.
-    cores: int | None = None
-    #: memory per worker process (local) or per job (slurm/pbs), e.g. "16GiB".
-    memory: str | None = None
-    #: wall-clock limit per job, HH:MM:SS (slurm/pbs).
-    walltime: str | None = None
-    queue: str | None = None
-    account: str | None = None
-    #: node-local scratch folder (shell expression) for the kernel cache and dask's spill.
-    scratch: str | None = None
-    #: restart a worker process once it has rendered this many samples; 0: never.
-    recycle_after: int = DEFAULT_RECYCLE_AFTER
-    #: seconds the build may go without any worker (before the first one arrives, or after
-    #: the last one left) before it stops; None: wait as long as it takes.
-    start_timeout: int | None = None
+    FIELD_PREFIX: ClassVar[str] = "--"
+    FIELD_LABELS: ClassVar[dict[str, str]] = {"kind": "--cluster"}
+
+    kind: str = field(
+        "local", rule=Choice(KINDS), doc="Where workers run: this machine, or batch jobs via dask-jobqueue."
+    )
+    workers: int | None = field(
+        None,
+        rule=Optional(Int(*WORKERS_RANGE), "unset (one per 2 cores)"),
+        doc="Local dask worker processes; 0 runs in this process without dask. Ignored with --scheduler.",
+        unit="processes",
+    )
+    scheduler: str | None = field(
+        None,
+        rule=Optional(_Scheduler()),
+        doc="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
+        "(its workers need DIR at the same path; docs/cluster.md).",
+    )
+    jobs: int | None = field(
+        None, rule=Optional(Int(*JOBS_RANGE)), doc="slurm/pbs: batch jobs (nodes); one worker each.", unit="jobs"
+    )
+    cores: int | None = field(
+        None, rule=Optional(Int(*CORES_RANGE)), doc="slurm/pbs: cores per job; every render uses all.", unit="cores"
+    )
+    memory: str | None = field(
+        None,
+        rule=Optional(_Memory()),
+        doc="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
+        "its limit is restarted and its shard runs again.",
+    )
+    walltime: str | None = field(
+        None,
+        rule=Optional(_Walltime()),
+        doc="slurm/pbs: wall-clock limit per job; workers retire about 5 min "
+        "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
+    )
+    queue: str | None = field(
+        None, rule=Optional(Text(_SHELL_WORD.pattern, _SHELL_WORD_TEXT)), doc="slurm/pbs: partition or queue."
+    )
+    account: str | None = field(
+        None, rule=Optional(Text(_SHELL_WORD.pattern, _SHELL_WORD_TEXT)), doc="slurm/pbs: account to charge."
+    )
+    scratch: str | None = field(
+        None,
+        rule=Optional(
+            Text(
+                _SCRATCH.pattern,
+                "a path of 1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
+                "(shell variables such as $TMPDIR are expanded on the node)",
+            )
+        ),
+        doc="slurm/pbs: node-local folder for the kernel cache and dask's files "
+        f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
+    )
+    recycle_after: int = field(
+        DEFAULT_RECYCLE_AFTER,
+        rule=Int(*RECYCLE_AFTER_RANGE),
+        doc="Restart a dask worker process once it has rendered this many samples "
+        "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
+        unit="renders",
+    )
+    start_timeout: int | None = field(
+        None,
+        rule=Optional(Int(*START_TIMEOUT_RANGE), "unset (wait as long as it takes)"),
+        doc="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
+        "this long: before the first one arrives, or after the last one left "
+        "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
+        "as long as it takes]",
+        unit="seconds",
+    )
 
     @property
     def is_jobqueue(self) -> bool:
@@ -75,33 +169,14 @@ class ClusterOptions:
 
     def check(self) -> ClusterOptions:
         """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
-        if self.kind not in KINDS:
-            raise bad_value("--cluster", self.kind, ", ".join(KINDS))
-        check_int("--workers", self.workers, *WORKERS_RANGE)
-        check_int("--jobs", self.jobs, *JOBS_RANGE)
-        check_int("--cores", self.cores, *CORES_RANGE)
-        check_int("--recycle-after", self.recycle_after, *RECYCLE_AFTER_RANGE)
-        check_int("--start-timeout", self.start_timeout, *START_TIMEOUT_RANGE)
+        return self.check_fields()
+
+    def check_cross(self) -> None:
+        """The options of one kind of cluster, not another's."""
         if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
             raise ShaderballError("--start-timeout: not allowed with --workers 0 (no workers to wait for)")
-        if self.memory is not None:
-            memory_bytes(self.memory)
-        if self.walltime is not None:
-            walltime_seconds(self.walltime)
-        for option, value in (("--queue", self.queue), ("--account", self.account)):
-            if value is not None and not _SHELL_WORD.match(value):
-                raise bad_value(option, value, "1 to 128 characters from A-Z a-z 0-9 _ . @ : + -")
-        if self.scratch is not None and not _SCRATCH.match(self.scratch):
-            raise bad_value(
-                "--scratch",
-                self.scratch,
-                "a path of 1 to 256 characters from A-Z a-z 0-9 _ . / $ { } : + - "
-                "(shell variables such as $TMPDIR are expanded on the node)",
-            )
-        if self.scheduler is not None:
-            if self.kind != "local":
-                raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; use one or the other")
-            scheduler_host_port(self.scheduler)
+        if self.scheduler is not None and self.kind != "local":
+            raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; use one or the other")
         if self.is_jobqueue:
             if self.workers is not None:
                 raise ShaderballError(
@@ -129,7 +204,6 @@ class ClusterOptions:
                 raise ShaderballError(
                     "--memory: not allowed with --scheduler; give --memory-limit to `dask worker` instead"
                 )
-        return self
 
 
 def memory_bytes(text: str) -> int:

@@ -1,0 +1,457 @@
+"""Typed fields: each user-facing parameter declared once, with its type, default, range,
+unit and one line of help, and checked in one place.
+
+A checked dataclass (:class:`Checked`) declares each field with :func:`field`, whose
+``rule`` (:class:`Int`, :class:`Float`, :class:`Pair`, :class:`Choice`, ...) normalises a
+value or refuses it. Every consumer reads the same declaration: the spec's sections
+(``pipeline.dataset.spec``, and docs/spec.md generated from them), the renderer's
+settings (``pipeline.render.settings``), the commands' request types, and the command
+line, whose options are generated from the fields (``pipeline.ui.options``): name, type,
+default, help, and the same check with the same words.
+
+A refused value raises :class:`FieldError`, a ``ShaderballError`` (exit code 2 at the
+command line) whose message reads ``<field>: <value> is not allowed; <what is allowed>``;
+a class names its fields its own way (a spec section as ``render.spp``, a command's
+options as ``--spp``; :meth:`Checked.field_error`).
+
+Own kernel rather than a library: typed-settings (attrs classes, click options, TOML
+loading) or pydantic (fields with ranges and descriptions) would each add a dependency
+(and pydantic a compiled core) to every layer that declares a field, for what is here a
+few hundred lines, and neither words its refusals in the project's one form (field, value,
+what is allowed) nor keeps the spec's TOML rules (``true`` is no integer, ``8.0`` no
+count, a list of distinct names, a closed interval) without as much code again in
+validators. The standard library's dataclasses carry the metadata; this module reads it.
+It stands one layer above ``pipeline.errors``, so a refusal is a ``ShaderballError`` like
+every other user error (exit code 2 at the command line).
+
+Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+``pipeline.errors``; nothing else of the project.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import math
+import numbers
+import re
+from dataclasses import fields
+from typing import Any, ClassVar
+
+from pipeline.errors import ShaderballError
+
+#: A field with no default (required).
+MISSING = object()
+
+
+def format_value(value: Any) -> str:
+    """A value as TOML would spell it, shortened for a one-line message."""
+    if value is MISSING:
+        text = "(missing)"
+    elif value is None:
+        text = "none"
+    elif isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = json.dumps(value, ensure_ascii=False)
+    elif isinstance(value, float):
+        text = (
+            "nan"
+            if math.isnan(value)
+            else ("inf" if value == math.inf else "-inf" if value == -math.inf else repr(value))
+        )
+    elif isinstance(value, (list, tuple)):
+        text = "[" + ", ".join(format_value(v) for v in value) + "]"
+    elif isinstance(value, dict):
+        text = "{" + ", ".join(f"{k} = {format_value(v)}" for k, v in value.items()) + "}"
+    else:
+        text = repr(value)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+class FieldError(ShaderballError):
+    """A refused field value: ``<where>: <value> is not allowed; <allowed>``."""
+
+    def __init__(self, where: str, value: Any, allowed: str, *, what: str | None = None, name: str = ""):
+        self.where = where
+        #: The field's own name (``spp``), however ``where`` spells it.
+        self.name = name
+        self.value = value
+        self.allowed = allowed
+        self.what = what
+        if what is None:
+            what = f"{format_value(value)} is not allowed"
+        super().__init__(f"{where}: {what}; {allowed}")
+
+
+class Reject(Exception):
+    """Raised by a rule; the class turns it into a FieldError naming the field."""
+
+    def __init__(self, detail: str = ""):
+        super().__init__(detail)
+        self.detail = detail
+
+
+# --------------------------------------------------------------------------- rules
+
+
+def is_number(v: Any) -> bool:
+    # bool is an int subclass in Python: `spp = true` must not pass as 1.
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def is_integer(v: Any) -> bool:
+    # numbers.Integral admits numpy integers (from Python callers) but not floats like 8.0.
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+class Rule:
+    """What a field accepts: :meth:`check` returns the normalised value or raises Reject."""
+
+    allowed: str
+    #: What the reference page says is allowed, when ``allowed`` is computed at run time.
+    doc_allowed: str | None = None
+    #: The Python type a command-line value is parsed as (str, int, float, bool).
+    py_type: type = str
+
+    def check(self, value: Any) -> Any:
+        raise NotImplementedError
+
+    def parse(self, text: str) -> Any:
+        """A command-line word as the value :meth:`check` takes (ValueError: not one)."""
+        return self.py_type(text)
+
+    @staticmethod
+    def plain(value: Any) -> Any:
+        """The value as plain TOML/JSON data (tuples become lists)."""
+        return list(value) if isinstance(value, tuple) else value
+
+    @property
+    def brief(self) -> str:
+        """The allowed values as a short phrase for ``--help``."""
+        return self.doc_allowed or self.allowed
+
+
+class Int(Rule):
+    py_type = int
+
+    def __init__(self, lo: int, hi: int, also: tuple[int, ...] = (), also_text: str = ""):
+        self.lo, self.hi, self.also = lo, hi, also
+        self.allowed = f"an integer from {lo} to {hi}" + (f", or {also_text}" if also else "")
+
+    def check(self, value):
+        if not is_integer(value):
+            raise Reject()
+        value = int(value)
+        if value in self.also or self.lo <= value <= self.hi:
+            return value
+        raise Reject()
+
+    @property
+    def brief(self) -> str:
+        hi = self.hi
+        # a top of 2^k - 1 (a seed's) reads as such
+        top = f"2^{hi.bit_length()}-1" if hi >= 2**31 - 1 and hi & (hi + 1) == 0 else str(hi)
+        return f"{self.lo} to {top}" + ("".join(f", or {a}" for a in self.also))
+
+
+class Float(Rule):
+    """A finite number in [lo, hi]; ``lo_open``/``hi_open`` leave an end out."""
+
+    py_type = float
+
+    def __init__(self, lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False):
+        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
+        if lo_open or hi_open:
+            self.allowed = f"a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        else:
+            self.allowed = f"a finite number from {lo:g} to {hi:g}"
+
+    def check(self, value):
+        if not is_number(value) or not math.isfinite(value):
+            raise Reject()
+        above = value > self.lo if self.lo_open else value >= self.lo
+        below = value < self.hi if self.hi_open else value <= self.hi
+        if not (above and below):
+            raise Reject()
+        return float(value)
+
+    @property
+    def brief(self) -> str:
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+
+
+class Pair(Rule):
+    """A closed interval [lo, hi]; lo == hi fixes the value."""
+
+    def __init__(self, lo: float, hi: float, max_span: float | None = None):
+        self.lo, self.hi, self.max_span = lo, hi, max_span
+        self.allowed = f"a pair [lo, hi] of finite numbers with {lo:g} <= lo <= hi <= {hi:g}"
+        if max_span is not None:
+            self.allowed += f" and hi - lo <= {max_span:g}"
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise Reject()
+        if not all(is_number(v) and math.isfinite(v) for v in value):
+            raise Reject()
+        lo, hi = float(value[0]), float(value[1])
+        if lo > hi:
+            raise Reject(f"(lo {lo:g} > hi {hi:g}: the range is inverted)")
+        if lo < self.lo or hi > self.hi:
+            raise Reject()
+        if self.max_span is not None and hi - lo > self.max_span:
+            raise Reject(f"(span {hi - lo:g})")
+        return (lo, hi)
+
+
+class Triple(Rule):
+    """Three finite numbers, each in [lo, hi] (None: unbounded); ``R,G,B`` on a command line."""
+
+    def __init__(self, lo: float | None = 0.0, hi: float | None = 1.0, allowed: str | None = None):
+        self.lo, self.hi = lo, hi
+        self.allowed = allowed or "three comma-separated numbers" + (f" in [{lo:g}, {hi:g}]" if lo is not None else "")
+
+    def parse(self, text: str):
+        return tuple(float(x) for x in text.split(","))
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            raise Reject()
+        if not all(is_number(v) and math.isfinite(v) for v in value):
+            raise Reject()
+        if self.lo is not None and not all(self.lo <= v <= self.hi for v in value):
+            raise Reject()
+        return tuple(float(v) for v in value)
+
+    @property
+    def brief(self) -> str:
+        return self.allowed
+
+
+class Choice(Rule):
+    """One string from ``options`` (a tuple, or a callable asked at check time)."""
+
+    def __init__(self, options, doc_allowed: str | None = None):
+        self._options = options
+        self.doc_allowed = doc_allowed
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        return tuple(self._options() if callable(self._options) else self._options)
+
+    @property
+    def allowed(self) -> str:
+        return "one of " + ", ".join(json.dumps(o) for o in self.options)
+
+    def check(self, value):
+        if not isinstance(value, str) or value not in self.options:
+            raise Reject()
+        return value
+
+    @property
+    def brief(self) -> str:
+        return ", ".join(self.options)
+
+
+class Text(Rule):
+    def __init__(self, pattern: str, text: str):
+        self.pattern = re.compile(pattern)
+        self.allowed = text
+
+    def check(self, value):
+        if not isinstance(value, str) or not self.pattern.fullmatch(value):
+            raise Reject()
+        return value
+
+
+class Path(Rule):
+    """A non-empty path (file or folder); whether it exists is the consumer's business."""
+
+    def __init__(self, what: str = "a path", *, empty_ok: bool = False):
+        self.allowed = what
+        self.empty_ok = empty_ok
+
+    def check(self, value):
+        if not isinstance(value, str) or not (value or self.empty_ok):
+            raise Reject()
+        return value
+
+
+class Bool(Rule):
+    allowed = "true or false"
+    py_type = bool
+
+    def check(self, value):
+        if not isinstance(value, bool):
+            raise Reject()
+        return value
+
+
+class Optional(Rule):
+    """``rule``'s values or None (the field's default then applies elsewhere)."""
+
+    def __init__(self, rule: Rule, none_text: str = "unset", *, default_text: str | None = None):
+        self.rule = rule
+        self.none_text = none_text
+        #: What None means, as --help says it ("the spec's").
+        self.default_text = default_text
+        self.py_type = rule.py_type
+
+    @property
+    def allowed(self) -> str:
+        return f"{self.rule.allowed}, or {self.none_text}"
+
+    @property
+    def brief(self) -> str:
+        return self.rule.brief
+
+    def check(self, value):
+        return None if value is None else self.rule.check(value)
+
+    def parse(self, text: str):
+        return self.rule.parse(text)
+
+
+class StrList(Rule):
+    """A list of distinct strings, optionally from a set; stored as a tuple.
+
+    ``options`` may be a callable, asked at check time, so the allowed set can come from
+    a package imported lazily.
+    """
+
+    def __init__(self, options, what: str, doc_allowed: str | None = None):
+        self._options = options
+        self._what = what
+        self.doc_allowed = doc_allowed
+
+    @property
+    def options(self) -> tuple[str, ...] | None:
+        return self._options() if callable(self._options) else self._options
+
+    @property
+    def allowed(self) -> str:
+        options = self.options
+        if options is None:
+            return f"a list of distinct {self._what}"
+        return f"a list of distinct {self._what} from " + ", ".join(json.dumps(o) for o in options)
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise Reject()
+        if len(set(value)) != len(value):  # counted in one pass: 20,000 entries took 10 s with list.count
+            dupes = sorted(v for v, n in collections.Counter(value).items() if n > 1)
+            raise Reject("(repeated: " + ", ".join(json.dumps(d) for d in dupes) + ")")
+        options = self.options
+        if options is not None:
+            bad = [v for v in value if v not in options]
+            if bad:
+                raise Reject("(unknown: " + ", ".join(json.dumps(b) for b in bad) + ")")
+        return tuple(value)
+
+
+# --------------------------------------------------------------------------- declaration
+
+
+def field(
+    default: Any = MISSING,
+    *,
+    rule: Rule,
+    doc: str,
+    unit: str = "",
+    factory: Any = None,
+    doc_default: str | None = None,
+    in_file: bool = True,
+    kw_only: bool = False,
+):
+    """A dataclass field with its rule, one line (or more) of help, its unit.
+
+    ``in_file=False``: a field of the type that a spec file does not hold (the renderer's
+    ``sun`` and ``model`` come from other sections of the spec).
+    """
+    meta = {"rule": rule, "doc": doc, "unit": unit, "doc_default": doc_default, "in_file": in_file}
+    extra = {"kw_only": True} if kw_only else {}
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=meta, **extra)
+    if default is MISSING:
+        return dataclasses.field(metadata=meta, **extra)
+    return dataclasses.field(default=default, metadata=meta, **extra)
+
+
+def same_as(cls, name: str, *, unset: str | None = None, **changes):
+    """A field declared as ``cls``'s field ``name`` is (its rule, help, unit, default): one
+    declaration, read by another class. ``unset``: the field is optional, default None,
+    which means this (``"the spec's"``); ``changes`` replace keywords of :func:`field`."""
+    f = declared(cls)[name]
+    meta = dict(f.metadata)
+    kwargs = dict(rule=meta["rule"], doc=meta["doc"], unit=meta["unit"], doc_default=meta["doc_default"])
+    default = default_of(f)
+    if unset is not None:
+        kwargs["rule"], default = Optional(meta["rule"], f"unset ({unset})", default_text=unset), None
+    kwargs.update(changes)
+    return field(changes.pop("default", default), **{k: v for k, v in kwargs.items() if k != "default"})
+
+
+def declared(cls) -> dict[str, dataclasses.Field]:
+    """The fields of ``cls`` declared with :func:`field`, by name."""
+    return {f.name: f for f in fields(cls) if "rule" in f.metadata}
+
+
+def default_of(f: dataclasses.Field) -> Any:
+    """A field's default (MISSING where it has none)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return MISSING
+
+
+class Checked:
+    """Mixin: check every declared field by its rule, then the class's cross-field rules
+    (:meth:`check_cross`). A frozen dataclass is checked when built; a mutable one by
+    :meth:`check_fields`."""
+
+    #: How a refusal names a field: ``"--"`` makes ``--split-seed`` of ``split_seed``;
+    #: anything else is a prefix (``"render."`` makes ``render.spp``).
+    FIELD_PREFIX: ClassVar[str] = ""
+    #: Labels other than the prefix makes (``{"kind": "--cluster"}``).
+    FIELD_LABELS: ClassVar[dict[str, str]] = {}
+
+    @classmethod
+    def field_label(cls, name: str) -> str:
+        if name in cls.FIELD_LABELS:
+            return cls.FIELD_LABELS[name]
+        if cls.FIELD_PREFIX == "--":
+            return "--" + name.replace("_", "-")
+        return cls.FIELD_PREFIX + name
+
+    @classmethod
+    def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> FieldError:
+        return FieldError(cls.field_label(name), value, allowed, what=what, name=name)
+
+    def check_fields(self):
+        for f in fields(self):
+            rule: Rule | None = f.metadata.get("rule")
+            if rule is None:
+                continue
+            value = getattr(self, f.name)
+            try:
+                normalised = rule.check(value)
+            except Reject as exc:
+                allowed = rule.allowed + (f" {exc.detail}" if exc.detail else "")
+                raise self.field_error(f.name, value, allowed) from None
+            object.__setattr__(self, f.name, normalised)
+        self.check_cross()
+        return self
+
+    def check_cross(self) -> None:
+        """Rules between fields; raise :meth:`field_error` naming one of them."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field a file holds, as plain TOML/JSON data."""
+        return {
+            f.name: f.metadata["rule"].plain(getattr(self, f.name))
+            for f in fields(self)
+            if "rule" in f.metadata and f.metadata["in_file"]
+        }
