@@ -4,6 +4,7 @@ the canonical form round-trips; the reference page matches the code."""
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import os
 import subprocess
@@ -383,13 +384,11 @@ def test_spec_to_dict_is_plain_data():
 
 
 def test_reference_page_matches_the_code():
-    with open(os.path.join(REPO, "docs", "spec.md"), encoding="utf-8") as fh:
+    spec_reference = importlib.import_module("scripts.spec_reference")
+    with open(spec_reference.PAGE, encoding="utf-8") as fh:
         page = fh.read()
-    assert reference_markdown() in page, (
-        "docs/spec.md is out of date: paste the output of\n  .venv/bin/python -c 'from "
-        "pipeline.dataset.spec import reference_markdown; print(reference_markdown())'\nbetween its "
-        "FIELD REFERENCE markers"
-    )
+    assert page == spec_reference.render(), f"docs/spec-fields.md is out of date: run {spec_reference.WRITE_COMMAND}"
+    assert reference_markdown() in page
     keys = [row[0].strip("`") for row in reference_rows()]
     assert len(keys) == len(set(keys)) >= 25
     for row in reference_rows():

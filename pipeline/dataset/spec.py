@@ -16,8 +16,8 @@ Unknown sections and keys are errors (a typo must never be silently ignored); a 
 key takes its documented default, except the required ``dataset.name``, ``dataset.seed``
 and ``dataset.materials``.
 
-The reference page ``docs/spec.md`` embeds :func:`reference_markdown`, generated from
-the field metadata below; a test keeps the two identical.
+The page ``docs/spec-fields.md`` is :func:`reference_markdown`, generated from the field
+metadata below by ``scripts/spec_reference.py --write``; a test keeps the two identical.
 
 This module is pure: it reads the spec file and checks that SVBRDF folders exist, nothing
 else. No Mitsuba, no dask.
