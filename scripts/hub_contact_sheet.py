@@ -62,7 +62,7 @@ def previews(pub: str) -> tuple[list[dict], dict[str, bytes], int]:
                 record = json.loads(data)
             elif kind == RENDERS and expected.name.endswith(".render.png"):
                 rows.append({"key": expected.sample_id, "record": record, "png": data})
-        before += len(tar.expected)
+        before += tar.count
     return rows, strips, side
 
 

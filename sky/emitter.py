@@ -113,7 +113,9 @@ def hemisphere_check_directions(sun_dir: np.ndarray) -> np.ndarray:
     """
     sun_az = math.atan2(sun_dir[1], sun_dir[0])
     cos_el, sin_el, turn = _check_grid()
-    az = np.ascontiguousarray(np.broadcast_to(sun_az + turn, cos_el.shape))  # as meshgrid gave it
+    # the azimuths' cosines and sines once, broadcast over the elevations: the same values
+    # (and bits) as those of the full grid, at 1/145 of the cost
+    az = sun_az + turn
     dirs = np.stack([cos_el * np.cos(az), cos_el * np.sin(az), sin_el], -1).reshape(-1, 3)
     return np.concatenate([dirs, sun_dir[None, :]])
 

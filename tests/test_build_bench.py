@@ -90,6 +90,10 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     cpu = bench.in_build_phases_cpu
     assert list(cpu) == list(BUILD_PHASES) and cpu["writer thread"] > 0 and cpu["scene loads"] > 0
     assert "the same phases in CPU time of their thread" in text
+    main = bench.main_thread_outside_cpu_s  # the main thread's CPU outside render calls: the phases and more
+    assert main == bench.in_build_main_cpu_s - cpu["render calls"]
+    assert main >= sum(cpu[p] for p in ("material moves", "emitter moves", "statistics"))
+    assert "the main thread outside its render calls" in text
     estimate = bench.paper_estimate()
     assert estimate["scaled_by"] == (400 * 400 * 150) / (64 * 64 * 16)
     assert estimate["hours_bare"] == pytest.approx(bench.bare_s / 4 * estimate["scaled_by"] * 50_000 / 3600)

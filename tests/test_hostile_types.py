@@ -321,11 +321,12 @@ def test_a_folder_manifest_line_with_more_structure_than_a_record_is_reported(sm
     assert any("JSON arrays/objects" in p.message and "not parsed" in p.message for p in report.problems)
 
 
-def test_the_publication_keeps_its_records_as_bytes(good):
+def test_the_publication_reads_its_records_again_a_tar_pair_at_a_time(good):
     publication = open_publication(str(good))
-    assert len(publication.records) == 16 and publication.records[0]["id"] == FIRST
-    assert publication.by_id["m000007_l1"]["id"] == "m000007_l1"
-    assert [r["id"] for r in publication.records] == list(publication.by_id)
+    assert (publication.samples, publication.materials) == (16, 8)
+    ids = [e.sample_id for t in publication.tars if t.kind == "renders" for e in publication.expected(t)]
+    assert ids[0] == FIRST and "m000007_l1" in ids and len(set(ids)) == 16
+    assert sum(t.count for t in publication.tars) == sum(1 for t in publication.tars for _ in publication.expected(t))
 
 
 # --------------------------------------------------------------------------- item 4: names

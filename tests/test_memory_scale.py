@@ -1,5 +1,5 @@
-"""Memory bounded by structure: info, validate (fast and full), preview, publish and the
-training loader over a dataset at two sizes, each in its own process, its peak of traced
+"""Memory bounded by structure: info, validate (fast and full), preview, publish, verify,
+unpack and the training loader over a dataset at two sizes, each in its own process, its peak of traced
 memory taken (``tracemalloc``: every Python object and numpy array); the growth per extra
 render must stay under ~1 KB (a record is ~11 kB as Python objects: a command that held
 them all grew ~5-45 kB a render). A ratio from one run, not a timing. Traced memory, not
@@ -87,6 +87,8 @@ def _commands(data: Path, scratch: Path) -> dict[str, list]:
         "preview": ["preview", data, "--out", scratch / "sheet.png"],
         "publish": ["publish", data, "--out", scratch / "pub"],
         "publishing alone": [WRITE, data, scratch / "pub-alone"],
+        "verify": ["verify", scratch / "pub"],
+        "unpack": ["unpack", scratch / "pub", "--out", scratch / "unpacked"],
         "training loader": [LOADER, data],
     }
 

@@ -166,8 +166,8 @@ def test_unpack_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_pat
     holders = []
     real_output = unpack_module.Output
 
-    def output_then_a_build_starts(path):
-        made = real_output(path)
+    def output_then_a_build_starts(path, **options):
+        made = real_output(path, **options)
         holders.append(hold(Path(path), "build"))
         return made
 

@@ -9,7 +9,7 @@ import shutil
 from collections.abc import Iterator
 
 from pipeline.errors import bad_value
-from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic
 from pipeline.store.folder import check_creatable, only_temp_files, real_dir
 from pipeline.store.lock import busy, current_holder, writer_lock
 
@@ -54,9 +54,11 @@ def held_output(out: str, purpose: str, label: str) -> Iterator[Output]:
 
 
 class Output:
-    """PUB while it is written: every file atomically; on failure, everything written is removed."""
+    """PUB while it is written: every file atomically; on failure, everything written is removed.
+    ``listed``: keep each file's SHA-256 and size (``sums``, ``sizes``), as publish needs for
+    SHA256SUMS; else only their count and total (``files``, ``bytes``), as unpack needs."""
 
-    def __init__(self, out: str):
+    def __init__(self, out: str, listed: bool = True):
         self.out = out
         # the outermost folder this write creates (out itself, or a missing parent of it)
         self.created_top = None
@@ -64,19 +66,37 @@ class Output:
         while not os.path.lexists(path):
             self.created_top, path = path, os.path.dirname(path)
         os.makedirs(out, exist_ok=True)
+        self.listed = listed
         self.sums: dict[str, str] = {}
         self.sizes: dict[str, int] = {}
+        self.files = self.bytes = 0
 
     def path(self, rel: str) -> str:
         return os.path.join(self.out, *rel.split("/"))
 
     def write(self, rel: str, data: bytes) -> str:
-        self.sums[rel] = write_bytes_atomic(self.path(rel), data)
-        self.sizes[rel] = len(data)
-        return self.sums[rel]
+        return self.adopt(rel, write_bytes_atomic(self.path(rel), data), len(data))
 
-    def adopt(self, rel: str, sha256: str, size: int) -> None:
-        self.sums[rel], self.sizes[rel] = sha256, size
+    def write_chunks(self, rel: str, chunks) -> str:
+        """As :meth:`write`, the file's bytes coming a piece at a time (never held whole); an
+        exception from ``chunks`` leaves no file."""
+        size = 0
+
+        def counted():
+            nonlocal size
+            for chunk in chunks:
+                size += len(chunk)
+                yield chunk
+
+        sha256 = write_chunks_atomic(self.path(rel), counted())
+        return self.adopt(rel, sha256, size)
+
+    def adopt(self, rel: str, sha256: str, size: int) -> str:
+        self.files += 1
+        self.bytes += size
+        if self.listed:
+            self.sums[rel], self.sizes[rel] = sha256, size
+        return sha256
 
     def discard(self) -> None:
         if self.created_top:

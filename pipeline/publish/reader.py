@@ -1,13 +1,16 @@
 """Reading a publication without trusting it: `shaderball verify`, the first pass of
 `shaderball unpack`, and :func:`iter_samples` for the training stage.
 
-:func:`open_publication` reads only the small files: it refuses links and unlisted files,
+:func:`open_publication` checks the small files: it refuses links and unlisted files,
 checks every file's SHA-256 against ``SHA256SUMS`` (tars are checked when they are
-opened), checks every manifest path against the layout before any is used, and derives
-from the manifest and ``samples.jsonl`` the exact members each tar must hold, in order,
-with their sizes and SHA-256. :meth:`Publication.members` then streams one tar: its
-SHA-256 first, then every header (pipeline.publish.tarsafe), then each member, whose
-size, SHA-256, EXR header or record must be the expected one. Any difference raises
+opened), checks every manifest path against the layout before any is used, and checks
+that the manifest, ``samples.jsonl`` and the markers agree, a line at a time (what it
+keeps is a few counts and ids, not the files: memory bounded by structure). Each tar
+pair's rows are a :class:`Section` of those files; :meth:`Publication.section` reads one
+again (its SHA-256 as checked) and derives the exact members each tar of the pair must
+hold, in order, with their sizes and SHA-256. :meth:`Publication.members` then streams one
+tar: its SHA-256 first, then every header (pipeline.publish.tarsafe), then each member,
+whose size, SHA-256, EXR header or record must be the expected one. Any difference raises
 :class:`~pipeline.publish.refusal.Refused` naming the file and member.
 :meth:`Publication.locate` streams every tar so and says where each checked member's bytes
 lie; :func:`read_located` reads one again there (the training stage's map-style loader,
@@ -21,11 +24,12 @@ import json
 import os
 import stat
 from array import array
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 
 from pipeline.errors import bad_value
 from pipeline.publish.exrcheck import check_exr_header, member_bounds
+from pipeline.publish.lines import CHUNK_BYTES, LineReader, scan
 from pipeline.publish.names import (
     CROISSANT_FILE,
     DATASET_DIR,
@@ -45,6 +49,7 @@ from pipeline.publish.names import (
     TAR_NAME,
     allowed_file,
     paired_tar,
+    tar_rel,
 )
 from pipeline.publish.previews import png_size
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
@@ -58,7 +63,7 @@ from pipeline.publish.table import (
     record_member,
     sample_row,
 )
-from pipeline.publish.tarsafe import Member, read_members, scan_tar
+from pipeline.publish.tarsafe import Member, check_count, iter_headers, read_members, scan_tar, tar_length
 from pipeline.store.folder import (
     field_type_problem,
     json_type_name,
@@ -72,6 +77,9 @@ from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, La
 from pipeline.store.records import dumps, without_timings
 
 HEX = frozenset("0123456789abcdef")
+MANIFEST_REL = SOURCE_FILES[MANIFEST_FILE]
+#: The files read a line at a time, never whole.
+LINE_FILES = (MANIFEST_REL, SAMPLES_FILE, MARKERS_REL)
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,7 @@ class Expected:
     path: str | None  # None for a member derived by publish (a preview, a material's row)
     sample_id: str | None
     material_id: str
+    record: bytes | None = None  # a lighting's members: its manifest line
 
 
 @dataclass(frozen=True)
@@ -107,7 +116,43 @@ class TarEntry:
     rel: str
     sha256: str
     size: int
-    expected: list[Expected] = field(default_factory=list)
+    number: int
+    kind: str  # materials, renders
+    count: int = 0  # the members it must hold
+
+
+@dataclass(frozen=True)
+class Section:
+    """Where the rows of one tar pair lie: the number of their first line in the manifest
+    (and ``samples.jsonl``, line for line), how many, their offsets in both files, and the
+    SHA-256 of those lines as :func:`open_publication` checked them (each manifest line and
+    its row, each with a newline)."""
+
+    first_line: int
+    lines: int
+    manifest_offset: int
+    table_offset: int
+    sha256: str
+
+
+class SourceFiles(Mapping):
+    """spec.toml, dataset.json, manifest.jsonl: bytes as published. The manifest is read
+    when asked for (its SHA-256 checked again); use :meth:`Publication.manifest_chunks` to
+    stream it."""
+
+    def __init__(self, publication: Publication, small: dict[str, bytes]):
+        self._publication, self._small = publication, small
+
+    def __getitem__(self, name: str) -> bytes:
+        if name == MANIFEST_FILE:
+            return b"".join(self._publication.manifest_chunks())
+        return self._small[name]
+
+    def __iter__(self):
+        return iter(SOURCE_FILES)
+
+    def __len__(self) -> int:
+        return len(SOURCE_FILES)
 
 
 @dataclass
@@ -118,23 +163,31 @@ class Publication:
     limits: Limits
     sums: dict[str, str]
     sizes: dict[str, int]
-    source_files: dict[str, bytes]  # spec.toml, dataset.json, manifest.jsonl: bytes as published
-    markers: list[tuple[str, bytes]]  # (shard id, COMPLETE.json bytes)
-    records: Records  # the manifest's, in order (parsed when used)
+    small_files: dict[str, bytes]  # spec.toml, dataset.json (by name)
     tars: list[TarEntry]
     index: dict
+    samples: int
+    materials: int
+    sections: dict[int, Section]  # tar pair number -> its rows
+    shards: list[str]  # the source shards, in the manifest's (and markers.jsonl's) order
+    marker_bytes: int  # the longest line of markers.jsonl
 
     def __post_init__(self):
-        self.by_id = _ById(self.records)
+        self.source_files = SourceFiles(self, self.small_files)
         #: what each role's EXR members may hold (pipeline.publish.exrcheck.member_bounds)
-        self.exr_bounds = member_bounds(self.source_files.get(SPEC_FILE, b""))
+        self.exr_bounds = member_bounds(self.small_files.get(SPEC_FILE, b""))
 
     def path(self, rel: str) -> str:
         return os.path.join(self.root, *rel.split("/"))
 
     @property
     def description(self) -> dict:
-        return json.loads(self.source_files[DESCRIPTION_FILE])
+        return json.loads(self.small_files[DESCRIPTION_FILE])
+
+    def expected(self, tar: TarEntry) -> Iterator[Expected]:
+        """The members ``tar`` must hold, in order, derived again from its pair's rows."""
+        at = self.sections.get(tar.number)
+        return iter(()) if at is None else _section_members(self, tar.kind, at)
 
     def members(self, tar: TarEntry, before: int = 0) -> Iterator[tuple[Expected, bytes]]:
         """Every member of ``tar``, checked, in order (``before``: members of earlier tars)."""
@@ -146,7 +199,7 @@ class Publication:
         label = tar.rel
         with _open_regular(self.path(tar.rel), label) as fh:
             digest = hashlib.sha256()
-            for block in iter(lambda: fh.read(1 << 20), b""):
+            for block in iter(lambda: fh.read(CHUNK_BYTES), b""):
                 digest.update(block)
             if digest.hexdigest() != tar.sha256:
                 raise Refused(
@@ -154,11 +207,21 @@ class Publication:
                     f"{label}: SHA-256 {digest.hexdigest()[:16]}... differs from {SUMS_FILE}'s "
                     f"{tar.sha256[:16]}...: the file changed or is corrupt; nothing of it is read",
                 )
-            scanned = scan_tar(fh, label, self.limits, before)
-            _compare_members(label, scanned, tar.expected)
-            for (member, data), expected in zip(read_members(fh, label, scanned), tar.expected):
-                _check_member(label, member, data, expected, self.by_id, self.limits, self.exr_bounds)
-                yield expected, member, data
+            where = _scan_in_order(fh, label, self.limits, before, self.expected(tar))
+            if where is None:  # the first difference, named as a scan of every header names it
+                _compare_members(label, scan_tar(fh, label, self.limits, before), list(self.expected(tar)))
+                raise AssertionError(f"{label}: members differ from the expected ones, yet each compares equal")
+            offsets, sizes = where
+            slot: list[Expected] = []
+
+            def scanned():  # each member as the scan found it; its Expected in ``slot``
+                for i, expected in enumerate(self.expected(tar)):
+                    slot[:] = [expected]
+                    yield Member(expected.name, offsets[i], sizes[i])
+
+            for member, data in read_members(fh, label, scanned()):
+                _check_member(label, member, data, slot[0], self.limits, self.exr_bounds)
+                yield slot[0], member, data
 
     def locate(self, progress: Callable[[str], None] | None = None) -> dict[str, Located]:
         """Check every tar and member (as `shaderball verify` does) and say where each member's
@@ -174,8 +237,37 @@ class Publication:
                 found[expected.path] = Located(
                     tar.rel, tar.size, member.name, member.offset, member.size, expected.sha256
                 )
-            before += len(tar.expected)
+            before += tar.count
         return found
+
+    def manifest_chunks(self) -> Iterator[bytes]:
+        """manifest.jsonl as published, a piece at a time; Refused at its end when its bytes are
+        not those checked (the caller discards what it made of them)."""
+        with _open_regular(self.path(MANIFEST_REL), MANIFEST_REL) as fh:
+            digest = hashlib.sha256()
+            for chunk in iter(lambda: fh.read(CHUNK_BYTES), b""):
+                digest.update(chunk)
+                yield chunk
+        _same(MANIFEST_REL, digest.hexdigest(), self.sums[MANIFEST_REL])
+
+    def markers(self) -> Iterator[tuple[str, bytes]]:
+        """(shard id, its COMPLETE.json bytes) for each line of markers.jsonl, as checked; Refused
+        at the end when the file's bytes are not those checked."""
+        with _open_regular(self.path(MARKERS_REL), MARKERS_REL) as fh:
+            lines = LineReader(fh, MARKERS_REL)
+            for shard in self.shards:
+                line = lines.next(self.marker_bytes, lambda n: f"{MARKERS_REL} line {n}")
+                if line is None:
+                    break
+                yield shard, line + b"\n"
+        _same(MARKERS_REL, lines.digest.hexdigest(), self.sums[MARKERS_REL])
+
+
+def _same(rel: str, digest: str, checked: str) -> None:
+    if digest != checked:
+        raise Refused(
+            "changed", f"{rel}: its SHA-256 is not the one checked: the publication changed while it was read; refused"
+        )
 
 
 # --------------------------------------------------------------------------- small files
@@ -233,11 +325,15 @@ def _walk(root: str, limits: Limits) -> dict[str, int]:
 
 
 def _read_small(root: str, rel: str, size_cap: int) -> bytes:
+    chunks, size = [], 0
     with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
-        data = fh.read(size_cap + 1)
-    if len(data) > size_cap:
+        # a piece at a time: one read of the cap would allocate all of it, whatever the file's size
+        while size <= size_cap and (chunk := fh.read(min(1 << 20, size_cap + 1 - size))):
+            chunks.append(chunk)
+            size += len(chunk)
+    if size > size_cap:
         raise Refused("too_large", f"{rel}: over the cap of {size_cap} bytes for a file read into memory; refused")
-    return data
+    return b"".join(chunks)
 
 
 def _parse_sums(data: bytes) -> dict[str, str]:
@@ -300,66 +396,6 @@ def _json(data: bytes, where: str, shape: Shape):
         raise Refused("bad_json", f"{where}: not JSON ({str(exc)[:80]}); refused") from None
 
 
-def _lines(data: bytes) -> Iterator[tuple[int, int, int]]:
-    """(line number, start, end) of each line of ``data`` (a final newline ends the last line;
-    an empty line inside is a line), without copying ``data``."""
-    number, start = 0, 0
-    while start < len(data):
-        end = data.find(b"\n", start)
-        end = len(data) if end < 0 else end
-        number += 1
-        yield number, start, end
-        start = end + 1
-
-
-class Records(Sequence):
-    """The manifest's records, checked once when the publication is opened, then kept as
-    their bytes (offsets into ``manifest.jsonl``) and parsed again where used: what reading a
-    publication holds is its manifest's size, whatever structure the lines hold."""
-
-    def __init__(self, data: bytes):
-        self._data = data
-        self._starts = array("Q")
-        self._ends = array("Q")
-        self.index: dict[str, int] = {}
-
-    def add(self, sample_id: str, start: int, end: int) -> None:
-        self.index[sample_id] = len(self._starts)
-        self._starts.append(start)
-        self._ends.append(end)
-
-    def line(self, i: int) -> bytes:
-        return self._data[self._starts[i] : self._ends[i]]
-
-    def __len__(self) -> int:
-        return len(self._starts)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self[j] for j in range(*i.indices(len(self)))]
-        return json.loads(self.line(i))
-
-    def __iter__(self):
-        for i in range(len(self)):
-            yield self[i]
-
-
-class _ById(Mapping):
-    """sample id -> its record (parsed when asked for)."""
-
-    def __init__(self, records: Records):
-        self._records = records
-
-    def __getitem__(self, sample_id):
-        return self._records[self._records.index[sample_id]]
-
-    def __iter__(self):
-        return iter(self._records.index)
-
-    def __len__(self) -> int:
-        return len(self._records)
-
-
 def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     """Check the small files of the publication at ``root``; see the module's docstring."""
     if not os.path.isdir(root):
@@ -379,12 +415,19 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
         if rel not in sums and rel not in OPTIONAL_FILES:
             raise Refused("missing_file", f"{rel}: missing from the publication")
     texts: dict[str, bytes] = {}
+    counts: dict[str, tuple[int, bool]] = {}  # lines, and whether the last ends with a newline
     for rel in sorted(r for r in sums if not TAR_NAME.match(r)):
-        data = _read_small(root, rel, limits.text_bytes)
-        if hashlib.sha256(data).hexdigest() != sums[rel]:
+        if rel in LINE_FILES:
+            with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
+                digest, lines, newline = scan(fh)
+            counts[rel] = lines, newline
+        else:
+            data = _read_small(root, rel, limits.text_bytes)
+            digest = hashlib.sha256(data).hexdigest()
+            texts[rel] = data
+        if digest != sums[rel]:
             raise Refused("checksum", f"{rel}: SHA-256 differs from {SUMS_FILE}'s; the file changed or is corrupt")
-        texts[rel] = data
-    records = _manifest(texts[SOURCE_FILES[MANIFEST_FILE]], limits)
+    samples, shards = _manifest(root, sums, limits)
     metadata = Shape(
         limits.text_bytes,
         4096 + limits.json_containers_per_file * len(sums),
@@ -392,46 +435,74 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     )
     index = _json(texts[INDEX_FILE], INDEX_FILE, metadata)
     tars = _tars(index, sums, files)
-    _expect_members(tars, records, texts[SAMPLES_FILE], limits)
+    if counts[SAMPLES_FILE][0] != samples:
+        raise Refused("bad_table", f"{SAMPLES_FILE}: {counts[SAMPLES_FILE][0]} rows for {samples} manifest records")
     _check_croissant(texts, sums, metadata)
-    markers = _markers(texts[MARKERS_REL], records, limits)
-    source = {name: texts[rel] for name, rel in SOURCE_FILES.items()}
-    _json(source[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
+    lines, newline = counts[MARKERS_REL]
+    if not newline or lines != shards:
+        raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({shards}); refused")
+    checked = _check_rows(root, sums, tars, limits)
+    small = {name: texts[rel] for name, rel in SOURCE_FILES.items() if rel in texts}
+    _json(small[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
     return Publication(
         root=root,
         limits=limits,
         sums=sums,
         sizes=files,
-        source_files=source,
-        markers=markers,
-        records=records,
+        small_files=small,
         tars=tars,
         index=index,
+        samples=samples,
+        **checked,
     )
 
 
-def _manifest(data: bytes, limits: Limits) -> Records:
-    """Every line checked (its shape before it is parsed, then the layout of its ids and
-    paths, the types of its fields, its id unique), one at a time; kept as bytes."""
-    rel = SOURCE_FILES[MANIFEST_FILE]
-    records = Records(data)
+def _checked_record(line: bytes, where: str, shape: Shape) -> dict:
+    """A manifest line's record: its shape before it is parsed, then the layout of its ids and
+    paths and the types of its fields."""
+    record = _json(line, where, shape)
+    file_refs(record, where)
+    why = field_type_problem(record)
+    if why:
+        raise Refused("bad_record", f"{where}: {why}; refused")
+    return record
+
+
+def _manifest(root: str, sums: dict[str, str], limits: Limits) -> tuple[int, int]:
+    """(records, source shards) of the manifest, every line checked (:func:`_checked_record`),
+    its id unique, each shard's records adjacent (as a build writes them), one at a time."""
+    rel = MANIFEST_REL
     shape = record_shape(limits)
-    for number, start, end in _lines(data):
-        if number > limits.members:
-            raise Refused("too_many_members", f"{rel}: more than {limits.members} lines (the cap on members); refused")
-        where = f"{rel} line {number}"
-        _check_size(end - start, where, shape)  # before the line is copied
-        record = _json(data[start:end], where, shape)
-        file_refs(record, where)
-        why = field_type_problem(record)
-        if why:
-            raise Refused("bad_record", f"{where}: {why}; refused")
-        if record["id"] in records.index:
-            raise Refused("duplicate", f"{where}: a second record for {record['id']}; refused")
-        records.add(record["id"], start, end)
-    if not records:
+    ids: set[str] = set()
+    done: set[str] = set()
+    shard = None
+    with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
+        lines = LineReader(fh, rel)
+        while (line := lines.next(shape.bytes, lambda n: f"{rel} line {n}")) is not None:
+            number = lines.number
+            if number > limits.members:
+                raise Refused(
+                    "too_many_members", f"{rel}: more than {limits.members} lines (the cap on members); refused"
+                )
+            where = f"{rel} line {number}"
+            record = _checked_record(line, where, shape)
+            if record["id"] in ids:
+                raise Refused("duplicate", f"{where}: a second record for {record['id']}; refused")
+            ids.add(record["id"])
+            if record["shard"] != shard:
+                if record["shard"] in done:
+                    raise Refused(
+                        "bad_marker",
+                        f"{where} ({record['id']}): the records of shard {record['shard']} are not "
+                        "adjacent (a build writes each shard's together); refused",
+                    )
+                if shard is not None:
+                    done.add(shard)
+                shard = record["shard"]
+    _same(rel, lines.digest.hexdigest(), sums[rel])
+    if not ids:
         raise Refused("bad_record", f"{rel}: no records")
-    return records
+    return len(ids), len(done) + 1
 
 
 def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
@@ -461,7 +532,10 @@ def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
             )
         if said != files[rel]:
             raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {said}")
-    return [TarEntry(rel=rel, sha256=sums[rel], size=files[rel]) for rel in listed]
+    return [
+        TarEntry(rel, sums[rel], files[rel], int(TAR_NAME.match(rel).group(2)), TAR_NAME.match(rel).group(1))
+        for rel in listed
+    ]
 
 
 def _sum_and_size(row: dict, column: str, limits: Limits) -> tuple[str, int] | None:
@@ -477,103 +551,232 @@ def _sum_and_size(row: dict, column: str, limits: Limits) -> tuple[str, int] | N
     return sha, size
 
 
-def _expect_members(tars: list[TarEntry], records: list[dict], table: bytes, limits: Limits) -> None:
-    """Fill each tar's expected members from the manifest and the samples table, refusing any
-    disagreement between the two: a materials tar holds each of its materials' row, maps
-    (and texture) and maps preview; the renders tar of its number, each of their lightings'
-    record, render and render preview."""
-    rows = table.split(b"\n")
-    if rows and rows[-1] == b"":
-        rows.pop()
-    if len(rows) != len(records):
-        raise Refused("bad_table", f"{SAMPLES_FILE}: {len(rows)} rows for {len(records)} manifest records")
+@dataclass(frozen=True)
+class Row:
+    """One manifest line and its ``samples.jsonl`` row, checked against each other."""
+
+    number: int
+    line: bytes
+    record: dict
+    refs: dict[str, FileRef]
+    tar: TarEntry  # its renders tar
+    material_row: dict  # the row of its material (pipeline.publish.table.material_row)
+    record_sha256: str
+    record_bytes: int
+    previews: dict[str, tuple[str, int]]
+
+
+def _row(number: int, line: bytes, row_line: bytes, by_rel: dict[str, TarEntry], limits: Limits) -> Row:
+    """The manifest's line ``number`` and the table's row of that number, which must be the
+    row that line gives; any disagreement is refused."""
+    manifest = MANIFEST_REL
+    record = _checked_record(line, f"{manifest} line {number}", record_shape(limits))
+    row = _json(row_line, f"{SAMPLES_FILE} line {number}", record_shape(limits))
+    tar_rel = row.get("shard") if isinstance(row, dict) else None
+    sums = {c: _sum_and_size(row, c, limits) for c in ("record", *PREVIEW_ROLES)} if isinstance(row, dict) else {}
+    if (
+        not isinstance(tar_rel, str)
+        or tar_rel not in by_rel
+        or TAR_NAME.match(tar_rel).group(1) != RENDERS
+        or not sums
+        or None in sums.values()
+    ):
+        raise Refused(
+            "bad_table",
+            f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes "
+            "(or preview SHA-256 and size); refused",
+        )
+    sha, size = sums["record"]
+    previews = {role: sums[role] for role in PREVIEW_ROLES}
+    expected_row = sample_row(record, tar_rel, sha, size, previews)
+    if dumps(expected_row).encode("utf-8") != row_line:
+        raise Refused(
+            "bad_table",
+            f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line {number} ({record['id']}) gives; refused",
+        )
+    refs = file_refs(record, f"{manifest} line {number}")
+    return Row(number, line, record, refs, by_rel[tar_rel], material_row(expected_row), sha, size, previews)
+
+
+def _shared_of(row: Row) -> dict:
+    """What every lighting of a material must agree on: its maps' (and texture's) SHA-256 and
+    size, and its maps preview's."""
+    shared = {r: (row.refs[r].sha256, row.refs[r].bytes) for r in ("maps", "texture") if r in row.refs}
+    shared["maps_preview"] = row.previews["maps_preview"]
+    return shared
+
+
+def _material_members(row: Row) -> list[Expected]:
+    """A material's members in its materials tar: its row, maps (and texture), maps preview."""
+    material = row.record["material_id"]
+    data = (dumps(row.material_row) + "\n").encode("utf-8")
+    members = [
+        Expected(
+            material_member(material), "material", len(data), hashlib.sha256(data).hexdigest(), None, None, material
+        )
+    ]
+    members += [_shared(row.refs[role], material) for role in ("maps", "texture") if role in row.refs]
+    members.append(_preview(row.record, "maps_preview", row.previews, None))
+    return members
+
+
+def _lighting_members(row: Row) -> list[Expected]:
+    """A lighting's members in its renders tar: its record, render and render preview (each
+    with its manifest line)."""
+    sample, material, shard = row.record["id"], row.record["material_id"], row.record["shard"]
+    render = row.refs["render"]
+    return [
+        Expected(
+            record_member(sample),
+            "record",
+            row.record_bytes,
+            row.record_sha256,
+            Layout.record_rel(shard, sample),
+            sample,
+            material,
+            row.line,
+        ),
+        Expected(render.member, "render", render.bytes, render.sha256, render.path, sample, material, row.line),
+        _preview(row.record, "render_preview", row.previews, sample, row.line),
+    ]
+
+
+def _check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: Limits) -> dict:
+    """The manifest, the samples table and the markers read together, a line of each at a
+    time: each table row must be the one its record gives, each tar pair's rows adjacent and
+    in the tars' order, each material's lightings adjacent in one pair and agreeing on its
+    maps, each marker the one of its shard. Counts each tar's members and notes where each
+    pair's rows lie (:class:`Section`); keeps no more than a shard's records and the ids of
+    the materials."""
     by_rel = {t.rel: t for t in tars}
     shape = record_shape(limits)
-    material_tar: dict[str, tuple[str, dict]] = {}
-    last_tar = -1
-    manifest = SOURCE_FILES[MANIFEST_FILE]
-    for number, (record, line) in enumerate(zip(records, rows), start=1):
-        row = _json(line, f"{SAMPLES_FILE} line {number}", shape)
-        tar_rel = row.get("shard") if isinstance(row, dict) else None
-        sums = {c: _sum_and_size(row, c, limits) for c in ("record", *PREVIEW_ROLES)} if isinstance(row, dict) else {}
-        if (
-            not isinstance(tar_rel, str)
-            or tar_rel not in by_rel
-            or TAR_NAME.match(tar_rel).group(1) != RENDERS
-            or not sums
-            or None in sums.values()
-        ):
-            raise Refused(
-                "bad_table",
-                f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes "
-                "(or preview SHA-256 and size); refused",
-            )
-        sha, size = sums["record"]
-        previews = {role: sums[role] for role in PREVIEW_ROLES}
-        expected_row = sample_row(record, tar_rel, sha, size, previews)
-        if dumps(expected_row).encode("utf-8") != line:
-            raise Refused(
-                "bad_table",
-                f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line "
-                f"{number} ({record['id']}) gives; refused",
-            )
-        tar = by_rel[tar_rel]
-        materials = by_rel[expected_row["material_shard"]]
-        position = tars.index(tar)
-        if position < last_tar:
-            raise Refused(
-                "bad_table",
-                f"{SAMPLES_FILE} line {number}: {record['id']} is in {tar_rel}, before "
-                "the tar of the sample above it; refused",
-            )
-        last_tar = position
-        refs = file_refs(record, f"{manifest} line {number}")
-        material = record["material_id"]
-        shared = {r: (refs[r].sha256, refs[r].bytes) for r in ("maps", "texture") if r in refs}
-        shared["maps_preview"] = previews["maps_preview"]
-        if material not in material_tar:
-            material_tar[material] = (tar_rel, shared)
-            data = (dumps(material_row(expected_row)) + "\n").encode("utf-8")
-            materials.expected.append(
-                Expected(
-                    material_member(material),
-                    "material",
-                    len(data),
-                    hashlib.sha256(data).hexdigest(),
-                    None,
-                    None,
-                    material,
+    sections: dict[int, Section] = {}
+    shards: list[str] = []
+    seen: dict[str, int] = {}  # material -> the number of its tar pair
+    marker_bytes = 0
+    pair: list = []  # the current pair: [tar, first line, manifest offset, table offset, lines, digest]
+    current = None  # (material, what its lightings share)
+    shard_rows: list[tuple[bytes, dict]] = []
+    paths = {rel: os.path.join(root, *rel.split("/")) for rel in LINE_FILES}
+    with (
+        _open_regular(paths[MANIFEST_REL], MANIFEST_REL) as manifest_fh,
+        _open_regular(paths[SAMPLES_FILE], SAMPLES_FILE) as table_fh,
+        _open_regular(paths[MARKERS_REL], MARKERS_REL) as markers_fh,
+    ):
+        manifest = LineReader(manifest_fh, MANIFEST_REL)
+        table = LineReader(table_fh, SAMPLES_FILE)
+        markers = LineReader(markers_fh, MARKERS_REL)
+
+        def close_pair():
+            tar, first, m_offset, t_offset, lines, digest = pair
+            sections[tar.number] = Section(first, lines, m_offset, t_offset, digest.hexdigest())
+
+        def check_shard():
+            nonlocal marker_bytes
+            marker_bytes = max(marker_bytes, _check_marker(markers, shard_rows, limits))
+            shards.append(shard_rows[0][1]["shard"])
+
+        while True:
+            m_offset, t_offset = manifest.offset, table.offset
+            line = manifest.next(shape.bytes, lambda n: f"{MANIFEST_REL} line {n}")
+            if line is None:
+                break
+            number = manifest.number
+            row_line = table.next(shape.bytes, lambda n: f"{SAMPLES_FILE} line {n}")
+            if row_line is None:
+                _same(SAMPLES_FILE, "", sums[SAMPLES_FILE])
+            row = _row(number, line, row_line, by_rel, limits)
+            tar = row.tar
+            if not pair or pair[0] is not tar:
+                if pair and tar.number < pair[0].number:
+                    raise Refused(
+                        "bad_table",
+                        f"{SAMPLES_FILE} line {number}: {row.record['id']} is in {tar.rel}, before "
+                        "the tar of the sample above it; refused",
+                    )
+                if pair:
+                    close_pair()
+                pair = [tar, number, m_offset, t_offset, 0, hashlib.sha256()]
+            pair[4] += 1
+            pair[5].update(line + b"\n" + row_line + b"\n")
+            material = row.record["material_id"]
+            shared = _shared_of(row)
+            if material not in seen:
+                seen[material] = tar.number
+                current = (material, shared)
+                by_rel[paired_tar(tar.rel, MATERIALS)].count += len(_material_members(row))
+            elif seen[material] != tar.number:
+                raise Refused(
+                    "bad_table",
+                    f"{SAMPLES_FILE} line {number}: material {material} is split across "
+                    f"{tar_rel(seen[material])} and {tar.rel}; refused",
                 )
-            )
-            materials.expected += [_shared(refs[role], material) for role in ("maps", "texture") if role in refs]
-            materials.expected.append(_preview(record, "maps_preview", previews, None))
-        elif material_tar[material][0] != tar_rel:
-            raise Refused(
-                "bad_table",
-                f"{SAMPLES_FILE} line {number}: material {material} is split across "
-                f"{material_tar[material][0]} and {tar_rel}; refused",
-            )
-        elif material_tar[material][1] != shared or tar.expected[-1].material_id != material:
-            raise Refused(
-                "bad_record",
-                f"{manifest} line {number} ({record['id']}): its material's maps differ "
-                "from its other lightings', or its lightings are not adjacent; refused",
-            )
-        sample = record["id"]
-        shard = record["shard"]
-        tar.expected.append(
-            Expected(record_member(sample), "record", size, sha, Layout.record_rel(shard, sample), sample, material)
-        )
-        render = refs["render"]
-        tar.expected.append(
-            Expected(render.member, "render", render.bytes, render.sha256, render.path, sample, material)
-        )
-        tar.expected.append(_preview(record, "render_preview", previews, sample))
+            elif current != (material, shared):
+                raise Refused(
+                    "bad_record",
+                    f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps differ "
+                    "from its other lightings', or its lightings are not adjacent; refused",
+                )
+            tar.count += 3
+            if shard_rows and row.record["shard"] != shard_rows[0][1]["shard"]:
+                check_shard()
+                shard_rows = []
+            shard_rows.append((line, row.record))
+        if pair:
+            close_pair()
+        if shard_rows:
+            check_shard()
+    for rel, reader in ((MANIFEST_REL, manifest), (SAMPLES_FILE, table), (MARKERS_REL, markers)):
+        _same(rel, reader.digest.hexdigest(), sums[rel])
+    return {
+        "materials": len(seen),
+        "sections": sections,
+        "shards": shards,
+        "marker_bytes": marker_bytes,
+    }
 
 
-def _preview(record: dict, role: str, previews: dict[str, tuple[str, int]], sample: str | None) -> Expected:
+def _section_members(publication: Publication, kind: str, at: Section) -> Iterator[Expected]:
+    """The members one tar of a pair must hold, in order, derived again from its section of
+    the manifest and the table (each line checked again); Refused at the end when those lines
+    are not the ones :func:`open_publication` checked."""
+    by_rel = {t.rel: t for t in publication.tars}
+    digest = hashlib.sha256()
+    material = None
+    shape = record_shape(publication.limits)
+    with (
+        _open_regular(publication.path(MANIFEST_REL), MANIFEST_REL) as manifest_fh,
+        _open_regular(publication.path(SAMPLES_FILE), SAMPLES_FILE) as table_fh,
+    ):
+        manifest_fh.seek(at.manifest_offset)
+        table_fh.seek(at.table_offset)
+        manifest = LineReader(manifest_fh, MANIFEST_REL, at.manifest_offset)
+        table = LineReader(table_fh, SAMPLES_FILE, at.table_offset)
+        for number in range(at.first_line, at.first_line + at.lines):
+            line = manifest.next(shape.bytes, lambda n, first=number: f"{MANIFEST_REL} line {first}")
+            row_line = table.next(shape.bytes, lambda n, first=number: f"{SAMPLES_FILE} line {first}")
+            if line is None or row_line is None:
+                break
+            digest.update(line + b"\n" + row_line + b"\n")
+            row = _row(number, line, row_line, by_rel, publication.limits)
+            if kind == RENDERS:
+                yield from _lighting_members(row)
+            elif row.record["material_id"] != material:
+                material = row.record["material_id"]
+                yield from _material_members(row)
+    if digest.hexdigest() != at.sha256:
+        raise Refused(
+            "changed",
+            f"{MANIFEST_REL} and {SAMPLES_FILE} lines {at.first_line}-{at.first_line + at.lines - 1}: not those "
+            "checked when the publication was opened: it changed while it was read; refused",
+        )
+
+
+def _preview(
+    record: dict, role: str, previews: dict[str, tuple[str, int]], sample: str | None, line: bytes | None = None
+) -> Expected:
     sha, size = previews[role]
-    return Expected(preview_member(record, role), "preview", size, sha, None, sample, record["material_id"])
+    return Expected(preview_member(record, role), "preview", size, sha, None, sample, record["material_id"], line)
 
 
 def _shared(ref: FileRef, material: str) -> Expected:
@@ -597,46 +800,62 @@ def _check_croissant(texts: dict[str, bytes], sums: dict[str, str], shape: Shape
                 )
 
 
-def _markers(data: bytes, records: Records, limits: Limits) -> list[tuple[str, bytes]]:
-    by_shard: dict[str, list[int]] = {}
-    for i, record in enumerate(records):
-        by_shard.setdefault(record["shard"], []).append(i)
-    shards = list(by_shard)
-    lines = [line + b"\n" for line in data.split(b"\n")[:-1]] if data.endswith(b"\n") else None
-    if lines is None or len(lines) != len(shards):
-        raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({len(shards)}); refused")
-    out = []
-    for number, (shard, line) in enumerate(zip(shards, lines), start=1):
-        # a marker holds its shard's records (but for timings) and a few fields of its own
-        own = [_structure(records.line(i)) for i in by_shard[shard]]
-        shape = Shape(
-            sum(len(records.line(i)) + 64 for i in by_shard[shard]) + limits.record_bytes,
-            sum(c for c, _ in own) + limits.record_containers,
-            sum(v for _, v in own) + limits.record_values,
+def _check_marker(markers: LineReader, rows: list[tuple[bytes, dict]], limits: Limits) -> int:
+    """The next line of markers.jsonl must be the complete marker of the shard whose records
+    (manifest lines and records) are ``rows``; returns its size."""
+    number = markers.number + 1
+    where = f"{MARKERS_REL} line {number}"
+    shard = rows[0][1]["shard"]
+    # a marker holds its shard's records (but for timings) and a few fields of its own
+    own = [_structure(line) for line, _record in rows]
+    shape = Shape(
+        sum(len(line) + 64 for line, _record in rows) + limits.record_bytes,
+        sum(c for c, _ in own) + limits.record_containers,
+        sum(v for _, v in own) + limits.record_values,
+    )
+    line = markers.next(shape.bytes, lambda n: where)
+    if line is None:
+        raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard; refused")
+    marker = _json(line, where, shape)
+    if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
+        raise Refused("bad_marker", f"{where}: not the complete marker of shard {shard}")
+    mine = [record for _line, record in rows]
+    theirs = marker.get("records")
+    if (
+        not isinstance(theirs, list)
+        or len(theirs) != len(mine)
+        or marker.get("samples") != [r["id"] for r in mine]
+        or any(
+            not isinstance(t, dict)
+            or not isinstance(t.get("stats", {}), dict)
+            or without_timings(t) != without_timings(r)
+            for t, r in zip(theirs, mine)
         )
-        marker = _json(line, f"{MARKERS_REL} line {number}", shape)
-        if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
-            raise Refused("bad_marker", f"{MARKERS_REL} line {number}: not the complete marker of shard {shard}")
-        mine = [records[i] for i in by_shard[shard]]
-        theirs = marker.get("records")
-        if (
-            not isinstance(theirs, list)
-            or len(theirs) != len(mine)
-            or marker.get("samples") != [r["id"] for r in mine]
-            or any(
-                not isinstance(t, dict)
-                or not isinstance(t.get("stats", {}), dict)
-                or without_timings(t) != without_timings(r)
-                for t, r in zip(theirs, mine)
-            )
-        ):
-            raise Refused(
-                "bad_marker",
-                f"{MARKERS_REL} line {number}: the marker of shard {shard} does not hold "
-                f"the manifest's records of that shard; refused",
-            )
-        out.append((shard, line))
-    return out
+    ):
+        raise Refused(
+            "bad_marker",
+            f"{where}: the marker of shard {shard} does not hold the manifest's records of that shard; refused",
+        )
+    return len(line) + 1
+
+
+def _scan_in_order(fh, label: str, limits: Limits, before: int, expected: Iterator[Expected]):
+    """Every header of the tar in ``fh`` checked as :func:`~pipeline.publish.tarsafe.scan_tar`
+    checks it, each name against the next expected one: (offsets, sizes) of the members'
+    bytes when every name is the expected one in order (the expected names are unique: no
+    name appears twice), None at the first difference. Holds 16 bytes a member."""
+    offsets, sizes = array("Q"), array("Q")
+    length = tar_length(fh, label)
+    for member in iter_headers(fh, label, limits, length):
+        wanted = next(expected, None)
+        if wanted is None or wanted.name != member.name:
+            return None
+        check_count(label, limits, before + len(offsets) + 1)
+        offsets.append(member.offset)
+        sizes.append(member.size)
+    if next(expected, None) is not None:
+        return None
+    return offsets, sizes
 
 
 # --------------------------------------------------------------------------- members
@@ -668,7 +887,6 @@ def _check_member(
     member: Member,
     data: bytes,
     expected: Expected,
-    records: dict[str, dict],
     limits: Limits,
     bounds: dict,
 ) -> None:
@@ -686,7 +904,7 @@ def _check_member(
         if (
             not isinstance(record, dict)
             or not isinstance(record.get("stats", {}), dict)
-            or without_timings(record) != without_timings(records[expected.sample_id])
+            or without_timings(record) != without_timings(json.loads(expected.record))
         ):
             raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
     elif expected.role == "preview":
@@ -734,12 +952,11 @@ def iter_samples(
 def publication_samples(publication: Publication, progress: Callable[[str], None] | None = None) -> Iterator[dict]:
     """The samples of each tar pair: its renders tar streamed, its materials tar streamed
     alongside (a material's maps are read when its first lighting comes)."""
-    records = publication.by_id
     before = {t.rel: 0 for t in publication.tars}
     count = 0
     for tar in publication.tars:
         before[tar.rel] = count
-        count += len(tar.expected)
+        count += tar.count
     by_rel = {t.rel: t for t in publication.tars}
     for tar in publication.tars:
         if TAR_NAME.match(tar.rel).group(1) != RENDERS:
@@ -759,7 +976,7 @@ def publication_samples(publication: Publication, progress: Callable[[str], None
                         shared[got.role] = got_data
                     if got.role == "preview":  # the material's last member
                         break
-            yield sample_dict(records[expected.sample_id], {**shared, "render": data})
+            yield sample_dict(json.loads(expected.record), {**shared, "render": data})
         for _rest in maps_members:  # the materials tar is checked to its end
             pass
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import io
 import tarfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 from pipeline.publish.names import MEMBER_NAME
@@ -178,6 +178,20 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
 
     ``members_before``: members already counted in other tars (the cap is over all).
     """
+    length = tar_length(fh, label)
+    members: list[Member] = []
+    names: set[str] = set()
+    for member in iter_headers(fh, label, limits, length):
+        if member.name in names:
+            raise Refused("duplicate", f"{label}: member {member.name!r} appears twice; refused")
+        check_count(label, limits, members_before + len(members) + 1)
+        names.add(member.name)
+        members.append(member)
+    return members
+
+
+def tar_length(fh, label: str) -> int:
+    """The size of the tar open in ``fh``: not compressed, a whole number of blocks; or Refused."""
     fh.seek(0, io.SEEK_END)
     length = fh.tell()
     fh.seek(0)
@@ -193,15 +207,24 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
         raise Refused(
             "not_tar", f"{label}: {length} bytes, not a whole number of 512-byte tar blocks; truncated or not a tar"
         )
-    members: list[Member] = []
-    names: set[str] = set()
+    return length
+
+
+def check_count(label: str, limits: Limits, members: int) -> None:
+    if members > limits.members:
+        raise Refused("too_many_members", f"{label}: more than {limits.members} members in the publication; refused")
+
+
+def iter_headers(fh, label: str, limits: Limits, length: int) -> Iterator[Member]:
+    """Each member's header of the tar open in ``fh`` (``length`` bytes), checked alone (all
+    but the duplicate and the count), in order; the end of the archive checked last."""
     position = 0
     while True:
         fh.seek(position)
         header = fh.read(BLOCK)
         if header == bytes(BLOCK):
             _check_end(fh, label, position, length)
-            return members
+            return
         stored = _octal(header[148:156])
         computed = sum(header[:148]) + 8 * 32 + sum(header[156:])
         if stored is None or stored != computed:
@@ -243,14 +266,7 @@ def scan_tar(fh, label: str, limits: Limits, members_before: int = 0) -> list[Me
         fh.seek(position + BLOCK + size)
         if any(fh.read(padded(size) - size)):
             raise Refused("not_tar", f"{label}: member {name!r} is followed by non-zero padding; refused")
-        if name in names:
-            raise Refused("duplicate", f"{label}: member {name!r} appears twice; refused")
-        if members_before + len(members) + 1 > limits.members:
-            raise Refused(
-                "too_many_members", f"{label}: more than {limits.members} members in the publication; refused"
-            )
-        names.add(name)
-        members.append(Member(name=name, offset=position + BLOCK, size=size))
+        yield Member(name=name, offset=position + BLOCK, size=size)
         position += BLOCK + padded(size)
 
 
@@ -269,7 +285,7 @@ def _check_end(fh, label: str, position: int, length: int) -> None:
         remaining -= len(chunk)
 
 
-def read_members(fh, label: str, members: list[Member]) -> Iterator[tuple[Member, bytes]]:
+def read_members(fh, label: str, members: Iterable[Member]) -> Iterator[tuple[Member, bytes]]:
     """Stream the scanned ``members`` of the tar in ``fh`` through ``tarfile.extractfile``."""
     fh.seek(0)
     with tarfile.open(fileobj=fh, mode="r:") as tar:
@@ -290,6 +306,7 @@ def read_members(fh, label: str, members: list[Member]) -> Iterator[tuple[Member
             data = stream.read(expected.size)
             if len(data) != expected.size:
                 raise Refused("not_tar", f"{label}: member {expected.name!r} is cut short")
+            tar.members.clear()  # tarfile keeps a TarInfo of every member read (~0.8 kB each)
             yield expected, data
         if tar.next() is not None:
             raise Refused("not_tar", f"{label}: tarfile reads more members than the header scan found; refused")

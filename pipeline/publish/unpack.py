@@ -19,12 +19,16 @@ from dataclasses import dataclass
 from pipeline.check.validate import validate
 from pipeline.errors import bad_value, filesystem_error
 from pipeline.publish.output import Output, check_out
-from pipeline.publish.reader import open_publication
+from pipeline.publish.reader import MANIFEST_REL, open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.verify import verify_publication
 from pipeline.store.folder import only_temp_files
 from pipeline.store.layout import MANIFEST_FILE, Layout
 from pipeline.store.lock import writer_lock
+
+#: A manifest up to this size is written in one piece (``write_bytes_atomic``, which the crash
+#: harness, scripts/crash_test.py, interrupts); a larger one a piece at a time, never whole.
+MANIFEST_IN_ONE_PIECE_BYTES = 64 << 10
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,7 @@ def unpack(
     publication = open_publication(pub, limits)
     verify_publication(publication, progress)
     try:
-        output = Output(out)
+        output = Output(out, listed=False)
         with writer_lock(out, "unpack"):
             return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
     except OSError as exc:  # what was written is removed again (Output.discard)
@@ -103,9 +107,9 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
     return UnpackSummary(
         pub=pub,
         out=out,
-        files=len(output.sums),
-        samples=len(publication.records),
-        bytes_written=sum(output.sizes.values()),
+        files=output.files,
+        samples=publication.samples,
+        bytes_written=output.bytes,
         validated=validate_after,
         seconds=time.perf_counter() - start,
     )
@@ -117,9 +121,8 @@ def _write_in_completion_order(publication, output: Output, progress) -> None:
     (spec.toml, dataset.json), then every data file, each sample's record file after its
     render, then the shards' markers, and manifest.jsonl last. A marker is written only
     when every file it names is durable, as a build writes one (docs/publish.md)."""
-    for name, data in publication.source_files.items():
-        if name != MANIFEST_FILE:
-            output.write(name, data)
+    for name, data in publication.small_files.items():
+        output.write(name, data)
     before = 0
     for tar in publication.tars:
         if progress:
@@ -137,7 +140,10 @@ def _write_in_completion_order(publication, output: Output, progress) -> None:
                 record = None
         if record is not None:  # the members' order is checked: a record is followed by its render
             raise AssertionError(f"{tar.rel}: a record member without its render")
-        before += len(tar.expected)
-    for shard, data in publication.markers:
+        before += tar.count
+    for shard, data in publication.markers():
         output.write(Layout.marker_rel(shard), data)
-    output.write(MANIFEST_FILE, publication.source_files[MANIFEST_FILE])
+    if publication.sizes[MANIFEST_REL] <= MANIFEST_IN_ONE_PIECE_BYTES:
+        output.write(MANIFEST_FILE, b"".join(publication.manifest_chunks()))
+    else:
+        output.write_chunks(MANIFEST_FILE, publication.manifest_chunks())

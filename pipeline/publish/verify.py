@@ -58,8 +58,8 @@ def verify_publication(publication: Publication, progress: Callable[[str], None]
         files=len(publication.sums) + 1,
         tars=len(publication.tars),
         members=members,
-        samples=len(publication.records),
-        materials=len({r["material_id"] for r in publication.records}),
+        samples=publication.samples,
+        materials=publication.materials,
         bytes_checked=sum(publication.sizes.values()),
         seconds=time.perf_counter() - start,
     )

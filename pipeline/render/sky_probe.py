@@ -74,18 +74,25 @@ class SunskyProbe:
         sphere's mean irradiance is a quarter of this, which is what makes it
         comparable with the sun's irradiance for emitter sampling weights.
         """
-        mu = (np.arange(n_theta) + 0.5) / n_theta
-        phi = (np.arange(n_phi) + 0.5) / n_phi * 2.0 * math.pi
-        m, p = np.meshgrid(mu, phi, indexing="ij")
-        s = np.sqrt(1.0 - m**2)
-        dirs = np.stack([s * np.cos(p), s * np.sin(p), m], -1).reshape(-1, 3)
-        values = self.radiance(dirs, "sky")
+        values = self.radiance(_power_grid(n_theta, n_phi), "sky")
         return values.mean(axis=0) * 2.0 * math.pi
 
     def min_radiance(self, part: str = "both") -> np.ndarray:
         """Per-channel minimum radiance of ``part`` over the check directions."""
         values = self.radiance(hemisphere_check_directions(self.direction), part)
         return values.min(axis=0)
+
+
+@cache
+def _power_grid(n_theta: int, n_phi: int) -> np.ndarray:
+    """The directions :meth:`SunskyProbe.sky_power` integrates over, computed once."""
+    mu = (np.arange(n_theta) + 0.5) / n_theta
+    phi = (np.arange(n_phi) + 0.5) / n_phi * 2.0 * math.pi
+    m, p = np.meshgrid(mu, phi, indexing="ij")
+    s = np.sqrt(1.0 - m**2)
+    dirs = np.stack([s * np.cos(p), s * np.sin(p), m], -1).reshape(-1, 3)
+    dirs.flags.writeable = False
+    return dirs
 
 
 @cache
