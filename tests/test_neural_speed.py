@@ -82,7 +82,7 @@ def test_auto_precision_is_bf16_on_a_cpu_with_bf16_kernels_and_fp32_else(tmp_pat
     "options, match",
     [
         ({"precision": "fp16"}, "--precision: .*fp32 or bf16 on a CPU"),
-        ({"precision": "int8"}, "--precision: .*fp32, bf16, fp16"),
+        ({"precision": "int8"}, r'--precision: .*"fp32", "bf16", "fp16"'),
         ({"threads": -1}, "--threads"),
     ],
 )
