@@ -69,7 +69,7 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
     json_path = tmp_path / "eval.json"
     result = _invoke(
         "evaluate", trained, reference, "--split", "all", "--spp", "1,8", "--no-denoise", "--limit", 6,
-        "--json", json_path, "--out", tmp_path / "ev",
+        "--json-out", json_path, "--out", tmp_path / "ev",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
@@ -109,7 +109,7 @@ def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
     )
     json_path = tmp_path / "eval.json"
     result = _invoke("evaluate", tmp_path / "sat", reference, "--split", "all", "--spp", "none", "--limit", 2,
-                     "--json", json_path)  # fmt: skip
+                     "--json-out", json_path)  # fmt: skip
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     net = data["mean"]["network"]
@@ -198,7 +198,7 @@ def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
 def test_no_flip_leaves_hdr_flip_out_and_says_so(trained, reference, tmp_path):
     json_path = tmp_path / "e.json"
     result = _invoke("evaluate", trained, reference, "--split", "all", "--spp", "none", "--limit", 2, "--no-flip",
-                     "--json", json_path, "--out", tmp_path / "ev")  # fmt: skip
+                     "--json-out", json_path, "--out", tmp_path / "ev")  # fmt: skip
     assert result.exit_code == 0, result.output
     data = json.loads(json_path.read_text())
     assert all(r["network"]["flip"] is None and r["network"]["psnr"] > 0 for r in data["samples"])

@@ -124,7 +124,7 @@ def test_train_and_evaluate_from_the_publication_match_the_folder(reference, pub
             2,
             "--out",
             out,
-            "--json",
+            "--json-out",
             tmp_path / f"{name}.json",
         )
         assert result.exit_code == 0, result.output

@@ -58,7 +58,7 @@ DENOISE_SAMPLES_RANGE = (1, 100_000)
 def _check_loader_options(resolution, batch_size, workers, repeats) -> None:
     check_int("--resolution", resolution, *RESOLUTION_RANGE)
     check_int("--batch-size", batch_size, *INTEGER_RANGES["batch_size"])
-    check_int("--loader-workers", workers, *INTEGER_RANGES["workers"])
+    check_int("--loader-workers", workers, *INTEGER_RANGES["loader_workers"])
     check_int("--repeats", repeats, *REPEATS_RANGE)
 
 
