@@ -198,3 +198,40 @@ def test_build_is_byte_identical_at_the_papers_150_spp(tmp_path):
     assert len(renders) == 4
     differing = [str(r) for r in renders if (tmp_path / "a" / r).read_bytes() != (tmp_path / "b" / r).read_bytes()]
     assert not differing, differing
+
+
+def test_a_bad_map_made_beside_the_renders_stops_the_shard_naming_it(tmp_path, monkeypatch):
+    """The next material's maps are made and checked on their own thread while the shard
+    renders: a value out of range there raises the maps' own error in the build, before
+    that material renders, and no marker claims the shard complete."""
+
+    from materials.errors import MaterialError
+    from materials.maps import MaterialMaps
+    from pipeline.dataset.plan import plan_dataset
+    from pipeline.run import shard as shard_mod
+    from pipeline.run.build import read_spec_text
+    from pipeline.store.layout import Layout
+    from support import VARIANT
+
+    spec, _ = read_spec_text(str(SMOKE))
+    plan = plan_dataset(spec)[0]
+    bad_id = plan.materials[1].material_id
+    real = shard_mod.make_material
+
+    def one_bad_texel(material, spec):
+        maps, description = real(material, spec)
+        if material.material_id != bad_id:
+            return maps, description
+        roughness = maps.roughness.copy()
+        roughness[0, 0] = 1.5
+        return MaterialMaps(maps.diffuse, maps.specular, roughness, maps.normal), description
+
+    monkeypatch.setattr(shard_mod, "make_material", one_bad_texel)
+    with pytest.raises(MaterialError, match=r"material map roughness: value 1\.5 at \(0, 0\)"):
+        shard_mod.run_shard(str(tmp_path), spec, plan, VARIANT)
+    layout = Layout(str(tmp_path))
+    assert not os.path.exists(layout.marker(plan.shard_id))
+    bad = [s for s in plan.samples if s.material_id == bad_id]
+    assert bad and not any(os.path.exists(layout.path(layout.record_rel(s.shard_id, s.sample_id))) for s in bad)
+    good = [s for s in plan.samples if s.material_id == plan.materials[0].material_id]
+    assert all(os.path.exists(layout.path(layout.record_rel(s.shard_id, s.sample_id))) for s in good)

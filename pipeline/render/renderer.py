@@ -247,7 +247,9 @@ def luminance_variance(out: np.ndarray, spp: int) -> np.ndarray:
     return np.clip(m2 - m1 * m1, 0.0, None) / spp
 
 
-def relative_error(out: np.ndarray, spp: int, mask: np.ndarray | None = None) -> float:
+def relative_error(
+    out: np.ndarray, spp: int, mask: np.ndarray | None = None, variance: np.ndarray | None = None
+) -> float:
     """The adaptive renderer's statistic: the square root of the moment integrator's estimate
     of the image's relMSE against its converged limit, on the luminance over ``mask`` (the
     ball; the whole frame when None): sqrt(mean(var_Y / (Y^2 + eps))), eps = RELMSE_EPS.
@@ -256,12 +258,16 @@ def relative_error(out: np.ndarray, spp: int, mask: np.ndarray | None = None) ->
     pixel, so dark and bright parts of the ball count alike. The relative standard error
     of the ball's *mean* luminance would be about sqrt(pixels) times smaller than the noise
     of any pixel and says little about the noise a viewer (or a network) sees.
+
+    ``variance``: ``luminance_variance(out, spp)`` where the caller has it already (the same
+    values: not computed twice).
     """
     sel = np.ones(out.shape[:2], bool) if mask is None else np.asarray(mask, bool)
     if not sel.any():
         sel = np.ones(out.shape[:2], bool)
     y = out[..., 4][sel]
-    terms = luminance_variance(out, spp)[sel] / (y * y + RELMSE_EPS)
+    variance = luminance_variance(out, spp) if variance is None else variance
+    terms = variance[sel] / (y * y + RELMSE_EPS)
     value = float(np.sqrt(terms.mean()))
     return value if math.isfinite(value) else math.inf
 
@@ -332,7 +338,7 @@ def render_scene(
         out, used = acc.mean(), acc.spp
     image = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
     variance = luminance_variance(out, used)
-    return RenderOutput(image, variance.astype(np.float32), used, relative_error(out, used, mask))
+    return RenderOutput(image, variance.astype(np.float32), used, relative_error(out, used, mask, variance))
 
 
 class MaterialScene:

@@ -226,18 +226,18 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str, scen
             work.append(
                 (len(slots) - 1, material, [r if ok else None for r, ok in zip(existing, verified)], render_kept)
             )
-    # The next material's maps are made on their own thread while this one renders (numpy:
-    # ~65 ms a material, a tenth of a material's renders on a GPU).
+    # The next material's maps are made and checked on their own thread while this one
+    # renders (numpy: ~65 ms a material, a tenth of a material's renders on a GPU).
     with (
         OrderedWriter() as writer,
         ThreadPoolExecutor(1, thread_name_prefix="material-maps") as maker,
         contextlib.nullcontext(scene) if scene is not None else MaterialScene() as held,
     ):
-        made = [maker.submit(make_material, material, spec) for _slot, material, _e, _r in work[:1]]
+        made = [maker.submit(checked_material, material, spec) for _slot, material, _e, _r in work[:1]]
         ctx = worker_context(spec, variant) if work else None
         for k, (slot, material, existing, render_kept) in enumerate(work):
             if k + 1 < len(work):
-                made.append(maker.submit(make_material, work[k + 1][1], spec))
+                made.append(maker.submit(checked_material, work[k + 1][1], spec))
             slots[slot] = queue_material(layout, spec, ctx, material, existing, writer, render_kept, made[k], held)
     new = [r for slot in slots for r in slot]
     rendered = sum(isinstance(r, Future) for r in new)
@@ -301,6 +301,13 @@ def write_marker(layout: Layout, shard: ShardPlan, records: list[dict]) -> None:
     write_text_atomic(layout.marker(shard.shard_id), dumps(marker) + "\n")
 
 
+def checked_material(material: MaterialPlan, spec: DatasetSpec):
+    """``make_material(material, spec)`` with its maps checked (:meth:`MaterialMaps.check`
+    raises on a bad value): the maps and the material's description."""
+    maps, description = make_material(material, spec)
+    return maps.check(), description
+
+
 def build_material(
     layout: Layout, spec: DatasetSpec, ctx: WorkerContext, material: MaterialPlan, existing: list[dict | None]
 ) -> list[dict]:
@@ -331,12 +338,11 @@ def queue_material(
     whose render verifies but whose material files do not: a lost maps file) keep their
     render when the material files written anew are the ones they list (the maps are a pure
     function of the plan). Otherwise the material files are written before the first
-    render's record. ``made``: the future of ``make_material(material, spec)``, when it was
+    render's record. ``made``: the future of ``checked_material(material, spec)``, when it was
     started ahead. ``scene``: the :class:`MaterialScene` to render in (held by the caller
     across materials); None: one for this material.
     """
-    maps, description = made.result() if made is not None else make_material(material, spec)
-    maps.check()
+    maps, description = made.result() if made is not None else checked_material(material, spec)
     kept = [old for old in existing if old is not None]
     if kept:
         material_files = kept[0]["files"][1:]
