@@ -31,6 +31,23 @@ def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     return [start + i * step for i in range(int((hi - start) / step) + 1)]
 
 
+def _log_ticks(lo: float, hi: float) -> list[float]:
+    """Ticks of a log axis spanning log10 values lo..hi, as log10 values: 1, 2 and 5 times the
+    powers of ten inside it (only the powers when those are many; linear ticks when fewer than
+    two fall inside)."""
+    marks = [math.log10(m * 10.0**k) for k in range(math.floor(lo), math.ceil(hi) + 1) for m in (1, 2, 5)]
+    inside = [t for t in marks if lo <= t <= hi]
+    if len(inside) > 8:
+        inside = [t for t in inside if abs(t - round(t)) < 1e-9]
+    if len(inside) < 2:
+        inside = [math.log10(v) for v in _nice_ticks(10**lo, 10**hi) if v > 0]
+    return inside
+
+
+def _tick_text(value: float) -> str:
+    return f"{value:,.0f}" if abs(value) >= 1000 else f"{value:.3g}"
+
+
 def chart(
     series: list[tuple[str, tuple, list]],
     title: str,
@@ -46,7 +63,8 @@ def chart(
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default()
-    left, right, top, bottom = 70, 20, 30, 45
+    legend_width = 190 if any(label for label, _, _ in series) else 0
+    left, right, top, bottom = 70, 20 + legend_width, 30, 45
     x0, x1, y0, y1 = left, width - right, top, height - bottom
     draw.rectangle([x0, y0, x1, y1], outline="black")
     draw.text((x0, 8), title, fill="black", font=font)
@@ -73,17 +91,19 @@ def chart(
     def xy(x, y):
         return (x0 + (fx(x) - x_lo) / (x_hi - x_lo) * (x1 - x0), y1 - (fy(y) - y_lo) / (y_hi - y_lo) * (y1 - y0))
 
-    for t in _nice_ticks(y_lo, y_hi):
+    for t in _log_ticks(y_lo, y_hi) if log_y else _nice_ticks(y_lo, y_hi):
         value = 10**t if log_y else t
         _, y = xy(xs[0], value)
         draw.line([x0 - 4, y, x0, y], fill="black")
-        draw.text((5, y - 6), f"{value:.3g}", fill="black", font=font)
-    for t in _nice_ticks(x_lo, x_hi):
+        draw.text((5, y - 6), _tick_text(value), fill="black", font=font)
+    for t in _log_ticks(x_lo, x_hi) if log_x else _nice_ticks(x_lo, x_hi):
         value = 10**t if log_x else t
         if log_x or float(value).is_integer():
             x, _ = xy(value, 10**y_lo if log_y else y_lo)
             draw.line([x, y1, x, y1 + 4], fill="black")
-            draw.text((x - 6, y1 + 6), f"{value:.4g}", fill="black", font=font)
+            text = _tick_text(value)
+            half = draw.textlength(text, font=font) / 2  # centred under its tick, kept inside the image
+            draw.text((min(max(x - half, 0), width - 2 * half - 2), y1 + 6), text, fill="black", font=font)
     for i, (label, colour, pts) in enumerate(points):
         dashed = label.startswith("--")
         coords = [xy(p[0], p[1]) for p in pts]
@@ -111,9 +131,9 @@ def chart(
                 draw.line([x - 3, hi, x + 3, hi], fill=colour)
             if not dashed:
                 draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
-        ly = y0 + 12 + 14 * i
-        draw.line([x1 - 190, ly, x1 - 170, ly], fill=colour, width=2)
-        draw.text((x1 - 165, ly - 6), label.lstrip("-"), fill="black", font=font)
+        ly = y0 + 12 + 14 * i  # the legend beside the plot, never over its lines
+        draw.line([x1 + 10, ly, x1 + 30, ly], fill=colour, width=2)
+        draw.text((x1 + 35, ly - 6), label.lstrip("-"), fill="black", font=font)
     return img
 
 

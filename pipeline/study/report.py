@@ -269,7 +269,7 @@ def write_csv(path: str, rows: list[dict]) -> None:
 FAMILY_COLOURS = {
     "ladder": (31, 119, 180),
     "aa": (120, 120, 120),
-    "denoise": (0, 90, 200),
+    "denoise": (214, 39, 140),  # apart from the ladder's blue: the two are drawn together
     "samplers": (255, 127, 14),
     "passes": (0, 128, 128),
     "depth": (44, 160, 44),
@@ -358,10 +358,17 @@ def pareto_png(summary: list[dict], cmps: dict, recs: dict, knees: dict, width: 
     label_all = len(pts) <= 25
     knee_names = {k["config"] for k in knees.values()}
     pick = (recs.get("paper_fast") or {}).get("config")
-    for n, c in pts:
+    # labels that would overprint one already drawn are left out (report.md lists every point);
+    # the pick and the knees are labelled first
+    placed: list[tuple[float, float, float, float]] = []
+    for n, c in sorted(pts, key=lambda nc: (nc[0] != pick, nc[0] not in knee_names)):
         if label_all or n in knee_names or n == pick:
             x, y = xy(c["cpu"]["value"], c["ball"]["value"])
-            draw.text((x + 5, y - 12), n, fill=(60, 60, 60), font=font)
+            box = draw.textbbox((x + 5, y - 12), n, font=font)
+            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
+                placed.append(box)
+                draw.text((x + 5, y - 12), n, fill=(60, 60, 60), font=font)
+    for n, c in pts:
         if n in knee_names:
             x, y = xy(c["cpu"]["value"], c["ball"]["value"])
             draw.ellipse([x - 7, y - 7, x + 7, y + 7], outline="black", width=1)
