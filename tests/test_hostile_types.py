@@ -26,6 +26,7 @@ from pipeline.publish.writer import publish, write_publication
 from pipeline.run.cluster import options as cluster
 from pipeline.store import folder as store_folder
 from pipeline.store.records import dumps
+from support.bombs import PEAK
 from support.publishing import members, reseal, rewrite_tar, sha, smoke_build
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
@@ -63,7 +64,7 @@ def shaderball(*args: str):
     return subprocess.run([sys.executable, "-m", "cli", *args], capture_output=True, text=True, timeout=300, cwd=REPO)
 
 
-# --------------------------------------------------------------------------- item 2: types
+# --------------------------------------------------------------------------- record field types
 
 
 def _set(obj, path: tuple, value):
@@ -253,20 +254,7 @@ def test_a_published_marker_record_whose_stats_is_a_string_is_refused(pub):
     assert caught.value.kind == "bad_marker"
 
 
-# --------------------------------------------------------------------------- item 3: memory
-
-
-PEAK = """
-import atexit, sys
-def peak():
-    with open("/proc/self/status") as fh:  # VmHWM: this process's own peak, not its parent's
-        kib = next(int(line.split()[1]) for line in fh if line.startswith("VmHWM:"))
-    with open(sys.argv[1], "w") as out:
-        out.write(str(kib / 1024))
-atexit.register(peak)
-import cli
-cli.main(args=sys.argv[2:], prog_name="shaderball")
-"""
+# --------------------------------------------------------------------------- memory
 
 
 def _peak_of_verify(pub: Path, tmp_path: Path) -> tuple[int, float]:
@@ -329,7 +317,7 @@ def test_the_publication_reads_its_records_again_a_tar_pair_at_a_time(good):
     assert sum(t.count for t in publication.tars) == sum(1 for t in publication.tars for _ in publication.expected(t))
 
 
-# --------------------------------------------------------------------------- item 4: names
+# --------------------------------------------------------------------------- names
 
 
 def test_no_name_pattern_accepts_a_trailing_newline_or_other_digits():
@@ -412,7 +400,7 @@ def test_a_file_name_with_a_newline_is_shown_escaped(pub):
     assert result.exit_code == 1 and "'notes\\n.txt': not listed in SHA256SUMS" in result.stderr
 
 
-# --------------------------------------------------------------------------- item 6: messages
+# --------------------------------------------------------------------------- messages
 
 
 def test_a_tar_size_of_another_type_names_the_type(pub):

@@ -328,13 +328,6 @@ def _shard_state(state: State, shard) -> State:
         variant=state.variant,
         spec_ok=state.spec_ok,
         description_ok=state.description_ok,
-        manifest={},
-        markers={},
-        record_files={},
-        facts={},
-        extra_files=[],
-        allowed_dirs=set(),
-        manifest_dirty=False,
     )
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pipeline.check.inspect import FileFacts, expectations, render_value_issues
 from pipeline.check.report import Problems, summarise
@@ -64,13 +64,14 @@ class State:
     variant: str | None
     spec_ok: bool
     description_ok: bool
-    manifest: dict  # sample id -> first manifest record
-    markers: dict  # shard id -> marker dict or None
-    record_files: dict  # sample id -> record file content or None
-    facts: dict  # rel path -> FileFacts
-    extra_files: list[str]
-    allowed_dirs: set
-    manifest_dirty: bool
+    # what the checks fill in, empty at the start
+    manifest: dict = field(default_factory=dict)  # sample id -> first manifest record
+    markers: dict = field(default_factory=dict)  # shard id -> marker dict or None
+    record_files: dict = field(default_factory=dict)  # sample id -> record file content or None
+    facts: dict = field(default_factory=dict)  # rel path -> FileFacts
+    extra_files: list[str] = field(default_factory=list)
+    allowed_dirs: set = field(default_factory=set)
+    manifest_dirty: bool = False
 
 
 def check_root(root: str) -> Layout:

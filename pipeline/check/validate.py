@@ -99,13 +99,6 @@ def validate(
         variant=(description or {}).get("variant"),
         spec_ok=spec_ok,
         description_ok=description_ok,
-        manifest={},
-        markers={},
-        record_files={},
-        facts={},
-        extra_files=[],
-        allowed_dirs=set(),
-        manifest_dirty=False,
     )
     manifest = load_manifest(layout, problems, len(planned) if plans is not None else None)
     first = {}
@@ -174,13 +167,6 @@ def _validate_by_shard(
         variant=(description or {}).get("variant"),
         spec_ok=spec_ok,
         description_ok=description_ok,
-        manifest={},
-        markers={},
-        record_files={},
-        facts={},
-        extra_files=[],
-        allowed_dirs=set(),
-        manifest_dirty=False,
     )
     tally = check_by_shard(state, index, phases, fast, progress, threads, start)
     check_extra_by_shard(state, phases, tally)
