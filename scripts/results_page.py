@@ -10,18 +10,17 @@ from __future__ import annotations
 import datetime
 import os
 import platform
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from pipeline.render.mitsuba_env import cpu_model  # noqa: E402
 
 
 def machine() -> str:
     """CPU model and count, system, Python version: what a measurement on this machine depends on."""
-    cpu = "?"
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "?")
-    except OSError:
-        pass
     system = f"{platform.system()} {platform.release()} {platform.machine()}"
-    return f"{cpu} ({os.cpu_count()} CPUs), {system}, Python {platform.python_version()}"
+    return f"{cpu_model()} ({os.cpu_count()} CPUs), {system}, Python {platform.python_version()}"
 
 
 def head(title: str, command: str) -> str:

@@ -39,6 +39,7 @@ from pipeline.dataset.spec import spec_to_toml
 from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png
 from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
+from pipeline.render.mitsuba_env import cpu_model
 from pipeline.run.build import read_spec_text
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.store.records import dumps
@@ -249,12 +250,10 @@ def machine_facts() -> dict:
         "system": f"{platform.system()} {platform.release()} {platform.machine()}",
         "python": platform.python_version(),
         "cpus": os.cpu_count(),
-        "cpu_model": "?",
+        "cpu_model": cpu_model(),
         "load_before": _load(),
     }
     try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            facts["cpu_model"] = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "?")
         with open("/proc/meminfo", encoding="utf-8") as f:
             kb = next(int(ln.split()[1]) for ln in f if ln.startswith("MemTotal"))
         facts["memory_gb"] = round(kb / 2**20, 1)

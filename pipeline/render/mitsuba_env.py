@@ -209,7 +209,8 @@ def llvm_target() -> tuple[str | None, int | None]:
         return None, None
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), what results pages and fingerprints name."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
             for line in f:
@@ -231,7 +232,7 @@ def machine_fingerprint() -> dict:
     target, width = llvm_target()
     return {
         "arch": platform.machine(),
-        "cpu_model": _cpu_model(),
+        "cpu_model": cpu_model(),
         "llvm_target_cpu": target,
         "llvm_vector_width": width,
         "numpy": np.__version__,
