@@ -79,7 +79,7 @@ def install_write_hook(kind: str, nth: int, phase: str, note_path: str | None) -
     import pipeline.store.atomic as atomic
 
     state = {"seen": 0, "armed": False, "path": None}
-    real_write, real_fsync_dir = atomic.write_bytes_atomic, atomic.fsync_dir
+    real_fsync_dir = atomic.fsync_dir
 
     def die(where: str) -> None:
         if note_path:
@@ -130,19 +130,23 @@ def install_write_hook(kind: str, nth: int, phase: str, note_path: str | None) -
             die("renamed")
         return real_fsync_dir(path)
 
-    def write_bytes_atomic(path, data):
+    real_atomic_file = atomic.atomic_file
+
+    @contextlib.contextmanager
+    def atomic_file(path):  # the one atomic writer: whole files and streamed ones alike
         if file_kind(path) == kind:
             state["seen"] += 1
             state["armed"] = state["seen"] == nth
             state["path"] = "/".join(Path(path).parts[-2:])
         try:
-            return real_write(path, data)
+            with real_atomic_file(path) as fh:
+                yield fh
         finally:
             state["armed"] = False
 
     atomic.os = OsProxy()
     atomic.fsync_dir = fsync_dir
-    atomic.write_bytes_atomic = write_bytes_atomic
+    atomic.atomic_file = atomic_file
 
 
 def child_main(argv: list[str]) -> None:

@@ -19,16 +19,12 @@ from dataclasses import dataclass
 from pipeline.check.validate import validate
 from pipeline.errors import bad_value, filesystem_error
 from pipeline.publish.output import Output, check_out
-from pipeline.publish.reader import MANIFEST_REL, open_publication
+from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.verify import verify_publication
 from pipeline.store.folder import only_temp_files
 from pipeline.store.layout import MANIFEST_FILE, Layout
 from pipeline.store.lock import writer_lock
-
-#: A manifest up to this size is written in one piece (``write_bytes_atomic``, which the crash
-#: harness, scripts/crash_test.py, interrupts); a larger one a piece at a time, never whole.
-MANIFEST_IN_ONE_PIECE_BYTES = 64 << 10
 
 
 @dataclass(frozen=True)
@@ -143,7 +139,4 @@ def _write_in_completion_order(publication, output: Output, progress) -> None:
         before += tar.count
     for shard, data in publication.markers():
         output.write(Layout.marker_rel(shard), data)
-    if publication.sizes[MANIFEST_REL] <= MANIFEST_IN_ONE_PIECE_BYTES:
-        output.write(MANIFEST_FILE, b"".join(publication.manifest_chunks()))
-    else:
-        output.write_chunks(MANIFEST_FILE, publication.manifest_chunks())
+    output.write_chunks(MANIFEST_FILE, publication.manifest_chunks())  # a piece at a time, never whole

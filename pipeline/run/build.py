@@ -48,7 +48,7 @@ from pipeline.render.renderer import MaterialScene
 from pipeline.run.cluster.connection import run_shards_on_dask
 from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
 from pipeline.run.shard import run_shard_in_process
-from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic, write_text_atomic
+from pipeline.store.atomic import write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
     check_creatable,
     complete_marker,
@@ -365,11 +365,6 @@ class DoneCounter:
         return done
 
 
-#: A manifest up to this size is written in one piece (write_bytes_atomic, which the crash
-#: harness interrupts); a larger one is streamed, one shard's lines at a time.
-MANIFEST_IN_MEMORY_BYTES = 256 << 20
-
-
 def write_manifest(out: str, plans: Plan) -> int:
     """manifest.jsonl from the shard markers, in plan order; return the record count."""
     layout = Layout(out)
@@ -384,10 +379,7 @@ def write_manifest(out: str, plans: Plan) -> int:
             count += len(records)
             yield "".join(dumps(record) + "\n" for record in records).encode("utf-8")
 
-    if plans.n_renders * 4096 <= MANIFEST_IN_MEMORY_BYTES:
-        write_bytes_atomic(layout.manifest, b"".join(shard_lines()))
-    else:
-        write_chunks_atomic(layout.manifest, shard_lines())
+    write_chunks_atomic(layout.manifest, shard_lines())  # streamed: never held whole
     return count
 
 
@@ -523,7 +515,7 @@ def _build_locked(
     # cancelled, requeued or at its walltime) leaves one that no later write of it removes.
     removed = sweep_temp_files(out, plans, older_than=time.time())
     seconds = time.perf_counter() - start
-    rendered = renders_written(out, [(counts[i][0], plans.shard_sample_ids(i)) for i in todo], stamps)
+    rendered = renders_written(out, ((counts[i][0], plans.shard_sample_ids(i)) for i in todo), stamps)
     _report(progress, done, total, already, start)
     processes = len({r["pid"] for r in results})
     notes = [f"variant {variant}"]
