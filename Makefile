@@ -20,12 +20,12 @@ llvm:
 # The real-SLURM tests (tests/test_slurm_real.py) need Debian's slurm-wlm and munge: installed
 # as root with apt-get where possible; anywhere else a note, and those tests are skipped.
 slurm:
-	@$(PYTHON) scripts/ensure_slurm.py
+	@$(PYTHON) scripts/ensure_optional.py slurm
 
 # The browser test of `shaderball serve` (tests/test_serve_browser.py) needs Debian's chromium:
 # installed as root with apt-get where possible; anywhere else a note, and that test is skipped.
 chromium:
-	@$(PYTHON) scripts/ensure_chromium.py
+	@$(PYTHON) scripts/ensure_optional.py chromium
 
 # Installs exactly what requirements.lock pins, each file checked against its SHA-256 (the
 # versions CI tested); then torch, pinned to this machine's local CPU wheel where it lies (an

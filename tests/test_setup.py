@@ -1,6 +1,6 @@
 """Set-up runs on a bare Python, and installs what the lock file pins.
 
-``make`` runs scripts/ensure_llvm.py, ensure_slurm.py and ensure_chromium.py with the machine's own
+``make`` runs scripts/ensure_llvm.py and ensure_optional.py (slurm, chromium) with the machine's own
 python3 before the virtual environment exists: on a bare Debian that python3 has nothing
 but the standard library. These tests hold that promise two ways: statically (every import
 of those files is the standard library's) and by running them under ``python3 -I -S``, which
@@ -21,8 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 #: What make runs before .venv exists, and the project file ensure_llvm loads by path.
 PRE_VENV = [
     "scripts/ensure_llvm.py",
-    "scripts/ensure_slurm.py",
-    "scripts/ensure_chromium.py",
+    "scripts/ensure_optional.py",
     "pipeline/render/libllvm.py",
 ]
 
@@ -43,11 +42,14 @@ def test_what_make_runs_before_the_venv_imports_the_standard_library_only(rel):
     assert not foreign, f"{rel} imports {sorted(foreign)}: make runs it before .venv exists"
 
 
-@pytest.mark.parametrize("script", ["scripts/ensure_llvm.py", "scripts/ensure_slurm.py", "scripts/ensure_chromium.py"])
+@pytest.mark.parametrize(
+    "script", ["scripts/ensure_llvm.py", "scripts/ensure_optional.py slurm", "scripts/ensure_optional.py chromium"]
+)
 def test_the_set_up_scripts_run_with_no_site_packages(script, tmp_path):
     """``-I -S``: no site-packages, no PYTHONPATH, no user site; cwd elsewhere."""
+    path, *args = script.split()
     run = subprocess.run(
-        [sys.executable, "-I", "-S", str(REPO / script)], cwd=tmp_path, capture_output=True, text=True, timeout=600
+        [sys.executable, "-I", "-S", str(REPO / path), *args], cwd=tmp_path, capture_output=True, text=True, timeout=600
     )
     assert run.returncode == 0, run.stderr
     assert "Traceback" not in run.stderr and "ModuleNotFoundError" not in run.stderr, run.stderr
