@@ -39,6 +39,7 @@ from pipeline.check.crosscheck import (
     check_records,
     expected_files,
     load_markers,
+    manifest_line_record,
     referenced_files,
     render_present,
 )
@@ -47,10 +48,8 @@ from pipeline.check.report import Problems
 from pipeline.dataset.plan import Plan, sample_id, shard_id
 from pipeline.store.folder import (
     SHARD_NAME,
-    field_type_problem,
     iter_manifest,
     read_line_at,
-    structure_problem,
 )
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, Layout
 
@@ -108,7 +107,7 @@ def index_manifest(layout, plans: Plan, parse: Problems, order: Problems) -> Man
     for number, offset, raw in iter_manifest(layout, n):
         if not raw.strip():
             continue
-        record = _parsed(raw, number, parse)
+        record = manifest_line_record(raw, number, parse)
         if record is None:
             continue
         sid = record["id"]
@@ -140,42 +139,6 @@ def index_manifest(layout, plans: Plan, parse: Problems, order: Problems) -> Man
 def _where(index: ManifestIndex, position: int) -> tuple[int, int, int] | None:
     offset = int(index.offset[position])
     return None if offset < 0 else (offset, int(index.length[position]), int(index.line[position]))
-
-
-def _parsed(raw: bytes, number: int, problems: Problems) -> dict | None:
-    """The record on manifest line ``number``, or None with its problem added."""
-    too_much = structure_problem(raw)
-    if too_much:
-        problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: {too_much}")
-        return None
-    try:
-        record = json.loads(raw)
-    except RecursionError:
-        problems.add(
-            "edited_record",
-            None,
-            MANIFEST_FILE,
-            f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)",
-        )
-        return None
-    except ValueError as exc:
-        problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})")
-        return None
-    if not isinstance(record, dict) or not isinstance(record.get("id"), str):
-        problems.add(
-            "edited_record",
-            None,
-            MANIFEST_FILE,
-            f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)",
-        )
-        return None
-    why = field_type_problem(record)
-    if why:
-        problems.add(
-            "edited_record", record["id"], MANIFEST_FILE, f"{MANIFEST_FILE} line {number} ({record['id']}): {why}"
-        )
-        return None
-    return record
 
 
 class PlannedFiles:

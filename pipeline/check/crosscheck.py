@@ -180,41 +180,46 @@ def load_manifest(layout: Layout, problems: Problems, renders: int | None = None
     for number, raw in enumerate(data.split(b"\n"), start=1):
         if not raw.strip():
             continue
-        too_much = structure_problem(raw)
-        if too_much:
-            problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: {too_much}")
-            continue
-        try:
-            record = json.loads(raw)
-        except RecursionError:
-            problems.add(
-                "edited_record",
-                None,
-                MANIFEST_FILE,
-                f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)",
-            )
-            continue
-        except ValueError as exc:
-            problems.add(
-                "edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})"
-            )
-            continue
-        if not isinstance(record, dict) or not isinstance(record.get("id"), str):
-            problems.add(
-                "edited_record",
-                None,
-                MANIFEST_FILE,
-                f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)",
-            )
-            continue
-        why = field_type_problem(record)
-        if why:
-            problems.add(
-                "edited_record", record["id"], MANIFEST_FILE, f"{MANIFEST_FILE} line {number} ({record['id']}): {why}"
-            )
-            continue
-        out.append((Source(MANIFEST_FILE, number), record))
+        record = manifest_line_record(raw, number, problems)
+        if record is not None:
+            out.append((Source(MANIFEST_FILE, number), record))
     return out
+
+
+def manifest_line_record(raw: bytes, number: int, problems: Problems) -> dict | None:
+    """The record on manifest line ``number``, or None with its problem added."""
+    too_much = structure_problem(raw)
+    if too_much:
+        problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: {too_much}")
+        return None
+    try:
+        record = json.loads(raw)
+    except RecursionError:
+        problems.add(
+            "edited_record",
+            None,
+            MANIFEST_FILE,
+            f"{MANIFEST_FILE} line {number}: not a JSON record (nested too deeply)",
+        )
+        return None
+    except ValueError as exc:
+        problems.add("edited_record", None, MANIFEST_FILE, f"{MANIFEST_FILE} line {number}: not a JSON record ({exc})")
+        return None
+    if not isinstance(record, dict) or not isinstance(record.get("id"), str):
+        problems.add(
+            "edited_record",
+            None,
+            MANIFEST_FILE,
+            f"{MANIFEST_FILE} line {number}: not a record (a JSON object with an id)",
+        )
+        return None
+    why = field_type_problem(record)
+    if why:
+        problems.add(
+            "edited_record", record["id"], MANIFEST_FILE, f"{MANIFEST_FILE} line {number} ({record['id']}): {why}"
+        )
+        return None
+    return record
 
 
 def load_markers(layout: Layout, shard_ids, known: dict, renders: dict | None = None) -> dict:
