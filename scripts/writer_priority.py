@@ -91,7 +91,10 @@ def interval(diffs: list[float]) -> tuple[float, float, float]:
 def page(command: str, bench_args: list[str], runs: dict[str, list[dict]], load: list[str]) -> str:
     arms = list(ARMS)
     lines = [
-        head("The build's render calls against bare renders: the helper threads' share of the CPU", command),
+        head("The build's render calls against bare renders: the helper threads' share of the CPU", command).rstrip(
+            "\n"
+        ),
+        "",
         f"Each run: `shaderball bench {' '.join(bench_args)}` in a fresh process; the arms alternate "
         f"({len(runs[arms[0]])} runs each). **as built**: the build's helper threads (the shard's EXR writer, the "
         "next material's maps) at the build's own priority; **helpers niced**: the same threads at nice 19. "
