@@ -93,6 +93,23 @@ def test_scale_benchmark_writes_its_page_figure_and_figures(tmp_path):
     for command in COMMANDS:
         assert sum(line.startswith(f"| {command} |") for line in page.splitlines()) == 2, command  # both tables
 
+    # each command's peak at a million renders: the largest size's peak plus its (non-negative) cost beyond it
+    for command, fit in doc["fits"].items():
+        largest = max((r for r in doc["rows"] if r["command"] == command), key=lambda r: r["renders"])
+        million = largest["peak_rss_bytes"] + max(fit["bytes_per_render"], 0) * (1_000_000 - largest["renders"])
+        row = next(line for line in page.splitlines() if line.startswith(f"| {command} |") and line.endswith(" GB |"))
+        assert row.rstrip(" |").endswith(f"{million / 2**30:.2f} GB"), (command, row)
+
+    # the page and figure written again from scale.json alone (scripts/scale_page.py) are the same files
+    written = {name: (out / name).read_bytes() for name in ("README.md", "scale.png")}
+    for name in written:
+        (out / name).unlink()
+    again = subprocess.run(
+        [sys.executable, "scripts/scale_page.py", str(out)], cwd=REPO, capture_output=True, text=True
+    )
+    assert again.returncode == 0, again.stderr
+    assert {name: (out / name).read_bytes() for name in written} == written
+
     with Image.open(out / "scale.png") as figure:
         figure.load()
         assert figure.format == "PNG" and figure.size == (900, 1040)

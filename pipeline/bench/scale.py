@@ -54,6 +54,9 @@ SIZE_RANGE = (2, 10_000_000)
 DEFAULT_RESOLUTION, DEFAULT_SPP = 16, 1
 #: Memory per extra render a command may take and still count as bounded by structure.
 MEMORY_GOAL_BYTES_PER_RENDER = 1024
+#: The size the page extrapolates each command's peak memory to (a million renders: the scale the
+#: goal of under 2 GB is stated at), from the largest size measured and the memory cost per render.
+EXTRAPOLATED_RENDERS = 1_000_000
 
 
 def _commands(data: str, pub: str, work: str) -> list[tuple[str, list[str]]]:
@@ -112,6 +115,16 @@ class ScaleBench:
             "bytes_per_render": _slope(n, m),
         }
 
+    def extrapolated_peak(self, command: str, renders: int = EXTRAPOLATED_RENDERS) -> float | None:
+        """Peak bytes of ``command`` at ``renders``: the largest size's peak plus the memory cost per
+        render times the renders beyond it (an extrapolation, not a measurement); a negative cost
+        (a peak that fell with size, the allocator's spread) counts as none."""
+        fit = self.fit(command)
+        if not fit:
+            return None
+        largest = self.series(command)[-1]
+        return largest.peak_rss_bytes + max(fit["bytes_per_render"], 0.0) * (renders - largest.renders)
+
     def bounded(self, command: str) -> bool | None:
         fit = self.fit(command)
         return fit["bytes_per_render"] < MEMORY_GOAL_BYTES_PER_RENDER if fit else None
@@ -164,15 +177,17 @@ class ScaleBench:
             "(`ru_maxrss` of the child and what it waited for). Growth exponent: the slope of a least-squares "
             "line through (log size, log value); per render: the slope of a least-squares line through "
             f"(size, value). Memory bounded by structure: under {MEMORY_GOAL_BYTES_PER_RENDER / 1024:.0f} KB "
-            "per extra render.",
+            f"per extra render. Peak at {EXTRAPOLATED_RENDERS:,} renders: the largest size's peak plus the "
+            "memory cost per render (none where negative) times the renders beyond it, extrapolated, not measured.",
             "",
             *self._load_note(),
             "![time and peak memory against size](scale.png)",
             "",
             "## Growth",
             "",
-            "| command | time exponent | ms per render | memory exponent | KB per render | bounded |",
-            "|---|---|---|---|---|---|",
+            "| command | time exponent | ms per render | memory exponent | KB per render | bounded | "
+            f"peak at {EXTRAPOLATED_RENDERS:,} renders |",
+            "|---|---|---|---|---|---|---|",
         ]
         for c in COMMANDS:
             fit = self.fit(c)
@@ -180,7 +195,7 @@ class ScaleBench:
                 out.append(
                     f"| {c} | {fit['time_exponent']:.2f} | {fit['seconds_per_render'] * 1e3:.3f} | "
                     f"{fit['memory_exponent']:.2f} | {fit['bytes_per_render'] / 1024:.2f} | "
-                    f"{'yes' if self.bounded(c) else 'no'} |"
+                    f"{'yes' if self.bounded(c) else 'no'} | {self.extrapolated_peak(c) / 2**30:.2f} GB |"
                 )
         out += ["", "## Measured", "", "| command | " + " | ".join(f"{s:,} renders" for s in self.sizes) + " |"]
         out.append("|---|" + "---|" * len(self.sizes))
