@@ -33,10 +33,17 @@ def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
 
 def _log_ticks(lo: float, hi: float) -> list[float]:
     """Ticks of a log axis spanning log10 values lo..hi, as log10 values: 1, 2 and 5 times the
-    powers of ten inside it (only the powers when those are many; linear ticks when fewer than
-    two fall inside)."""
-    marks = [math.log10(m * 10.0**k) for k in range(math.floor(lo), math.ceil(hi) + 1) for m in (1, 2, 5)]
-    inside = [t for t in marks if lo <= t <= hi]
+    powers of ten inside it (only the powers when those are many; every whole multiple when
+    fewer than three fall inside, so a line near the top still has a value beside it; linear
+    ticks when fewer than two fall inside even then)."""
+
+    def inside_of(multiples) -> list[float]:
+        marks = [math.log10(m * 10.0**k) for k in range(math.floor(lo), math.ceil(hi) + 1) for m in multiples]
+        return [t for t in marks if lo <= t <= hi]
+
+    inside = inside_of((1, 2, 5))
+    if len(inside) < 3:
+        inside = inside_of(range(1, 10))
     if len(inside) > 8:
         inside = [t for t in inside if abs(t - round(t)) < 1e-9]
     if len(inside) < 2:
