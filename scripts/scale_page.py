@@ -22,7 +22,13 @@ def main(argv: list[str]) -> int:
         print("usage: python scripts/scale_page.py DIR (a folder holding scale.json)", file=sys.stderr)
         return 2
     folder = Path(argv[0])
-    bench = ScaleBench.from_dict(json.loads((folder / "scale.json").read_text()))
+    try:
+        bench = ScaleBench.from_dict(json.loads((folder / "scale.json").read_text()))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(
+            f"error: {folder / 'scale.json'}: not a scale benchmark's figures ({exc}); nothing written", file=sys.stderr
+        )
+        return 2
     write_results(bench, str(folder))
     print(f"wrote {folder / 'README.md'} and {folder / 'scale.png'} from {folder / 'scale.json'}")
     return 0

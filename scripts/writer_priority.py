@@ -128,6 +128,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", required=True, help="folder for README.md and runs.json")
     args = parser.parse_args(argv)
+    if args.repeats < 2:
+        parser.error(f"--repeats: {args.repeats}; 2 or more (a 95% interval needs two pairs)")
+    if args.limit < 1:
+        parser.error(f"--limit: {args.limit}; 1 or more renders")
     bench_args = [args.spec, "--limit", str(args.limit), "--resolution", str(args.resolution)]
     bench_args += ["--spp", str(args.spp), "--workers", "0"]
     command = ".venv/bin/python scripts/writer_priority.py " + shlex.join(

@@ -115,3 +115,11 @@ def test_scale_benchmark_writes_its_page_figure_and_figures(tmp_path):
         assert figure.format == "PNG" and figure.size == (900, 1040)
         colours = figure.convert("RGB").getcolors(1 << 20)
     assert len(colours) > 10  # lines in several colours, not a blank page
+
+
+def test_scale_page_refuses_a_folder_without_figures(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "scripts/scale_page.py", str(tmp_path)], cwd=REPO, capture_output=True, text=True
+    )
+    assert done.returncode == 2 and "scale.json" in done.stderr and "nothing written" in done.stderr, done.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -39,3 +39,18 @@ def test_experiment_writes_its_page_and_runs(tmp_path):
     for label, _ in FIGURES:
         assert sum(line.startswith(f"| {label} |") for line in page.splitlines()) == 1, label
     assert sum(line.startswith("| as built | ") for line in page.splitlines()) == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "message"), [(["--repeats", "1"], "--repeats: 1; 2 or more"), (["--limit", "0"], "--limit: 0; 1 or more")]
+)
+def test_too_few_runs_or_renders_exit_2_and_write_nothing(tmp_path, args, message):
+    out = tmp_path / "wp"
+    done = subprocess.run(
+        [sys.executable, "scripts/writer_priority.py", *args, "--out", str(out)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2 and message in done.stderr, done.stderr
+    assert not out.exists()
