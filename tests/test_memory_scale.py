@@ -1,4 +1,4 @@
-"""Memory bounded by structure: build, info, validate (fast and full), preview, publish, verify,
+"""Memory bounded by structure: the build's manifest, info, validate (fast and full), preview, publish, verify,
 unpack and the training loader over a dataset at two sizes, each in its own process, its peak of traced
 memory taken (``tracemalloc``: every Python object and numpy array); the growth per extra
 render must stay under ~1 KB (a record is ~11 kB as Python objects: a command that held
@@ -80,8 +80,10 @@ WRITE = (
 
 
 #: The manifest written again from the shards' markers, as a build ends (streamed a shard at a
-#: time: a manifest held whole, ~2 kB a render twice over, peaks above the build's own peak only at
-#: thousands of renders, so the build's measure alone would not show it here).
+#: time; held whole, ~2 kB a render twice over, it was the build's growth). The build's whole
+#: peak is not compared here: its render loop's threads make it vary by ~2 MB with timing under
+#: load (124.48-126.25 MB over four runs of 1,000 renders), more than the bound allows over 800
+#: renders; `shaderball bench --scale` measures the build's resident peak at 1,000-50,000 renders.
 MANIFEST = (
     "import sys, tracemalloc\n"
     "from pipeline.dataset.plan import plan_dataset\n"
@@ -115,14 +117,18 @@ def test_every_command_grows_under_a_kilobyte_per_render(tmp_path):
         data, scratch = tmp_path / f"d{materials}", tmp_path / f"s{materials}"
         scratch.mkdir()
         spec = _tiny_spec(materials, tmp_path)
-        peaks["build", materials] = _peak_bytes(["build", spec, "--out", data, "--workers", "0"], scratch)
+        build = subprocess.run(
+            [sys.executable, "-m", "cli", "build", spec, "--out", data, "--workers", "0"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+        )
+        assert build.returncode == 0, build.stderr[-2000:]
         renders[materials] = materials * 5
         for name, args in _commands(data, scratch).items():
             peaks[name, materials] = _peak_bytes(args, scratch)
     small, large = SIZES
     extra = renders[large] - renders[small]
-    slopes = {
-        name: (peaks[name, large] - peaks[name, small]) / extra for name in ("build", *_commands(tmp_path, tmp_path))
-    }
+    slopes = {name: (peaks[name, large] - peaks[name, small]) / extra for name in _commands(tmp_path, tmp_path)}
     table = ", ".join(f"{name} {peaks[name, small]}->{peaks[name, large]} B" for name in slopes)
     assert all(slope < BYTES_PER_RENDER for slope in slopes.values()), f"bytes per extra render {slopes}; {table}"
