@@ -12,6 +12,7 @@ Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): m
 
 import errno
 import numbers
+import re
 
 from geometry.errors import GeometryError
 from materials.errors import MaterialError
@@ -81,15 +82,23 @@ def short_repr(value, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+#: The last line of a Python traceback of a KeyboardInterrupt, inside another error's message.
+_INTERRUPT_LINE = re.compile(r"(?m)^\s*KeyboardInterrupt\b")
+
+
 def caused_by_interrupt(exc: BaseException) -> bool:
     """Whether ``exc`` is, or was caused by, a KeyboardInterrupt.
 
     Ctrl-C can land inside a Python callback Mitsuba calls (the BSDF plugin); drjit then
-    raises a RuntimeError whose cause is the KeyboardInterrupt.
+    raises a RuntimeError whose cause is the KeyboardInterrupt, and Mitsuba's scene parser (a
+    plugin's constructor, called by ``load_dict``) one whose message holds the callback's
+    traceback, ending in a line ``KeyboardInterrupt``.
     """
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
+            return True
+        if isinstance(exc, RuntimeError) and _INTERRUPT_LINE.search(str(exc)):
             return True
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
