@@ -9,38 +9,17 @@ to a message on stderr and exit code 2. Logic lives in the packages.
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import sys
 
-#: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
-INTERRUPTED_EXIT = 130
-INTERRUPTED_MESSAGE = (
-    "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
-)
-
-
-def _interrupted_while_loading(signum, frame):
-    """Ctrl-C while the imports below run (a second or more): they write nothing, so stop at
-    once with the interrupted exit code and line (and --json's document), without the
-    import's traceback."""
-    os.write(2, f"\n{INTERRUPTED_MESSAGE}\n".encode())
-    args = sys.argv[1:]
-    if "--json" in args[: args.index("--") if "--" in args else len(args)]:
-        doc = {"error": INTERRUPTED_MESSAGE, "exit": INTERRUPTED_EXIT, "ok": False}
-        os.write(1, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
-    os._exit(INTERRUPTED_EXIT)
-
-
 if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
-    signal.signal(signal.SIGINT, _interrupted_while_loading)
+    from pipeline.ui.process import stop_on_ctrl_c_while_loading
 
-import contextlib
-import ctypes
+    stop_on_ctrl_c_while_loading()
+
 import dataclasses
 import functools
-import traceback
 
 import click
 
@@ -53,11 +32,10 @@ from pipeline.check.info import dataset_info
 from pipeline.check.preview import SAMPLES_RANGE, TILE_RANGE, write_preview
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import MAX_MATERIALS
-from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt, filesystem_error
+from pipeline.errors import ShaderballError
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.limits import DEVICES, SPP_LADDER_RANGE
 from pipeline.publish.facts import LICENSES
-from pipeline.publish.refusal import Refused
 from pipeline.publish.unpack import unpack
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, SHARD_BYTES_RANGE, publish
@@ -80,6 +58,9 @@ from pipeline.study.run import (
     parse_ladder,
     run_study,
 )
+from pipeline.ui import command as ui_command
+from pipeline.ui import process
+from pipeline.ui.command import Command, Group
 from pipeline.ui.options import option_from, options_from
 from pipeline.ui.progress import (
     build_progress,
@@ -91,170 +72,35 @@ from pipeline.ui.progress import (
 )
 from pipeline.ui.values import parse_int_list
 
-#: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
-#: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
-INTERNAL_EXIT = 70
-#: Where a --json command leaves its one document (click's context meta).
-_JSON_DOC = "shaderball.json_doc"
-
-
-def _emit_json(doc: dict) -> None:
-    """The document a --json command prints on stdout once it returns (:func:`_friendly_errors`)."""
-    click.get_current_context().meta[_JSON_DOC] = doc
-
-
-def _write_json(doc: dict) -> None:
-    click.echo(json.dumps(doc, indent=1, sort_keys=True))
-
-
-@contextlib.contextmanager
-def _library_output_to_stderr(active: bool):
-    """While a --json command runs, the process's file descriptor 1 is its stderr: whatever a
-    library prints (OpenEXR's C++ warnings, Mitsuba's, a stray print) cannot reach stdout,
-    which then carries the command's one JSON document alone. Only where sys.stdout is fd 1
-    (click's test runner replaces it with a buffer: nothing to redirect)."""
-    try:
-        fd = sys.stdout.fileno() if active else None
-    except (AttributeError, OSError, ValueError):
-        fd = None
-    if fd != 1:
-        yield
-        return
-    sys.stdout.flush()
-    saved = os.dup(1)
-    os.dup2(2, 1)
-    try:
-        yield
-    finally:
-        sys.stdout.flush()
-        _flush_c_stdio()
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
-def _flush_c_stdio() -> None:
-    """Flush C's stdio buffers (a library's printf) before fd 1 is given back."""
-    try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):
-        pass
-
-
-def _failure(exc: BaseException, as_json: bool) -> tuple[int, str, dict]:
-    """(exit code, one-line message, extra JSON fields) of an exception that ends a command;
-    the exception itself is re-raised where the non-JSON CLI lets it through."""
-    if isinstance(exc, Refused):
-        return exc.exit_code, str(exc), exc.to_dict()
-    if isinstance(exc, USER_ERRORS):
-        return exc.exit_code, str(exc), {}
-    if isinstance(exc, click.ClickException):
-        if not as_json:
-            raise exc
-        return exc.exit_code, exc.format_message(), {}
-    if isinstance(exc, OSError):
-        error = filesystem_error(exc, "?", "fix the cause and run the same command again")
-        return error.exit_code, str(error), {}
-    if caused_by_interrupt(exc):  # a KeyboardInterrupt, or what one caused (drjit's import, a plugin callback)
-        click.echo("", err=True)
-        return INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, {}
-    if not as_json or not isinstance(exc, Exception):
-        raise exc
-    click.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
-    message = f"internal error (a bug; traceback on stderr): {type(exc).__name__}: {exc}"
-    return INTERNAL_EXIT, " ".join(message.split())[:2000], {}
-
-
-def _exit_code(code) -> int:
-    if code is None:
-        return 0
-    return code if isinstance(code, int) else 1
+INTERNAL_EXIT = process.INTERNAL_EXIT
+_emit_json = process.emit_json
 
 
 def _friendly_errors(func):
-    """Turn a user error (pipeline.errors.USER_ERRORS) into `error: ...` on stderr and its exit
-    code; an OSError the library did not name (a file system refusing a write) into one line
-    and exit code 4; Ctrl-C into one line saying how to go on, exit code 130. No traceback.
-
-    With --json (a command's ``as_json``), stdout carries exactly one JSON document whatever
-    happens: the command's result, or ``{"ok": false, "exit": N, "error": "..."}`` (plus
-    ``kind`` and ``message`` for a refusal) for every failure, an internal error included
-    (exit code 70, its traceback on stderr); library output goes to stderr meanwhile."""
+    """The command's body run by :func:`pipeline.ui.process.run_command`."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        as_json = bool(kwargs.get("as_json"))
-        ctx = click.get_current_context()
-        failed = None
-        with _library_output_to_stderr(as_json):
-            try:
-                func(*args, **kwargs)
-                code = 0
-            except SystemExit as exc:
-                code = _exit_code(exc.code)
-            except click.exceptions.Exit as exc:  # ctx.exit(N)
-                code = exc.exit_code
-            except BaseException as exc:  # noqa: BLE001 - mapped to a message; re-raised where it is a bug
-                code, message, extra = _failure(exc, as_json)
-                click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
-                failed = {"ok": False, "exit": code, "error": message, **extra}
-        if as_json:
-            doc = failed or ctx.meta.get(_JSON_DOC)
-            if doc is None:
-                doc = {
-                    "ok": code == 0,
-                    "exit": code,
-                    "error": None if code == 0 else "the command stopped with no result",
-                }
-            _write_json(doc)
-        if code:
-            sys.exit(code)
+        process.run_command(lambda: func(*args, **kwargs), bool(kwargs.get("as_json")))
 
     return wrapper
 
 
-class _Command(click.Command):
-    """A command whose --json holds for its own usage errors too (a bad option value, a
-    missing argument: click refuses them before the command runs): stdout gets the failure
-    document, stderr click's usage message, exit code 2."""
-
-    def make_context(self, info_name, args, parent=None, **extra):
-        wants_json = (
-            any(p.name == "as_json" for p in self.params)
-            and "--json" in args[: args.index("--") if "--" in args else len(args)]
-        )
-        try:
-            _refuse_json_with_a_value(self, info_name, args, parent)
-            return super().make_context(info_name, args, parent=parent, **extra)
-        except click.ClickException as exc:
-            if not wants_json:
-                raise
-            exc.show()
-            _write_json({"ok": False, "exit": exc.exit_code, "error": exc.format_message()})
-            sys.exit(exc.exit_code)
-        except USER_ERRORS as exc:  # an option's value refused by its declaration (pipeline.ui.options)
-            click.echo(f"error: {exc}", err=True)
-            if wants_json:
-                _write_json({"ok": False, "exit": exc.exit_code, "error": str(exc)})
-            sys.exit(exc.exit_code)
+_Command = Command
 
 
-def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
-    """``--json FILE`` (a file name ending in .json after --json) where the command writes a
-    file with ``--json-out``: a usage error naming the new spelling, before anything runs."""
-    if not any("--json-out" in p.opts for p in command.params):
-        return
-    head = args[: args.index("--") if "--" in args else len(args)]
-    for flag, value in zip(head, head[1:]):
-        if flag == "--json" and value.lower().endswith(".json"):
-            ctx = click.Context(command, info_name=info_name, parent=parent)
-            raise click.UsageError(
-                f"--json {value}: --json is a flag (one JSON document on stdout); write the file with --json-out FILE",
-                ctx,
-            )
+def json_option(help: str):
+    """``--json``, a flag (transitional decorator; generated commands get it from their request)."""
+    param = ui_command.json_option(help)
+    return lambda func: (click.decorators._param_memo(func, param), func)[1]
 
 
-class _Group(click.Group):
-    command_class = _Command
+def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True):
+    param = ui_command.renamed_option(old, new, why, takes_value=takes_value)
+    return lambda func: (click.decorators._param_memo(func, param), func)[1]
+
+
+_Group = Group
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -287,11 +133,6 @@ def _options(*options):
     return apply
 
 
-def json_option(help: str):
-    """``--json``, a flag (``as_json``): one JSON document on stdout (:func:`_friendly_errors`)."""
-    return click.option("--json", "as_json", is_flag=True, help=help)
-
-
 def json_file_option(help: str):
     """``--json-out FILE`` (``json_path``): also write the figures to a JSON file."""
     return click.option("--json-out", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
@@ -301,25 +142,6 @@ def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "o
     """``--out``: a folder (``folder=True``) or a file the command writes."""
     kind = click.Path(file_okay=False) if folder else click.Path(dir_okay=False)
     return click.option("--out", dest, required=required, type=kind, default=None, help=help)
-
-
-def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True):
-    """An old spelling of an option, hidden: given, it exits 2 naming the new one."""
-
-    def refuse(ctx, param, value):
-        if value is not None and value is not False:
-            raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
-
-    return click.option(
-        old,
-        "renamed_" + old.lstrip("-").replace("-", "_"),  # its own name: the new option may take the old one's
-        default=None,
-        hidden=True,
-        expose_value=False,
-        is_flag=not takes_value,
-        callback=refuse,
-        is_eager=True,
-    )
 
 
 def variant_option():

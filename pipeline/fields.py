@@ -70,27 +70,72 @@ def format_value(value: Any) -> str:
     return text if len(text) <= 120 else text[:117] + "..."
 
 
-class FieldError(ShaderballError):
-    """A refused field value: ``<where>: <value> is not allowed; <allowed>``."""
+#: ``{name}`` inside a refusal's words: another field of the same request, spelled by the
+#: surface that reports it (``--cluster`` on the command line, ``cluster.kind`` in a spec).
+_FIELD_REF = re.compile(r"\{([a-z][a-z0-9_]*)\}")
 
-    def __init__(self, where: str, value: Any, allowed: str, *, what: str | None = None, name: str = ""):
+
+class FieldError(ShaderballError):
+    """A refused field value: ``<where>: <value> is not allowed; <allowed>``.
+
+    The library names a field by its own name (``name``) and the class that declares it
+    (``owner``); each surface words it its own way (:meth:`labelled`). ``what`` and
+    ``allowed`` may name other fields of ``owner`` as ``{field}``, spelled the same way.
+    """
+
+    def __init__(
+        self,
+        where: str,
+        value: Any,
+        allowed: str,
+        *,
+        what: str | None = None,
+        name: str = "",
+        owner: type | None = None,
+    ):
         self.where = where
         #: The field's own name (``spp``), however ``where`` spells it.
         self.name = name
+        self.owner = owner
         self.value = value
         self.allowed = allowed
         self.what = what
-        if what is None:
-            what = f"{format_value(value)} is not allowed"
-        super().__init__(f"{where}: {what}; {allowed}")
+        label = owner.field_label if owner is not None and hasattr(owner, "field_label") else (lambda n: n)
+        super().__init__(self._words(where, label))
+
+    def _words(self, where: str, label) -> str:
+        names = set(declared(self.owner)) if self.owner is not None and dataclasses.is_dataclass(self.owner) else None
+
+        def spell(text: str) -> str:
+            return _FIELD_REF.sub(
+                lambda m: label(m.group(1)) if names is None or m.group(1) in names else m.group(0), text
+            )
+
+        what = f"{format_value(self.value)} is not allowed" if self.what is None else spell(self.what)
+        return f"{where}: {what}; {spell(self.allowed)}"
+
+    def labelled(self, label) -> FieldError:
+        """The same refusal with every field spelled by ``label(name)`` (a surface's words)."""
+        error = FieldError(
+            label(self.name) if self.name else self.where,
+            self.value,
+            self.allowed,
+            what=self.what,
+            name=self.name,
+            owner=self.owner,
+        )
+        error.args = (error._words(error.where, label),)
+        return error
 
 
 class Reject(Exception):
-    """Raised by a rule; the class turns it into a FieldError naming the field."""
+    """Raised by a rule; the class turns it into a FieldError naming the field. ``detail``
+    follows what is allowed; ``what`` replaces "<value> is not allowed"."""
 
-    def __init__(self, detail: str = ""):
+    def __init__(self, detail: str = "", *, what: str | None = None):
         super().__init__(detail)
         self.detail = detail
+        self.what = what
 
 
 # --------------------------------------------------------------------------- rules
@@ -267,16 +312,47 @@ class Text(Rule):
 
 
 class Path(Rule):
-    """A non-empty path (file or folder); whether it exists is the consumer's business."""
+    """A non-empty path (file or folder). ``exists``: ``"file"``, ``"folder"`` or ``"any"``
+    refuses a path that is not there (an input the command reads); None leaves it to the
+    consumer (an output it creates)."""
 
-    def __init__(self, what: str = "a path", *, empty_ok: bool = False):
+    def __init__(self, what: str = "a path", *, empty_ok: bool = False, exists: str | None = None):
         self.allowed = what
         self.empty_ok = empty_ok
+        self.exists = exists
 
     def check(self, value):
         if not isinstance(value, str) or not (value or self.empty_ok):
             raise Reject()
+        if self.exists is not None and value:
+            import os.path  # noqa: PLC0415 - only rules that look at the file system need it
+
+            if not os.path.lexists(value):
+                raise Reject(what=f"{format_value(value)} does not exist")
+            if self.exists == "file" and os.path.isdir(value):
+                raise Reject(what=f"{format_value(value)} is a folder")
+            if self.exists == "folder" and not os.path.isdir(value):
+                raise Reject(what=f"{format_value(value)} is not a folder")
         return value
+
+
+class Many(Rule):
+    """One or more values, each checked by ``item`` (a command's repeated operand, such as
+    ``REPORT.json...``); stored as a tuple."""
+
+    def __init__(self, item: Rule):
+        self.item = item
+        self.py_type = item.py_type
+        self.allowed = f"one or more of: {item.allowed}"
+
+    @property
+    def brief(self) -> str:
+        return self.item.brief
+
+    def check(self, value):
+        if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
+            raise Reject()
+        return tuple(self.item.check(v) for v in value)
 
 
 class Bool(Rule):
@@ -364,13 +440,25 @@ def field(
     doc_default: str | None = None,
     in_file: bool = True,
     kw_only: bool = False,
+    positional: bool = False,
+    metavar: str | None = None,
 ):
     """A dataclass field with its rule, one line (or more) of help, its unit.
 
     ``in_file=False``: a field of the type that a spec file does not hold (the renderer's
-    ``sun`` and ``model`` come from other sections of the spec).
+    ``sun`` and ``model`` come from other sections of the spec). ``positional``: a request's
+    operand (``DIR`` of ``validate DIR``) rather than a named setting; ``metavar`` names
+    the value in usage lines (``DIR``, ``SECONDS``).
     """
-    meta = {"rule": rule, "doc": doc, "unit": unit, "doc_default": doc_default, "in_file": in_file}
+    meta = {
+        "rule": rule,
+        "doc": doc,
+        "unit": unit,
+        "doc_default": doc_default,
+        "in_file": in_file,
+        "positional": positional,
+        "metavar": metavar,
+    }
     extra = {"kw_only": True} if kw_only else {}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta, **extra)
@@ -385,7 +473,13 @@ def same_as(cls, name: str, *, unset: str | None = None, **changes):
     which means this (``"the spec's"``); ``changes`` replace keywords of :func:`field`."""
     f = declared(cls)[name]
     meta = dict(f.metadata)
-    kwargs = dict(rule=meta["rule"], doc=meta["doc"], unit=meta["unit"], doc_default=meta["doc_default"])
+    kwargs = dict(
+        rule=meta["rule"],
+        doc=meta["doc"],
+        unit=meta["unit"],
+        doc_default=meta["doc_default"],
+        metavar=meta.get("metavar"),
+    )
     default = default_of(f)
     if unset is not None:
         kwargs["rule"], default = Optional(meta["rule"], f"unset ({unset})", default_text=unset), None
@@ -428,7 +522,7 @@ class Checked:
 
     @classmethod
     def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> FieldError:
-        return FieldError(cls.field_label(name), value, allowed, what=what, name=name)
+        return FieldError(cls.field_label(name), value, allowed, what=what, name=name, owner=cls)
 
     def check_fields(self):
         for f in fields(self):
@@ -440,7 +534,7 @@ class Checked:
                 normalised = rule.check(value)
             except Reject as exc:
                 allowed = rule.allowed + (f" {exc.detail}" if exc.detail else "")
-                raise self.field_error(f.name, value, allowed) from None
+                raise self.field_error(f.name, value, allowed, what=exc.what) from None
             object.__setattr__(self, f.name, normalised)
         self.check_cross()
         return self

@@ -1,0 +1,296 @@
+"""Commands generated from requests: each command's inputs are the fields of one checked
+request class (:class:`pipeline.fields.Checked`), and the click command is made from it.
+
+``@request_command(main, ValidateRequest)`` over ``def validate_cmd(request)`` makes
+``shaderball validate``: one click parameter per declared field (an operand for a
+``positional`` field, ``--name`` for the others, with the field's type, default, range,
+unit and help), ``--json``, and the body's docstring as its help. The body is called with
+the checked request and returns its result: an object with ``lines()`` (what is printed)
+and ``to_dict()`` (the --json document; ``"ok"`` and ``"exit"`` are added), and an
+``exit_code`` attribute where success is not 0 (validate's 1 for an invalid dataset).
+
+The library names a refused field by its own name (``limit``); here it is spelled as the
+command line spells it (``--limit``, or ``DIR`` for an operand), in every refusal: a value
+refused while parsing, a rule between fields, a check deep in the library.
+
+Spellings that exist only here: ``--json`` (a flag), an option renamed in the past
+(hidden; given, it exits 2 naming the new one), and a value given to ``--json``
+(``--json=FILE``, ``--json FILE``: exit 2 naming ``--json-out`` where the command writes one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import sys
+
+import click
+
+from pipeline.errors import USER_ERRORS
+from pipeline.fields import MISSING, Bool, FieldError, Many, Optional, declared, default_of
+from pipeline.ui import process
+from pipeline.ui.options import FieldType, option_help
+
+
+def option_name(name: str) -> str:
+    """A field's spelling on the command line: ``loader_workers`` is ``--loader-workers``."""
+    return "--" + name.replace("_", "-")
+
+
+def label_for(request_cls):
+    """How the command line spells ``request_cls``'s fields: an operand by its metavar."""
+    fields = declared(request_cls)
+
+    def label(name: str) -> str:
+        f = fields.get(name)
+        if f is not None and f.metadata.get("positional"):
+            return _metavar(f)
+        return option_name(name)
+
+    return label
+
+
+def _metavar(f) -> str:
+    return f.metadata.get("metavar") or f.name.upper()
+
+
+def _argument(f) -> click.Argument:
+    rule = f.metadata["rule"]
+    default = default_of(f)
+    kwargs = dict(type=FieldType(rule), metavar=_metavar(f))
+    if isinstance(rule, Many):  # each word checked by the item's rule, the whole by the field's
+        kwargs.update(type=FieldType(rule.item), nargs=-1, required=True)
+    elif default is not MISSING and default is not None:
+        kwargs.update(required=False, default=default)
+    elif isinstance(rule, Optional):
+        kwargs.update(required=False, default=None)
+    return click.Argument([f.name], **kwargs)
+
+
+def _option(f) -> click.Option:
+    rule = f.metadata["rule"]
+    default = default_of(f)
+    spelled = option_name(f.name)
+    required = default is MISSING
+    if isinstance(rule, Bool):
+        decl = f"{spelled}/--no-{f.name.replace('_', '-')}" if default else spelled
+        kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default))
+    else:
+        if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5"
+            default = ",".join(f"{v:g}" for v in default)
+        kwargs = dict(type=FieldType(rule), default=None if required else default)
+        kwargs["show_default"] = not required and default is not None
+        kwargs["required"] = required
+        if f.metadata.get("metavar"):
+            kwargs["metavar"] = f.metadata["metavar"]
+    kwargs["help"] = option_help(f)
+    return click.Option([decl], f.name, **kwargs)
+
+
+def params_of(request_cls, skip=()) -> list[click.Parameter]:
+    """The click parameters of ``request_cls``'s declared fields, in declaration order:
+    operands first (as usage lines list them), then options."""
+    fields = [f for f in declared(request_cls).values() if f.name not in skip]
+    operands = [_argument(f) for f in fields if f.metadata.get("positional")]
+    options = [_option(f) for f in fields if not f.metadata.get("positional")]
+    return [*operands, *options]
+
+
+def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True) -> click.Option:
+    """An old spelling of an option, hidden: given, it exits 2 naming the new one."""
+
+    def refuse(ctx, param, value):
+        if value is not None and value is not False:
+            raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
+
+    return click.Option(
+        [old],
+        "renamed_" + old.lstrip("-").replace("-", "_"),  # its own name: the new option may take the old one's
+        default=None,
+        hidden=True,
+        expose_value=False,
+        is_flag=not takes_value,
+        callback=refuse,
+        is_eager=True,
+    )
+
+
+JSON_HELP = "Print the result as one JSON document on stdout (progress stays on stderr)."
+
+
+def json_option(help: str = JSON_HELP) -> click.Option:
+    """``--json``, a flag (``as_json``): one JSON document on stdout (:mod:`pipeline.ui.process`)."""
+    return click.Option(["--json", "as_json"], is_flag=True, help=help)
+
+
+class Printed:
+    """A result that is a document (--json) and the text printed without --json."""
+
+    def __init__(self, doc: dict, text: str, exit_code: int = 0):
+        self.doc, self.text, self.exit_code = doc, text, exit_code
+
+    def to_dict(self) -> dict:
+        return self.doc
+
+    def lines(self) -> list[str]:
+        return self.text.rstrip("\n").split("\n") if self.text else []
+
+
+def result_doc(result) -> dict:
+    if result is None:
+        return {}
+    if hasattr(result, "to_dict"):
+        return dict(result.to_dict())
+    if dataclasses.is_dataclass(result):
+        return dataclasses.asdict(result)
+    return dict(result.__dict__)
+
+
+def show_result(result, as_json: bool) -> int:
+    """Print ``result`` (its lines, or with --json its document with ``ok`` and ``exit``);
+    its exit code."""
+    code = int(getattr(result, "exit_code", 0) or 0)
+    if as_json:
+        doc = result_doc(result)
+        doc.setdefault("ok", code == 0)
+        doc["exit"] = code
+        process.emit_json(doc)
+    elif result is not None:
+        for line in result.lines():
+            click.echo(line)
+    return code
+
+
+class Command(click.Command):
+    """A command whose --json holds for its own usage errors too (a bad option value, a
+    missing argument: click refuses them before the command runs): stdout gets the failure
+    document, stderr the message, exit code 2."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        json_wanted = any(p.name == "as_json" for p in self.params) and process.wants_json(args)
+        try:
+            _refuse_json_with_a_value(self, info_name, args, parent)
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as exc:
+            exc = _json_given_a_value(self, args, exc)
+            if not json_wanted:
+                raise exc from None
+            exc.show()
+            process.write_json(process.failure_doc(exc.exit_code, exc.format_message()))
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            if not json_wanted:
+                raise
+            exc.show()
+            process.write_json(process.failure_doc(exc.exit_code, exc.format_message()))
+            sys.exit(exc.exit_code)
+        except USER_ERRORS as exc:  # an option's value refused by its declaration
+            click.echo(f"error: {exc}", err=True)
+            if json_wanted:
+                process.write_json(process.failure_doc(exc.exit_code, str(exc)))
+            sys.exit(exc.exit_code)
+
+
+def _json_flag_message(command: click.Command, given: str) -> str:
+    writes = any("--json-out" in getattr(p, "opts", ()) for p in command.params)
+    tail = "write the file with --json-out FILE" if writes else "this command writes no JSON file"
+    return f"{given}: --json is a flag (one JSON document on stdout) and takes no value; {tail}"
+
+
+def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
+    """``--json=FILE``, or ``--json FILE.json`` where the command writes a file with
+    ``--json-out``: a usage error naming ``--json-out``, before anything runs."""
+    head = args[: args.index("--") if "--" in args else len(args)]
+    writes = any("--json-out" in getattr(p, "opts", ()) for p in command.params)
+    for i, flag in enumerate(head):
+        value = head[i + 1] if i + 1 < len(head) else ""
+        given = None
+        if flag.startswith("--json="):
+            given = flag
+        elif flag == "--json" and writes and value.lower().endswith(".json"):
+            given = f"--json {value}"
+        if given is not None:
+            ctx = click.Context(command, info_name=info_name, parent=parent)
+            raise click.UsageError(_json_flag_message(command, given), ctx)
+
+
+def _json_given_a_value(command: click.Command, args: list[str], exc: click.UsageError) -> click.UsageError:
+    """click's "unexpected extra argument" where a word follows --json: say that --json takes
+    no value rather than that the word is extra."""
+    head = args[: args.index("--") if "--" in args else len(args)]
+    for i, flag in enumerate(head[:-1]):
+        word = head[i + 1]
+        if flag == "--json" and not word.startswith("-") and word in exc.format_message():
+            return click.UsageError(_json_flag_message(command, f"--json {word}"), exc.ctx)
+    return exc
+
+
+class Group(click.Group):
+    command_class = Command
+
+
+def reworded(request_cls):
+    """A user error as the command line words it: a field of ``request_cls`` (or one it
+    shares with a class that has no spelling of its own) spelled as its option."""
+    label = label_for(request_cls)
+    names = set(declared(request_cls))
+
+    def reword(exc):
+        if not isinstance(exc, FieldError) or not exc.name or exc.name not in names:
+            return exc
+        owner = exc.owner
+        if owner is request_cls or (owner is not None and getattr(owner, "FIELD_PREFIX", "") == ""):
+            return exc.labelled(label)
+        return exc
+
+    return reword
+
+
+def request_command(
+    group: click.Group,
+    request_cls,
+    *,
+    name: str | None = None,
+    json: str | None = JSON_HELP,
+    renamed: tuple[click.Option, ...] = (),
+    skip: tuple[str, ...] = (),
+    extra: tuple[click.Parameter, ...] = (),
+):
+    """Decorator: ``body(request)`` as a command of ``group`` whose parameters are
+    ``request_cls``'s fields (module docstring). ``json``: --json's help (None: no --json);
+    ``renamed``: hidden old spellings; ``skip``: fields the command line does not set;
+    ``extra``: parameters that are not the request's (passed to the body by name)."""
+
+    def decorate(body):
+        params = params_of(request_cls, skip) + list(extra) + list(renamed)
+        if json is not None:
+            params.append(json_option(json))
+        extra_names = {p.name for p in extra}
+        takes = set(inspect.signature(body).parameters)
+        reword = reworded(request_cls)
+
+        def callback(as_json: bool = False, **values):
+            given = {k: values.pop(k) for k in list(values) if k in extra_names}
+
+            def call():
+                request = request_cls(**values).check_fields()
+                if "as_json" in takes:
+                    given["as_json"] = as_json
+                code = show_result(body(request, **given), as_json)
+                if code:
+                    sys.exit(code)
+
+            process.run_command(call, as_json, reword)
+
+        command = Command(
+            name or body.__name__.removesuffix("_cmd").replace("_", "-"),
+            params=params,
+            callback=callback,
+            help=inspect.getdoc(body),
+            context_settings=group.context_settings,
+        )
+        group.add_command(command)
+        command.body = body
+        return body
+
+    return decorate
