@@ -35,6 +35,7 @@ import dataclasses
 import json
 import math
 import numbers
+import os
 import re
 from dataclasses import fields
 from typing import Any, ClassVar
@@ -325,8 +326,6 @@ class Path(Rule):
         if not isinstance(value, str) or not (value or self.empty_ok):
             raise Reject()
         if self.exists is not None and value:
-            import os.path  # noqa: PLC0415 - only rules that look at the file system need it
-
             if not os.path.lexists(value):
                 raise Reject(what=f"{format_value(value)} does not exist")
             if self.exists == "file" and os.path.isdir(value):
