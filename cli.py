@@ -13,9 +13,9 @@ import os
 import signal
 import sys
 
-if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
-    from pipeline.ui.process import stop_on_ctrl_c_while_loading
+from pipeline.ui.process import stop_on_ctrl_c_while_loading
 
+if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
     stop_on_ctrl_c_while_loading()
 
 import dataclasses
