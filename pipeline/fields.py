@@ -335,6 +335,42 @@ class Path(Rule):
         return value
 
 
+class IntList(Rule):
+    """Integers, each from ``lo`` to ``hi``; ``"1,2,4"`` on a command line. ``none``: a word
+    (any case) that stands for no value at all (an empty tuple); ``distinct``: no repeats."""
+
+    metavar = "N,N,..."
+
+    def __init__(self, lo: int, hi: int, *, none: str | None = None, distinct: bool = False, min_len: int = 1):
+        self.lo, self.hi, self.none, self.distinct, self.min_len = lo, hi, none, distinct, min_len
+        self.allowed = f"comma-separated integers from {lo} to {hi}" + (f", or {none}" if none else "")
+        if min_len > 1:
+            self.allowed = f"{min_len} or more " + self.allowed
+
+    def parse(self, text: str):
+        if self.none is not None and text.strip().lower() == self.none:
+            return ()
+        try:
+            return tuple(int(x) for x in text.split(","))
+        except ValueError:
+            raise ValueError(text) from None
+
+    @property
+    def brief(self) -> str:
+        return f"{self.lo} to {self.hi} each" + (f", or {self.none}" if self.none else "")
+
+    def check(self, value):
+        if not isinstance(value, (list, tuple)) or not all(is_integer(v) for v in value):
+            raise Reject()
+        if not value and self.none is not None:
+            return ()
+        if len(value) < self.min_len or not all(self.lo <= v <= self.hi for v in value):
+            raise Reject()
+        if self.distinct and len(set(value)) != len(value):
+            raise Reject("(repeated values)")
+        return tuple(int(v) for v in value)
+
+
 class Many(Rule):
     """One or more values, each checked by ``item`` (a command's repeated operand, such as
     ``REPORT.json...``); stored as a tuple."""
@@ -404,6 +440,9 @@ class StrList(Rule):
     @property
     def options(self) -> tuple[str, ...] | None:
         return self._options() if callable(self._options) else self._options
+
+    def parse(self, text: str):
+        return tuple(word.strip() for word in text.split(",") if word.strip())
 
     @property
     def allowed(self) -> str:
