@@ -1,8 +1,16 @@
-"""The materials package's error type.
+"""The materials package's error type and its one wording of a refused value.
 
 Domain packages import nothing of ``pipeline``; :data:`pipeline.errors.USER_ERRORS`
 lists this type so the CLI reports it like its own errors (a clear message, exit 2).
+A refusal of a value reads as the project's every refusal: ``<field>: <value> is not
+allowed; <what is allowed>`` (``pipeline.fields.FieldError`` words the commands' and the spec's).
 """
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
 
 
 class MaterialError(ValueError):
@@ -10,3 +18,41 @@ class MaterialError(ValueError):
 
     #: The exit code the CLI gives it (the same as pipeline.errors.ShaderballError).
     exit_code = 2
+
+
+def shown(value) -> str:
+    """A value as a refusal quotes it (as ``pipeline.fields.format_value`` does)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, numbers.Integral):
+        return repr(int(value))
+    if isinstance(value, numbers.Real):  # numpy floats too: 0.5, never np.float64(0.5)
+        value = float(value)
+        if not math.isfinite(value):
+            return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(shown(v) for v in value) + "]"
+    return repr(value)
+
+
+def refusal(field: str, value, allowed: str) -> MaterialError:
+    """``<field>: <value> is not allowed; <allowed>``."""
+    return MaterialError(f"{field}: {shown(value)} is not allowed; {allowed}")
+
+
+def number_allowed(lo: float, hi: float) -> str:
+    """What a number in [lo, hi] allows, in the words of ``pipeline.fields.Float``."""
+    return f"a finite number from {lo:g} to {hi:g}"
+
+
+def pair_allowed(lo: float, hi: float) -> str:
+    """What a closed interval within [lo, hi] allows, in the words of ``pipeline.fields.Pair``."""
+    return f"a pair [lo, hi] of finite numbers with {lo:g} <= lo <= hi <= {hi:g}"
+
+
+def triple_allowed(lo: float, hi: float) -> str:
+    """What three numbers in [lo, hi] allow (linear RGB)."""
+    return f"three finite numbers in [{lo:g}, {hi:g}]"

@@ -16,10 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from materials.errors import MaterialError
+from materials.errors import MaterialError, number_allowed, refusal, triple_allowed
 
 #: A map's unit normal may be off unit length by this much (8-bit imports are renormalised).
 NORMAL_UNIT_TOLERANCE = 1e-3
+#: An albedo, diffuse or specular, each linear RGB channel: declared here once (the spec's,
+#: the commands' and the server's rules are built from it).
+ALBEDO_RANGE = (0.0, 1.0)
+#: Roughness r (GGX alpha = r^2).
+ROUGHNESS_RANGE = (0.0, 1.0)
 
 
 def _as_resolution(resolution) -> tuple[int, int]:
@@ -49,9 +54,9 @@ def _frozen_array(name: str, value, shape_tail: tuple[int, ...]) -> np.ndarray:
 class UniformMaterial:
     """One value per map: the paper's uniform materials.
 
-    ``diffuse`` and ``specular`` are linear RGB albedos in [0, 1], ``roughness``
-    in [0, 1] (alpha = roughness^2), ``normal`` a tangent-space direction with
-    z > 0 (normalised here).
+    ``diffuse`` and ``specular`` are linear RGB albedos in :data:`ALBEDO_RANGE`,
+    ``roughness`` in :data:`ROUGHNESS_RANGE` (alpha = roughness^2), ``normal`` a
+    tangent-space direction with z > 0 (normalised here).
     """
 
     diffuse: tuple[float, float, float]
@@ -66,14 +71,16 @@ class UniformMaterial:
         n = np.asarray(self.normal, dtype=np.float64)
         length = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
         if n.shape != (3,) or not np.isfinite(length) or length == 0.0 or n[2] <= 0.0:
-            raise MaterialError(f"UniformMaterial.normal: {self.normal!r} is not a finite 3-vector with z > 0")
+            raise refusal("UniformMaterial.normal", self.normal, "a finite 3-vector with z > 0")
         object.__setattr__(self, "normal", tuple(float(c) for c in n / length))
+        lo, hi = ALBEDO_RANGE
         for name in ("diffuse", "specular"):
             value = getattr(self, name)
-            if len(value) != 3 or not all(np.isfinite(c) and 0.0 <= c <= 1.0 for c in value):
-                raise MaterialError(f"UniformMaterial.{name}: {value!r} is not 3 values in [0, 1]")
-        if not (np.isfinite(self.roughness) and 0.0 <= self.roughness <= 1.0):
-            raise MaterialError(f"UniformMaterial.roughness: {self.roughness!r} is not in [0, 1]")
+            if len(value) != 3 or not all(np.isfinite(c) and lo <= c <= hi for c in value):
+                raise refusal(f"UniformMaterial.{name}", value, triple_allowed(lo, hi))
+        lo, hi = ROUGHNESS_RANGE
+        if not (np.isfinite(self.roughness) and lo <= self.roughness <= hi):
+            raise refusal("UniformMaterial.roughness", self.roughness, number_allowed(lo, hi))
 
     def to_maps(self, resolution) -> MaterialMaps:
         """Replicate the values into maps of ``resolution`` (int or (H, W))."""

@@ -18,8 +18,31 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from materials.colorspace import hsv_to_rgb, srgb_decode
-from materials.errors import MaterialError
-from materials.maps import UniformMaterial, tilt_normal
+from materials.errors import MaterialError, number_allowed, pair_allowed, refusal
+from materials.maps import ALBEDO_RANGE, ROUGHNESS_RANGE, UniformMaterial, tilt_normal
+
+#: A probability.
+PROBABILITY_RANGE = (0.0, 1.0)
+#: An HSV component (hue as a fraction of the circle; value in sRGB-encoded units).
+HSV_RANGE = (0.0, 1.0)
+#: The largest tilt a uniform material's normal may be drawn with, degrees from z.
+NORMAL_TILT_RANGE = (0.0, 80.0)
+
+#: What each field of :class:`UniformRanges` may hold: a number in, or a pair within, these
+#: bounds. Declared here once; the spec's ``[materials]`` rules are built from it.
+UNIFORM_LIMITS: dict[str, tuple[float, float]] = {
+    "roughness": ROUGHNESS_RANGE,
+    "metal_probability": PROBABILITY_RANGE,
+    "dielectric_specular": ALBEDO_RANGE,
+    "diffuse_value_srgb": HSV_RANGE,
+    "diffuse_saturation": HSV_RANGE,
+    "metal_value_srgb": HSV_RANGE,
+    "metal_saturation": HSV_RANGE,
+    "metal_hue": HSV_RANGE,
+    "metal_diffuse_fraction": PROBABILITY_RANGE,
+    "flat_normal_probability": PROBABILITY_RANGE,
+    "normal_tilt_max_deg": NORMAL_TILT_RANGE,
+}
 
 
 @dataclass(frozen=True)
@@ -58,34 +81,21 @@ class UniformRanges:
 
     def check(self) -> UniformRanges:
         """Raise :class:`MaterialError` naming the field, its value and what is allowed."""
-        limits = {
-            "roughness": (0.0, 1.0),
-            "dielectric_specular": (0.0, 1.0),
-            "diffuse_value_srgb": (0.0, 1.0),
-            "diffuse_saturation": (0.0, 1.0),
-            "metal_value_srgb": (0.0, 1.0),
-            "metal_saturation": (0.0, 1.0),
-            "metal_hue": (0.0, 1.0),
-            "metal_diffuse_fraction": (0.0, 1.0),
-            "metal_probability": (0.0, 1.0),
-            "flat_normal_probability": (0.0, 1.0),
-            "normal_tilt_max_deg": (0.0, 80.0),
-        }
         for f in fields(self):
             value = getattr(self, f.name)
-            low, high = limits[f.name]
+            low, high = UNIFORM_LIMITS[f.name]
             if isinstance(value, tuple):
                 ok = (
                     len(value) == 2
                     and all(isinstance(v, (int, float)) and np.isfinite(v) for v in value)
                     and low <= value[0] <= value[1] <= high
                 )
-                allowed = f"a pair (min, max) with {low} <= min <= max <= {high}"
+                allowed = pair_allowed(low, high)
             else:
                 ok = isinstance(value, (int, float)) and np.isfinite(value) and low <= value <= high
-                allowed = f"a number in [{low}, {high}]"
+                allowed = number_allowed(low, high)
             if not ok:
-                raise MaterialError(f"UniformRanges.{f.name}: {value!r} is not {allowed}")
+                raise refusal(f"UniformRanges.{f.name}", value, allowed)
         return self
 
 

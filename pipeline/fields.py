@@ -73,7 +73,7 @@ def format_value(value: Any) -> str:
 
 #: ``{name}`` inside a refusal's words: another field of the same request, spelled by the
 #: surface that reports it (``--cluster`` on the command line, ``cluster.kind`` in a spec).
-_FIELD_REF = re.compile(r"\{([a-z][a-z0-9_]*)\}")
+FIELD_REF = re.compile(r"\{([a-z][a-z0-9_]*)\}")
 
 
 class FieldError(ShaderballError):
@@ -108,7 +108,7 @@ class FieldError(ShaderballError):
         names = set(declared(self.owner)) if self.owner is not None and dataclasses.is_dataclass(self.owner) else None
 
         def spell(text: str) -> str:
-            return _FIELD_REF.sub(
+            return FIELD_REF.sub(
                 lambda m: label(m.group(1)) if names is None or m.group(1) in names else m.group(0), text
             )
 
@@ -145,6 +145,16 @@ class Reject(Exception):
 def is_number(v: Any) -> bool:
     # bool is an int subclass in Python: `spp = true` must not pass as 1.
     return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def is_finite(v: Any) -> bool:
+    """A number that is finite as a float (an integer too large for one is not: 10**400)."""
+    if not is_number(v):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
 
 
 def is_integer(v: Any) -> bool:
@@ -215,7 +225,7 @@ class Float(Rule):
             self.allowed = f"a finite number from {lo:g} to {hi:g}"
 
     def check(self, value):
-        if not is_number(value) or not math.isfinite(value):
+        if not is_finite(value):
             raise Reject()
         above = value > self.lo if self.lo_open else value >= self.lo
         below = value < self.hi if self.hi_open else value <= self.hi
@@ -240,7 +250,7 @@ class Pair(Rule):
     def check(self, value):
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise Reject()
-        if not all(is_number(v) and math.isfinite(v) for v in value):
+        if not all(is_finite(v) for v in value):
             raise Reject()
         lo, hi = float(value[0]), float(value[1])
         if lo > hi:
@@ -265,7 +275,7 @@ class Triple(Rule):
     def check(self, value):
         if not isinstance(value, (list, tuple)) or len(value) != 3:
             raise Reject()
-        if not all(is_number(v) and math.isfinite(v) for v in value):
+        if not all(is_finite(v) for v in value):
             raise Reject()
         if self.lo is not None and not all(self.lo <= v <= self.hi for v in value):
             raise Reject()

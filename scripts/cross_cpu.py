@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.bench.cross_cpu import child, cross_cpu_report, report_markdown  # noqa: E402
 from pipeline.errors import USER_ERRORS  # noqa: E402
+from pipeline.fields import FieldError  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,6 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = cross_cpu_report(args.spec, args.out_opt)
     except USER_ERRORS as exc:
+        if isinstance(exc, FieldError):  # out, as this script spells it
+            exc = exc.labelled(lambda name: "--" + name)
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code
     print(json.dumps(result) if args.json else report_markdown(result))

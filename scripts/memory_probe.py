@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.bench.memory_probe import MAX_PROBE_RENDERS, memory_probe  # noqa: E402
 from pipeline.errors import USER_ERRORS  # noqa: E402
+from pipeline.fields import FieldError  # noqa: E402
 from pipeline.render.limits import RESOLUTION_RANGE, span  # noqa: E402
 
 
@@ -40,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = memory_probe(args.memory_probe, args.resolution, args.spp, progress=show)
     except USER_ERRORS as exc:
+        if isinstance(exc, FieldError):  # a field of ProbeRequest, as this script spells it
+            exc = exc.labelled(lambda name: "--memory-probe" if name == "renders" else "--" + name)
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code
     for line in result.lines():

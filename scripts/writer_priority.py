@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/writer_priority.py --repeats 5 --out docs/results/writer-priority
 
-Runs `shaderball bench SPEC --limit N --resolution 400 --spp 1 --workers 0` (an in-process build,
+Runs `shaderball bench SPEC --renders N --resolution 400 --spp 1 --workers 0` (an in-process build,
 then bare renders of the same scenes) in fresh processes, alternating two arms, `--repeats`
 times each:
 
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--repeats: {args.repeats}; 2 or more (a 95% interval needs two pairs)")
     if args.limit < 1:
         parser.error(f"--limit: {args.limit}; 1 or more renders")
-    bench_args = [args.spec, "--limit", str(args.limit), "--resolution", str(args.resolution)]
+    bench_args = [args.spec, "--renders", str(args.limit), "--resolution", str(args.resolution)]
     bench_args += ["--spp", str(args.spp), "--workers", "0"]
     command = ".venv/bin/python scripts/writer_priority.py " + shlex.join(
         ["--spec", args.spec, "--limit", str(args.limit), "--resolution", str(args.resolution)]

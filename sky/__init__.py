@@ -3,7 +3,8 @@
 A domain package: it imports neither Mitsuba nor anything of ``pipeline``. The
 emitter's Mitsuba side (:func:`pipeline.render.emitter.emitter_dicts`,
 :func:`pipeline.render.emitter.update_emitter_params`) builds on :mod:`sky.emitter`.
-See docs/sky.md.
+See docs/sky.md. The sun's and turbidity's ranges are declared here once
+(:mod:`sky.lighting`): every rule of the spec, the commands and the server is built from them.
 
 Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
@@ -12,7 +13,17 @@ nothing of the project.
 from sky.directions import normalize_azimuth, sun_angles, sun_direction
 from sky.emitter import DEFAULT_SUN, SKY_KEY, SUN_KEY, SUN_MODES
 from sky.errors import SkyError
-from sky.lighting import ELEVATION_RANGE, SCHEMES, TURBIDITY_RANGE, Light, LightingRanges
+from sky.lighting import (
+    AZIMUTH_BOUNDS,
+    AZIMUTH_RANGE,
+    AZIMUTH_TURN,
+    ELEVATION_RANGE,
+    MAX_AZIMUTH_SPAN_DEG,
+    SCHEMES,
+    TURBIDITY_RANGE,
+    Light,
+    LightingRanges,
+)
 from sky.policy import (
     DEFAULT_POLICY,
     SAFE_ELEVATION_DEG,
@@ -23,9 +34,13 @@ from sky.policy import (
 from sky.sampling import direction_pdf, sample_lights
 
 __all__ = [
+    "AZIMUTH_BOUNDS",
+    "AZIMUTH_RANGE",
+    "AZIMUTH_TURN",
     "DEFAULT_POLICY",
     "DEFAULT_SUN",
     "ELEVATION_RANGE",
+    "MAX_AZIMUTH_SPAN_DEG",
     "SAFE_ELEVATION_DEG",
     "SCHEMES",
     "SKY_KEY",

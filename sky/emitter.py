@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from sky.errors import SkyError
+from sky.errors import refusal
 
 SUN_MODES = ("split", "sunsky")
 #: Chosen by measurement (docs/sky.md, `scripts/sun_benchmark.py`).
@@ -43,7 +43,7 @@ LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
 def check_sun(sun: str) -> None:
     if sun not in SUN_MODES:
-        raise SkyError(f"sky.sun = {sun!r} is not allowed: one of {', '.join(SUN_MODES)}")
+        raise refusal("sky.sun", sun, "one of " + ", ".join(f'"{m}"' for m in SUN_MODES))
 
 
 def desaturate_to_nonnegative(rgb) -> tuple[np.ndarray, bool]:

@@ -1,9 +1,13 @@
 """The lighting of one sample (``Light``) and the ranges a spec samples from (``LightingRanges``).
 
 Both are frozen dataclasses that check their own values on construction and raise
-:class:`sky.errors.SkyError` naming the field, the value and what is
-allowed. Accepted values may still be moved by the hard-case policy
-(:mod:`sky.policy`) before rendering; that is recorded, never silent.
+:class:`sky.errors.SkyError` naming the field, the value and what is allowed
+(``<field>: <value> is not allowed; <allowed>``). Accepted values may still be moved by the
+hard-case policy (:mod:`sky.policy`) before rendering; that is recorded, never silent.
+
+The ranges below are declared here once: the spec's ``[lighting]`` rules, `shaderball
+render`'s and `infer`'s sun options and `shaderball serve`'s API and sliders are built from
+them (``pipeline`` reads them; this package imports nothing of it).
 """
 
 from __future__ import annotations
@@ -14,47 +18,52 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from sky.directions import sun_direction
-from sky.errors import SkyError
+from sky.errors import number_allowed, pair_allowed, refusal
 
-#: Mitsuba's sunsky refuses turbidity outside this range when a scene loads.
+#: Turbidity: Mitsuba's sunsky refuses turbidity outside this range when a scene loads.
 TURBIDITY_RANGE = (1.0, 10.0)
-#: A daylight sun: on or above the horizon, up to the zenith. Mitsuba's sunsky is
-#: black for a sun at or below the horizon, so negative elevations are refused.
+#: Sun elevation, degrees: a daylight sun, on or above the horizon, up to the zenith.
+#: Mitsuba's sunsky is black for a sun at or below the horizon, so negative elevations are refused.
 ELEVATION_RANGE = (0.0, 90.0)
-#: Azimuth ranges are intervals of at most one turn, anywhere on the real line.
+#: One sun's azimuth, degrees counter-clockwise from +x seen from above: any angle of the
+#: turn below 0 or the turn above 360 (a slip of a turn stays valid).
+AZIMUTH_RANGE = (-360.0, 720.0)
+#: Where a sampled azimuth range lies: within one turn either side of 0 ...
+AZIMUTH_BOUNDS = (-360.0, 360.0)
+#: ... and at most one turn wide.
 MAX_AZIMUTH_SPAN_DEG = 360.0
+#: One whole turn: the azimuths a spec samples by default, and a slider's.
+AZIMUTH_TURN = (0.0, 360.0)
 
 SCHEMES = ("uniform_hemisphere", "uniform_angles", "stratified", "sobol")
 
 
-def _fail(field: str, value, allowed: str) -> SkyError:
-    return SkyError(f"{field} = {value!r} is not allowed: {allowed}")
-
-
-def _check_number(field: str, value) -> float:
+def _check_in(field: str, value, bounds: tuple[float, float]) -> float:
+    """``value`` as a float in ``bounds``; refused otherwise (booleans and strings too)."""
+    lo, hi = bounds
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise _fail(field, value, "expected a number")
-    if not math.isfinite(float(value)):
-        raise _fail(field, value, "expected a finite number")
-    return float(value)
-
-
-def _check_in(field: str, value, lo: float, hi: float, unit: str = "") -> float:
-    x = _check_number(field, value)
-    if not lo <= x <= hi:
-        raise _fail(field, value, f"allowed range is [{lo:g}, {hi:g}]{unit}")
+        raise refusal(field, value, number_allowed(lo, hi))
+    x = float(value)
+    if not (math.isfinite(x) and lo <= x <= hi):
+        raise refusal(field, value, number_allowed(lo, hi))
     return x
 
 
-def _check_interval(field: str, value, lo: float, hi: float, unit: str = "") -> tuple[float, float]:
+def _check_interval(
+    field: str, value, bounds: tuple[float, float], max_span: float | None = None
+) -> tuple[float, float]:
+    """``value`` as a closed interval (lo, hi) within ``bounds``; refused otherwise."""
+    allowed = pair_allowed(*bounds, max_span)
     try:
         a, b = value
     except (TypeError, ValueError):
-        raise _fail(field, value, "expected a pair (lo, hi)") from None
-    a = _check_in(f"{field}[0]", a, lo, hi, unit)
-    b = _check_in(f"{field}[1]", b, lo, hi, unit)
+        raise refusal(field, value, allowed) from None
+    a = _check_in(f"{field}[0]", a, bounds)
+    b = _check_in(f"{field}[1]", b, bounds)
     if a > b:
-        raise _fail(field, value, "lo must not exceed hi")
+        raise refusal(field, value, f"{allowed} (lo {a:g} > hi {b:g}: the range is inverted)")
+    if max_span is not None and b - a > max_span:
+        raise refusal(field, value, f"{allowed} (span {b - a:g})")
     return a, b
 
 
@@ -62,8 +71,9 @@ def _check_interval(field: str, value, lo: float, hi: float, unit: str = "") -> 
 class Light:
     """One sun-and-sky lighting: where the sun is and how hazy the air is.
 
-    ``elevation_deg`` in [0, 90] above the horizon, ``azimuth_deg`` any finite
-    number (counter-clockwise from +x seen from above), ``turbidity`` in [1, 10].
+    ``elevation_deg`` in :data:`ELEVATION_RANGE` above the horizon, ``azimuth_deg`` in
+    :data:`AZIMUTH_RANGE` (counter-clockwise from +x seen from above), ``turbidity`` in
+    :data:`TURBIDITY_RANGE`.
     """
 
     elevation_deg: float
@@ -74,9 +84,9 @@ class Light:
         self.check()
 
     def check(self, prefix: str = "light") -> None:
-        _check_in(f"{prefix}.elevation_deg", self.elevation_deg, *ELEVATION_RANGE, " degrees")
-        _check_number(f"{prefix}.azimuth_deg", self.azimuth_deg)
-        _check_in(f"{prefix}.turbidity", self.turbidity, *TURBIDITY_RANGE)
+        _check_in(f"{prefix}.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
+        _check_in(f"{prefix}.azimuth_deg", self.azimuth_deg, AZIMUTH_RANGE)
+        _check_in(f"{prefix}.turbidity", self.turbidity, TURBIDITY_RANGE)
 
     @property
     def direction(self) -> np.ndarray:
@@ -114,7 +124,7 @@ class LightingRanges:
     """
 
     elevation_deg: tuple[float, float] = ELEVATION_RANGE
-    azimuth_deg: tuple[float, float] = (0.0, 360.0)
+    azimuth_deg: tuple[float, float] = AZIMUTH_TURN
     turbidity: tuple[float, float] = TURBIDITY_RANGE
     scheme: str = "uniform_hemisphere"
 
@@ -127,13 +137,11 @@ class LightingRanges:
         self.check()
 
     def check(self, prefix: str = "lighting") -> None:
-        _check_interval(f"{prefix}.elevation_deg", self.elevation_deg, *ELEVATION_RANGE, " degrees")
-        a, b = _check_interval(f"{prefix}.azimuth_deg", self.azimuth_deg, -math.inf, math.inf)
-        if b - a > MAX_AZIMUTH_SPAN_DEG:
-            raise _fail(f"{prefix}.azimuth_deg", self.azimuth_deg, "span hi - lo must be at most 360 degrees")
-        _check_interval(f"{prefix}.turbidity", self.turbidity, *TURBIDITY_RANGE)
+        _check_interval(f"{prefix}.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
+        _check_interval(f"{prefix}.azimuth_deg", self.azimuth_deg, AZIMUTH_BOUNDS, MAX_AZIMUTH_SPAN_DEG)
+        _check_interval(f"{prefix}.turbidity", self.turbidity, TURBIDITY_RANGE)
         if self.scheme not in SCHEMES:
-            raise _fail(f"{prefix}.scheme", self.scheme, f"one of {', '.join(SCHEMES)}")
+            raise refusal(f"{prefix}.scheme", self.scheme, "one of " + ", ".join(f'"{s}"' for s in SCHEMES))
 
     def to_dict(self) -> dict:
         return {

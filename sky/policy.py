@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from sky.errors import SkyError
+from sky.errors import number_allowed, refusal
 from sky.lighting import TURBIDITY_RANGE, Light
 
 POLICY_NAME = "elevation-floor"
@@ -76,6 +76,8 @@ FLOOR_TABLE = (
 # fmt: on
 
 FLOOR_MODES = ("measured", "off")
+#: How far above the measured floor a raised sun goes, degrees.
+MARGIN_RANGE = (0.0, 5.0)
 
 
 @dataclass(frozen=True)
@@ -95,9 +97,14 @@ class LightingPolicy:
 
     def check(self, prefix: str = "sky.policy") -> None:
         if self.floor not in FLOOR_MODES:
-            raise SkyError(f"{prefix}.floor = {self.floor!r} is not allowed: one of {', '.join(FLOOR_MODES)}")
-        if not (isinstance(self.margin_deg, (int, float)) and 0.0 <= self.margin_deg <= 5.0):
-            raise SkyError(f"{prefix}.margin_deg = {self.margin_deg!r} is not allowed: allowed range is [0, 5] degrees")
+            raise refusal(f"{prefix}.floor", self.floor, "one of " + ", ".join(f'"{m}"' for m in FLOOR_MODES))
+        margin = self.margin_deg
+        if (
+            isinstance(margin, bool)
+            or not isinstance(margin, (int, float))
+            or not MARGIN_RANGE[0] <= margin <= MARGIN_RANGE[1]
+        ):
+            raise refusal(f"{prefix}.margin_deg", margin, number_allowed(*MARGIN_RANGE))
 
     def to_dict(self) -> dict:
         return {"floor": self.floor, "margin_deg": float(self.margin_deg)}
@@ -111,7 +118,7 @@ def measured_floor_deg(turbidity: float) -> float:
     t = float(turbidity)
     lo, hi = TURBIDITY_RANGE
     if not lo <= t <= hi:
-        raise SkyError(f"turbidity = {turbidity!r} is not allowed: allowed range is [{lo:g}, {hi:g}]")
+        raise refusal("turbidity", turbidity, number_allowed(lo, hi))
     return max(floor for a, b, floor in FLOOR_TABLE if a <= t <= b)
 
 

@@ -25,11 +25,11 @@ def test_derive_spec_cuts_whole_materials_and_resizes():
     from pipeline.dataset.spec import parse_spec
 
     paper = parse_spec(PAPER)
-    cut = derive_spec(paper, samples=12, resolution=200, spp=32)
+    cut = derive_spec(paper, renders=12, resolution=200, spp=32)
     assert (cut.dataset.materials, cut.dataset.lights_per_material) == (3, 5)  # ceil(12 / 5) materials
     assert (cut.render.resolution, cut.render.spp) == (200, 32)
     assert cut.dataset.seed == paper.dataset.seed and cut.lighting == paper.lighting
-    few = derive_spec(paper, samples=3)
+    few = derive_spec(paper, renders=3)
     assert (few.dataset.materials, few.dataset.lights_per_material) == (1, 3)
     assert derive_spec(paper) == paper
 
@@ -37,15 +37,43 @@ def test_derive_spec_cuts_whole_materials_and_resizes():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--limit", "0"], "--limit: 0 is not allowed; allowed: an integer from 1 to 1000000"),
+        (["--renders", "0"], "--renders: 0 is not allowed; an integer from 1 to 1000000"),
         (["--spp", "0"], "--spp: 0 is not allowed"),
         (["--resolution", "9"], "--resolution: 9 is not allowed; an integer from 16 to 4096"),
         (["--workers", "-1"], "--workers: -1 is not allowed"),
+        (["--shard-size", "0"], "--shard-size: 0 is not allowed; an integer from 1 to 1000000"),
+        (["--repeats", "3"], "--repeats: not an option of the build benchmark; it takes SPEC, --renders"),
+        (["--effects"], "SPEC: not an option of the effects benchmark; it takes --effects, --resolution"),
+        (["--scale", "10,20", "--out", "x", "--profile"], "--profile: not an option of the scale benchmark"),
+        (["--effects", "--repeats", "0"], "--repeats: 0 is not allowed; an integer from 1 to 100"),
     ],
 )
-def test_bench_bad_options_exit_2(args, message):
+def test_bench_bad_options_exit_2(args, message, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     result = _cli("bench", SMOKE, *args)
     assert result.exit_code == 2 and message in result.output, result.output
+    assert not list(tmp_path.iterdir()), "nothing is written"
+
+
+def test_bench_runs_one_benchmark_at_a_time():
+    result = _cli("bench", "--effects", "--scale", "10,20", "--out", "x")
+    assert result.exit_code == 2 and "--scale: not allowed with --effects" in result.output, result.output
+
+
+def test_bench_settings_are_the_renderers_declarations_and_each_benchmarks_own_defaults():
+    """spp and resolution are RenderSettings' fields (one rule, one range); unset, each
+    benchmark renders at its own: the spec's, the effects benchmark's, the scale benchmark's."""
+    from pipeline.bench.command import BenchRequest
+    from pipeline.fields import declared
+    from pipeline.render.settings import RenderSettings
+
+    for name in ("spp", "resolution"):
+        mine, theirs = declared(BenchRequest)[name].metadata["rule"], declared(RenderSettings)[name].metadata["rule"]
+        assert mine.rule is theirs  # the same declaration, optional here
+    assert BenchRequest(spec=str(SMOKE)).check_fields().settings() == (None, None)
+    assert BenchRequest(effects=True).check_fields().settings() == (128, 64)
+    assert BenchRequest(scale=(10, 20), out="x").check_fields().settings() == (16, 1)
+    assert BenchRequest(effects=True, spp=8).check_fields().settings() == (128, 8)
 
 
 def test_bench_needs_a_spec_or_effects(tmp_path):
@@ -65,8 +93,9 @@ def test_bench_refuses_a_non_empty_out(tmp_path):
 @pytest.mark.slow
 def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     from pipeline.bench.build_bench import run_build_bench
+    from pipeline.bench.command import BenchRequest
 
-    bench = run_build_bench(str(SMOKE), out=str(tmp_path / "ds"), samples=4, workers=0)
+    bench = run_build_bench(BenchRequest(spec=str(SMOKE), out=str(tmp_path / "ds"), renders=4, workers=0))
     assert bench.samples == 4 and len(bench.timings) == 4
     assert all(t.identical for t in bench.timings)  # the bare renders are the build's samples
     assert bench.build_s > 0 and bench.bare_s > 0 and bench.ratio == bench.build_s / bench.bare_s
@@ -105,9 +134,9 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
 def test_effects_bench_reports_every_omission(tmp_path):
     import json
 
-    from pipeline.bench.build_bench import run_from_args
+    from pipeline.bench.command import BenchRequest, run_bench
 
-    bench = run_from_args(effects=True, resolution=64, spp=4, repeats=1, json_path=str(tmp_path / "e.json"))
+    bench = run_bench(BenchRequest(effects=True, resolution=64, spp=4, repeats=1, json_out=str(tmp_path / "e.json")))
     cases = {c.omission: c for c in bench.cases}
     assert set(cases) == {
         "textured -> constant",

@@ -102,9 +102,12 @@ def test_json_prints_exactly_one_document_on_success(args):
     "args, new",
     [
         (["train", "DATA", "--out", "RUN", "--workers", "2"], "--loader-workers"),
-        (["bench", SMOKE, "--samples", "4"], "--limit"),
-        (["plan", SMOKE, "--samples", "4"], "--limit"),
-        (["preview", "DIR", "--out", "x.png", "--samples", "4"], "--limit"),
+        (["bench", SMOKE, "--samples", "4"], "--renders"),
+        (["bench", SMOKE, "--limit", "4"], "--renders"),
+        (["plan", SMOKE, "--samples", "4"], "--renders"),
+        (["plan", SMOKE, "--limit", "4"], "--renders"),
+        (["preview", "DIR", "--out", "x.png", "--samples", "4"], "--rows"),
+        (["preview", "DIR", "--out", "x.png", "--limit", "4"], "--rows"),
         (["study", SMOKE, "--out", "S", "--samples", "4"], "--draws"),
         (["bench", SMOKE, "--json", "bench.json"], "--json-out"),
         (["evaluate", "RUN", "DATA", "--json", "results.json"], "--json-out"),
@@ -123,3 +126,120 @@ def test_train_has_no_dask_workers_and_its_loader_workers_say_so():
     options = {o: p for p in cli.main.commands["train"].params for o in getattr(p, "opts", ())}
     assert "--loader-workers" in options and "dataloader" in options["--loader-workers"].help.lower()
     assert options["--workers"].hidden
+
+
+# ----------------------------------------------------------------- one declared request per command
+
+
+def _request_fields(command) -> dict:
+    from pipeline.fields import declared
+
+    return declared(command.request_cls)
+
+
+@pytest.mark.parametrize("name, command", COMMANDS)
+def test_every_command_is_generated_from_one_request(name, command):
+    """Every visible option and operand is a field of the command's request: nothing is
+    declared by hand in cli.py (only --json and --help are the command line's own)."""
+    assert getattr(command, "request_cls", None) is not None, f"{name}: not made by request_command"
+    fields = _request_fields(command)
+    for param in command.params:
+        if isinstance(param, click.Option) and (param.hidden or param.name in ("as_json", "help")):
+            continue
+        assert param.name in fields, f"{name} {'/'.join(param.opts)}: not a field of {command.request_cls.__name__}"
+
+
+@pytest.mark.parametrize("name, command", COMMANDS)
+def test_every_numeric_option_shows_its_range(name, command):
+    for option in visible_options(command):
+        kind = getattr(option.type, "rule", None)
+        inner = getattr(kind, "rule", kind)
+        if type(inner).__name__ in ("Int", "Float", "IntList") or option.type in (click.INT, click.FLOAT):
+            assert "Allowed:" in option.help, f"{name} {option.opts[0]}: its help shows no range"
+
+
+@pytest.mark.parametrize("name, command", COMMANDS)
+def test_limit_means_the_first_n_samples_everywhere(name, command):
+    for option in visible_options(command):
+        if "--limit" in option.opts:
+            assert "first" in option.help.lower(), f"{name} --limit: means 'at most the first N samples' only"
+
+
+def _choice_options():
+    for name, command in COMMANDS:
+        for option in visible_options(command):
+            rule = getattr(option.type, "inner", None)
+            if type(rule).__name__ == "Choice":
+                yield name, command, option
+
+
+@pytest.mark.parametrize("name, command, option", list(_choice_options()), ids=lambda v: getattr(v, "name", v))
+def test_a_refused_choice_reads_in_the_project_form(name, command, option, tmp_path):
+    operands = [str(tmp_path)] * sum(isinstance(p, click.Argument) and p.required for p in command.params)
+    result = CliRunner().invoke(cli.main, [*name.split(), *operands, option.opts[0], "not-a-choice", "--json"])
+    assert result.exit_code == 2, result.output
+    doc = json.loads(result.stdout)
+    assert doc["error"].startswith(f'{option.opts[0]}: "not-a-choice" is not allowed; one of '), doc
+    assert "Invalid value" not in result.output
+
+
+JSON_COMMANDS = [(n, c) for n, c in COMMANDS if any(p.name == "as_json" for p in c.params)]
+
+
+@pytest.mark.parametrize("form", ["--json=out.json", "--json out.json"])
+@pytest.mark.parametrize("name, command", JSON_COMMANDS)
+def test_json_given_a_value_is_one_document_naming_json_out(name, command, form, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    operands = ["missing"] * sum(isinstance(p, click.Argument) and p.required for p in command.params)
+    result = CliRunner().invoke(cli.main, [*name.split(), *operands, *form.split()])
+    assert result.exit_code == 2, result.output
+    doc = json.loads(result.stdout)  # exactly one document
+    assert doc["ok"] is False and "--json is a flag" in doc["error"], doc
+    if any("--json-out" in p.opts for p in visible_options(command)):
+        assert "--json-out" in doc["error"], doc
+    assert not list(tmp_path.iterdir()), "nothing is written"
+
+
+@pytest.mark.parametrize("args", [["info", SMOKE, "--json"], ["plan", SMOKE, "--no-timing", "--json"]])
+def test_a_success_document_says_ok(args):
+    result = invoke(*args)
+    doc = json.loads(result.stdout)
+    assert result.exit_code == 0 and doc["ok"] is True and doc["exit"] == 0, doc
+
+
+def test_a_missing_operand_says_it_does_not_exist(tmp_path):
+    for args in (["verify", tmp_path / "nope"], ["validate", tmp_path / "nope"], ["info", tmp_path / "nope"]):
+        result = invoke(*args)
+        assert result.exit_code == 2 and "does not exist" in result.output and "Errno" not in result.output, args
+
+
+#: Library modules that print nothing and parse nothing: the command line is theirs to spell.
+LIBRARY = [p for p in (REPO / "pipeline").rglob("*.py") if "ui" not in p.relative_to(REPO / "pipeline").parts[:1]]
+
+
+def _refusal_texts(path: Path):
+    """The first string piece of every exception raised in ``path`` (its message's head)."""
+    import ast
+
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call) and node.exc.args:
+            first = node.exc.args[0]
+            if isinstance(first, ast.JoinedStr) and first.values and isinstance(first.values[0], ast.Constant):
+                first = first.values[0]
+            if isinstance(first, ast.Constant) and isinstance(first.value, str):
+                yield node.lineno, first.value
+
+
+@pytest.mark.parametrize("path", LIBRARY, ids=lambda p: str(p.relative_to(REPO)))
+def test_the_library_names_fields_not_options(path):
+    """A refusal in library code names the field (FieldError by name), never the command
+    line's spelling of it: no message that starts with an option or an operand's metavar."""
+    bad = [
+        f"{path.relative_to(REPO)}:{line}: {text[:60]!r}"
+        for line, text in _refusal_texts(path)
+        if re.match(r"(--[a-z]|[A-Z]+(\|[A-Z]+)*: )", text)
+    ]
+    assert not bad, bad
+    source = path.read_text()
+    assert "bad_value(" not in source and "check_int(" not in source, f"{path}: refuse by the field rules"

@@ -64,7 +64,7 @@ def test_render_settings_options_carry_the_settings_default_and_rule(command):
 def test_render_and_infer_take_the_render_request_declarations(command):
     fields = declared(RenderRequest)
     options = options_of(command)
-    for name in ("diffuse", "specular", "roughness", "normal", "svbrdf", "elevation_deg", "azimuth_deg", "turbidity"):
+    for name in ("diffuse", "specular", "roughness", "normal", "svbrdf", "elevation", "azimuth", "turbidity"):
         assert options[name].type.rule is fields[name].metadata["rule"], f"{command} {name}"
         assert default_value(options[name]) == default_of(fields[name]), f"{command} {name}"
 

@@ -36,7 +36,7 @@ BACKENDS = {
 
 
 def _options(kind: str, **changes) -> ClusterOptions:
-    base = dict(kind=kind, jobs=100, cores=32, memory="64GiB", walltime="12:00:00", queue="render", account="vision")
+    base = dict(cluster=kind, jobs=100, cores=32, memory="64GiB", walltime="12:00:00", queue="render", account="vision")
     base.update(changes)
     return ClusterOptions(**base)
 
@@ -105,22 +105,22 @@ def test_user_prologue_from_dask_config_comes_first():
 @pytest.mark.parametrize(
     "changes,message",
     [
-        ({"memory": None}, "--memory: required with --cluster slurm; for example: --memory 64GiB"),
-        ({"cores": None}, "--cores: required with --cluster slurm; for example: --cores 32"),
-        ({"walltime": None}, "--walltime: required"),
-        ({"walltime": "12h"}, '--walltime: "12h" is not allowed; HH:MM:SS from 00:01:00'),
-        ({"walltime": "00:00:59"}, '--walltime: "00:00:59" is not allowed'),
-        ({"start_timeout": 9}, r"--start-timeout: 9 is not allowed; an integer from 10 to 10000000"),
-        ({"memory": "lots"}, '--memory: "lots" is not allowed; an amount from 256MiB to 64TiB'),
-        ({"memory": "100MB"}, '--memory: "100MB" is not allowed'),
-        ({"cores": 0}, r"--cores: 0 is not allowed; an integer from 1 to 1024"),
-        ({"jobs": 0}, r"--jobs: 0 is not allowed; an integer from 1 to 10000"),
-        ({"queue": "a b"}, '--queue: "a b" is not allowed'),
-        ({"account": "x;rm"}, '--account: "x;rm" is not allowed'),
-        ({"scratch": "/tmp/a b"}, '--scratch: "/tmp/a b" is not allowed'),
-        ({"workers": 4}, "--workers: not allowed with --cluster slurm; use --jobs"),
-        ({"scheduler": "tcp://h:1"}, "--scheduler: not allowed with --cluster slurm"),
-        ({"recycle_after": -1}, r"--recycle-after: -1 is not allowed; an integer from 0 to 10000000"),
+        ({"memory": None}, "memory: required with cluster slurm; for example: memory 64GiB"),
+        ({"cores": None}, "cores: required with cluster slurm; for example: cores 32"),
+        ({"walltime": None}, "walltime: required"),
+        ({"walltime": "12h"}, 'walltime: "12h" is not allowed; HH:MM:SS from 00:01:00'),
+        ({"walltime": "00:00:59"}, 'walltime: "00:00:59" is not allowed'),
+        ({"start_timeout": 9}, r"start_timeout: 9 is not allowed; an integer from 10 to 10000000"),
+        ({"memory": "lots"}, 'memory: "lots" is not allowed; an amount from 256MiB to 64TiB'),
+        ({"memory": "100MB"}, 'memory: "100MB" is not allowed'),
+        ({"cores": 0}, r"cores: 0 is not allowed; an integer from 1 to 1024"),
+        ({"jobs": 0}, r"jobs: 0 is not allowed; an integer from 1 to 10000"),
+        ({"queue": "a b"}, 'queue: "a b" is not allowed'),
+        ({"account": "x;rm"}, 'account: "x;rm" is not allowed'),
+        ({"scratch": "/tmp/a b"}, 'scratch: "/tmp/a b" is not allowed'),
+        ({"workers": 4}, "workers: not allowed with cluster slurm; use jobs"),
+        ({"scheduler": "tcp://h:1"}, "scheduler: not allowed with cluster slurm"),
+        ({"recycle_after": -1}, r"recycle_after: -1 is not allowed; an integer from 0 to 10000000"),
     ],
 )
 def test_bad_options_name_option_value_and_range(changes, message):
@@ -144,7 +144,7 @@ def test_jobqueue_options_are_refused_on_a_local_cluster(option):
 
     name = option[0].lstrip("-").replace("-", "_")
     value = int(option[1]) if option[1].isdigit() else option[1]
-    with pytest.raises(ShaderballError, match=f"{option[0]}: only with --cluster slurm or --cluster pbs"):
+    with pytest.raises(ShaderballError, match=f"{name}: only with cluster slurm or cluster pbs"):
         ClusterOptions(**{name: value}).check()
 
 

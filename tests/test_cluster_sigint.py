@@ -31,7 +31,7 @@ def _worker_pids(client) -> list[int]:
 
 @pytest.mark.slow
 def test_local_workers_ignore_sigint_also_when_started_again_later():
-    with connect(ClusterOptions(kind="local", workers=1)) as conn:
+    with connect(ClusterOptions(cluster="local", workers=1)) as conn:
         client = conn.client
         (first,) = _worker_pids(client)
         assert _ignores_sigint(first)

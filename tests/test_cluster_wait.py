@@ -40,7 +40,7 @@ class Clock:
 
 
 def _slurm(**changes) -> ClusterOptions:
-    base = dict(kind="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
+    base = dict(cluster="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
     base.update(changes)
     return ClusterOptions(**base).check()
 
@@ -136,7 +136,7 @@ def test_a_refused_job_stops_the_build_at_once():
     watch.poll()
     with pytest.raises(
         ShaderballError,
-        match=r"^--cluster slurm: the batch system refused a job: `sbatch "
+        match=r"^slurm: the batch system refused a job: `sbatch "
         r"JOB-SCRIPT` exited 1: sbatch: error: invalid partition",
     ):
         watch.check()
@@ -158,7 +158,7 @@ def test_a_failing_squeue_is_shown_not_fatal():
 def test_pbs_jobs_are_counted_without_reasons():
     watch = WorkerWatch(
         lambda: 0,
-        _slurm(kind="pbs"),
+        _slurm(cluster="pbs"),
         _jobqueue("12.pbs"),
         clock=Clock(),
         job_states=lambda ids: pytest.fail("no squeue for PBS"),
@@ -184,15 +184,15 @@ def test_describe_jobs_keeps_the_line_short():
 @pytest.mark.parametrize(
     "changes,message",
     [
-        ({"start_timeout": 9}, "--start-timeout: 9 is not allowed; an integer from 10 to 10000000"),
+        ({"start_timeout": 9}, "start_timeout: 9 is not allowed; an integer from 10 to 10000000"),
         (
-            {"kind": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
-            "--start-timeout: not allowed with --workers 0",
+            {"cluster": "local", "cores": None, "memory": None, "walltime": None, "workers": 0},
+            "start_timeout: not allowed with workers 0",
         ),
     ],
 )
 def test_bad_start_timeouts(changes, message):
-    base = dict(kind="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
+    base = dict(cluster="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
     base.update(changes)
     with pytest.raises(ShaderballError, match=message):
         ClusterOptions(**base).check()

@@ -120,7 +120,7 @@ def test_a_marker_naming_an_outside_picture_is_not_shown_by_preview_and_info_say
         },
     )
     with watch_opens(outside) as watch:
-        code, output = cli("preview", ds, "--out", tmp_path / "sheet.png", "--limit", "16")
+        code, output = cli("preview", ds, "--out", tmp_path / "sheet.png", "--rows", "16")
         assert code == 0, output
         assert "left out" in output and "shards/s00000/COMPLETE.json" in output and "leaves the folder" in output
         code, output = cli("info", ds)

@@ -48,6 +48,28 @@ def test_model_comparison_numbers():
     assert albedo_table.FLOOR_ROUGHNESS == pytest.approx(0.1778, abs=1e-4)
 
 
+def test_figures_defaults_are_the_requests_and_another_figures_option_is_refused(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import cli
+    from pipeline.figures.command import FiguresRequest
+
+    sheet = FiguresRequest(name="contact-sheet", out="x.png").check_fields()
+    assert (sheet.examples, sheet.resolution, sheet.seed) == (4, 128, contact_sheet.SHEET_SEED)
+    assert {"examples": sheet.examples, "resolution": sheet.resolution} == SHEET_ARGS  # what the docs run
+    monkeypatch.chdir(tmp_path)
+    for args, message in (
+        (["sun-positions", "--out", "s.png", "--examples", "2"], "--examples: not an option of sun-positions; "),
+        (["albedo-table", "--resolution", "64"], "--resolution: not an option of albedo-table; albedo-table takes "),
+        (["contact-sheet", "--out", "s.png", "--no-samplers"], "--no-samplers: not an option of contact-sheet"),
+        (["contact-sheet"], "--out: missing; a PNG file for contact-sheet"),
+        (["contact-sheet", "--out", "s.png", "--examples", "65"], "--examples: 65 is not allowed; an integer from 1"),
+    ):
+        result = CliRunner().invoke(cli.main, ["figures", *args])
+        assert result.exit_code == 2 and message in result.output, (args, result.output)
+    assert not list(tmp_path.iterdir()), "nothing is written"
+
+
 def test_contact_sheet_is_reproducible_and_current():
     small = contact_sheet.contact_sheet(examples=1, resolution=32)
     assert small.dtype == np.uint8 and small.ndim == 3

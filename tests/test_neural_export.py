@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.neural.config import ExportRequest
 from pipeline.neural.export import EXTRA, example_inputs, export_torchscript
 from pipeline.neural.infer import load_run_model
 from pipeline.neural.train import TrainConfig, train
@@ -29,7 +30,7 @@ def run(tmp_path_factory):
 
 def test_the_export_gives_the_models_output(run, tmp_path):
     path = tmp_path / "net.pt"
-    meta = export_torchscript(str(run), str(path), "best")
+    meta = export_torchscript(ExportRequest(str(run), str(path), "best"))
     model, _ = load_run_model(str(run), torch.device("cpu"), "best")
     extra = {EXTRA: ""}
     loaded = torch.jit.load(str(path), _extra_files=extra)
@@ -44,7 +45,7 @@ def test_the_export_gives_the_models_output(run, tmp_path):
 
 def test_the_export_loads_in_a_process_without_this_package(run, tmp_path):
     path = tmp_path / "net.pt"
-    export_torchscript(str(run), str(path))
+    export_torchscript(ExportRequest(str(run), str(path)))
     code = (
         "import sys, torch; sys.modules['pipeline'] = None; net = torch.jit.load(sys.argv[1]); "
         "print(tuple(net(torch.rand(1, 12, 32, 32), torch.tensor([[0.0, 0.0, 3.0, 3.0]])).shape))"
@@ -55,7 +56,7 @@ def test_the_export_loads_in_a_process_without_this_package(run, tmp_path):
 
 
 def test_bad_names_are_refused(run, tmp_path):
-    with pytest.raises(ShaderballError, match="--out"):
-        export_torchscript(str(run), str(tmp_path / "net.onnx"))
-    with pytest.raises(ShaderballError, match="--checkpoint"):
-        export_torchscript(str(run), str(tmp_path / "net.pt"), str(tmp_path / "missing.pt"))
+    with pytest.raises(ShaderballError, match="^out: .*net.onnx.* .pt, .pth or .ts"):
+        ExportRequest(run=str(run), out=str(tmp_path / "net.onnx"))
+    with pytest.raises(ShaderballError, match="^checkpoint: .*missing.pt"):
+        export_torchscript(ExportRequest(str(run), str(tmp_path / "net.pt"), str(tmp_path / "missing.pt")))

@@ -23,6 +23,7 @@ from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.bench import compare_loaders
+from pipeline.neural.config import LoadersRequest
 from pipeline.neural.data import PublishedFiles, is_publication, open_dataset
 from pipeline.neural.denoise import AuxBuffers, material_albedo
 from pipeline.neural.evaluate import PathTracer
@@ -92,12 +93,12 @@ def test_worker_processes_read_the_publication_as_the_folder(reference, pub):
 
 
 def test_the_loader_benchmark_compares_both(reference, pub):
-    result = compare_loaders(str(reference), str(pub), repeats=1)
+    result = compare_loaders(LoadersRequest(str(reference), str(pub), repeats=1))
     assert result["samples"] == 16
     for name in ("folder", "publication"):
         assert result[name]["samples_per_s"] > 0 and result[name]["open_s"] >= 0
-    with pytest.raises(ShaderballError, match="name a dataset folder, then its publication"):
-        compare_loaders(str(pub), str(reference), repeats=1)
+    with pytest.raises(ShaderballError, match="^folder: .* is a publication; a dataset folder, then its publication"):
+        compare_loaders(LoadersRequest(str(pub), str(reference), repeats=1))
 
 
 def test_train_and_evaluate_from_the_publication_match_the_folder(reference, pub, tmp_path):

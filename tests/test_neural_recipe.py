@@ -38,7 +38,7 @@ def test_width_scales_the_channels_and_keeps_the_interface():
 
 @pytest.mark.parametrize("width", [0, -0.5, 1.5, float("nan"), True, "0.5"])
 def test_a_width_outside_0_1_is_refused_by_name(tmp_path, width):
-    with pytest.raises(ShaderballError, match="--width"):
+    with pytest.raises(ShaderballError, match="^width: "):
         train_config(tmp_path, width=width).check()
 
 
@@ -101,7 +101,7 @@ def test_training_materials_are_nested_subsets_and_too_many_is_refused():
     assert len(small) == 5 and len(large) == 20 and small < large
     assert select_training_materials(ids, None, 7) == ids
     assert set(select_training_materials(ids, 5, 8)) != small  # the order comes from the split seed
-    with pytest.raises(ShaderballError, match="--train-materials.*at most 40"):
+    with pytest.raises(ShaderballError, match="^train_materials: 41 .*at most 40"):
         select_training_materials(ids, 41, 7)
 
 

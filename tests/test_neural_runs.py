@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.fields import FieldError
 from pipeline.neural.train import train
 from support.neural_fakes import FakeSource, train_config
 
@@ -25,7 +26,7 @@ def test_fewer_epochs_than_done_is_refused_and_config_json_is_kept(tmp_path):
     source = FakeSource()
     train(_config(tmp_path, epochs=2), source=source)
     before = _snapshot(tmp_path / "run")
-    with pytest.raises(ShaderballError, match=r"--epochs: 1 is not allowed; allowed: at least 2: .* already trained 2"):
+    with pytest.raises(FieldError, match=r"^epochs: 1 is not allowed; at least 2: .* already trained 2"):
         train(_config(tmp_path, epochs=1), source=source)
     assert _snapshot(tmp_path / "run") == before
     assert json.loads((tmp_path / "run" / "config.json").read_text())["options"]["epochs"] == 2
@@ -68,9 +69,9 @@ def test_no_held_out_split_no_best_checkpoint_and_best_is_refused_by_name(tmp_pa
 
     train(_config(tmp_path, epochs=1, test_fraction=0.0), source=FakeSource())
     assert not (tmp_path / "run" / "checkpoint-best.pt").exists()
-    with pytest.raises(ShaderballError, match="--checkpoint best: .*use --checkpoint last"):
+    with pytest.raises(FieldError, match="^checkpoint: best: the run has no .*checkpoint-best.pt.*; last$"):
         runfiles.load_checkpoint(str(tmp_path / "run"), checkpoint="best")
-    with pytest.raises(ShaderballError, match="--checkpoint: .*nope.pt.*no such file"):
+    with pytest.raises(FieldError, match="^checkpoint: .*nope.pt.*no such file"):
         runfiles.load_checkpoint(str(tmp_path / "run"), checkpoint=str(tmp_path / "nope.pt"))
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from pipeline.errors import ShaderballError
 from pipeline.neural import sweep
+from pipeline.neural.config import SweepRequest
 
 
 def _report(tmp_path, seed, renders, offset, materials=6, lights=2):
@@ -46,7 +47,8 @@ def _report(tmp_path, seed, renders, offset, materials=6, lights=2):
 def test_a_sweep_orders_runs_pairs_differences_and_pools_seeds(tmp_path):
     paths = [_report(tmp_path, s, n, off) for s in (1, 2) for n, off in ((100, 1.0), (400, 3.0))]
     out = tmp_path / "out"
-    summary, text = sweep.write_sweep(paths, str(out))
+    command = " ".join(["shaderball sweep", *paths, "--out", str(out)])  # as the command line spells the request
+    summary, text = sweep.write_sweep(SweepRequest(tuple(paths), str(out)), command=command)
     assert summary == json.loads((out / "sweep.json").read_text()) and text == (out / "sweep.md").read_text()
     data = json.loads((out / "sweep.json").read_text())
     assert [(r["train_renders"], r["seed"]) for r in data["runs"]] == [(100, 1), (100, 2), (400, 1), (400, 2)]
@@ -63,7 +65,6 @@ def test_a_sweep_orders_runs_pairs_differences_and_pools_seeds(tmp_path):
     text = (out / "sweep.md").read_text()
     assert "| 400 | 2 |" in text
     # headed by the command that wrote it, the machine and the date
-    command = " ".join(["shaderball sweep", *paths, "--out", str(out)])
     assert text.splitlines()[2].startswith(f"Written by `{command}` on 20") and "CPUs" in text.splitlines()[2]
 
 
@@ -73,5 +74,5 @@ def test_reports_on_other_held_out_samples_are_refused(tmp_path):
     with pytest.raises(ShaderballError, match="different samples"):
         sweep.summarise([(p, sweep._load(p)) for p in (a, b)])
     with pytest.raises(ShaderballError, match="different samples"):
-        sweep.write_sweep([a, b], str(tmp_path / "o"))
+        sweep.write_sweep(SweepRequest((a, b), str(tmp_path / "o")))
     assert not (tmp_path / "o").exists()

@@ -75,13 +75,14 @@ def test_weights_load_through_the_checked_path(vgg_file):
 def test_a_file_with_another_hash_is_refused(vgg_file):
     with pytest.raises(ShaderballError, match="SHA-256") as err:
         find_vgg_weights(vgg_file)  # expects torchvision's ImageNet file
-    assert "--vgg-sha256" in str(err.value) and vgg_file in str(err.value)
+    assert str(err.value).startswith("vgg_weights: ")  # the field, by its name (the command line: --vgg-weights)
+    assert "vgg_sha256" in str(err.value) and vgg_file in str(err.value)
     with pytest.raises(ShaderballError, match="SHA-256"):
         find_vgg_weights(vgg_file, expected_sha256="0" * 64)
 
 
 def test_missing_file_is_named(tmp_path):
-    with pytest.raises(ShaderballError, match="--vgg-weights.*nothere.pth"):
+    with pytest.raises(ShaderballError, match="^vgg_weights: .*nothere.pth"):
         find_vgg_weights(str(tmp_path / "nothere.pth"))
 
 
@@ -90,12 +91,12 @@ def test_hub_cache_is_looked_up_and_checked(tmp_path, monkeypatch, vgg_file):
     with pytest.raises(ShaderballError) as err:
         find_vgg_weights(None)
     message = str(err.value)
-    assert "--vgg-weights" in message and "--loss l1" in message
+    assert message.startswith("vgg_weights: unset") and "loss l1" in message
     assert os.path.join(str(tmp_path), "hub", "checkpoints", HUB_FILENAME) in message
     os.makedirs(os.path.dirname(hub_cache_path()))
     with open(vgg_file, "rb") as src, open(hub_cache_path(), "wb") as dst:
         dst.write(src.read())
-    with pytest.raises(ShaderballError, match="torch hub cache.*SHA-256"):
+    with pytest.raises(ShaderballError, match="torch hub's cache: .*SHA-256"):
         find_vgg_weights(None)  # a cached file is checked too, unlike torch hub's own lookup
     found = find_vgg_weights(None, expected_sha256=sha256_of(vgg_file))
     assert found.path == hub_cache_path() and found.source == "torch hub cache"
@@ -129,5 +130,5 @@ def test_loss_is_l1_plus_weighted_relu3_3_mse(vgg_file):
 
 
 def test_unknown_loss_is_refused():
-    with pytest.raises(ShaderballError, match="--loss"):
+    with pytest.raises(ShaderballError, match="^loss: "):
         RenderLoss("l2")

@@ -29,7 +29,7 @@ def timed() -> dict:
     """`plan SPEC --json` on the smoke spec, one material timed, with a SLURM estimate, in a
     real process (stdout must be one JSON document)."""
     done = subprocess.run(
-        [sys.executable, "-m", "cli", "plan", str(SMOKE), "--limit", "1", "--json"]
+        [sys.executable, "-m", "cli", "plan", str(SMOKE), "--renders", "1", "--json"]
         + ["--cluster", "slurm", "--jobs", "3", "--cores", "4"],
         capture_output=True,
         text=True,
@@ -79,7 +79,7 @@ def test_plan_text_says_time_in_seconds_and_leaves_nothing(tmp_path, monkeypatch
     import tempfile
 
     monkeypatch.setattr(tempfile, "tempdir", None)
-    result = _cli("plan", SMOKE, "--limit", "1", "--workers", "2")
+    result = _cli("plan", SMOKE, "--renders", "1", "--workers", "2")
     assert result.exit_code == 0, result.output
     assert "renders: 16 = 8 materials (4 uniform, 4 svbrdf) x 2 lightings" in result.output
     assert "time, this machine, in this process (--workers 0): " in result.output
@@ -119,7 +119,7 @@ def test_disk_estimate_is_the_pixel_data_the_store_writes():
     "args, words",
     [
         (["plan", "/nonexistent.toml"], "SPEC"),
-        (["plan", str(SMOKE), "--limit", "0"], "--limit"),
+        (["plan", str(SMOKE), "--renders", "0"], "--renders"),
         (["plan", str(SMOKE), "--jobs", "2"], "--jobs"),
         (["plan", str(SMOKE), "--cluster", "slurm", "--jobs", "2"], "--cores"),
         (["plan", str(SMOKE), "--cluster", "pbs", "--cores", "2", "--workers", "2"], "--workers"),

@@ -130,8 +130,8 @@ def test_preview_of_a_partial_dataset_shows_what_is_there(dataset, tmp_path):
     [
         (["--out", "{tmp}/sheet.jpg"], "--out: "),
         (
-            ["--out", "{tmp}/sheet.png", "--limit", "0"],
-            "--limit: 0 is not allowed; allowed: an integer from 1 to 200",
+            ["--out", "{tmp}/sheet.png", "--rows", "0"],
+            "--rows: 0 is not allowed; an integer from 1 to 200",
         ),
         (["--out", "{tmp}/sheet.png", "--tile", "8"], "--tile: 8 is not allowed"),
     ],

@@ -192,9 +192,9 @@ def test_publish_refuses_an_invalid_dataset_and_writes_nothing(smoke, tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--shard-bytes", "100"], "--shard-bytes: 100 is not allowed; allowed: an integer from 65536"),
-        (["--license", "gpl-9"], "Invalid value for '--license'"),
-        (["--url", "ftp://x y"], "--url: 'ftp://x y' is not allowed; allowed: an http(s) URL"),
+        (["--shard-bytes", "100"], "--shard-bytes: 100 is not allowed; an integer from 65536"),
+        (["--license", "gpl-9"], '--license: "gpl-9" is not allowed; one of "cc-by-4.0"'),
+        (["--url", "ftp://x y"], '--url: "ftp://x y" is not allowed; an http(s) URL'),
     ],
 )
 def test_publish_usage_errors_exit_2(smoke, tmp_path, args, message):

@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.publish.card import EXR_TWO_LINES
+from pipeline.dataset.spec import parse_spec
+from pipeline.publish.card import EXR_TWO_LINES, exr_check
 from pipeline.publish.previews import PREVIEW_SIDE, encode_png, maps_preview, render_preview
 from pipeline.publish.refusal import Refused
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish
 from pipeline.store.exr import read_exr
-from support.publishing import files_of, hf_env, members, reseal, rewrite_tar, sha, smoke_build
+from support.publishing import SMOKE, files_of, hf_env, members, reseal, rewrite_tar, sha, smoke_build
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session), a publish, the clients
 
@@ -40,7 +41,7 @@ import datasets
 from huggingface_hub import DatasetCard
 from datasets.info import DatasetInfosDict
 
-pub, two_lines = sys.argv[1], sys.argv[2]
+pub, two_lines, check = sys.argv[1], sys.argv[2], sys.argv[3]
 out = {}
 card = DatasetCard.load(f"{pub}/README.md")
 out["configs"] = card.data.configs
@@ -57,6 +58,7 @@ for config in ("renders", "materials"):
     exr_column = "render.exr" if config == "renders" else "maps.exr"
     row = ds[len(ds) - 1]
     namespace = {"row": row}
+    exec(check, namespace)  # the recipes' checked_exr, which the two lines call
     exec(two_lines.replace('"render.exr"', f'"{exr_column}"'), namespace)  # the card's lines, as written
     out[config] = {
         "rows": ds.num_rows,
@@ -99,7 +101,11 @@ def seen(pub, tmp_path_factory) -> dict:
     before = files_of(pub)
     env = hf_env(tmp_path_factory.mktemp("hf"))
     ran = subprocess.run(
-        [sys.executable, "-c", CLIENTS, str(pub), EXR_TWO_LINES], env=env, capture_output=True, text=True, cwd=pub
+        [sys.executable, "-c", CLIENTS, str(pub), EXR_TWO_LINES, "import struct\n" + exr_check(parse_spec(SMOKE))],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=pub,
     )
     assert ran.returncode == 0, ran.stderr[-4000:]
     assert files_of(pub) == before  # the clients wrote nothing into PUB

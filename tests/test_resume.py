@@ -76,7 +76,7 @@ def test_allow_spec_change_refuses_what_changes_samples(tmp_path):
     with pytest.raises(ShaderballError, match=r"dataset.shard_size = 2 in the dataset, 4 in the spec"):
         check_output_dir(str(out), changed, allow_spec_change=True)
     renamed = parse_spec(_write(tmp_path / "v.toml", _spec_text(version='"2"')))
-    with pytest.raises(ShaderballError, match="pass --allow-spec-change to accept them"):
+    with pytest.raises(ShaderballError, match="pass allow_spec_change to accept them"):
         check_output_dir(str(out), renamed)
     assert check_output_dir(str(out), renamed, allow_spec_change=True) == "respec"
 

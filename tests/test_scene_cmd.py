@@ -11,7 +11,7 @@ from cli import main
 from geometry import ShaderballParams, build_shaderball
 from geometry.ply import read_ply
 from pipeline.errors import ShaderballError
-from pipeline.render.scene_command import write_scene
+from pipeline.render.scene_command import SceneRequest
 from pipeline.store.exr import read_exr
 
 
@@ -55,9 +55,9 @@ def test_scene_command_writes_mesh_gbuffer_and_preview(cache_env, tmp_path, mi):
 @pytest.mark.parametrize("resolution", [8, 5000])
 def test_bad_resolution_is_refused_and_nothing_written(cache_env, tmp_path, resolution):
     out = tmp_path / "scene"
-    with pytest.raises(ShaderballError) as info:
-        write_scene(str(out), resolution=resolution)
-    assert "--resolution" in str(info.value) and str(resolution) in str(info.value) and "4096" in str(info.value)
+    with pytest.raises(ShaderballError) as info:  # the library names the field by its own name
+        SceneRequest(out=str(out), resolution=resolution)
+    assert str(info.value).startswith(f"resolution: {resolution} is not allowed; ") and "4096" in str(info.value)
     assert not out.exists()
 
     result = CliRunner().invoke(main, ["scene", "--out", str(out), "--resolution", str(resolution)])

@@ -161,27 +161,57 @@ def _view(**change):
         ({"light__azimuth_deg": 400.0}, 400, "light.azimuth_deg: 400.0"),
         ({"light__elevation_deg": -5}, 400, "light.elevation_deg: -5"),
         ({"light__turbidity": 0.5}, 400, "light.turbidity: 0.5"),
-        ({"light__turbidity": "3"}, 400, "light.turbidity: '3'"),
+        ({"light__turbidity": "3"}, 400, 'light.turbidity: "3"'),
         ({"exposure": 1e9}, 400, "exposure: 1000000000.0"),
         ({"material": {"kind": "uniform", "roughness": 2}}, 400, "material.roughness: 2"),
         ({"material": {"kind": "uniform", "diffuse": [1, 2]}}, 400, "material.diffuse"),
         ({"material": {"kind": "uniform", "tilt_deg": 89}}, 400, "material.tilt_deg: 89"),
-        ({"material": {"kind": "svbrdf", "family": "lava"}}, 400, "material.family: 'lava'"),
+        ({"material": {"kind": "svbrdf", "family": "lava"}}, 400, 'material.family: "lava"'),
         ({"material": {"kind": "svbrdf", "family": "tiles", "seed": -1}}, 400, "material.seed: -1"),
-        ({"material": {"kind": "teapot"}}, 400, "material.kind: 'teapot'"),
-        ({"material": {"kind": "dataset", "sample": "m999999_l0"}}, 404, "material.sample: 'm999999_l0'"),
-        ({"material": {"kind": "dataset", "sample": "../../etc/passwd"}}, 400, "material.sample: '../../etc/passwd'"),
+        ({"material": {"kind": "teapot"}}, 400, 'material.kind: "teapot"'),
+        ({"material": {"kind": "dataset", "sample": "m999999_l0"}}, 404, 'material.sample: "m999999_l0"'),
+        ({"material": {"kind": "dataset", "sample": "../../etc/passwd"}}, 400, 'material.sample: "../../etc/passwd"'),
         ({"material": {"kind": "dataset", "sample": "m000000_l0/../x"}}, 400, "material.sample"),
-        ({"material": {"kind": "dataset", "sample": "/etc/passwd"}}, 400, "material.sample: '/etc/passwd'"),
-        ({"client": "../x"}, 400, "client: '../x'"),
-        ({"client": None}, 400, "client: None"),
+        ({"material": {"kind": "dataset", "sample": "/etc/passwd"}}, 400, 'material.sample: "/etc/passwd"'),
+        ({"client": "../x"}, 400, 'client: "../x"'),
+        ({"client": None}, 400, "client: none"),
+        ({"light": 5}, 400, "light: 5 is not allowed; an object"),
     ],
 )
 def test_a_bad_view_is_refused_with_a_message_naming_it(http, change, status, words):
     got, doc = http.json("POST", "/api/view", _view(**change))
     assert (got, doc["ok"]) == (status, False)
-    assert words in doc["error"] and "allowed" in doc["error"]
+    assert words in doc["error"] and "is not allowed; " in doc["error"]
     assert "Traceback" not in doc["error"]
+
+
+@pytest.mark.parametrize(
+    "raw, words",
+    [
+        (b'"azimuth_deg": 1e400', "light.azimuth_deg: inf is not allowed; a finite number from 0 to 360"),
+        (b'"azimuth_deg": -1e400', "light.azimuth_deg: -inf is not allowed"),
+        (b'"azimuth_deg": 1' + b"0" * 400, "light.azimuth_deg: 1000"),  # an int too large for a float
+        (b'"azimuth_deg": "90"', 'light.azimuth_deg: "90" is not allowed'),
+        (b'"azimuth_deg": true', "light.azimuth_deg: true is not allowed"),
+        (b'"azimuth_deg": null', "light.azimuth_deg: none is not allowed"),
+        (b'"azimuth_deg": [90]', "light.azimuth_deg: [90] is not allowed"),
+        (b'"turbidity": NaN', "light.turbidity: nan is not allowed"),
+    ],
+    ids=["inf", "-inf", "huge-int", "string", "bool", "null", "list", "nan"],
+)
+def test_a_bad_number_is_a_4xx_naming_its_field_never_a_500(http, raw, words):
+    """JSON numbers Python reads as inf, nan or an int past a float's range, and values that are
+    no number: each refused as the field it is, 400, never an internal error."""
+    body = b'{"client": "num", "material": {"kind": "uniform"}, "light": {' + raw + b"}}"
+    status, doc = http.json("POST", "/api/view", raw=body)
+    assert (status, doc["ok"]) == (400, False), doc
+    assert doc["error"].startswith(words), doc["error"]
+
+
+def test_a_huge_number_in_a_colour_is_refused_naming_it(http):
+    body = b'{"client": "num", "material": {"kind": "uniform", "diffuse": [1' + b"0" * 400 + b', 0, 0]}, "light": {}}'
+    status, doc = http.json("POST", "/api/view", raw=body)
+    assert status == 400 and doc["error"].startswith("material.diffuse: [1000"), doc
 
 
 @pytest.mark.parametrize(
@@ -206,7 +236,7 @@ def test_malformed_json_is_refused(http, raw, words):
         ("normal", _pixel_bomb_png(60_000, 60_000), 413, "60000x60000 pixels"),
         ("normal", _pixel_bomb_png(5_000, 5_000), 413, "5000x5000 pixels"),
         ("specular", b"\x76\x2f\x31\x01" + b"\0" * 64, 415, "not a readable EXR"),
-        ("albedo", _png(4, 4), 404, "map: 'albedo'"),
+        ("albedo", _png(4, 4), 404, 'map: "albedo" is not allowed'),
     ],
     ids=["text", "truncated-png", "png-bomb-pillow-bound", "png-bomb-our-bound", "truncated-exr", "unknown-map"],
 )
@@ -350,7 +380,8 @@ def _cli(*args, **kwargs):
     [
         (["--port", "70000"], "--port: 70000"),
         (["--run", "/nonexistent/run"], "/nonexistent/run"),
-        (["--dataset", "/nonexistent/data"], "--dataset: '/nonexistent/data'"),
+        (["--dataset", "/nonexistent/data"], '--dataset: "/nonexistent/data" does not exist'),
+        (["--dataset", "/"], '--dataset: "/" is no dataset folder'),
         (["--benchmark", "--repeats", "0"], "--repeats: 0"),
     ],
 )

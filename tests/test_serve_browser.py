@@ -83,6 +83,14 @@ def test_without_a_network_the_page_is_a_path_traced_previewer(browser):
         browser.navigate(app.url)
         browser.wait_for(f"{TEXT.format('path-info')}.includes(' spp in ')", timeout_s=300)
         assert "make serve-network" in browser.evaluate(TEXT.format("hint"))
+        # The sliders' ranges and starting values are /api/info's (the domain's), none the page's own.
+        info = app.info()
+        for slider, name in (("azimuth", "azimuth_deg"), ("elevation", "elevation_deg"), ("turbidity", "turbidity")):
+            got = browser.evaluate(
+                f"(() => {{ const s = document.getElementById('{slider}'); "
+                "return JSON.stringify([+s.min, +s.max, +s.value]); })()"
+            )
+            assert json.loads(got) == [*info["ranges"][name], info["defaults"][name]], (slider, got)
         assert browser.evaluate("document.getElementById('net-img').parentElement.hidden") is True
         before = browser.evaluate(SRC.format("path-img"))
         _slider_drag(browser, "elevation", 0.2)

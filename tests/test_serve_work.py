@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from pipeline.fields import FieldError
 from pipeline.serve.materials import MAX_UPLOAD_BYTES, TEXTURE_TEXELS, decode_upload, maps_from_uploads
-from pipeline.serve.view import RequestError, UniformChoice, View, parse_view
+from pipeline.serve.view import RequestError, UniformChoice, View, api_error, api_status, parse_view
 from pipeline.serve.work import Hub, Job, LatestSlots
 from sky import Light
 
@@ -81,10 +82,14 @@ def test_a_view_parses_and_its_fields_are_checked_by_name():
         }
     )
     assert client == "tab-1" and view.material.family == "tiles" and view.light.turbidity == 2.0
-    with pytest.raises(RequestError, match=r"light.elevation_deg: nan is not allowed"):
+    # The library names the field by its own name; the server words it as the JSON spells it.
+    with pytest.raises(FieldError, match=r"^elevation_deg: nan is not allowed") as refused:
         parse_view({"client": "x", "material": {"kind": "uniform"}, "light": {"elevation_deg": float("nan")}})
-    with pytest.raises(RequestError, match=r"material.metal: 'yes'"):
+    assert str(api_error(refused.value)).startswith("light.elevation_deg: nan is not allowed; a finite number")
+    with pytest.raises(FieldError) as refused:
         parse_view({"client": "x", "material": {"kind": "uniform", "metal": "yes"}, "light": {}})
+    assert str(api_error(refused.value)) == 'material.metal: "yes" is not allowed; true or false'
+    assert api_status(refused.value) == 400
 
 
 def _png(size, mode="RGB", colour=(10, 20, 30)) -> bytes:
@@ -103,9 +108,12 @@ def test_uploads_are_resampled_to_texture_maps_and_bounded():
     maps = maps_from_uploads({"diffuse": diffuse, "roughness": rough, "normal": normal})
     maps.check()
     assert maps.resolution == (TEXTURE_TEXELS, TEXTURE_TEXELS)
-    with pytest.raises(RequestError) as refused:
+    with pytest.raises(FieldError) as refused:
         decode_upload("diffuse", b"\x89PNG\r\n\x1a\n" + b"\0" * (MAX_UPLOAD_BYTES))
-    assert refused.value.status == 413
+    assert api_status(refused.value) == 413 and "is not allowed; at most" in str(refused.value)
+    with pytest.raises(FieldError) as refused:
+        decode_upload("albedo", _png((2, 2)))
+    assert api_status(refused.value) == 404 and str(api_error(refused.value)).startswith('map: "albedo"')
 
 
 def test_the_noise_psnr_estimate_matches_the_psnr_of_real_noise():

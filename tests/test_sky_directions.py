@@ -97,10 +97,22 @@ def test_light_rejects_out_of_domain_with_field_value_and_range(kwargs, field):
 
 
 def test_light_error_names_value_and_range():
-    with pytest.raises(USER_ERRORS, match=r"light\.turbidity = 10\.01 .*\[1, 10\]"):
+    """The project's one wording: ``<field>: <value> is not allowed; <allowed>``, the range sky's."""
+    with pytest.raises(USER_ERRORS, match=r"^light\.turbidity: 10\.01 is not allowed; a finite number from 1 to 10$"):
         Light(10.0, 0.0, 10.01)
-    with pytest.raises(USER_ERRORS, match=r"light\.elevation_deg = -5\.0 .*\[0, 90\] degrees"):
+    with pytest.raises(
+        USER_ERRORS, match=r"^light\.elevation_deg: -5\.0 is not allowed; a finite number from 0 to 90$"
+    ):
         Light(-5.0, 0.0, 3.0)
+    with pytest.raises(
+        USER_ERRORS, match=r'^light\.azimuth_deg: "north" is not allowed; a finite number from -360 to 720$'
+    ):
+        Light(5.0, "north", 3.0)
+    with pytest.raises(
+        USER_ERRORS,
+        match=r"^lighting\.azimuth_deg: \[-300, 200\] is not allowed; a pair .* <= 360 and hi - lo <= 360 \(span 500\)$",
+    ):
+        LightingRanges(azimuth_deg=(-300, 200))
 
 
 def test_light_accepts_domain_edges():

@@ -37,9 +37,9 @@ def test_rejected_requests_name_the_field(elevation, turbidity):
         Light(elevation, AZIMUTH_DEG, turbidity)
     message = str(info.value)
     if not 1.0 <= turbidity <= 10.0 and elevation >= 0.0:
-        assert "light.turbidity" in message and "[1, 10]" in message
+        assert "light.turbidity" in message and "from 1 to 10" in message
     else:
-        assert "light.elevation_deg" in message and "[0, 90]" in message
+        assert "light.elevation_deg" in message and "from 0 to 90" in message
 
 
 def _scene(mi, material, sun):

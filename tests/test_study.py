@@ -75,11 +75,11 @@ def tiny_study(tmp_path_factory):
     req = StudyRequest(
         spec=tiny_spec(tmp),
         out=str(tmp / "out"),
-        samples=3,
+        draws=3,
         reference_spp=REFERENCE_SPP,
         resolution=32,
         ladder=LADDER,
-        families=("ladder", "denoise"),
+        configs=("ladder", "denoise"),
         flip=False,
         scan=8,
         repeats=REPEATS,
@@ -162,7 +162,7 @@ def test_tiny_study_writes_its_outputs_and_resumes(tiny_study):
     # Another request on the same folder is refused and leaves it alone.
     before = sorted(os.listdir(out))
     with pytest.raises(ShaderballError, match="another request"):
-        run_study(StudyRequest(**{**req.__dict__, "samples": 2}))
+        run_study(StudyRequest(**{**req.__dict__, "draws": 2}))
     assert sorted(os.listdir(out)) == before
 
 
@@ -319,8 +319,32 @@ def test_bad_study_options_exit_2_and_write_nothing(tmp_path, args, option):
     out = tmp_path / "out"
     result = CliRunner().invoke(cli.main, ["study", tiny_spec(tmp_path), "--out", str(out), *args])
     assert result.exit_code == 2, result.output
-    assert option in result.output and "allowed" in result.output
+    assert result.output.startswith(f"error: {option}: ") and "allowed" in result.output, result.output
     assert not out.exists()
+
+
+def test_study_request_keeps_its_ladder_sorted_and_its_families_in_order(tmp_path):
+    from pipeline.study.configs import FAMILIES
+
+    spec = tiny_spec(tmp_path)
+    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), ladder=(8, 2, 8), configs="all").check_fields()
+    assert req.ladder == (2, 8) and req.configs == FAMILIES
+    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("clamp", "denoise")).check_fields()
+    assert req.configs == ("ladder", "denoise", "clamp")  # the ladder always, in FAMILIES' order
+    with pytest.raises(ShaderballError, match=r"^configs: .* is not allowed; all, or comma-separated names"):
+        StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("bogus",)).check_fields()
+
+
+def test_a_study_folder_of_another_request_is_refused_naming_out(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "request.json").write_text('{"samples": 1}')
+    result = CliRunner().invoke(cli.main, ["study", tiny_spec(tmp_path), "--out", str(out), "--draws", "2"])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f'error: --out: "{out}" holds a study of another request (differs in '), (
+        result.output
+    )
+    assert sorted(p.name for p in out.iterdir()) == ["request.json"]
 
 
 @pytest.mark.parametrize(

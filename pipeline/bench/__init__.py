@@ -1,6 +1,8 @@
 """Measurements: what accuracy and the build cost in time, and the evidence behind defaults.
 
-``build_bench`` (``shaderball bench``: a build against bare renders), ``estimate``
+``command`` (``shaderball bench``'s request, :class:`~pipeline.bench.command.BenchRequest`: the
+build, effects or scale benchmark), ``build_bench`` (a build against bare renders), ``scale``
+(every command against the dataset's size), ``estimate``
 (``shaderball plan``: a spec's counts, disk and time from its first renders), ``effects`` (what the
 effects a build leaves out would cost), ``compare`` (two renders equal within noise),
 ``memory_probe`` (worker memory over many renders), ``sun_benchmark``, ``sky_floor`` and

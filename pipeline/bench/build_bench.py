@@ -1,8 +1,8 @@
 """The build benchmark: a build's overhead over bare Mitsuba renders of the same samples.
 
 ``shaderball bench SPEC``
-    Builds SPEC (optionally cut to about ``--limit`` renders, at another
-    ``--resolution`` / ``--spp`` / ``--shard-size``) into a fresh folder, then renders the
+    Builds SPEC (optionally cut to about ``renders`` renders, at another ``resolution`` /
+    ``spp`` / ``shard_size``: :class:`pipeline.bench.command.BenchRequest`) into a fresh folder, then renders the
     same samples with bare ``mi.render`` calls: the same scene dicts
     (:func:`pipeline.render.renderer.scene_dict`), each loaded once, one scene alive at a time,
     kernels compiled beforehand, only the render call timed. It prints the build's wall
@@ -15,7 +15,7 @@
     Kernels are compiled before the build (one spp-1 render per material, which fills
     drjit's on-disk kernel cache), so the ratio is the steady state of a long build, not the
     first minute of a fresh machine. The bare renders use the build's passes
-    (:func:`pipeline.render.renderer.pass_plan`). ``--profile`` adds two measurements: all
+    (:func:`pipeline.render.renderer.pass_plan`). ``profile`` adds two measurements: all
     lightings of a material rendered from one loaded scene moved in place, as the build
     does (:class:`pipeline.render.renderer.MaterialScene`), against dict + load + render
     each, and the ``moment`` integrator against its nested path tracer alone.
@@ -33,28 +33,28 @@ import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 import pipeline.render.renderer as render
-from pipeline.bench.effects import run_effects_bench
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import MAX_MATERIALS, spec_to_toml
-from pipeline.errors import ShaderballError, bad_value, check_int
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
+from pipeline.dataset.spec import spec_to_toml
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run import shard
 from pipeline.run.build import build, read_spec_text
-from pipeline.run.cluster.options import WORKERS_RANGE
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr, write_exr
 from pipeline.store.folder import folder_names, read_manifest
 from pipeline.store.layout import Layout
-from pipeline.store.records import dumps, read_json
+from pipeline.store.records import read_json
 from sky import Light
+
+if TYPE_CHECKING:
+    from pipeline.bench.command import BenchRequest
 
 # --------------------------------------------------------------------------- build benchmark
 
@@ -65,21 +65,21 @@ PAPER_RENDERS, PAPER_RESOLUTION, PAPER_SPP = 50_000, 400, 150
 def derive_spec(
     spec,
     *,
-    samples: int | None = None,
+    renders: int | None = None,
     resolution: int | None = None,
     spp: int | None = None,
     shard_size: int | None = None,
 ):
-    """``spec`` cut to about ``samples`` renders (whole materials) and re-sized; other fields kept."""
+    """``spec`` cut to about ``renders`` renders (whole materials) and re-sized; other fields kept."""
     dataset, render = spec.dataset, spec.render
     if shard_size is not None:
         dataset = dataclasses.replace(dataset, shard_size=shard_size)
-    if samples is not None:
+    if renders is not None:
         lights = dataset.lights_per_material
-        if samples < lights:
-            dataset = dataclasses.replace(dataset, materials=1, lights_per_material=samples)
+        if renders < lights:
+            dataset = dataclasses.replace(dataset, materials=1, lights_per_material=renders)
         else:
-            dataset = dataclasses.replace(dataset, materials=-(-samples // lights))
+            dataset = dataclasses.replace(dataset, materials=-(-renders // lights))
     if resolution is not None:
         render = dataclasses.replace(render, resolution=resolution)
     if spp is not None:
@@ -636,29 +636,16 @@ def _cpu_with_children() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def run_build_bench(
-    spec_path: str,
-    *,
-    out: str | None = None,
-    samples: int | None = None,
-    resolution: int | None = None,
-    spp: int | None = None,
-    workers: int | None = None,
-    shard_size: int | None = None,
-    profile: bool = False,
-    progress=None,
-) -> BuildBench:
-    """Build a spec and time the same renders bare; see the module docstring."""
-
-    samples = check_int("--limit", samples, 1, 1_000_000)
-    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE)
-    spp = check_int("--spp", spp, *SPP_RANGE)
-    workers = check_int("--workers", workers, *WORKERS_RANGE)
-    shard_size = check_int("--shard-size", shard_size, 1, MAX_MATERIALS)
-    spec, _ = read_spec_text(spec_path)
-    spec = derive_spec(spec, samples=samples, resolution=resolution, spp=spp, shard_size=shard_size)
+def run_build_bench(request: BenchRequest, progress=None) -> BuildBench:
+    """Build ``request.spec`` (cut and re-sized as it asks) and time the same renders bare;
+    see the module docstring."""
+    request.check_fields()
+    out = request.out
+    spec, _ = read_spec_text(request.spec)
+    resolution, spp = request.settings()
+    spec = derive_spec(spec, renders=request.renders, resolution=resolution, spp=spp, shard_size=request.shard_size)
     if out is not None and os.path.exists(out) and folder_names(out) != []:
-        raise bad_value("--out", out, "a new or empty folder (the benchmark builds from scratch)")
+        raise request.field_error("out", out, "a new or empty folder (the benchmark builds from scratch)")
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-")
     root = out or os.path.join(scratch, "dataset")
     say = progress or (lambda message: None)
@@ -668,108 +655,101 @@ def run_build_bench(
         plans = plan_dataset(spec)
         variant = resolve_variant(spec.render.variant)  # chosen once for the whole benchmark
         load_mitsuba(variant)
-        import drjit as dr
-
         say("warming kernels (one spp-1 render per material) ...")
         warmup = warm_kernels(spec, plans, variant)
-        marks = {}
-
-        def started(where, _dashboard):
-            marks["where"] = where
-            marks["started"] = time.perf_counter()
-            in_build.first_render()
-
         say("building ...")
-        cpu0 = _cpu_with_children()
-        in_build, build_kernels = RenderCallTimer(), KernelCounter()
-        t0 = time.perf_counter()
-        # the kernel counter's reading of drjit's history is the benchmark's work: it runs
-        # after the timer has stopped (the history's recording still runs inside it)
-        with build_kernels, in_build:
-            summary = build(derived_path, root, workers=workers, on_start=started)
-        build_s = time.perf_counter() - t0
-        build_cpu = _cpu_with_children() - cpu0
-        first_start = min((marks.get("started", t0) - t0), build_s)
+        timed = timed_build(derived_path, root, request.workers)
         say("bare renders ...")
         kernels = KernelCounter()
         timings = measure_bare(spec, plans, root, kernels, variant)
         per_material, per_render = measure_storage(spec, plans, root, variant)
-        bench = BuildBench(
-            spec_name=spec.dataset.name,
-            samples=summary.total,
-            materials=spec.dataset.materials,
-            resolution=spec.render.resolution,
-            spp=spec.render.spp,
-            workers=marks.get("where", "?"),
-            variant=variant,
-            threads=dr.thread_count(),
-            warmup_s=warmup,
-            build_s=build_s,
-            build_cpu_s=build_cpu,
-            startup_s=first_start,
-            in_build_render_s=in_build.seconds if in_build.calls else None,
-            in_build_phases=dict(in_build.phases) if in_build.calls else None,
-            in_build_phases_cpu=dict(in_build.cpu) if in_build.calls else None,
-            in_build_main_cpu_s=in_build.main_cpu if in_build.calls else None,
-            timings=timings,
-            material_files_s=per_material,
-            render_file_s=per_render,
-        )
+        bench = timed.bench(spec, variant, warmup, timings)
+        bench.material_files_s, bench.render_file_s = per_material, per_render
         bench.compiled = {"bare renders": kernels.compiled, "compile seconds": round(kernels.compile_s, 2)}
-        bench.records_render_s, bench.processes = records_render_time(root), max(summary.processes, 1)
-        if in_build.calls:
-            bench.build_compiled = build_kernels.compiled
-        if profile:
-            say("profile: one scene per material ...")
-            reuse_kernels = KernelCounter()
-            bench.reuse = measure_reuse(spec, plans, root, reuse_kernels, variant)
-            bench.reuse.update(
-                fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
-                compiled=reuse_kernels.compiled,
-                compile_s=reuse_kernels.compile_s,
-            )
-            say("profile: moment vs plain integrator ...")
-            bench.moment = measure_moment(spec, plans, variant)
+        bench.records_render_s = records_render_time(root)
+        if request.profile:
+            profile_scenes(bench, spec, plans, root, variant, timings, say)
         return bench
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def run_from_args(
-    spec=None,
-    *,
-    effects=False,
-    samples=None,
-    resolution=None,
-    spp=None,
-    workers=None,
-    shard_size=None,
-    out=None,
-    profile=False,
-    repeats=None,
-    json_path=None,
-    progress=None,
-):
-    """What `shaderball bench` does; returns the result object."""
-    if effects:
-        result = run_effects_bench(resolution=resolution, spp=spp, repeats=repeats, progress=progress)
-    else:
-        if not spec:
-            raise ShaderballError(
-                "SPEC: missing; allowed: a spec file (e.g. manifests/smoke.toml), "
-                "or --effects for the effects benchmark"
-            )
-        result = run_build_bench(
-            spec,
-            out=out,
-            samples=samples,
-            resolution=resolution,
-            spp=spp,
-            workers=workers,
-            shard_size=shard_size,
-            profile=profile,
-            progress=progress,
+@dataclass
+class TimedBuild:
+    """A build timed: wall and CPU time, when its first render started, and what an
+    in-process build's phase timer and kernel counter saw."""
+
+    summary: object  # pipeline.run.build's summary
+    seconds: float
+    cpu_seconds: float
+    startup_s: float
+    where: str
+    phases: RenderCallTimer
+    kernels: KernelCounter
+
+    def bench(self, spec, variant: str, warmup_s: float, timings: list[SampleTiming]) -> BuildBench:
+        """The benchmark's figures of this build and the bare ``timings``."""
+        import drjit as dr
+
+        phases = self.phases
+        in_process = bool(phases.calls)
+        return BuildBench(
+            spec_name=spec.dataset.name,
+            samples=self.summary.total,
+            materials=spec.dataset.materials,
+            resolution=spec.render.resolution,
+            spp=spec.render.spp,
+            workers=self.where,
+            variant=variant,
+            threads=dr.thread_count(),
+            warmup_s=warmup_s,
+            build_s=self.seconds,
+            build_cpu_s=self.cpu_seconds,
+            startup_s=self.startup_s,
+            in_build_render_s=phases.seconds if in_process else None,
+            in_build_phases=dict(phases.phases) if in_process else None,
+            in_build_phases_cpu=dict(phases.cpu) if in_process else None,
+            in_build_main_cpu_s=phases.main_cpu if in_process else None,
+            timings=timings,
+            processes=max(self.summary.processes, 1),
+            build_compiled=self.kernels.compiled if in_process else None,
         )
-    if json_path:
-        write_text_atomic(json_path, dumps(result.to_dict()) + "\n")
-    return result
+
+
+def timed_build(spec_path: str, root: str, workers: int | None) -> TimedBuild:
+    """Build ``spec_path`` into ``root``: its wall and CPU time (this process and its reaped
+    children), its start-up (to the first render), and for an in-process build its phases and
+    the kernels it compiled."""
+    marks = {}
+    in_build, build_kernels = RenderCallTimer(), KernelCounter()
+
+    def started(where, _dashboard):
+        marks["where"] = where
+        marks["started"] = time.perf_counter()
+        in_build.first_render()
+
+    cpu0 = _cpu_with_children()
+    t0 = time.perf_counter()
+    # the kernel counter's reading of drjit's history is the benchmark's work: it runs
+    # after the timer has stopped (the history's recording still runs inside it)
+    with build_kernels, in_build:
+        summary = build(spec_path, root, workers=workers, on_start=started)
+    build_s = time.perf_counter() - t0
+    build_cpu = _cpu_with_children() - cpu0
+    first_start = min((marks.get("started", t0) - t0), build_s)
+    return TimedBuild(summary, build_s, build_cpu, first_start, marks.get("where", "?"), in_build, build_kernels)
+
+
+def profile_scenes(bench: BuildBench, spec, plans, root: str, variant: str, timings: list[SampleTiming], say) -> None:
+    """``profile``: one loaded scene per material moved in place against dict + load +
+    render each, and the moment integrator against its nested path tracer (into ``bench``)."""
+    say("profile: one scene per material ...")
+    reuse_kernels = KernelCounter()
+    bench.reuse = measure_reuse(spec, plans, root, reuse_kernels, variant)
+    bench.reuse.update(
+        fresh_seconds=sum(t.dict_s + t.load_s + t.render_s for t in timings),
+        compiled=reuse_kernels.compiled,
+        compile_s=reuse_kernels.compile_s,
+    )
+    say("profile: moment vs plain integrator ...")
+    bench.moment = measure_moment(spec, plans, variant)

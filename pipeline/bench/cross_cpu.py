@@ -36,7 +36,8 @@ import time
 
 import numpy as np
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError
+from pipeline.fields import FieldError, format_value
 from pipeline.render.mitsuba_env import (
     LLVM_VARIANT,
     llvm_target,
@@ -250,7 +251,7 @@ def cross_cpu_report(spec: str, out: str) -> dict:
     """Build ``spec`` under every emulation into the new folder ``out``, compare each with the
     native build, write report.json and report.md there; returns the report."""
     if os.path.exists(out):
-        raise bad_value("--out", out, "a folder that does not exist yet")
+        raise FieldError("out", out, "a folder that does not exist yet", what=f"{format_value(out)} exists", name="out")
     os.makedirs(out)
     load_mitsuba(LLVM_VARIANT)
     seconds = {name: run_emulation(spec, out, name) for name in emulations()}

@@ -23,17 +23,13 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from materials.maps import UniformMaterial, encode_normal_map
 from pipeline.bench.compare import compare_renders, describe_comparison, render_moments
-from pipeline.errors import ShaderballError, check_int
+from pipeline.errors import ShaderballError
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import bsdf_dict
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import RenderSettings, plan_effects, scene_dict
 from pipeline.render.scene import BALL_SHAPE_ID, bitmap_texture
 from sky import Light
-
-#: --repeats: timed renders per variant.
-REPEATS_RANGE = (1, 100)
 
 
 def bitmap_bsdf(maps, size: int, variant: str, lobes: dict | None = None) -> dict:
@@ -193,20 +189,17 @@ def _effect_cases(texture_size: int, variant: str):
 
 def run_effects_bench(
     *,
-    resolution: int | None = None,
-    spp: int | None = None,
-    repeats: int | None = None,
-    texture_size: int | None = None,
+    resolution: int,
+    spp: int,
+    repeats: int,
+    texture_size: int = 256,
     seed: int = 1,
     variant: str = "auto",
     progress=None,
 ) -> EffectsBench:
-    """Render time with and without each omission; see the module docstring."""
+    """Render time with and without each omission; see the module docstring. ``resolution``
+    and ``spp`` are checked as the renderer's settings (pipeline.render.settings)."""
 
-    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or 128
-    spp = check_int("--spp", spp, *SPP_RANGE) or 64
-    repeats = check_int("--repeats", repeats, *REPEATS_RANGE) or 5
-    texture_size = check_int("--texture-size", texture_size, 1, 4096) or 256
     variant = resolve_variant(variant)  # chosen once for the whole benchmark
     mi = load_mitsuba(variant)
     import drjit as dr

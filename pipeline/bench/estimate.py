@@ -27,12 +27,10 @@ import shutil
 import tempfile
 import time
 from dataclasses import asdict, dataclass
-from typing import ClassVar
 
 from pipeline.bench.build_bench import warm_kernels
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest
-from pipeline.errors import ShaderballError
 from pipeline.fields import Bool, Checked, Int, Path, field, same_as
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.build import read_spec_text
@@ -41,28 +39,37 @@ from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
 from pipeline.store.layout import MARKER_FILE, Layout
 
-#: --limit: renders timed (whole materials, so at least this many).
-SAMPLES_RANGE = (1, 1000)
-DEFAULT_SAMPLES = 4
+#: Renders timed (whole materials, so at least this many).
+RENDERS_RANGE = (1, 1000)
+DEFAULT_RENDERS = 4
 
 
 @dataclass(frozen=True)
 class PlanRequest(Checked):
-    """What `shaderball plan` is asked; the cluster options are ClusterOptions' declarations."""
+    """What `shaderball plan` is asked; the cluster's fields are ClusterOptions' declarations."""
 
-    FIELD_PREFIX: ClassVar[str] = "--"
-    FIELD_LABELS: ClassVar[dict[str, str]] = {"samples": "--limit", "cluster": "--cluster", "timed": "--no-timing"}
-
-    spec: str = field(rule=Path("a spec file"), doc="The spec file.")
-    timed: bool = field(True, rule=Bool(), doc="Render the first samples and time them.")
-    samples: int = field(
-        DEFAULT_SAMPLES,
-        rule=Int(*SAMPLES_RANGE),
+    spec: str = field(rule=Path("a spec file", exists="file"), doc="The spec file.", positional=True, metavar="SPEC")
+    renders: int = field(
+        DEFAULT_RENDERS,
+        rule=Int(*RENDERS_RANGE),
         doc="Renders to time: the spec's first materials, whole (so at least this many).",
         unit="renders",
     )
-    cluster: str = same_as(ClusterOptions, "kind")
-    workers: int | None = same_as(ClusterOptions, "workers")
+    timing: bool = field(
+        True,
+        rule=Bool(),
+        doc="Render the spec's first renders and time them; without: counts and disk only, nothing "
+        "rendered (what `info SPEC` prints).",
+    )
+    cluster: str = same_as(
+        ClusterOptions,
+        "cluster",
+        doc="Also estimate the time on slurm or pbs batch jobs (of the jobs and cores below), as a "
+        "build on that cluster would run them.",
+    )
+    workers: int | None = same_as(
+        ClusterOptions, "workers", doc="Local dask worker processes to estimate for; 0: this process without dask."
+    )
     jobs: int | None = same_as(ClusterOptions, "jobs")
     cores: int | None = same_as(ClusterOptions, "cores")
 
@@ -72,14 +79,19 @@ class PlanRequest(Checked):
     def check_cross(self) -> None:
         if self.cluster in JOBQUEUE_KINDS:
             if self.workers is not None:
-                raise ShaderballError(f"--workers: not allowed with --cluster {self.cluster}; use --jobs")
-            for option, value, example in (("--jobs", self.jobs, "--jobs 8"), ("--cores", self.cores, "--cores 32")):
-                if value is None:
-                    raise ShaderballError(f"{option}: required with --cluster {self.cluster}; for example: {example}")
+                raise self._refuse("workers", f"not allowed with {{cluster}} {self.cluster}", "use {jobs}")
+            for name, example in (("jobs", "8"), ("cores", "32")):
+                if getattr(self, name) is None:
+                    raise self._refuse(
+                        name, f"required with {{cluster}} {self.cluster}", f"for example: {{{name}}} {example}"
+                    )
         else:
-            for option, value in (("--jobs", self.jobs), ("--cores", self.cores)):
-                if value is not None:
-                    raise ShaderballError(f"{option}: only with --cluster slurm or --cluster pbs")
+            for name in ("jobs", "cores"):
+                if getattr(self, name) is not None:
+                    raise self._refuse(name, "only with {cluster} slurm or {cluster} pbs", "leave it out here")
+
+    def _refuse(self, name: str, what: str, allowed: str):
+        return self.field_error(name, getattr(self, name), allowed, what=what)
 
 
 @dataclass
@@ -217,7 +229,7 @@ def disk_estimate(spec, uniform: int, svbrdf: int) -> dict:
 
 
 def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
-    """Counts and disk of ``req.spec``; with ``req.timed`` also the timed renders and the time
+    """Counts and disk of ``req.spec``; with ``req.timing`` also the timed renders and the time
     estimates (``progress(str)`` says when they start). Nothing is written outside a temporary
     folder, removed after."""
     req.check()
@@ -243,14 +255,14 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
         variant=spec.render.variant,
         disk=disk_estimate(spec, summary["uniform"], summary["svbrdf"]),
     )
-    if not req.timed:
+    if not req.timing:
         return report
     if progress is not None:
         progress(
-            f"timing the first {req.samples}+ renders of {req.spec} at its settings (kernels compiled first; "
+            f"timing the first {req.renders}+ renders of {req.spec} at its settings (kernels compiled first; "
             "nothing is kept) ..."
         )
-    report.timing = time_first_samples(spec, plans, req.samples, {"uniform": report.uniform, "svbrdf": report.svbrdf})
+    report.timing = time_first_samples(spec, plans, req.renders, {"uniform": report.uniform, "svbrdf": report.svbrdf})
     report.estimates = estimates(report, req)
     if spec.render.target_error > 0:
         report.notes.append(

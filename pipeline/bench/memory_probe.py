@@ -17,8 +17,8 @@ from pathlib import Path
 
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
-from pipeline.errors import check_int
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
+from pipeline.fields import Checked, Int, field, same_as
+from pipeline.render.settings import RenderSettings
 from pipeline.run.build import prepare
 from pipeline.run.shard import run_shard_in_process
 
@@ -33,6 +33,17 @@ def rss_mb(pid: int | str = "self") -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     raise OSError(f"no VmRSS for process {pid}")
+
+
+@dataclass(frozen=True)
+class ProbeRequest(Checked):
+    """What a memory probe is asked (scripts/memory_probe.py spells ``renders`` --memory-probe)."""
+
+    renders: int = field(
+        rule=Int(2, MAX_PROBE_RENDERS), doc="Renders to run in one process (2 per material).", unit="renders"
+    )
+    resolution: int = same_as(RenderSettings, "resolution", default=64)
+    spp: int = same_as(RenderSettings, "spp", default=16)
 
 
 @dataclass
@@ -90,10 +101,9 @@ def probe_spec(renders: int, resolution: int, spp: int):
 
 def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=None) -> MemoryProbe:
     """Render ``renders`` samples in this process, one shard after another; track RSS.
-    ``progress(done, rss_mib)`` after each shard."""
-    check_int("--memory-probe", renders, 2, MAX_PROBE_RENDERS)
-    check_int("--resolution", resolution, *RESOLUTION_RANGE)
-    check_int("--spp", spp, *SPP_RANGE)
+    ``progress(done, rss_mib)`` after each shard; the figures are refused as
+    :class:`ProbeRequest` words it."""
+    ProbeRequest(renders, resolution, spp).check_fields()
     spec = probe_spec(renders, resolution, spp)
     plans = plan_dataset(spec)
     out = tempfile.mkdtemp(prefix="shaderball-memory-probe-")

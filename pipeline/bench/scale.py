@@ -31,27 +31,28 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.bench.build_bench import derive_spec
 from pipeline.dataset.spec import spec_to_toml
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.errors import ShaderballError
+from pipeline.fields import format_value
 from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import cpu_model
 from pipeline.run.build import read_spec_text
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.store.records import dumps
+
+if TYPE_CHECKING:
+    from pipeline.bench.command import BenchRequest
 
 #: The repository root: where ``python -m cli`` runs (and the default spec lives).
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_SPEC = os.path.join("manifests", "paper.toml")
 #: The script that measures the neural stage's opening of a dataset in a process of its own.
 OPEN_PROBE = os.path.join(ROOT, "scripts", "open_probe.py")
-DEFAULT_SIZES = (1000, 10000, 50000)
-SIZE_RANGE = (2, 10_000_000)
-DEFAULT_RESOLUTION, DEFAULT_SPP = 16, 1
 #: Memory per extra render a command may take and still count as bounded by structure.
 MEMORY_GOAL_BYTES_PER_RENDER = 1024
 #: The size the page extrapolates each command's peak memory to (a million renders: the scale the
@@ -303,43 +304,25 @@ def measure_child(argv: list[str], log_path: str) -> tuple[float, int]:
     return wall, int(usage.ru_maxrss) * 1024  # Linux: kilobytes
 
 
-def parse_sizes(sizes) -> list[int]:
-    values = list(sizes)
-    for v in values:
-        check_int("--scale", v, *SIZE_RANGE)
-    if len(set(values)) < 2:
-        raise bad_value("--scale", ",".join(str(v) for v in values), "two or more different sizes (renders)")
-    return sorted(set(values))
-
-
-def run_scale_bench(
-    sizes=DEFAULT_SIZES,
-    *,
-    out: str,
-    spec_path: str | None = None,
-    resolution: int | None = None,
-    spp: int | None = None,
-    json_path: str | None = None,
-    progress=None,
-) -> ScaleBench:
-    """Build a dataset of each size and measure every command over it; write the results to
-    ``out`` (and the figures to ``json_path`` too, where given)."""
-    sizes = parse_sizes(sizes)
-    resolution = check_int("--resolution", resolution, *RESOLUTION_RANGE) or DEFAULT_RESOLUTION
-    spp = check_int("--spp", spp, *SPP_RANGE) or DEFAULT_SPP
-    spec_arg = spec_path or DEFAULT_SPEC
-    spec, _ = read_spec_text(spec_path or os.path.join(ROOT, DEFAULT_SPEC))
+def run_scale_bench(request: BenchRequest, progress=None) -> ScaleBench:
+    """Build a dataset of each of ``request.scale``'s sizes and measure every command over it;
+    write the results to ``request.out``."""
+    request.check_fields()
+    out, sizes = request.out, sorted(request.scale)
+    resolution, spp = request.settings()
+    spec_arg = request.spec or DEFAULT_SPEC
+    spec, _ = read_spec_text(request.spec or os.path.join(ROOT, DEFAULT_SPEC))
     smallest = 2 * spec.dataset.lights_per_material  # evaluate holds whole materials out: two at least
     for size in sizes:
         if size < smallest:
-            raise bad_value(
-                "--scale",
+            raise request.field_error(
+                "scale",
                 size,
                 f"at least {smallest} renders with this spec (two materials of "
                 f"{spec.dataset.lights_per_material} lightings: evaluate's set-up holds materials out)",
             )
     if os.path.exists(out) and not os.path.isdir(out):
-        raise bad_value("--out", out, "a folder for the results page (this is a file)")
+        raise request.field_error("out", out, "a folder for the results page", what=f"{format_value(out)} is a file")
     say = progress or (lambda message: None)
     command_line = (
         f"shaderball bench {spec_arg} --scale {','.join(str(s) for s in sizes)} "
@@ -359,18 +342,16 @@ def run_scale_bench(
         # An unmeasured build of two materials first: kernels compiled and cached, so the
         # smallest size is not charged the machine's first compilation.
         say("warm-up: a build of two materials ...")
-        warm = derive_spec(spec, samples=smallest, resolution=resolution, spp=spp)
+        warm = derive_spec(spec, renders=smallest, resolution=resolution, spp=spp)
         run_commands(warm, scratch, "warm-up", commands=("build",))
         for size in sizes:
-            derived = derive_spec(spec, samples=size, resolution=resolution, spp=spp)
+            derived = derive_spec(spec, renders=size, resolution=resolution, spp=spp)
             renders = derived.dataset.materials * derived.dataset.lights_per_material
             bench.sizes.append(renders)
             for name, wall, peak in run_commands(derived, scratch, str(size), say):
                 bench.rows.append(Measured(name, renders, wall, peak))
         bench.machine["load_after"] = _load()
         write_results(bench, out)
-        if json_path:
-            write_text_atomic(json_path, dumps(bench.to_dict()) + "\n")
         return bench
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

@@ -10,11 +10,12 @@ from dataclasses import dataclass, field
 
 from pipeline.check.inspect import FileFacts, expectations, render_value_issues
 from pipeline.check.report import Problems, summarise
+from pipeline.check.request import dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
 from pipeline.dataset.record import lighting_discrepancies, model_record
 from pipeline.dataset.spec import spec_digest
-from pipeline.errors import USER_ERRORS, ShaderballError, short_repr
+from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.image.stats import is_bad
 from pipeline.store.folder import (
     description_problem,
@@ -76,14 +77,12 @@ class State:
 
 def check_root(root: str) -> Layout:
     if not os.path.exists(root):
-        raise ShaderballError(f"DIR: {root!r} does not exist; give a dataset directory written by `shaderball build`")
+        raise dir_refused(root, "does not exist")
     if not os.path.isdir(root):
-        raise ShaderballError(
-            f"DIR: {root!r} is not a directory; give a dataset directory written by `shaderball build`"
-        )
+        raise dir_refused(root, "is not a folder")
     layout = Layout(root)
     if not any(os.path.lexists(os.path.join(root, name)) for name in ROOT_FILES):
-        raise ShaderballError(f"DIR: {root!r} is not a shaderball dataset: it holds none of {', '.join(ROOT_FILES)}")
+        raise dir_refused(root, f"is not a shaderball dataset: it holds none of {', '.join(ROOT_FILES)}")
     return layout
 
 

@@ -15,10 +15,10 @@ from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 
+from pipeline.check.request import InfoRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import shard_id
 from pipeline.dataset.spec import spec_digest
-from pipeline.errors import ShaderballError
 from pipeline.store.folder import (
     disk_usage,
     manifest_record_count,
@@ -182,11 +182,10 @@ def dataset_info(root: str) -> DatasetInfo:
 
     layout = Layout(root)
     if not os.path.isdir(root):
-        raise ShaderballError(f"DIR: {root!r} is not a folder; allowed: a dataset folder made by `shaderball build`")
+        raise dir_refused(root, "is not a folder", owner=InfoRequest)
     if not os.path.lexists(layout.spec):
-        raise ShaderballError(
-            f"DIR: {root!r} holds no spec.toml; allowed: a dataset folder made by "
-            "`shaderball build` (it writes spec.toml before anything else)"
+        raise dir_refused(
+            root, "holds no spec.toml (`shaderball build` writes it before anything else)", owner=InfoRequest
         )
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)

@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.check.info import shard_render_counts
+from pipeline.check.request import DATASET_FOLDER, PreviewRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
@@ -26,9 +27,6 @@ from pipeline.store.folder import manifest_record_count, read_bytes, resolve_ins
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
-#: Rows (--limit) and picture size in pixels (--tile), defined once (checks; the CLI help).
-SAMPLES_RANGE = (1, 200)
-TILE_RANGE = (32, 1024)
 LABEL_WIDTH = 190
 HEADER_HEIGHT = 22
 GAP = 4
@@ -152,11 +150,11 @@ def _read_layers(root: str, rel: str, layer: str | None, resolution: int) -> dic
     try:
         data = read_bytes(resolve_inside(root, rel))
     except OSError as exc:
-        raise ShaderballError(f"DIR: {rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
+        raise ShaderballError(f"{rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
     role = "render" if layer == "render" else "maps"
     layers = read_exr(data, rel, layer_bounds(resolution, ROLE_LAYERS[role], exact=True)).layers
     if layer is not None and layer not in layers:
-        raise ShaderballError(f"DIR: {rel}: holds no {layer} layer; run `shaderball validate`")
+        raise ShaderballError(f"{rel}: holds no {layer} layer; run `shaderball validate`")
     return layers
 
 
@@ -188,7 +186,7 @@ def _tile_layers(root: str, rel: str | None, layer: str | None, resolution: int,
     try:
         return _read_layers(root, rel, layer, resolution)
     except ShaderballError as exc:
-        problems.append(str(exc).removeprefix("DIR: "))
+        problems.append(str(exc))
         return None
 
 
@@ -254,7 +252,7 @@ def _read_chosen(layout: Layout, counts: dict[str, int], places: list[int]) -> l
         if index != current:
             current, found = index, shard_records(layout, shards[index][0], shards[index][1])[0]
         if position >= len(found):
-            raise ShaderballError(f"DIR: {layout.root!r}: shard {shards[index][0]} changed while it was previewed")
+            raise dir_refused(layout.root, f"changed while it was previewed (shard {shards[index][0]})", owner=PreviewRequest)
         chosen[place] = found[position]
     return [chosen[place] for place in places]
 
@@ -263,17 +261,10 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
     from PIL import Image
 
-    if isinstance(samples, bool) or not isinstance(samples, int) or not SAMPLES_RANGE[0] <= samples <= SAMPLES_RANGE[1]:
-        raise bad_value("--limit", samples, f"an integer from {SAMPLES_RANGE[0]} to {SAMPLES_RANGE[1]}")
-    if tile is not None and (
-        isinstance(tile, bool) or not isinstance(tile, int) or not TILE_RANGE[0] <= tile <= TILE_RANGE[1]
-    ):
-        raise bad_value("--tile", tile, f"an integer from {TILE_RANGE[0]} to {TILE_RANGE[1]} (pixels)")
-    if not out.lower().endswith(".png"):
-        raise bad_value("--out", out, "a file name ending in .png")
+    PreviewRequest(directory=root, out=out, rows=samples, tile=tile).check_fields()
     layout = Layout(root)
     if not os.path.isdir(root) or not os.path.lexists(layout.spec):
-        raise bad_value("DIR", root, "a dataset folder made by `shaderball build` (with its spec.toml)")
+        raise dir_refused(root, "is not a dataset folder", f"{DATASET_FOLDER} (with its spec.toml)", PreviewRequest)
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     # One shard's records at a time; of each usable one, its id and where it was found (a
@@ -291,9 +282,12 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
                 ids.append(record["id"])
                 where.append(index << 32 | position)
     if not ids:
-        raise ShaderballError(
-            f"DIR: {root!r} holds no finished render yet; nothing to preview"
-            + (f" ({len(problems)} left out: {problems[0]})" if problems else "")
+        raise dir_refused(
+            root,
+            "holds no finished render yet"
+            + (f" ({len(problems)} left out: {problems[0]})" if problems else ""),
+            "a dataset with at least one finished render; nothing to preview",
+            PreviewRequest,
         )
     chosen = _read_chosen(layout, counts, [where[i] for i in choose_indices(ids, samples)])
     resolution = spec.render.resolution

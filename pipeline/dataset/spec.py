@@ -37,7 +37,7 @@ from typing import Any, ClassVar
 
 import tomllib
 
-from materials import SVBRDF_FAMILIES, UniformRanges
+from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError
 from pipeline.fields import (
@@ -60,7 +60,15 @@ from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.render.limits import DEFAULT_RR_DEPTH, RESOLUTION_RANGE  # noqa: F401 - RESOLUTION_RANGE: the spec's
 from pipeline.render.settings import RenderSettings
 from sky.emitter import SUN_MODES
-from sky.lighting import SCHEMES, LightingRanges
+from sky.lighting import (
+    AZIMUTH_BOUNDS,
+    AZIMUTH_TURN,
+    ELEVATION_RANGE,
+    MAX_AZIMUTH_SPAN_DEG,
+    SCHEMES,
+    TURBIDITY_RANGE,
+    LightingRanges,
+)
 
 #: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
 #: Keep in sync with materials/ (a test compares them when materials/ is importable).
@@ -270,64 +278,66 @@ class MaterialsSection(_Section):
     # specular, almost no diffuse); colours drawn in HSV with V in sRGB-encoded units.
     roughness: tuple[float, float] = field(
         (0.05, 1.0),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["roughness"]),
         doc="Range of a uniform material's roughness r, drawn uniformly (GGX alpha = r^2). "
         "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.",
     )
     metal_probability: float = field(
         0.3,
-        rule=Float(0.0, 1.0),
+        rule=Float(*UNIFORM_LIMITS["metal_probability"]),
         doc="Probability that a uniform material is a metal (coloured specular, ~no diffuse).",
         unit="probability",
     )
     dielectric_specular: tuple[float, float] = field(
         (0.02, 0.08),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["dielectric_specular"]),
         doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, gems ~0.08+).",
         unit="linear albedo",
     )
     diffuse_value_srgb: tuple[float, float] = field(
         (0.15, 0.95),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["diffuse_value_srgb"]),
         doc="Range of a dielectric's diffuse brightness, HSV value in sRGB-encoded units "
         "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
         unit="sRGB-encoded value",
     )
     diffuse_saturation: tuple[float, float] = field(
-        (0.0, 0.85), rule=Pair(0.0, 1.0), doc="Range of a dielectric's diffuse saturation (HSV)."
+        (0.0, 0.85),
+        rule=Pair(*UNIFORM_LIMITS["diffuse_saturation"]),
+        doc="Range of a dielectric's diffuse saturation (HSV).",
     )
     metal_value_srgb: tuple[float, float] = field(
         (0.55, 1.0),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["metal_value_srgb"]),
         doc="Range of a metal's specular brightness, HSV value in sRGB-encoded units "
         "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
         unit="sRGB-encoded value",
     )
     metal_saturation: tuple[float, float] = field(
         (0.0, 0.5),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["metal_saturation"]),
         doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.",
     )
     metal_hue: tuple[float, float] = field(
         (0.0, 0.17),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["metal_hue"]),
         doc="Range of a metal's specular hue (HSV, 0 = red, 1/6 = yellow): copper, gold and "
         "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.",
     )
     metal_diffuse_fraction: tuple[float, float] = field(
         (0.0, 0.1),
-        rule=Pair(0.0, 1.0),
+        rule=Pair(*UNIFORM_LIMITS["metal_diffuse_fraction"]),
         doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular (dirt, oxide).",
     )
     flat_normal_probability: float = field(
         0.5,
-        rule=Float(0.0, 1.0),
+        rule=Float(*UNIFORM_LIMITS["flat_normal_probability"]),
         doc="Probability that a uniform material's normal is flat, (0, 0, 1).",
         unit="probability",
     )
     normal_tilt_max_deg: float = field(
         20.0,
-        rule=Float(0.0, 80.0),
+        rule=Float(*UNIFORM_LIMITS["normal_tilt_max_deg"]),
         doc="Largest tilt from (0, 0, 1) of a non-flat uniform normal; the tilt is uniform in "
         "solid angle, towards a uniform azimuth.",
         unit="degrees",
@@ -409,7 +419,7 @@ class LightingSection(_Section):
 
     elevation_deg: tuple[float, float] = field(
         (5.0, 90.0),
-        rule=Pair(0.0, 90.0),
+        rule=Pair(*ELEVATION_RANGE),
         doc="Range of the sun's elevation above the horizon. Mitsuba's RGB sunsky is black at "
         "0, its sun's blue channel is negative below ~2.4 and its sky slightly negative near "
         "the horizon for suns up to ~7 (turbidity 10): lights below the measured floor "
@@ -417,15 +427,15 @@ class LightingSection(_Section):
         unit="degrees",
     )
     azimuth_deg: tuple[float, float] = field(
-        (0.0, 360.0),
-        rule=Pair(-360.0, 360.0, max_span=360.0),
+        AZIMUTH_TURN,
+        rule=Pair(*AZIMUTH_BOUNDS, max_span=MAX_AZIMUTH_SPAN_DEG),
         doc="Range of the sun's azimuth, counter-clockwise from +x seen from above "
         "(0: from the image's right, 90: from behind, 270: from the camera's side).",
         unit="degrees",
     )
     turbidity: tuple[float, float] = field(
-        (1.0, 10.0),
-        rule=Pair(1.0, 10.0),
+        TURBIDITY_RANGE,
+        rule=Pair(*TURBIDITY_RANGE),
         doc="Range of the atmosphere's turbidity (Hosek-Wilkie; Mitsuba accepts 1 to 10).",
     )
     scheme: str = field(

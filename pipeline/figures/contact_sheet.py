@@ -1,6 +1,6 @@
 """Contact sheet of procedural SVBRDF examples: ``shaderball figures contact-sheet --out PATH``.
 
-One row per family, ``--examples`` materials per row (example k of family f is
+One row per family, ``examples`` materials per row (example k of family f is
 drawn from ``SeedSequence([seed, f, k])``). Each
 material shows a preview rendered with the numpy reference BRDF (flat
 sample 2 x 2 tiled, so seams would show, lit by a flash-like point light near
@@ -19,7 +19,6 @@ import numpy as np
 from materials.brdf_ref import eval_brdf
 from materials.maps import MaterialMaps, encode_normal_map
 from materials.svbrdf import MIN_RESOLUTION, SVBRDF_FAMILIES, sample_svbrdf
-from pipeline.errors import check_int
 from pipeline.image.srgb import srgb_encode
 from pipeline.store.atomic import write_bytes_atomic
 
@@ -80,7 +79,7 @@ def material_tile(maps: MaterialMaps) -> np.ndarray:
 
 
 def contact_sheet(
-    *, examples: int = 4, resolution: int = 128, seed: int = SHEET_SEED, progress: Callable[[str], None] | None = None
+    *, examples: int, resolution: int, seed: int = SHEET_SEED, progress: Callable[[str], None] | None = None
 ) -> np.ndarray:
     """The sheet as a uint8 (H, W, 3) array: rows are families, with a label column.
     ``progress`` gets a line before each family's row."""
@@ -112,17 +111,14 @@ def contact_sheet(
 def write_contact_sheet(
     out: str,
     *,
-    examples: int = 4,
-    resolution: int = 128,
+    examples: int,
+    resolution: int,
     seed: int = SHEET_SEED,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[int, int]:
-    """The sheet as a PNG at ``out`` (written atomically); returns its (width, height)."""
+    """The sheet as a PNG at ``out`` (written atomically); returns its (width, height). The
+    sizes are checked by the command's request (pipeline.figures.command.FiguresRequest)."""
     from PIL import Image
-
-    check_int("--examples", examples, *EXAMPLES_RANGE)
-    check_int("--resolution", resolution, *RESOLUTION_RANGE)
-    check_int("--seed", seed, 0, 2**63 - 1)
 
     image = contact_sheet(examples=examples, resolution=resolution, seed=seed, progress=progress)
     buffer = io.BytesIO()

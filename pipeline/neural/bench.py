@@ -12,10 +12,11 @@
   rate does not depend on the weights' values);
 - inference: the network at batch 1, mean of repeated timed calls after a warm-up.
 
-``shaderball neural-bench loaders DIR PUB`` compares the loader alone on a dataset
-folder and its publication (:func:`compare_loaders`): the same samples, best of a few passes
-each. ``shaderball neural-bench denoise DATASET`` compares what OIDN is fed
-(:func:`compare_denoisers`) against fresh high-spp renders of the same samples.
+``shaderball neural-bench loaders`` compares the loader alone on a dataset folder and its
+publication (:func:`compare_loaders`): the same samples, best of a few passes each.
+``shaderball neural-bench denoise`` compares what OIDN is fed (:func:`compare_denoisers`)
+against fresh high-spp renders of the same samples. Each comparison takes its request
+(:mod:`pipeline.neural.config`), whose fields are checked when it is built.
 """
 
 from __future__ import annotations
@@ -32,34 +33,33 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, default_collate
 
-from pipeline.errors import ShaderballError, bad_value, check_int
+from pipeline.fields import FieldError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, hdr_to_srgb8
 from pipeline.neural import speed
+from pipeline.neural.config import CollateRequest, DenoiseRequest, LoadersRequest, TrainOptionsRequest
 from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
-from pipeline.neural.limits import INTEGER_RANGES, TRAINING_VARIANTS
+from pipeline.neural.limits import TRAINING_VARIANTS
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import TrainConfig, choose_loss, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
-from pipeline.render.limits import RESOLUTION_RANGE, SPP_RANGE
 from pipeline.render.mitsuba_env import resolve_variant
 
-#: Ranges of the comparisons' counts (`shaderball neural-bench`).
-REPEATS_RANGE = (1, 1000)
-STEPS_RANGE = (1, 10_000)
-BUSY_RANGE = (0, 64)
-DENOISE_SAMPLES_RANGE = (1, 100_000)
 
-
-def _check_loader_options(resolution, batch_size, workers, repeats) -> None:
-    check_int("--resolution", resolution, *RESOLUTION_RANGE)
-    check_int("--batch-size", batch_size, *INTEGER_RANGES["batch_size"])
-    check_int("--loader-workers", workers, *INTEGER_RANGES["loader_workers"])
-    check_int("--repeats", repeats, *REPEATS_RANGE)
+@contextlib.contextmanager
+def _naming(owner, name: str):
+    """A dataset refused (the field ``dataset`` of pipeline.neural.data) as ``owner``'s field
+    ``name``: loaders' folder and publication each by its own name."""
+    try:
+        yield
+    except FieldError as exc:
+        if exc.name != "dataset":
+            raise
+        raise owner.field_error(name, exc.value, exc.allowed, what=exc.what) from None
 
 
 def _say(progress):
@@ -138,7 +138,7 @@ def loader_rate(config: TrainConfig) -> LoaderRate:
         config.dataset,
         config.resolution,
         config.exposure,
-        config.check_hashes,
+        config.hash_check,
         config.batch_size,
         config.loader_workers,
     )
@@ -235,22 +235,15 @@ class TrainingSteps:
             return steps * self.config.batch_size / (time.perf_counter() - started)
 
 
-def compare_training(
-    config: TrainConfig, resolution: int, variants=None, repeats: int = 5, steps: int = 3, progress=None
-) -> dict:
-    """Training samples/s of each variant (``TRAINING_VARIANTS``' names; default all), each a
-    fresh network warmed up first, then timed ``steps`` steps at a time, variants alternated
-    ``repeats`` times; medians, all passes and the load average after each round."""
-    check_int("--resolution", resolution, *RESOLUTION_RANGE)
-    check_int("--repeats", repeats, *REPEATS_RANGE)
-    check_int("--steps", steps, *STEPS_RANGE)
-    config.check()
+def compare_training(req: TrainOptionsRequest, progress=None) -> dict:
+    """Training samples/s of each of ``req.variants`` (``TRAINING_VARIANTS``' names; default
+    all) beside the baseline (:meth:`TrainOptionsRequest.config`), each a fresh network warmed
+    up first, then timed ``req.steps`` steps at a time, variants alternated ``req.repeats``
+    times; medians, all passes and the load average after each round."""
+    config, resolution, repeats, steps = req.config(), req.resolution, req.repeats, req.steps
     say = _say(progress)
     device = pick_device(config.device)
-    names = list(variants or TRAINING_VARIANTS)
-    for name in names:
-        if name not in TRAINING_VARIANTS:
-            raise bad_value("--variants", name, ", ".join(TRAINING_VARIANTS))
+    names = list(req.variants or TRAINING_VARIANTS)
     runners, compile_s = {}, {}
     for name in names:
         variant = dataclasses.replace(config, **TRAINING_VARIANTS[name])
@@ -327,7 +320,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         config.loader_workers,
         loaded.samples,
         loaded.steady_samples_per_s,
-        config.check_hashes,
+        config.hash_check,
         config.batch_size,
         train_rate,
         config.loss,
@@ -343,38 +336,28 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
     )
 
 
-def compare_loaders(
-    folder: str,
-    pub: str,
-    resolution: int | None = None,
-    batch_size: int = 6,
-    workers: int = 0,
-    repeats: int = 3,
-    check_hashes: bool = True,
-    exposure: float = DEFAULT_EXPOSURE,
-    progress=None,
-) -> dict:
+def compare_loaders(req: LoadersRequest, exposure: float = DEFAULT_EXPOSURE, progress=None) -> dict:
     """The loader's samples/s on a dataset folder and on its publication, passes alternated,
-    best of ``repeats`` each (a shared machine's load only slows a pass); the publication's
+    best of ``req.repeats`` each (a shared machine's load only slows a pass); the publication's
     opening (every tar checked) is reported apart. Both must yield the same sample ids."""
-    _check_loader_options(resolution, batch_size, workers, repeats)
     say = _say(progress)
+    options = (req.resolution, exposure, req.hash_check, req.batch_size, req.loader_workers)
     runs: dict[str, list[LoaderRate]] = {"folder": [], "publication": []}
-    for k in range(repeats):
-        say(f"pass {k + 1}/{repeats}")
-        runs["folder"].append(measure_loader(folder, resolution, exposure, check_hashes, batch_size, workers))
-        runs["publication"].append(measure_loader(pub, resolution, exposure, check_hashes, batch_size, workers))
-    if runs["folder"][0].source != "dataset folder" or runs["publication"][0].source != "publication":
-        raise ShaderballError("compare_loaders: name a dataset folder, then its publication")
-    if runs["folder"][0].ids != runs["publication"][0].ids:
-        raise ShaderballError(f"compare_loaders: {pub!r} does not hold the samples of {folder!r}")
+    for k in range(req.repeats):
+        say(f"pass {k + 1}/{req.repeats}")
+        with _naming(LoadersRequest, "folder"):
+            runs["folder"].append(measure_loader(req.folder, *options))
+        with _naming(LoadersRequest, "pub"):
+            runs["publication"].append(measure_loader(req.pub, *options))
+        if k == 0:
+            _check_pair(req, runs["folder"][0], runs["publication"][0])
     out = {
         "samples": runs["folder"][0].samples,
         "resolution": runs["folder"][0].resolution,
-        "workers": workers,
-        "batch_size": batch_size,
-        "sha256_checked": check_hashes,
-        "repeats": repeats,
+        "workers": req.loader_workers,
+        "batch_size": req.batch_size,
+        "sha256_checked": req.hash_check,
+        "repeats": req.repeats,
         "torch_threads": torch.get_num_threads(),
     }
     for name, rates in runs.items():
@@ -384,6 +367,22 @@ def compare_loaders(
             "open_s": min(r.open_s for r in rates),
         }
     return out
+
+
+def _check_pair(req: LoadersRequest, folder: LoaderRate, pub: LoaderRate) -> None:
+    """A dataset folder, then its publication: the same samples."""
+    allowed = "a dataset folder, then its publication as {pub}"
+    if folder.source != "dataset folder":
+        raise LoadersRequest.field_error("folder", req.folder, allowed, what=f"{req.folder!r} is a {folder.source}")
+    if pub.source != "publication":
+        raise LoadersRequest.field_error("pub", req.pub, allowed, what=f"{req.pub!r} is a {pub.source}")
+    if folder.ids != pub.ids:
+        raise LoadersRequest.field_error(
+            "pub",
+            req.pub,
+            "the publication of {folder}",
+            what=f"{req.pub!r} does not hold the samples of {req.folder!r}",
+        )
 
 
 @contextlib.contextmanager
@@ -403,21 +402,14 @@ COLLATIONS = {"torch default_collate": default_collate, "collate_samples (numpy,
 
 
 def compare_collation(
-    root: str,
-    busy: int = 2,
-    repeats: int = 5,
-    batch_size: int = 6,
-    workers: int = 0,
-    resolution: int | None = None,
-    check_hashes: bool = True,
-    exposure: float = DEFAULT_EXPOSURE,
-    progress=None,
+    req: CollateRequest, check_hashes: bool = True, exposure: float = DEFAULT_EXPOSURE, progress=None
 ) -> dict:
     """The loader's samples/s with torch's default collation and with :func:`collate_samples`,
-    on the machine as it is and with ``busy`` spinning processes beside it; passes alternated
-    (idle A, idle B, loaded A, loaded B, ...) ``repeats`` times; medians and all passes."""
-    _check_loader_options(resolution, batch_size, workers, repeats)
-    check_int("--busy", busy, *BUSY_RANGE)
+    on the machine as it is and with ``req.busy`` spinning processes beside it; passes
+    alternated (idle A, idle B, loaded A, loaded B, ...) ``req.repeats`` times; medians and
+    all passes."""
+    root, busy, repeats, batch_size = req.dataset, req.busy, req.repeats, req.batch_size
+    workers, resolution = req.loader_workers, req.resolution
     say = _say(progress)
     rates: dict[tuple[str, str], list[float]] = {}
     loads = []
@@ -462,16 +454,13 @@ DENOISE_VARIANTS = {
 }
 
 
-def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_spp: int = 256, progress=None) -> dict:
-    """Mean PSNR, SSIM (8-bit sRGB) and relMSE of OIDN's output against ``reference_spp`` renders
-    of ``samples`` samples spread over the dataset (which must store texture maps), for each
-    row of :data:`DENOISE_VARIANTS` and each spp."""
-    check_int("--limit", samples, *DENOISE_SAMPLES_RANGE)
-    check_int("--reference-spp", reference_spp, *SPP_RANGE)
-    for spp in spps:
-        check_int("--spp", spp, *SPP_RANGE)
+def compare_denoisers(req: DenoiseRequest, progress=None) -> dict:
+    """Mean PSNR, SSIM (8-bit sRGB) and relMSE of OIDN's output against ``req.reference_spp``
+    renders of ``req.draws`` samples drawn spread over the dataset (which must store texture
+    maps), for each row of :data:`DENOISE_VARIANTS` and each of ``req.spp``."""
+    root, samples, spps, reference_spp = req.dataset, req.draws, req.spp, req.reference_spp
     dataset = open_dataset(root)
-    variant = resolve_variant(dataset_variant(dataset.records))
+    variant = resolve_variant(dataset_variant(dataset))
     tracer = PathTracer(dataset, variant)
     auxes = {
         name: AuxBuffers(tracer.ball, tracer.camera, dataset.resolution, variant, **options)
@@ -484,7 +473,12 @@ def compare_denoisers(root: str, samples: int = 12, spps=(1, 4, 16), reference_s
         sample = dataset.samples[index]
         maps = tracer.material(sample)
         if maps is None:
-            raise ShaderballError(f"DATASET: {root!r} stores no texture maps; the comparison re-renders samples")
+            raise DenoiseRequest.field_error(
+                "dataset",
+                root,
+                "a dataset built with storage.texture_maps = true (the comparison re-renders samples)",
+                what=f"{root!r} stores no texture maps",
+            )
         record = dataset.records[sample.id]
         truth = tracer.render(record, maps, reference_spp)[0]
         truth8 = hdr_to_srgb8(truth, dataset.exposure)

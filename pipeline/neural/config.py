@@ -1,19 +1,62 @@
-"""`shaderball train`'s options, declared once: :class:`TrainConfig`.
+"""The neural commands' requests, declared once and without torch.
 
-Each field's declaration (``pipeline.fields``) is its default, range, unit and help; the
-command's options are generated from it (``pipeline.ui.options``) and a refusal names the
-option (``--epochs: 0 is not allowed; an integer from 1 to 100000``). No torch here: the
-command builds its --help before torch is loaded.
+Each command's inputs are the fields of one class here: `shaderball train`'s
+:class:`TrainConfig`, `infer`'s :class:`InferRequest`, `evaluate`'s :class:`EvaluateRequest`,
+`export`'s :class:`ExportRequest`, `sweep`'s :class:`SweepRequest`, and `neural-bench`'s
+:class:`LoadersRequest`, :class:`CollateRequest`, :class:`DenoiseRequest` and
+:class:`TrainOptionsRequest`. A field's declaration (``pipeline.fields``) is its default,
+range, unit and help; the command line is generated from it (``pipeline.ui.command``) and a
+refused value names the field (``epochs: 0 is not allowed; an integer from 1 to 100000``;
+the command line spells it ``--epochs``). A parameter several commands take is declared
+once and reused (``same_as``): the dataset, the device, the checkpoint, the resolution, the
+batch size, the loader workers, the threads, the low-spp ladder, the repeats.
+
+No torch here: the command line builds its --help before torch is loaded; the modules that
+do the work (``pipeline.neural.train``, ``.evaluate``, ...) take these requests.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
-from typing import ClassVar
 
-from pipeline.fields import Bool, Checked, Choice, Float, Int, Optional, Path, Reject, Rule, Text, field
+from pipeline.fields import (
+    Bool,
+    Checked,
+    Choice,
+    Float,
+    Int,
+    IntList,
+    Many,
+    Optional,
+    Path,
+    Reject,
+    Rule,
+    StrList,
+    Text,
+    field,
+    format_value,
+    same_as,
+)
 from pipeline.image.tonemap import DEFAULT_EXPOSURE
-from pipeline.neural.limits import DEVICES, INTEGER_RANGES, LOSS_CHOICES, PRECISIONS, WIDTH_RANGE
+from pipeline.neural.limits import (
+    BUSY_RANGE,
+    DEFAULT_SPP,
+    DEVICES,
+    DRAWS_RANGE,
+    INTEGER_RANGES,
+    LIMIT_RANGE,
+    LOSS_CHOICES,
+    PRECISIONS,
+    REPEATS_RANGE,
+    SPLITS,
+    SPP_LADDER_RANGE,
+    STEPS_RANGE,
+    TRAINING_VARIANTS,
+    WIDTH_RANGE,
+)
+from pipeline.render.command import RenderRequest
+from pipeline.render.settings import RenderSettings
 
 #: --schedule: constant (after any warm-up), or cosine decay to 0 at the last epoch.
 SCHEDULES = ("constant", "cosine")
@@ -44,23 +87,55 @@ class NetworkResolution(Rule):
         return "a multiple of 16 from 16 to 4096"
 
 
+class Folder(Path):
+    """A folder a command writes into: a new one, or an existing folder (never a file)."""
+
+    def check(self, value):
+        value = super().check(value)
+        if value and os.path.exists(value) and not os.path.isdir(value):
+            raise Reject(what=f"{format_value(value)} is a file")
+        return value
+
+
+class FileName(Path):
+    """A file a command writes, whose name ends in one of ``suffixes`` (any case)."""
+
+    def __init__(self, *suffixes: str):
+        *first, last = suffixes
+        super().__init__("a file name ending in " + (", ".join(first) + " or " if first else "") + last)
+        self.suffixes = suffixes
+
+    def check(self, value):
+        value = super().check(value)
+        if not value.lower().endswith(self.suffixes):
+            raise Reject()
+        if os.path.isdir(value):
+            raise Reject(what=f"{format_value(value)} is a folder")
+        return value
+
+
 def _int(name: str) -> Int:
     return Int(*INTEGER_RANGES[name])
 
 
 @dataclass
 class TrainConfig(Checked):
-    """Options of `shaderball train`."""
-
-    FIELD_PREFIX: ClassVar[str] = "--"
+    """`shaderball train`: a run's every option (a resume must repeat those that change what
+    it computes: pipeline.neural.train.IDENTITY_FIELDS)."""
 
     # empty: no dataset (the training-speed benchmark of synthetic batches); train() refuses it
     dataset: str = field(
-        rule=Path("a dataset folder or its publication", empty_ok=True), doc="Dataset folder written by `build`."
+        rule=Path("a dataset folder or its publication", empty_ok=True),
+        doc="A dataset folder written by `shaderball build`, or its publication (`shaderball publish`).",
+        positional=True,
+        metavar="DATASET",
     )
-    out: str = field(
-        rule=Path("a run folder", empty_ok=True),
-        doc="Run folder: config.json, log.jsonl, log.csv, checkpoint.pt, checkpoint-best.pt, loss.png.",
+    out: str | None = field(
+        None,
+        rule=Optional(Folder("a run folder"), "unset (only with {benchmark})"),
+        doc="Run folder (new, empty, or a run to resume): config.json, log.jsonl, loss.png, checkpoint.pt (weights "
+        "and Adam's state, to resume; at 400 px 141 MB with {width} 1, 37 MB with 0.5) and checkpoint-best.pt "
+        "(weights only: 47 MB, 12 MB; scripts/checkpoint_sizes.py). [required, except with {benchmark}]",
     )
     epochs: int = field(
         30, rule=_int("epochs"), doc="Epochs to reach; running again with more continues the run.", unit="epochs"
@@ -75,21 +150,27 @@ class TrainConfig(Checked):
         "auto",
         rule=Choice(LOSS_CHOICES),
         doc="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
-        "auto: l1+vgg where the weights are found (--vgg-weights or torch hub's cache), else l1, and says which.",
+        "auto: l1+vgg where the weights are found ({vgg_weights} or torch hub's cache), else l1, and says which.",
     )
     vgg_weights: str | None = field(
         None,
         rule=Optional(Path("a file"), "unset (torch hub's cache)"),
         doc="torchvision's vgg16 state dict (vgg16-397923af.pth) [default: torch hub's cache, "
         "$TORCH_HOME/hub/checkpoints/]. Never downloaded.",
+        metavar="FILE",
     )
     vgg_sha256: str | None = field(
         None,
         rule=Optional(Text(r"[0-9a-fA-F]{64}", "64 hexadecimal digits"), "unset (torchvision's file)"),
-        doc="Expected SHA-256 of --vgg-weights [default: torchvision's ImageNet file's].",
+        doc="Expected SHA-256 of {vgg_weights} [default: torchvision's ImageNet file's].",
+        metavar="HEX",
     )
     vgg_weight: float = field(1.0, rule=Float(0.0, 1e6), doc="Weight of the VGG term beside L1.")
-    device: str = field("auto", rule=Choice(DEVICES), doc="Where the network runs; auto: cuda when torch sees a GPU.")
+    device: str = field(
+        "auto",
+        rule=Choice(DEVICES),
+        doc="Where the network runs: auto (cuda when torch sees a GPU, else cpu), cpu or cuda.",
+    )
     loader_workers: int = field(
         0,
         rule=_int("loader_workers"),
@@ -106,12 +187,43 @@ class TrainConfig(Checked):
     test_fraction: float = field(
         0.2, rule=Float(0.0, 1.0, hi_open=True), doc="Fraction of materials held out for testing."
     )
+    split_seed: int | None = field(
+        None,
+        rule=Optional(_int("seed"), "unset ({seed})"),
+        doc="Seeds the split by material (and {train_materials}' choice) apart from {seed}, so runs of "
+        "several seeds share one held-out set [default: {seed}].",
+    )
+    train_materials: int | None = field(
+        None,
+        rule=Optional(Int(1, 10**9), "unset (all)"),
+        doc="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
+        "larger one; the held-out set stays) [default: all].",
+        unit="materials",
+    )
+    width: float = field(
+        1.0,
+        rule=Float(*WIDTH_RANGE, lo_open=True),
+        doc="Fraction of the paper's channels; 1 is the paper's network, 0.5 about a quarter of its "
+        "work for CPU-scale runs (docs/neural.md).",
+    )
+    schedule: str = field(
+        "constant",
+        rule=Choice(SCHEDULES),
+        doc="Learning rate after the warm-up: constant, or a cosine decay reaching 0 at {epochs} (the run then "
+        "ends at {epochs}: a longer run is another configuration).",
+    )
+    warmup_epochs: float = field(
+        0.0,
+        rule=Float(0.0, float(INTEGER_RANGES["epochs"][1])),
+        doc="Linear warm-up of the learning rate over this many epochs (fractions allowed), 0 to {epochs}.",
+        unit="epochs",
+    )
     exposure: float = field(
         DEFAULT_EXPOSURE,
         rule=Float(0.0, 1e6, lo_open=True),
         doc="Tone map exposure of the targets (pipeline.image.tonemap).",
     )
-    check_hashes: bool = field(True, rule=Bool(), doc="Check each file's SHA-256 against the manifest on first read.")
+    hash_check: bool = field(True, rule=Bool(), doc="Check each file's SHA-256 against the manifest on first read.")
     threads: int = field(
         0,
         rule=_int("threads"),
@@ -121,43 +233,18 @@ class TrainConfig(Checked):
         "fp32",
         rule=Choice(PRECISIONS),
         doc="fp32: the same computation on every CPU; bf16: autocast to bfloat16 (CPU or CUDA; 1.7x here, "
-        "2.1x with --channels-last); auto: bf16 on a CPU with bfloat16 kernels, else fp32; "
+        "2.1x with {channels_last}); auto: bf16 on a CPU with bfloat16 kernels, else fp32; "
         "fp16: autocast to float16 with a gradient scaler (CUDA).",
     )
     channels_last: bool = field(
         True, rule=Bool(), doc="Network, VGG and batches in channels-last (NHWC) memory format."
     )
     compile: bool = field(False, rule=Bool(), doc="torch.compile the network for the training step.")
-    width: float = field(
-        1.0,
-        rule=Float(*WIDTH_RANGE, lo_open=True),
-        doc="Fraction of the paper's channels; 1 is the paper's network, 0.5 about a quarter of its "
-        "work for CPU-scale runs (docs/neural.md).",
-    )
-    split_seed: int | None = field(
-        None,
-        rule=Optional(_int("seed"), "unset (--seed)"),
-        doc="Seeds the split by material (and --train-materials' choice) apart from --seed, so runs of "
-        "several seeds share one held-out set [default: --seed].",
-    )
-    train_materials: int | None = field(
-        None,
-        rule=Optional(Int(1, 10**9), "unset (all)"),
-        doc="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
-        "larger one; the held-out set stays) [default: all].",
-        unit="materials",
-    )
-    schedule: str = field(
-        "constant",
-        rule=Choice(SCHEDULES),
-        doc="Learning rate after the warm-up: constant, or a cosine decay reaching 0 at --epochs (the run then "
-        "ends at --epochs: a longer run is another configuration).",
-    )
-    warmup_epochs: float = field(
-        0.0,
-        rule=Float(0.0, float(INTEGER_RANGES["epochs"][1])),
-        doc="Linear warm-up of the learning rate over this many epochs (fractions allowed), 0 to --epochs.",
-        unit="epochs",
+    benchmark: bool = field(
+        False,
+        rule=Bool(),
+        doc="Measure loader samples/s, training samples/s and inference ms instead of training; writes nothing.",
+        in_file=False,
     )
 
     def check(self) -> TrainConfig:
@@ -166,8 +253,246 @@ class TrainConfig(Checked):
 
     def check_cross(self) -> None:
         if self.warmup_epochs > self.epochs:
-            raise self.field_error("warmup_epochs", self.warmup_epochs, f"a finite number from 0 to {self.epochs:g}")
+            raise self.field_error(
+                "warmup_epochs", self.warmup_epochs, f"a finite number from 0 to {self.epochs:g}, the {{epochs}}"
+            )
 
     @property
     def splitting_seed(self) -> int:
         return self.seed if self.split_seed is None else self.split_seed
+
+
+@dataclass(frozen=True)
+class InferRequest(Checked):
+    """`shaderball infer`: the network's picture of one material under one sun."""
+
+    run: str = field(
+        rule=Path("a training run folder", exists="folder"),
+        doc="A training run folder (config.json, checkpoint.pt) written by `shaderball train`.",
+        positional=True,
+        metavar="RUN",
+    )
+    out: str = field(
+        rule=FileName(".exr"),
+        doc="Output EXR file: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
+    )
+    png: str | None = field(
+        None, rule=Optional(FileName(".png"), "unset (none)"), doc="Also write the network's picture as PNG."
+    )
+    diffuse: tuple[float, float, float] = same_as(RenderRequest, "diffuse")
+    specular: tuple[float, float, float] = same_as(RenderRequest, "specular")
+    roughness: float = same_as(RenderRequest, "roughness")
+    normal: tuple[float, float, float] = same_as(RenderRequest, "normal")
+    svbrdf: str | None = same_as(RenderRequest, "svbrdf")
+    svbrdf_colorspace: str = same_as(RenderRequest, "svbrdf_colorspace")
+    elevation: float = same_as(RenderRequest, "elevation")
+    azimuth: float = same_as(RenderRequest, "azimuth")
+    turbidity: float = same_as(RenderRequest, "turbidity")
+    device: str = same_as(TrainConfig, "device")
+    checkpoint: str = field(
+        "last",
+        rule=Path("last, best, or a checkpoint file of the run"),
+        doc="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of {run}.",
+        metavar="last|best|FILE",
+    )
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class EvaluateRequest(Checked):
+    """`shaderball evaluate`: a run's network against a dataset's path-traced references."""
+
+    run: str = same_as(InferRequest, "run", positional=True)
+    dataset: str = same_as(
+        TrainConfig, "dataset", rule=Path("a dataset folder or its publication", exists="any"), positional=True
+    )
+    split: str = field(
+        "test",
+        rule=Choice(SPLITS),
+        doc="The run's held-out (test) or training materials ({dataset} must hold the files the run was trained "
+        "on), or all samples.",
+    )
+    out: str | None = field(
+        None,
+        rule=Optional(Folder("a folder"), "unset ({run}/evaluation-<split>)", default_text="{run}/evaluation-<split>"),
+        doc="The one folder of the evaluation: results.json, results.md, grid.png (maps, reference, network, path "
+        "tracing at equal time and 2 spp, denoised, error maps), and with {report} the report.",
+    )
+    json_out: str | None = field(
+        None,
+        rule=Optional(FileName(".json"), "unset (none)"),
+        doc="Also write the results (per sample and mean) to this JSON file.",
+        metavar="FILE",
+    )
+    spp: tuple[int, ...] = field(
+        DEFAULT_SPP,
+        rule=IntList(*SPP_LADDER_RANGE, none="none"),
+        doc="Low-spp path tracing to compare with, in samples per pixel; none: no path tracing.",
+    )
+    denoise: bool = field(True, rule=Bool(), doc="Denoise each low-spp render with Intel OIDN (a row of its own).")
+    limit: int | None = field(
+        None,
+        rule=Optional(Int(*LIMIT_RANGE), "unset (all)", default_text="all"),
+        doc="Evaluate at most the first N samples of the split (in manifest order).",
+        unit="samples",
+        metavar="N",
+    )
+    device: str = same_as(TrainConfig, "device")
+    checkpoint: str = same_as(
+        InferRequest,
+        "checkpoint",
+        doc="The last epoch's weights; best: the best held-out PSNR's (chosen on the test split, so optimistic "
+        "there); or a checkpoint file of {run}.",
+    )
+    report: bool = field(
+        False,
+        rule=Bool(),
+        doc="Also write, into the {out} folder: report.md (the table, per material class with 95% intervals, "
+        "the grid), report.json, learning-curve.png/.csv (training and held-out loss and PSNR per epoch).",
+    )
+    flip: bool = field(True, rule=Bool(), doc="HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).")
+    hash_check: bool = same_as(TrainConfig, "hash_check")
+
+    def __post_init__(self):
+        self.check_fields()
+
+    @property
+    def folder(self) -> str:
+        """The folder the evaluation writes: ``out``, else the run's ``evaluation-<split>``."""
+        return self.out or os.path.join(self.run, f"evaluation-{self.split}")
+
+
+@dataclass(frozen=True)
+class ExportRequest(Checked):
+    """`shaderball export`: a run's network as a TorchScript file."""
+
+    run: str = same_as(InferRequest, "run", positional=True)
+    out: str = field(rule=FileName(".pt", ".pth", ".ts"), doc="TorchScript file to write (.pt, .pth or .ts).")
+    checkpoint: str = same_as(InferRequest, "checkpoint")
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class SweepRequest(Checked):
+    """`shaderball sweep`: runs of several training-set sizes and seeds side by side."""
+
+    reports: tuple[str, ...] = field(
+        rule=Many(Path("a report.json of `shaderball evaluate --report`", exists="file")),
+        doc="The report.json `shaderball evaluate --report` wrote for each run.",
+        positional=True,
+        metavar="REPORT.json",
+    )
+    out: str = field(rule=Folder("a folder"), doc="Folder for sweep.md, sweep.json and data-size.png.")
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class LoadersRequest(Checked):
+    """`shaderball neural-bench loaders`: the loader on a dataset folder and on its publication."""
+
+    folder: str = field(
+        rule=Path("a dataset folder written by `shaderball build`", exists="folder"),
+        doc="A dataset folder.",
+        positional=True,
+        metavar="DIR",
+    )
+    pub: str = field(
+        rule=Path("the dataset folder's publication (`shaderball publish`)", exists="folder"),
+        doc="Its publication.",
+        positional=True,
+        metavar="PUB",
+    )
+    resolution: int | None = same_as(TrainConfig, "resolution")
+    batch_size: int = same_as(TrainConfig, "batch_size")
+    loader_workers: int = same_as(TrainConfig, "loader_workers")
+    repeats: int = field(3, rule=Int(*REPEATS_RANGE), doc="Passes over each; the best counts.", unit="passes")
+    hash_check: bool = same_as(TrainConfig, "hash_check")
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class CollateRequest(Checked):
+    """`shaderball neural-bench collate`: torch's collation against the loader's, idle and loaded."""
+
+    dataset: str = same_as(EvaluateRequest, "dataset", positional=True)
+    busy: int = field(2, rule=Int(*BUSY_RANGE), doc="Spinning processes beside the loaded passes.", unit="processes")
+    repeats: int = same_as(LoadersRequest, "repeats", default=5, doc="Rounds of passes; medians count.", unit="rounds")
+    batch_size: int = same_as(TrainConfig, "batch_size")
+    loader_workers: int = same_as(TrainConfig, "loader_workers")
+    resolution: int | None = same_as(TrainConfig, "resolution")
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class DenoiseRequest(Checked):
+    """`shaderball neural-bench denoise`: what OIDN is fed, against fresh high-spp renders."""
+
+    dataset: str = same_as(EvaluateRequest, "dataset", positional=True)
+    draws: int = field(
+        12, rule=Int(*DRAWS_RANGE), doc="Samples compared, drawn spread over the dataset.", unit="samples"
+    )
+    spp: tuple[int, ...] = same_as(
+        EvaluateRequest,
+        "spp",
+        rule=IntList(*SPP_LADDER_RANGE),
+        default=(1, 4, 16),
+        doc="Path-tracing rates denoised, in samples per pixel.",
+    )
+    reference_spp: int = same_as(RenderSettings, "spp", default=256, doc="Samples per pixel of the reference renders.")
+
+    def __post_init__(self):
+        self.check_fields()
+
+
+@dataclass(frozen=True)
+class TrainOptionsRequest(Checked):
+    """`shaderball neural-bench train-options`: training samples/s of each speed option."""
+
+    resolution: int = same_as(
+        TrainConfig, "resolution", rule=NetworkResolution(), default=64, doc="Network resolution."
+    )
+    batch_size: int = same_as(TrainConfig, "batch_size")
+    loss: str = same_as(
+        TrainConfig,
+        "loss",
+        default="l1+vgg",
+        doc="l1+vgg: L1 + VGG16 relu3_3 feature loss (a randomly initialised VGG16: the rate does not depend on its "
+        "weights); l1: L1 alone; auto: l1.",
+    )
+    repeats: int = same_as(
+        LoadersRequest, "repeats", default=5, doc="Rounds of timed steps; medians count.", unit="rounds"
+    )
+    steps: int = field(3, rule=Int(*STEPS_RANGE), doc="Steps timed per variant and round.", unit="steps")
+    threads: int = same_as(TrainConfig, "threads")
+    variants: tuple[str, ...] | None = field(
+        None,
+        rule=Optional(StrList(tuple(TRAINING_VARIANTS), "speed options"), "unset (all)", default_text="all"),
+        doc="Speed options compared, comma-separated, the first the baseline (the options each changes from "
+        "the baseline's: fp32, NCHW, eager, its {threads}).",
+        metavar="NAME,NAME,...",
+    )
+
+    def __post_init__(self):
+        self.check_fields()
+
+    def config(self) -> TrainConfig:
+        """The baseline's training options: these, on the CPU, in fp32 and NCHW."""
+        return TrainConfig(
+            dataset="",
+            batch_size=self.batch_size,
+            loss=self.loss,
+            device="cpu",
+            threads=self.threads,
+            precision="fp32",
+            channels_last=False,
+        ).check()

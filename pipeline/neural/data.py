@@ -30,6 +30,11 @@ its tar (:func:`pipeline.publish.reader.read_located`, no ``tarfile``), and its 
 compared again on its first read in a process. A publication that does not verify is a
 user error (exit code 2), named with the reader's message.
 
+A dataset that cannot be opened is refused naming the command's dataset (a
+:class:`pipeline.fields.FieldError` of the field ``dataset``: :func:`dataset_refused`); a
+file of it that cannot be used is refused naming the file (a ShaderballError: it may be
+raised in a loader's worker process, whose errors torch rebuilds from their message).
+
 A sample that ``shaderball validate`` refuses is refused here too, when it is read: every
 file's EXR header is checked before it is decoded (single-part scanline, a bounded data
 window and channel count, the decoded size within the expected image: :func:`pipeline.store.exrheader.check_header`), then its
@@ -57,8 +62,10 @@ from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
 from pipeline.check.inspect import content_issues, sample_expectations
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError
+from pipeline.fields import FieldError
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
+from pipeline.neural.config import TrainConfig
 from pipeline.neural.network import check_network_resolution
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
@@ -181,13 +188,23 @@ def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader
     return Batches(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
 
 
-def read_json_file(path: str, what: str):
-    """A small JSON file of the dataset folder (a regular file, bounded: pipeline.store.folder)."""
+#: What the dataset operand of the neural commands must be.
+A_DATASET = "a dataset folder written by `shaderball build`, or its publication (`shaderball publish`)"
+
+
+def dataset_refused(root: str, what: str, allowed: str = A_DATASET) -> FieldError:
+    """``root``, the command's dataset (the field ``dataset``), refused: ``what`` is wrong
+    with it, ``allowed`` says what to do."""
+    return TrainConfig.field_error("dataset", root, allowed, what=what)
+
+
+def read_json_file(path: str, root: str):
+    """A small JSON file of the dataset folder ``root`` (a regular file, bounded: pipeline.store.folder)."""
     value, why = read_json_checked(path)
     if why == "missing":
-        raise ShaderballError(f"{what}: {path} is missing")
+        raise dataset_refused(root, f"{root!r} has no {os.path.basename(path)}")
     if why is not None:
-        raise ShaderballError(f"{what}: {path} is not readable JSON ({why})")
+        raise ShaderballError(f"{path}: not readable JSON ({why}); check the folder with `shaderball validate`")
     return value
 
 
@@ -200,25 +217,24 @@ def folder_manifest(root: str) -> tuple[dict, str]:
     """dataset.json of a complete dataset folder and its manifest's path (checked readable)."""
     layout = Layout(root)
     if not os.path.isdir(root):
-        raise bad_value(
-            "DATASET", root, "a dataset folder written by `shaderball build`, or its publication (`shaderball publish`)"
+        raise dataset_refused(
+            root, f"{root!r} does not exist" if not os.path.lexists(root) else f"{root!r} is not a folder"
         )
-    description = read_json_file(layout.description, "DATASET")
+    description = read_json_file(layout.description, root)
     if not isinstance(description, dict):
-        raise ShaderballError(
-            f"DATASET: {layout.description} is not a JSON object; check the folder with `shaderball validate`"
-        )
+        raise ShaderballError(f"{layout.description}: not a JSON object; check the folder with `shaderball validate`")
     if not os.path.lexists(layout.manifest):
-        raise ShaderballError(
-            f"DATASET: {root!r} is incomplete: no {os.path.basename(layout.manifest)} (written "
-            "when a build completes); finish it with `shaderball build SPEC --out DIR`"
+        raise dataset_refused(
+            root,
+            f"{root!r} is incomplete: no {os.path.basename(layout.manifest)} (written when a build completes)",
+            "finish it with `shaderball build SPEC --out DIR`",
         )
     try:
         for _line in iter_manifest(layout, _expected(description)):
             break  # opened and within its bound: read a line at a time by index_records
     except OSError as exc:
         raise ShaderballError(
-            f"DATASET: {layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
+            f"{layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
         ) from None
     return description, layout.manifest
 
@@ -242,12 +258,13 @@ def _byte_lines(data: bytes):
 def _count_check(records, description: dict, root: str):
     expected = _expected(description)
     if expected is not None and len(records) != expected:
-        raise ShaderballError(
-            f"DATASET: {root!r} is incomplete: the manifest lists {len(records)} of "
-            f"{expected} renders; finish it with `shaderball build`"
+        raise dataset_refused(
+            root,
+            f"{root!r} is incomplete: the manifest lists {len(records)} of {expected} renders",
+            "finish it with `shaderball build`",
         )
     if not records:
-        raise ShaderballError(f"DATASET: {root!r} has no renders")
+        raise dataset_refused(root, f"{root!r} has no renders", "a dataset of one render or more")
     return records
 
 
@@ -257,7 +274,7 @@ def decode_exr(data: bytes, label: str, bounds: ExrBounds) -> dict[str, np.ndarr
     try:
         check_header(data, label, bounds)
     except ExrRefused as exc:
-        raise ShaderballError(f"DATASET: {exc}") from None
+        raise ShaderballError(str(exc)) from None
     return read_exr(data, label, bounds).layers
 
 
@@ -265,14 +282,14 @@ def _checked_record(line: bytes, number: int, where: str, checker: str) -> dict:
     """The record on manifest line ``number``, checked (a ShaderballError naming the line)."""
     too_much = structure_problem(line)
     if too_much:
-        raise ShaderballError(f"DATASET: {where} line {number}: {too_much}; check it with {checker}")
+        raise ShaderballError(f"{where} line {number}: {too_much}; check it with {checker}")
     try:
         record = json.loads(line)
     except (ValueError, RecursionError):
-        raise ShaderballError(f"DATASET: {where} line {number} is not JSON; check it with {checker}") from None
+        raise ShaderballError(f"{where} line {number} is not JSON; check it with {checker}") from None
     problem = record_problem(record)
     if problem:
-        raise ShaderballError(f"DATASET: {where} line {number}: {problem}; check it with {checker}")
+        raise ShaderballError(f"{where} line {number}: {problem}; check it with {checker}")
     return record
 
 
@@ -298,7 +315,7 @@ class FolderFiles:
             return read_bytes(safe_path(self.root, key))
         except OSError as exc:
             raise ShaderballError(
-                f"DATASET: cannot read {self.path(key)} ({exc.strerror}); check the folder with `shaderball validate`"
+                f"{self.path(key)} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
             ) from None
 
     def label(self, key: str) -> str:
@@ -306,7 +323,7 @@ class FolderFiles:
 
     def changed(self, key: str) -> ShaderballError:
         return ShaderballError(
-            f"DATASET: {self.path(key)} does not match its SHA-256 in the manifest; repair the folder with "
+            f"{self.path(key)} does not match its SHA-256 in the manifest; repair the folder with "
             "`shaderball validate --repair`"
         )
 
@@ -324,18 +341,20 @@ class PublishedFiles:
 
     def key(self, rel: str) -> str:
         if rel not in self.located:  # the reader checked every manifest path: not reached
-            raise ShaderballError(f"DATASET: {rel} is in no tar of the publication {self.root!r}")
+            raise ShaderballError(f"{rel} is in no tar of the publication {self.root!r}")
         return rel
 
     def read(self, key: str) -> bytes:
         try:
             return read_located(self.root, self.located[key], check_sha256=False)
-        except Refused as exc:
-            raise refused(self.root, exc) from None
+        except Refused as exc:  # read in a loader's worker, maybe: an error torch rebuilds from its message
+            raise ShaderballError(
+                f"{self.label(key)}: the publication does not verify ({exc.kind}): {exc.message}; check it with "
+                "`shaderball verify`"
+            ) from None
         except OSError as exc:
             raise ShaderballError(
-                f"DATASET: cannot read {self.label(key)} ({exc.strerror}); check the "
-                "publication with `shaderball verify`"
+                f"{self.label(key)} cannot be read ({exc.strerror}); check the publication with `shaderball verify`"
             ) from None
 
     def label(self, key: str) -> str:
@@ -344,14 +363,16 @@ class PublishedFiles:
 
     def changed(self, key: str) -> ShaderballError:
         return ShaderballError(
-            f"DATASET: {self.label(key)} does not match its SHA-256 in the manifest: the "
+            f"{self.label(key)} does not match its SHA-256 in the manifest: the "
             "publication changed since it was verified; check it with `shaderball verify`"
         )
 
 
 def refused(root: str, exc: Refused) -> ShaderballError:
-    """A publication the reader refuses, as a user error of the training stage (exit code 2)."""
-    return ShaderballError(f"DATASET: {root!r} is a publication that does not verify ({exc.kind}): {exc.message}")
+    """A publication the reader refuses, as a user error of the training stage (exit code 2):
+    when it is opened, naming the dataset; a file read later, naming the publication."""
+    what = f"{root!r} is a publication that does not verify ({exc.kind}): {exc.message}"
+    return dataset_refused(root, what, "check it with `shaderball verify`")
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,14 +428,14 @@ class ManifestRecords(Mapping):
             try:
                 line = read_line_at(self.source, offset, length)
             except OSError as exc:
-                raise ShaderballError(f"DATASET: {self.source} cannot be read ({exc.strerror})") from None
+                raise ShaderballError(f"{self.source} cannot be read ({exc.strerror})") from None
         try:
             record = json.loads(line)
         except (ValueError, RecursionError):
             record = None
         if not isinstance(record, dict) or record.get("id") != sample_id:
             raise ShaderballError(
-                f"DATASET: {self.source if isinstance(self.source, str) else 'the manifest'} changed since it "
+                f"{self.source if isinstance(self.source, str) else 'the manifest'}: changed since it "
                 f"was opened (no record of {sample_id} where it was); open the dataset again"
             )
         return record
@@ -502,17 +523,29 @@ class SampleColumns(Sequence):
 @dataclass
 class ManifestIndex:
     """What opening a dataset keeps of its manifest: the records by id (parsed when asked
-    for), each sample's files and lighting vector, the renders' resolutions."""
+    for), each sample's files and lighting vector, the renders' resolutions, and the
+    digest of what the manifest says of the samples (:func:`sample_digest_line`)."""
 
     records: ManifestRecords
     samples: SampleColumns
     resolutions: set
+    samples_sha256: str = ""
+
+
+def sample_digest_line(record: dict) -> bytes:
+    """What a record says of its sample's data, as canonical JSON: its id, material, lighting
+    vector and files (role, path, SHA-256). A rebuild of the same spec writes the same bytes
+    in every file, but not the same manifest (each record holds its render's time)."""
+    files = sorted((e.get("role"), e.get("path"), e.get("sha256")) for e in record.get("files", []))
+    data = [record.get("id"), record.get("material_id"), record.get("lighting_vector"), files]
+    return json.dumps(data, separators=(",", ":")).encode() + b"\n"
 
 
 def index_records(lines, source: str | bytes, files, description: dict, root: str, where: str, checker: str):
     """:class:`ManifestIndex` of the manifest ``lines`` ((number, offset, line) of each line),
     each record checked as :func:`parse_records` checks it, one at a time."""
     offsets, lengths, positions, samples, resolutions = array("q"), array("q"), {}, SampleColumns(files), set()
+    content = hashlib.sha256()
     for number, offset, line in lines:
         if not line.strip():
             continue
@@ -524,9 +557,10 @@ def index_records(lines, source: str | bytes, files, description: dict, root: st
         offsets.append(offset)
         lengths.append(len(line))
         resolutions.add((record.get("render") or {}).get("resolution"))
+        content.update(sample_digest_line(record))
     _count_check(samples, description, root)
     records = ManifestRecords(source, np.frombuffer(offsets, np.int64), np.frombuffer(lengths, np.int64), positions)
-    return ManifestIndex(records, samples, resolutions)
+    return ManifestIndex(records, samples, resolutions, content.hexdigest())
 
 
 def _is_sha256(text) -> bool:
@@ -559,6 +593,8 @@ class ShaderballDataset(Dataset):
         self.check_hashes = check_hashes
         self.cache_materials = cache_materials
         self.identity = identity or {}
+        #: What the dataset holds, whatever folder holds it (pipeline.neural.evaluate.same_dataset); {}: unknown.
+        self.content: dict = {}
         self.files = files if files is not None else FolderFiles(root)
         self.records = records or {}
         self.material_ids = (
@@ -574,7 +610,7 @@ class ShaderballDataset(Dataset):
 
     def subset(self, material_ids) -> ShaderballDataset:
         keep = set(material_ids)
-        return ShaderballDataset(
+        view = ShaderballDataset(
             self.root,
             self.samples.of_materials(keep)
             if isinstance(self.samples, SampleColumns)
@@ -588,6 +624,8 @@ class ShaderballDataset(Dataset):
             self.files,
             self.records,
         )
+        view.content = self.content
+        return view
 
     def read_layers(
         self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False, flagged: bool = False
@@ -608,13 +646,13 @@ class ShaderballDataset(Dataset):
         absent = [name for name in layers if name not in decoded]
         if absent:
             raise ShaderballError(
-                f"DATASET: {label} has no {', '.join(absent)} layer (the network needs "
+                f"{label}: no {', '.join(absent)} layer (the network needs "
                 f"{', '.join(layers)}; build with storage.layers naming them)"
             )
         shape = decoded[layers[0]].shape[:2]
         if screen and shape != (self.resolution * self.factor,) * 2:
             raise ShaderballError(
-                f"DATASET: {label} is {shape[0]}x{shape[1]}, the manifest says {self.resolution * self.factor}"
+                f"{label}: {shape[0]}x{shape[1]} pixels, the manifest says {self.resolution * self.factor}"
             )
         if key not in self._content_checked:
             role = ("render" if "render" in layers else "maps") if screen else "texture"
@@ -630,7 +668,7 @@ class ShaderballDataset(Dataset):
             kind, text = issues[0]
             more = f" (and {len(issues) - 1} more)" if len(issues) > 1 else ""
             raise ShaderballError(
-                f"DATASET: {label}: {text}{more} [{kind}]: a sample validate refuses; nothing trains "
+                f"{label}: {text}{more} [{kind}]: a sample validate refuses; nothing trains "
                 f"on it (check the {self.files.kind} with {self.files.checker}, then repair or rebuild it)"
             )
 
@@ -674,39 +712,44 @@ class ShaderballDataset(Dataset):
         }
 
 
-def one_resolution(sizes: set) -> int:
+def one_resolution(sizes: set, root: str) -> int:
     if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
-        raise ShaderballError(f"DATASET: renders of several or unknown resolutions {sorted(map(str, sizes))}")
+        raise dataset_refused(
+            root,
+            f"{root!r} has renders of several or unknown resolutions {sorted(map(str, sizes))}",
+            "a dataset of one render resolution; check it with `shaderball validate`",
+        )
     return next(iter(sizes))
 
 
-class ResolutionMismatch(ShaderballError):
-    """A network resolution that does not divide the dataset's; callers that did not take
-    ``--resolution`` from the user (``evaluate``: the run's) say what the user can do instead."""
+class ResolutionMismatch(FieldError):
+    """A network resolution (the field ``resolution``) that does not divide the dataset's;
+    callers that did not take it from the user (``evaluate``: the run's) say what the user
+    can do instead."""
 
-    def __init__(self, error: ShaderballError, native: int, requested: int):
-        super().__init__(str(error))
+    def __init__(self, native: int, requested: int | None):
+        super().__init__(
+            TrainConfig.field_label("resolution"),
+            requested,
+            f"a multiple of 16 that divides the dataset's resolution {native}"
+            + ("" if requested is not None else f" (the network needs a multiple of 16; {native} is not)"),
+            name="resolution",
+            owner=TrainConfig,
+        )
         self.native, self.requested = native, requested
 
 
 def network_resolution(native: int, requested: int | None) -> tuple[int, int]:
-    """(network resolution, box factor) for a dataset of ``native`` pixels."""
+    """(network resolution, box factor) for a dataset of ``native`` pixels; ``requested`` is
+    a network resolution (:class:`pipeline.neural.config.NetworkResolution`) or None (the
+    dataset's)."""
     if requested is None:
         if native % 16:
-            raise bad_value(
-                "--resolution",
-                None,
-                f"a multiple of 16 that divides the dataset's {native} "
-                f"(the network needs a multiple of 16; {native} is not)",
-            )
+            raise ResolutionMismatch(native, None)
         return native, 1
-    check_network_resolution(requested, "--resolution")
+    check_network_resolution(requested)
     if native % requested:
-        raise ResolutionMismatch(
-            bad_value("--resolution", requested, f"a multiple of 16 that divides the dataset's resolution {native}"),
-            native,
-            requested,
-        )
+        raise ResolutionMismatch(native, requested)
     return requested, native // requested
 
 
@@ -718,10 +761,10 @@ def is_publication(root: str) -> bool:
     published = [n for n in (INDEX_FILE, SUMS_FILE) if os.path.lexists(os.path.join(root, n))]
     folder = [n for n in (DESCRIPTION_FILE, MANIFEST_FILE) if os.path.lexists(os.path.join(root, n))]
     if published and folder:
-        raise ShaderballError(
-            f"DATASET: {root!r} holds both a dataset folder's {folder[0]} and a publication's "
-            f"{published[0]}; it is neither (name a folder `shaderball build` or `shaderball "
-            "publish` wrote)"
+        raise dataset_refused(
+            root,
+            f"{root!r} holds both a dataset folder's {folder[0]} and a publication's {published[0]}; it is neither",
+            "name a folder `shaderball build` or `shaderball publish` wrote",
         )
     return bool(published)
 
@@ -745,7 +788,7 @@ def open_dataset(
         manifest_sha256 = file_digest(path, bound)[1]
     except OSError as exc:
         raise ShaderballError(
-            f"DATASET: {path} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
+            f"{path} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
         ) from None
     return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 
@@ -766,7 +809,9 @@ def open_published(
         raise refused(root, exc) from None
     description = json.loads(publication.source_files[DESCRIPTION_FILE])
     if not isinstance(description, dict):
-        raise ShaderballError(f"DATASET: {root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object")
+        raise dataset_refused(
+            root, f"{root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object", "check it with `shaderball verify`"
+        )
     manifest = publication.source_files[MANIFEST_FILE]
     where = os.path.join(root, "dataset", MANIFEST_FILE)
     keep = set()
@@ -790,7 +835,7 @@ def _make(
     check_hashes,
     cache_materials,
 ) -> ShaderballDataset:
-    native = one_resolution(index.resolutions)
+    native = one_resolution(index.resolutions, root)
     net_res, factor = network_resolution(native, resolution)
     identity = {
         "spec_digest": description.get("spec_digest"),
@@ -799,7 +844,7 @@ def _make(
         "resolution": native,
         "variant": description.get("variant"),
     }
-    return ShaderballDataset(
+    dataset = ShaderballDataset(
         root,
         index.samples,
         net_res,
@@ -811,3 +856,5 @@ def _make(
         files=files,
         records=index.records,
     )
+    dataset.content = {"spec_digest": description.get("spec_digest"), "samples_sha256": index.samples_sha256}
+    return dataset

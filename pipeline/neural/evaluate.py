@@ -7,14 +7,16 @@ relMSE and HDR-FLIP on linear HDR (the network's HDR is the inverse tone map of 
 output), and the time per image. Low-spp renders use the sample's own material (its
 texture-space maps file), lighting, settings and a seed of their own; denoising is Intel
 Open Image Denoise (``pyoidn``) in HDR mode, fed the noise-free first-hit albedo and normal
-(:mod:`pipeline.neural.denoise`), and on the colour alone as a second row. DATASET may be
-a dataset folder or its publication (:func:`pipeline.neural.data.open_dataset`). The
-Mitsuba variant is resolved once, from the dataset's. Everything goes into one folder
-(``--out``, default RUN/evaluation-SPLIT): results.json, results.md (Table 1-shaped, with
-the CPU times the equal-time row matched) and grid.png (the maps, the reference, the network,
-path tracing at equal time and at 2 spp with and without the denoiser, error maps; two
-samples per material class); with ``report`` also report.md, report.json and the learning
-curve (:mod:`pipeline.neural.report`).
+(:mod:`pipeline.neural.denoise`), and on the colour alone as a second row. The dataset may be
+a dataset folder or its publication (:func:`pipeline.neural.data.open_dataset`); the run's
+split applies to the dataset it was trained on, found by content whatever folder holds it
+(:func:`same_dataset`). The Mitsuba variant is resolved once, from the dataset's.
+Everything goes into one folder (the request's ``out``, default the run's
+evaluation-<split>): results.json, results.md (Table 1-shaped, with the CPU times the
+equal-time row matched) and grid.png (the maps, the reference, the network, path tracing at
+equal time and at 2 spp with and without the denoiser, error maps; two samples per material
+class); with ``report`` also report.md, report.json and the learning curve
+(:mod:`pipeline.neural.report`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from __future__ import annotations
 import datetime
 import functools
 import os
-import shlex
 import time
 from dataclasses import dataclass, field
 
@@ -31,15 +32,15 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
-from pipeline.errors import ShaderballError, bad_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import report, runfiles, speed
-from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
+from pipeline.neural.config import EvaluateRequest
+from pipeline.neural.data import ResolutionMismatch, box_downsample, dataset_refused, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
-from pipeline.neural.limits import SPP_LADDER_RANGE
+from pipeline.neural.limits import DEFAULT_SPP, SPLITS, SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
@@ -47,8 +48,7 @@ from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
 
-SPLITS = ("test", "train", "all")
-DEFAULT_SPP = (1, 2, 4, 16)
+__all__ = ["DEFAULT_SPP", "SPLITS", "EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
@@ -71,36 +71,6 @@ DENOISER = (
     "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
     "pixel centres per pixel and box-averaged, clean_aux; '+ OIDN, colour only': the colour alone"
 )
-
-
-@dataclass(frozen=True)
-class EvaluateRequest:
-    run: str  # training run folder
-    dataset: str  # dataset folder with the references
-    split: str = "test"  # test or train (the run's split by material; same dataset only) or all
-    out_dir: str | None = None  # the one folder of results, grid and report; default RUN/evaluation-SPLIT
-    json_path: str | None = None  # also write the results JSON here
-    spp: tuple[int, ...] = DEFAULT_SPP  # low-spp path tracing to compare with; () for none
-    denoise: bool = True  # also denoise each low-spp render with pyoidn
-    limit: int | None = None  # evaluate at most this many samples (in manifest order)
-    device: str = "auto"
-    check_hashes: bool = True
-    checkpoint: str = "last"  # last, best (chosen on the held-out split: optimistic on it), or a file
-    report: bool = False  # also write report.md/.json (per-class table) and the learning curve into out_dir
-    flip: bool = True  # HDR-FLIP (the slowest metric: most of an evaluation's time at 64x64)
-
-
-def evaluate_command(req: EvaluateRequest, out_dir: str) -> str:
-    """The command line that makes ``req``'s results in ``out_dir``: the heading of its report."""
-    argv = ["shaderball", "evaluate", req.run, req.dataset, "--split", req.split, "--out", out_dir]
-    argv += ["--spp", ",".join(map(str, req.spp)) if req.spp else "none"]
-    argv += [] if req.denoise else ["--no-denoise"]
-    argv += [] if req.limit is None else ["--limit", str(req.limit)]
-    argv += [] if req.checkpoint == "last" else ["--checkpoint", req.checkpoint]
-    argv += [] if req.device == "auto" else ["--device", req.device]
-    argv += ["--report"] if req.report else []
-    argv += [] if req.flip else ["--no-flip"]
-    return shlex.join(argv)
 
 
 def machine_line(device) -> str:
@@ -226,20 +196,6 @@ class PathTracer:
         return image, float(result.stats["time_s"])
 
 
-def _check(req: EvaluateRequest) -> None:
-    if req.split not in SPLITS:
-        raise bad_value("--split", req.split, ", ".join(SPLITS))
-    lo, hi = SPP_LADDER_RANGE
-    if any(isinstance(s, bool) or not isinstance(s, int) or not lo <= s <= hi for s in req.spp):
-        raise bad_value("--spp", ",".join(map(str, req.spp)), f"comma-separated integers from {lo} to {hi}")
-    if req.limit is not None and (isinstance(req.limit, bool) or not isinstance(req.limit, int) or req.limit < 1):
-        raise bad_value("--limit", req.limit, "an integer >= 1")
-    if req.json_path is not None and not req.json_path.lower().endswith(".json"):
-        raise bad_value("--json", req.json_path, "a file name ending in .json")
-    if req.out_dir is not None and os.path.exists(req.out_dir) and not os.path.isdir(req.out_dir):
-        raise bad_value("--out", req.out_dir, "a folder (this is a file)")
-
-
 class _Progress:
     """``progress(dict)`` with done/total samples, rate, elapsed, ETA and what runs now."""
 
@@ -258,136 +214,229 @@ class _Progress:
         )
 
 
-def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
+def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) -> EvaluateSummary:
     """Evaluate a run on a dataset; everything is checked before anything is written.
     ``progress(dict)``: done and total samples, samples/s, elapsed and ETA seconds, and what
-    runs now (the first sample also compiles kernels and measures equal time)."""
-    _check(req)
-    device = pick_device(req.device)
-    model, config = load_run_model(req.run, device, req.checkpoint)
-    if req.report:
-        runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
-    exposure = float(config["tonemap"]["exposure"])
-    source = _open_for_run(req, model.resolution, exposure)
-    same = source.identity == config["identity"].get("dataset")
-    if req.split != "all":
-        if not same:
-            raise bad_value(
-                "--split",
-                req.split,
-                "all: DATASET is not the dataset the run was trained on, so the run's split does not apply",
-            )
-        dataset = source.subset((config.get("split") or {}).get(req.split) or [])
-    else:
-        dataset = source
-    if len(dataset) == 0:
-        raise ShaderballError(f"--split {req.split}: no samples in {req.dataset}")
-    indices = list(range(len(dataset)))[: req.limit]
-    out_dir = req.out_dir or os.path.join(req.run, f"evaluation-{req.split}")
-    notes = []
-    if not req.flip:
-        notes.append("HDR-FLIP: left out (--no-flip)")
-    elif not metrics.flip_available():
-        notes.append("HDR-FLIP: flip-evaluator is not installed (pip install flip-evaluator); left out")
-    want_denoise = req.denoise and bool(req.spp)
-    if want_denoise:
-        try:
-            import pyoidn  # noqa: F401
-        except ImportError:
-            want_denoise = False
-            notes.append("denoising: pyoidn is not installed (pip install pyoidn); left out")
-
-    records = source.records
-    reference_spp = sorted({int(records[dataset.samples[i].id]["render"]["spp"]) for i in indices})
-    ref_spp = reference_spp[0] if len(reference_spp) == 1 else min(reference_spp)
-    mean_y, training = None, None
-    kinds = MaterialKinds(records)
-    if same and (config.get("split") or {}).get("train"):
-        training = source.subset(config["split"]["train"])
-        mean_y = mean_image(training, workers=0)
-    else:
-        notes.append(
-            "mean_image, nearest_sample: DATASET is not the run's, so the run's training images are not here; left out"
-        )
-    tracer = aux = None
-    if req.spp:
-        variant = resolve_variant(dataset_variant(records))  # once; every render and buffer takes it
-        tracer = PathTracer(dataset, variant)
-        if want_denoise:
-            aux = AuxBuffers(tracer.ball, tracer.camera, dataset.resolution * dataset.factor, variant, dataset.factor)
-    scores = functools.partial(_scores, flip=req.flip)
-    ldr_scores = functools.partial(_ldr_scores, flip=req.flip)
-    equal_time = None
+    runs now (the first sample also compiles kernels and measures equal time). ``command``:
+    how the caller spells ``req`` (the command line that makes it), the report's heading."""
+    run = _Evaluation(req)
     rows, grid_rows = [], []
-    show = _Progress(progress, len(indices))
+    show = _Progress(progress, len(run.indices))
     per_class: dict[str, int] = {}
-    aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
-    for n, index in enumerate(indices, start=1):
-        item = dataset[index]
-        sample = dataset.samples[index]
-        show(f"{sample.id}: network")
-        ref_hdr = box_downsample(_read_render(dataset, sample), dataset.factor)
-        ref8 = hdr_to_srgb8(ref_hdr, exposure)
-        run_network(model, item["maps"].numpy(), sample.lighting_vector, device)  # warm-up
-        started, cpu_started = time.perf_counter(), time.process_time()
-        pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
-        net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
-        refuse_nonfinite(pred, f"RUN: {req.run}, sample {sample.id}")
-        row = {
-            "id": sample.id,
-            "material_id": sample.material_id,
-            "class": report.material_class(records[sample.id]),
-            "network": ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
-        }
-        if mean_y is not None:
-            row["mean_image"] = ldr_scores(mean_y, ref_hdr, ref8, exposure, 0.0)
-            neighbour = nearest_sample(sample, training.samples, kinds)
-            if neighbour is not None:
-                near_hdr = box_downsample(_read_render(training, neighbour), training.factor)
-                row["nearest_sample"] = scores(
-                    near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
-                )
-        pictures = {"reference": ref8, "network": to_srgb8(pred)}
-        maps = tracer.material(sample) if tracer else None
-        if maps is not None:
-            if equal_time is None:  # measured once, on this machine, in this run
-                show(f"{sample.id}: equal time (the network's CPU time, path tracing at {EQUAL_TIME_PROBE_SPP} spp)")
-                equal_time = _measure_equal_time(model, item, sample, tracer, records[sample.id], maps, device)
-            image, t = tracer.render(records[sample.id], maps, equal_time["spp"])
-            pictures["equal time"] = hdr_to_srgb8(image, exposure)
-            row["pt_equal_time"] = scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=equal_time["spp"])
-            if want_denoise:
-                if aux_albedo[0] != sample.material_id:
-                    aux_albedo = (sample.material_id, aux.albedo(maps))
-                clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
-                row["pt_equal_time+oidn"] = scores(
-                    clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn, spp=equal_time["spp"]
-                )
-        if tracer and maps is None and "no texture" not in " ".join(notes):
-            notes.append("path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out")
-        for spp in req.spp if maps is not None else ():
-            show(f"{sample.id}: path tracing {spp} spp" + (", denoising" if want_denoise else ""))
-            image, t = tracer.render(records[sample.id], maps, spp)
-            row[f"pt{spp}"] = scores(image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t)
-            if spp == GRID_SPP:
-                pictures[f"{spp} spp"] = hdr_to_srgb8(image, exposure)
-            if want_denoise:
-                if aux_albedo[0] != sample.material_id:
-                    aux_albedo = (sample.material_id, aux.albedo(maps))
-                clean, t_dn, _cpu = denoise(image, aux_albedo[1], aux.normal)
-                row[f"pt{spp}+oidn"] = scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
-                alone, t_alone, _cpu = denoise(image)
-                row[f"pt{spp}+oidn-colour"] = scores(alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone)
-                if spp == GRID_SPP:
-                    pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
+    for n, index in enumerate(run.indices, start=1):
+        row, pictures, maps_chw = run.score(index, show)
         rows.append(row)
         if per_class.get(row["class"], 0) < report.GRID_PER_CLASS:
             per_class[row["class"]] = per_class.get(row["class"], 0) + 1
-            title = f"{sample.id}\n{row['class']}\nnet {row['network']['psnr']:.1f} dB"
-            grid_rows.append((title, report.grid_pictures(item["maps"].numpy(), pictures)))
+            title = f"{row['id']}\n{row['class']}\nnet {row['network']['psnr']:.1f} dB"
+            grid_rows.append((title, report.grid_pictures(maps_chw, pictures)))
         show.done = n
-        show(f"{sample.id}: done")
+        show(f"{row['id']}: done")
+    means = _means(rows)
+    run.notes += _result_notes(means, run)
+    result = _results(req, run, rows, means, command)
+    table = markdown_table(means, len(rows), run.model.resolution, run.ref_spp, run.equal_time)
+    out_dir = req.folder
+    os.makedirs(out_dir, exist_ok=True)
+    runfiles.write_json(os.path.join(out_dir, "results.json"), result)
+    write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
+    write_bytes_atomic(os.path.join(out_dir, "grid.png"), report.picture_grid(grid_rows, report.GRID_COLUMNS))
+    if req.json_out:
+        runfiles.write_json(req.json_out, result)
+    if req.report:
+        report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
+    return EvaluateSummary(out_dir, len(rows), means, run.notes, table, req.report)
 
+
+def same_dataset(run_config: dict, source) -> tuple[bool, str]:
+    """Whether ``source`` holds the data the run was trained on, and how that was found: by
+    content, whatever folder holds it (the spec's digest and every sample's id, material,
+    lighting and files' SHA-256: :func:`pipeline.neural.data.sample_digest_line`), so a
+    rebuild of the same spec, a copy or the publication is the same dataset; a run that
+    recorded no content (made before it was recorded) by its manifest's SHA-256."""
+    content = run_config.get("dataset_content")
+    if isinstance(content, dict) and content.get("samples_sha256"):
+        if getattr(source, "content", None) == content:
+            return True, "the same spec digest and the same samples (ids, materials, lighting, files' SHA-256)"
+        if (getattr(source, "content", None) or {}).get("spec_digest") != content.get("spec_digest"):
+            return False, "it was built from another spec (its spec digest differs from the run's)"
+        return False, "its samples differ from the run's (ids, materials, lighting or files' SHA-256)"
+    if source.identity == (run_config.get("identity") or {}).get("dataset"):
+        return True, "the same manifest (SHA-256)"
+    return False, (
+        "its manifest's SHA-256 differs from the run's, and the run (trained before shaderball recorded "
+        "its dataset's content) records nothing else to compare"
+    )
+
+
+class _Evaluation:
+    """One evaluation's setting: the run's network, the dataset and its split, what is
+    compared (the mean image and nearest sample where the dataset is the run's, path tracing
+    and the denoiser where asked and installed) and the notes saying what was left out."""
+
+    def __init__(self, req: EvaluateRequest):
+        self.req = req
+        self.device = pick_device(req.device)
+        self.model, self.config = load_run_model(req.run, self.device, req.checkpoint)
+        if req.report:
+            runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
+        self.exposure = float(self.config["tonemap"]["exposure"])
+        self.source = _open_for_run(req, self.model.resolution, self.exposure)
+        self.same, self.compared = same_dataset(self.config, self.source)
+        self.dataset = self._split()
+        self.indices = list(range(len(self.dataset)))[: req.limit]
+        self.records = self.source.records
+        spps = sorted({int(self.records[self.dataset.samples[i].id]["render"]["spp"]) for i in self.indices})
+        self.reference_spp, self.ref_spp = (spps[0] if len(spps) == 1 else spps), min(spps)
+        self.notes = self._left_out()
+        self.kinds = MaterialKinds(self.records)
+        self._baselines()
+        self._path_tracing()
+        self.scores = functools.partial(_scores, flip=req.flip)
+        self.ldr_scores = functools.partial(_ldr_scores, flip=req.flip)
+        self.equal_time = None
+        self.aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
+
+    def _split(self):
+        """The samples evaluated: the run's split of its own dataset, or all of any dataset."""
+        req, source = self.req, self.source
+        if req.split == "all":
+            return source
+        if not self.same:
+            raise EvaluateRequest.field_error(
+                "dataset",
+                req.dataset,
+                "the run's dataset (the same spec and files, in any folder), or {split} all",
+                what=f"{req.dataset!r} is not the dataset the run was trained on: {self.compared}, so the run's "
+                f"{req.split} split does not apply",
+            )
+        dataset = source.subset((self.config.get("split") or {}).get(req.split) or [])
+        if len(dataset) == 0:
+            raise EvaluateRequest.field_error(
+                "split",
+                req.split,
+                "all, or a run that holds materials out",
+                what=f"the run's {req.split} split holds no samples",
+            )
+        return dataset
+
+    def _left_out(self) -> list[str]:
+        """The notes of what is left out (HDR-FLIP, the denoiser); sets ``want_denoise``."""
+        req, notes = self.req, []
+        if not req.flip:
+            notes.append("HDR-FLIP: left out (--no-flip)")
+        elif not metrics.flip_available():
+            notes.append("HDR-FLIP: flip-evaluator is not installed (pip install flip-evaluator); left out")
+        self.want_denoise = req.denoise and bool(req.spp)
+        if self.want_denoise:
+            try:
+                import pyoidn  # noqa: F401
+            except ImportError:
+                self.want_denoise = False
+                notes.append("denoising: pyoidn is not installed (pip install pyoidn); left out")
+        return notes
+
+    def _baselines(self) -> None:
+        """The run's training images, for the mean image and the nearest sample: only where
+        the dataset is the run's."""
+        self.mean_y, self.training = None, None
+        if self.same and (self.config.get("split") or {}).get("train"):
+            self.training = self.source.subset(self.config["split"]["train"])
+            self.mean_y = mean_image(self.training, workers=0)
+        else:
+            self.notes.append(
+                f"mean_image, nearest_sample: the dataset is not the run's ({self.compared}), so the run's "
+                "training images are not here; left out"
+            )
+
+    def _path_tracing(self) -> None:
+        self.tracer = self.aux = None
+        if self.req.spp:
+            variant = resolve_variant(dataset_variant(self.source))  # once; every render and buffer takes it
+            self.tracer = PathTracer(self.dataset, variant)
+            if self.want_denoise:
+                side = self.dataset.resolution * self.dataset.factor
+                self.aux = AuxBuffers(self.tracer.ball, self.tracer.camera, side, variant, self.dataset.factor)
+
+    def score(self, index: int, show) -> tuple[dict, dict, np.ndarray]:
+        """One sample's row of scores, its grid pictures and its maps (C, H, W)."""
+        dataset, exposure = self.dataset, self.exposure
+        item, sample = dataset[index], dataset.samples[index]
+        show(f"{sample.id}: network")
+        ref_hdr = box_downsample(_read_render(dataset, sample), dataset.factor)
+        ref8 = hdr_to_srgb8(ref_hdr, exposure)
+        maps_chw = item["maps"].numpy()
+        run_network(self.model, maps_chw, sample.lighting_vector, self.device)  # warm-up
+        started, cpu_started = time.perf_counter(), time.process_time()
+        pred = run_network(self.model, maps_chw, sample.lighting_vector, self.device)
+        net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
+        refuse_nonfinite(pred, f"the network of {self.req.run}, sample {sample.id}")
+        row = {
+            "id": sample.id,
+            "material_id": sample.material_id,
+            "class": report.material_class(self.records[sample.id]),
+            "network": self.ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
+        }
+        if self.mean_y is not None:
+            row["mean_image"] = self.ldr_scores(self.mean_y, ref_hdr, ref8, exposure, 0.0)
+            neighbour = nearest_sample(sample, self.training.samples, self.kinds)
+            if neighbour is not None:
+                near_hdr = box_downsample(_read_render(self.training, neighbour), self.training.factor)
+                row["nearest_sample"] = self.scores(
+                    near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
+                )
+        pictures = {"reference": ref8, "network": to_srgb8(pred)}
+        self._path_traced(row, pictures, item, sample, ref_hdr, ref8, show)
+        return row, pictures, maps_chw
+
+    def _path_traced(self, row: dict, pictures: dict, item, sample, ref_hdr, ref8, show) -> None:
+        """Path tracing at equal time and at each of ``spp`` (and denoised) into ``row``."""
+        maps = self.tracer.material(sample) if self.tracer else None
+        if self.tracer and maps is None and "no texture" not in " ".join(self.notes):
+            self.notes.append(
+                "path tracing: the dataset stores no texture maps (storage.texture_maps = false); left out"
+            )
+        if maps is None:
+            return
+        record, exposure = self.records[sample.id], self.exposure
+        if self.equal_time is None:  # measured once, on this machine, in this run
+            show(f"{sample.id}: equal time (the network's CPU time, path tracing at {EQUAL_TIME_PROBE_SPP} spp)")
+            self.equal_time = _measure_equal_time(self.model, item, sample, self.tracer, record, maps, self.device)
+        spp = self.equal_time["spp"]
+        image, t = self.tracer.render(record, maps, spp)
+        pictures["equal time"] = hdr_to_srgb8(image, exposure)
+        row["pt_equal_time"] = self.scores(image, pictures["equal time"], ref_hdr, ref8, t, spp=spp)
+        if self.want_denoise:
+            clean, t_dn, _cpu = denoise(image, self._albedo(sample, maps), self.aux.normal)
+            row["pt_equal_time+oidn"] = self.scores(
+                clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn, spp=spp
+            )
+        for spp in self.req.spp:
+            show(f"{sample.id}: path tracing {spp} spp" + (", denoising" if self.want_denoise else ""))
+            image, t = self.tracer.render(record, maps, spp)
+            row[f"pt{spp}"] = self.scores(image, hdr_to_srgb8(image, exposure), ref_hdr, ref8, t)
+            if spp == GRID_SPP:
+                pictures[f"{spp} spp"] = hdr_to_srgb8(image, exposure)
+            if self.want_denoise:
+                clean, t_dn, _cpu = denoise(image, self._albedo(sample, maps), self.aux.normal)
+                row[f"pt{spp}+oidn"] = self.scores(clean, hdr_to_srgb8(clean, exposure), ref_hdr, ref8, t + t_dn)
+                alone, t_alone, _cpu = denoise(image)
+                row[f"pt{spp}+oidn-colour"] = self.scores(
+                    alone, hdr_to_srgb8(alone, exposure), ref_hdr, ref8, t + t_alone
+                )
+                if spp == GRID_SPP:
+                    pictures[f"{spp} spp + OIDN"] = hdr_to_srgb8(clean, exposure)
+
+    def _albedo(self, sample, maps):
+        """The denoiser's albedo buffer of the sample's material (made once per material)."""
+        if self.aux_albedo[0] != sample.material_id:
+            self.aux_albedo = (sample.material_id, self.aux.albedo(maps))
+        return self.aux_albedo[1]
+
+
+def _means(rows: list[dict]) -> dict:
+    """Each method's mean scores over the samples that have it, with 95% intervals by
+    material (:func:`pipeline.neural.report.bootstrap_ci95`)."""
     methods = [k for k in rows[0] if k not in ("id", "material_id", "class")]
     means = {
         m: {k: _mean([r[m][k] for r in rows if m in r]) for k, v in rows[0][m].items() if not isinstance(v, str)}
@@ -399,6 +448,13 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         means[m]["ci95"] = {
             k: bootstrap_ci95([r[m][k] for r in have], groups) for k in ("psnr", "ssim", "relmse", "flip")
         }
+    return means
+
+
+def _result_notes(means: dict, run: _Evaluation) -> list[str]:
+    """What qualifies the numbers: a saturated network, CPU times matched on a GPU, path
+    tracing close to the references' spp."""
+    notes = []
     saturated = means["network"].get("saturated")
     if saturated is not None and saturated > SATURATED_FRACTION:
         notes.append(
@@ -406,33 +462,39 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
             f"not learned (train with a smaller --lr); its relMSE and HDR-FLIP are of outputs capped at "
             f"y = {NETWORK_Y_CAP:.4f} before the inverse tone map, the most an 8-bit 255 says"
         )
-    if equal_time is not None and device.type != "cpu":
+    if run.equal_time is not None and run.device.type != "cpu":
         notes.append(
-            f"pt_equal_time: the network ran on {device.type}, whose CPU time is not its cost; this row matches "
+            f"pt_equal_time: the network ran on {run.device.type}, whose CPU time is not its cost; this row matches "
             "CPU times only (untested on a GPU)"
         )
-    compared = [(f"pt{spp}", spp) for spp in req.spp if f"pt{spp}" in means]
-    if equal_time is not None:
-        compared.append(("pt_equal_time", equal_time["spp"]))
+    compared = [(f"pt{spp}", spp) for spp in run.req.spp if f"pt{spp}" in means]
+    if run.equal_time is not None:
+        compared.append(("pt_equal_time", run.equal_time["spp"]))
     for method, spp in compared:
-        if spp > REFERENCE_SPP_FRACTION * ref_spp:
+        if spp > REFERENCE_SPP_FRACTION * run.ref_spp:
             notes.append(
-                f"{method}: {spp} spp against references of {ref_spp} spp, more than a quarter of theirs: it "
+                f"{method}: {spp} spp against references of {run.ref_spp} spp, more than a quarter of theirs: it "
                 "shares much of the references' noise, so its scores are optimistic; use references of at "
                 f"least {4 * spp} spp to compare it"
             )
-    result = {
-        "command": evaluate_command(req, out_dir),
-        "machine": machine_line(device),
+    return notes
+
+
+def _results(req: EvaluateRequest, run: _Evaluation, rows: list[dict], means: dict, command: str | None) -> dict:
+    """results.json: the request, the setting, every sample's scores, the means and the notes."""
+    return {
+        "command": command,
+        "machine": machine_line(run.device),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "run": os.path.abspath(req.run),
         "dataset": os.path.abspath(req.dataset),
+        "dataset_compared": run.compared,
         "split": req.split,
-        "resolution": model.resolution,
-        "device": str(device),
+        "resolution": run.model.resolution,
+        "device": str(run.device),
         "checkpoint": req.checkpoint,
-        "reference_spp": reference_spp[0] if len(reference_spp) == 1 else reference_spp,
-        "equal_time": equal_time,
+        "reference_spp": run.reference_spp,
+        "equal_time": run.equal_time,
         "ci95": "percentile bootstrap over materials (2000 resamples, fixed seed): a material's lightings "
         "are correlated, so materials, not samples, are the independent units; null with fewer than 2 materials",
         "relmse_network": f"network and mean image: inverse tone map of the output capped at y = {NETWORK_Y_CAP:.6f} "
@@ -441,25 +503,15 @@ def evaluate(req: EvaluateRequest, progress=None) -> EvaluateSummary:
         "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
-        "by_class": report.class_means(rows, methods),
-        "train_renders": len(training) if training is not None else None,
+        "by_class": report.class_means(rows, [k for k in rows[0] if k not in ("id", "material_id", "class")]),
+        "train_renders": len(run.training) if run.training is not None else None,
         "classes": f"uniform metal: a uniform material whose largest specular (F0) value is above {report.METAL_F0}; "
         "uniform dielectric: the other uniform ones; svbrdf: the spatially varying ones",
-        "notes": notes,
-        "tonemap": config["tonemap"],
-        "denoiser": DENOISER if want_denoise else None,
+        "notes": run.notes,
+        "tonemap": run.config["tonemap"],
+        "denoiser": DENOISER if run.want_denoise else None,
         "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR",
     }
-    table = markdown_table(means, len(rows), model.resolution, ref_spp, equal_time)
-    os.makedirs(out_dir, exist_ok=True)
-    runfiles.write_json(os.path.join(out_dir, "results.json"), result)
-    write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
-    write_bytes_atomic(os.path.join(out_dir, "grid.png"), report.picture_grid(grid_rows, report.GRID_COLUMNS))
-    if req.json_path:
-        runfiles.write_json(req.json_path, result)
-    if req.report:
-        report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
-    return EvaluateSummary(out_dir, len(rows), means, notes, table, req.report)
 
 
 def _material_kind(records, sample_id: str):
@@ -531,24 +583,32 @@ def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> di
 
 
 def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
-    """DATASET at the run's network resolution; a dataset it does not divide is refused with
+    """The dataset at the run's network resolution; a dataset it does not divide is refused with
     what the user can do (evaluate has no --resolution: the run fixes it)."""
     try:
-        return open_dataset(req.dataset, resolution=resolution, exposure=exposure, check_hashes=req.check_hashes)
+        return open_dataset(req.dataset, resolution=resolution, exposure=exposure, check_hashes=req.hash_check)
     except ResolutionMismatch as exc:
-        raise ShaderballError(
-            f"DATASET: {req.dataset!r} has {exc.native}x{exc.native} renders; the run {req.run!r} was trained "
-            f"at {resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, "
-            f"so its network cannot take these renders. Evaluate it on a dataset whose render resolution is a "
-            f"multiple of {resolution} (e.g. the run's own dataset), or train a run for this dataset "
-            f"(`shaderball train DATASET --out NEWRUN`, with --resolution a multiple of 16 dividing {exc.native})"
+        raise EvaluateRequest.field_error(
+            "dataset",
+            req.dataset,
+            f"a dataset whose render resolution is a multiple of {resolution} (e.g. the run's own dataset), or a "
+            f"run trained for this dataset (`shaderball train DATASET --out NEWRUN`, with --resolution a multiple "
+            f"of 16 dividing {exc.native})",
+            what=f"{req.dataset!r} has {exc.native}x{exc.native} renders; the run {req.run!r} was trained at "
+            f"{resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, so its "
+            "network cannot take these renders",
         ) from None
 
 
-def dataset_variant(records: dict) -> str:
-    variants = {(r.get("render") or {}).get("variant") for r in records.values()}
+def dataset_variant(dataset) -> str:
+    """The Mitsuba variant ``dataset``'s renders were made with (one), or a refusal naming it."""
+    variants = {(r.get("render") or {}).get("variant") for r in dataset.records.values()}
     if len(variants) != 1 or not isinstance(next(iter(variants)), str):
-        raise ShaderballError(f"DATASET: renders of several or unknown Mitsuba variants {sorted(map(str, variants))}")
+        raise dataset_refused(
+            dataset.root,
+            f"{dataset.root!r} has renders of several or unknown Mitsuba variants {sorted(map(str, variants))}",
+            "a dataset rendered with one variant; check it with `shaderball validate`",
+        )
     return next(iter(variants))
 
 
@@ -618,6 +678,3 @@ def markdown_table(
             + "); time (ms) is wall time per image.",
         ]
     return "\n".join(lines) + "\n"
-
-
-__all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate"]

@@ -1,7 +1,7 @@
 """A trained network as a TorchScript file, for use without this package.
 
-``export_torchscript(run, out)`` traces the run's network (``--checkpoint last|best|FILE``,
-as `infer`) in eval mode and saves it with ``torch.jit.save``. The file needs only torch:
+``export_torchscript(request)`` traces the run's network (its checkpoint: last, best or a
+file, as `infer`'s) in eval mode and saves it with ``torch.jit.save``. The file needs only torch:
 
     net = torch.jit.load("net.pt")
     image = net(maps, light)   # maps (N, 12, R, R) in [0, 1]; light (N, 4): (3 d, turbidity)
@@ -23,7 +23,7 @@ import warnings
 
 import torch
 
-from pipeline.errors import bad_value
+from pipeline.neural.config import ExportRequest
 from pipeline.neural.infer import load_run_model
 from pipeline.neural.network import INPUT_CHANNELS, LIGHT_CHANNELS
 from pipeline.store.atomic import write_bytes_atomic
@@ -40,18 +40,16 @@ def example_inputs(resolution: int, batch: int = 1, seed: int = 0) -> tuple[torc
     return maps, light
 
 
-def export_torchscript(run: str, out: str, checkpoint: str = "last") -> dict:
-    """Write the run's network as TorchScript to ``out``; returns what the file's extra holds."""
-    if not out.endswith((".pt", ".pth", ".ts")):
-        raise bad_value("--out", out, "a file name ending in .pt, .pth or .ts")
-    model, config = load_run_model(run, torch.device("cpu"), checkpoint)
+def export_torchscript(req: ExportRequest) -> dict:
+    """Write the run's network as TorchScript to ``req.out``; returns what the file's extra holds."""
+    model, config = load_run_model(req.run, torch.device("cpu"), req.checkpoint)
     meta = {
         "format": "shaderball-neural-torchscript",
         "resolution": model.resolution,
         "inputs": "maps (N, 12, R, R) in [0, 1]; light (N, 4) = (3 d_x, 3 d_y, 3 d_z, turbidity)",
         "output": "(N, 3, R, R) in [0, 1], sRGB-encoded Reinhard tone map of linear radiance",
         "tonemap": config.get("tonemap"),
-        "checkpoint": checkpoint,
+        "checkpoint": req.checkpoint,
         "identity_digest": config.get("identity_digest"),
         "torch": torch.__version__,
     }
@@ -62,5 +60,5 @@ def export_torchscript(run: str, out: str, checkpoint: str = "last") -> dict:
         traced = torch.jit.trace(model, example_inputs(model.resolution), check_trace=False)
     buffer = io.BytesIO()
     torch.jit.save(traced, buffer, _extra_files={EXTRA: json.dumps(meta, sort_keys=True)})
-    write_bytes_atomic(out, buffer.getvalue())
+    write_bytes_atomic(req.out, buffer.getvalue())
     return meta

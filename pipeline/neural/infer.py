@@ -21,10 +21,11 @@ from geometry import build_shaderball, default_camera
 from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
+from pipeline.neural.config import InferRequest
 from pipeline.neural.data import assemble_maps
 from pipeline.neural.network import NeuralRenderer, light_input, parameter_count
 from pipeline.neural.train import pick_device
-from pipeline.render.command import RenderRequest, check_request, load_material
+from pipeline.render.command import RenderRequest, load_material
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.raster import project_material
@@ -32,24 +33,6 @@ from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
 from sky.policy import apply_policy
-
-
-@dataclass(frozen=True)
-class InferRequest:
-    run: str  # training run folder (config.json, checkpoint.pt)
-    out: str  # output EXR: the network's HDR estimate (inverse tone map) and the maps
-    png: str | None = None  # optional PNG: the network's output as 8-bit sRGB
-    diffuse: tuple[float, float, float] = (0.5, 0.5, 0.5)
-    specular: tuple[float, float, float] = (0.04, 0.04, 0.04)
-    roughness: float = 0.3
-    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    svbrdf: str | None = None
-    svbrdf_colorspace: str = "raw"
-    elevation_deg: float = 45.0
-    azimuth_deg: float = 270.0
-    turbidity: float = 3.0
-    device: str = "auto"
-    checkpoint: str = "last"  # last, best, or a checkpoint file of the run
 
 
 @dataclass
@@ -113,6 +96,8 @@ def run_network(model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, de
 
 
 def infer_to_files(req: InferRequest) -> InferSummary:
+    """The network's picture of ``req``'s material under its sun, written to ``req.out`` (and
+    ``req.png``); nothing is written before every check passed."""
     device = pick_device(req.device)
     started = time.perf_counter()
     model, config = load_run_model(req.run, device, req.checkpoint)
@@ -125,17 +110,16 @@ def infer_to_files(req: InferRequest) -> InferSummary:
         normal=req.normal,
         svbrdf=req.svbrdf,
         svbrdf_colorspace=req.svbrdf_colorspace,
-        elevation_deg=req.elevation_deg,
-        azimuth_deg=req.azimuth_deg,
+        elevation=req.elevation,
+        azimuth=req.azimuth,
         turbidity=req.turbidity,
         resolution=resolution,
         out=req.out,
         png=req.png,
-    )
-    check_request(render_req)
+    )  # checked when built: the files' folders too
     material = load_material(render_req)
     material.check()
-    effective, _ = apply_policy(Light(req.elevation_deg, req.azimuth_deg, req.turbidity))
+    effective, _ = apply_policy(Light(req.elevation, req.azimuth, req.turbidity))
     vector = [float(v) for v in effective.lighting_vector()]
 
     started = time.perf_counter()
@@ -152,7 +136,7 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     output = run_network(model, maps_chw, vector, device)
     _synchronize(device)
     network_s = time.perf_counter() - started
-    refuse_nonfinite(output, f"RUN: {req.run}")
+    refuse_nonfinite(output, f"the network of {req.run}")
 
     exposure = float(config["tonemap"]["exposure"])
     meta = {

@@ -37,3 +37,15 @@ TRAINING_VARIANTS = {
     "--width 0.5": {"width": 0.5},
     "--width 0.25": {"width": 0.25},
 }
+#: evaluate --split: the run's held-out or training materials, or every sample.
+SPLITS = ("test", "train", "all")
+#: evaluate --spp: the low-spp rows compared with the network.
+DEFAULT_SPP = (1, 2, 4, 16)
+#: evaluate --limit: at most the first N samples.
+LIMIT_RANGE = (1, 10**9)
+#: Counts of `shaderball neural-bench`: passes or rounds, timed steps, spinning processes,
+#: samples drawn spread over a dataset (denoise --draws).
+REPEATS_RANGE = (1, 1000)
+STEPS_RANGE = (1, 10_000)
+BUSY_RANGE = (0, 64)
+DRAWS_RANGE = (1, 100_000)

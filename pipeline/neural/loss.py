@@ -7,7 +7,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from pipeline.errors import bad_value
+from pipeline.neural.config import TrainConfig
 from pipeline.neural.vgg import IMAGENET_MEAN, IMAGENET_STD
 
 LOSSES = ("l1+vgg", "l1")
@@ -24,7 +24,7 @@ class RenderLoss(nn.Module):
     def __init__(self, kind: str, vgg: nn.Module | None = None, vgg_weight: float = 1.0):
         super().__init__()
         if kind not in LOSSES:
-            raise bad_value("--loss", kind, " or ".join(LOSSES))
+            raise TrainConfig.field_error("loss", kind, " or ".join(LOSSES))
         if (kind == "l1+vgg") != (vgg is not None):
             raise ValueError("the l1+vgg loss needs a VGG, the l1 loss none")
         self.kind = kind

@@ -24,7 +24,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from pipeline.errors import bad_value
+from pipeline.fields import FieldError
 from pipeline.neural.limits import WIDTH_RANGE
 
 #: Input channels in order: diffuse RGB, specular RGB, normal-map colour RGB, roughness x3.
@@ -40,12 +40,13 @@ PAPER_RESOLUTION = 400
 PAPER_PARAMETERS = 11_752_404
 
 
-def check_width(width, field: str = "--width") -> float:
-    """Channel fractions the network accepts: (0, 1], giving at least 1 channel per layer."""
+def check_width(width, where: str = "width") -> float:
+    """Channel fractions the network accepts: (0, 1], giving at least 1 channel per layer;
+    ``where`` names the value (a field, or a file's field)."""
     lo, hi = WIDTH_RANGE
     if isinstance(width, bool) or not isinstance(width, (int, float)) or not lo < width <= hi:
-        raise bad_value(
-            field, width, f"a fraction of the paper's channels in ({lo:g}, {hi:g}] (1: the paper's network)"
+        raise FieldError(
+            where, width, f"a fraction of the paper's channels in ({lo:g}, {hi:g}] (1: the paper's network)"
         )
     return float(width)
 
@@ -54,8 +55,9 @@ def scaled_channels(channels: int, width: float) -> int:
     return max(1, round(channels * width))
 
 
-def check_network_resolution(resolution, field: str = "resolution") -> int:
-    """Resolutions the network accepts: multiples of 16 from 16 to 4096."""
+def check_network_resolution(resolution, where: str = "resolution") -> int:
+    """Resolutions the network accepts: multiples of 16 from 16 to 4096 (a request's field is
+    checked by its rule, pipeline.neural.config.NetworkResolution); ``where`` names the value."""
     if (
         isinstance(resolution, bool)
         or not isinstance(resolution, int)
@@ -63,7 +65,7 @@ def check_network_resolution(resolution, field: str = "resolution") -> int:
         or resolution > 4096
         or resolution % 16
     ):
-        raise bad_value(field, resolution, "an integer multiple of 16 from 16 to 4096 (the encoder halves it 4 times)")
+        raise FieldError(where, resolution, "an integer multiple of 16 from 16 to 4096 (the encoder halves it 4 times)")
     return resolution
 
 
@@ -156,9 +158,9 @@ class NeuralRenderer(nn.Module):
     def forward(self, maps: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
         r = self.resolution
         if maps.dim() != 4 or maps.shape[1:] != (INPUT_CHANNELS, r, r):
-            raise bad_value("network input", tuple(maps.shape), f"(N, {INPUT_CHANNELS}, {r}, {r})")
+            raise FieldError("network input", tuple(maps.shape), f"(N, {INPUT_CHANNELS}, {r}, {r})")
         if light.shape != (maps.shape[0], LIGHT_CHANNELS):
-            raise bad_value("network light input", tuple(light.shape), f"({maps.shape[0]}, {LIGHT_CHANNELS})")
+            raise FieldError("network light input", tuple(light.shape), f"({maps.shape[0]}, {LIGHT_CHANNELS})")
         skips = []
         x = maps
         for block in self.encoder:

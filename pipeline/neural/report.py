@@ -200,7 +200,7 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     lines = [
         f"# Evaluation report: {os.path.basename(os.path.abspath(run_dir))}",
         "",
-        f"Written by `{result['command']}` on {result['date']}.",
+        (f"Written by `{result['command']}` on " if result.get("command") else "Written on ") + f"{result['date']}.",
         "",
         f"Machine: {result['machine']}.",
         "",

@@ -26,6 +26,7 @@ import zipfile
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.neural.config import InferRequest
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.folder import (
@@ -218,8 +219,11 @@ def read_config(run_dir: str) -> dict:
     path = os.path.join(run_dir, CONFIG)
     config, why = read_json_checked(path, MAX_CONFIG_BYTES)
     if why == "missing":
-        raise ShaderballError(
-            f"RUN: {run_dir!r} is not a training run (no {CONFIG}); make one with `shaderball train DATASET --out RUN`"
+        raise InferRequest.field_error(
+            "run",
+            run_dir,
+            "a training run folder: make one with `shaderball train`",
+            what=f"{run_dir!r} is not a training run (no {CONFIG})",
         )
     if why is not None:
         raise ShaderballError(f"{path}: not readable JSON ({why}); the run folder is damaged")
@@ -380,13 +384,17 @@ def load_checkpoint(
     path = checkpoint_path(run_dir, checkpoint)
     if not os.path.isfile(path):
         if checkpoint == "best":
-            raise ShaderballError(
-                f"--checkpoint best: {path}: no best checkpoint (the run holds no materials out, "
-                "or has not finished an epoch yet); use --checkpoint last"
+            raise InferRequest.field_error(
+                "checkpoint",
+                checkpoint,
+                "last",
+                what=f"best: the run has no {path} (it holds no materials out, or has not finished an epoch yet)",
             )
         if checkpoint == "last":
             raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
-        raise ShaderballError(f"--checkpoint: {path!r}: no such file (allowed: last, best, or a checkpoint file)")
+        raise InferRequest.field_error(
+            "checkpoint", checkpoint, "last, best, or a checkpoint file", what=f"{path!r}: no such file"
+        )
     problem = checkpoint_archive_problem(path, parameters or largest_network_parameters())
     if problem:
         raise ShaderballError(f"{path}: a corrupt checkpoint, {problem}; {_remedy(checkpoint)}")

@@ -16,7 +16,7 @@ import contextlib
 
 import torch
 
-from pipeline.errors import bad_value
+from pipeline.neural.config import TrainConfig
 from pipeline.neural.limits import PRECISIONS
 
 DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
@@ -35,9 +35,9 @@ def resolve_precision(precision: str, device: torch.device) -> str:
 
 def check_precision(precision: str, device: torch.device) -> None:
     if precision not in PRECISIONS or precision == "auto":
-        raise bad_value("--precision", precision, ", ".join(PRECISIONS))
+        raise TrainConfig.field_error("precision", precision, ", ".join(p for p in PRECISIONS if p != "auto"))
     if precision == "fp16" and device.type != "cuda":
-        raise bad_value("--precision", precision, "fp32 or bf16 on a CPU (fp16 autocast is for CUDA)")
+        raise TrainConfig.field_error("precision", precision, "fp32 or bf16 on a CPU (fp16 autocast is for CUDA)")
 
 
 def autocast(device: torch.device, precision: str):

@@ -1,8 +1,8 @@
 """Runs of several training-set sizes and seeds, side by side: the data-size curve.
 
-``shaderball sweep REPORT.json ... --out DIR`` reads the report.json that
+``shaderball sweep`` (:func:`write_sweep`, a :class:`pipeline.neural.config.SweepRequest`) reads the report.json that
 `shaderball evaluate --report` wrote for each run (all evaluated on the same held-out
-samples) and writes into DIR:
+samples) and writes into its ``out`` folder:
 
 - ``sweep.md``: per training size and seed, the network's held-out PSNR with its 95%
   interval, the paired differences network - mean image and network - nearest sample (per
@@ -21,12 +21,12 @@ import datetime
 import json
 import os
 import platform
-import shlex
 
 import numpy as np
 
 from pipeline.errors import ShaderballError
 from pipeline.neural import plot, runfiles
+from pipeline.neural.config import SweepRequest
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.store.atomic import write_bytes_atomic
 
@@ -127,10 +127,11 @@ def _ci(v: dict | None) -> str:
     return f"{v['psnr']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else f"{v['psnr']:.2f}"
 
 
-def heading(reports: list[str], out: str) -> dict:
-    """What heads sweep.md: the command that writes it, the machine and the date."""
+def heading(command: str | None) -> dict:
+    """What heads sweep.md: the command that writes it (as the caller spells it), the machine
+    and the date."""
     return {
-        "command": shlex.join(["shaderball", "sweep", *reports, "--out", out]),
+        "command": command,
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     }
@@ -140,7 +141,8 @@ def markdown(summary: dict) -> str:
     lines = [
         "# Data-size sweep",
         "",
-        f"Written by `{summary['command']}` on {summary['date']}; machine: {summary['machine']}.",
+        (f"Written by `{summary['command']}` on " if summary.get("command") else "Written on ")
+        + f"{summary['date']}; machine: {summary['machine']}.",
         "",
         "Held-out PSNR (dB, 8-bit sRGB) with 95% intervals (bootstrap over held-out materials); "
         "differences are paired per sample.",
@@ -206,10 +208,12 @@ def data_size_png(summary: dict) -> bytes:
     )
 
 
-def write_sweep(reports: list[str], out: str) -> tuple[dict, str]:
-    """Read ``reports`` (report.json files), write sweep.md, sweep.json and data-size.png into
-    ``out``; returns the summary and the markdown. Nothing is written when a report is refused."""
-    summary = {**heading(reports, out), **summarise([(p, _load(p)) for p in reports])}
+def write_sweep(req: SweepRequest, command: str | None = None) -> tuple[dict, str]:
+    """Read ``req.reports`` (report.json files), write sweep.md, sweep.json and data-size.png
+    into ``req.out``; returns the summary and the markdown. Nothing is written when a report is
+    refused. ``command``: how the caller spells ``req``, sweep.md's heading."""
+    out = req.out
+    summary = {**heading(command), **summarise([(p, _load(p)) for p in req.reports])}
     os.makedirs(out, exist_ok=True)
     text = markdown(summary)
     write_bytes_atomic(os.path.join(out, "sweep.md"), text.encode())

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import Subset
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import to_srgb8
 from pipeline.neural import runfiles, speed
@@ -63,6 +63,9 @@ SATURATED_FRACTION = 0.99
 STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
+#: Steps timed after the first (which starts the loader and warms up) before a run says how
+#: long it will take; a first epoch of fewer steps is timed whole.
+ESTIMATE_STEPS = 5
 log = logging.getLogger(__name__)
 
 
@@ -80,6 +83,10 @@ class TrainSummary:
     loss_reason: str = ""  # one line: which loss, and why (--loss auto's choice)
     #: what to try when the held-out PSNR ends below the training-set mean image's; None otherwise
     below_mean_image: str | None = None
+    #: the seconds this call's steps were estimated to take, from its first steps (StepClock), and
+    #: the line that said so on stderr; None when it trained nothing
+    estimated_seconds: float | None = None
+    estimate: str | None = None
 
     def __post_init__(self):
         if self.below_mean_image is None:
@@ -89,9 +96,8 @@ class TrainSummary:
         return asdict(self)
 
     def lines(self) -> list[str]:
-        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device})"]
-        if self.loss_reason:
-            out.append(self.loss_reason)
+        # loss_reason is said once, before training (the progress' note), not again here
+        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device}, loss {self.loss})"]
         if self.nothing_to_do:
             out.append(
                 f"nothing to do: the run has already trained {self.epochs_done} epochs "
@@ -163,7 +169,7 @@ def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
         weights = find_vgg_weights(None, config.vgg_sha256)
     except ShaderballError as exc:
         found = os.path.isfile(hub_cache_path())
-        why = str(exc) if found else f"no VGG16 ImageNet weights at {hub_cache_path()}"
+        why = (getattr(exc, "what", None) or str(exc)) if found else f"no VGG16 ImageNet weights at {hub_cache_path()}"
         return LossChoice(
             "l1",
             f"loss: l1 (--loss auto: {why}; for the paper's L1 + VGG16 put {HUB_FILENAME} there or pass "
@@ -179,7 +185,7 @@ def pick_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise bad_value("--device", name, "auto or cpu: torch here has no CUDA device")
+        raise TrainConfig.field_error("device", name, "auto or cpu: torch here has no CUDA device")
     return torch.device(name)
 
 
@@ -298,14 +304,17 @@ def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
     return out
 
 
-def _check_run_dir(run_dir: str) -> None:
+def _check_run_dir(run_dir: str | None) -> None:
+    if not run_dir:
+        raise TrainConfig.field_error("out", run_dir, "name the run folder (or pass {benchmark})", what="missing")
     if os.path.exists(run_dir) and not os.path.isdir(run_dir):
-        raise bad_value("--out", run_dir, "a folder (this is a file)")
+        raise TrainConfig.field_error("out", run_dir, "a folder", what=f"{run_dir!r} is a file")
     if os.path.isdir(run_dir) and os.listdir(run_dir) and not os.path.isfile(os.path.join(run_dir, runfiles.CONFIG)):
-        raise bad_value(
-            "--out",
+        raise TrainConfig.field_error(
+            "out",
             run_dir,
-            f"a new or empty folder, or a run folder (with {runfiles.CONFIG}); this one holds other files",
+            f"a new or empty folder, or a run folder (with {runfiles.CONFIG})",
+            what=f"{run_dir!r} holds other files",
         )
 
 
@@ -328,7 +337,9 @@ def select_training_materials(train_ids: list[str], count: int | None, seed: int
     if count is None:
         return train_ids
     if count > len(train_ids):
-        raise bad_value("--train-materials", count, f"at most {len(train_ids)}, the training split's materials")
+        raise TrainConfig.field_error(
+            "train_materials", count, f"at most {len(train_ids)}, the training split's materials"
+        )
     order = np.random.default_rng(np.random.SeedSequence([int(seed), SUBSET_STREAM])).permutation(len(train_ids))
     return sorted(train_ids[i] for i in order[:count])
 
@@ -353,8 +364,10 @@ def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg
         "version": 1,
         "identity": identity,
         "identity_digest": digest(identity),
-        "options": asdict(config),
+        "options": config.to_dict(),  # the fields a run file holds (not `benchmark`)
         "dataset_path": os.path.abspath(config.dataset),
+        # what the dataset holds, whatever folder holds it: evaluate finds the run's dataset by it
+        "dataset_content": getattr(source, "content", None) or {},
         "split": {"train": train_ids, "test": test_ids},
         "network": {
             "name": "NeuralRenderer (KT et al. 2019)",
@@ -390,12 +403,76 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
         return _train(config, progress, source, device)
 
 
+@dataclass
+class _Setup:
+    """What a run is, found (and checked) before anything is written."""
+
+    config: TrainConfig  # with the loss chosen (``auto`` resolved)
+    source: object  # the opened dataset
+    train_ids: list
+    test_ids: list
+    choice: LossChoice
+    loss_fn: RenderLoss
+    model: NeuralRenderer
+    fresh: dict  # the run's config.json
+    old: dict | None  # the folder's config.json when it continues a run
+
+
 def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
+    run = _set_up(config, progress, source)
+    config, model = run.config, run.model
+    ckpt = _resume_point(run)
+    if ckpt is not None and int(ckpt["epoch"]) == config.epochs:
+        return _finished(config, run.old, ckpt, device, model, run.choice)
+    model.to(device)
+    run.loss_fn.to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
+    forward = speed.step_forward(model, run.loss_fn, config.channels_last, config.compile)
+    start_epoch, history = 0, []
+    if ckpt is not None:
+        _resume_state(config.out, model, optimizer, ckpt)
+        start_epoch, history = ckpt["epoch"], list(ckpt["history"])
+    train_set = run.source.subset(run.train_ids)
+    test_set = run.source.subset(run.test_ids) if run.test_ids else None
+    train_probe = training_probe(train_set, config.splitting_seed)
+    _write_run_config(run, train_set, test_set)
+    steps = math.ceil(len(train_set) / config.batch_size)
+    clock = StepClock(steps * (config.epochs - start_epoch), config.epochs - start_epoch, steps)
+    with deterministic_algorithms():
+        for epoch in range(start_epoch + 1, config.epochs + 1):
+            entry = train_epoch(
+                model, run.loss_fn, optimizer, train_set, device, config, epoch, progress, forward, clock
+            )
+            _score_epoch(entry, run, device, train_probe, test_set)
+            entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
+            for text in entry["warnings"]:
+                log.warning("%s", text)
+                if progress is not None:
+                    progress({"epoch": epoch, "epochs": config.epochs, "warning": text})
+            history.append(entry)
+            _save_epoch(config.out, model, optimizer, history, run.fresh["identity_digest"])
+    return TrainSummary(
+        run_dir=config.out,
+        epochs_done=max(start_epoch, config.epochs if history else 0),
+        resumed_from=start_epoch,
+        history=history,
+        baseline_psnr=run.fresh["baseline"].get("test_psnr"),
+        device=str(device),
+        parameters=parameter_count(model),
+        loss=run.choice.name,
+        loss_reason=run.choice.reason,
+        estimated_seconds=clock.seconds,
+        estimate=clock.text,
+    )
+
+
+def _set_up(config: TrainConfig, progress, source) -> _Setup:
+    """The dataset (``source``, else ``config.dataset`` opened) split by material, the loss
+    (said to ``progress``), the network initialised from the seed, the run's config.json."""
     if source is None:
         source = open_dataset(
-            config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.check_hashes
+            config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.hash_check
         )
-    resolution = source.resolution
     pool, test_ids = split_materials(source.material_ids, config.test_fraction, config.splitting_seed)
     train_ids = select_training_materials(pool, config.train_materials, config.splitting_seed)
     config_path = os.path.join(config.out, runfiles.CONFIG)
@@ -405,105 +482,130 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     config = dataclasses.replace(config, loss=choice.name)
     loss_fn, vgg_sha = make_loss(choice, config.vgg_weight)
     torch.manual_seed(config.seed)
-    model = NeuralRenderer(resolution, config.width)
-    fresh = run_config(config, source, train_ids, test_ids, resolution, vgg_sha, parameter_count(model))
+    model = NeuralRenderer(source.resolution, config.width)
+    fresh = run_config(config, source, train_ids, test_ids, source.resolution, vgg_sha, parameter_count(model))
     fresh["loss"] = {"requested": requested, "used": choice.name, "reason": choice.reason}
     if progress is not None:
         progress({"note": choice.reason})
+    return _Setup(config, source, train_ids, test_ids, choice, loss_fn, model, fresh, old)
 
-    start_epoch, history, ckpt = 0, [], None
-    if old is not None:
-        if old["identity_digest"] != fresh["identity_digest"]:
-            changed = sorted(
-                k
-                for k in set(old["identity"]) | set(fresh["identity"])
-                if old["identity"].get(k) != fresh["identity"].get(k)
-            )
-            raise ShaderballError(
-                f"--out: {config.out!r} is a run of another configuration (differs in: "
-                f"{', '.join(changed)}); use a new --out folder or the same options"
-            )
-        if os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
-            ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"], parameters=parameter_count(model))
-            done = int(ckpt["epoch"])
-            if done > config.epochs:
-                # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
-                # options.epochs the run's (not rewritten, e.g. 2 -> 1).
-                raise bad_value(
-                    "--epochs",
-                    config.epochs,
-                    f"at least {done}: {config.out!r} has already trained {done} epochs "
-                    f"(pass --epochs {done} or more to continue it, or a new --out to start again)",
-                )
-            if done == config.epochs:
-                return _finished(config, old, ckpt, device, model, choice)
-        fresh["baseline"] = old.get("baseline")
 
-    model.to(device)
-    loss_fn.to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
-    forward = speed.step_forward(model, loss_fn, config.channels_last, config.compile)
-    if ckpt is not None:
-        _resume_state(config.out, model, optimizer, ckpt)
-        start_epoch, history = ckpt["epoch"], list(ckpt["history"])
+def _resume_point(run: _Setup) -> dict | None:
+    """The folder's last checkpoint when the run continues one (None: it starts afresh); a
+    run of another configuration, or of more epochs than asked for, is refused."""
+    config, old, fresh = run.config, run.old, run.fresh
+    if old is None:
+        return None
+    if old["identity_digest"] != fresh["identity_digest"]:
+        changed = sorted(
+            k
+            for k in set(old["identity"]) | set(fresh["identity"])
+            if old["identity"].get(k) != fresh["identity"].get(k)
+        )
+        raise TrainConfig.field_error(
+            "out",
+            config.out,
+            "a new {out} folder, or the same options",
+            what=f"{config.out!r} is a run of another configuration (differs in: {', '.join(changed)})",
+        )
+    fresh["baseline"] = old.get("baseline")
+    if not os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
+        return None
+    ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"], parameters=parameter_count(run.model))
+    done = int(ckpt["epoch"])
+    if done > config.epochs:
+        # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
+        # options.epochs the run's (not rewritten, e.g. 2 -> 1).
+        raise TrainConfig.field_error(
+            "epochs",
+            config.epochs,
+            f"at least {done}: {config.out!r} has already trained {done} epochs "
+            f"(pass {{epochs}} {done} or more to continue it, or a new {{out}} to start again)",
+        )
+    return ckpt
 
-    train_set = source.subset(train_ids)
-    test_set = source.subset(test_ids) if test_ids else None
-    train_probe = training_probe(train_set, config.splitting_seed)
-    if not fresh.get("baseline"):
-        mean_target = mean_image(train_set, config.loader_workers)
-        fresh["baseline"] = {
+
+def _write_run_config(run: _Setup, train_set, test_set) -> None:
+    """config.json, with the baseline (the training-set mean image's held-out PSNR) found
+    first by a fresh run: the first file written, after every sample has been read."""
+    if not run.fresh.get("baseline"):
+        workers = run.config.loader_workers
+        mean_target = mean_image(train_set, workers)
+        run.fresh["baseline"] = {
             "kind": "training-set mean image",
-            "test_psnr": baseline_psnr(mean_target, test_set, config.loader_workers),
+            "test_psnr": baseline_psnr(mean_target, test_set, workers),
         }
-    os.makedirs(config.out, exist_ok=True)
-    runfiles.write_json(config_path, fresh)
+    os.makedirs(run.config.out, exist_ok=True)
+    runfiles.write_json(os.path.join(run.config.out, runfiles.CONFIG), run.fresh)
 
-    with deterministic_algorithms():
-        for epoch in range(start_epoch + 1, config.epochs + 1):
-            entry = train_epoch(model, loss_fn, optimizer, train_set, device, config, epoch, progress, forward)
-            bad = runfiles.nonfinite_weights(model.state_dict())
-            if bad:
-                raise diverged(f"{bad:,} weight value(s) are NaN or infinite", epoch, entry["lr"])
-            if train_probe is not None:
-                seen = evaluate_split(model, loss_fn, train_probe, device, config.batch_size, config.loader_workers)
-                entry.update(train_eval_loss=seen["loss"], train_psnr=seen["psnr"])
-            if test_set is not None:
-                held_out = evaluate_split(model, loss_fn, test_set, device, config.batch_size, config.loader_workers)
-                entry.update(
-                    test_loss=held_out["loss"], test_psnr=held_out["psnr"], test_saturated=held_out["saturated"]
-                )
-            entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
-            for text in entry["warnings"]:
-                log.warning("%s", text)
-                if progress is not None:
-                    progress({"epoch": epoch, "epochs": config.epochs, "warning": text})
-            history.append(entry)
-            state = dict(
-                epoch=epoch,
-                model_state=model.state_dict(),
-                optimizer_state=optimizer.state_dict(),
-                history=history,
-                identity_digest=fresh["identity_digest"],
-            )
-            if is_best(history):  # before the last: a kill between them redoes this epoch, same weights
-                best = dict(state, optimizer_state=None)  # the weights only: resume uses the last
-                runfiles.save_checkpoint(config.out, name=runfiles.BEST_CHECKPOINT, **best)
-            runfiles.save_checkpoint(config.out, **state)
-            runfiles.write_log(os.path.join(config.out, runfiles.LOG), history)
-            runfiles.write_log_csv(os.path.join(config.out, runfiles.LOG_CSV), history)
-            write_bytes_atomic(os.path.join(config.out, runfiles.LOSS_PNG), loss_curve_png(history))
-    return TrainSummary(
-        run_dir=config.out,
-        epochs_done=max(start_epoch, config.epochs if history else 0),
-        resumed_from=start_epoch,
+
+def _score_epoch(entry: dict, run: _Setup, device, train_probe, test_set) -> None:
+    """The epoch's weights checked finite, then scored on the training probe and the held-out
+    split (into ``entry``)."""
+    model, config = run.model, run.config
+    bad = runfiles.nonfinite_weights(model.state_dict())
+    if bad:
+        raise diverged(f"{bad:,} weight value(s) are NaN or infinite", entry["epoch"], entry["lr"])
+    if train_probe is not None:
+        seen = evaluate_split(model, run.loss_fn, train_probe, device, config.batch_size, config.loader_workers)
+        entry.update(train_eval_loss=seen["loss"], train_psnr=seen["psnr"])
+    if test_set is not None:
+        held_out = evaluate_split(model, run.loss_fn, test_set, device, config.batch_size, config.loader_workers)
+        entry.update(test_loss=held_out["loss"], test_psnr=held_out["psnr"], test_saturated=held_out["saturated"])
+
+
+def _save_epoch(run_dir: str, model, optimizer, history: list[dict], identity_digest: str) -> None:
+    """The epoch's checkpoint (and the best one's), log.jsonl, log.csv and loss.png."""
+    state = dict(
+        epoch=history[-1]["epoch"],
+        model_state=model.state_dict(),
+        optimizer_state=optimizer.state_dict(),
         history=history,
-        baseline_psnr=fresh["baseline"].get("test_psnr"),
-        device=str(device),
-        parameters=parameter_count(model),
-        loss=choice.name,
-        loss_reason=choice.reason,
+        identity_digest=identity_digest,
     )
+    if is_best(history):  # before the last: a kill between them redoes this epoch, same weights
+        best = dict(state, optimizer_state=None)  # the weights only: resume uses the last
+        runfiles.save_checkpoint(run_dir, name=runfiles.BEST_CHECKPOINT, **best)
+    runfiles.save_checkpoint(run_dir, **state)
+    runfiles.write_log(os.path.join(run_dir, runfiles.LOG), history)
+    runfiles.write_log_csv(os.path.join(run_dir, runfiles.LOG_CSV), history)
+    write_bytes_atomic(os.path.join(run_dir, runfiles.LOSS_PNG), loss_curve_png(history))
+
+
+class StepClock:
+    """How long a call's ``steps`` training steps (``epochs`` epochs of ``per_epoch``) will
+    take, from its first ones: the first step (the loader started, the first batch read,
+    kernels chosen) is left out and the next ESTIMATE_STEPS are timed, or the rest of the
+    first epoch when it has fewer. Told once (:meth:`tick`'s line); then ``seconds``."""
+
+    def __init__(self, steps: int, epochs: int, per_epoch: int):
+        self.steps, self.epochs, self.per_epoch = steps, epochs, per_epoch
+        self.times = [time.perf_counter()]
+        self.seconds: float | None = None
+        self.text: str | None = None
+
+    def tick(self) -> str | None:
+        """Called after each step: the estimate's line when it is made, else None."""
+        if self.text is not None:
+            return None
+        self.times.append(time.perf_counter())
+        done = len(self.times) - 1
+        if done < min(1 + ESTIMATE_STEPS, self.per_epoch):
+            return None
+        first = 1 if done > 1 else 0
+        per_step = (self.times[-1] - self.times[first]) / (done - first)
+        self.seconds = per_step * self.steps
+        self.text = (
+            f"estimate: about {_duration(self.seconds)} for {self.epochs} epoch{'s' if self.epochs != 1 else ''} "
+            f"({per_step:.3g} s a step x {self.steps:,} steps; the held-out scoring after each epoch comes on top)"
+        )
+        return self.text
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def _resume_state(run_dir: str, model, optimizer, ckpt: dict) -> None:
@@ -562,10 +664,11 @@ def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model, 
 
 
 def train_epoch(
-    model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress, forward=None
+    model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress, forward=None, clock=None
 ) -> dict:
     """One epoch; ``forward`` runs the network (default ``model``; a compiled one, see
-    :func:`pipeline.neural.speed.step_forward`), in ``config.precision``."""
+    :func:`pipeline.neural.speed.step_forward`), in ``config.precision``; ``clock``
+    (:class:`StepClock`) is told of every step, and its estimate goes to ``progress``."""
     forward = forward or model
     scaler = speed.grad_scaler(device, config.precision)
     model.train()
@@ -596,6 +699,9 @@ def train_epoch(
         seen += n
         for key, value in parts.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach()) * n
+        estimate = clock.tick() if clock is not None else None
+        if estimate is not None and progress is not None:
+            progress({"note": estimate})
         if progress is not None:
             elapsed = time.perf_counter() - started
             rate = seen / elapsed if elapsed > 0 else 0.0

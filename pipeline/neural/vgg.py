@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from pipeline.errors import ShaderballError
+from pipeline.neural.config import TrainConfig
 
 #: torchvision's VGG16 feature configuration: conv widths, "M" for a 2x2 max pool.
 VGG16_CONFIG = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
@@ -80,7 +81,12 @@ def hub_cache_path() -> str:
 class VggWeights:
     path: str
     sha256: str
-    source: str  # "--vgg-weights" or "torch hub cache"
+    source: str  # "vgg_weights" (the field: a file the user named) or "torch hub cache"
+
+    def refused(self, what: str, allowed: str) -> ShaderballError:
+        """The file refused, naming the field ``vgg_weights`` (given, or unset: torch hub's cache)."""
+        where = "" if self.source == "vgg_weights" else "torch hub's cache: "
+        return TrainConfig.field_error("vgg_weights", self.path, allowed, what=where + what)
 
 
 def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None) -> VggWeights:
@@ -92,29 +98,32 @@ def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None
     """
     expected = (expected_sha256 or VGG16_IMAGENET_SHA256).lower()
     if path is not None:
-        source = "--vgg-weights"
+        source = "vgg_weights"
         if not os.path.isfile(path):
-            raise ShaderballError(
-                f"--vgg-weights: {path!r} is not a file; give torchvision's vgg16 state dict ({HUB_FILENAME})"
+            raise TrainConfig.field_error(
+                "vgg_weights", path, f"torchvision's vgg16 state dict ({HUB_FILENAME})", what=f"{path!r} is not a file"
             )
     else:
         source = "torch hub cache"
         path = hub_cache_path()
         if not os.path.isfile(path):
-            raise ShaderballError(
-                "the VGG16 loss needs torchvision's ImageNet VGG16 weights and none were found "
-                f"(they cannot be downloaded here): pass --vgg-weights FILE, or put {HUB_FILENAME} "
-                f"in torch hub's cache at {path} ($TORCH_HOME/hub/checkpoints/); or train with "
-                "--loss l1"
+            raise TrainConfig.field_error(
+                "vgg_weights",
+                None,
+                f"name the file, or put {HUB_FILENAME} in torch hub's cache at {path} "
+                "($TORCH_HOME/hub/checkpoints/); or train with {loss} l1",
+                what="unset, and torch hub's cache holds no VGG16 ImageNet weights: the VGG16 loss needs "
+                "torchvision's (they cannot be downloaded here)",
             )
     digest = sha256_of(path)
+    weights = VggWeights(path=path, sha256=digest, source=source)
     if digest != expected:
-        raise ShaderballError(
-            f"{source}: {path!r} has SHA-256 {digest}, not the expected {expected}"
-            + ("" if expected_sha256 else f" of torchvision's {HUB_FILENAME}")
-            + "; pass --vgg-sha256 with the file's digest to use other VGG16 weights on purpose"
+        raise weights.refused(
+            f"{path!r} has SHA-256 {digest}, not the expected {expected}"
+            + ("" if expected_sha256 else f" of torchvision's {HUB_FILENAME}"),
+            "pass {vgg_sha256} with the file's digest to use other VGG16 weights on purpose",
         )
-    return VggWeights(path=path, sha256=digest, source=source)
+    return weights
 
 
 def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
@@ -122,9 +131,13 @@ def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
     try:
         state = torch.load(weights.path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types for a bad file
-        raise ShaderballError(f"{weights.source}: {weights.path!r} is not a readable torch state dict ({exc})") from exc
+        raise weights.refused(
+            f"{weights.path!r} is not a readable torch state dict ({exc})", "torchvision's vgg16 state dict"
+        ) from exc
     if not isinstance(state, dict):
-        raise ShaderballError(f"{weights.source}: {weights.path!r} holds a {type(state).__name__}, not a state dict")
+        raise weights.refused(
+            f"{weights.path!r} holds a {type(state).__name__}, not a state dict", "torchvision's vgg16 state dict"
+        )
     features = vgg16_features(upto=RELU3_3)
     wanted = {f"features.{k}": v for k, v in features.state_dict().items()}
     picked = {}
@@ -132,9 +145,10 @@ def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
         value = state.get(key)
         if not isinstance(value, torch.Tensor) or value.shape != ref.shape:
             got = None if value is None else tuple(getattr(value, "shape", ()))
-            raise ShaderballError(
-                f"{weights.source}: {weights.path!r} is not torchvision's vgg16 state dict: "
-                f"{key} is {got}, expected shape {tuple(ref.shape)}"
+            raise weights.refused(
+                f"{weights.path!r} is not torchvision's vgg16 state dict: {key} is {got}, expected shape "
+                f"{tuple(ref.shape)}",
+                f"torchvision's vgg16 state dict ({HUB_FILENAME})",
             )
         picked[key.removeprefix("features.")] = value.float()
     features.load_state_dict(picked)

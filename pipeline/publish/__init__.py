@@ -7,8 +7,8 @@ training stage), with the archive checks that make reading a received copy safe
 (``tarsafe``, ``exrcheck``). Never Mitsuba, dask or torch, nor the build (``pipeline.run``).
 
 Layer 7 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
-``pipeline.errors``, ``pipeline.image``, ``pipeline.store``, ``pipeline.dataset``,
-``pipeline.check``; nothing else of the project.
+``pipeline.errors``, ``pipeline.fields``, ``pipeline.image``, ``pipeline.store``,
+``pipeline.dataset``, ``pipeline.check``; nothing else of the project.
 """
 
 from pipeline.publish.reader import iter_folder_samples, iter_samples, open_publication

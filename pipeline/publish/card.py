@@ -24,6 +24,7 @@ from pipeline.publish.names import (
 )
 from pipeline.publish.previews import preview_factor
 from pipeline.publish.table import COLUMN_DOCS
+from pipeline.store.exr import LAYER_CHANNELS
 from pipeline.store.records import dumps
 
 EFFECTS = (
@@ -53,13 +54,65 @@ for sample in iter_samples(root):  # checks every SHA-256 and member as it strea
     n += 1
 """
 
+#: Where a recipe's EXR check goes (:func:`exr_check`, filled in from the published spec).
+CHECK_HERE = "# EXR_CHECK\n"
+
+#: The check each recipe runs on an EXR member before OpenEXR decodes it: its header read in
+#: Python and refused unless it is what the publication's spec allows (``{members}``: the
+#: channels and side of each member). OpenEXR would decode whatever a header says: a 2 MB
+#: render can declare 20000 x 20000 pixels, or list its channels twice (OpenEXR merges the
+#: lists), or hide an attribute inside another of the wrong size.
+EXR_CHECK = '''#: What this publication's spec allows each EXR member: its channels, and its side in pixels.
+EXR_MEMBERS = {members}
+#: The attributes its EXR files hold: type, and size where the type fixes it.
+EXR_ATTRIBUTES = {{
+    b"channels": (b"chlist", None), b"compression": (b"compression", 1), b"dataWindow": (b"box2i", 16),
+    b"displayWindow": (b"box2i", 16), b"lineOrder": (b"lineOrder", 1), b"pixelAspectRatio": (b"float", 4),
+    b"screenWindowCenter": (b"v2f", 8), b"screenWindowWidth": (b"float", 4), b"type": (b"string", None),
+    b"chromaticities": (b"chromaticities", 32), b"shaderball": (b"string", None),
+}}
+
+
+def checked_exr(data, field):
+    """``data``, an EXR member's bytes (``field``: "render.exr" or "maps.exr"), once its header
+    says what the spec allows: each attribute once, of its type and size; the spec's window;
+    the member's channels. Anything else is refused before OpenEXR decodes a pixel."""
+    names, side = EXR_MEMBERS[field]
+    if data[:8] != b"v/1\\x01\\x02\\x00\\x00\\x00":  # EXR magic, version 2: single-part scanline
+        raise ValueError(f"{{field}}: not a single-part scanline EXR")
+    header, at = {{}}, 8
+    while data[at : at + 1] != b"\\x00":
+        name, kind, _ = data[at : at + 64].split(b"\\x00", 2)
+        start = at + len(name) + len(kind) + 6
+        size = int.from_bytes(data[start - 4 : start], "little", signed=True)
+        at = start + max(size, 0)
+        want, fixed = EXR_ATTRIBUTES.get(name, (None, None))
+        if name in header or kind != want or size < 0 or size != (fixed or size) or at > len(data):
+            raise ValueError(f"{{field}}: EXR attribute {{name[:32]!r}} is repeated, unknown or malformed")
+        header[name] = data[start:at]
+    channels, rest = [], header.get(b"channels", b"")
+    while rest[:1] not in (b"", b"\\x00"):
+        name, rest = rest.split(b"\\x00", 1)
+        channels, rest = channels + [name.decode("latin-1")], rest[16:]
+    window = struct.pack("<4i", 0, 0, side - 1, side - 1)
+    if sorted(channels) != sorted(names) or header.get(b"dataWindow") != window:
+        raise ValueError(f"{{field}}: its EXR header says other channels or another size than {{side}} x {{side}}")
+    if header.get(b"type", b"scanlineimage") != b"scanlineimage":
+        raise ValueError(f"{{field}}: not a scanline image")
+    return data
+'''
+
 LOAD_WITH_DATASETS = """import io
 import os
+import struct
 
 import datasets
 import OpenEXR
 
 root = os.path.abspath(".")  # the folder holding this card (or the Hub's repository id)
+# EXR_CHECK
+
+
 renders = datasets.load_dataset(root, "renders", split="train")  # the default config
 materials = datasets.load_dataset(root, "materials", split="train")
 row_of_material = {key: i for i, key in enumerate(materials["__key__"])}
@@ -67,18 +120,21 @@ n = 0
 for row in renders:  # __key__, render.png (a PIL image), render.exr (bytes), json (the record), __url__
     record = row["json"]  # typed: seeds int64, lighting_vector float32, nulls typed
     material = materials[row_of_material[record["material_id"]]]  # __key__, maps.png, maps.exr, json, ...
-    render = OpenEXR.File(io.BytesIO(row["render.exr"])).channels()["render"].pixels  # (H, W, 3) float32
-    maps = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(material["maps.exr"])).channels().items()}
+    render = OpenEXR.File(io.BytesIO(checked_exr(row["render.exr"], "render.exr"))).channels()["render"].pixels
+    maps_exr = OpenEXR.File(io.BytesIO(checked_exr(material["maps.exr"], "maps.exr")))
+    maps = {name: c.pixels for name, c in maps_exr.channels().items()}  # (H, W, 3) "diffuse", "mask.Y", ...
     n += 1
 """
 
-#: The two lines the card shows for turning a row's EXR bytes into float arrays.
+#: The two lines the card shows for turning a row's EXR bytes into float arrays (after the
+#: recipes' ``checked_exr``).
 EXR_TWO_LINES = """import io, OpenEXR
-layers = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(row["render.exr"])).channels().items()}
+layers = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(checked_exr(row["render.exr"], "render.exr"))).channels().items()}
 """
 
 LOAD_WITH_WEBDATASET = '''import io
 import json
+import struct
 
 import OpenEXR
 import webdataset as wds
@@ -86,10 +142,11 @@ import webdataset as wds
 root = "."  # the folder holding this card
 with open(f"{root}/publication.json") as fh:
     shards = [f"{root}/{shard['path']}" for shard in json.load(fh)["shards"] if shard["kind"] == "renders"]
+# EXR_CHECK
 
 
-def layers(data):
-    exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+def layers(data, field):
+    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field)), separate_channels=True)
     return {name: channel.pixels for name, channel in exr.channels().items()}
 
 
@@ -112,22 +169,24 @@ dataset = wds.DataPipeline(wds.SimpleShardList(shards), wds.tarfile_to_samples()
 n = 0
 for sample in dataset:  # shuffle shards before tarfile_to_samples, samples after attach_maps
     record = json.loads(sample["json"])
-    render = layers(sample["render.exr"])  # {"render.R": (H, W) float32, ...}
-    maps = layers(sample["maps.exr"])  # {"diffuse.R": ..., "normal.X": ..., "mask.Y": ...}
+    render = layers(sample["render.exr"], "render.exr")  # {"render.R": (H, W) float32, ...}
+    maps = layers(sample["maps.exr"], "maps.exr")  # {"diffuse.R": ..., "normal.X": ..., "mask.Y": ...}
     n += 1
 '''
 
 LOAD_WITH_TARFILE = """import io
 import json
+import struct
 import tarfile
 
 import OpenEXR
 
 root = "."  # the folder holding this card
+# EXR_CHECK
 
 
-def layers(data):
-    exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+def layers(data, field):
+    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field)), separate_channels=True)
     return {name: channel.pixels for name, channel in exr.channels().items()}
 
 
@@ -156,11 +215,28 @@ for path in shards:
                     if kind == "maps.png":  # a material's last member
                         break
             record = json.loads(files["json"])
-            render = layers(files["render.exr"])
-            maps_layers = layers(maps["maps.exr"])
+            render = layers(files["render.exr"], "render.exr")
+            maps_layers = layers(maps["maps.exr"], "maps.exr")
             n += 1
 maps = maps_layers
 """
+
+
+def exr_check(spec) -> str:
+    """The recipes' :data:`EXR_CHECK` for a publication of ``spec``: each EXR member's channels
+    (the render's; the maps' ``storage.layers``) and side (``render.resolution``)."""
+    side = spec.render.resolution
+    roles = {"render.exr": ("render",), "maps.exr": spec.storage.layers}
+    lines = ["{"]
+    for field, layers in roles.items():
+        names = [f"{layer}.{suffix}" for layer in layers for suffix in LAYER_CHANNELS[layer]]
+        lines.append(f"    {field!r}: ({names!r}, {side}),".replace("'", '"'))
+    return EXR_CHECK.format(members="\n".join(lines + ["}"]))
+
+
+def recipe(template: str, spec) -> str:
+    """A loading recipe with the EXR check of a publication of ``spec`` in it."""
+    return template.replace(CHECK_HERE, "\n" + exr_check(spec))
 
 
 def size_category(count: int) -> str:
@@ -368,7 +444,7 @@ def files_section(facts: PublicationFacts) -> list[str]:
     ]
 
 
-def load_section() -> list[str]:
+def load_section(spec) -> list[str]:
     return [
         "## How to load it",
         "",
@@ -389,14 +465,18 @@ def load_section() -> list[str]:
         "The card's `configs` declare each column's type: the previews are `Image` columns (what the Hub's "
         "viewer shows), the EXR files bytes, the record and the material's row typed structs. A row's EXR "
         "bytes become float arrays in two lines (OpenEXR's Python package groups `render.R/G/B` into one "
-        "(H, W, 3) array named `render`):",
+        "(H, W, 3) array named `render`), once `checked_exr` (in each recipe below) has read the header. "
+        "OpenEXR decodes whatever a header says (a 2 MB render can declare 20000 x 20000 pixels, or list "
+        "its channels twice, which OpenEXR merges): each recipe refuses an EXR member whose header says "
+        f"anything but this spec's {spec.render.resolution} x {spec.render.resolution} pixels of the "
+        "member's channels before it decodes a pixel.",
         "",
         "```py",
         EXR_TWO_LINES.rstrip("\n"),
         "```",
         "",
         "```python",
-        LOAD_WITH_DATASETS.rstrip("\n"),
+        recipe(LOAD_WITH_DATASETS, spec).rstrip("\n"),
         "```",
         "",
         '`datasets.load_dataset("webdataset", data_files=...)` on the tars of one kind works too, with types '
@@ -405,7 +485,7 @@ def load_section() -> list[str]:
         "### With webdataset",
         "",
         "```python",
-        LOAD_WITH_WEBDATASET.rstrip("\n"),
+        recipe(LOAD_WITH_WEBDATASET, spec).rstrip("\n"),
         "```",
         "",
         "### With tarfile and OpenEXR",
@@ -415,7 +495,7 @@ def load_section() -> list[str]:
         "on a copy you received.",
         "",
         "```python",
-        LOAD_WITH_TARFILE.rstrip("\n"),
+        recipe(LOAD_WITH_TARFILE, spec).rstrip("\n"),
         "```",
         "",
     ]
@@ -446,7 +526,7 @@ def dataset_card(facts: PublicationFacts) -> str:
         + sample_section(facts)
         + made_section(facts)
         + files_section(facts)
-        + load_section()
+        + load_section(spec)
         + citation
     )
     return "\n".join(lines)

@@ -8,13 +8,16 @@ import os
 import shutil
 from collections.abc import Iterator
 
-from pipeline.errors import bad_value
+from pipeline.publish.request import PublishRequest, format_value, out_refused
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic
 from pipeline.store.folder import check_creatable, only_temp_files, real_dir
 from pipeline.store.lock import busy, current_holder, writer_lock
 
+#: An output folder another writer filled between the check and the lock.
+FILLED_MEANWHILE = "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
 
-def check_out(out: str, source: str | None = None, label: str = "DIR") -> None:
+
+def check_out(out: str, source: str | None = None, label: str = "DIR", owner=PublishRequest) -> None:
     """PUB (or an unpack's DIR) must be new or an empty folder, and not inside ``source`` (the
     folder read from, which would no longer check): nothing is overwritten. A folder another
     writer is filling is refused as busy (exit code 3), naming it (pipeline.store.lock)."""
@@ -22,16 +25,16 @@ def check_out(out: str, source: str | None = None, label: str = "DIR") -> None:
         holder = current_holder(out) if real_dir(out) else None
         if holder is not None:
             raise busy(out, holder, label)
-        raise bad_value("--out", out, "a new or empty folder (nothing in it is overwritten)")
+        raise out_refused(out, owner=owner)
     check_creatable(out)
     if source is not None:
         inner, outer = os.path.realpath(out), os.path.realpath(source)
         if os.path.commonpath([inner, outer]) in (inner, outer):
-            raise bad_value(
-                "--out",
+            raise out_refused(
                 out,
-                f"a folder outside {source!r} and not containing it (files written "
+                f"a folder outside {format_value(source)} and not containing it (files written "
                 "there would make it fail its own checks)",
+                owner,
             )
 
 
@@ -43,9 +46,7 @@ def held_output(out: str, purpose: str, label: str) -> Iterator[Output]:
     output = Output(out)
     with writer_lock(out, purpose, label):
         if not only_temp_files(os.listdir(out)):
-            raise bad_value(
-                "--out", out, "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
-            )
+            raise out_refused(out, FILLED_MEANWHILE)
         try:
             yield output
         except BaseException:

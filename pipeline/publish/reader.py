@@ -27,7 +27,6 @@ from array import array
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
-from pipeline.errors import bad_value
 from pipeline.publish.exrcheck import check_exr_header, member_bounds
 from pipeline.publish.lines import CHUNK_BYTES, LineReader, scan
 from pipeline.publish.names import (
@@ -53,6 +52,7 @@ from pipeline.publish.names import (
 )
 from pipeline.publish.previews import png_size
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
+from pipeline.publish.request import VerifyRequest, format_value
 from pipeline.publish.table import (
     PREVIEW_ROLES,
     FileRef,
@@ -304,7 +304,9 @@ def _walk(root: str, limits: Limits) -> dict[str, int]:
             for entry in it:
                 entries += 1
                 if entries > limits.entries:
-                    raise Refused("too_many_files", f"PUB: more than {limits.entries} files and folders; refused")
+                    raise Refused(
+                        "too_many_files", f"the publication has more than {limits.entries} files and folders; refused"
+                    )
                 rel = f"{folder}/{entry.name}" if folder else entry.name
                 mode = entry.stat(follow_symlinks=False).st_mode
                 if stat.S_ISLNK(mode):
@@ -399,13 +401,18 @@ def _json(data: bytes, where: str, shape: Shape):
 def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     """Check the small files of the publication at ``root``; see the module's docstring."""
     if not os.path.isdir(root):
-        raise bad_value("PUB", root, "a folder written by `shaderball publish`")
+        why = "is not a folder" if os.path.lexists(root) else "does not exist"
+        raise VerifyRequest.field_error(
+            "pub", root, "a folder written by `shaderball publish`", what=f"{format_value(root)} {why}"
+        )
     files = _walk(root, limits)
     if SUMS_FILE not in files:
         raise Refused("missing_file", f"{SUMS_FILE}: missing; PUB is not a (finished) publication")
     total = sum(files.values())
     if total > limits.total_bytes:
-        raise Refused("too_large", f"PUB: {total} bytes, over the cap of {limits.total_bytes}; refused")
+        raise Refused(
+            "too_large", f"the publication holds {total} bytes, over the cap of {limits.total_bytes}; refused"
+        )
     sums = _parse_sums(_read_small(root, SUMS_FILE, limits.text_bytes))
     for rel in sorted(set(files) - set(sums) - {SUMS_FILE}):
         raise Refused("unlisted_file", f"{shown(rel)}: not listed in {SUMS_FILE}; refused")
@@ -648,15 +655,7 @@ def _check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: L
     maps, each marker the one of its shard. Counts each tar's members and notes where each
     pair's rows lie (:class:`Section`); keeps no more than a shard's records and the ids of
     the materials."""
-    by_rel = {t.rel: t for t in tars}
     shape = record_shape(limits)
-    sections: dict[int, Section] = {}
-    shards: list[str] = []
-    seen: dict[str, int] = {}  # material -> the number of its tar pair
-    marker_bytes = 0
-    pair: list = []  # the current pair: [tar, first line, manifest offset, table offset, lines, digest]
-    current = None  # (material, what its lightings share)
-    shard_rows: list[tuple[bytes, dict]] = []
     paths = {rel: os.path.join(root, *rel.split("/")) for rel in LINE_FILES}
     with (
         _open_regular(paths[MANIFEST_REL], MANIFEST_REL) as manifest_fh,
@@ -666,16 +665,7 @@ def _check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: L
         manifest = LineReader(manifest_fh, MANIFEST_REL)
         table = LineReader(table_fh, SAMPLES_FILE)
         markers = LineReader(markers_fh, MARKERS_REL)
-
-        def close_pair():
-            tar, first, m_offset, t_offset, lines, digest = pair
-            sections[tar.number] = Section(first, lines, m_offset, t_offset, digest.hexdigest())
-
-        def check_shard():
-            nonlocal marker_bytes
-            marker_bytes = max(marker_bytes, _check_marker(markers, shard_rows, limits))
-            shards.append(shard_rows[0][1]["shard"])
-
+        rows = _RowsCheck(tars, markers, limits)
         while True:
             m_offset, t_offset = manifest.offset, table.offset
             line = manifest.next(shape.bytes, lambda n: f"{MANIFEST_REL} line {n}")
@@ -685,55 +675,103 @@ def _check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: L
             row_line = table.next(shape.bytes, lambda n: f"{SAMPLES_FILE} line {n}")
             if row_line is None:
                 _same(SAMPLES_FILE, "", sums[SAMPLES_FILE])
-            row = _row(number, line, row_line, by_rel, limits)
-            tar = row.tar
-            if not pair or pair[0] is not tar:
-                if pair and tar.number < pair[0].number:
-                    raise Refused(
-                        "bad_table",
-                        f"{SAMPLES_FILE} line {number}: {row.record['id']} is in {tar.rel}, before "
-                        "the tar of the sample above it; refused",
-                    )
-                if pair:
-                    close_pair()
-                pair = [tar, number, m_offset, t_offset, 0, hashlib.sha256()]
-            pair[4] += 1
-            pair[5].update(line + b"\n" + row_line + b"\n")
-            material = row.record["material_id"]
-            shared = _shared_of(row)
-            if material not in seen:
-                seen[material] = tar.number
-                current = (material, shared)
-                by_rel[paired_tar(tar.rel, MATERIALS)].count += len(_material_members(row))
-            elif seen[material] != tar.number:
-                raise Refused(
-                    "bad_table",
-                    f"{SAMPLES_FILE} line {number}: material {material} is split across "
-                    f"{tar_rel(seen[material])} and {tar.rel}; refused",
-                )
-            elif current != (material, shared):
-                raise Refused(
-                    "bad_record",
-                    f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps differ "
-                    "from its other lightings', or its lightings are not adjacent; refused",
-                )
-            tar.count += 3
-            if shard_rows and row.record["shard"] != shard_rows[0][1]["shard"]:
-                check_shard()
-                shard_rows = []
-            shard_rows.append((line, row.record))
-        if pair:
-            close_pair()
-        if shard_rows:
-            check_shard()
+            rows.add(_row(number, line, row_line, rows.by_rel, limits), row_line, m_offset, t_offset)
+        rows.finish()
     for rel, reader in ((MANIFEST_REL, manifest), (SAMPLES_FILE, table), (MARKERS_REL, markers)):
         _same(rel, reader.digest.hexdigest(), sums[rel])
     return {
-        "materials": len(seen),
-        "sections": sections,
-        "shards": shards,
-        "marker_bytes": marker_bytes,
+        "materials": len(rows.seen),
+        "sections": rows.sections,
+        "shards": rows.shards,
+        "marker_bytes": rows.marker_bytes,
     }
+
+
+class _PairRows:
+    """The rows of the tar pair being read: where the first lies, how many, their SHA-256 so far
+    (each manifest line and its row, each with a newline)."""
+
+    def __init__(self, tar: TarEntry, first_line: int, manifest_offset: int, table_offset: int):
+        self.tar = tar  # its renders tar
+        self.first_line, self.manifest_offset, self.table_offset = first_line, manifest_offset, table_offset
+        self.lines = 0
+        self.digest = hashlib.sha256()
+
+    def section(self) -> Section:
+        return Section(self.first_line, self.lines, self.manifest_offset, self.table_offset, self.digest.hexdigest())
+
+
+class _RowsCheck:
+    """What :func:`_check_rows` keeps while it reads, and its checks of one row against the
+    rows before it: its tar pair's, its material's and its shard's (with ``markers``)."""
+
+    def __init__(self, tars: list[TarEntry], markers: LineReader, limits: Limits):
+        self.by_rel = {t.rel: t for t in tars}
+        self.markers, self.limits = markers, limits
+        self.sections: dict[int, Section] = {}
+        self.shards: list[str] = []
+        self.seen: dict[str, int] = {}  # material -> the number of its tar pair
+        self.marker_bytes = 0
+        self.pair: _PairRows | None = None
+        self.current = None  # (material, what its lightings share)
+        self.shard_rows: list[tuple[bytes, dict]] = []
+
+    def add(self, row: Row, row_line: bytes, manifest_offset: int, table_offset: int) -> None:
+        """The next row (``row_line`` its line of the table, the offsets those of both lines)."""
+        self._join_pair(row, row_line, manifest_offset, table_offset)
+        self._join_material(row)
+        row.tar.count += 3
+        if self.shard_rows and row.record["shard"] != self.shard_rows[0][1]["shard"]:
+            self._check_shard()
+            self.shard_rows = []
+        self.shard_rows.append((row.line, row.record))
+
+    def finish(self) -> None:
+        """After the last row: the last pair's section, the last shard's marker."""
+        if self.pair:
+            self.sections[self.pair.tar.number] = self.pair.section()
+        if self.shard_rows:
+            self._check_shard()
+
+    def _join_pair(self, row: Row, row_line: bytes, manifest_offset: int, table_offset: int) -> None:
+        tar, pair = row.tar, self.pair
+        if not pair or pair.tar is not tar:
+            if pair and tar.number < pair.tar.number:
+                raise Refused(
+                    "bad_table",
+                    f"{SAMPLES_FILE} line {row.number}: {row.record['id']} is in {tar.rel}, before "
+                    "the tar of the sample above it; refused",
+                )
+            if pair:
+                self.sections[pair.tar.number] = pair.section()
+            pair = self.pair = _PairRows(tar, row.number, manifest_offset, table_offset)
+        pair.lines += 1
+        pair.digest.update(row.line + b"\n" + row_line + b"\n")
+
+    def _join_material(self, row: Row) -> None:
+        tar, number = row.tar, row.number
+        material = row.record["material_id"]
+        shared = _shared_of(row)
+        if material not in self.seen:
+            self.seen[material] = tar.number
+            self.current = (material, shared)
+            self.by_rel[paired_tar(tar.rel, MATERIALS)].count += len(_material_members(row))
+        elif self.seen[material] != tar.number:
+            raise Refused(
+                "bad_table",
+                f"{SAMPLES_FILE} line {number}: material {material} is split across "
+                f"{tar_rel(self.seen[material])} and {tar.rel}; refused",
+            )
+        elif self.current != (material, shared):
+            raise Refused(
+                "bad_record",
+                f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps differ "
+                "from its other lightings', or its lightings are not adjacent; refused",
+            )
+
+    def _check_shard(self) -> None:
+        self.marker_bytes = max(self.marker_bytes, _check_marker(self.markers, self.shard_rows, self.limits))
+        self.shards.append(self.shard_rows[0][1]["shard"])
 
 
 def _section_members(publication: Publication, kind: str, at: Section) -> Iterator[Expected]:

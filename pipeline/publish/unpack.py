@@ -17,10 +17,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from pipeline.check.validate import validate
-from pipeline.errors import bad_value, filesystem_error
-from pipeline.publish.output import Output, check_out
+from pipeline.errors import filesystem_error
+from pipeline.publish.output import FILLED_MEANWHILE, Output, check_out
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
+from pipeline.publish.request import UnpackRequest, out_refused
 from pipeline.publish.verify import verify_publication
 from pipeline.store.folder import only_temp_files
 from pipeline.store.layout import MANIFEST_FILE, Layout
@@ -66,7 +67,7 @@ def unpack(
 ) -> UnpackSummary:
     """Restore the dataset folder of the publication ``pub`` into ``out`` (new or empty)."""
     start = time.perf_counter()
-    check_out(out, pub)
+    check_out(out, pub, owner=UnpackRequest)
     publication = open_publication(pub, limits)
     verify_publication(publication, progress)
     try:
@@ -81,9 +82,7 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
     """Write the folder while this process holds it (pipeline.store.lock): a build or a second
     unpack started meanwhile is refused, and one that got there first is not written over."""
     if not only_temp_files(os.listdir(out)):
-        raise bad_value(
-            "--out", out, "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
-        )
+        raise out_refused(out, FILLED_MEANWHILE, UnpackRequest)
     try:
         _write_in_completion_order(publication, output, progress)
         if validate_after:

@@ -25,10 +25,9 @@ from pipeline.check.preview import write_preview
 from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
-from pipeline.errors import ShaderballError, bad_value, check_int
 from pipeline.publish.card import EFFECTS, dataset_card
 from pipeline.publish.croissant import croissant_metadata
-from pipeline.publish.facts import LICENSES, PublicationFacts, RecordSummary, TarFacts
+from pipeline.publish.facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.names import (
     CARD_FILE,
     CROISSANT_FILE,
@@ -49,6 +48,7 @@ from pipeline.publish.names import (
 from pipeline.publish.output import Output, check_out, held_output
 from pipeline.publish.previews import maps_preview, render_preview
 from pipeline.publish.refusal import Refused
+from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, PublishRequest
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, member_bytes, open_writer, padded, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
@@ -56,9 +56,6 @@ from pipeline.store.folder import MAX_JSON_BYTES, iter_manifest, list_bound, rea
 from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.records import dumps
 
-DEFAULT_SHARD_BYTES = 1_000_000_000
-SHARD_BYTES_RANGE = (1 << 16, 1 << 40)
-DEFAULT_LICENSE = "cc-by-4.0"
 PREVIEW_SAMPLES = 8
 #: How publish's messages name its output folder.
 PUB_LABEL = "PUB"
@@ -160,11 +157,8 @@ class PublishSummary:
 
 
 def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> None:
-    check_int("--shard-bytes", shard_bytes, *SHARD_BYTES_RANGE)
-    if license_id not in LICENSES:
-        raise bad_value("--license", license_id, ", ".join(LICENSES))
-    if url is not None and not (isinstance(url, str) and url.startswith(("https://", "http://")) and " " not in url):
-        raise bad_value("--url", url, "an http(s) URL without spaces, where the publication will live")
+    """The options of a publication, refused by their declarations (PublishRequest)."""
+    PublishRequest(directory=".", out=".", shard_bytes=shard_bytes, license=license_id, url=url).check_fields()
 
 
 def publish(
@@ -192,7 +186,7 @@ def publish(
             first = "; ".join(p.message for p in report.problems[:3])
             raise Refused(
                 "invalid_dataset",
-                f"DIR: {root!r} does not pass `shaderball validate` "
+                f"the dataset {root!r} does not pass `shaderball validate` "
                 f"({len(report.problems)} problem(s): {first}); nothing was published",
             )
         validation_s = time.perf_counter() - start
@@ -453,101 +447,39 @@ def _write_into(
     records = manifest_records(layout)
     first = next(records, None)
     if first is None:
-        raise ShaderballError(f"DIR: {root!r} has no records in its manifest; nothing to publish")
-    side = spec.render.resolution
-    summary, shards = RecordSummary(), {}  # shards: the source shards, in plan order
-    tars: list[TarFacts] = []
-    pair: TarPair | None = None
+        raise PublishRequest.field_error(
+            "directory", root, "a dataset with finished renders", what=f"{root!r} has no records in its manifest"
+        )
     table: StreamedFile | None = None
-    materials = source_bytes = member_bytes = repeated_extra = 0
     try:
         table = StreamedFile(output, SAMPLES_FILE)
-        for number, group in enumerate(material_groups(layout, itertools.chain([first], records)), start=1):
-            if progress:
-                progress(f"previews of {group.material_id} ({number}/{spec.dataset.materials})")
-            draw_previews(layout, group, side)
-            sizes = group.sizes()
-            if pair is not None and not pair.fits(sizes, shard_bytes):
-                if progress:
-                    progress(f"writing {tar_rel(pair.index, MATERIALS)} and {tar_rel(pair.index, RENDERS)}")
-                tars += pair.close()
-                pair = None
-            if pair is None:
-                pair = TarPair(output, layout, len(tars) // 2)
-            for record, row in zip(group.records, pair.add(group)):
-                table.write((dumps(row) + "\n").encode("utf-8"))
-                summary.add(record, row, [key for key, _what in EFFECTS])
-                shards.setdefault(record["shard"], None)
-            materials += 1
-            source_bytes += sum(os.path.getsize(layout.path(m.source)) for m in group.shared + group.lightings)
-            member_bytes += sum(sizes[0]) + sum(sizes[1])
-            repeated_extra += (len(group.records) - 1) * group.shared_bytes
-        tars += pair.close()
-        pair = None
-        tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
-        for source, rel in SOURCE_FILES.items():
-            if source == MANIFEST_FILE:
-                _copy(output, rel, layout.path(source), list_bound(summary.samples))
-            else:
-                output.write(rel, read_bytes(layout.path(source), MAX_JSON_BYTES))
-        markers = StreamedFile(output, MARKERS_REL)
-        try:
-            for shard in shards:
-                markers.write(_marker_line(layout, shard))
-        except BaseException:
-            markers.abort()
-            raise
-        markers.close()
+        packed = _pack_materials(output, layout, spec, itertools.chain([first], records), table, shard_bytes, progress)
+        _copy_sources(output, layout, packed)
         table.close()
         table = None
         if contact_sheet:
-            if progress:
-                progress("drawing the contact sheet")
-            write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
-            with open(output.path(PREVIEW_FILE), "rb") as fh:
-                output.adopt(
-                    PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE))
-                )
-        description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
-        source_bytes += sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
-        facts = PublicationFacts(
-            spec=spec,
-            description=description,
-            summary=summary,
-            tars=tars,
+            _write_contact_sheet(output, root, progress)
+        facts = _publication_facts(
+            output,
+            layout,
+            spec,
+            packed,
             license_id=license_id,
             url=url,
             shard_bytes=shard_bytes,
-            files=dict(output.sums),
-            sizes=dict(output.sizes),
-            source_bytes=source_bytes,
-            member_bytes=member_bytes,
-            repeated_maps_extra_bytes=repeated_extra,
-            materials=materials,
             has_preview=contact_sheet,
         )
-        output.write(
-            INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8")
-        )
-        facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
-        facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
-        output.write(
-            CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
-        )
-        facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
-        output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
-        output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
+        _write_metadata(output, facts)
     except BaseException:
-        for open_file in (pair, table):
-            if open_file is not None:
-                open_file.abort()
+        if table is not None:
+            table.abort()
         raise  # held_output removes what was written
     published = sum(output.sizes.values())
     return PublishSummary(
         out=out,
-        samples=summary.samples,
-        materials=materials,
-        tars=tars,
+        samples=packed.summary.samples,
+        materials=packed.materials,
+        tars=packed.tars,
         published_bytes=published,
         source_bytes=facts.source_bytes,
         member_bytes=facts.member_bytes,
@@ -555,6 +487,139 @@ def _write_into(
         validation_s=validation_s,
         seconds=time.perf_counter() - start,
     )
+
+
+@dataclass
+class _Packed:
+    """What packing the materials into tar pairs gives: the tars' facts (sorted by path), the
+    records' summary, the source shards in plan order (the keys), and the byte counts the
+    card reports."""
+
+    tars: list[TarFacts] = field(default_factory=list)
+    summary: RecordSummary = field(default_factory=RecordSummary)
+    shards: dict[str, None] = field(default_factory=dict)
+    materials: int = 0
+    source_bytes: int = 0  # of the source files packed
+    member_bytes: int = 0
+    repeated_extra: int = 0  # what repeating each material's maps per lighting would add
+
+
+def _pack_materials(
+    output: Output,
+    layout: Layout,
+    spec: DatasetSpec,
+    records,
+    table: StreamedFile,
+    shard_bytes: int,
+    progress: Callable[[str], None] | None,
+) -> _Packed:
+    """Every material of ``records`` (manifest order) with its previews into tar pairs, a new
+    pair when a material would take one over ``shard_bytes``; its rows into ``table``."""
+    packed = _Packed()
+    pair: TarPair | None = None
+    try:
+        for number, group in enumerate(material_groups(layout, records), start=1):
+            if progress:
+                progress(f"previews of {group.material_id} ({number}/{spec.dataset.materials})")
+            draw_previews(layout, group, spec.render.resolution)
+            sizes = group.sizes()
+            if pair is not None and not pair.fits(sizes, shard_bytes):
+                if progress:
+                    progress(f"writing {tar_rel(pair.index, MATERIALS)} and {tar_rel(pair.index, RENDERS)}")
+                packed.tars += pair.close()
+                pair = None
+            if pair is None:
+                pair = TarPair(output, layout, len(packed.tars) // 2)
+            for record, row in zip(group.records, pair.add(group)):
+                table.write((dumps(row) + "\n").encode("utf-8"))
+                packed.summary.add(record, row, [key for key, _what in EFFECTS])
+                packed.shards.setdefault(record["shard"], None)
+            packed.materials += 1
+            packed.source_bytes += sum(os.path.getsize(layout.path(m.source)) for m in group.shared + group.lightings)
+            packed.member_bytes += sum(sizes[0]) + sum(sizes[1])
+            packed.repeated_extra += (len(group.records) - 1) * group.shared_bytes
+        packed.tars += pair.close()
+        pair = None
+    except BaseException:
+        if pair is not None:
+            pair.abort()
+        raise
+    packed.tars.sort(key=lambda t: t.path)  # as SHA256SUMS and publication.json list them
+    return packed
+
+
+def _copy_sources(output: Output, layout: Layout, packed: _Packed) -> None:
+    """The source folder's files byte for byte (the manifest a chunk at a time), and the
+    markers of its shards, one line each, in one file."""
+    for source, rel in SOURCE_FILES.items():
+        if source == MANIFEST_FILE:
+            _copy(output, rel, layout.path(source), list_bound(packed.summary.samples))
+        else:
+            output.write(rel, read_bytes(layout.path(source), MAX_JSON_BYTES))
+    markers = StreamedFile(output, MARKERS_REL)
+    try:
+        for shard in packed.shards:
+            markers.write(_marker_line(layout, shard))
+    except BaseException:
+        markers.abort()
+        raise
+    markers.close()
+
+
+def _write_contact_sheet(output: Output, root: str, progress: Callable[[str], None] | None) -> None:
+    if progress:
+        progress("drawing the contact sheet")
+    write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
+    with open(output.path(PREVIEW_FILE), "rb") as fh:
+        output.adopt(PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE)))
+
+
+def _publication_facts(
+    output: Output,
+    layout: Layout,
+    spec: DatasetSpec,
+    packed: _Packed,
+    *,
+    license_id: str,
+    url: str | None,
+    shard_bytes: int,
+    has_preview: bool,
+) -> PublicationFacts:
+    """What the metadata files say, from the files written so far (the source files' bytes
+    counted as published)."""
+    description = json.loads(read_bytes(layout.description, MAX_JSON_BYTES))
+    source_bytes = packed.source_bytes
+    source_bytes += sum(output.sizes[rel] for rel in SOURCE_FILES.values()) + output.sizes[MARKERS_REL]
+    return PublicationFacts(
+        spec=spec,
+        description=description,
+        summary=packed.summary,
+        tars=packed.tars,
+        license_id=license_id,
+        url=url,
+        shard_bytes=shard_bytes,
+        files=dict(output.sums),
+        sizes=dict(output.sizes),
+        source_bytes=source_bytes,
+        member_bytes=packed.member_bytes,
+        repeated_maps_extra_bytes=packed.repeated_extra,
+        materials=packed.materials,
+        has_preview=has_preview,
+    )
+
+
+def _write_metadata(output: Output, facts: PublicationFacts) -> None:
+    """publication.json, croissant.json (which lists the first's SHA-256), the card, then
+    SHA256SUMS of every file."""
+    output.write(INDEX_FILE, (json.dumps(publication_index(facts), indent=1, sort_keys=True) + "\n").encode("utf-8"))
+    facts.files[INDEX_FILE] = output.sums[INDEX_FILE]
+    facts.sizes[INDEX_FILE] = output.sizes[INDEX_FILE]
+    output.write(
+        CROISSANT_FILE, (json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False) + "\n").encode("utf-8")
+    )
+    facts.sizes[CROISSANT_FILE] = output.sizes[CROISSANT_FILE]
+    output.write(CARD_FILE, dataset_card(facts).encode("utf-8"))
+    output.write(SUMS_FILE, "".join(f"{sha}  {rel}\n" for rel, sha in sorted(output.sums.items())).encode("utf-8"))
 
 
 def _copy(output: Output, rel: str, path: str, limit: int) -> None:

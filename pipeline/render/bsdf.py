@@ -65,6 +65,7 @@ from materials.maps import MaterialMaps, encode_normal_map
 from pipeline.render.mitsuba_env import load_mitsuba
 
 PLUGIN_NAME = "shaderball_ct"
+INV_PI = 1.0 / math.pi
 
 _REGISTERED: set[str] = set()
 _CLASSES: dict[str, type] = {}
@@ -181,151 +182,28 @@ def normalmap_dict(normal_texture: dict, bsdf: dict) -> dict:
 
 
 def _define_class(mi):
+    """The ``mi.BSDF`` subclass for the variant ``mi`` was loaded as: made after ``set_variant``,
+    since every ``mi.*`` type is that variant's; its formulas are :class:`_CookTorrance`'s."""
     import drjit as dr
 
-    inv_pi = 1.0 / math.pi
+    formulas = _CookTorrance(mi, dr)
 
     class ShaderballCT(mi.BSDF):
         """Deschaintre et al. 2018's Cook-Torrance model; see the module docstring."""
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
-            self.diffuse = props.get_texture("diffuse", 0.5)
-            self.specular = props.get_texture("specular", 0.04)
-            self.roughness = props.get_texture("roughness", 0.5)
-            self.diffuse_on = bool(props.get("diffuse_lobe", True))
-            self.specular_on = bool(props.get("specular_lobe", True))
-            self.model = props.get("model", DEFAULT_MODEL)
-            if self.model not in MODELS:
-                raise ValueError(f"{PLUGIN_NAME}: model {self.model!r} is not allowed; allowed: " + ", ".join(MODELS))
-            self.floored = self.model == "deschaintre2018"
-            if not (self.diffuse_on or self.specular_on):
-                raise ValueError(
-                    f"{PLUGIN_NAME}: diffuse_lobe and specular_lobe are both false; at least one lobe must be on"
-                )
-            varying = mi.BSDFFlags.Empty
-            for texture in (self.diffuse, self.specular, self.roughness):
-                if texture.is_spatially_varying():
-                    varying = mi.BSDFFlags.SpatiallyVarying
-            components = []
-            self.spec_index = self.diff_index = None
-            if self.specular_on:
-                self.spec_index = len(components)
-                components.append(mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide | varying)
-            if self.diffuse_on:
-                self.diff_index = len(components)
-                components.append(mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | varying)
-            self.m_components = components
-            flags = components[0]
-            for component in components[1:]:
+            _read_properties(self, props)
+            self.m_components, self.spec_index, self.diff_index = _components(mi, self)
+            flags = self.m_components[0]
+            for component in self.m_components[1:]:
                 flags = flags | component
             self.m_flags = flags
-
-        # ---- parameters and lobes --------------------------------------------------------
 
         def _enabled(self, ctx):
             spec = self.specular_on and ctx.is_enabled(mi.BSDFFlags.GlossyReflection, self.spec_index)
             diff = self.diffuse_on and ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, self.diff_index)
             return spec, diff
-
-        def _params(self, si, active):
-            d = dr.maximum(self.diffuse.eval(si, active), 0.0)
-            s = dr.clip(self.specular.eval(si, active), 0.0, 1.0)
-            r = dr.clip(self.roughness.eval_1(si, active), ROUGHNESS_MIN, ROUGHNESS_MAX)
-            return d, s, r * r
-
-        @staticmethod
-        def _fresnel(s, cos_vh):
-            c = dr.clip(cos_vh, 0.0, 1.0)
-            return s + (1.0 - s) * dr.exp2((FRESNEL_C1 * c + FRESNEL_C2) * c)
-
-        def _sampling_alpha(self, alpha):
-            return dr.maximum(alpha, DESCHAINTRE_SAMPLING_ALPHA_MIN) if self.floored else alpha
-
-        @staticmethod
-        def _half_vector(wi, wo):
-            h_raw = wi + wo
-            len2 = dr.squared_norm(h_raw)
-            h_ok = len2 > HALF_VECTOR_MIN_SQUARED
-            h = h_raw * dr.rsqrt(dr.maximum(len2, HALF_VECTOR_MIN_SQUARED))
-            return h_ok, h, dr.fma(h.x, h.x, h.y * h.y)
-
-        def _floored_spec(self, wi, h, sin2_h, cos_i, cos_o, alpha):
-            """Deschaintre et al.'s D G / 4 (both floors) and the visible-normal pdf it is sampled with."""
-            a2 = alpha * alpha
-            k = 0.5 * alpha
-            denom = dr.maximum(dr.fma(a2, h.z * h.z, sin2_h), DESCHAINTRE_FLOOR)
-            d_term = a2 / (math.pi * denom * denom)
-            g_i = dr.rcp(dr.maximum(dr.fma(cos_i, 1.0 - k, k), DESCHAINTRE_FLOOR))
-            cos_g_o = cos_o / dr.maximum(dr.fma(cos_o, 1.0 - k, k), DESCHAINTRE_FLOOR)
-            alpha_s = self._sampling_alpha(alpha)
-            a2_s = alpha_s * alpha_s
-            denom_s = dr.fma(a2_s, h.z * h.z, sin2_h)
-            d_sample = a2_s / (math.pi * denom_s * denom_s)
-            sin2_i = dr.fma(wi.x, wi.x, wi.y * wi.y)
-            root = dr.sqrt(dr.fma(cos_i, cos_i, a2_s * sin2_i))
-            return 0.25 * d_term * g_i * cos_g_o, d_sample / (2.0 * (cos_i + root))
-
-        def _spec_prob(self, spec, diff, wi, d, s):
-            if not diff:
-                return mi.Float(1.0)
-            if not spec:
-                return mi.Float(0.0)
-            # Lobe weights from wi alone: Fresnel at v.h = cos(theta_i) against d (1 - s).
-            f_i = dr.mean(self._fresnel(s, wi.z))
-            w_d = dr.mean(d * (1.0 - s))
-            return f_i / (f_i + w_d)
-
-        def _eval_pdf(self, spec, diff, si, wo, active):
-            wi = si.wi
-            cos_i, cos_o = wi.z, wo.z
-            active = active & (cos_i > 0.0) & (cos_o > 0.0)
-            d, s, alpha = self._params(si, active)
-            p_spec = self._spec_prob(spec, diff, wi, d, s)
-            value = mi.Color3f(0.0)
-            pdf = mi.Float(0.0)
-            if diff:
-                value += d * (1.0 - s) * (cos_o * inv_pi)
-                pdf += (1.0 - p_spec) * (cos_o * inv_pi)
-            if spec and self.floored:
-                h_ok, h, sin2_h = self._half_vector(wi, wo)
-                dg_term, spec_pdf = self._floored_spec(wi, h, sin2_h, cos_i, cos_o, alpha)
-                value += dr.select(h_ok, self._fresnel(s, dr.dot(wi, h)) * dg_term, 0.0)
-                pdf += dr.select(h_ok, p_spec * spec_pdf, 0.0)
-            elif spec:
-                a2 = alpha * alpha
-                k = 0.5 * alpha
-                h_ok, h, sin2_h = self._half_vector(wi, wo)
-                denom = dr.fma(a2, h.z * h.z, sin2_h)
-                d_term = a2 / (math.pi * denom * denom)
-                cos_vh = dr.dot(wi, h)
-                g_i = dr.rcp(dr.fma(cos_i, 1.0 - k, k))
-                cos_g_o = cos_o / dr.fma(cos_o, 1.0 - k, k)
-                f_term = self._fresnel(s, cos_vh)
-                spec_value = f_term * (0.25 * d_term * g_i * cos_g_o)
-                value += dr.select(h_ok, spec_value, 0.0)
-                # Visible-normal pdf of the reflected direction: G1(wi) D / (4 cos_i), G1 exact Smith.
-                sin2_i = dr.fma(wi.x, wi.x, wi.y * wi.y)
-                root = dr.sqrt(dr.fma(cos_i, cos_i, a2 * sin2_i))
-                spec_pdf = d_term / (2.0 * (cos_i + root))
-                pdf += dr.select(h_ok, p_spec * spec_pdf, 0.0)
-            value = dr.select(active, value, 0.0)
-            pdf = dr.select(active, pdf, 0.0)
-            return value, pdf
-
-        @staticmethod
-        def _sample_visible_normal(wi, alpha, sample2):
-            # Spherical-cap sampling of GGX visible normals (Dupuy & Benyoub 2023).
-            wi_std = dr.normalize(mi.Vector3f(alpha * wi.x, alpha * wi.y, wi.z))
-            phi = 2.0 * math.pi * sample2.x
-            z = dr.fma(1.0 - sample2.y, 1.0 + wi_std.z, -wi_std.z)
-            sin_theta = dr.safe_sqrt(dr.fma(-z, z, 1.0))
-            sin_phi, cos_phi = dr.sincos(phi)
-            m_std = mi.Vector3f(sin_theta * cos_phi, sin_theta * sin_phi, z) + wi_std
-            m = mi.Vector3f(alpha * m_std.x, alpha * m_std.y, dr.maximum(m_std.z, 0.0))
-            len2 = dr.squared_norm(m)
-            ok = len2 > 1e-30
-            return dr.select(ok, m * dr.rsqrt(dr.maximum(len2, 1e-30)), mi.Vector3f(0.0, 0.0, 1.0))
 
         # ---- mi.BSDF interface -------------------------------------------------------------
 
@@ -333,56 +211,29 @@ def _define_class(mi):
             spec, diff = self._enabled(ctx)
             if not (spec or diff):
                 return mi.Color3f(0.0)
-            return self._eval_pdf(spec, diff, si, wo, active)[0]
+            return formulas.eval_pdf(self, spec, diff, si, wo, active)[0]
 
         def pdf(self, ctx, si, wo, active=True):
             spec, diff = self._enabled(ctx)
             if not (spec or diff):
                 return mi.Float(0.0)
-            return self._eval_pdf(spec, diff, si, wo, active)[1]
+            return formulas.eval_pdf(self, spec, diff, si, wo, active)[1]
 
         def eval_pdf(self, ctx, si, wo, active=True):
             spec, diff = self._enabled(ctx)
             if not (spec or diff):
                 return mi.Color3f(0.0), mi.Float(0.0)
-            return self._eval_pdf(spec, diff, si, wo, active)
+            return formulas.eval_pdf(self, spec, diff, si, wo, active)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             spec, diff = self._enabled(ctx)
             bs = dr.zeros(mi.BSDFSample3f)
             if not (spec or diff):
                 return bs, mi.Color3f(0.0)
-            wi = si.wi
-            active = active & (wi.z > 0.0)
-            d, s, alpha = self._params(si, active)
-            if spec and diff:
-                pick_spec = sample1 < self._spec_prob(spec, diff, wi, d, s)
-            else:
-                pick_spec = mi.Bool(spec)
-            wo = mi.Vector3f(0.0, 0.0, 1.0)
-            if spec:
-                m = self._sample_visible_normal(wi, self._sampling_alpha(alpha), sample2)
-                wo_spec = dr.fma(mi.Vector3f(2.0 * dr.dot(wi, m)), m, -wi)
-                wo = wo_spec
-            if diff:
-                wo_diff = mi.warp.square_to_cosine_hemisphere(sample2)
-                wo = dr.select(pick_spec, wo, wo_diff) if spec else wo_diff
-            value, pdf = self._eval_pdf(spec, diff, si, wo, active)
-            active = active & (pdf > 0.0)
-            bs.wo = wo
-            bs.pdf = dr.select(active, pdf, 0.0)
-            bs.eta = 1.0
-            glossy = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
-            diffuse = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
-            bs.sampled_type = dr.select(pick_spec, glossy, diffuse)
-            spec_index = mi.UInt32(self.spec_index if spec else 0)
-            diff_index = mi.UInt32(self.diff_index if diff else 0)
-            bs.sampled_component = dr.select(pick_spec, spec_index, diff_index)
-            weight = dr.select(active, value / dr.select(active, pdf, 1.0), 0.0)
-            return bs, weight
+            return formulas.sample(self, bs, spec, diff, si, sample1, sample2, active)
 
         def eval_diffuse_reflectance(self, si, active=True):
-            d, s, _ = self._params(si, active)
+            d, s, _ = formulas.params(self, si, active)
             return d * (1.0 - s) if self.diffuse_on else mi.Color3f(0.0)
 
         def traverse(self, callback):
@@ -401,3 +252,212 @@ def _define_class(mi):
             )
 
     return ShaderballCT
+
+
+def _read_properties(plugin, props) -> None:
+    """The dict parameters of the module docstring's table, checked, onto ``plugin``."""
+    plugin.diffuse = props.get_texture("diffuse", 0.5)
+    plugin.specular = props.get_texture("specular", 0.04)
+    plugin.roughness = props.get_texture("roughness", 0.5)
+    plugin.diffuse_on = bool(props.get("diffuse_lobe", True))
+    plugin.specular_on = bool(props.get("specular_lobe", True))
+    plugin.model = props.get("model", DEFAULT_MODEL)
+    if plugin.model not in MODELS:
+        raise ValueError(f"{PLUGIN_NAME}: model {plugin.model!r} is not allowed; allowed: " + ", ".join(MODELS))
+    plugin.floored = plugin.model == "deschaintre2018"
+    if not (plugin.diffuse_on or plugin.specular_on):
+        raise ValueError(f"{PLUGIN_NAME}: diffuse_lobe and specular_lobe are both false; at least one lobe must be on")
+
+
+def _components(mi, plugin) -> tuple[list, int | None, int | None]:
+    """(component flags, index of the specular one, index of the diffuse one): a lobe that is
+    off has no component, so Mitsuba never asks for it."""
+    varying = mi.BSDFFlags.Empty
+    for texture in (plugin.diffuse, plugin.specular, plugin.roughness):
+        if texture.is_spatially_varying():
+            varying = mi.BSDFFlags.SpatiallyVarying
+    components = []
+    spec_index = diff_index = None
+    if plugin.specular_on:
+        spec_index = len(components)
+        components.append(mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide | varying)
+    if plugin.diffuse_on:
+        diff_index = len(components)
+        components.append(mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | varying)
+    return components, spec_index, diff_index
+
+
+class _CookTorrance:
+    """The model's formulas on one variant's types (``mi``, ``dr``), for the plugin class of that
+    variant. Methods take the plugin for its textures and switches; ``spec`` / ``diff`` say
+    which lobes a call includes (Python-level: a lobe left out is not in the kernel)."""
+
+    def __init__(self, mi, dr):
+        self.mi, self.dr = mi, dr
+
+    # ---- parameters and lobes --------------------------------------------------------
+
+    def params(self, plugin, si, active):
+        """(d, s, alpha) at ``si``: the albedos clamped to the model's range, alpha = r^2."""
+        dr = self.dr
+        d = dr.maximum(plugin.diffuse.eval(si, active), 0.0)
+        s = dr.clip(plugin.specular.eval(si, active), 0.0, 1.0)
+        r = dr.clip(plugin.roughness.eval_1(si, active), ROUGHNESS_MIN, ROUGHNESS_MAX)
+        return d, s, r * r
+
+    def fresnel(self, s, cos_vh):
+        dr = self.dr
+        c = dr.clip(cos_vh, 0.0, 1.0)
+        return s + (1.0 - s) * dr.exp2((FRESNEL_C1 * c + FRESNEL_C2) * c)
+
+    def sampling_alpha(self, plugin, alpha):
+        return self.dr.maximum(alpha, DESCHAINTRE_SAMPLING_ALPHA_MIN) if plugin.floored else alpha
+
+    def half_vector(self, wi, wo):
+        """(whether wi + wo is long enough to normalise, h, sin^2 of h's angle to the normal)."""
+        dr = self.dr
+        h_raw = wi + wo
+        len2 = dr.squared_norm(h_raw)
+        h_ok = len2 > HALF_VECTOR_MIN_SQUARED
+        h = h_raw * dr.rsqrt(dr.maximum(len2, HALF_VECTOR_MIN_SQUARED))
+        return h_ok, h, dr.fma(h.x, h.x, h.y * h.y)
+
+    def spec_prob(self, spec, diff, wi, d, s):
+        """The probability of sampling the specular lobe."""
+        mi, dr = self.mi, self.dr
+        if not diff:
+            return mi.Float(1.0)
+        if not spec:
+            return mi.Float(0.0)
+        # Lobe weights from wi alone: Fresnel at v.h = cos(theta_i) against d (1 - s).
+        f_i = dr.mean(self.fresnel(s, wi.z))
+        w_d = dr.mean(d * (1.0 - s))
+        return f_i / (f_i + w_d)
+
+    # ---- the specular lobe, per model ------------------------------------------------
+
+    def floored_spec(self, plugin, wi, h, sin2_h, cos_i, cos_o, alpha):
+        """Deschaintre et al.'s D G / 4 (both floors) and the visible-normal pdf it is sampled with."""
+        dr = self.dr
+        a2 = alpha * alpha
+        k = 0.5 * alpha
+        denom = dr.maximum(dr.fma(a2, h.z * h.z, sin2_h), DESCHAINTRE_FLOOR)
+        d_term = a2 / (math.pi * denom * denom)
+        g_i = dr.rcp(dr.maximum(dr.fma(cos_i, 1.0 - k, k), DESCHAINTRE_FLOOR))
+        cos_g_o = cos_o / dr.maximum(dr.fma(cos_o, 1.0 - k, k), DESCHAINTRE_FLOOR)
+        alpha_s = self.sampling_alpha(plugin, alpha)
+        a2_s = alpha_s * alpha_s
+        denom_s = dr.fma(a2_s, h.z * h.z, sin2_h)
+        d_sample = a2_s / (math.pi * denom_s * denom_s)
+        sin2_i = dr.fma(wi.x, wi.x, wi.y * wi.y)
+        root = dr.sqrt(dr.fma(cos_i, cos_i, a2_s * sin2_i))
+        return 0.25 * d_term * g_i * cos_g_o, d_sample / (2.0 * (cos_i + root))
+
+    def add_floored_spec(self, plugin, value, pdf, p_spec, wi, wo, s, alpha):
+        """``value`` and ``pdf`` with the specular lobe of "deschaintre2018" added."""
+        dr = self.dr
+        h_ok, h, sin2_h = self.half_vector(wi, wo)
+        dg_term, spec_pdf = self.floored_spec(plugin, wi, h, sin2_h, wi.z, wo.z, alpha)
+        value += dr.select(h_ok, self.fresnel(s, dr.dot(wi, h)) * dg_term, 0.0)
+        pdf += dr.select(h_ok, p_spec * spec_pdf, 0.0)
+        return value, pdf
+
+    def add_ggx_spec(self, value, pdf, p_spec, wi, wo, s, alpha):
+        """``value`` and ``pdf`` with the specular lobe of the default model added: F G D / 4
+        (times cos_o) and the pdf of sampling GGX's visible normals."""
+        dr = self.dr
+        cos_i, cos_o = wi.z, wo.z
+        a2 = alpha * alpha
+        k = 0.5 * alpha
+        h_ok, h, sin2_h = self.half_vector(wi, wo)
+        denom = dr.fma(a2, h.z * h.z, sin2_h)
+        d_term = a2 / (math.pi * denom * denom)
+        cos_vh = dr.dot(wi, h)
+        g_i = dr.rcp(dr.fma(cos_i, 1.0 - k, k))
+        cos_g_o = cos_o / dr.fma(cos_o, 1.0 - k, k)
+        f_term = self.fresnel(s, cos_vh)
+        spec_value = f_term * (0.25 * d_term * g_i * cos_g_o)
+        value += dr.select(h_ok, spec_value, 0.0)
+        # Visible-normal pdf of the reflected direction: G1(wi) D / (4 cos_i), G1 exact Smith.
+        sin2_i = dr.fma(wi.x, wi.x, wi.y * wi.y)
+        root = dr.sqrt(dr.fma(cos_i, cos_i, a2 * sin2_i))
+        spec_pdf = d_term / (2.0 * (cos_i + root))
+        pdf += dr.select(h_ok, p_spec * spec_pdf, 0.0)
+        return value, pdf
+
+    # ---- eval, pdf and sample ----------------------------------------------------------
+
+    def eval_pdf(self, plugin, spec, diff, si, wo, active):
+        """(value with the cosine, pdf of the lobe mixture) of the lobes ``spec`` / ``diff``:
+        one function, so that eval, pdf and sample agree."""
+        mi, dr = self.mi, self.dr
+        wi = si.wi
+        cos_i, cos_o = wi.z, wo.z
+        active = active & (cos_i > 0.0) & (cos_o > 0.0)
+        d, s, alpha = self.params(plugin, si, active)
+        p_spec = self.spec_prob(spec, diff, wi, d, s)
+        value = mi.Color3f(0.0)
+        pdf = mi.Float(0.0)
+        if diff:
+            value += d * (1.0 - s) * (cos_o * INV_PI)
+            pdf += (1.0 - p_spec) * (cos_o * INV_PI)
+        if spec and plugin.floored:
+            value, pdf = self.add_floored_spec(plugin, value, pdf, p_spec, wi, wo, s, alpha)
+        elif spec:
+            value, pdf = self.add_ggx_spec(value, pdf, p_spec, wi, wo, s, alpha)
+        value = dr.select(active, value, 0.0)
+        pdf = dr.select(active, pdf, 0.0)
+        return value, pdf
+
+    def sample_visible_normal(self, wi, alpha, sample2):
+        # Spherical-cap sampling of GGX visible normals (Dupuy & Benyoub 2023).
+        mi, dr = self.mi, self.dr
+        wi_std = dr.normalize(mi.Vector3f(alpha * wi.x, alpha * wi.y, wi.z))
+        phi = 2.0 * math.pi * sample2.x
+        z = dr.fma(1.0 - sample2.y, 1.0 + wi_std.z, -wi_std.z)
+        sin_theta = dr.safe_sqrt(dr.fma(-z, z, 1.0))
+        sin_phi, cos_phi = dr.sincos(phi)
+        m_std = mi.Vector3f(sin_theta * cos_phi, sin_theta * sin_phi, z) + wi_std
+        m = mi.Vector3f(alpha * m_std.x, alpha * m_std.y, dr.maximum(m_std.z, 0.0))
+        len2 = dr.squared_norm(m)
+        ok = len2 > 1e-30
+        return dr.select(ok, m * dr.rsqrt(dr.maximum(len2, 1e-30)), mi.Vector3f(0.0, 0.0, 1.0))
+
+    def sample_direction(self, plugin, spec, diff, si, sample1, sample2, d, s, alpha):
+        """(wo, whether the specular lobe was picked): one lobe picked with ``sample1``, its
+        direction drawn with ``sample2``."""
+        mi, dr = self.mi, self.dr
+        wi = si.wi
+        if spec and diff:
+            pick_spec = sample1 < self.spec_prob(spec, diff, wi, d, s)
+        else:
+            pick_spec = mi.Bool(spec)
+        wo = mi.Vector3f(0.0, 0.0, 1.0)
+        if spec:
+            m = self.sample_visible_normal(wi, self.sampling_alpha(plugin, alpha), sample2)
+            wo_spec = dr.fma(mi.Vector3f(2.0 * dr.dot(wi, m)), m, -wi)
+            wo = wo_spec
+        if diff:
+            wo_diff = mi.warp.square_to_cosine_hemisphere(sample2)
+            wo = dr.select(pick_spec, wo, wo_diff) if spec else wo_diff
+        return wo, pick_spec
+
+    def sample(self, plugin, bs, spec, diff, si, sample1, sample2, active):
+        """(``bs`` filled in, weight = eval / pdf of the mixture)."""
+        mi, dr = self.mi, self.dr
+        active = active & (si.wi.z > 0.0)
+        d, s, alpha = self.params(plugin, si, active)
+        wo, pick_spec = self.sample_direction(plugin, spec, diff, si, sample1, sample2, d, s, alpha)
+        value, pdf = self.eval_pdf(plugin, spec, diff, si, wo, active)
+        active = active & (pdf > 0.0)
+        bs.wo = wo
+        bs.pdf = dr.select(active, pdf, 0.0)
+        bs.eta = 1.0
+        glossy = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+        diffuse = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
+        bs.sampled_type = dr.select(pick_spec, glossy, diffuse)
+        spec_index = mi.UInt32(plugin.spec_index if spec else 0)
+        diff_index = mi.UInt32(plugin.diff_index if diff else 0)
+        bs.sampled_component = dr.select(pick_spec, spec_index, diff_index)
+        weight = dr.select(active, value / dr.select(active, pdf, 1.0), 0.0)
+        return bs, weight

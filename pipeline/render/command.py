@@ -1,7 +1,12 @@
 """`shaderball render`: one material under one sun and sky, to EXR (and PNG for people).
 
-Every option is checked before anything is rendered or written; a bad value raises
-ShaderballError naming the option, the value and the allowed range.
+:class:`RenderRequest` declares every input once (``pipeline.fields``) and checks itself
+when built: a bad value raises a :class:`pipeline.fields.FieldError` naming the field, the
+value and what is allowed, before anything is rendered or written. Its material fields
+(``diffuse``, ``specular``, ``roughness``, ``normal``, ``svbrdf``, ``svbrdf_colorspace``)
+and sun fields (``elevation``, ``azimuth``, ``turbidity``, in degrees and Hosek-Wilkie
+turbidity) are `shaderball infer`'s too. The ranges are the domain's (``sky.lighting``,
+``materials.maps``), declared there once.
 """
 
 from __future__ import annotations
@@ -9,13 +14,11 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from materials import UniformMaterial, load_deschaintre
-from pipeline.errors import bad_value
+from materials import ALBEDO_RANGE, ROUGHNESS_RANGE, UniformMaterial, load_deschaintre
 from pipeline.fields import Checked, Choice, Float, Int, Optional, Reject, Triple, field, same_as
 from pipeline.fields import Path as PathRule
 from pipeline.image.tonemap import preview_srgb8
@@ -27,24 +30,26 @@ from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
-from sky.lighting import ELEVATION_RANGE, TURBIDITY_RANGE
+from sky.lighting import AZIMUTH_RANGE, ELEVATION_RANGE, TURBIDITY_RANGE
 
 SEED_RANGE = (0, 2**32 - 1)
-#: Sun azimuth in degrees: any turn is one of these (a slip of a turn stays valid).
-AZIMUTH_RANGE = (-360.0, 720.0)
+#: How a render's EXR records the sun of its request: by the names of a Light's record.
+RECORDED_AS = {"elevation": "elevation_deg", "azimuth": "azimuth_deg"}
 
 
-def check_output(option: str, path: str, suffix: str) -> str:
+def check_output(owner, name: str, path: str, suffix: str) -> str:
+    """``path`` if it names a file ending in ``suffix`` in a folder that is (or can be made)
+    writable; else ``owner``'s refusal of its field ``name``."""
     if not path.lower().endswith(suffix):
-        raise bad_value(option, path, f"a file name ending in {suffix}")
+        raise owner.field_error(name, path, f"a file name ending in {suffix}")
     folder = os.path.dirname(os.path.abspath(path))
     existing = folder
     while not os.path.exists(existing):
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing) or not os.access(existing, os.W_OK):
-        raise bad_value(option, path, f"a path in a writable folder ({existing} is not writable)")
+        raise owner.field_error(name, path, f"a path in a writable folder ({existing} is not writable)")
     if os.path.isdir(path):
-        raise bad_value(option, path, "a file, not a folder")
+        raise owner.field_error(name, path, "a file, not a folder")
     return path
 
 
@@ -67,56 +72,42 @@ class _Colour(Triple):
     metavar = "R,G,B"
 
 
-class _Exists(PathRule):
-    def check(self, value):
-        value = super().check(value)
-        if not os.path.exists(value):
-            raise Reject()
-        return value
-
-
 @dataclass(frozen=True)
 class RenderRequest(Checked):
-    """Everything `shaderball render` needs, each option declared once (pipeline.fields);
-    checked by :func:`check_request`."""
-
-    FIELD_PREFIX: ClassVar[str] = "--"
-    FIELD_LABELS: ClassVar[dict[str, str]] = {
-        "elevation_deg": "--elevation",
-        "azimuth_deg": "--azimuth",
-    }
+    """Everything `shaderball render` needs, each input declared once (pipeline.fields);
+    checked when built."""
 
     diffuse: tuple[float, float, float] = field(
-        (0.5, 0.5, 0.5), rule=_Colour(), doc="Uniform diffuse albedo, linear RGB."
+        (0.5, 0.5, 0.5), rule=_Colour(*ALBEDO_RANGE), doc="Uniform diffuse albedo, linear RGB."
     )
     specular: tuple[float, float, float] = field(
         (0.04, 0.04, 0.04),
-        rule=_Colour(),
+        rule=_Colour(*ALBEDO_RANGE),
         doc="Uniform specular albedo (F0), linear RGB; 0.04 is a typical dielectric.",
     )
-    roughness: float = field(0.3, rule=Float(0.0, 1.0), doc="Uniform roughness; GGX alpha = roughness^2.")
+    roughness: float = field(0.3, rule=Float(*ROUGHNESS_RANGE), doc="Uniform roughness; GGX alpha = roughness^2.")
     normal: tuple[float, float, float] = field(
         (0.0, 0.0, 1.0), rule=_Normal(), doc="Uniform tangent-space normal (normalised)."
     )
     svbrdf: str | None = field(
         None,
-        rule=Optional(_Exists("an existing PNG strip or folder of maps"), "unset (the uniform values)"),
+        rule=Optional(PathRule("an existing PNG strip or folder of maps", exists="any"), "unset (the uniform values)"),
         doc="Spatially varying material instead of the uniform values: a Deschaintre et al. "
         "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
     )
     svbrdf_colorspace: str = field(
         "raw",
         rule=Choice(("raw", "srgb")),
-        doc="How 8-bit albedo maps of --svbrdf are decoded: raw (as Deschaintre's renderer) or sRGB.",
+        doc="How 8-bit albedo maps of {svbrdf} are decoded: raw (as Deschaintre's renderer) or sRGB.",
     )
-    elevation_deg: float = field(
+    elevation: float = field(
         45.0,
         rule=Float(*ELEVATION_RANGE),
         doc="Sun elevation above the horizon. Below ~2.4-7 degrees (by turbidity) the sun is raised to the "
         "floor where Mitsuba's sky is non-negative; the move is printed and recorded.",
         unit="degrees",
     )
-    azimuth_deg: float = field(
+    azimuth: float = field(
         270.0,
         rule=Float(*AZIMUTH_RANGE),
         doc="Sun azimuth, counter-clockwise from +x seen from above: 0 lights the ball from the image's "
@@ -128,11 +119,50 @@ class RenderRequest(Checked):
     resolution: int = same_as(RenderSettings, "resolution")
     max_depth: int = same_as(RenderSettings, "max_depth")
     seed: int = field(0, rule=Int(*SEED_RANGE), doc="Render seed.")
-    sun: str = same_as(RenderSettings, "sun")
-    model: str = same_as(RenderSettings, "model")
-    variant: str = same_as(RenderSettings, "variant")
-    out: str = field("render.exr", rule=PathRule("a file name ending in .exr"), doc="The EXR file written.")
-    png: str | None = field(None, rule=Optional(PathRule("a file name ending in .png")), doc="The PNG written.")
+    variant: str = same_as(
+        RenderSettings, "variant", doc="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
+    )
+    sun: str = same_as(
+        RenderSettings,
+        "sun",
+        doc="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.",
+    )
+    model: str = same_as(
+        RenderSettings,
+        "model",
+        doc="Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
+        "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
+        "roughness 0.178; docs/materials.md). A spec's materials.model.",
+    )
+    out: str = field(
+        rule=PathRule("a file name ending in .exr"),
+        doc="Output EXR file: layers render.R/G/B (float32) and the screen-space maps.",
+        kw_only=True,
+    )
+    png: str | None = field(
+        None,
+        rule=Optional(PathRule("a file name ending in .png")),
+        doc="Also write a tone-mapped PNG for people.",
+        kw_only=True,
+    )
+
+    def __post_init__(self):
+        self.check_fields()
+
+    def check_cross(self) -> None:
+        check_output(type(self), "out", self.out, ".exr")
+        if self.png is not None:
+            check_output(type(self), "png", self.png, ".png")
+
+    @property
+    def light(self) -> Light:
+        """The sun and sky asked for (before the low-sun policy)."""
+        return Light(self.elevation, self.azimuth, self.turbidity)
+
+    def record(self) -> dict:
+        """The request as a render's EXR records it: every field but the files written, the
+        sun by a Light record's names (``elevation_deg``, ``azimuth_deg``)."""
+        return {RECORDED_AS.get(k, k): v for k, v in self.__dict__.items() if k not in ("out", "png")}
 
 
 @dataclass
@@ -174,7 +204,6 @@ def load_material(req: RenderRequest):
 
     if req.svbrdf:
         return load_deschaintre(req.svbrdf, req.svbrdf_colorspace)
-    # check_request has refused bad values under their option names already.
     return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
 
 
@@ -190,18 +219,9 @@ def render_settings(req: RenderRequest) -> RenderSettings:
     )
 
 
-def check_request(req: RenderRequest) -> None:
-    """Check every field of ``req``; raise ShaderballError naming the option."""
-    req.check_fields()
-    Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
-    check_output("--out", req.out, ".exr")
-    if req.png is not None:
-        check_output("--png", req.png, ".png")
-
-
 def render_to_files(req: RenderRequest) -> RenderSummary:
-    """Check, render, then write the EXR (render + screen-space maps) and the optional PNG."""
-    check_request(req)
+    """Render, then write the EXR (render + screen-space maps) and the optional PNG; ``req``
+    was checked when built."""
     maps = load_material(req)  # may raise on a bad SVBRDF file: still nothing written
     maps.check()
 
@@ -209,14 +229,13 @@ def render_to_files(req: RenderRequest) -> RenderSummary:
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
     settings = render_settings(req).resolved(variant)
-    light = Light(req.elevation_deg, req.azimuth_deg, req.turbidity)
-    result = render_sample(ball, camera, maps, light, settings, req.seed, mask=gbuffer.mask)
+    result = render_sample(ball, camera, maps, req.light, settings, req.seed, mask=gbuffer.mask)
     screen = project_material(maps, gbuffer)
     meta = {
         "stats": result.stats,
         "lighting": result.lighting,
         "effects": result.effects.to_dict(),
-        "request": {k: v for k, v in req.__dict__.items() if k not in ("out", "png")},
+        "request": req.record(),
         # The network is told the light that was rendered: the policy's effective light.
         "lighting_vector": [float(x) for x in Light.from_dict(result.lighting["effective"]).lighting_vector()],
         "colorspace": "linear Rec.709 (sRGB primaries, D65)",

@@ -21,7 +21,8 @@ import numpy as np
 
 from geometry import Camera, Shaderball
 from geometry.shaderball import default_cache_dir
-from pipeline.errors import USER_ERRORS, check_int
+from pipeline.errors import USER_ERRORS
+from pipeline.fields import FieldError, Int, Reject
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID, sensor_dict, shape_dicts
@@ -55,8 +56,16 @@ class GBuffer:
         return {"uv": self.uv, "normal": self.normal, "mask": self.mask.astype(np.float32)}
 
 
-def check_resolution(resolution, name: str = "resolution") -> int:
-    return check_int(name, resolution, MIN_RESOLUTION, MAX_RESOLUTION)
+#: A G-buffer's resolution: RenderSettings' ``resolution`` rule.
+RESOLUTION = Int(MIN_RESOLUTION, MAX_RESOLUTION)
+
+
+def check_resolution(resolution) -> int:
+    """``resolution`` as an int a G-buffer may have; else a FieldError naming ``resolution``."""
+    try:
+        return RESOLUTION.check(resolution)
+    except Reject:
+        raise FieldError("resolution", resolution, RESOLUTION.allowed, name="resolution") from None
 
 
 def intersection_scene(ball: Shaderball, camera: Camera, resolution: int, variant: str):

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from geometry import Camera, Shaderball
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.fields import Choice, FieldError
 from pipeline.render.limits import SAMPLERS as RENDER_SAMPLERS
 from pipeline.render.mitsuba_env import load_mitsuba
 
@@ -77,12 +77,12 @@ def sensor_dict(
     :data:`pipeline.render.limits.SAMPLERS` with its defaults (Mitsuba may round ``spp``).
     """
     if sampler not in SAMPLERS:
-        raise bad_value("sampler", sampler, ", ".join(SAMPLERS))
-    if not isinstance(spp, int) or spp < 1:
-        raise bad_value("spp", spp, "an integer >= 1")
+        raise FieldError("sampler", sampler, Choice(SAMPLERS).allowed, name="sampler")
+    if not isinstance(spp, int) or isinstance(spp, bool) or spp < 1:
+        raise FieldError("spp", spp, "an integer >= 1", name="spp")
     if sampler == "stratified-centres":
         if math.isqrt(spp) ** 2 != spp:
-            raise ShaderballError(f"spp: {spp} is not allowed with stratified-centres; allowed: a square number")
+            raise FieldError("spp", spp, 'a square number with the sampler "stratified-centres"', name="spp")
         sampler_dict = {"type": "stratified", "sample_count": spp, "jitter": False, "seed": seed}
     else:
         sampler_dict = {"type": sampler, "sample_count": spp, "seed": seed}

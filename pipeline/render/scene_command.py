@@ -4,23 +4,28 @@ The preview puts two panels side by side: the shaderball path-traced with a chec
 texture through the UV atlas (diffuse, constant sky plus a directional light), and its
 material mask (white), with the pixels within 2 px of a visible UV seam tinted: red for
 seams on smooth surface, orange for seams along creases.
+
+:class:`SceneRequest` declares the command's inputs once (``pipeline.fields``) and checks
+itself when built, before anything is written.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from pipeline.errors import bad_value
+from pipeline.fields import Checked, Path, field, format_value, same_as
 from pipeline.image.srgb import srgb_encode
-from pipeline.render.gbuffer import check_resolution, gbuffer_key_inputs, load_gbuffer, seam_band
-from pipeline.render.mitsuba_env import VARIANT_CHOICES, load_mitsuba, resolve_variant
+from pipeline.render.gbuffer import gbuffer_key_inputs, load_gbuffer, seam_band
+from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.scene import bitmap_texture, sensor_dict, shape_dicts
+from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 
@@ -30,6 +35,30 @@ PREVIEW_SEED = 0
 CHECKER_SQUARES = 48
 CHECKER_COLOURS = ((0.80, 0.80, 0.80), (0.05, 0.20, 0.55))
 SEAM_PX = 2.0
+
+
+@dataclass(frozen=True)
+class SceneRequest(Checked):
+    """What `shaderball scene` is asked: where to write, at what resolution, on which backend."""
+
+    out: str = field(
+        rule=Path("a folder (created if missing)"),
+        doc="Output folder; created if missing. Receives shaderball.ply, gbuffer.exr, preview.png.",
+        metavar="DIR",
+    )
+    resolution: int = same_as(RenderSettings, "resolution")
+    variant: str = same_as(
+        RenderSettings, "variant", doc="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
+    )
+
+    def __post_init__(self):
+        self.check_fields()
+
+    def check_cross(self) -> None:
+        if os.path.exists(self.out) and not os.path.isdir(self.out):
+            raise self.field_error(
+                "out", self.out, "a folder (created if missing)", what=f"{format_value(self.out)} is a file"
+            )
 
 
 @dataclass(frozen=True)
@@ -43,7 +72,7 @@ class SceneSummary:
     mask_share: float
     seam_share: float
     seam_share_off_crease: float
-    timings: dict[str, float] = field(default_factory=dict)
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def lines(self) -> list[str]:
         t = self.timings
@@ -113,16 +142,14 @@ def encode_png(image: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
-def write_scene(out_dir: str, resolution: int = 400, variant: str = "auto") -> SceneSummary:
-    """Write ``shaderball.ply``, ``gbuffer.exr`` and ``preview.png`` into ``out_dir``.
+def write_scene(request: SceneRequest) -> SceneSummary:
+    """Write ``shaderball.ply``, ``gbuffer.exr`` and ``preview.png`` into ``request.out``.
 
-    The resolution and variant are checked before anything is written; each file is
-    written atomically. ``variant``: a spec-style choice (auto, llvm, cuda), resolved once.
+    ``request`` was checked when built (nothing is written before); each file is written
+    atomically. Its variant, a spec-style choice (auto, llvm, cuda, ...), is resolved once.
     """
-    resolution = check_resolution(resolution, "--resolution")
-    if variant not in VARIANT_CHOICES:
-        raise bad_value("--variant", variant, ", ".join(VARIANT_CHOICES))
-    variant = resolve_variant(variant)
+    out_dir, resolution = request.out, request.resolution
+    variant = resolve_variant(request.variant)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     ball = build_shaderball()

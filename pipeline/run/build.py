@@ -21,9 +21,9 @@ import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
-from pipeline import __version__
+from pipeline import __version__, fields
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.materialize import check_imported_files
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset, plan_summary
@@ -36,6 +36,7 @@ from pipeline.dataset.spec import (
     spec_to_toml,
 )
 from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, short_repr
+from pipeline.fields import Bool, Checked, Path, format_value, same_as
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,
@@ -59,7 +60,7 @@ from pipeline.store.folder import (
     remove_temp_files,
     shard_ids_on_disk,
 )
-from pipeline.store.layout import Layout
+from pipeline.store.layout import MANIFEST_FILE, Layout
 from pipeline.store.lock import writer_lock
 from pipeline.store.records import dumps, read_json
 
@@ -103,8 +104,15 @@ class BuildSummary:
         return [
             f"dataset {self.out}: {self.total} renders in {self.shards} shards, complete",
             f"rendered {self.rendered}, already present {self.skipped}, {self.seconds:.1f} s ({rate:.2f} renders/s)",
-            f"manifest: {os.path.join(self.out, 'manifest.jsonl')}",
+            f"manifest: {self.manifest}",
         ] + self.notes
+
+    @property
+    def manifest(self) -> str:
+        return os.path.join(self.out, MANIFEST_FILE)
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "manifest": self.manifest}
 
 
 def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
@@ -133,6 +141,64 @@ def _describe_differences(diffs, limit: int = 4) -> str:
     return "; ".join(shown) + more
 
 
+@dataclass(frozen=True)
+class BuildRequest(Checked):
+    """What `shaderball build` is asked: the spec, the folder, and where the workers come from
+    (ClusterOptions' declarations)."""
+
+    spec: str = fields.field(
+        rule=Path("an existing spec file (manifests/*.toml)", exists="file"),
+        doc="The dataset spec (see manifests/ and docs/spec.md).",
+        positional=True,
+        metavar="SPEC",
+    )
+    out: str = fields.field(
+        rule=Path("a new or empty folder, or a dataset folder built from the same spec"),
+        doc="Dataset folder. Created if missing; an existing one built from the same spec is "
+        "resumed (only missing or unverified samples are rendered); another spec is refused.",
+        metavar="DIR",
+    )
+    workers: int | None = same_as(ClusterOptions, "workers")
+    scheduler: str | None = same_as(ClusterOptions, "scheduler")
+    allow_spec_change: bool = fields.field(
+        False,
+        rule=Bool(),
+        doc="Accept a spec that differs from DIR/spec.toml in dataset.name or dataset.version only "
+        "(no sample depends on them); any other difference is refused.",
+    )
+    cluster: str = same_as(ClusterOptions, "cluster")
+    jobs: int | None = same_as(ClusterOptions, "jobs")
+    cores: int | None = same_as(ClusterOptions, "cores")
+    memory: str | None = same_as(ClusterOptions, "memory")
+    walltime: str | None = same_as(ClusterOptions, "walltime")
+    queue: str | None = same_as(ClusterOptions, "queue")
+    account: str | None = same_as(ClusterOptions, "account")
+    scratch: str | None = same_as(ClusterOptions, "scratch")
+    recycle_after: int = same_as(ClusterOptions, "recycle_after")
+    start_timeout: int | None = same_as(ClusterOptions, "start_timeout")
+    print_job_script: bool = fields.field(
+        False,
+        rule=Bool(),
+        doc="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.",
+    )
+
+    def cluster_options(self) -> ClusterOptions:
+        """Where the workers come from, checked (a refusal names this request's field)."""
+        names = fields.declared(ClusterOptions)
+        return ClusterOptions(**{name: getattr(self, name) for name in names}).check()
+
+    def check_cross(self) -> None:
+        if self.print_job_script and self.cluster not in ("slurm", "pbs"):
+            raise self.field_error(
+                "print_job_script", True, "give {cluster} slurm or {cluster} pbs", what="needs batch jobs"
+            )
+
+
+def _out_refused(out: str, what: str, allowed: str = "a new or empty folder, or a dataset of the same spec"):
+    """A refused output folder: ``out``'s field, its value, why (``what``)."""
+    return BuildRequest.field_error("out", out, allowed, what=f"{format_value(out)} {what}")
+
+
 def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = False) -> str:
     """Refuse an output directory that holds something else.
 
@@ -143,30 +209,31 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     layout = Layout(out)
     check_path_lengths(out)
     if os.path.lexists(out) and not os.path.exists(out):
-        raise ShaderballError(
-            f"--out: {out!r} is a symbolic link to {os.readlink(out)!r}, which does not exist "
-            "or is a loop of links; give a folder"
+        raise _out_refused(
+            out, f"is a symbolic link to {format_value(os.readlink(out))}, which does not exist or is a loop of links"
         )
     if os.path.exists(out) and not os.path.isdir(out):
-        raise ShaderballError(f"--out: {out!r} exists and is not a directory")
+        raise _out_refused(out, "exists and is not a directory")
     try:
         names = folder_names(out)
     except OSError as exc:
-        raise ShaderballError(f"--out: {out!r} cannot be listed: {exc.strerror}") from None
+        raise _out_refused(out, f"cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
         check_creatable(out)
         return "new"
     if not os.path.lexists(layout.spec):
-        raise ShaderballError(
-            f"--out: {out!r} is not empty and holds no {os.path.basename(layout.spec)}: "
-            "not a shaderball dataset; choose an empty or new directory"
+        raise _out_refused(
+            out,
+            f"is not empty and holds no {os.path.basename(layout.spec)}: not a shaderball dataset",
+            "choose an empty or new directory",
         )
     try:
         existing = read_snapshot(out)
     except USER_ERRORS as exc:
-        raise ShaderballError(
-            f"--out: the spec snapshot in {out!r} is unreadable ({exc}); "
-            "run `shaderball validate --repair` or choose another directory"
+        raise _out_refused(
+            out,
+            f"holds an unreadable spec snapshot ({exc})",
+            "run `shaderball validate --repair` or choose another directory",
         ) from None
     mode = "resume"
     if spec_digest(existing) != spec_digest(spec):
@@ -175,19 +242,20 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
         if blocking or not allow_spec_change:
             free = " or ".join(f"{s}.{k}" for s, k in SPEC_FIELDS_FREE_TO_CHANGE)
             hint = (
-                f"--allow-spec-change accepts a change of {free} only, which no sample depends on"
+                f"{{allow_spec_change}} accepts a change of {free} only, which no sample depends on"
                 if blocking
-                else "these fields change no sample: pass --allow-spec-change to accept them"
+                else "these fields change no sample: pass {allow_spec_change} to accept them"
             )
-            raise ShaderballError(
-                f"--out: {out!r} holds dataset {existing.dataset.name!r} built from a different spec "
+            raise _out_refused(
+                out,
+                f"holds dataset {format_value(existing.dataset.name)} built from a different spec "
                 f"(digest {spec_digest(existing)[:12]} vs {spec_digest(spec)[:12]}): "
-                f"{_describe_differences(blocking or diffs)}. Resume it with its own spec "
-                f"({layout.spec}) or build into a new directory; {hint}"
+                f"{_describe_differences(blocking or diffs)}",
+                f"resume it with its own spec ({layout.spec}) or build into a new directory; {hint}",
             )
         mode = "respec"
     if not os.access(out, os.W_OK):
-        raise ShaderballError(f"--out: {out!r} is not writable")
+        raise _out_refused(out, "is not writable")
     return mode
 
 
@@ -209,14 +277,16 @@ def check_path_lengths(out: str) -> None:
         name_max, path_max = 255, 4096
     long_part = next((part for part in full.split(os.sep) if len(os.fsencode(part)) > name_max), None)
     if long_part is not None:
-        raise ShaderballError(
-            f"--out: {out!r} is not allowed; a folder name there is "
-            f"{len(os.fsencode(long_part))} bytes long, the filesystem allows {name_max}"
+        raise _out_refused(
+            out,
+            f"is not allowed: a folder name there is {len(os.fsencode(long_part))} bytes long",
+            f"the filesystem allows {name_max}",
         )
     if len(os.fsencode(full)) >= path_max:
-        raise ShaderballError(
-            f"--out: {out!r} is not allowed; the dataset's files would have paths of "
-            f"{len(os.fsencode(full))} bytes, the filesystem allows {path_max - 1}"
+        raise _out_refused(
+            out,
+            f"is not allowed: the dataset's files would have paths of {len(os.fsencode(full))} bytes",
+            f"the filesystem allows {path_max - 1}",
         )
 
 
@@ -248,13 +318,14 @@ def check_same_installation(out: str, plans: Plan, variant: str, digest: str | N
     digest = digest or plan_digest(plans)
     old_format = old.get("plan_format", 1)
     if old.get("plan_digest") and old_format != PLAN_FORMAT:
-        raise ShaderballError(
-            f"--out: {out!r} was planned with plan format {short_repr(old_format)} "
+        raise _out_refused(
+            out,
+            f"was planned with plan format {short_repr(old_format)} "
             f"(by shaderball {old.get('shaderball') if isinstance(old.get('shaderball'), str) else 'unknown'}); "
             f"this shaderball ({__version__}) plans format {PLAN_FORMAT} "
             "(sun elevations with the same bits on every machine; docs/spec.md, 'The same plan on every "
-            "machine'). Resuming would mix two plans of the spec: build into a new directory, or finish "
-            "this one with the shaderball that started it"
+            "machine'). Resuming would mix two plans of the spec",
+            "build into a new directory, or finish this one with the shaderball that started it",
         )
     if old.get("plan_digest") and old["plan_digest"] != digest:
         differences.append(
@@ -270,10 +341,10 @@ def check_same_installation(out: str, plans: Plan, variant: str, digest: str | N
     if old.get("variant") and old["variant"] != variant:
         differences.append(f"Mitsuba variant {old['variant']} in dataset.json, {variant} now")
     if differences:
-        raise ShaderballError(
-            f"--out: {out!r} was built by another installation: {'; '.join(differences)}. Resuming "
-            "would mix samples made two ways; finish it with the installation that started it, "
-            "or build into a new directory"
+        raise _out_refused(
+            out,
+            f"was built by another installation: {'; '.join(differences)}. Resuming would mix samples made two ways",
+            "finish it with the installation that started it, or build into a new directory",
         )
 
 

@@ -309,26 +309,50 @@ def _repair_locked(
             return before, current, actions
         state = current._state
     if state.plans is None or not state.spec_ok:
-        return (
-            before,
-            before,
-            actions
-            + [
-                RepairAction(
-                    "unrepairable",
-                    SPEC_FILE,
-                    f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
-                    "give the spec the dataset was built from (--spec) to restore it; nothing was changed",
-                )
-            ],
-        )
-    layout = state.layout
+        return before, before, actions + [unrepairable_spec()]
     variant = repair_variant(state)  # the dataset's own, or SetupError before anything changes
+    affected, lost = settle_files(state, actions)
+    actions = resume_build(root, state, affected, lost, actions, workers=workers, progress=progress, variant=variant)
+    after = validate(root, progress=progress)
+    return before, after, actions
+
+
+def unrepairable_spec() -> RepairAction:
+    """What a repair says when the spec snapshot is unusable and no ``--spec`` can restore it."""
+    return RepairAction(
+        "unrepairable",
+        SPEC_FILE,
+        f"{SPEC_FILE}: the spec snapshot is unusable or does not match {DESCRIPTION_FILE}; "
+        "give the spec the dataset was built from (--spec) to restore it; nothing was changed",
+    )
+
+
+def settle_files(state: State, actions: list) -> tuple[set, dict[str, set]]:
+    """Delete what is extra or bad, write the kept records and remove the markers of the shards
+    this touches; (those shards, the SHA-256 the record copies gave each render to redo)."""
     delete_extra_files(state, actions)
     inspect_unlisted(state)
     chosen = {sid: chosen_record(state, sample) for sid, sample in state.planned.items()}
     lost = lost_render_digests(state, chosen)
     affected = settle_samples(state, chosen, actions)
+    affected |= stale_shards(state, chosen)
+    write_good_record_files(state, chosen, affected, actions)
+    for sid in sorted(affected):
+        remove_file(state.layout.marker(sid))
+        actions.append(
+            RepairAction(
+                "rerun_shard",
+                state.layout.marker_rel(sid),
+                f"shard {sid}: marker removed; rebuilt from its verified records",
+            )
+        )
+    return affected, lost
+
+
+def stale_shards(state: State, chosen: dict) -> set:
+    """The shards whose marker is not the complete one of their plan and kept records: the
+    manifest is made from markers, so these are rebuilt."""
+    stale = set()
     for shard in state.plans:
         marker = state.markers.get(shard.shard_id)
         if not (
@@ -337,15 +361,23 @@ def _repair_locked(
             and marker.get("samples") == [s.sample_id for s in shard.samples]
             and all(marker_record(state, s) == chosen[s.sample_id] for s in shard.samples)
         ):
-            affected.add(shard.shard_id)
-    write_good_record_files(state, chosen, affected, actions)
-    for sid in sorted(affected):
-        remove_file(layout.marker(sid))
-        actions.append(
-            RepairAction(
-                "rerun_shard", layout.marker_rel(sid), f"shard {sid}: marker removed; rebuilt from its verified records"
-            )
-        )
+            stale.add(shard.shard_id)
+    return stale
+
+
+def resume_build(
+    root: str,
+    state: State,
+    affected: set,
+    lost: dict[str, set],
+    actions: list,
+    *,
+    workers: int,
+    progress: Callable[[Progress], None] | None,
+    variant: str | None,
+) -> list[RepairAction]:
+    """Rebuild the ``affected`` shards (and dataset.json when bad) with the resumable build, or
+    only rewrite a dirty manifest; ``actions`` with what that did."""
     if affected or not state.description_ok:
         rebuild(root, workers, progress, len(affected), variant)
         actions = describe_rerenders(state, lost, actions)
@@ -363,9 +395,8 @@ def _repair_locked(
             )
         )
     elif state.manifest_dirty:
-        write_manifest(layout.root, state.plans)
+        write_manifest(state.layout.root, state.plans)
         actions.append(
             RepairAction("rewrite_manifest", MANIFEST_FILE, f"{MANIFEST_FILE}: rewritten from the shard markers")
         )
-    after = validate(root, progress=progress)
-    return before, after, actions
+    return actions

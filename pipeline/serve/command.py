@@ -1,8 +1,9 @@
 """`shaderball serve` and `shaderball serve --benchmark`: one function the CLI calls.
 
-The benchmark drives the server's own machinery (the hub, the Mitsuba thread, the network
-thread) without HTTP: it moves the sun azimuth ``repeats`` times, as a slider drag does,
-and times each move to the network's picture and to the first path-traced pass.
+The benchmark (``ServeOptions.benchmark``) drives the server's own machinery (the hub, the
+Mitsuba thread, the network thread) without HTTP: it moves the sun azimuth ``repeats`` times,
+as a slider drag does, and times each move to the network's picture and to the first
+path-traced pass.
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ import statistics
 import time
 from dataclasses import dataclass
 
-from pipeline.errors import check_int
 from pipeline.serve.materials import uniform_maps
 from pipeline.serve.server import App, ServeOptions, serve
 from pipeline.serve.view import UniformChoice, View
@@ -20,8 +20,6 @@ from pipeline.serve.work import NetworkRunner
 from sky import Light
 
 __all__ = ["ServeOptions", "serve_command", "benchmark"]
-
-REPEATS_RANGE = (1, 100)
 
 
 @dataclass
@@ -63,8 +61,9 @@ def _wait(app: App, client: str, generation: int, part: str, timeout_s: float = 
     raise TimeoutError(f"no {part} frame within {timeout_s:.0f} s")
 
 
-def benchmark(options: ServeOptions, network_loader=None, repeats: int = 9) -> BenchmarkSummary:
-    check_int("--repeats", repeats, *REPEATS_RANGE)
+def benchmark(options: ServeOptions, network_loader=None) -> BenchmarkSummary:
+    """``options.repeats`` sun moves timed (module docstring)."""
+    repeats = options.repeats
     network = network_loader() if network_loader is not None else None
     app = App(options, network)
     app.tracer.start()
@@ -110,9 +109,9 @@ def benchmark(options: ServeOptions, network_loader=None, repeats: int = 9) -> B
     return BenchmarkSummary(network_doc, path_doc, list(os.getloadavg()), os.cpu_count() or 1, repeats)
 
 
-def serve_command(options: ServeOptions, network_loader, benchmark_only: bool, repeats: int, say):
-    """Serve until Ctrl-C (``say`` is told the address), or run the benchmark; a summary with lines()."""
-    options.check()
-    if benchmark_only:
-        return benchmark(options, network_loader, repeats)
+def serve_command(options: ServeOptions, network_loader, say):
+    """Serve until Ctrl-C (``say`` is told the address), or with ``options.benchmark`` run the
+    benchmark; a summary with lines()."""
+    if options.benchmark:
+        return benchmark(options, network_loader)
     return serve(options, network_loader, ready=lambda lines: [say(line) for line in lines])

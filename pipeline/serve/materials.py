@@ -22,20 +22,23 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import list_imported_maps, plan_dataset, seeded_rng
 from pipeline.dataset.spec import parse_spec
 from pipeline.errors import USER_ERRORS, ShaderballError
+from pipeline.fields import FieldError, format_value
 from pipeline.publish.names import DATASET_DIR, INDEX_FILE
 from pipeline.serve.view import (
+    MAP_NAMES,
     SAMPLE_ID,
     DatasetChoice,
     MapsChoice,
     RequestError,
     SvbrdfChoice,
     UniformChoice,
-    refused,
+    UploadRequest,
+    with_status,
 )
 from pipeline.store.exr import read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
 from pipeline.store.folder import read_bytes, read_manifest
-from pipeline.store.layout import Layout
+from pipeline.store.layout import SPEC_FILE, Layout
 
 #: Largest upload body, bytes.
 MAX_UPLOAD_BYTES = 8 * 1024 * 1024
@@ -45,7 +48,6 @@ MAX_UPLOAD_PIXELS = 4096 * 4096
 TEXTURE_TEXELS = 256
 #: Procedural SVBRDFs at this texture resolution (smoke spec: 64; the ball covers <= 128 px here).
 SVBRDF_TEXELS = 128
-MAP_NAMES = ("diffuse", "specular", "roughness", "normal")
 #: An uploaded EXR: at most MAX_UPLOAD_PIXELS of up to 4 float channels, checked from its header.
 UPLOAD_EXR_BOUNDS = ExrBounds(budget_bytes=MAX_UPLOAD_PIXELS * 4 * 4)
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -70,11 +72,12 @@ def svbrdf_maps(choice: SvbrdfChoice) -> MaterialMaps:
 
 def decode_upload(name: str, data: bytes) -> np.ndarray:
     """An uploaded map (PNG or EXR bytes, texture space) as float32 (TEXTURE_TEXELS, TEXTURE_TEXELS, C)
-    in [0, 1] (the normal map: unit normals); refused with a 4xx RequestError otherwise."""
+    in [0, 1] (the normal map: unit normals); refused with a 4xx FieldError (an unknown map, too
+    large) or RequestError (not a readable image) otherwise."""
     if name not in MAP_NAMES:
-        raise refused("map", name, ", ".join(MAP_NAMES), 404)
+        raise with_status(UploadRequest.field_error("map", name, "one of " + ", ".join(MAP_NAMES)), 404)
     if len(data) > MAX_UPLOAD_BYTES:
-        raise refused(f"{name} upload", f"{len(data)} bytes", f"at most {MAX_UPLOAD_BYTES} bytes", 413)
+        raise too_large(f"{name} upload", f"{len(data)} bytes", f"at most {MAX_UPLOAD_BYTES} bytes")
     if data.startswith(PNG_MAGIC):
         pixels = _decode_png(name, data)
     elif data.startswith(EXR_MAGIC):
@@ -90,9 +93,14 @@ def decode_upload(name: str, data: bytes) -> np.ndarray:
     return rgb
 
 
+def too_large(where: str, size: str, allowed: str) -> FieldError:
+    """An upload (or a body) of ``size`` refused (413): ``<where>: <size> is not allowed; <allowed>``."""
+    return with_status(FieldError(where, size, allowed, what=f"{size} is not allowed"), 413)
+
+
 def _check_pixels(name: str, width: int, height: int) -> None:
     if width < 1 or height < 1 or width * height > MAX_UPLOAD_PIXELS:
-        raise refused(f"{name} upload", f"{width}x{height} pixels", f"at most {MAX_UPLOAD_PIXELS} pixels", 413)
+        raise too_large(f"{name} upload", f"{width}x{height} pixels", f"at most {MAX_UPLOAD_PIXELS} pixels")
 
 
 def _resample(array: np.ndarray) -> np.ndarray:
@@ -170,6 +178,19 @@ def maps_from_uploads(uploads: dict[str, np.ndarray]) -> MaterialMaps:
     )
 
 
+#: What `serve`'s dataset may be.
+DATASET_ALLOWED = "a dataset folder written by `shaderball build`, or its publication"
+
+
+class NotADataset(ShaderballError):
+    """The dataset to serve cannot be: ``what`` says why (the server refuses its ``dataset``
+    field with it)."""
+
+    def __init__(self, what: str):
+        super().__init__(f"{what}; {DATASET_ALLOWED}")
+        self.what = what
+
+
 class DatasetSamples:
     """The samples of a dataset folder: listed from its manifest, made again from its spec.
 
@@ -182,9 +203,7 @@ class DatasetSamples:
         published = os.path.isfile(os.path.join(root, INDEX_FILE))
         layout = Layout(os.path.join(root, DATASET_DIR) if published else root)
         if not os.path.isdir(root) or not os.path.isfile(layout.spec):
-            raise ShaderballError(
-                f"--dataset: {root!r} is not a dataset folder written by `shaderball build` or its publication"
-            )
+            raise NotADataset(f"{format_value(root)} is no dataset folder (it holds no {SPEC_FILE})")
         try:
             self.spec = parse_spec(layout.spec)
             description = json.loads(read_bytes(layout.description, 1 << 20))
@@ -196,8 +215,8 @@ class DatasetSamples:
             lines = read_manifest(layout, renders).split(b"\n")
             self.samples = dict(_picker_row(json.loads(line), self.spec) for line in lines if line.strip())
         except (OSError, ValueError, KeyError, TypeError, *USER_ERRORS) as exc:
-            raise ShaderballError(
-                f"--dataset: {root!r} cannot be read ({exc}); check it with `shaderball validate` or `shaderball verify`"
+            raise NotADataset(
+                f"{format_value(root)} cannot be read ({exc}); check it with `shaderball validate` or `shaderball verify`"
             ) from None
         self.plan = plan_dataset(self.spec, list_imported_maps(self.spec))
         self.root = root
@@ -208,7 +227,9 @@ class DatasetSamples:
     def maps(self, choice: DatasetChoice) -> MaterialMaps:
         entry = self.samples.get(choice.sample)
         if entry is None:
-            raise refused("material.sample", choice.sample, "a sample id listed by /api/info", 404)
+            raise with_status(
+                DatasetChoice.field_error("sample", choice.sample, "a sample id listed by /api/info"), 404
+            )
         index = entry[0]
         shard = self.plan.shard(next(i for i in range(len(self.plan)) if index in self.plan.material_range(i)))
         plan = next(m for m in shard.materials if m.material_index == index)

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import ShaderballError, bad_value
+from pipeline.errors import ShaderballError
 from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrRefused, check_header
+from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrHeader, ExrRefused, check_header, shown_names
 
 #: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
 LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
@@ -96,7 +96,8 @@ def encode_exr(
     import OpenEXR
 
     if compression not in EXR_COMPRESSIONS:
-        raise bad_value("storage.compression", compression, ", ".join(EXR_COMPRESSIONS))
+        # the spec's storage.compression is checked by its field rule: another value here is a bug
+        raise ValueError(f"compression {compression!r}: not one of {', '.join(EXR_COMPRESSIONS)}")
     channels: dict[str, np.ndarray] = {}
     shape = None
     for layer, array in layers.items():
@@ -171,13 +172,41 @@ def layer_bounds(side: int | None, layers, *, exact: bool = False) -> ExrBounds:
     return ExrBounds(shape=None if side is None else (side, side), channels=channels, exact=exact)
 
 
+def openexr_reading(data: bytes) -> tuple[int, int, list[str]]:
+    """(width, height, sorted channel names) of the EXR ``data`` as OpenEXR itself reads its
+    header (no pixel decoded): what :func:`read_exr` compares with the gate's reading."""
+    import OpenEXR
+
+    with _StdoutToStderr():
+        probe = OpenEXR.File(io.BytesIO(data), header_only=True)
+        header = probe.header()
+    (x_min, y_min), (x_max, y_max) = (tuple(int(v) for v in corner) for corner in header["dataWindow"])
+    return x_max - x_min + 1, y_max - y_min + 1, sorted(c.name for c in header["channels"])
+
+
+def _agree(data: bytes, gate: ExrHeader, label: str) -> None:
+    """Refuse the file unless OpenEXR reads the window and channel list the gate read."""
+    try:
+        width, height, names = openexr_reading(data)
+    except Exception as exc:  # the bindings raise plain exceptions for corrupt files
+        raise ShaderballError(f"cannot decode EXR {label}: {exc}") from None
+    if (width, height, names) != (gate.width, gate.height, sorted(gate.channels)):
+        raise ShaderballError(
+            f"cannot decode EXR {label}: OpenEXR reads its header as {width} x {height} pixels of "
+            f"{shown_names(names)} channel(s), not the {gate.width} x {gate.height} of "
+            f"{shown_names(sorted(gate.channels))} it was checked as"
+        )
+
+
 def read_exr(
     path_or_bytes: str | bytes | os.PathLike, label: str | None = None, bounds: ExrBounds = DEFAULT_BOUNDS
 ) -> ExrImage:
     """Decode an EXR written by :func:`write_exr` (or any layered EXR) into layers. Its header
     is checked against ``bounds`` first (:func:`pipeline.store.exrheader.check_header`): a
     file that would decode to more, or that is tiled, deep or multi-part, is refused before
-    OpenEXR sees it. What OpenEXR prints while it decodes goes to stderr, never stdout
+    OpenEXR sees it; then OpenEXR reads the header alone, and a file it reads otherwise than
+    the gate did (another window or channel list) is refused before any pixel is decoded.
+    What OpenEXR prints while it decodes goes to stderr, never stdout
     (:class:`_StdoutToStderr`). ``label`` names the file in errors (given bytes, pass the
     file they were read from)."""
     import OpenEXR
@@ -193,26 +222,30 @@ def read_exr(
         except OSError as exc:
             raise ShaderballError(f"cannot decode EXR {label}: {exc.strerror or exc}") from None
     try:
-        check_header(data, label, bounds)
+        gate = check_header(data, label, bounds)
     except ExrRefused as exc:
         raise ShaderballError(f"cannot decode EXR {label}: {exc.reason}") from None
+    _agree(data, gate, label)
     try:
         with _StdoutToStderr():
             handle = OpenEXR.File(io.BytesIO(data), separate_channels=True)
             header = handle.header()
             channels = {name: channel.pixels for name, channel in handle.channels().items()}
+            del handle  # the channels' arrays are held by ``channels`` alone: each goes once stacked
     except Exception as exc:  # the bindings raise plain exceptions for corrupt files
         raise ShaderballError(f"cannot decode EXR {label}: {exc}") from exc
-    grouped: dict[str, dict[str, np.ndarray]] = {}
-    for full_name, pixels in channels.items():
+    grouped: dict[str, dict[str, str]] = {}  # layer -> suffix -> the channel's full name
+    for full_name in channels:
         layer, _, suffix = full_name.rpartition(".")
-        grouped.setdefault(layer or full_name, {})[suffix] = pixels
+        grouped.setdefault(layer or full_name, {})[suffix] = full_name
     layers = {}
     for layer, chans in grouped.items():
         order = LAYER_CHANNELS.get(layer)
         if order is None or set(order) != set(chans):
             order = tuple(sorted(chans))
-        layers[layer] = np.stack([chans[c] for c in order], axis=-1)
+        layers[layer] = np.stack([channels[chans[c]] for c in order], axis=-1)
+        for full_name in chans.values():  # stacked: its arrays go (peak: the file plus one layer)
+            channels.pop(full_name, None)
     meta_text = header.get(META_KEY)
     try:
         meta = json.loads(meta_text) if isinstance(meta_text, str) and meta_text else {}

@@ -9,6 +9,20 @@ of it (a render: the spec's resolution, three float channels; maps: the resoluti
 layers' channels): its decoded size is at most ``slack`` times the expected image's (a 2 MB
 render of 4096 x 4096 x 32 channels would decode to 2.1 GB); when nothing is expected of it,
 at most ``budget_bytes``.
+
+**One reading.** The gate reads a header as OpenEXR's own header parser does
+(OpenEXRCore's ``parse_header.c``) or refuses it, so that what it bounds is what OpenEXR
+decodes. OpenEXR reads attributes in any order; it *merges* a repeated ``channels`` list
+and lets a repeated ``dataWindow`` (and other attributes) replace the first; by default it
+skips an attribute it cannot read and goes on reading from wherever that left it (a value
+of the wrong size for its type can hide attributes the gate would not see); it honours
+``type``, ``tiles``, ``chunkCount``, ``version`` and ``name`` besides the eight required
+attributes. So the gate refuses any repeated attribute, any attribute whose value OpenEXR
+would reject (the fixed size of its type, a malformed list, an enumeration out of range),
+those honoured attributes where they would change how the file is read, unknown version
+flags, and repeated channel names. :func:`pipeline.store.exr.read_exr` then asks OpenEXR
+for the header (without pixels) and refuses the file if OpenEXR reads another channel list
+or window than the gate did. Messages give counts and the first few names, never a list.
 """
 
 from __future__ import annotations
@@ -20,21 +34,58 @@ from pipeline.errors import ShaderballError
 
 MAGIC = b"\x76\x2f\x31\x01"
 TILED, LONG_NAMES, DEEP, MULTIPART = 0x200, 0x400, 0x800, 0x1000
+#: Every version flag OpenEXR knows; a file with another is refused (by OpenEXR too).
+KNOWN_FLAGS = TILED | LONG_NAMES | DEEP | MULTIPART
 #: Scanlines per chunk of each compression (OpenEXR's table; 0 NONE ... 9 DWAB).
 LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 16, 8: 32, 9: 256}
 #: Bytes per sample of each pixel type (0 UINT, 1 HALF, 2 FLOAT).
 PIXEL_BYTES = {0: 4, 1: 2, 2: 4}
 PIXEL_TYPES = {0: "uint32", 1: "float16", 2: "float32"}
-REQUIRED = (
-    "channels",
-    "compression",
-    "dataWindow",
-    "displayWindow",
-    "lineOrder",
-    "pixelAspectRatio",
-    "screenWindowCenter",
-    "screenWindowWidth",
-)
+#: The attributes every EXR holds, and their types.
+REQUIRED_TYPES = {
+    "channels": "chlist",
+    "compression": "compression",
+    "dataWindow": "box2i",
+    "displayWindow": "box2i",
+    "lineOrder": "lineOrder",
+    "pixelAspectRatio": "float",
+    "screenWindowCenter": "v2f",
+    "screenWindowWidth": "float",
+}
+REQUIRED = tuple(REQUIRED_TYPES)
+#: Attributes OpenEXR honours besides the required ones (the multi-part and deep attributes),
+#: and the type it reads each as: checked below for what they would change.
+HONOURED_TYPES = {"type": "string", "tiles": "tiledesc", "chunkCount": "int", "version": "int", "name": "string"}
+#: Bytes of a value of each attribute type OpenEXR reads with a fixed size (its table in
+#: OpenEXRCore's attributes.c); another size is refused.
+FIXED_SIZES = {
+    "box2i": 16,
+    "box2f": 16,
+    "chromaticities": 32,
+    "compression": 1,
+    "double": 8,
+    "envmap": 1,
+    "float": 4,
+    "int": 4,
+    "keycode": 28,
+    "lineOrder": 1,
+    "m33f": 36,
+    "m33d": 72,
+    "m44f": 64,
+    "m44d": 128,
+    "rational": 8,
+    "tiledesc": 9,
+    "timecode": 8,
+    "v2i": 8,
+    "v2f": 8,
+    "v2d": 16,
+    "v3i": 12,
+    "v3f": 12,
+    "v3d": 24,
+    "deepImageState": 1,
+}
+#: One-byte enumerations: how many values each has (a larger one is refused).
+ENUM_VALUES = {"compression": len(LINES_PER_CHUNK), "envmap": 2, "lineOrder": 3, "deepImageState": 4}
 #: Channels of any EXR read (a maps file has 11).
 MAX_CHANNELS = 64
 #: Bytes of header attributes read before the header must have ended.
@@ -49,6 +100,8 @@ SLACK = 2
 #: ... or to this many bytes, whichever is more, so that a small file of the wrong layers is
 #: still decoded and reported as such (validate's bad_layers) rather than refused here.
 FLOOR_BYTES = 1 << 20
+#: Names a message shows of a list, and characters of each name.
+SHOWN_NAMES, SHOWN_CHARS = 3, 40
 
 
 class ExrRefused(ShaderballError):
@@ -113,47 +166,102 @@ def megabytes(n: int) -> str:
     return f"{n / 1e6:.3g} MB"
 
 
+def shown(name: str) -> str:
+    """A name from a file, as a message shows it: quoted, escaped, cut to SHOWN_CHARS."""
+    return repr(name if len(name) <= SHOWN_CHARS else name[:SHOWN_CHARS] + "...")
+
+
+def shown_names(names, total: int | None = None) -> str:
+    """``n name(s): 'a', 'b', 'c', ...``: a count and the first few names."""
+    names = list(names)
+    total = len(names) if total is None else total
+    more = ", ..." if total > SHOWN_NAMES else ""
+    return f"{total} ({', '.join(shown(n) for n in names[:SHOWN_NAMES])}{more})"
+
+
 def _cstring(data: bytes, start: int, limit: int, label: str, what: str) -> tuple[str, int]:
     end = data.find(b"\x00", start, start + limit + 1)
     if end < 0:
         raise ExrRefused(label, f"EXR header: {what} at byte {start} is not terminated within {limit} bytes")
     try:
-        return data[start:end].decode("ascii"), end + 1
+        return data[start:end].decode("utf-8"), end + 1
     except UnicodeDecodeError:
-        raise ExrRefused(label, f"EXR header: {what} at byte {start} is not ASCII") from None
+        raise ExrRefused(label, f"EXR header: {what} at byte {start} is not UTF-8") from None
 
 
-def _channels(value: bytes, label: str) -> dict[str, int]:
+def _channels(value: bytes, label: str, name_limit: int) -> dict[str, int]:
+    """The channel list (name -> pixel type) of a ``chlist`` value, as OpenEXR reads it:
+    names of at most ``name_limit`` bytes, each followed by 16 bytes (type, pLinear and three
+    reserved bytes, x and y sampling), ended by an empty name at the value's last byte."""
     channels, at = {}, 0
     while True:
         if at >= len(value):
             raise ExrRefused(label, "EXR header: the channel list is not terminated")
         if value[at] == 0:
+            if at + 1 != len(value):
+                raise ExrRefused(label, f"EXR header: {len(value) - at - 1} byte(s) after the channel list's end")
             return channels
-        name, at = _cstring(value, at, 255, label, "a channel name")
+        name, at = _cstring(value, at, name_limit, label, "a channel name")
         if at + 16 > len(value):
-            raise ExrRefused(label, f"EXR header: channel {name!r} is cut short")
+            raise ExrRefused(label, f"EXR header: channel {shown(name)} is cut short")
         pixel_type, _linear, x_sampling, y_sampling = struct.unpack_from("<iB3xii", value, at)
         if pixel_type not in PIXEL_BYTES or x_sampling != 1 or y_sampling != 1:
             raise ExrRefused(
                 label,
-                f"EXR header: channel {name!r} has pixel type {pixel_type} and sampling "
+                f"EXR header: channel {shown(name)} has pixel type {pixel_type} and sampling "
                 f"{x_sampling}x{y_sampling}; expected a plain half/float/uint channel",
             )
+        if name in channels:
+            raise ExrRefused(label, f"EXR header: channel {shown(name)} is listed twice")
         channels[name] = pixel_type
         if len(channels) > MAX_CHANNELS:
             raise ExrRefused(label, f"EXR header: more than {MAX_CHANNELS} channels")
         at += 16
 
 
-def _attributes(data: bytes, label: str, bounds: ExrBounds) -> tuple[dict[str, tuple[str, bytes]], int]:
-    """The header's attributes (name -> (type, value bytes)) and where the header ends."""
+def _check_value(name: str, kind: str, value: bytes, label: str, name_limit: int) -> None:
+    """Refuse a value OpenEXR would not read as it is (it would skip the attribute, or read
+    on from the middle of it): a fixed-size type of another size, an enumeration out of
+    range, a malformed list (a channel list under any name included)."""
+    where = f"EXR header: attribute {shown(name)} of type {shown(kind)}"
+    size = FIXED_SIZES.get(kind)
+    if size is not None and len(value) != size:
+        raise ExrRefused(label, f"{where} holds {len(value)} bytes; that type has {size}")
+    if kind in ENUM_VALUES and value[0] >= ENUM_VALUES[kind]:
+        raise ExrRefused(label, f"{where} has the unknown value {value[0]}")
+    if kind == "tiledesc" and (value[8] & 0xF >= 3 or value[8] >> 4 >= 2):
+        raise ExrRefused(label, f"{where} has an unknown level or rounding mode")
+    if kind == "chlist":
+        _channels(value, label, name_limit)
+    if kind == "floatvector" and len(value) % 4:
+        raise ExrRefused(label, f"{where} holds {len(value)} bytes, not a whole number of floats")
+    if kind == "stringvector":
+        at = 0
+        while at < len(value):
+            length = struct.unpack_from("<i", value, at)[0] if at + 4 <= len(value) else -1
+            if length < 0 or at + 4 + length > len(value):
+                raise ExrRefused(label, f"{where}: a string at byte {at} runs past the value's end")
+            at += 4 + length
+    if kind == "preview":
+        width, height = struct.unpack_from("<II", value) if len(value) >= 8 else (0, 0)
+        if width * height == 0 or len(value) != 8 + 4 * width * height:
+            raise ExrRefused(label, f"{where} says {width} x {height} pixels in {len(value)} bytes")
+    if kind == "bytes":
+        hint = struct.unpack_from("<i", value)[0] if len(value) >= 4 else -1
+        if not 0 <= hint <= len(value) - 4:
+            raise ExrRefused(label, f"{where} has a type hint of {hint} bytes in {len(value)}")
+
+
+def _attributes(data: bytes, label: str, bounds: ExrBounds) -> tuple[dict[str, tuple[str, bytes]], int, int]:
+    """The header's attributes (name -> (type, value bytes)), where the header ends, and the
+    longest name a channel may have (OpenEXR's long-names flag). Refuses a header OpenEXR
+    could read otherwise: a repeated attribute, a value it would reject, unknown flags."""
     if data[:4] != MAGIC:
         raise ExrRefused(label, "not an EXR file (no OpenEXR magic number)")
     if len(data) < 8:
         raise ExrRefused(label, "EXR file cut short")
     version = struct.unpack_from("<I", data, 4)[0]
-    if version & 0xFF != 2 or version & (TILED | DEEP | MULTIPART):
+    if version & 0xFF != 2 or version & (TILED | DEEP | MULTIPART) or version & ~(KNOWN_FLAGS | 0xFF):
         raise ExrRefused(
             label,
             f"EXR version field {version:#x}: only single-part scanline files (version 2, "
@@ -167,33 +275,44 @@ def _attributes(data: bytes, label: str, bounds: ExrBounds) -> tuple[dict[str, t
         if at >= end_of_header:
             raise ExrRefused(label, f"EXR header runs past {bounds.header_bytes} bytes or the end of the file")
         if data[at] == 0:
-            return attributes, at + 1
+            return attributes, at + 1, name_limit
         name, at = _cstring(data, at, name_limit, label, "an attribute name")
-        kind, at = _cstring(data, at, name_limit, label, f"the type of attribute {name!r}")
+        kind, at = _cstring(data, at, name_limit, label, f"the type of attribute {shown(name)}")
+        if not kind:
+            raise ExrRefused(label, f"EXR header: attribute {shown(name)} has no type")
         if at + 4 > end_of_header:
-            raise ExrRefused(label, f"EXR header: attribute {name!r} is cut short")
+            raise ExrRefused(label, f"EXR header: attribute {shown(name)} is cut short")
         size = struct.unpack_from("<i", data, at)[0]
         at += 4
         if size < 0 or at + size > end_of_header:
             raise ExrRefused(
                 label,
-                f"EXR header: attribute {name!r} says {size} bytes, beyond the header cap of "
+                f"EXR header: attribute {shown(name)} says {size} bytes, beyond the header cap of "
                 f"{bounds.header_bytes} bytes or the file",
             )
-        attributes[name] = (kind, data[at : at + size])
+        if name in attributes:  # OpenEXR merges a repeated channel list, keeps the last of others
+            raise ExrRefused(
+                label,
+                f"EXR header: attribute {shown(name)} appears twice (OpenEXR would merge or replace "
+                "it; a header is read one way only)",
+            )
+        value = data[at : at + size]
+        _check_value(name, kind, value, label, name_limit)
+        attributes[name] = (kind, value)
         at += size
 
 
 def check_header(data: bytes, label: str, bounds: ExrBounds = DEFAULT_BOUNDS) -> ExrHeader:
     """The header of a single-part scanline EXR whose decoding stays within ``bounds``, or
     :class:`ExrRefused` naming ``label``. Reads the header's bytes only."""
-    attributes, end = _attributes(data, label, bounds)
+    attributes, end, name_limit = _attributes(data, label, bounds)
     missing = [n for n in REQUIRED if n not in attributes]
     if missing:
         raise ExrRefused(label, f"EXR header lacks {', '.join(missing)}")
-    kind, window = attributes["dataWindow"]
-    if kind != "box2i" or len(window) != 16:
-        raise ExrRefused(label, f"EXR header: dataWindow is {kind} of {len(window)} bytes, expected box2i")
+    for name, kind in (REQUIRED_TYPES | HONOURED_TYPES).items():
+        if name in attributes and attributes[name][0] != kind:
+            raise ExrRefused(label, f"EXR header: {name} is {shown(attributes[name][0])}, expected {kind}")
+    _, window = attributes["dataWindow"]
     x_min, y_min, x_max, y_max = struct.unpack("<4i", window)
     width, height = x_max - x_min + 1, y_max - y_min + 1
     side = bounds.max_side
@@ -208,19 +327,30 @@ def check_header(data: bytes, label: str, bounds: ExrBounds = DEFAULT_BOUNDS) ->
             f"EXR header says its data window is {width} x {height} pixels; expected "
             f"{bounds.shape[1]} x {bounds.shape[0]} (the spec's resolution)",
         )
-    kind, compression = attributes["compression"]
-    if kind != "compression" or len(compression) != 1 or compression[0] not in LINES_PER_CHUNK:
-        raise ExrRefused(label, f"EXR header: unknown compression {compression!r}")
-    kind, channel_list = attributes["channels"]
-    if kind != "chlist":
-        raise ExrRefused(label, f"EXR header: channels is {kind}, expected chlist")
-    header = ExrHeader(width, height, _channels(channel_list, label))
+    compression = attributes["compression"][1][0]
+    header = ExrHeader(width, height, _channels(attributes["channels"][1], label, name_limit))
     if header.decoded_bytes > bounds.decoded_bytes:
         raise ExrRefused(label, _too_large(header, bounds))
-    chunks = -(-height // LINES_PER_CHUNK[compression[0]])
+    chunks = -(-height // LINES_PER_CHUNK[compression])
+    _check_honoured(attributes, chunks, label)
     if end + 8 * chunks > len(data):
         raise ExrRefused(label, f"EXR file ends inside its table of {chunks} chunk offsets")
     return header
+
+
+def _check_honoured(attributes: dict[str, tuple[str, bytes]], chunks: int, label: str) -> None:
+    """The attributes OpenEXR honours beyond the required ones, where they would make it read
+    the file as another kind or with another chunk table: refused."""
+    if "type" in attributes and attributes["type"][1] != b"scanlineimage":
+        raise ExrRefused(
+            label, f"EXR header: type is {shown(attributes['type'][1].decode('latin-1'))}, not a scanline image"
+        )
+    if "tiles" in attributes:
+        raise ExrRefused(label, "EXR header: a scanline file with a tile description (tiles)")
+    if "version" in attributes and struct.unpack("<i", attributes["version"][1])[0] != 1:
+        raise ExrRefused(label, "EXR header: version attribute other than 1")
+    if "chunkCount" in attributes and struct.unpack("<i", attributes["chunkCount"][1])[0] != chunks:
+        raise ExrRefused(label, f"EXR header: chunkCount differs from the {chunks} chunks of its data window")
 
 
 def _too_large(header: ExrHeader, bounds: ExrBounds) -> str:

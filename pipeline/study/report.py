@@ -289,103 +289,136 @@ def pareto_png(summary: list[dict], cmps: dict, recs: dict, knees: dict, width: 
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default()
-    left, right, top, bottom = 70, 250, 40, 50
-    x0, x1, y0, y1 = left, width - right, top, height - bottom
     fam = {s["config"]: s["family"] for s in summary}
     pts = [(n, c) for n, c in cmps.items() if c.get("ball") and c.get("cpu") and c["ball"]["value"] > 0]
     recipe = recs.get("paper", {}).get("config")
     if not pts:
-        draw.text((x0, y0), "no comparisons", fill="black", font=font)
+        draw.text((70, 40), "no comparisons", fill="black", font=font)
         return _png(img)
-    xs = [math.log10(v) for _, c in pts for v in (c["cpu"]["lo"], c["cpu"]["hi"]) if v > 0] + [0.0]
-    ys = [math.log10(v) for _, c in pts for v in (c["ball"]["lo"], c["ball"]["hi"]) if v > 0] + [0.0]
-    lx0, lx1 = math.floor(min(xs) * 4) / 4 - 0.05, math.ceil(max(xs) * 4) / 4 + 0.05
-    ly0, ly1 = math.floor(min(ys) * 4) / 4 - 0.05, math.ceil(max(ys) * 4) / 4 + 0.05
+    plot = _ParetoPlot(draw, font, pts, width, height)
+    plot.axes(cmps.get(aa_name(int(recipe.split("/")[1]))) if recipe else None)
+    families = [f for f in FAMILY_COLOURS if any(fam.get(n) == f for n, _ in pts)]
+    plot.points(pts, fam, families)
+    pick = (recs.get("paper_fast") or {}).get("config")
+    plot.labels(pts, {k["config"] for k in knees.values()}, pick)
+    plot.legend(families, recipe, pick, cmps)
+    return _png(img)
 
-    def xy(cpu, err):
-        cpu, err = max(cpu, 10**lx0), max(err, 10**ly0)
+
+class _ParetoPlot:
+    """The drawing of :func:`pareto_png`: its frame, log-log axes fitted to the points'
+    intervals, and what is drawn on them, in order."""
+
+    def __init__(self, draw, font, pts: list, width: int, height: int):
+        self.draw, self.font, self.height = draw, font, height
+        left, right, top, bottom = 70, 250, 40, 50
+        self.x0, self.x1, self.y0, self.y1 = left, width - right, top, height - bottom
+        xs = [math.log10(v) for _, c in pts for v in (c["cpu"]["lo"], c["cpu"]["hi"]) if v > 0] + [0.0]
+        ys = [math.log10(v) for _, c in pts for v in (c["ball"]["lo"], c["ball"]["hi"]) if v > 0] + [0.0]
+        self.lx0, self.lx1 = math.floor(min(xs) * 4) / 4 - 0.05, math.ceil(max(xs) * 4) / 4 + 0.05
+        self.ly0, self.ly1 = math.floor(min(ys) * 4) / 4 - 0.05, math.ceil(max(ys) * 4) / 4 + 0.05
+
+    def xy(self, cpu, err):
+        cpu, err = max(cpu, 10**self.lx0), max(err, 10**self.ly0)
         return (
-            x0 + (math.log10(cpu) - lx0) / (lx1 - lx0) * (x1 - x0),
-            y1 - (math.log10(err) - ly0) / (ly1 - ly0) * (y1 - y0),
+            self.x0 + (math.log10(cpu) - self.lx0) / (self.lx1 - self.lx0) * (self.x1 - self.x0),
+            self.y1 - (math.log10(err) - self.ly0) / (self.ly1 - self.ly0) * (self.y1 - self.y0),
         )
 
-    aa = cmps.get(aa_name(int(recipe.split("/")[1]))) if recipe else None
-    if aa and aa.get("ball"):
-        _, ya = xy(10**lx0, aa["ball"]["hi"])
-        _, yb = xy(10**lx0, aa["ball"]["lo"])
-        draw.rectangle([x0, ya, x1, yb], fill=(232, 232, 232))
-    draw.rectangle([x0, y0, x1, y1], outline="black")
-    for tick in (0.1, 0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20, 50, 100):
-        lt = math.log10(tick)
-        if lx0 <= lt <= lx1:
-            x, _ = xy(tick, 10**ly0)
-            draw.line([x, y1, x, y1 + 4], fill="black")
-            draw.text((x - 8, y1 + 6), f"{tick:g}", fill="black", font=font)
-        if ly0 <= lt <= ly1:
-            _, y = xy(10**lx0, tick)
-            draw.line([x0 - 4, y, x0, y], fill="black")
-            draw.text((x0 - 30, y - 6), f"{tick:g}", fill="black", font=font)
-    rx, ry = xy(1.0, 1.0)
-    draw.line([x0, ry, x1, ry], fill=(200, 200, 200))
-    draw.line([rx, y0, rx, y1], fill=(200, 200, 200))
-    draw.text(
-        (x0, 8),
-        "relMSE on the ball / the recipe's (mean over samples and seeds) vs CPU per render / the recipe's",
-        fill="black",
-        font=font,
-    )
-    draw.text(
-        (x0, 22), "(build-level CPU time; bars: 95% bootstrap intervals; grey band: A/A)", fill="black", font=font
-    )
-    draw.text(
-        ((x0 + x1) // 2 - 100, height - 20), "CPU ratio to the recipe, build level (log)", fill="black", font=font
-    )
-    families = [f for f in FAMILY_COLOURS if any(fam.get(n) == f for n, _ in pts)]
-    for f in families:
-        colour = FAMILY_COLOURS[f]
-        mine = sorted(((n, c) for n, c in pts if fam.get(n) == f), key=lambda nc: nc[1]["cpu"]["value"])
-        if len(mine) > 1 and f != "aa":
-            draw.line([xy(c["cpu"]["value"], c["ball"]["value"]) for _, c in mine], fill=colour, width=1)
-        for _n, c in mine:
-            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
-            xa, _ = xy(c["cpu"]["lo"], 1.0)
-            xb, _ = xy(c["cpu"]["hi"], 1.0)
-            _, ya = xy(1.0, c["ball"]["lo"])
-            _, yb = xy(1.0, c["ball"]["hi"])
-            draw.line([x, ya, x, yb], fill=colour, width=1)
-            draw.line([xa, y, xb, y], fill=colour, width=1)
-            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
-    label_all = len(pts) <= 25
-    knee_names = {k["config"] for k in knees.values()}
-    pick = (recs.get("paper_fast") or {}).get("config")
-    # labels that would overprint one already drawn are left out (report.md lists every point);
-    # the pick and the knees are labelled first
-    placed: list[tuple[float, float, float, float]] = []
-    for n, c in sorted(pts, key=lambda nc: (nc[0] != pick, nc[0] not in knee_names)):
-        if label_all or n in knee_names or n == pick:
-            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
-            box = draw.textbbox((x + 5, y - 12), n, font=font)
-            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
-                placed.append(box)
-                draw.text((x + 5, y - 12), n, fill=(60, 60, 60), font=font)
-    for n, c in pts:
-        if n in knee_names:
-            x, y = xy(c["cpu"]["value"], c["ball"]["value"])
-            draw.ellipse([x - 7, y - 7, x + 7, y + 7], outline="black", width=1)
-    draw.rectangle([rx - 5, ry - 5, rx + 5, ry + 5], outline=(214, 39, 40), width=2)
-    legend = [(f"family: {f}" if f != "aa" else "A/A: the recipe, other seeds", FAMILY_COLOURS[f]) for f in families]
-    legend.append((f"recipe: {recipe}", (214, 39, 40)))
-    if pick and pick in cmps:
-        x, y = xy(cmps[pick]["cpu"]["value"], cmps[pick]["ball"]["value"])
-        draw.rectangle([x - 6, y - 6, x + 6, y + 6], outline=(0, 150, 0), width=2)
-        legend.append((f"paper-fast pick: {pick}", (0, 150, 0)))
-    legend.append(("ring: where a family stops paying", (0, 0, 0)))
-    legend.append(("grey band: A/A 95% interval", (200, 200, 200)))
-    for i, (label, colour) in enumerate(legend):
-        y = y0 + 6 + 14 * i
-        draw.line([x1 + 10, y + 6, x1 + 28, y + 6], fill=colour, width=3)
-        draw.text((x1 + 32, y), label[:36], fill="black", font=font)
-    return _png(img)
+    def axes(self, aa: dict | None) -> None:
+        """The A/A band, the frame, the ticks, the recipe's lines (1, 1) and the titles."""
+        draw, font, xy = self.draw, self.font, self.xy
+        x0, x1, y0, y1 = self.x0, self.x1, self.y0, self.y1
+        if aa and aa.get("ball"):
+            _, ya = xy(10**self.lx0, aa["ball"]["hi"])
+            _, yb = xy(10**self.lx0, aa["ball"]["lo"])
+            draw.rectangle([x0, ya, x1, yb], fill=(232, 232, 232))
+        draw.rectangle([x0, y0, x1, y1], outline="black")
+        for tick in (0.1, 0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20, 50, 100):
+            lt = math.log10(tick)
+            if self.lx0 <= lt <= self.lx1:
+                x, _ = xy(tick, 10**self.ly0)
+                draw.line([x, y1, x, y1 + 4], fill="black")
+                draw.text((x - 8, y1 + 6), f"{tick:g}", fill="black", font=font)
+            if self.ly0 <= lt <= self.ly1:
+                _, y = xy(10**self.lx0, tick)
+                draw.line([x0 - 4, y, x0, y], fill="black")
+                draw.text((x0 - 30, y - 6), f"{tick:g}", fill="black", font=font)
+        rx, ry = xy(1.0, 1.0)
+        draw.line([x0, ry, x1, ry], fill=(200, 200, 200))
+        draw.line([rx, y0, rx, y1], fill=(200, 200, 200))
+        draw.text(
+            (x0, 8),
+            "relMSE on the ball / the recipe's (mean over samples and seeds) vs CPU per render / the recipe's",
+            fill="black",
+            font=font,
+        )
+        draw.text(
+            (x0, 22), "(build-level CPU time; bars: 95% bootstrap intervals; grey band: A/A)", fill="black", font=font
+        )
+        draw.text(
+            ((x0 + x1) // 2 - 100, self.height - 20),
+            "CPU ratio to the recipe, build level (log)",
+            fill="black",
+            font=font,
+        )
+
+    def points(self, pts: list, fam: dict, families: list[str]) -> None:
+        """Each family's points, with their intervals, joined by a line in CPU order."""
+        draw, xy = self.draw, self.xy
+        for f in families:
+            colour = FAMILY_COLOURS[f]
+            mine = sorted(((n, c) for n, c in pts if fam.get(n) == f), key=lambda nc: nc[1]["cpu"]["value"])
+            if len(mine) > 1 and f != "aa":
+                draw.line([xy(c["cpu"]["value"], c["ball"]["value"]) for _, c in mine], fill=colour, width=1)
+            for _n, c in mine:
+                x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+                xa, _ = xy(c["cpu"]["lo"], 1.0)
+                xb, _ = xy(c["cpu"]["hi"], 1.0)
+                _, ya = xy(1.0, c["ball"]["lo"])
+                _, yb = xy(1.0, c["ball"]["hi"])
+                draw.line([x, ya, x, yb], fill=colour, width=1)
+                draw.line([xa, y, xb, y], fill=colour, width=1)
+                draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
+
+    def labels(self, pts: list, knee_names: set, pick: str | None) -> None:
+        """The points' names (all of them when few; else the pick's and the knees'), and a
+        ring around each knee. A label that would overprint one already drawn is left out
+        (report.md lists every point); the pick and the knees are labelled first."""
+        draw, xy = self.draw, self.xy
+        label_all = len(pts) <= 25
+        placed: list[tuple[float, float, float, float]] = []
+        for n, c in sorted(pts, key=lambda nc: (nc[0] != pick, nc[0] not in knee_names)):
+            if label_all or n in knee_names or n == pick:
+                x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+                box = draw.textbbox((x + 5, y - 12), n, font=self.font)
+                if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
+                    placed.append(box)
+                    draw.text((x + 5, y - 12), n, fill=(60, 60, 60), font=self.font)
+        for n, c in pts:
+            if n in knee_names:
+                x, y = xy(c["cpu"]["value"], c["ball"]["value"])
+                draw.ellipse([x - 7, y - 7, x + 7, y + 7], outline="black", width=1)
+
+    def legend(self, families: list[str], recipe: str | None, pick: str | None, cmps: dict) -> None:
+        """The recipe's and the pick's marks, and the legend right of the plot."""
+        draw = self.draw
+        rx, ry = self.xy(1.0, 1.0)
+        draw.rectangle([rx - 5, ry - 5, rx + 5, ry + 5], outline=(214, 39, 40), width=2)
+        legend = [
+            (f"family: {f}" if f != "aa" else "A/A: the recipe, other seeds", FAMILY_COLOURS[f]) for f in families
+        ]
+        legend.append((f"recipe: {recipe}", (214, 39, 40)))
+        if pick and pick in cmps:
+            x, y = self.xy(cmps[pick]["cpu"]["value"], cmps[pick]["ball"]["value"])
+            draw.rectangle([x - 6, y - 6, x + 6, y + 6], outline=(0, 150, 0), width=2)
+            legend.append((f"paper-fast pick: {pick}", (0, 150, 0)))
+        legend.append(("ring: where a family stops paying", (0, 0, 0)))
+        legend.append(("grey band: A/A 95% interval", (200, 200, 200)))
+        for i, (label, colour) in enumerate(legend):
+            y = self.y0 + 6 + 14 * i
+            draw.line([self.x1 + 10, y + 6, self.x1 + 28, y + 6], fill=colour, width=3)
+            draw.text((self.x1 + 32, y), label[:36], fill="black", font=self.font)
 
 
 def _png(img) -> bytes:
@@ -481,6 +514,23 @@ def report_markdown(
     cmps: dict | None = None,
     knees: dict | None = None,
 ) -> str:
+    L = [
+        *_head_section(meta, recs),
+        *decision_section(meta, summary, cmps or {}, knees or {}),
+        f"Independent-sampler ladder: log-log slope of median relMSE vs spp {_f(slopes.get('all'), '.2f')} "
+        "(1/spp is -1); per class: " + ", ".join(f"{c} {_f(v, '.2f')}" for c, v in slopes.items() if c != "all"),
+        *_samples_section(meta),
+        *_configs_section(summary, front),
+        *_fireflies_section(meta, recs, rows),
+        *_biased_section(summary, recs),
+        *_adaptive_section(summary),
+        *_classes_section(summary),
+    ]
+    return "\n".join(L) + "\n"
+
+
+def _head_section(meta: dict, recs: dict) -> list[str]:
+    """The title, the command, machine and set-up, and the recommendations."""
     req = meta["request"]
     L = [
         f"# Accuracy study: {os.path.basename(meta['spec'])}",
@@ -511,11 +561,12 @@ def report_markdown(
             f"- **{label}**: "
             + (f"`{rec['config']}`: {rec['note']}" if rec else "none of the measured configurations qualifies")
         )
-    L += [
-        "",
-        *decision_section(meta, summary, cmps or {}, knees or {}),
-        f"Independent-sampler ladder: log-log slope of median relMSE vs spp {_f(slopes.get('all'), '.2f')} "
-        "(1/spp is -1); per class: " + ", ".join(f"{c} {_f(v, '.2f')}" for c, v in slopes.items() if c != "all"),
+    L.append("")
+    return L
+
+
+def _samples_section(meta: dict) -> list[str]:
+    L = [
         "",
         "## Samples",
         "",
@@ -528,7 +579,11 @@ def report_markdown(
             f"| {s['sample_id']} | {s['material_class']} | {s['elevation_deg']:.1f} | {s['turbidity']:.2f} | "
             f"{s['roughness']:.2f} | {'/'.join(s['corner'])} | {f['floor_ball']:.2e} |"
         )
-    L += [
+    return L
+
+
+def _configs_section(summary: list[dict], front: list[str]) -> list[str]:
+    L = [
         "",
         "## Every configuration",
         "",
@@ -549,8 +604,12 @@ def report_markdown(
             f"{_f(s['cpu_s_median'])} | {_f(s['build_cpu_s_median'])} | {_f(s['wall_s_median'])} | "
             f"{ranked_text(s)} |"
         )
+    return L
+
+
+def _fireflies_section(meta: dict, recs: dict, rows: list[dict]) -> list[str]:
     paper_name_ = recs.get("paper", {}).get("config")
-    L += [
+    L = [
         "",
         f"## Fireflies at the recipe ({paper_name_})",
         "",
@@ -566,7 +625,11 @@ def report_markdown(
                 f"| {r['sample_id']} | {r.get('repeat', 0)} | {r['material_class']} | {r['relmse_ball']:.3g} | "
                 f"{r['relmse_ball_no_fireflies']:.3g} | {r['firefly_share']:.2f} |"
             )
-    L += [
+    return L
+
+
+def _biased_section(summary: list[dict], recs: dict) -> list[str]:
+    L = [
         "",
         "## Biased remedies: what they cost in light",
         "",
@@ -581,7 +644,11 @@ def report_markdown(
                 f"| {s['config']} | {100 * s['bias_ball_mean']:+.2f}% | {100 * s['bias_ball_abs_max']:.2f}% | "
                 f"{_f(s['relmse_ball_median'])} | {_f(ratio, '.2f')} |"
             )
-    L += [
+    return L
+
+
+def _adaptive_section(summary: list[dict]) -> list[str]:
+    L = [
         "",
         "## Adaptive rendering",
         "",
@@ -596,8 +663,12 @@ def report_markdown(
                 f"{_f(s['error_estimate_mean'])} | {_f(s['relmse_ball_median'])} | "
                 f"{_f(math.sqrt(s['relmse_ball_median']))} |"
             )
+    return L
+
+
+def _classes_section(summary: list[dict]) -> list[str]:
     classes = sorted({c for s in summary for c in s["classes"]})
-    L += [
+    L = [
         "",
         "## Per material class (mean relMSE on the ball)",
         "",
@@ -611,7 +682,7 @@ def report_markdown(
                 + " | ".join(_f(s["classes"].get(c, {}).get("relmse_ball_mean")) for c in classes)
                 + " |"
             )
-    return "\n".join(L) + "\n"
+    return L
 
 
 def write_outputs(out: str, meta: dict, rows: list[dict], configs) -> dict:

@@ -38,7 +38,6 @@ import shlex
 import time
 import zlib
 from dataclasses import asdict, dataclass, replace
-from typing import ClassVar
 
 import numpy as np
 
@@ -46,8 +45,7 @@ from geometry import build_shaderball, default_camera
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec, spec_digest
-from pipeline.errors import ShaderballError, bad_value
-from pipeline.fields import Bool, Checked, Int, field, same_as
+from pipeline.fields import Bool, Checked, Int, IntList, Optional, Reject, Rule, StrList, field, format_value, same_as
 from pipeline.fields import Path as PathRule
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8
@@ -72,25 +70,64 @@ from sky import Light
 
 REQUEST_FILE = "request.json"
 MAX_LADDER_SPP = 16384
-#: --draws: samples drawn from the plan.
-SAMPLES_RANGE = (1, 1000)
-#: --reference-spp's largest value.
+#: Samples drawn from the plan.
+DRAWS_RANGE = (1, 1000)
+#: The largest spp of a reference.
 MAX_REFERENCE_SPP = 65536
 MAX_REPEATS = 64
 
 
+class Ladder(IntList):
+    """The spp ladder: integers from 1 to MAX_LADDER_SPP, kept sorted and once each."""
+
+    def __init__(self):
+        super().__init__(1, MAX_LADDER_SPP)
+
+    def check(self, value):
+        return tuple(sorted(set(super().check(value))))
+
+
+class Families(Rule):
+    """Families of configurations: ``all``, or names from FAMILIES; kept in FAMILIES' order,
+    the ladder always among them."""
+
+    allowed = "all, or comma-separated names from " + ", ".join(FAMILIES)
+    metavar = "all|NAME,..."
+
+    def parse(self, text: str):
+        text = text.strip()
+        return text if text == "all" else tuple(word.strip() for word in text.split(","))
+
+    def check(self, value):
+        if value == "all":
+            return FAMILIES
+        if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
+            raise Reject()
+        if not all(isinstance(name, str) and name in FAMILIES for name in value):
+            raise Reject()
+        return tuple(f for f in FAMILIES if f in value or f == "ladder")
+
+    @property
+    def brief(self) -> str:
+        return "all, or names from " + ", ".join(FAMILIES)
+
+
 @dataclass(frozen=True)
 class StudyRequest(Checked):
-    """What `shaderball study` is asked; each option declared once (pipeline.fields)."""
+    """What `shaderball study` is asked; each field declared once (pipeline.fields)."""
 
-    FIELD_PREFIX: ClassVar[str] = "--"
-    FIELD_LABELS: ClassVar[dict[str, str]] = {"samples": "--draws", "flip": "--no-flip"}
-
-    spec: str = field(rule=PathRule("a spec file"), doc="The spec file.")
-    out: str = field(rule=PathRule("a folder"), doc="The study folder.")
-    samples: int = field(
+    spec: str = field(
+        rule=PathRule("a spec file", exists="file"), doc="The spec file.", positional=True, metavar="SPEC"
+    )
+    out: str = field(
+        rule=PathRule("a folder"),
+        doc="Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
+        "report.md. Re-running the same command resumes; another request is refused.",
+        metavar="DIR",
+    )
+    draws: int = field(
         12,
-        rule=Int(*SAMPLES_RANGE),
+        rule=Int(*DRAWS_RANGE),
         doc="Samples drawn from the spec's plan, spread over material classes, sun, turbidity and roughness.",
         unit="draws",
     )
@@ -101,13 +138,21 @@ class StudyRequest(Checked):
         unit="samples per pixel",
     )
     resolution: int | None = same_as(RenderSettings, "resolution", unset="the spec's")
-    ladder: tuple[int, ...] = DEFAULT_LADDER
-    families: tuple[str, ...] = FAMILIES
-    #: Only these configurations of the families (names as in the report); the spec's recipe
-    #: is always measured. Empty: all of them.
-    only: tuple[str, ...] = ()
-    scan: int = field(60, rule=Int(1, 100000), doc="Materials of the plan whose lightings are candidates.")
-    flip: bool = field(True, rule=Bool(), doc="HDR-FLIP (the slowest metric).")
+    ladder: tuple[int, ...] = field(
+        DEFAULT_LADDER,
+        rule=Ladder(),
+        doc="spp ladder of the independent sampler (the spec's spp is always added).",
+    )
+    configs: tuple[str, ...] | str = field(
+        "all", rule=Families(), doc="Families of configurations (the ladder is always measured)."
+    )
+    only: tuple[str, ...] | None = field(
+        None,
+        rule=Optional(StrList(None, "configuration names"), "unset (every configuration of the families)"),
+        doc="Only these configurations (comma-separated names as the report writes them, e.g. "
+        "multijitter/64); the spec's recipe is always measured.",
+        metavar="NAMES",
+    )
     repeats: int = field(
         3,
         rule=Int(1, MAX_REPEATS),
@@ -115,6 +160,9 @@ class StudyRequest(Checked):
         "every figure carries a 95% interval over samples and seeds.",
         unit="seeds",
     )
+    flip: bool = field(True, rule=Bool(), doc="HDR-FLIP (the slowest metric).")
+    #: Not on the command line: the study's selection scans this many materials.
+    scan: int = field(60, rule=Int(1, 100000), doc="Materials of the plan whose lightings are candidates.")
 
 
 @dataclass
@@ -143,68 +191,44 @@ class StudySummary:
         return asdict(self)
 
 
-def parse_ladder(text: str) -> tuple[int, ...]:
-    """``"1,2,4,150"`` -> (1, 2, 4, 150); refused naming --ladder."""
-    allowed = f"comma-separated integers from 1 to {MAX_LADDER_SPP}"
-    try:
-        values = tuple(int(t) for t in str(text).split(","))
-    except ValueError:
-        raise bad_value("--ladder", text, allowed) from None
-    if not values or any(not 1 <= v <= MAX_LADDER_SPP for v in values):
-        raise bad_value("--ladder", text, allowed)
-    return tuple(sorted(set(values)))
-
-
-def parse_families(text: str) -> tuple[str, ...]:
-    """``"ladder,denoise"`` or ``"all"`` -> families; refused naming --configs."""
-    if str(text).strip() == "all":
-        return FAMILIES
-    names = tuple(t.strip() for t in str(text).split(","))
-    if not names or any(n not in FAMILIES for n in names):
-        raise bad_value("--configs", text, "all, or comma-separated names from " + ", ".join(FAMILIES))
-    return tuple(f for f in FAMILIES if f in names or f == "ladder")
-
-
 def check_request(req: StudyRequest):
-    """The parsed spec; raises a ShaderballError naming the option, value and what is allowed."""
+    """The parsed spec; a refusal names the field, its value and what is allowed."""
     req.check_fields()
-    parse_families(",".join(req.families))
-    parse_ladder(",".join(map(str, req.ladder)))
     spec = parse_spec(req.spec)
     if req.only:
         names = [
             c.name
-            for c in study_configs(spec.render.spp, spec.lighting.sun, req.ladder, req.families, spec.render.max_depth)
+            for c in study_configs(spec.render.spp, spec.lighting.sun, req.ladder, req.configs, spec.render.max_depth)
         ]
         unknown = [n for n in req.only if n not in names]
         if unknown:
-            raise bad_value(
-                "--only",
-                ",".join(req.only),
-                "comma-separated configuration names of the chosen "
-                f"--configs and --ladder (unknown: {', '.join(unknown)}), e.g. " + ", ".join(names[:4]),
+            raise req.field_error(
+                "only",
+                req.only,
+                "comma-separated configuration names of the chosen {configs} and {ladder} "
+                f"(unknown: {', '.join(unknown)}), e.g. " + ", ".join(names[:4]),
             )
     top = max(*req.ladder, spec.render.spp)
     ref = req.reference_spp
-    if isinstance(ref, bool) or not isinstance(ref, int) or ref % 2 or not 2 * top <= ref <= MAX_REFERENCE_SPP:
-        raise bad_value(
-            "--reference-spp",
+    if ref % 2 or not 2 * top <= ref:
+        raise req.field_error(
+            "reference_spp",
             ref,
             f"an even integer from {2 * top} to {MAX_REFERENCE_SPP} (at least twice the largest spp studied, {top})",
         )
     if os.path.exists(req.out) and not os.path.isdir(req.out):
-        raise bad_value("--out", req.out, "a folder (new, or a study folder of this same request)")
+        raise req.field_error("out", req.out, "a folder (new, or a study folder of this same request)")
     return spec
 
 
 def request_record(req: StudyRequest, spec) -> dict:
     return {
         "spec_digest": spec_digest(spec),
-        "samples": req.samples,
+        "samples": req.draws,
         "reference_spp": req.reference_spp,
         "resolution": req.resolution or spec.render.resolution,
         "ladder": list(req.ladder),
-        "families": list(req.families),
+        "families": list(req.configs),
         "scan": req.scan,
         "flip": req.flip,
         "repeats": req.repeats,
@@ -214,11 +238,11 @@ def request_record(req: StudyRequest, spec) -> dict:
 
 def study_command(req: StudyRequest) -> str:
     """The command line that makes ``req``: the first line of the report it writes."""
-    argv = ["shaderball", "study", req.spec, "--out", req.out, "--draws", str(req.samples)]
+    argv = ["shaderball", "study", req.spec, "--out", req.out, "--draws", str(req.draws)]
     argv += ["--reference-spp", str(req.reference_spp)]
     if req.resolution is not None:
         argv += ["--resolution", str(req.resolution)]
-    argv += ["--ladder", ",".join(map(str, req.ladder)), "--configs", ",".join(req.families)]
+    argv += ["--ladder", ",".join(map(str, req.ladder)), "--configs", ",".join(req.configs)]
     if req.only:
         argv += ["--only", ",".join(req.only)]
     argv += ["--repeats", str(req.repeats)]
@@ -233,19 +257,23 @@ def machine_line(variant: str) -> str:
     return f"{cpu['cpu_model']} ({os.cpu_count()} CPUs, {cpu['arch']}), Mitsuba variant {variant}"
 
 
-def check_resumable(out: str, record: dict) -> None:
+def check_resumable(req: StudyRequest, record: dict) -> None:
+    """Refuse ``req.out`` where it holds anything but a study of this same request."""
+    out = req.out
     path = os.path.join(out, REQUEST_FILE)
     if not os.path.isdir(out) or not os.listdir(out):
         return
     if not os.path.exists(path):
-        raise bad_value("--out", out, "an empty or new folder, or a study folder (holding request.json)")
+        raise req.field_error("out", out, "an empty or new folder, or a study folder (holding request.json)")
     with open(path, encoding="utf-8") as fh:
         old = json.load(fh)
     diff = sorted(k for k in set(old) | set(record) if old.get(k) != record.get(k))
     if diff:
-        raise ShaderballError(
-            f"--out {out}: holds a study of another request (differs in {', '.join(diff)}); "
-            "use a new folder, or the same spec and options to resume"
+        raise req.field_error(
+            "out",
+            out,
+            "use a new folder, or the same spec and options to resume",
+            what=f"{format_value(out)} holds a study of another request (differs in {', '.join(diff)})",
         )
 
 
@@ -515,19 +543,48 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     started = time.perf_counter()
     spec = check_request(req)
     record = request_record(req, spec)
-    check_resumable(req.out, record)
+    check_resumable(req, record)
+    ctx = study_context(spec, record["resolution"])
+    selection = select_samples(spec, req.draws, req.scan)
+    configs = chosen_configs(req, spec)
+    wanted = {s.material_index for s in selection}
+    plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials if p.material_index in wanted}
+
+    os.makedirs(os.path.join(req.out, "references"), exist_ok=True)
+    os.makedirs(os.path.join(req.out, "rows"), exist_ok=True)
+    write_text_atomic(os.path.join(req.out, REQUEST_FILE), json.dumps(record, indent=1) + "\n")
+    tick = Ticker(len(selection) * (1 + req.repeats * len(configs)), started, progress)
+    subjects = {s.sample_id: SampleScene(ctx, s, plans[s.material_index]) for s in selection}
+    references = ensure_references(req, ctx, selection, subjects, tick)
+    rows, counts = measure_rows(req, ctx, selection, configs, subjects, references, tick)
+    meta = study_meta(req, ctx, record, selection, configs, references)
+    recommendations = write_outputs(req.out, meta, rows, configs)
+    return StudySummary(
+        req.out,
+        len(selection),
+        len(configs),
+        len(rows),
+        counts["rendered"],
+        counts["reused"],
+        time.perf_counter() - started,
+        recommendations,
+    )
+
+
+def study_context(spec, resolution: int) -> Context:
+    """Mitsuba loaded, the shaderball, its G-buffer and guides at ``resolution``, and the
+    paper's recipe at the study's resolution (the spec's sampler, clamp and target are the
+    configurations' to vary)."""
     variant = resolve_variant(spec.render.variant)
     mi = load_mitsuba(variant)
     ball, camera = build_shaderball(), default_camera()
-    resolution = record["resolution"]
     gbuffer = load_gbuffer(ball, camera, resolution, variant)
     r = spec.render
-    # the paper's recipe at the study's resolution: the spec's sampler, clamp and target are the configs' to vary
     base = RenderSettings(
         resolution=resolution, spp=r.spp, max_depth=r.max_depth, integrator=r.integrator, sun=r.sun, variant=variant
     )
     shape_ids, normals = shape_ids_and_normals(ball, camera, resolution, variant)
-    ctx = Context(
+    return Context(
         spec,
         variant,
         mi,
@@ -540,30 +597,37 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         renders_per_worker=max(1.0, spec.dataset.n_renders / (os.cpu_count() or 1)),
         lights_per_material=spec.dataset.lights_per_material,
     )
-    selection = select_samples(spec, req.samples, req.scan)
-    configs = study_configs(r.spp, spec.lighting.sun, req.ladder, req.families, r.max_depth)
+
+
+def chosen_configs(req: StudyRequest, spec) -> list[Config]:
+    """The configurations of the request's families and ladder; with ``only``, those and the
+    spec's recipe and its A/A row."""
+    r = spec.render
+    configs = study_configs(r.spp, spec.lighting.sun, req.ladder, req.configs, r.max_depth)
     if req.only:
         always = (paper_name(r.spp), aa_name(r.spp))
         configs = [c for c in configs if c.name in req.only or c.name in always]
-    wanted = {s.material_index for s in selection}
-    plans = {p.material_index: p for shard in plan_dataset(spec) for p in shard.materials if p.material_index in wanted}
+    return configs
 
-    os.makedirs(os.path.join(req.out, "references"), exist_ok=True)
-    os.makedirs(os.path.join(req.out, "rows"), exist_ok=True)
-    write_text_atomic(os.path.join(req.out, REQUEST_FILE), json.dumps(record, indent=1) + "\n")
-    total, done = len(selection) * (1 + req.repeats * len(configs)), 0
-    counts = {"rendered": 0, "reused": 0}
 
-    def tick(what):
-        nonlocal done
-        done += 1
-        if progress is not None:
-            elapsed = time.perf_counter() - started
-            progress({"done": done, "total": total, "what": what, "elapsed_s": elapsed})
+class Ticker:
+    """Counts the study's steps and tells ``progress`` of each (done, total, what, elapsed)."""
 
-    subjects, references = {}, {}
-    for s in selection:  # references first: the expensive part, kept by a killed study
-        subjects[s.sample_id] = SampleScene(ctx, s, plans[s.material_index])
+    def __init__(self, total: int, started: float, progress=None):
+        self.total, self.started, self.progress, self.done = total, started, progress, 0
+
+    def __call__(self, what: str) -> None:
+        self.done += 1
+        if self.progress is not None:
+            elapsed = time.perf_counter() - self.started
+            self.progress({"done": self.done, "total": self.total, "what": what, "elapsed_s": elapsed})
+
+
+def ensure_references(req: StudyRequest, ctx: Context, selection, subjects: dict, tick) -> dict:
+    """Every sample's reference, read from the study folder or rendered and written there
+    first (the expensive part, kept by a killed study); with its sRGB picture."""
+    references = {}
+    for s in selection:
         path = os.path.join(req.out, "references", f"{s.sample_id}.npz")
         ref = load_reference(path)
         if ref is None:
@@ -572,8 +636,13 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         ref["srgb8"] = hdr_to_srgb8(ref["image"])
         references[s.sample_id] = ref
         tick(f"reference {s.sample_id}")
+    return references
 
-    rows = []
+
+def measure_rows(req: StudyRequest, ctx: Context, selection, configs, subjects: dict, references: dict, tick):
+    """Every row (sample x configuration x repeat): kept where the sample's rows file holds
+    it, else measured and the file written at once. Returns (rows, counts)."""
+    rows, counts = [], {"rendered": 0, "reused": 0}
     for s in selection:
         path = os.path.join(req.out, "rows", f"{s.sample_id}.json")
         try:
@@ -595,12 +664,18 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
                     counts["rendered"] += 1
                 rows.append(mine[name])
                 tick(f"{s.sample_id} {config.name} #{repeat}")
+    return rows, counts
 
-    meta = {
+
+def study_meta(req: StudyRequest, ctx: Context, record: dict, selection, configs, references: dict) -> dict:
+    """What study.json's ``meta`` holds: the request, the recipe, the samples, the
+    configurations, the references' floors and the machine."""
+    spec, r = ctx.spec, ctx.spec.render
+    return {
         "request": record,
         "spec": os.path.abspath(req.spec),
-        "variant": variant,
-        "resolution": resolution,
+        "variant": ctx.variant,
+        "resolution": record["resolution"],
         "recipe": {"spp": r.spp, "max_depth": r.max_depth, "sun": spec.lighting.sun, "sampler": "independent"},
         "selection": [s.to_dict() for s in selection],
         "configs": [c.to_dict() for c in configs],
@@ -615,17 +690,6 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
         "renders_per_worker": ctx.renders_per_worker,
         "lights_per_material": ctx.lights_per_material,
         "command": study_command(req),
-        "machine": machine_line(variant),
+        "machine": machine_line(ctx.variant),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     }
-    recommendations = write_outputs(req.out, meta, rows, configs)
-    return StudySummary(
-        req.out,
-        len(selection),
-        len(configs),
-        len(rows),
-        counts["rendered"],
-        counts["reused"],
-        time.perf_counter() - started,
-        recommendations,
-    )

@@ -27,7 +27,7 @@ import sys
 import click
 
 from pipeline.errors import USER_ERRORS
-from pipeline.fields import MISSING, Bool, FieldError, Many, Optional, declared, default_of
+from pipeline.fields import FIELD_REF, MISSING, Bool, FieldError, Many, Optional, declared, default_of
 from pipeline.ui import process
 from pipeline.ui.options import FieldType, option_help
 
@@ -47,6 +47,7 @@ def label_for(request_cls):
             return _metavar(f)
         return option_name(name)
 
+    label.names = set(fields)
     return label
 
 
@@ -67,7 +68,13 @@ def _argument(f) -> click.Argument:
     return click.Argument([f.name], **kwargs)
 
 
-def _option(f) -> click.Option:
+def _spelled(text: str, label) -> str:
+    """``{field}`` in a help text spelled as the command line spells that field (only the
+    request's own fields: other braces are text)."""
+    return FIELD_REF.sub(lambda m: label(m.group(1)) if m.group(1) in label.names else m.group(0), text)
+
+
+def _option(f, label) -> click.Option:
     rule = f.metadata["rule"]
     default = default_of(f)
     spelled = option_name(f.name)
@@ -76,23 +83,26 @@ def _option(f) -> click.Option:
         decl = f"{spelled}/--no-{f.name.replace('_', '-')}" if default else spelled
         kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default))
     else:
-        if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5"
-            default = ",".join(f"{v:g}" for v in default)
+        decl = spelled
+        if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5", "1,2,4"; () as the rule's word for none
+            inner = rule.rule if isinstance(rule, Optional) else rule
+            default = ",".join(f"{v:g}" for v in default) if default else getattr(inner, "none", None) or ""
         kwargs = dict(type=FieldType(rule), default=None if required else default)
         kwargs["show_default"] = not required and default is not None
         kwargs["required"] = required
         if f.metadata.get("metavar"):
             kwargs["metavar"] = f.metadata["metavar"]
-    kwargs["help"] = option_help(f)
-    return click.Option([decl], f.name, **kwargs)
+    kwargs["help"] = _spelled(option_help(f), label)
+    return click.Option([decl, f.name], **kwargs)
 
 
 def params_of(request_cls, skip=()) -> list[click.Parameter]:
     """The click parameters of ``request_cls``'s declared fields, in declaration order:
     operands first (as usage lines list them), then options."""
     fields = [f for f in declared(request_cls).values() if f.name not in skip]
+    label = label_for(request_cls)
     operands = [_argument(f) for f in fields if f.metadata.get("positional")]
-    options = [_option(f) for f in fields if not f.metadata.get("positional")]
+    options = [_option(f, label) for f in fields if not f.metadata.get("positional")]
     return [*operands, *options]
 
 
@@ -168,11 +178,13 @@ class Command(click.Command):
 
     def make_context(self, info_name, args, parent=None, **extra):
         json_wanted = any(p.name == "as_json" for p in self.params) and process.wants_json(args)
+        args = list(args)
+        given = list(args)  # click consumes ``args`` while parsing
         try:
             _refuse_json_with_a_value(self, info_name, args, parent)
             return super().make_context(info_name, args, parent=parent, **extra)
         except click.UsageError as exc:
-            exc = _json_given_a_value(self, args, exc)
+            exc = _json_given_a_value(self, given, exc)
             if not json_wanted:
                 raise exc from None
             exc.show()
@@ -291,6 +303,7 @@ def request_command(
         )
         group.add_command(command)
         command.body = body
+        command.request_cls = request_cls
         return body
 
     return decorate

@@ -42,14 +42,16 @@ class FieldType(click.ParamType):
         try:
             return self.rule.check(parsed)
         except Reject as exc:
-            raise refused(param, ctx, parsed, self.rule.allowed + (f" {exc.detail}" if exc.detail else "")) from None
+            allowed = self.rule.allowed + (f" {exc.detail}" if exc.detail else "")
+            raise refused(param, ctx, parsed, allowed, what=exc.what) from None
 
 
-def refused(param, ctx, value, allowed: str) -> FieldError:
+def refused(param, ctx, value, allowed: str, what: str | None = None) -> FieldError:
     """The refusal the dataclass itself would raise, naming the option as it is spelled:
     ``--epochs: 0 is not allowed; an integer from 1 to 100000`` (the command reports it as
-    it reports every user error: ``error: ...``, exit code 2)."""
-    return FieldError(param.opts[0], value, allowed, name=param.name)
+    it reports every user error: ``error: ...``, exit code 2); an operand by its metavar."""
+    where = param.metavar if isinstance(param, click.Argument) and param.metavar else param.opts[0]
+    return FieldError(where, value, allowed, what=what, name=param.name)
 
 
 def option_help(f) -> str:

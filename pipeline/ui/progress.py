@@ -83,13 +83,15 @@ def study_progress(p: dict) -> None:
 def training_progress():
     """One line on stderr per batch: epoch, batch, loss, samples/s, ETA."""
     interactive = sys.stderr.isatty()
+    bar = {"open": False}  # a bar line without its newline yet (interactive)
 
     def show(p):
         if "warning" in p:  # a run that does not learn says so (pipeline.neural.train)
             click.echo(("\n" if interactive else "") + f"warning: {p['warning']}", err=True)
             return
-        if "note" in p:  # which loss the run trains with, and why
-            click.echo(p["note"], err=True)
+        if "note" in p:  # which loss the run trains with, and why; how long it will take
+            click.echo(("\n" if bar["open"] else "") + p["note"], err=True)
+            bar["open"] = False
             return
         width = 20
         filled = int(width * p["batch"] / p["batches"])
@@ -99,6 +101,7 @@ def training_progress():
             f"ETA {format_seconds(p['eta_s'])}"
         )
         click.echo(("\r" + line) if interactive else line, err=True, nl=not interactive)
+        bar["open"] = interactive and p["batch"] != p["batches"]
         if interactive and p["batch"] == p["batches"]:
             click.echo("", err=True)
 

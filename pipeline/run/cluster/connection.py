@@ -132,9 +132,9 @@ def job_script_prologue(options: ClusterOptions) -> list[str]:
     """Shell lines run before the worker starts: threads and a node-local kernel cache."""
     import dask
 
-    user_lines = list(dask.config.get(f"jobqueue.{options.kind}.job-script-prologue", None) or [])
+    user_lines = list(dask.config.get(f"jobqueue.{options.cluster}.job-script-prologue", None) or [])
     scratch = options.scratch or DEFAULT_SCRATCH
-    job_id = JOB_ID_VARIABLE[options.kind]
+    job_id = JOB_ID_VARIABLE[options.cluster]
     return user_lines + [
         f"export {RENDER_THREADS_ENV}={options.cores}",
         # drjit writes compiled kernels to $HOME/.drjit by default: on NFS, with every node
@@ -158,7 +158,7 @@ def jobqueue_kwargs(options: ClusterOptions) -> dict:
         "account": options.account,
         "job_name": "shaderball",
         "python": sys.executable,
-        "local_directory": f"{scratch}/shaderball-dask-{JOB_ID_VARIABLE[options.kind]}",
+        "local_directory": f"{scratch}/shaderball-dask-{JOB_ID_VARIABLE[options.cluster]}",
         "job_script_prologue": job_script_prologue(options),
         # No --lifetime-restart: a worker restarted inside a job about to end would be
         # killed with it; adaptive scaling submits a new job instead.
@@ -168,7 +168,7 @@ def jobqueue_kwargs(options: ClusterOptions) -> dict:
 
 def job_script(options: ClusterOptions, scheduler_address: str = "tcp://SCHEDULER-HOST:PORT") -> str:
     """The batch script each job of ``options`` runs, without submitting or starting anything."""
-    job_class = _jobqueue_job_class(options.kind)
+    job_class = _jobqueue_job_class(options.cluster)
     return job_class(scheduler=scheduler_address, name="shaderball-worker", **jobqueue_kwargs(options)).job_script()
 
 
@@ -177,16 +177,16 @@ def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
 
     ``adapt`` False: submit nothing (to inspect ``cluster.job_script()``).
     """
-    job_class = _jobqueue_job_class(options.kind)
+    job_class = _jobqueue_job_class(options.cluster)
     import dask_jobqueue
 
-    base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.kind]
+    base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.cluster]
     cluster_class = type(f"Shaderball{base.__name__}", (base,), {"job_cls": job_class})
     import dask
 
     scheduler_options = {
         "dashboard_address": ":0",
-        **(dask.config.get(f"jobqueue.{options.kind}.scheduler-options", None) or {}),
+        **(dask.config.get(f"jobqueue.{options.cluster}.scheduler-options", None) or {}),
     }
     cluster = cluster_class(scheduler_options=scheduler_options, **jobqueue_kwargs(options))
     if adapt:
@@ -349,7 +349,7 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             yield from _interruptible(
                 Connection(
                     client,
-                    f"{options.kind} cluster, {options.jobs or 1} job(s) of {options.cores} cores, {options.memory}",
+                    f"{options.cluster} cluster, {options.jobs or 1} job(s) of {options.cores} cores, {options.memory}",
                     None,
                     cluster,
                 )

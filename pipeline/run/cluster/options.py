@@ -13,10 +13,9 @@ from __future__ import annotations
 import re
 import socket
 from dataclasses import dataclass
-from typing import ClassVar
 
-from pipeline.errors import ShaderballError, bad_value
-from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field
+from pipeline.errors import ShaderballError
+from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field, format_value
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
@@ -92,21 +91,19 @@ class ClusterOptions(Checked):
     Options of another kind of cluster left at None; :meth:`check` refuses a mix.
     """
 
-    FIELD_PREFIX: ClassVar[str] = "--"
-    FIELD_LABELS: ClassVar[dict[str, str]] = {"kind": "--cluster"}
-
-    kind: str = field(
+    cluster: str = field(
         "local", rule=Choice(KINDS), doc="Where workers run: this machine, or batch jobs via dask-jobqueue."
     )
     workers: int | None = field(
         None,
-        rule=Optional(Int(*WORKERS_RANGE), "unset (one per 2 cores)"),
-        doc="Local dask worker processes; 0 runs in this process without dask. Ignored with --scheduler.",
+        rule=Optional(Int(*WORKERS_RANGE), "unset (one per 2 cores)", default_text="one per 2 cores"),
+        doc="Local dask worker processes; 0 runs in this process without dask. Ignored with a scheduler.",
         unit="processes",
     )
     scheduler: str | None = field(
         None,
         rule=Optional(_Scheduler()),
+        metavar="ADDRESS",
         doc="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
         "(its workers need DIR at the same path; docs/cluster.md).",
     )
@@ -119,12 +116,14 @@ class ClusterOptions(Checked):
     memory: str | None = field(
         None,
         rule=Optional(_Memory()),
+        metavar="SIZE",
         doc="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
         "its limit is restarted and its shard runs again.",
     )
     walltime: str | None = field(
         None,
         rule=Optional(_Walltime()),
+        metavar="HH:MM:SS",
         doc="slurm/pbs: wall-clock limit per job; workers retire about 5 min "
         "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
     )
@@ -143,12 +142,14 @@ class ClusterOptions(Checked):
                 "(shell variables such as $TMPDIR are expanded on the node)",
             )
         ),
+        metavar="DIR",
         doc="slurm/pbs: node-local folder for the kernel cache and dask's files "
         f"[default: {DEFAULT_SCRATCH}, expanded on the node].",
     )
     recycle_after: int = field(
         DEFAULT_RECYCLE_AFTER,
         rule=Int(*RECYCLE_AFTER_RANGE),
+        metavar="RENDERS",
         doc="Restart a dask worker process once it has rendered this many samples "
         "(bounds Mitsuba's slow memory growth, docs/cluster.md); 0: never.",
         unit="renders",
@@ -156,6 +157,7 @@ class ClusterOptions(Checked):
     start_timeout: int | None = field(
         None,
         rule=Optional(Int(*START_TIMEOUT_RANGE), "unset (wait as long as it takes)"),
+        metavar="SECONDS",
         doc="Stop (exit 2, naming the jobs and why they wait) when the build has had no worker for "
         "this long: before the first one arrives, or after the last one left "
         "(e.g. a partition down). The dataset resumes with the same command. [default: wait "
@@ -165,7 +167,7 @@ class ClusterOptions(Checked):
 
     @property
     def is_jobqueue(self) -> bool:
-        return self.kind in JOBQUEUE_KINDS
+        return self.cluster in JOBQUEUE_KINDS
 
     def check(self) -> ClusterOptions:
         """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
@@ -174,36 +176,30 @@ class ClusterOptions(Checked):
     def check_cross(self) -> None:
         """The options of one kind of cluster, not another's."""
         if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
-            raise ShaderballError("--start-timeout: not allowed with --workers 0 (no workers to wait for)")
-        if self.scheduler is not None and self.kind != "local":
-            raise ShaderballError(f"--scheduler: not allowed with --cluster {self.kind}; use one or the other")
+            raise self._refuse("start_timeout", "not allowed with {workers} 0", "there are no workers to wait for")
+        if self.scheduler is not None and self.cluster != "local":
+            raise self._refuse("scheduler", f"not allowed with {{cluster}} {self.cluster}", "use one or the other")
         if self.is_jobqueue:
             if self.workers is not None:
-                raise ShaderballError(
-                    f"--workers: not allowed with --cluster {self.kind}; use --jobs (one worker process per job)"
+                raise self._refuse(
+                    "workers", f"not allowed with {{cluster}} {self.cluster}", "use {jobs} (one worker process per job)"
                 )
-            for option, value, example in (
-                ("--cores", self.cores, "--cores 32"),
-                ("--memory", self.memory, "--memory 64GiB"),
-                ("--walltime", self.walltime, "--walltime 12:00:00"),
-            ):
-                if value is None:
-                    raise ShaderballError(f"{option}: required with --cluster {self.kind}; for example: {example}")
+            for name, example in (("cores", "32"), ("memory", "64GiB"), ("walltime", "12:00:00")):
+                if getattr(self, name) is None:
+                    raise self._refuse(
+                        name, f"required with {{cluster}} {self.cluster}", f"for example: {{{name}}} {example}"
+                    )
         else:
-            for option, value in (
-                ("--jobs", self.jobs),
-                ("--cores", self.cores),
-                ("--walltime", self.walltime),
-                ("--queue", self.queue),
-                ("--account", self.account),
-                ("--scratch", self.scratch),
-            ):
-                if value is not None:
-                    raise ShaderballError(f"{option}: only with --cluster slurm or --cluster pbs")
+            for name in ("jobs", "cores", "walltime", "queue", "account", "scratch"):
+                if getattr(self, name) is not None:
+                    raise self._refuse(name, "only with {cluster} slurm or {cluster} pbs", "leave it out here")
             if self.scheduler is not None and self.memory is not None:
-                raise ShaderballError(
-                    "--memory: not allowed with --scheduler; give --memory-limit to `dask worker` instead"
+                raise self._refuse(
+                    "memory", "not allowed with {scheduler}", "give --memory-limit to `dask worker` instead"
                 )
+
+    def _refuse(self, name: str, what: str, allowed: str):
+        return self.field_error(name, getattr(self, name), allowed, what=what)
 
 
 def memory_bytes(text: str) -> int:
@@ -215,7 +211,7 @@ def memory_bytes(text: str) -> int:
     except (ValueError, TypeError):
         value = None
     if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
-        raise bad_value("--memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB")
+        raise ClusterOptions.field_error("memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB")
     return int(value)
 
 
@@ -223,7 +219,7 @@ def walltime_seconds(text: str) -> int:
     match = _WALLTIME.match(text)
     seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
     if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise bad_value("--walltime", text, f"HH:MM:SS from {WALLTIME_SPAN}")
+        raise ClusterOptions.field_error("walltime", text, f"HH:MM:SS from {WALLTIME_SPAN}")
     return seconds
 
 
@@ -244,7 +240,9 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
 def scheduler_host_port(address: str) -> tuple[str, int]:
     match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z", address, re.ASCII)
     if match is None or not 0 < int(match[2]) < 65536:
-        raise bad_value("--scheduler", address, "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786")
+        raise ClusterOptions.field_error(
+            "scheduler", address, "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
+        )
     return match[1].strip("[]"), int(match[2])
 
 
@@ -255,6 +253,9 @@ def check_scheduler_reachable(address: str, timeout_s: float = 5.0) -> None:
         with socket.create_connection((host, port), timeout=timeout_s):
             pass
     except OSError as exc:
-        raise ShaderballError(
-            f"--scheduler: cannot reach {address!r} ({exc.strerror or exc}); is `dask scheduler` running there?"
+        raise ClusterOptions.field_error(
+            "scheduler",
+            address,
+            "is `dask scheduler` running there?",
+            what=f"cannot reach {format_value(address)} ({exc.strerror or exc})",
         ) from None

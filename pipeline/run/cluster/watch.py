@@ -138,7 +138,7 @@ class WorkerWatch:
         if self.jobqueue is not None and (now >= self._next_queue_poll or self.workers != before):
             self._next_queue_poll = now + QUEUE_POLL_S
             ids = self.job_ids()
-            if self.options.kind != "slurm":
+            if self.options.cluster != "slurm":
                 self.jobs = [JobState(job_id, "submitted") for job_id in ids]
             elif ids:
                 try:
@@ -160,17 +160,17 @@ class WorkerWatch:
 
     def jobs_text(self, explain: bool = False) -> str:
         if self.queue_error:
-            return f"{self.options.kind} jobs unknown: {self.queue_error}"
+            return f"{self.options.cluster} jobs unknown: {self.queue_error}"
         if self.jobs is None:
-            return f"{self.options.kind} jobs: submitting"
-        return describe_jobs(self.options.kind, self.jobs, explain=explain)
+            return f"{self.options.cluster} jobs: submitting"
+        return describe_jobs(self.options.cluster, self.jobs, explain=explain)
 
     def check(self) -> None:
         """Raise ShaderballError on a refused job or when --start-timeout has run out."""
         refused = self.refusals()
         if refused:
             raise ShaderballError(
-                f"--cluster {self.options.kind}: the batch system refused a job: {refused[0]} "
+                f"{self.options.cluster}: the batch system refused a job: {refused[0]} "
                 "(JOB-SCRIPT is what --print-job-script prints). Check --queue, --account, --cores, "
                 "--memory and --walltime against the cluster's limits; what was rendered is kept: "
                 "run the same command again to resume"
