@@ -11,7 +11,6 @@ Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): m
 """
 
 import errno
-import numbers
 import re
 
 from geometry.errors import GeometryError
@@ -60,20 +59,6 @@ def filesystem_error(exc: OSError, where: str, hint: str) -> FilesystemError:
 
 #: Every error type whose message is meant for the user (a clean message and its exit code at the CLI).
 USER_ERRORS = (ShaderballError, MaterialError, SkyError, GeometryError)
-
-
-def bad_value(field: str, value, allowed: str) -> ShaderballError:
-    """The project's one wording of a refused value: field, value, what is allowed."""
-    return ShaderballError(f"{field}: {value!r} is not allowed; allowed: {allowed}")
-
-
-def check_int(field: str, value, low: int, high: int) -> int | None:
-    """``value`` as an int if it is an integer in [low, high]; None stays None; else refused."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
-        raise bad_value(field, value, f"an integer from {low} to {high}")
-    return int(value)
 
 
 def short_repr(value, limit: int = 60) -> str:

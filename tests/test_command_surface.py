@@ -151,8 +151,12 @@ def test_sweep_of_a_real_evaluation_report(run, reference, tmp_path):
     done = _cli("sweep", evaluation / "report.json", "--out", out, "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
+    assert summary.pop("ok") is True and summary.pop("exit") == 0  # --json's, beside what sweep.json holds
     assert summary == json.loads((out / "sweep.json").read_text())
     assert [r["seed"] for r in summary["runs"]] == [0] and (out / "data-size.png").stat().st_size > 0
+    # headed by the command that wrote it, spelled from the request
+    heading = f"Written by `shaderball sweep {evaluation / 'report.json'} --out {out}` on "
+    assert (out / "sweep.md").read_text().splitlines()[2].startswith(heading)
     refused = _cli("sweep", run / "config.json", "--out", tmp_path / "other")
     assert refused.returncode == 2 and "report.json" in refused.stderr
     assert not (tmp_path / "other").exists()
@@ -189,7 +193,8 @@ def test_neural_bench_loaders_on_a_folder_and_its_publication(reference, tmp_pat
         "| publication",
     ]
     swapped = _cli("neural-bench", "loaders", pub, reference, "--repeats", 1)
-    assert swapped.returncode == 2 and "name a dataset folder, then its publication" in swapped.stderr
+    assert swapped.returncode == 2 and "a dataset folder, then its publication as PUB" in swapped.stderr
+    assert swapped.stderr.splitlines()[-1].startswith(f"error: DIR: '{pub}' is a publication; ")
 
 
 @pytest.mark.slow
@@ -198,7 +203,7 @@ def test_neural_bench_collate_denoise_and_train_options(reference):
     assert collate.returncode == 0, collate.stderr
     rows = json.loads(collate.stdout)["rows"]
     assert len(rows) == 4 and all(r["samples_per_s_median"] > 0 for r in rows)
-    denoise = _cli("neural-bench", "denoise", reference, "--limit", 1, "--spp", 1, "--reference-spp", 4)
+    denoise = _cli("neural-bench", "denoise", reference, "--draws", 1, "--spp", 1, "--reference-spp", 4)
     assert denoise.returncode == 0, denoise.stderr
     assert denoise.stdout.startswith("| spp | OIDN fed |") and denoise.stdout.count("\n| 1 |") == 5
     train = _cli(

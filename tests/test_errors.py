@@ -2,7 +2,7 @@
 
 import pytest
 
-from pipeline.errors import USER_ERRORS, bad_value, caused_by_interrupt, check_int
+from pipeline.errors import caused_by_interrupt
 
 
 def test_an_interrupt_wrapped_by_a_library_is_still_an_interrupt():
@@ -34,10 +34,3 @@ def test_an_interrupt_in_a_plugin_mitsuba_loads_is_still_an_interrupt():
     assert not caused_by_interrupt(RuntimeError("Traceback ...\nValueError: a KeyboardInterrupt-free failure"))
 
 
-def test_refused_integers_have_one_wording():
-    with pytest.raises(USER_ERRORS, match=r"^--spp: 0 is not allowed; allowed: an integer from 1 to 9$"):
-        check_int("--spp", 0, 1, 9)
-    with pytest.raises(USER_ERRORS):
-        check_int("--spp", True, 0, 9)  # a bool is not an integer here
-    assert check_int("--spp", None, 1, 9) is None and check_int("--spp", 3, 1, 9) == 3
-    assert str(bad_value("x", 1.5, "a whole number")) == "x: 1.5 is not allowed; allowed: a whole number"

@@ -27,6 +27,7 @@ from pipeline.publish.refusal import Refused
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish
 from pipeline.store.exr import read_exr
+from support.bombs import png_bomb
 from support.publishing import SMOKE, files_of, hf_env, members, reseal, rewrite_tar, sha, smoke_build
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session), a publish, the clients
@@ -274,6 +275,67 @@ def test_a_forged_preview_is_refused(pub, tmp_path):
     with pytest.raises(Refused) as caught:
         verify(str(forged))
     assert caught.value.kind == "preview" and f"member '{name}': not a PNG" in str(caught.value)
+
+
+def forged_preview(pub: Path, tmp_path: Path, column: str, make) -> tuple[Path, str]:
+    """A copy of ``pub`` whose first ``column`` preview (render_preview, maps_preview) is
+    ``make(its bytes)``, consistently: the table names the new bytes, every checksum resealed."""
+    from pipeline.publish.table import material_member, material_row
+    from pipeline.store.records import dumps
+
+    forged = tmp_path / f"pub-{column}"
+    shutil.copytree(pub, forged)
+    table = rows(forged)
+    shard = "shard" if column == "render_preview" else "material_shard"
+    tar, name = forged / table[0][shard], table[0][column]
+    items = members(tar)
+    payload = make(dict(items)[name])
+    for row in table:
+        if row[column] == name and row[shard] == table[0][shard]:
+            row[f"{column}_sha256"], row[f"{column}_bytes"] = sha(payload), len(payload)
+    changed = {name: payload}
+    if column == "maps_preview":  # the material's row member repeats its preview's checksum
+        changed[material_member(table[0]["material_id"])] = (dumps(material_row(table[0])) + "\n").encode()
+    rewrite_tar(tar, [(n, changed.get(n, d)) for n, d in items])
+    (forged / "samples.jsonl").write_text("".join(dumps(r) + "\n" for r in table))
+    reseal(forged)
+    return forged, name
+
+
+def _gif(png: bytes) -> bytes:
+    from PIL import Image
+
+    out = io.BytesIO()
+    with Image.open(io.BytesIO(png)) as image:
+        image.convert("RGB").save(out, format="GIF")
+    return out.getvalue()
+
+
+def _bad_crc(png: bytes) -> bytes:
+    at = len(png) - 16  # the last IDAT's CRC: the 4 bytes before IEND's 12
+    return png[:at] + bytes([png[at] ^ 0xFF]) + png[at + 1 :]
+
+
+FORGED_PREVIEWS = {
+    "truncated halfway": (lambda png: png[: len(png) // 2], "not a whole PNG"),
+    "cut before IEND": (lambda png: png[:-12], "not a whole PNG"),
+    "a chunk's CRC broken": (_bad_crc, "not a whole PNG"),
+    "a GIF of the preview's size": (_gif, "not a PNG"),
+    "a PNG of another size": (lambda png: encode_png(np.zeros((256, 256, 3), np.uint8)), "the preview is"),
+    "a PNG bomb of 8000 x 8000": (lambda png: png_bomb(8000, 8000, "RGB"), "the preview is"),
+}
+
+
+@pytest.mark.parametrize("column", ["render_preview", "maps_preview"])
+@pytest.mark.parametrize("case", sorted(FORGED_PREVIEWS))
+def test_verify_decodes_previews_within_their_size_and_refuses_a_broken_one(pub, tmp_path, case, column):
+    make, words = FORGED_PREVIEWS[case]
+    forged, name = forged_preview(pub, tmp_path, column, make)
+    with pytest.raises(Refused) as caught:
+        verify(str(forged))
+    assert caught.value.kind == "preview", caught.value
+    assert f"member '{name}': " in str(caught.value) and words in str(caught.value), str(caught.value)
+    assert len(str(caught.value)) < 400
 
 
 # --------------------------------------------------------------------------- Croissant's floats

@@ -6,9 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from pipeline.errors import ShaderballError
 from pipeline.ui import progress
-from pipeline.ui.values import parse_int_list
 
 
 def test_format_seconds():
@@ -55,16 +53,19 @@ def test_evaluate_off_a_terminal_prints_a_bar_line_per_step_saying_what_runs(cap
     ]
 
 
-def test_int_lists():
-    assert parse_int_list("--spp", "1,2,16", (1, 4096), none="none") == (1, 2, 16)
-    assert parse_int_list("--spp", " None ", (1, 4096), none="none") == ()
-    with pytest.raises(ShaderballError) as refused:
-        parse_int_list("--spp", "1,x", (1, 4096), none="none")
-    assert (
-        str(refused.value) == "--spp: '1,x' is not allowed; allowed: comma-separated integers from 1 to 4096, or none"
-    )
-    with pytest.raises(ShaderballError, match="from 1 to 8$"):
-        parse_int_list("--n", "", (1, 8))
+def test_int_lists_are_one_rule():
+    """A comma-separated list of integers is the IntList rule: parsed from the command line,
+    refused in the project's one form."""
+    from pipeline.fields import IntList, Reject
+
+    rule = IntList(1, 4096, none="none")
+    assert rule.check(rule.parse("1,2,16")) == (1, 2, 16)
+    assert rule.check(rule.parse(" None ")) == ()
+    with pytest.raises(ValueError):
+        rule.parse("1,x")
+    with pytest.raises(Reject):
+        rule.check((0, 2))
+    assert rule.allowed == "comma-separated integers from 1 to 4096, or none"
 
 
 def test_the_neural_commands_help_says_the_ranges_their_checks_use():
@@ -84,5 +85,5 @@ def test_the_neural_commands_help_says_the_ranges_their_checks_use():
     train = help_of("train")
     for name, bounds in INTEGER_RANGES.items():
         assert f"--{name.replace('_', '-')}" in train and span(bounds) in train, name
-    assert f"each {span(SPP_LADDER_RANGE)};" in help_of("evaluate")
+    assert f"Allowed: {span(SPP_LADDER_RANGE)} each, or none." in help_of("evaluate")
     assert f"[{'|'.join(DEVICES)}]" in train

@@ -1,11 +1,17 @@
 """A folder being written (PUB by publish, DIR by unpack): new or empty to begin with, every
-file written atomically, and everything removed again when the write fails or is refused."""
+file written atomically, and what this write made removed again when it fails or is refused.
+
+Cleanup removes only its own: the files this write wrote (each only while it is still the
+file written: same device and inode) and the folders it created (``out``, missing parents
+of it, folders inside it), deepest first, each only if empty (``os.rmdir``). A file that
+another process put into one of those folders meanwhile survives, and so does every folder
+above it; nothing is removed by walking a tree (no ``rmtree``)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
-import shutil
+import stat
 from collections.abc import Iterator
 
 from pipeline.publish.request import PublishRequest, format_value, out_refused
@@ -41,39 +47,69 @@ def check_out(out: str, source: str | None = None, label: str = "DIR", owner=Pub
 @contextlib.contextmanager
 def held_output(out: str, purpose: str, label: str) -> Iterator[Output]:
     """``out`` created and held for writing (pipeline.store.lock) while the block writes it;
-    on any failure inside, everything written there is removed again. A writer that took the
-    folder first is refused (exit code 3); one that filled it meanwhile is not written over."""
+    on any failure inside, what this write made is removed again (:meth:`Output.discard`: its
+    files while the folder is held, its folders once the lock file is gone). A writer that
+    took the folder first is refused (exit code 3); one that filled it meanwhile is not
+    written over."""
     output = Output(out)
-    with writer_lock(out, purpose, label):
-        if not only_temp_files(os.listdir(out)):
-            raise out_refused(out, FILLED_MEANWHILE)
-        try:
-            yield output
-        except BaseException:
-            output.discard()
-            raise
+    try:
+        with writer_lock(out, purpose, label):
+            if not only_temp_files(os.listdir(out)):
+                raise out_refused(out, FILLED_MEANWHILE)
+            try:
+                yield output
+            except BaseException:
+                output.discard()
+                raise
+    except BaseException:
+        output.discard()
+        raise
 
 
 class Output:
-    """PUB while it is written: every file atomically; on failure, everything written is removed.
-    ``listed``: keep each file's SHA-256 and size (``sums``, ``sizes``), as publish needs for
-    SHA256SUMS; else only their count and total (``files``, ``bytes``), as unpack needs."""
+    """PUB while it is written: every file atomically; on failure, what this write made is
+    removed (:meth:`discard`). ``listed``: keep each file's SHA-256 and size (``sums``,
+    ``sizes``), as publish needs for SHA256SUMS; else only their count and total (``files``,
+    ``bytes``), as unpack needs."""
 
     def __init__(self, out: str, listed: bool = True):
         self.out = out
-        # the outermost folder this write creates (out itself, or a missing parent of it)
-        self.created_top = None
-        path = os.path.abspath(out)
-        while not os.path.lexists(path):
-            self.created_top, path = path, os.path.dirname(path)
-        os.makedirs(out, exist_ok=True)
+        #: folders this write created (os.mkdir succeeded), in creation order
+        self.created_dirs: list[str] = []
+        #: files this write writes: absolute path -> (st_dev, st_ino) once written (None before)
+        self.written: dict[str, tuple[int, int] | None] = {}
+        try:
+            self._make_dirs(os.path.abspath(out))
+        except BaseException:
+            self.discard()
+            raise
         self.listed = listed
         self.sums: dict[str, str] = {}
         self.sizes: dict[str, int] = {}
         self.files = self.bytes = 0
 
+    def _make_dirs(self, folder: str) -> None:
+        """Create ``folder`` and its missing parents one at a time, recording each this process
+        created (one another process makes meanwhile is not this write's)."""
+        missing = []
+        while not os.path.lexists(folder):
+            missing.append(folder)
+            folder = os.path.dirname(folder)
+        for path in reversed(missing):
+            try:
+                os.mkdir(path)
+            except FileExistsError:
+                continue
+            self.created_dirs.append(path)
+
     def path(self, rel: str) -> str:
-        return os.path.join(self.out, *rel.split("/"))
+        """Where ``rel`` is written in ``out``: its folders created (and recorded) first, and the
+        path recorded as this write's (a writer may fill it through the path itself)."""
+        path = os.path.join(self.out, *rel.split("/"))
+        absolute = os.path.abspath(path)
+        self._make_dirs(os.path.dirname(absolute))
+        self.written.setdefault(absolute, None)
+        return path
 
     def write(self, rel: str, data: bytes) -> str:
         return self.adopt(rel, write_bytes_atomic(self.path(rel), data), len(data))
@@ -93,6 +129,13 @@ class Output:
         return self.adopt(rel, sha256, size)
 
     def adopt(self, rel: str, sha256: str, size: int) -> str:
+        """Count the file ``rel`` (written through :meth:`path`) as this write's, as it is now."""
+        path = os.path.abspath(self.path(rel))
+        try:
+            info = os.lstat(path)
+            self.written[path] = (info.st_dev, info.st_ino)
+        except OSError:
+            pass
         self.files += 1
         self.bytes += size
         if self.listed:
@@ -100,12 +143,21 @@ class Output:
         return sha256
 
     def discard(self) -> None:
-        if self.created_top:
-            shutil.rmtree(self.created_top, ignore_errors=True)
-            return
-        for name in os.listdir(self.out):
-            target = os.path.join(self.out, name)
-            if os.path.isdir(target) and not os.path.islink(target):
-                shutil.rmtree(target, ignore_errors=True)
-            else:
-                os.unlink(target)
+        """Remove what this write made, and nothing else: each file it wrote that is still the
+        file it wrote (a regular file; the same inode once written), then each folder it
+        created, deepest first, if it is empty (``os.rmdir``). Never raises; may be called
+        again (after the writer lock's file is gone, its folders go too)."""
+        for path, identity in list(self.written.items()):
+            try:
+                info = os.lstat(path)
+                if stat.S_ISREG(info.st_mode) and identity in (None, (info.st_dev, info.st_ino)):
+                    os.unlink(path)
+            except OSError:
+                pass
+            del self.written[path]
+        for path in sorted(self.created_dirs, key=lambda p: p.count(os.sep), reverse=True):
+            try:
+                os.rmdir(path)
+            except OSError:
+                continue  # not empty (something else is in it), or gone
+            self.created_dirs.remove(path)

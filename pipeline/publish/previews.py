@@ -12,6 +12,7 @@ only a forged folder gets one).
 
 from __future__ import annotations
 
+import io
 import struct
 import zlib
 
@@ -55,6 +56,42 @@ def png_size(data: bytes) -> tuple[int, int] | None:
     if len(data) < 24 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
         return None
     return struct.unpack(">II", data[16:24])
+
+
+def preview_size(role: str, side: int | None) -> tuple[int, int]:
+    """(width, height) of the preview ``role`` ("render_preview", or "maps_preview": a strip of
+    four tiles) of a dataset of ``side`` pixels a side; None: the most any preview has."""
+    tile = PREVIEW_SIDE if side is None else side // preview_factor(side)
+    return (len(MAP_ORDER) * tile if role == "maps_preview" else tile), tile
+
+
+def preview_problem(data: bytes, role: str, side: int | None) -> str | None:
+    """What is wrong with ``data`` as the preview ``role`` of a dataset of ``side`` pixels
+    (None: of any size; see :func:`preview_size`), or None. Its IHDR is read first: not a
+    PNG, or another size (larger than any preview when ``side`` is not known), is said
+    without decoding a pixel; then Pillow, opening it as a PNG only, decodes it (the size it
+    reads must be the IHDR's, so at most the preview's pixels are decoded) and checks every
+    chunk's CRC through IEND: a truncated or corrupt PNG is refused too."""
+    from PIL import Image
+
+    size = png_size(data)
+    width, height = preview_size(role, side)
+    if size is None:
+        return "not a PNG"
+    if side is not None and size != (width, height):
+        return f"a PNG of {size[0]} x {size[1]} pixels; the preview is {width} x {height}"
+    if not (0 < size[0] <= width and 0 < size[1] <= height):
+        return f"a PNG of {size[0]} x {size[1]} pixels; a preview is at most {width} x {height}"
+    try:
+        with Image.open(io.BytesIO(data), formats=["PNG"]) as image:
+            if image.size != size:
+                return f"a PNG Pillow reads as {image.size[0]} x {image.size[1]} pixels, not its IHDR's"
+            image.load()
+        with Image.open(io.BytesIO(data), formats=["PNG"]) as image:
+            image.verify()
+    except (OSError, SyntaxError, ValueError, EOFError, struct.error, Image.DecompressionBombError) as exc:
+        return f"not a whole PNG ({str(exc)[:120] or type(exc).__name__})"
+    return None
 
 
 def preview_factor(side: int) -> int:

@@ -50,7 +50,7 @@ from pipeline.publish.names import (
     paired_tar,
     tar_rel,
 )
-from pipeline.publish.previews import png_size
+from pipeline.publish.previews import preview_problem
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.request import VerifyRequest, format_value
 from pipeline.publish.table import (
@@ -945,12 +945,12 @@ def _check_member(
             or without_timings(record) != without_timings(json.loads(expected.record))
         ):
             raise Refused("bad_record", f"{where} is not the manifest's record of {expected.sample_id}; refused")
-    elif expected.role == "preview":
-        size = png_size(data)
-        if size is None or not (0 < size[0] <= 4 * limits.exr_side and 0 < size[1] <= limits.exr_side):
-            raise Refused(
-                "preview", f"{where}: not a PNG of at most {4 * limits.exr_side} x {limits.exr_side}; refused"
-            )
+    elif expected.role == "preview":  # decoded within the preview's size (previews.preview_problem)
+        role = "maps_preview" if expected.name.endswith(".maps.png") else "render_preview"
+        side = bounds["render"].shape[0] if bounds["render"].shape else None
+        problem = preview_problem(data, role, side)
+        if problem:
+            raise Refused("preview", f"{where}: {problem}; refused")
     elif expected.role != "material":  # a material's row: its bytes are the table's (checked above)
         check_exr_header(data, where, limits, bounds[expected.role])
 

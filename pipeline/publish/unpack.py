@@ -4,8 +4,10 @@ for byte, then validated (`shaderball validate`).
 The publication is verified in full first (pipeline.publish.verify), so a refused one
 writes nothing; the members are then streamed again and checked again as they are written
 (a file changed in between is refused too). Every path written is the layout's
-(pipeline.store.layout) for ids that fit it, inside DIR. On any refusal or error DIR is
-left as it was found (absent, or empty). DIR is held for writing (pipeline.store.lock) while
+(pipeline.store.layout) for ids that fit it, inside DIR. On any refusal or error what the
+unpack made is removed again (pipeline.publish.output.Output.discard): the files it wrote,
+then the folders it created if nothing else is in them, so DIR is left as it was found
+(absent, or empty) and whatever another process wrote meanwhile stays. DIR is held for writing (pipeline.store.lock) while
 it is written, as a build holds it: one writer at a time.
 """
 
@@ -72,8 +74,12 @@ def unpack(
     verify_publication(publication, progress)
     try:
         output = Output(out, listed=False)
-        with writer_lock(out, "unpack"):
-            return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
+        try:
+            with writer_lock(out, "unpack"):
+                return _unpack_locked(pub, out, publication, output, validate_after, progress, start)
+        except BaseException:
+            output.discard()  # its files went under the lock; its folders go once the lock file has
+            raise
     except OSError as exc:  # what was written is removed again (Output.discard)
         raise filesystem_error(exc, out, "nothing was kept: fix the cause and run the same command again") from None
 

@@ -11,9 +11,10 @@ from collections.abc import Callable
 from pipeline.check.crosscheck import State, check_root, expected_files, marker_record, record_ok
 from pipeline.check.inspect import expectations, inspect_file
 from pipeline.check.report import Progress, RepairAction, Report
+from pipeline.check.request import ValidateRequest
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
-from pipeline.errors import SetupError, ShaderballError, filesystem_error
+from pipeline.errors import SetupError, filesystem_error
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
 from pipeline.run.build import build, recorded_guarantee, write_manifest
 from pipeline.store.atomic import write_text_atomic
@@ -28,16 +29,21 @@ def restore_spec(state: State, spec_path: str) -> RepairAction:
     description = read_json(state.layout.description)
     recorded = description.get("spec_digest") if isinstance(description, dict) else None
     if not recorded:
-        raise ShaderballError(
-            f"--spec: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
-            "spec_digest, so no spec can be confirmed as the one it was built from"
+        raise ValidateRequest.field_error(
+            "spec",
+            spec_path,
+            "a dataset whose dataset.json records its spec's digest",
+            what=f"cannot be checked: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
+            "spec_digest, so no spec can be confirmed as the one it was built from",
         )
     spec = parse_spec(spec_path)
     if spec_digest(spec) != recorded:
-        raise ShaderballError(
-            f"--spec: {spec_path!r} has digest {spec_digest(spec)[:12]}, "
-            f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: "
-            "not this dataset's spec"
+        raise ValidateRequest.field_error(
+            "spec",
+            spec_path,
+            "the spec this dataset was built from",
+            what=f"{spec_path!r} has digest {spec_digest(spec)[:12]}, "
+            f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: not this dataset's spec",
         )
     write_text_atomic(state.layout.spec, spec_to_toml(spec))
     return RepairAction(

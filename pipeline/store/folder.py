@@ -795,6 +795,6 @@ def check_creatable(out: str) -> None:
         probe = os.path.dirname(probe)
     if not os.path.isdir(probe):
         what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
-        raise ShaderballError(f"--out: {out!r} cannot be created: {probe!r} is {what}, not a folder")
+        raise ShaderballError(f"{out!r} cannot be created: {probe!r} is {what}, not a folder")
     if not os.access(probe, os.W_OK):
-        raise ShaderballError(f"--out: {out!r} cannot be created: {probe} is not writable")
+        raise ShaderballError(f"{out!r} cannot be created: {probe} is not writable")

@@ -127,13 +127,13 @@ def _open_lock_file(root: str) -> int:
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise ShaderballError(
-                f"DIR: {path!r} is a symbolic link; a dataset folder holds none "
+                f"{path!r} is a symbolic link; a dataset folder holds none "
                 "(`shaderball validate` reports it); remove it"
             ) from None
-        raise FilesystemError(f"DIR: cannot create the writer lock {path!r}: {exc.strerror}") from None
+        raise FilesystemError(f"cannot create the writer lock {path!r}: {exc.strerror}") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
-        raise ShaderballError(f"DIR: {path!r} is not a regular file; remove it (it is the writer lock)")
+        raise ShaderballError(f"{path!r} is not a regular file; remove it (it is the writer lock)")
     return fd
 
 
@@ -158,14 +158,14 @@ def _acquire(root: str, purpose: str, label: str) -> int:
         except OSError as exc:
             os.close(fd)
             raise FilesystemError(
-                f"DIR: the filesystem of {root!r} refuses file locks ({exc.strerror}), so two writers "
+                f"the filesystem of {root!r} refuses file locks ({exc.strerror}), so two writers "
                 "could not be kept apart; use a filesystem (or mount option) with flock support"
             ) from None
         if _same_file(fd, path):
             break
         os.close(fd)  # its holder unlinked it as we locked it: take the new one
     else:
-        raise FolderBusy(f"DIR: {root!r}: the writer lock {path!r} kept changing hands; try again")
+        raise FolderBusy(f"{root!r}: the writer lock {path!r} kept changing hands; try again")
     info = {
         "purpose": purpose,
         "pid": os.getpid(),

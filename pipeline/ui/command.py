@@ -210,16 +210,19 @@ def _json_flag_message(command: click.Command, given: str) -> str:
 
 
 def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
-    """``--json=FILE``, or ``--json FILE.json`` where the command writes a file with
-    ``--json-out``: a usage error naming ``--json-out``, before anything runs."""
+    """``--json=FILE``, or ``--json FILE.json`` (a JSON file's name after the flag, where no
+    operand of the command is one): a usage error naming ``--json-out``, before anything
+    else is checked."""
     head = args[: args.index("--") if "--" in args else len(args)]
-    writes = any("--json-out" in getattr(p, "opts", ()) for p in command.params)
+    takes_json_files = any(
+        isinstance(p, click.Argument) and ".json" in (p.metavar or "").lower() for p in command.params
+    )
     for i, flag in enumerate(head):
         value = head[i + 1] if i + 1 < len(head) else ""
         given = None
         if flag.startswith("--json="):
             given = flag
-        elif flag == "--json" and writes and value.lower().endswith(".json"):
+        elif flag == "--json" and not takes_json_files and value.lower().endswith(".json"):
             given = f"--json {value}"
         if given is not None:
             ctx = click.Context(command, info_name=info_name, parent=parent)

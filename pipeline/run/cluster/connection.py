@@ -70,8 +70,8 @@ def _jobqueue_job_class(kind: str):
         else:
             from dask_jobqueue.pbs import PBSJob as base
     except ImportError:
-        raise ShaderballError(
-            f"--cluster {kind}: needs dask-jobqueue; install it with `pip install dask-jobqueue`"
+        raise ClusterOptions.field_error(
+            "cluster", kind, "install it with `pip install dask-jobqueue`", what=f"{kind} needs dask-jobqueue"
         ) from None
 
     class ShaderballJob(base):
@@ -337,7 +337,9 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
             try:
                 client = Client(options.scheduler, timeout="20s")
             except OSError as exc:
-                raise ShaderballError(f"--scheduler: cannot connect to {options.scheduler!r}: {exc}") from None
+                raise ClusterOptions.field_error(
+                    "scheduler", options.scheduler, "a running dask scheduler", what=f"cannot connect: {exc}"
+                ) from None
             stack.callback(client.close)
             n = len(client.scheduler_info().get("workers", {}))
             yield from _interruptible(Connection(client, f"scheduler {options.scheduler} ({n} worker(s) now)", None))

@@ -189,7 +189,10 @@ class WorkerWatch:
         else:
             why = "the scheduler has no worker" if self.options.scheduler else "no local worker started"
             then = "What"
-        raise ShaderballError(
-            f"--start-timeout {limit}: no worker for {limit} s {since}; {why}. {then} was rendered "
-            "is kept: run the same command again to resume (a larger --start-timeout waits longer)"
+        raise ClusterOptions.field_error(
+            "start_timeout",
+            limit,
+            f"{then.lower()} was rendered is kept: run the same command again to resume "
+            "(a larger {start_timeout} waits longer)",
+            what=f"no worker for {limit} s {since}; {why}",
         )
