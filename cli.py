@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import signal
 
-from pipeline.ui.process import stop_on_ctrl_c_while_loading
+from pipeline.ui.interrupt import stop_on_ctrl_c_while_loading
 
 if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
     stop_on_ctrl_c_while_loading()

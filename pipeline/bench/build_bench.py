@@ -33,7 +33,6 @@ import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -52,9 +51,6 @@ from pipeline.store.folder import folder_names, read_manifest
 from pipeline.store.layout import Layout
 from pipeline.store.records import read_json
 from sky import Light
-
-if TYPE_CHECKING:
-    from pipeline.bench.command import BenchRequest
 
 # --------------------------------------------------------------------------- build benchmark
 
@@ -636,7 +632,7 @@ def _cpu_with_children() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def run_build_bench(request: BenchRequest, progress=None) -> BuildBench:
+def run_build_bench(request, progress=None) -> BuildBench:
     """Build ``request.spec`` (cut and re-sized as it asks) and time the same renders bare;
     see the module docstring."""
     request.check_fields()

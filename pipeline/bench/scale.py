@@ -31,7 +31,6 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,9 +43,6 @@ from pipeline.render.mitsuba_env import cpu_model
 from pipeline.run.build import read_spec_text
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.store.records import dumps
-
-if TYPE_CHECKING:
-    from pipeline.bench.command import BenchRequest
 
 #: The repository root: where ``python -m cli`` runs (and the default spec lives).
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -304,7 +300,7 @@ def measure_child(argv: list[str], log_path: str) -> tuple[float, int]:
     return wall, int(usage.ru_maxrss) * 1024  # Linux: kilobytes
 
 
-def run_scale_bench(request: BenchRequest, progress=None) -> ScaleBench:
+def run_scale_bench(request, progress=None) -> ScaleBench:
     """Build a dataset of each of ``request.scale``'s sizes and measure every command over it;
     write the results to ``request.out``."""
     request.check_fields()

@@ -21,45 +21,19 @@ import contextlib
 import ctypes
 import json
 import os
-import signal
 import sys
 import traceback
 
 import click
 
 from pipeline.errors import USER_ERRORS, caused_by_interrupt, filesystem_error
+from pipeline.ui.interrupt import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, wants_json
 
-#: Exit code of a command stopped by Ctrl-C (SIGINT): 128 + 2, as shells report it.
-INTERRUPTED_EXIT = 130
-INTERRUPTED_MESSAGE = (
-    "interrupted (Ctrl-C): every write is atomic, nothing is torn; run the same command again to resume"
-)
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
 INTERNAL_EXIT = 70
 #: Where a --json command leaves its one document (click's context meta).
 _JSON_DOC = "shaderball.json_doc"
-
-
-def wants_json(args: list[str]) -> bool:
-    """Whether ``--json`` is among the options (before a ``--``)."""
-    head = args[: args.index("--") if "--" in args else len(args)]
-    return any(a == "--json" or a.startswith("--json=") for a in head)
-
-
-def stop_on_ctrl_c_while_loading() -> None:
-    """Ctrl-C while the command's imports run (a second or more): they write nothing, so stop
-    at once with the interrupted exit code and line (and --json's document), without the
-    import's traceback. Python's own handler is put back before the command runs."""
-
-    def interrupted(signum, frame):
-        os.write(2, f"\n{INTERRUPTED_MESSAGE}\n".encode())
-        if wants_json(sys.argv[1:]):
-            doc = {"error": INTERRUPTED_MESSAGE, "exit": INTERRUPTED_EXIT, "ok": False}
-            os.write(1, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
-        os._exit(INTERRUPTED_EXIT)
-
-    signal.signal(signal.SIGINT, interrupted)
 
 
 def emit_json(doc: dict) -> None:
@@ -163,3 +137,6 @@ def run_command(call, as_json: bool, reword=None) -> None:
         write_json(doc)
     if code:
         sys.exit(code)
+
+
+__all__ = ["INTERRUPTED_EXIT", "INTERRUPTED_MESSAGE", "wants_json"]
