@@ -1,8 +1,11 @@
 """shaderball's command line: a thin click face over the library.
 
-Each command parses its options, calls one library function, prints a short
-summary and maps the project's own error (:class:`pipeline.errors.ShaderballError`)
-to a message on stderr and exit code 2. Logic lives in the packages.
+Each command is generated from one checked request of the library
+(:func:`pipeline.ui.command.request_command`: its options, operands, defaults, ranges and
+help come from the request's declared fields); its body calls one library function with the
+request and returns the result, which is printed (or, with --json, one JSON document). How a
+command ends (messages, exit codes, Ctrl-C) is :mod:`pipeline.ui.process`'s. Logic lives in
+the packages.
 """
 
 # ruff: noqa: E402 - the imports come after the Ctrl-C handler that covers them
@@ -18,7 +21,6 @@ if __name__ == "__main__":  # `python -m cli`; Python's own handler is back befo
     stop_on_ctrl_c_while_loading()
 
 import dataclasses
-import functools
 import shlex
 
 import click
@@ -55,7 +57,7 @@ from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.run import StudyRequest, run_study
 from pipeline.ui import command as ui_command
 from pipeline.ui import process
-from pipeline.ui.command import Command, Group, Printed, renamed_option, request_command
+from pipeline.ui.command import Group, Printed, renamed_option, request_command
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -66,37 +68,9 @@ from pipeline.ui.progress import (
 )
 
 INTERNAL_EXIT = process.INTERNAL_EXIT
-_emit_json = process.emit_json
 
 
-def _friendly_errors(func):
-    """The command's body run by :func:`pipeline.ui.process.run_command`."""
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        process.run_command(lambda: func(*args, **kwargs), bool(kwargs.get("as_json")))
-
-    return wrapper
-
-
-_Command = Command
-
-
-def json_option(help: str):
-    """``--json``, a flag (transitional decorator; generated commands get it from their request)."""
-    param = ui_command.json_option(help)
-    return lambda func: (click.decorators._param_memo(func, param), func)[1]
-
-
-def _renamed_decorator(old: str, new: str, why: str = "", *, takes_value: bool = True):
-    param = ui_command.renamed_option(old, new, why, takes_value=takes_value)
-    return lambda func: (click.decorators._param_memo(func, param), func)[1]
-
-
-_Group = Group
-
-
-@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="shaderball")
 def main():
     """Build, validate and train from datasets of path-traced material renders on a shaderball.
@@ -110,31 +84,6 @@ def main():
       shaderball build manifests/smoke.toml --out demo-out/smoke
       shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
-
-
-# Option groups, declared once: every command that takes one of these uses the same declaration.
-
-
-def _options(*options):
-    """One decorator of several click options, applied in the order given (as --help lists them)."""
-
-    def apply(func):
-        for option in reversed(options):
-            func = option(func)
-        return func
-
-    return apply
-
-
-def json_file_option(help: str):
-    """``--json-out FILE`` (``json_path``): also write the figures to a JSON file."""
-    return click.option("--json-out", "json_path", type=click.Path(dir_okay=False), default=None, help=help)
-
-
-def out_option(help: str, *, folder: bool, required: bool = True, dest: str = "out"):
-    """``--out``: a folder (``folder=True``) or a file the command writes."""
-    kind = click.Path(file_okay=False) if folder else click.Path(dir_okay=False)
-    return click.option("--out", dest, required=required, type=kind, default=None, help=help)
 
 
 @request_command(
@@ -307,15 +256,6 @@ def bench_cmd(request: BenchRequest):
       shaderball bench manifests/smoke.toml --resolution 32 --spp 4 --workers 0
     """
     return run_bench(request, progress=say)
-
-
-def _print_result(result, as_json: bool, **extra) -> None:
-    """A command's summary: its lines, or with --json its fields (and ``extra``) as one document."""
-    if as_json:
-        _emit_json({**(result.to_dict() if hasattr(result, "to_dict") else dataclasses.asdict(result)), **extra})
-        return
-    for line in result.lines():
-        click.echo(line)
 
 
 @request_command(main, PublishRequest, json="Print the summary (or the refusal) as JSON only.")
@@ -532,7 +472,7 @@ def figures_cmd(request: FiguresRequest):
     return make_figure(request, progress=say)
 
 
-@main.group("neural-bench", cls=_Group)
+@main.group("neural-bench", cls=Group)
 def neural_bench():
     """The neural stage's measurements (docs/neural.md): KIND is loaders (a dataset folder
     against its publication), collate (torch's collation against ours, idle and loaded), denoise

@@ -113,7 +113,7 @@ COMMAND_CASES = [
         "publish --json: --shard-bytes not a number",
         ["publish", "{foreign}", "--out", "{out}", "--shard-bytes", "x", "--json"],
     ),
-    ("plan: --limit 0", ["plan", "{smoke}", "--limit", "0"]),
+    ("plan: --renders 0", ["plan", "{smoke}", "--renders", "0"]),
     ("plan: --cluster slurm without --cores", ["plan", "{smoke}", "--cluster", "slurm", "--jobs", "2"]),
     ("plan --json: SPEC a folder", ["plan", "{foreign}", "--json"]),
     ("info: SPEC not a spec", ["info", "{file}"]),

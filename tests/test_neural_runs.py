@@ -7,7 +7,6 @@ import os
 import pytest
 import torch
 
-from pipeline.errors import ShaderballError
 from pipeline.fields import FieldError
 from pipeline.neural.train import train
 from support.neural_fakes import FakeSource, train_config
