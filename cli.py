@@ -21,7 +21,6 @@ if __name__ == "__main__":  # `python -m cli`; Python's own handler is back befo
     stop_on_ctrl_c_while_loading()
 
 import dataclasses
-import shlex
 
 import click
 
@@ -32,7 +31,6 @@ from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
 from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
-from pipeline.fields import declared, default_of
 from pipeline.neural.config import (
     CollateRequest,
     DenoiseRequest,
@@ -55,9 +53,8 @@ from pipeline.run.cluster.connection import job_script
 from pipeline.run.repair import repair
 from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.run import StudyRequest, run_study
-from pipeline.ui import command as ui_command
 from pipeline.ui import process
-from pipeline.ui.command import Group, Printed, renamed_option, request_command
+from pipeline.ui.command import Group, Printed, command_line, renamed_option, request_command
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -114,7 +111,11 @@ def render_cmd(request: RenderRequest):
     return render_to_files(request)
 
 
-@request_command(main, BuildRequest, json="Print what was built (folder, manifest, counts, seconds) as JSON on stdout; progress stays on stderr.")
+@request_command(
+    main,
+    BuildRequest,
+    json="Print what was built (folder, manifest, counts, seconds) as JSON on stdout; progress stays on stderr.",
+)
 def build_cmd(request: BuildRequest):
     """Build (or resume) a dataset of renders from a spec (see manifests/ and docs/spec.md).
 
@@ -239,7 +240,9 @@ def study_cmd(request: StudyRequest):
       shaderball study manifests/smoke.toml --out demo-out/smoke-study --resolution 16 \\
         --configs ladder --ladder 4 --reference-spp 64 --repeats 1 --no-flip
     """
-    return run_study(request, progress=study_progress)
+    return run_study(
+        request, progress=study_progress, command=command_line("study", request, every=True, skip=("scan",))
+    )
 
 
 @request_command(
@@ -311,25 +314,6 @@ def _neural():
         raise ShaderballError("the neural stage needs torch: pip install -e '.[train]'") from None
 
 
-def _command_line(words: str, request) -> str:
-    """``request`` as the command line that makes it: ``shaderball WORDS``, its operands, then
-    each option not at its default (a report's heading: the same command again)."""
-    argv, options = ["shaderball", *words.split()], []
-    for f in declared(type(request)).values():
-        value, default = getattr(request, f.name), default_of(f)
-        if f.metadata.get("positional"):
-            argv += list(value) if isinstance(value, tuple) else [value]
-        elif value != default:
-            spelled = ui_command.option_name(f.name)
-            if isinstance(value, bool):
-                options.append(spelled if value else spelled.replace("--", "--no-", 1))
-            elif isinstance(value, tuple):
-                options += [spelled, ",".join(map(str, value)) or getattr(f.metadata["rule"], "none", "")]
-            else:
-                options += [spelled, str(value)]
-    return shlex.join([*map(str, argv), *options])
-
-
 @request_command(
     main,
     TrainConfig,
@@ -386,7 +370,7 @@ def evaluate_cmd(request: EvaluateRequest):
     _neural()
     from pipeline.neural.evaluate import evaluate
 
-    command = _command_line("evaluate", dataclasses.replace(request, out=request.folder))
+    command = command_line("evaluate", dataclasses.replace(request, out=request.folder))
     return evaluate(request, progress=evaluate_progress(), command=command)
 
 
@@ -457,7 +441,7 @@ def sweep_cmd(request: SweepRequest):
     _neural()
     from pipeline.neural.sweep import write_sweep
 
-    return Printed(*write_sweep(request, command=_command_line("sweep", request)))
+    return Printed(*write_sweep(request, command=command_line("sweep", request)))
 
 
 @request_command(main, FiguresRequest, json="Print what was written (or the tables) as JSON on stdout.")

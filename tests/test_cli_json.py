@@ -19,9 +19,9 @@ import pytest
 from click.testing import CliRunner
 
 import cli
-from pipeline.ui.command import Command
 from pipeline.publish.writer import publish
 from pipeline.store.lock import writer_lock
+from pipeline.ui.command import Command
 from scripts import cli_reference
 from support.publishing import smoke_build
 

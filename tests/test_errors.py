@@ -32,5 +32,3 @@ def test_an_interrupt_in_a_plugin_mitsuba_loads_is_still_an_interrupt():
         mi.load_dict({"type": "shaderball_interrupted_test"})
     assert caused_by_interrupt(caught.value), repr(caught.value)
     assert not caused_by_interrupt(RuntimeError("Traceback ...\nValueError: a KeyboardInterrupt-free failure"))
-
-

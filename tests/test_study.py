@@ -40,7 +40,8 @@ from pipeline.render.renderer import (
     scene_dict,
 )
 from pipeline.study.configs import study_configs
-from pipeline.study.run import StudyRequest, run_study, study_command
+from pipeline.study.run import StudyRequest, run_study
+from pipeline.ui.command import command_line
 from sky import Light
 from support import VARIANT
 
@@ -48,6 +49,13 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHORT = next(k for k, v in SHORT_VARIANTS.items() if v == VARIANT)
 LADDER = (1, 2, 4, 8, 16, 32, 64, 256)
 REFERENCE_SPP = 512
+
+
+def study_command(req: StudyRequest) -> str:
+    """The heading `shaderball study` gives the report: every option that is set."""
+    return command_line("study", req, every=True, skip=("scan",))
+
+
 REPEATS = 2
 #: Stated range of the log-log slope of relMSE against spp for the independent sampler
 #: (Monte Carlo: -1; fireflies at low spp and the finite reference flatten it a little).
@@ -84,7 +92,7 @@ def tiny_study(tmp_path_factory):
         scan=8,
         repeats=REPEATS,
     )
-    summary = run_study(req)
+    summary = run_study(req, command=study_command(req))
     with open(tmp / "out" / "study.json", encoding="utf-8") as fh:
         return req, summary, json.load(fh)
 

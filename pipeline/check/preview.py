@@ -252,7 +252,9 @@ def _read_chosen(layout: Layout, counts: dict[str, int], places: list[int]) -> l
         if index != current:
             current, found = index, shard_records(layout, shards[index][0], shards[index][1])[0]
         if position >= len(found):
-            raise dir_refused(layout.root, f"changed while it was previewed (shard {shards[index][0]})", owner=PreviewRequest)
+            raise dir_refused(
+                layout.root, f"changed while it was previewed (shard {shards[index][0]})", owner=PreviewRequest
+            )
         chosen[place] = found[position]
     return [chosen[place] for place in places]
 
@@ -284,8 +286,7 @@ def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = N
     if not ids:
         raise dir_refused(
             root,
-            "holds no finished render yet"
-            + (f" ({len(problems)} left out: {problems[0]})" if problems else ""),
+            "holds no finished render yet" + (f" ({len(problems)} left out: {problems[0]})" if problems else ""),
             "a dataset with at least one finished render; nothing to preview",
             PreviewRequest,
         )

@@ -41,7 +41,6 @@ from pipeline.fields import (
 from pipeline.image.tonemap import DEFAULT_EXPOSURE
 from pipeline.neural.limits import (
     BUSY_RANGE,
-    DEFAULT_SPP,
     DEVICES,
     DRAWS_RANGE,
     INTEGER_RANGES,
@@ -327,7 +326,7 @@ class EvaluateRequest(Checked):
         metavar="FILE",
     )
     spp: tuple[int, ...] = field(
-        DEFAULT_SPP,
+        (1, 2, 4, 16),
         rule=IntList(*SPP_LADDER_RANGE, none="none"),
         doc="Low-spp path tracing to compare with, in samples per pixel; none: no path tracing.",
     )

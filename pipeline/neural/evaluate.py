@@ -40,7 +40,7 @@ from pipeline.neural.config import EvaluateRequest
 from pipeline.neural.data import ResolutionMismatch, box_downsample, dataset_refused, open_dataset
 from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
-from pipeline.neural.limits import DEFAULT_SPP, SPLITS, SPP_LADDER_RANGE
+from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
@@ -48,7 +48,7 @@ from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import write_bytes_atomic
 from sky import Light
 
-__all__ = ["DEFAULT_SPP", "SPLITS", "EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
+__all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
 #: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
 PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2

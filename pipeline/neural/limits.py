@@ -39,8 +39,6 @@ TRAINING_VARIANTS = {
 }
 #: evaluate --split: the run's held-out or training materials, or every sample.
 SPLITS = ("test", "train", "all")
-#: evaluate --spp: the low-spp rows compared with the network.
-DEFAULT_SPP = (1, 2, 4, 16)
 #: evaluate --limit: at most the first N samples.
 LIMIT_RANGE = (1, 10**9)
 #: Counts of `shaderball neural-bench`: passes or rounds, timed steps, spinning processes,

@@ -34,7 +34,6 @@ import io
 import json
 import math
 import os
-import shlex
 import time
 import zlib
 from dataclasses import asdict, dataclass, replace
@@ -234,21 +233,6 @@ def request_record(req: StudyRequest, spec) -> dict:
         "repeats": req.repeats,
         **({"only": list(req.only)} if req.only else {}),
     }
-
-
-def study_command(req: StudyRequest) -> str:
-    """The command line that makes ``req``: the first line of the report it writes."""
-    argv = ["shaderball", "study", req.spec, "--out", req.out, "--draws", str(req.draws)]
-    argv += ["--reference-spp", str(req.reference_spp)]
-    if req.resolution is not None:
-        argv += ["--resolution", str(req.resolution)]
-    argv += ["--ladder", ",".join(map(str, req.ladder)), "--configs", ",".join(req.configs)]
-    if req.only:
-        argv += ["--only", ",".join(req.only)]
-    argv += ["--repeats", str(req.repeats)]
-    if not req.flip:
-        argv.append("--no-flip")
-    return shlex.join(argv)
 
 
 def machine_line(variant: str) -> str:
@@ -538,8 +522,9 @@ def measure_config(
     return {k: _finite(v) for k, v in row.items()}
 
 
-def run_study(req: StudyRequest, progress=None) -> StudySummary:
-    """Run (or resume) a study; see the module's docstring."""
+def run_study(req: StudyRequest, progress=None, command: str = "") -> StudySummary:
+    """Run (or resume) a study; see the module's docstring. ``command``: the command line
+    that asked for it, as the report's first line names it."""
     started = time.perf_counter()
     spec = check_request(req)
     record = request_record(req, spec)
@@ -557,7 +542,7 @@ def run_study(req: StudyRequest, progress=None) -> StudySummary:
     subjects = {s.sample_id: SampleScene(ctx, s, plans[s.material_index]) for s in selection}
     references = ensure_references(req, ctx, selection, subjects, tick)
     rows, counts = measure_rows(req, ctx, selection, configs, subjects, references, tick)
-    meta = study_meta(req, ctx, record, selection, configs, references)
+    meta = study_meta(req, ctx, record, selection, configs, references, command)
     recommendations = write_outputs(req.out, meta, rows, configs)
     return StudySummary(
         req.out,
@@ -667,7 +652,9 @@ def measure_rows(req: StudyRequest, ctx: Context, selection, configs, subjects: 
     return rows, counts
 
 
-def study_meta(req: StudyRequest, ctx: Context, record: dict, selection, configs, references: dict) -> dict:
+def study_meta(
+    req: StudyRequest, ctx: Context, record: dict, selection, configs, references: dict, command: str
+) -> dict:
     """What study.json's ``meta`` holds: the request, the recipe, the samples, the
     configurations, the references' floors and the machine."""
     spec, r = ctx.spec, ctx.spec.render
@@ -689,7 +676,7 @@ def study_meta(req: StudyRequest, ctx: Context, record: dict, selection, configs
         "repeats": req.repeats,
         "renders_per_worker": ctx.renders_per_worker,
         "lights_per_material": ctx.lights_per_material,
-        "command": study_command(req),
+        "command": command,
         "machine": machine_line(ctx.variant),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     }

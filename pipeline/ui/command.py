@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import shlex
 import sys
 
 import click
@@ -55,6 +56,19 @@ def _metavar(f) -> str:
     return f.metadata.get("metavar") or f.name.upper()
 
 
+class Operand(click.Argument):
+    """An operand named by its field's metavar (``DIR``), shown in usage lines as click shows
+    its own: ``[SPEC]`` where it may be left out, ``REPORT.json...`` where it repeats."""
+
+    def make_metavar(self, ctx) -> str:
+        var = self.metavar
+        if not self.required and not var.startswith("["):
+            var = f"[{var}]"
+        if self.nargs != 1 and not var.endswith("..."):
+            var += "..."
+        return var
+
+
 def _argument(f) -> click.Argument:
     rule = f.metadata["rule"]
     default = default_of(f)
@@ -65,7 +79,7 @@ def _argument(f) -> click.Argument:
         kwargs.update(required=False, default=default)
     elif isinstance(rule, Optional):
         kwargs.update(required=False, default=None)
-    return click.Argument([f.name], **kwargs)
+    return Operand([f.name], **kwargs)
 
 
 def _spelled(text: str, label) -> str:
@@ -106,6 +120,31 @@ def params_of(request_cls, skip=()) -> list[click.Parameter]:
     return [*operands, *options]
 
 
+def command_line(words: str, request, *, every: bool = False, skip: tuple[str, ...] = ()) -> str:
+    """``request`` as the command line that makes it (a report's heading: the same command
+    again): ``shaderball WORDS``, its operands, then each option not at its default, or with
+    ``every`` each one that is set (a flag where it is not its default); ``skip``: fields the
+    command line does not set."""
+    argv, options = ["shaderball", *words.split()], []
+    for f in declared(type(request)).values():
+        value, default = getattr(request, f.name), default_of(f)
+        if f.name in skip:
+            continue
+        if f.metadata.get("positional"):
+            argv += list(value) if isinstance(value, tuple) else [value]
+            continue
+        if value is None or value == default and (not every or isinstance(value, bool)):
+            continue
+        spelled = option_name(f.name)
+        if isinstance(value, bool):
+            options.append(spelled if value else spelled.replace("--", "--no-", 1))
+        elif isinstance(value, tuple):
+            options += [spelled, ",".join(map(str, value)) or getattr(f.metadata["rule"], "none", "")]
+        else:
+            options += [spelled, str(value)]
+    return shlex.join([*map(str, argv), *options])
+
+
 def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = True) -> click.Option:
     """An old spelling of an option, hidden: given, it exits 2 naming the new one."""
 
@@ -114,8 +153,7 @@ def renamed_option(old: str, new: str, why: str = "", *, takes_value: bool = Tru
             raise click.UsageError(f"{old}: renamed; use {new}" + (f" ({why})" if why else ""), ctx)
 
     return click.Option(
-        [old],
-        "renamed_" + old.lstrip("-").replace("-", "_"),  # its own name: the new option may take the old one's
+        [old, "renamed_" + old.lstrip("-").replace("-", "_")],  # its own name: the new option may take the old one's
         default=None,
         hidden=True,
         expose_value=False,

@@ -211,7 +211,9 @@ def memory_bytes(text: str) -> int:
     except (ValueError, TypeError):
         value = None
     if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
-        raise ClusterOptions.field_error("memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB")
+        raise ClusterOptions.field_error(
+            "memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB"
+        )
     return int(value)
 
 
