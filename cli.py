@@ -200,9 +200,9 @@ def info_cmd(request: InfoRequest):
       shaderball info demo-out/smoke
       shaderball info manifests/paper.toml
     """
-    if os.path.isfile(request.target):
-        return plan_spec(PlanRequest(spec=request.target, timing=False))
-    return dataset_info(request.target)
+    if os.path.isfile(request.directory):
+        return plan_spec(PlanRequest(spec=request.directory, timing=False))
+    return dataset_info(request.directory)
 
 
 @request_command(

@@ -167,7 +167,7 @@ def test_missing_spec_file_exits_2_and_writes_nothing(tmp_path):
     out = tmp_path / "dataset"
     result = _cli("build", tmp_path / "nope.toml", "--out", out, "--workers", "0")
     assert result.exit_code == 2, result.output
-    assert "nope.toml" in result.output and "No such file" in result.output
+    assert "nope.toml" in result.output and "does not exist" in result.output
     assert not out.exists()
 
 

@@ -111,6 +111,9 @@ def test_json_prints_exactly_one_document_on_success(args):
         (["study", SMOKE, "--out", "S", "--samples", "4"], "--draws"),
         (["bench", SMOKE, "--json", "bench.json"], "--json-out"),
         (["evaluate", "RUN", "DATA", "--json", "results.json"], "--json-out"),
+        (["evaluate", "RUN", "DATA", "--samples", "2"], "--limit"),
+        (["neural-bench", "denoise", "DATA", "--samples", "1"], "--draws"),
+        (["neural-bench", "denoise", "DATA", "--limit", "1"], "--draws"),
     ],
 )
 def test_an_old_spelling_exits_2_naming_the_new_one(args, new, tmp_path, monkeypatch):
@@ -169,7 +172,7 @@ def _choice_options():
     for name, command in COMMANDS:
         for option in visible_options(command):
             rule = getattr(option.type, "inner", None)
-            if type(rule).__name__ == "Choice":
+            if type(rule).__name__ == "Choice" or isinstance(option.type, click.Choice):
                 yield name, command, option
 
 
@@ -217,7 +220,8 @@ def test_a_success_document_says_ok(args):
 
 
 def test_a_missing_operand_says_it_does_not_exist(tmp_path):
-    for args in (["verify", tmp_path / "nope"], ["validate", tmp_path / "nope"], ["info", tmp_path / "nope"]):
+    nope = tmp_path / "nope"
+    for args in (["verify", nope], ["validate", nope], ["info", nope], ["sweep", nope, "--out", tmp_path / "s"]):
         result = invoke(*args)
         assert result.exit_code == 2 and "does not exist" in result.output and "Errno" not in result.output, args
 
@@ -252,3 +256,13 @@ def test_the_library_names_fields_not_options(path):
     assert not bad, bad
     source = path.read_text()
     assert "bad_value(" not in source and "check_int(" not in source, f"{path}: refuse by the field rules"
+
+
+def test_a_refusal_and_the_help_say_the_same_range():
+    """validate --repair --workers: its help's range and default are the ones a refusal names."""
+    option = next(p for p in cli.main.commands["validate"].params if p.name == "workers")
+    result = invoke("validate", SMOKE, "--repair", "--workers", "-1")
+    assert result.exit_code == 2
+    allowed = result.output.split("is not allowed; ")[1].strip()
+    assert allowed == "an integer from 0 to 1024" and "Allowed: 0 to 1024" in option.help, (allowed, option.help)
+    assert option.default == 0 and "unset" not in result.output

@@ -22,10 +22,12 @@ from conftest import crash_module
 
 from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
+from pipeline.run.build import BuildRequest
 from pipeline.run.cluster.connection import _refusal_text
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.cluster.watch import JobState, WorkerWatch, describe_jobs, slurm_job_states
 from pipeline.store.atomic import TEMP_PREFIX
+from pipeline.ui.command import label_for
 
 REPO = Path(__file__).resolve().parents[1]
 crash = crash_module()
@@ -90,9 +92,9 @@ def test_the_start_timeout_stops_with_the_jobs_and_their_reasons():
     watch.poll()
     with pytest.raises(ShaderballError) as error:
         watch.check()
-    assert str(error.value) == (
-        "--start-timeout 30: no worker for 30 s since the build started; slurm jobs: 2 pending (job 7: "
-        "PartitionDown, the partition is down; job 8: PartitionDown, the partition is down). The jobs are "
+    assert str(error.value.labelled(label_for(BuildRequest))) == (
+        "--start-timeout: no worker for 30 s since the build started; slurm jobs: 2 pending (job 7: "
+        "PartitionDown, the partition is down; job 8: PartitionDown, the partition is down); the jobs are "
         "cancelled; what was rendered is kept: run the same command again to resume (a larger "
         "--start-timeout waits longer)"
     )
@@ -279,8 +281,8 @@ def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
     assert result.returncode == 2, result.stdout + result.stderr
     assert "| 0 worker(s); slurm jobs: 2 pending (job 101: PartitionDown; job 102: PartitionDown)" in result.stderr
     assert (
-        "error: --start-timeout 10: no worker for 10 s since the build started; slurm jobs: 2 pending (job "
-        "101: PartitionDown, the partition is down; job 102: PartitionDown, the partition is down). The jobs "
+        "error: --start-timeout: no worker for 10 s since the build started; slurm jobs: 2 pending (job "
+        "101: PartitionDown, the partition is down; job 102: PartitionDown, the partition is down); the jobs "
         "are cancelled; what was rendered is kept"
     ) in result.stderr, result.stderr
     assert seconds < 40, seconds
@@ -336,8 +338,8 @@ def test_a_scheduler_without_workers_stops_at_the_start_timeout(tmp_path):
     assert result.returncode == 2, result.stdout + result.stderr
     assert "| waiting for a worker (none connected)" in result.stderr
     assert (
-        "error: --start-timeout 10: no worker for 10 s since the build started; the scheduler has no worker. "
-        "What was rendered is kept: run the same command again to resume"
+        "error: --start-timeout: no worker for 10 s since the build started; the scheduler has no worker; "
+        "what was rendered is kept: run the same command again to resume"
     ) in result.stderr, result.stderr
 
 

@@ -275,9 +275,9 @@ def test_jobs_that_cannot_start_stop_the_build_at_the_start_timeout_and_it_resum
     ids = re.findall(r"job (\d+): PartitionDown, the partition is down", out)
     assert len(ids) == 2, out
     assert (
-        "error: --start-timeout 15: no worker for 15 s since the build started; slurm jobs: 2 pending "
+        "error: --start-timeout: no worker for 15 s since the build started; slurm jobs: 2 pending "
         f"(job {ids[0]}: PartitionDown, the partition is down; job {ids[1]}: PartitionDown, the "
-        "partition is down). The jobs are cancelled; what was rendered is kept: run the same command "
+        "partition is down); the jobs are cancelled; what was rendered is kept: run the same command "
         "again to resume"
     ) in out, out
     assert re.search(
@@ -305,8 +305,8 @@ def test_a_replacement_that_cannot_start_stops_the_build_and_it_resumes(idle, bu
     assert build.wait(timeout_s=180) == 2, build.explain(slurm)
     out = build.output()
     assert re.search(
-        r"error: --start-timeout 20: no worker for 20 s since the last one left; slurm jobs: 1 pending "
-        r"\(job \d+: PartitionDown, the partition is down\)\. The jobs are cancelled; what was rendered "
+        r"error: --start-timeout: no worker for 20 s since the last one left; slurm jobs: 1 pending "
+        r"\(job \d+: PartitionDown, the partition is down\); the jobs are cancelled; what was rendered "
         r"is kept",
         out,
     ), out
@@ -340,7 +340,7 @@ def test_a_job_sbatch_refuses_stops_the_build_at_once(idle, builds, tmp_path):
     assert build.wait(timeout_s=120) == 2, build.explain(slurm)
     out = build.output()
     assert (
-        "error: --cluster slurm: the batch system refused a job: `sbatch JOB-SCRIPT` exited 1: sbatch: error: "
+        "error: slurm: the batch system refused a job: `sbatch JOB-SCRIPT` exited 1: sbatch: error: "
         "invalid partition specified: nosuch"
     ) in out, out
     assert "Traceback" not in out

@@ -92,7 +92,7 @@ class PreviewRequest(Checked):
 class InfoRequest(Checked):
     """`shaderball info`: counts, sizes and completion of a dataset folder, or a spec's plan."""
 
-    target: str = _directory(
+    directory: str = _directory(
         "A dataset folder, or a spec file (then what `shaderball plan SPEC` prints without timing).",
         "DIR|SPEC",
         "a dataset folder made by `shaderball build`, or a spec file",

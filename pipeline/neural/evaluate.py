@@ -21,8 +21,10 @@ class); with ``report`` also report.md, report.json and the learning curve
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import functools
+import json
 import os
 import time
 from dataclasses import dataclass, field
@@ -45,7 +47,7 @@ from pipeline.neural.report import bootstrap_ci95
 from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
-from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.atomic import atomic_file
 from sky import Light
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
@@ -238,14 +240,38 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
     table = markdown_table(means, len(rows), run.model.resolution, run.ref_spp, run.equal_time)
     out_dir = req.folder
     os.makedirs(out_dir, exist_ok=True)
-    runfiles.write_json(os.path.join(out_dir, "results.json"), result)
-    write_bytes_atomic(os.path.join(out_dir, "results.md"), table.encode())
-    write_bytes_atomic(os.path.join(out_dir, "grid.png"), report.picture_grid(grid_rows, report.GRID_COLUMNS))
+    write_all_or_none(
+        out_dir,
+        {
+            "grid.png": report.picture_grid(grid_rows, report.GRID_COLUMNS),
+            "results.md": table.encode(),
+            "results.json": (json.dumps(result, indent=2, sort_keys=True) + "\n").encode(),  # as runfiles.write_json
+        },
+    )
     if req.json_out:
         runfiles.write_json(req.json_out, result)
     if req.report:
         report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
     return EvaluateSummary(out_dir, len(rows), means, run.notes, table, req.report)
+
+
+def write_all_or_none(folder: str, files: dict[str, bytes]) -> None:
+    """Write ``files`` (name -> bytes) into ``folder``: all of them, or none (a full disk).
+    Each is written whole to its temporary file and made durable before any is renamed
+    (pipeline.store.atomic), so a failed write leaves no new file beside older ones; the
+    failure names the file that could not be written."""
+    with contextlib.ExitStack() as stack:
+        for name, data in files.items():
+            path = os.path.join(folder, name)
+            fh = stack.enter_context(atomic_file(path))
+            try:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            except OSError as exc:
+                if exc.filename is None:
+                    exc.filename = path  # not the name of another file of the stack
+                raise
 
 
 def same_dataset(run_config: dict, source) -> tuple[bool, str]:

@@ -23,7 +23,7 @@ from pipeline.image.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.config import InferRequest
 from pipeline.neural.data import assemble_maps
-from pipeline.neural.network import NeuralRenderer, light_input, parameter_count
+from pipeline.neural.network import NeuralRenderer, light_input
 from pipeline.neural.train import pick_device
 from pipeline.render.command import RenderRequest, load_material
 from pipeline.render.gbuffer import load_gbuffer
@@ -61,7 +61,7 @@ def load_run_model(run_dir: str, device: torch.device, checkpoint: str = "last")
     this run's configuration. The config and the checkpoint are untrusted input (runfiles)."""
     config = runfiles.read_config(run_dir)
     model = NeuralRenderer(config["network"]["resolution"], float(config["network"].get("width", 1.0)))
-    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint, parameter_count(model))
+    ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint, network=model)
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as exc:

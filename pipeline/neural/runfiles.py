@@ -15,17 +15,20 @@ not finite. Each refusal is a ShaderballError naming the file and the field.
 from __future__ import annotations
 
 import csv
+import errno
 import functools
 import io
 import json
 import math
 import os
+import stat
 import struct
 import zipfile
 
 import torch
 
 from pipeline.errors import ShaderballError
+from pipeline.neural import checkpoint_meta
 from pipeline.neural.config import InferRequest
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
 from pipeline.store.atomic import write_bytes_atomic
@@ -37,6 +40,7 @@ from pipeline.store.folder import (
     short_json,
     structure_problem,
 )
+from pipeline.store.links import first_link
 
 CONFIG = "config.json"
 LOG = "log.jsonl"
@@ -66,13 +70,27 @@ CHECKPOINT_FORMAT = "shaderball-neural-checkpoint"
 CHECKPOINT_VERSION = 1
 
 
-def write_json(path: str, obj) -> None:
-    write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+#: Every file a training run writes into its folder.
+RUN_FILES = (CONFIG, LOG, LOG_CSV, CHECKPOINT, BEST_CHECKPOINT, LOSS_PNG)
 
 
-def write_log(path: str, history: list[dict]) -> None:
+def refuse_links(request, field: str, value, roots, paths) -> None:
+    """Refuse (``request``'s ``field``, exit 2) the first of ``paths`` that is, or passes
+    through, a symbolic link inside one of ``roots`` (a run folder, an output folder):
+    :func:`pipeline.store.links.first_link`, checked before anything is written."""
+    found = first_link(roots, paths)
+    if found:
+        raise request.field_error(field, value, f"remove the link, or name another {{{field}}}", what=found[1])
+
+
+def write_json(path: str, obj, inside: str | None = None) -> None:
+    """``obj`` as indented JSON (``inside``: the folder written into, no link followed in it)."""
+    write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode(), inside)
+
+
+def write_log(path: str, history: list[dict], inside: str | None = None) -> None:
     text = "".join(json.dumps(entry, sort_keys=True) + "\n" for entry in history)
-    write_bytes_atomic(path, text.encode())
+    write_bytes_atomic(path, text.encode(), inside)
 
 
 #: Largest log.jsonl read (an epoch's line is ~1 kB: 100,000 epochs take ~100 MB).
@@ -121,8 +139,8 @@ def epoch_problem(entry) -> str | None:
     return None
 
 
-def write_log_csv(path: str, history: list[dict]) -> None:
-    write_bytes_atomic(path, log_csv(history))
+def write_log_csv(path: str, history: list[dict], inside: str | None = None) -> None:
+    write_bytes_atomic(path, log_csv(history), inside)
 
 
 def log_csv(history: list[dict]) -> bytes:
@@ -260,7 +278,7 @@ def save_checkpoint(
         content["optimizer"] = optimizer_state
     buffer = io.BytesIO()
     torch.save(content, buffer)
-    write_bytes_atomic(os.path.join(run_dir, name), buffer.getvalue())
+    write_bytes_atomic(os.path.join(run_dir, name), buffer.getvalue(), inside=run_dir)
 
 
 def checkpoint_path(run_dir: str, checkpoint: str = "last") -> str:
@@ -296,42 +314,54 @@ def largest_network_parameters() -> int:
 
 def checkpoint_archive_problem(path: str, parameters: int) -> str | None:
     """Why the checkpoint file at ``path`` is not one ``torch.save`` writes for a network of
-    ``parameters`` (None if it may be): a zip archive over the budget, holding more members
-    than a checkpoint has, or a compressed member (``torch.save`` stores members: a DEFLATE
-    member could expand 1,000-fold when ``torch.load`` reads it). Only the archive's
-    directory is read; nothing is decompressed."""
-    budget = checkpoint_budget(parameters)
+    ``parameters`` (None if it may be): see :func:`archive_problem`."""
     try:
         with open(path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            if size > budget:
-                return f"{size} bytes, over the {budget} a checkpoint of {parameters:,} parameters may hold"
-            f.seek(max(0, size - 22 - 65535))
-            tail = f.read()
-            at = tail.rfind(_EOCD)
-            if at < 0 or at + 22 > len(tail):
-                return "not a complete zip archive (torch.save writes one)"
-            entries = struct.unpack_from("<H", tail, at + 10)[0]
-            if entries > MAX_CHECKPOINT_MEMBERS:
-                return (
-                    f"a zip archive of {entries} members (0xFFFF: a zip64 archive), more than a checkpoint "
-                    f"holds (at most {MAX_CHECKPOINT_MEMBERS})"
-                )
-            f.seek(0)
-            members = zipfile.ZipFile(f).infolist()
-    except (OSError, zipfile.BadZipFile, ValueError, EOFError) as exc:
+            return archive_problem(f, parameters)[0]
+    except OSError as exc:
         return f"not a readable zip archive ({exc})"
+
+
+def archive_problem(f, parameters: int) -> tuple[str | None, zipfile.ZipFile | None]:
+    """(why the open checkpoint file ``f`` is not one ``torch.save`` writes for a network of
+    ``parameters``, or None; its zip directory when it may be): a zip archive over the budget,
+    holding more members than a checkpoint has, or a compressed member (``torch.save`` stores
+    members: a DEFLATE member could expand 1,000-fold when ``torch.load`` reads it). Only the
+    archive's directory is read; nothing is decompressed."""
+    budget = checkpoint_budget(parameters)
+    try:
+        size = os.fstat(f.fileno()).st_size
+        if size > budget:
+            return f"{size} bytes, over the {budget} a checkpoint of {parameters:,} parameters may hold", None
+        f.seek(max(0, size - 22 - 65535))
+        tail = f.read()
+        at = tail.rfind(_EOCD)
+        if at < 0 or at + 22 > len(tail):
+            return "not a complete zip archive (torch.save writes one)", None
+        entries = struct.unpack_from("<H", tail, at + 10)[0]
+        if entries > MAX_CHECKPOINT_MEMBERS:
+            return (
+                f"a zip archive of {entries} members (0xFFFF: a zip64 archive), more than a checkpoint "
+                f"holds (at most {MAX_CHECKPOINT_MEMBERS})"
+            ), None
+        f.seek(0)
+        archive = zipfile.ZipFile(f)
+        members = archive.infolist()
+    except (OSError, zipfile.BadZipFile, ValueError, EOFError) as exc:
+        return f"not a readable zip archive ({exc})", None
     total = 0
     for member in members:
         if member.compress_type != zipfile.ZIP_STORED or member.compress_size != member.file_size:
             return (
                 f"member {short_json(member.filename)} is compressed ({member.compress_size} bytes "
                 f"holding {member.file_size}); torch.save stores its members uncompressed"
-            )
+            ), None
         total += member.file_size
     if total > budget:
-        return f"members of {total} bytes in all, over the {budget} a checkpoint of {parameters:,} parameters may hold"
-    return None
+        return (
+            f"members of {total} bytes in all, over the {budget} a checkpoint of {parameters:,} parameters may hold"
+        ), None
+    return None, archive
 
 
 def checkpoint_content_problem(ckpt: dict) -> str | None:
@@ -376,34 +406,79 @@ def _remedy(checkpoint: str) -> str:
 
 
 def load_checkpoint(
-    run_dir: str, identity_digest: str | None = None, checkpoint: str = "last", parameters: int | None = None
+    run_dir: str,
+    identity_digest: str | None = None,
+    checkpoint: str = "last",
+    parameters: int | None = None,
+    network: torch.nn.Module | None = None,
 ) -> dict:
     """The run's checkpoint (``last``, ``best`` or a file), or a ShaderballError naming the file
-    when it is missing, over the budget of a network of ``parameters`` (default: the largest
-    network), corrupt, holds non-finite weights or belongs to another configuration."""
+    when it is missing, over the budget of a network of ``parameters`` (default: ``network``'s,
+    else the largest network), corrupt, belongs to another configuration, holds a tensor that
+    is not ``network``'s (default: the network of the run's config.json, built on the meta
+    device) or non-finite weights. Every tensor is checked from the file's metadata before
+    ``torch.load`` reads it (:mod:`pipeline.neural.checkpoint_meta`)."""
     path = checkpoint_path(run_dir, checkpoint)
-    if not os.path.isfile(path):
-        if checkpoint == "best":
-            raise InferRequest.field_error(
-                "checkpoint",
-                checkpoint,
-                "last",
-                what=f"best: the run has no {path} (it holds no materials out, or has not finished an epoch yet)",
-            )
-        if checkpoint == "last":
-            raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
-        raise InferRequest.field_error(
-            "checkpoint", checkpoint, "last, best, or a checkpoint file", what=f"{path!r}: no such file"
-        )
-    problem = checkpoint_archive_problem(path, parameters or largest_network_parameters())
-    if problem:
-        raise ShaderballError(f"{path}: a corrupt checkpoint, {problem}; {_remedy(checkpoint)}")
+    if not os.path.lexists(path):
+        _missing(path, checkpoint)
+    # The run's own checkpoint is never read through a link; a file the user names may be one.
+    follow = 0 if checkpoint not in CHECKPOINT_CHOICES else os.O_NOFOLLOW
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # a truncated or foreign file raises any of several types
-        raise ShaderballError(
-            f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); {_remedy(checkpoint)}"
-        ) from exc
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | follow)
+    except OSError as exc:
+        why = "a symbolic link: not followed" if exc.errno == errno.ELOOP else (exc.strerror or str(exc))
+        raise ShaderballError(f"{path}: not a readable checkpoint ({why}); {_remedy(checkpoint)}") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ShaderballError(f"{path}: not a regular file, not read; {_remedy(checkpoint)}")
+        budget = parameters or (parameter_count(network) if network is not None else largest_network_parameters())
+        problem, archive = archive_problem(f, budget)
+        if problem:
+            raise ShaderballError(f"{path}: a corrupt checkpoint, {problem}; {_remedy(checkpoint)}")
+        try:
+            root, tensors = checkpoint_meta.read_tensor_refs(archive)
+            _check_header(root, path, run_dir, identity_digest)
+            arch = checkpoint_meta.Architecture.of(network if network is not None else _config_network(run_dir))
+            checkpoint_meta.check_tensors(tensors, arch)
+        except checkpoint_meta.CheckpointRefused as exc:
+            raise _refused(exc, path, run_dir, checkpoint) from None
+        ckpt = _torch_load(f, path, checkpoint)
+    problem = checkpoint_meta.loaded_problem(ckpt, tensors)
+    if problem:
+        raise ShaderballError(f"{path}: a corrupt checkpoint: {problem}; {_remedy(checkpoint)}")
+    _check_header(ckpt, path, run_dir, identity_digest)
+    ckpt = checkpoint_meta.copied(ckpt)
+    problem = checkpoint_content_problem(ckpt)
+    if problem:
+        raise ShaderballError(f"{path}: a corrupt checkpoint: {problem}; {_remedy(checkpoint)}")
+    return ckpt
+
+
+def _missing(path: str, checkpoint: str):
+    """The refusal of a checkpoint that is not there, as ``checkpoint`` names it."""
+    if checkpoint == "best":
+        raise InferRequest.field_error(
+            "checkpoint",
+            checkpoint,
+            "last",
+            what=f"best: the run has no {path} (it holds no materials out, or has not finished an epoch yet)",
+        )
+    if checkpoint == "last":
+        raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
+    raise InferRequest.field_error(
+        "checkpoint", checkpoint, "last, best, or a checkpoint file", what=f"{path!r}: no such file"
+    )
+
+
+def _config_network(run_dir: str) -> NeuralRenderer:
+    """The network the run's config.json describes, on the meta device (nothing allocated)."""
+    config = read_config(run_dir)
+    with torch.device("meta"):
+        return NeuralRenderer(config["network"]["resolution"], float(config["network"].get("width", 1.0)))
+
+
+def _check_header(ckpt, path: str, run_dir: str, identity_digest: str | None) -> None:
+    """The checkpoint's format, version and configuration (of what data.pkl holds, or torch.load read)."""
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ShaderballError(f"{path}: not a shaderball checkpoint")
     if ckpt.get("version") != CHECKPOINT_VERSION:
@@ -415,15 +490,35 @@ def load_checkpoint(
         raise ShaderballError(
             f"{path}: the checkpoint belongs to another configuration than {os.path.join(run_dir, CONFIG)}"
         )
-    problem = checkpoint_content_problem(ckpt)
-    if problem:
-        raise ShaderballError(f"{path}: a corrupt checkpoint: {problem}; {_remedy(checkpoint)}")
-    return ckpt
+
+
+def _refused(exc: checkpoint_meta.CheckpointRefused, path: str, run_dir: str, checkpoint: str) -> ShaderballError:
+    """A tensor refused from its metadata: weights of another network, or a corrupt file."""
+    if not exc.fits:
+        return not_fitting(exc.text, path, checkpoint, os.path.join(run_dir, CONFIG))
+    return ShaderballError(f"{path}: a corrupt checkpoint: {exc.text}; {_remedy(checkpoint)}")
+
+
+def _torch_load(f, path: str, checkpoint: str):
+    """``torch.load`` of the checked file (the same one: its descriptor), its storages mapped
+    from the file (nothing allocated beyond it) and weights only."""
+    same = f"/proc/self/fd/{f.fileno()}"
+    try:
+        return torch.load(same if os.path.exists(same) else path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception as exc:  # a truncated or foreign file raises any of several types
+        raise ShaderballError(
+            f"{path}: a corrupt checkpoint, not readable by torch.load ({type(exc).__name__}); {_remedy(checkpoint)}"
+        ) from exc
 
 
 def weights_mismatch(exc: RuntimeError, path: str, checkpoint: str, config_path: str) -> ShaderballError:
     """``load_state_dict``'s refusal as one whole message (every line of torch's, bounded)."""
     detail = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return not_fitting(detail, path, checkpoint, config_path)
+
+
+def not_fitting(detail: str, path: str, checkpoint: str, config_path: str) -> ShaderballError:
+    """Weights of another network than ``config_path``'s: what to do, right for the case."""
     if len(detail) > 2000:
         detail = detail[:1997] + "..."
     if checkpoint in CHECKPOINT_CHOICES:

@@ -316,6 +316,10 @@ def _check_run_dir(run_dir: str | None) -> None:
             f"a new or empty folder, or a run folder (with {runfiles.CONFIG})",
             what=f"{run_dir!r} holds other files",
         )
+    # No run file is written through (or over) a symbolic link in the run folder.
+    runfiles.refuse_links(
+        TrainConfig, "out", run_dir, [run_dir], [os.path.join(run_dir, n) for n in runfiles.RUN_FILES]
+    )
 
 
 def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -> dict:
@@ -511,7 +515,7 @@ def _resume_point(run: _Setup) -> dict | None:
     fresh["baseline"] = old.get("baseline")
     if not os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
         return None
-    ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"], parameters=parameter_count(run.model))
+    ckpt = runfiles.load_checkpoint(config.out, fresh["identity_digest"], network=run.model)
     done = int(ckpt["epoch"])
     if done > config.epochs:
         # Training "to" fewer epochs cannot undo epochs: refuse, and keep config.json's
@@ -536,7 +540,7 @@ def _write_run_config(run: _Setup, train_set, test_set) -> None:
             "test_psnr": baseline_psnr(mean_target, test_set, workers),
         }
     os.makedirs(run.config.out, exist_ok=True)
-    runfiles.write_json(os.path.join(run.config.out, runfiles.CONFIG), run.fresh)
+    runfiles.write_json(os.path.join(run.config.out, runfiles.CONFIG), run.fresh, inside=run.config.out)
 
 
 def _score_epoch(entry: dict, run: _Setup, device, train_probe, test_set) -> None:
@@ -567,9 +571,9 @@ def _save_epoch(run_dir: str, model, optimizer, history: list[dict], identity_di
         best = dict(state, optimizer_state=None)  # the weights only: resume uses the last
         runfiles.save_checkpoint(run_dir, name=runfiles.BEST_CHECKPOINT, **best)
     runfiles.save_checkpoint(run_dir, **state)
-    runfiles.write_log(os.path.join(run_dir, runfiles.LOG), history)
-    runfiles.write_log_csv(os.path.join(run_dir, runfiles.LOG_CSV), history)
-    write_bytes_atomic(os.path.join(run_dir, runfiles.LOSS_PNG), loss_curve_png(history))
+    runfiles.write_log(os.path.join(run_dir, runfiles.LOG), history, inside=run_dir)
+    runfiles.write_log_csv(os.path.join(run_dir, runfiles.LOG_CSV), history, inside=run_dir)
+    write_bytes_atomic(os.path.join(run_dir, runfiles.LOSS_PNG), loss_curve_png(history), inside=run_dir)
 
 
 class StepClock:

@@ -16,23 +16,27 @@ from collections.abc import Iterator
 
 from pipeline.publish.request import PublishRequest, format_value, out_refused
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic
-from pipeline.store.folder import check_creatable, only_temp_files, real_dir
+from pipeline.store.folder import only_temp_files, real_dir, why_not_creatable
 from pipeline.store.lock import busy, current_holder, writer_lock
 
 #: An output folder another writer filled between the check and the lock.
 FILLED_MEANWHILE = "a new or empty folder (another writer filled it meanwhile; nothing in it is overwritten)"
 
 
-def check_out(out: str, source: str | None = None, label: str = "DIR", owner=PublishRequest) -> None:
+def check_out(out: str, source: str | None = None, label: str = "DIR", owner=PublishRequest, leftover=None) -> None:
     """PUB (or an unpack's DIR) must be new or an empty folder, and not inside ``source`` (the
     folder read from, which would no longer check): nothing is overwritten. A folder another
-    writer is filling is refused as busy (exit code 3), naming it (pipeline.store.lock)."""
+    writer is filling is refused as busy (exit code 3), naming it (pipeline.store.lock).
+    ``leftover(out)``: whether a folder that is not empty holds only what a killed writer of
+    this command left, which the command then replaces (:func:`held_output`'s ``clear``)."""
     if os.path.lexists(out) and (not os.path.isdir(out) or os.path.islink(out) or os.listdir(out)):
         holder = current_holder(out) if real_dir(out) else None
         if holder is not None:
             raise busy(out, holder, label)
-        raise out_refused(out, owner=owner)
-    check_creatable(out)
+        if leftover is None or not real_dir(out) or not leftover(out):
+            raise out_refused(out, owner=owner)
+    if why := why_not_creatable(out):
+        raise owner.field_error("out", out, "a folder that can be created", what=f"{format_value(out)} {why}")
     if source is not None:
         inner, outer = os.path.realpath(out), os.path.realpath(source)
         if os.path.commonpath([inner, outer]) in (inner, outer):
@@ -45,16 +49,18 @@ def check_out(out: str, source: str | None = None, label: str = "DIR", owner=Pub
 
 
 @contextlib.contextmanager
-def held_output(out: str, purpose: str, label: str) -> Iterator[Output]:
+def held_output(out: str, purpose: str, label: str, clear=None) -> Iterator[Output]:
     """``out`` created and held for writing (pipeline.store.lock) while the block writes it;
     on any failure inside, what this write made is removed again (:meth:`Output.discard`: its
     files while the folder is held, its folders once the lock file is gone). A writer that
     took the folder first is refused (exit code 3); one that filled it meanwhile is not
-    written over."""
+    written over. ``clear(out)`` (where :func:`check_out` found what a killed writer of this
+    command left), called instead of that check once the folder is held: remove it and
+    return True, or return False (something else came in: refused as filled meanwhile)."""
     output = Output(out)
     try:
         with writer_lock(out, purpose, label):
-            if not only_temp_files(os.listdir(out)):
+            if not (clear(out) if clear is not None else only_temp_files(os.listdir(out))):
                 raise out_refused(out, FILLED_MEANWHILE)
             try:
                 yield output

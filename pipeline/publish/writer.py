@@ -12,6 +12,7 @@ unpack holds its DIR: a second publish into it is refused (exit code 3) naming t
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import json
@@ -31,6 +32,7 @@ from pipeline.publish.facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.names import (
     CARD_FILE,
     CROISSANT_FILE,
+    DATASET_DIR,
     FORMAT,
     FORMAT_VERSION,
     INDEX_FILE,
@@ -40,8 +42,10 @@ from pipeline.publish.names import (
     PREVIEW_FILE,
     RENDERS,
     SAMPLES_FILE,
+    SHARDS_DIR,
     SOURCE_FILES,
     SUMS_FILE,
+    allowed_file,
     member_name,
     tar_rel,
 )
@@ -52,8 +56,18 @@ from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, Publi
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, member_bytes, open_writer, padded, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
-from pipeline.store.folder import MAX_JSON_BYTES, iter_manifest, list_bound, read_bytes, read_chunks, resolve_inside
-from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
+from pipeline.store.folder import (
+    MAX_JSON_BYTES,
+    is_temp_file,
+    iter_manifest,
+    list_bound,
+    read_bytes,
+    read_chunks,
+    real_dir,
+    resolve_inside,
+)
+from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, Layout
+from pipeline.store.lock import holder_text, stale_holder
 from pipeline.store.records import dumps
 
 PREVIEW_SAMPLES = 8
@@ -129,6 +143,8 @@ class PublishSummary:
     repeated_maps_extra_bytes: int
     validation_s: float
     seconds: float
+    #: what a killed publish had left in PUB, which this one replaced (its message), or None
+    replaced: str | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -142,6 +158,7 @@ class PublishSummary:
             "repeated_maps_extra_bytes": self.repeated_maps_extra_bytes,
             "validation_s": round(self.validation_s, 3),
             "seconds": round(self.seconds, 3),
+            "replaced": self.replaced,
         }
 
     def lines(self) -> list[str]:
@@ -175,10 +192,9 @@ def publish(
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
     """
     check_options(shard_bytes, license_id, url)
-    check_out(out, root, PUB_LABEL)
     start = time.perf_counter()
     # PUB is held from here, validation included: a second publish into it is refused at once.
-    with held_output(out, "publish", PUB_LABEL) as output:
+    with held_publication(out, root, progress) as (output, replaced):
         if progress:
             progress(f"validating {root} (every file, as `shaderball validate`)")
         report = validate(root)
@@ -198,7 +214,83 @@ def publish(
             url=url,
             validation_s=validation_s,
             progress=progress,
+            replaced=replaced,
         )
+
+
+# --------------------------------------------------------------------------- PUB, and a killed publish's
+
+
+@contextlib.contextmanager
+def held_publication(out: str, root: str, progress: Callable[[str], None] | None):
+    """PUB checked (new or empty; pipeline.publish.output) and held for writing while the block
+    writes it: (the Output, what it replaced). A PUB that holds only what a publish killed
+    mid-way left (:func:`partial_publication`) is cleared first, saying so through
+    ``progress``; what it replaced is that message, else None."""
+    holder = partial_publication(out)
+    check_out(out, root, PUB_LABEL, leftover=lambda _out: holder is not None)
+    clear = None
+    if holder is not None:
+        replaced = f"found a partial publication (killed {holder_text(holder)}): replacing it"
+
+        def clear(folder: str) -> bool:
+            leftovers = publication_leftovers(folder)
+            if leftovers is None:
+                return False  # something else came in meanwhile: refused as filled
+            if progress:
+                progress(f"{folder}: {replaced}")
+            for rel in leftovers:  # files, then their folders (each only if empty)
+                path = os.path.join(folder, *rel.split("/"))
+                if rel in (DATASET_DIR, SHARDS_DIR):
+                    with contextlib.suppress(OSError):  # not empty: another process wrote into it
+                        os.rmdir(path)
+                else:
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(path)
+            return True
+
+    with held_output(out, "publish", PUB_LABEL, clear=clear) as output:
+        yield output, (replaced if holder is not None else None)
+
+
+def partial_publication(out: str) -> dict | None:
+    """The description (pipeline.store.lock) of the publish that was killed while it wrote
+    ``out``, when ``out`` holds nothing else: its lock file, left by a ``publish`` that is gone
+    (:func:`pipeline.store.lock.stale_holder`), beside files publish writes (a publication's,
+    temporary ones). Else None. (SHA256SUMS is written last, but a publish killed after it,
+    before it let the folder go, did not finish either: the lock file is no publication's.)"""
+    if not real_dir(out):
+        return None
+    holder = stale_holder(out)
+    if holder is None or holder.get("purpose") != "publish" or publication_leftovers(out) is None:
+        return None
+    return holder
+
+
+def publication_leftovers(out: str) -> list[str] | None:
+    """What is in ``out`` besides its lock file, relative to it (files first, then the folders
+    ``dataset`` and ``shards``), when each is something publish writes: a regular file of a
+    publication (pipeline.publish.names), or a temporary file (pipeline.store.atomic), at the
+    places publish puts them. Else None."""
+    files, folders = [], []
+    for sub in ("", DATASET_DIR, SHARDS_DIR):
+        folder = os.path.join(out, sub)
+        if sub:
+            if not os.path.lexists(folder):
+                continue
+            if not real_dir(folder):
+                return None
+            folders.append(sub)
+        with os.scandir(folder) as entries:
+            for entry in entries:
+                rel = f"{sub}/{entry.name}" if sub else entry.name
+                if not sub and entry.name in (LOCK_FILE, DATASET_DIR, SHARDS_DIR):
+                    continue
+                ours = is_temp_file(entry.name) or allowed_file(rel) or rel == SUMS_FILE
+                if not ours or not entry.is_file(follow_symlinks=False):
+                    return None
+                files.append(rel)
+    return files + folders
 
 
 # --------------------------------------------------------------------------- planning
@@ -287,9 +379,10 @@ class TarPair:
     def __init__(self, output: Output, layout: Layout, index: int):
         self.output, self.layout, self.index = output, layout, index
         self.stack = ExitStack()
-        self.files, self.tars = {}, {}
+        self.files, self.tars, self.paths = {}, {}, {}
         for kind in (MATERIALS, RENDERS):
-            fh = self.stack.enter_context(atomic_file(output.path(tar_rel(index, kind))))
+            self.paths[kind] = output.path(tar_rel(index, kind))
+            fh = self.stack.enter_context(atomic_file(self.paths[kind]))
             self.files[kind], self.tars[kind] = fh, self.stack.enter_context(open_writer(fh))
         self.body = {MATERIALS: 0, RENDERS: 0}  # bytes of the members written (tarsafe.member_bytes)
         self.members = {MATERIALS: 0, RENDERS: 0}
@@ -313,7 +406,8 @@ class TarPair:
         ):
             for member in members:
                 data = member.data if member.source is None else _read_checked(self.layout, member)
-                write_member(self.tars[kind], member.name, data)
+                with _naming(self.paths[kind]):
+                    write_member(self.tars[kind], member.name, data)
                 self.body[kind] += member_bytes(member.size)
                 self.members[kind] += 1
         self.first.setdefault(MATERIALS, group.material_id)
@@ -326,7 +420,8 @@ class TarPair:
     def close(self) -> list[TarFacts]:
         """Finish both tars (end blocks, fsync, rename); their facts."""
         for kind in (RENDERS, MATERIALS):  # the stack closes the renders tar first: either order
-            self.tars[kind].close()
+            with _naming(self.paths[kind]):
+                self.tars[kind].close()  # its end blocks: a write
         ends = {kind: self.files[kind].tell() for kind in (MATERIALS, RENDERS)}
         self.stack.close()
         facts = []
@@ -356,6 +451,18 @@ class TarPair:
         _abandon(self.stack)
 
 
+@contextlib.contextmanager
+def _naming(path: str):
+    """A write into ``path``'s open temporary file that fails (EFBIG, ENOSPC) names no file:
+    name ``path``, so the message says where (pipeline.errors.filesystem_error)."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = path
+        raise
+
+
 def _abandon(stack: ExitStack) -> None:
     abandoned = RuntimeError("publication abandoned")
     try:  # each atomic file sees an exception, so it removes its temporary file
@@ -368,13 +475,14 @@ class StreamedFile:
     """A file of PUB written a piece at a time, atomically; its SHA-256 and size counted."""
 
     def __init__(self, output: Output, rel: str):
-        self.output, self.rel = output, rel
+        self.output, self.rel, self.path = output, rel, output.path(rel)
         self.stack = ExitStack()
-        self.fh = self.stack.enter_context(atomic_file(output.path(rel)))
+        self.fh = self.stack.enter_context(atomic_file(self.path))
         self.digest, self.size = hashlib.sha256(), 0
 
     def write(self, data: bytes) -> None:
-        self.fh.write(data)
+        with _naming(self.path):
+            self.fh.write(data)
         self.digest.update(data)
         self.size += len(data)
 
@@ -413,8 +521,7 @@ def write_publication(
     """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
     does; tests use this to build hostile publications)."""
     check_options(shard_bytes, license_id, url)
-    check_out(out, root, PUB_LABEL)
-    with held_output(out, "publish", PUB_LABEL) as output:
+    with held_publication(out, root, progress) as (output, replaced):
         return _write_into(
             output,
             root,
@@ -424,6 +531,7 @@ def write_publication(
             contact_sheet=contact_sheet,
             validation_s=validation_s,
             progress=progress,
+            replaced=replaced,
         )
 
 
@@ -437,9 +545,11 @@ def _write_into(
     contact_sheet: bool = True,
     validation_s: float,
     progress: Callable[[str], None] | None,
+    replaced: str | None = None,
 ) -> PublishSummary:
     """The publication of ``root``, written into ``output`` while this process holds it
-    (:func:`pipeline.publish.output.held_output` removes it again on a failure)."""
+    (:func:`pipeline.publish.output.held_output` removes it again on a failure); ``replaced``:
+    what a killed publish had left there (:func:`held_publication`)."""
     out = output.out
     start = time.perf_counter()
     layout = Layout(root)
@@ -486,6 +596,7 @@ def _write_into(
         repeated_maps_extra_bytes=facts.repeated_maps_extra_bytes,
         validation_s=validation_s,
         seconds=time.perf_counter() - start,
+        replaced=replaced,
     )
 
 

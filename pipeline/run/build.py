@@ -51,7 +51,6 @@ from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachab
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
-    check_creatable,
     complete_marker,
     folder_names,
     only_temp_files,
@@ -59,6 +58,7 @@ from pipeline.store.folder import (
     recorded_count,
     remove_temp_files,
     shard_ids_on_disk,
+    why_not_creatable,
 )
 from pipeline.store.layout import MANIFEST_FILE, Layout
 from pipeline.store.lock import writer_lock
@@ -219,7 +219,8 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
     except OSError as exc:
         raise _out_refused(out, f"cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
-        check_creatable(out)
+        if why := why_not_creatable(out):
+            raise _out_refused(out, why)
         return "new"
     if not os.path.lexists(layout.spec):
         raise _out_refused(

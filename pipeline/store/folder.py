@@ -37,7 +37,6 @@ import re
 import stat
 from collections.abc import Iterator
 
-from pipeline.errors import ShaderballError
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
 
@@ -787,14 +786,15 @@ def record_stamps(layout: Layout, shard_ids) -> dict[str, tuple[int, int]]:
     return stamps
 
 
-def check_creatable(out: str) -> None:
-    """Refuse (exit 2) an output folder that cannot be made: below a file or a dangling
-    link, or in a folder this process cannot write (build, publish and unpack alike)."""
+def why_not_creatable(out: str) -> str | None:
+    """Why an output folder cannot be made (below a file or a dangling link, or in a folder
+    this process cannot write), or None; each command refuses it as its own output's field."""
     probe = os.path.abspath(out)
     while not os.path.lexists(probe):
         probe = os.path.dirname(probe)
     if not os.path.isdir(probe):
         what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
-        raise ShaderballError(f"{out!r} cannot be created: {probe!r} is {what}, not a folder")
+        return f"cannot be created: {probe!r} is {what}, not a folder"
     if not os.access(probe, os.W_OK):
-        raise ShaderballError(f"{out!r} cannot be created: {probe} is not writable")
+        return f"cannot be created: {probe} is not writable"
+    return None

@@ -119,6 +119,28 @@ def current_holder(root: str) -> dict | None:
         os.close(fd)
 
 
+def stale_holder(root: str) -> dict | None:
+    """The description a writer that is gone left in ``root``'s lock file (``{}`` when it
+    wrote none), or None when there is no lock file or a writer holds it now. A lock file
+    nobody holds is stale: its holder was killed (a living holder keeps its ``flock``, and
+    unlinks the file before it lets go), whatever process now has its pid. Like
+    :func:`current_holder`, the probe creates and removes nothing."""
+    try:
+        fd = os.open(lock_path(root), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return None  # held now (or no locks here: nothing can be told)
+        return _read_holder(fd) or {}
+    finally:
+        os.close(fd)
+
+
 def _open_lock_file(root: str) -> int:
     path = lock_path(root)
     flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC

@@ -25,6 +25,7 @@ import contextlib
 import logging
 import multiprocessing.spawn
 import os
+import pickle
 import re
 import shlex
 import shutil
@@ -37,7 +38,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from pipeline.errors import ShaderballError, caused_by_interrupt
+from pipeline.errors import USER_ERRORS, ShaderballError, caused_by_interrupt
 from pipeline.run.cluster.options import (
     DEFAULT_SCRATCH,
     ClusterOptions,
@@ -423,12 +424,33 @@ def after_shard(rendered: int, recycle_after: int) -> bool:
 # --------------------------------------------------------------------------- the build's dask loop
 
 
+#: Key of a shard task's result that holds the error the build reports itself (a full disk,
+#: a refusal): returned, not raised, so the worker logs no "Compute Failed" and traceback.
+FAILED = "failed"
+
+
+def _returnable(exc: BaseException) -> bool:
+    """Whether ``exc`` survives the trip back to the driver (pickled as a task's result)."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:  # noqa: BLE001 - any failure: raise it as a task's error instead
+        return False
+    return True
+
+
 def shard_task(out: str, spec, shard, variant: str, threads: int | None, recycle_after: int = 0) -> dict:
     """The dask task: one shard with a bounded Mitsuba thread pool, then maybe recycle.
 
     ``threads`` None: the worker decides (``SHADERBALL_RENDER_THREADS``, else its CPU set).
+    An error the build reports as a message (an OSError, a user error) is returned under
+    :data:`FAILED`; :func:`run_shards_on_dask` raises it. A bug is raised (and logged).
     """
-    result = run_shard_in_process(out, spec, shard, variant, threads or worker_render_threads())
+    try:
+        result = run_shard_in_process(out, spec, shard, variant, threads or worker_render_threads())
+    except (OSError, *USER_ERRORS) as exc:
+        if caused_by_interrupt(exc) or not _returnable(exc):
+            raise
+        return {FAILED: exc}
     result["recycled"] = after_shard(result["rendered"], recycle_after)
     return result
 
@@ -479,7 +501,10 @@ def run_shards_on_dask(
                 except TimeoutError:
                     done = set()
                 for future in done:
-                    results.append(future.result())  # raises a task's error here
+                    result = future.result()  # raises a task's error here
+                    if FAILED in result:
+                        raise result[FAILED]  # an error the task reported (shard_task)
+                    results.append(result)
                     # Released at once: a worker that retires (walltime, recycling) then has no
                     # results to hand to a peer first (a hung peer stalled that: measured on
                     # SLURM), and a lost worker's finished shards are not run again.
