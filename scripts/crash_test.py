@@ -133,13 +133,13 @@ def install_write_hook(kind: str, nth: int, phase: str, note_path: str | None) -
     real_atomic_file = atomic.atomic_file
 
     @contextlib.contextmanager
-    def atomic_file(path):  # the one atomic writer: whole files and streamed ones alike
+    def atomic_file(path, *args, **kwargs):  # the one atomic writer: whole files and streamed ones alike
         if file_kind(path) == kind:
             state["seen"] += 1
             state["armed"] = state["seen"] == nth
             state["path"] = "/".join(Path(path).parts[-2:])
         try:
-            with real_atomic_file(path) as fh:
+            with real_atomic_file(path, *args, **kwargs) as fh:
                 yield fh
         finally:
             state["armed"] = False

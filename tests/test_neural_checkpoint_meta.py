@@ -6,12 +6,14 @@ naming the tensor and the file, writing nothing, within a modest memory limit; a
 checkpoint loads as before and gives the same outputs."""
 
 import collections
+import io
 import os
 import resource
 import shutil
 import subprocess
 import sys
 import warnings
+import zipfile
 
 import pytest
 import torch
@@ -309,3 +311,22 @@ def test_layouts(size, stride, offset, values, ok):
     storage = checkpoint_meta.StorageRef("0", torch.float32, values, "cpu")
     tensor = checkpoint_meta.TensorRef((storage, offset, size, stride, False, collections.OrderedDict()))
     assert (checkpoint_meta.layout_problem(tensor) is None) == ok
+
+
+def _archive(pickled: bytes) -> zipfile.ZipFile:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as out:
+        out.writestr("archive/data.pkl", pickled)
+    return zipfile.ZipFile(io.BytesIO(buffer.getvalue()))
+
+
+def test_a_pickle_made_to_exhaust_its_reader_is_read_bounded():
+    """The C unpickler's memo is an array that one LONG_BINPUT of index 2**32-1 resizes to
+    32 GiB (MemoryError); the reader here keeps a dict. Lists nested 200,000 deep are refused
+    by depth, not walked with ever longer paths."""
+    root, tensors = checkpoint_meta.read_tensor_refs(_archive(b"\x80\x02]r\xff\xff\xff\xff."))
+    assert root == [] and tensors == {}
+    deep = 200_000
+    pickled = b"\x80\x02}X\x07\x00\x00\x00history" + b"]" * deep + b"a" * (deep - 1) + b"s."
+    with pytest.raises(checkpoint_meta.CheckpointRefused, match=r"history\[0\]\[0\]\[0\]...: nested deeper"):
+        checkpoint_meta.read_tensor_refs(_archive(pickled))

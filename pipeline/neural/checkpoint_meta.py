@@ -65,6 +65,8 @@ STORAGE_DTYPES = {
 }
 #: Largest data.pkl read (a 100,000-epoch history pickles to ~40 MB).
 MAX_PICKLE_BYTES = 64 << 20
+#: Deepest nesting walked (a checkpoint's is 4: ``optimizer['state'][0]['exp_avg']``).
+MAX_DEPTH = 16
 #: Names listed in a message at most (then a count).
 SHOWN = 4
 
@@ -179,6 +181,8 @@ def _walk(root):
         if id(value) in seen:
             continue
         seen.add(id(value))
+        if len(path) >= MAX_DEPTH:
+            raise CheckpointRefused(f"{_name(path[:4])}...: nested deeper than a checkpoint is ({MAX_DEPTH} levels)")
         items = value.items() if isinstance(value, dict) else enumerate(value)
         children = []
         for key, child in items:
@@ -204,19 +208,23 @@ def read_tensor_refs(archive: zipfile.ZipFile) -> tuple[object, dict]:
     if order not in (None, b"little"):
         raise CheckpointRefused(f"byteorder {_short(order)}: torch.save here writes little-endian storages")
     try:
-        root = _Reader(io.BytesIO(archive.read(member))).load()
+        root = _Reader(io.BytesIO(archive.read(member)), encoding="utf-8").load()  # as torch.load reads it
     except CheckpointRefused:
         raise
     except Exception as exc:  # a torn or hand-made pickle raises any of several types
         raise CheckpointRefused(f"data.pkl is not a pickle this reader accepts ({type(exc).__name__})") from None
     sizes = {m.filename: m.file_size for m in archive.infolist()}
-    tensors = {}
+    tensors, storages = {}, {}
     for path, value in _walk(root):
         if not isinstance(value, TensorRef):
             raise CheckpointRefused(f"{_name(path)} is a storage outside any tensor")
         storage_problem = _storage_problem(value, prefix, sizes)
         if storage_problem:
             raise CheckpointRefused(f"tensor {_name(path)}: {storage_problem}")
+        storage = value.args[0]
+        # torch.load keeps the first reading of a key: another dtype or size for it would be read as the first
+        if storages.setdefault(storage.key, (storage.dtype, storage.numel)) != (storage.dtype, storage.numel):
+            raise CheckpointRefused(f"tensor {_name(path)}: its storage data/{storage.key} is named twice, differently")
         tensors[path] = value
     return root, tensors
 

@@ -221,6 +221,7 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
     ``progress(dict)``: done and total samples, samples/s, elapsed and ETA seconds, and what
     runs now (the first sample also compiles kernels and measures equal time). ``command``:
     how the caller spells ``req`` (the command line that makes it), the report's heading."""
+    refuse_output_links(req)
     run = _Evaluation(req)
     rows, grid_rows = [], []
     show = _Progress(progress, len(run.indices))
@@ -239,6 +240,7 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
     result = _results(req, run, rows, means, command)
     table = markdown_table(means, len(rows), run.model.resolution, run.ref_spp, run.equal_time)
     out_dir = req.folder
+    refuse_output_links(req)  # again: the evaluation took a while
     os.makedirs(out_dir, exist_ok=True)
     write_all_or_none(
         out_dir,
@@ -249,10 +251,25 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
         },
     )
     if req.json_out:
-        runfiles.write_json(req.json_out, result)
+        runfiles.write_json(req.json_out, result, inside=req.run)
     if req.report:
         report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
     return EvaluateSummary(out_dir, len(rows), means, run.notes, table, req.report)
+
+
+#: The files an evaluation writes into its folder (with ``report``, also report.REPORT_FILES).
+EVALUATION_FILES = ("results.json", "results.md", "grid.png")
+
+
+def refuse_output_links(req: EvaluateRequest) -> None:
+    """Refuse (exit 2, naming it) an output that is, or passes through, a symbolic link inside
+    the run folder (the default folder ``RUN/evaluation-<split>`` among them) or inside the
+    output folder: nothing is written through a link."""
+    names = EVALUATION_FILES + (report.REPORT_FILES if req.report else ())
+    files = [os.path.join(req.folder, name) for name in names]
+    runfiles.refuse_links(EvaluateRequest, "out", req.folder, [req.run, req.folder], files)
+    if req.json_out:
+        runfiles.refuse_links(EvaluateRequest, "json_out", req.json_out, [req.run], [req.json_out])
 
 
 def write_all_or_none(folder: str, files: dict[str, bytes]) -> None:
@@ -263,7 +280,7 @@ def write_all_or_none(folder: str, files: dict[str, bytes]) -> None:
     with contextlib.ExitStack() as stack:
         for name, data in files.items():
             path = os.path.join(folder, name)
-            fh = stack.enter_context(atomic_file(path))
+            fh = stack.enter_context(atomic_file(path, inside=folder))
             try:
                 fh.write(data)
                 fh.flush()

@@ -23,6 +23,7 @@ import warnings
 
 import torch
 
+from pipeline.neural import runfiles
 from pipeline.neural.config import ExportRequest
 from pipeline.neural.infer import load_run_model
 from pipeline.neural.network import INPUT_CHANNELS, LIGHT_CHANNELS
@@ -42,6 +43,7 @@ def example_inputs(resolution: int, batch: int = 1, seed: int = 0) -> tuple[torc
 
 def export_torchscript(req: ExportRequest) -> dict:
     """Write the run's network as TorchScript to ``req.out``; returns what the file's extra holds."""
+    runfiles.refuse_links(ExportRequest, "out", req.out, [req.run], [req.out])  # a file inside RUN: no link
     model, config = load_run_model(req.run, torch.device("cpu"), req.checkpoint)
     meta = {
         "format": "shaderball-neural-torchscript",
@@ -60,5 +62,5 @@ def export_torchscript(req: ExportRequest) -> dict:
         traced = torch.jit.trace(model, example_inputs(model.resolution), check_trace=False)
     buffer = io.BytesIO()
     torch.jit.save(traced, buffer, _extra_files={EXTRA: json.dumps(meta, sort_keys=True)})
-    write_bytes_atomic(req.out, buffer.getvalue())
+    write_bytes_atomic(req.out, buffer.getvalue(), inside=req.run)
     return meta

@@ -95,9 +95,19 @@ def run_network(model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, de
     return model(maps, light)[0].permute(1, 2, 0).float().cpu().numpy()
 
 
+def refuse_run_links(req: InferRequest) -> None:
+    """Refuse an output file inside the run folder that is, or passes through, a link there."""
+    for field in ("out", "png"):
+        path = getattr(req, field)
+        if path:
+            runfiles.refuse_links(InferRequest, field, path, [req.run], [path])
+
+
 def infer_to_files(req: InferRequest) -> InferSummary:
     """The network's picture of ``req``'s material under its sun, written to ``req.out`` (and
-    ``req.png``); nothing is written before every check passed."""
+    ``req.png``); nothing is written before every check passed (nor inside the run folder
+    through a link in it)."""
+    refuse_run_links(req)
     device = pick_device(req.device)
     started = time.perf_counter()
     model, config = load_run_model(req.run, device, req.checkpoint)
@@ -146,6 +156,7 @@ def infer_to_files(req: InferRequest) -> InferSummary:
         "tonemap": config["tonemap"],
         "colorspace": "linear Rec.709 (sRGB primaries, D65)",
     }
+    refuse_run_links(req)
     write_exr(
         req.out,
         {"render": inverse_tonemap(output, exposure), **screen},
@@ -155,5 +166,5 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     if req.png:
         buffer = io.BytesIO()
         Image.fromarray(to_srgb8(output)).save(buffer, format="PNG")
-        write_bytes_atomic(req.png, buffer.getvalue())
+        write_bytes_atomic(req.png, buffer.getvalue(), inside=req.run)
     return InferSummary(req.out, req.png, resolution, str(device), load_s, maps_s, network_s, vector)

@@ -185,6 +185,10 @@ def class_table(by_class: dict, label) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The files ``--report`` adds to an evaluation's folder.
+REPORT_FILES = ("report.md", "report.json", "learning-curve.png", "learning-curve.csv")
+
+
 def write_report(report_dir: str, result: dict, table: str, by_class_table: str, run_dir: str) -> None:
     """report.md, report.json and learning-curve.png/.csv into ``report_dir``, beside the
     evaluation's grid.png."""
@@ -193,8 +197,9 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
     baseline = (config.get("baseline") or {}).get("test_psnr")
     options = config.get("options") or {}
     os.makedirs(report_dir, exist_ok=True)
-    write_bytes_atomic(os.path.join(report_dir, "learning-curve.png"), learning_curve_png(history, baseline))
-    write_bytes_atomic(os.path.join(report_dir, "learning-curve.csv"), runfiles.log_csv(history))
+    curve = learning_curve_png(history, baseline)
+    write_bytes_atomic(os.path.join(report_dir, "learning-curve.png"), curve, inside=report_dir)
+    write_bytes_atomic(os.path.join(report_dir, "learning-curve.csv"), runfiles.log_csv(history), inside=report_dir)
     last = history[-1] if history else {}
     split = config.get("split") or {}
     lines = [
@@ -239,7 +244,8 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
         "",
         *(f"- {note}" for note in result.get("notes", [])),
     ]
-    write_bytes_atomic(os.path.join(report_dir, "report.md"), ("\n".join(lines) + "\n").encode())
+    text = ("\n".join(lines) + "\n").encode()
+    write_bytes_atomic(os.path.join(report_dir, "report.md"), text, inside=report_dir)
     runfiles.write_json(
         os.path.join(report_dir, "report.json"),
         {
@@ -249,4 +255,5 @@ def write_report(report_dir: str, result: dict, table: str, by_class_table: str,
             "run_split": config.get("split"),
             "baseline": config.get("baseline"),
         },
+        inside=report_dir,
     )

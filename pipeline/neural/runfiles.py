@@ -8,8 +8,12 @@ A run folder is untrusted input, as a dataset folder is: ``config.json`` is read
 structure bounded before it is parsed) and checked field by field (:func:`config_problem`)
 before any field is used; a checkpoint's zip archive is checked against a budget derived
 from the network's parameter count before ``torch.load`` decompresses anything
-(:func:`checkpoint_archive_problem`), then its content by type, and refused when a weight is
-not finite. Each refusal is a ShaderballError naming the file and the field.
+(:func:`checkpoint_archive_problem`), every tensor's dtype, shape, strides and storage
+against the network from the archive's metadata before any tensor is made
+(:mod:`pipeline.neural.checkpoint_meta`), then its content by type, and refused when a weight
+is not finite. Each refusal is a ShaderballError naming the file and the field (the tensor).
+Nothing is written through a symbolic link inside the run folder (:func:`refuse_links`,
+:mod:`pipeline.store.links`).
 """
 
 from __future__ import annotations

@@ -208,15 +208,21 @@ def data_size_png(summary: dict) -> bytes:
     )
 
 
+#: The files a sweep writes into its ``out`` folder (none of them through a link there).
+SWEEP_FILES = ("sweep.md", "sweep.json", "data-size.png")
+
+
 def write_sweep(req: SweepRequest, command: str | None = None) -> tuple[dict, str]:
     """Read ``req.reports`` (report.json files), write sweep.md, sweep.json and data-size.png
     into ``req.out``; returns the summary and the markdown. Nothing is written when a report is
     refused. ``command``: how the caller spells ``req``, sweep.md's heading."""
     out = req.out
+    files = [os.path.join(out, name) for name in SWEEP_FILES]
+    runfiles.refuse_links(SweepRequest, "out", out, [out], files)
     summary = {**heading(command), **summarise([(p, _load(p)) for p in req.reports])}
     os.makedirs(out, exist_ok=True)
     text = markdown(summary)
-    write_bytes_atomic(os.path.join(out, "sweep.md"), text.encode())
-    runfiles.write_json(os.path.join(out, "sweep.json"), summary)
-    write_bytes_atomic(os.path.join(out, "data-size.png"), data_size_png(summary))
+    write_bytes_atomic(os.path.join(out, "sweep.md"), text.encode(), inside=out)
+    runfiles.write_json(os.path.join(out, "sweep.json"), summary, inside=out)
+    write_bytes_atomic(os.path.join(out, "data-size.png"), data_size_png(summary), inside=out)
     return summary, text

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 
 from pipeline.publish.request import PublishRequest, format_value, out_refused
 from pipeline.store.atomic import write_bytes_atomic, write_chunks_atomic
-from pipeline.store.folder import only_temp_files, real_dir, why_not_creatable
+from pipeline.store.folder import CREATABLE, only_temp_files, real_dir, why_not_creatable
 from pipeline.store.lock import busy, current_holder, writer_lock
 
 #: An output folder another writer filled between the check and the lock.
@@ -36,7 +36,7 @@ def check_out(out: str, source: str | None = None, label: str = "DIR", owner=Pub
         if leftover is None or not real_dir(out) or not leftover(out):
             raise out_refused(out, owner=owner)
     if why := why_not_creatable(out):
-        raise owner.field_error("out", out, "a folder that can be created", what=f"{format_value(out)} {why}")
+        raise owner.field_error("out", out, CREATABLE, what=f"{format_value(out)} {why}")
     if source is not None:
         inner, outer = os.path.realpath(out), os.path.realpath(source)
         if os.path.commonpath([inner, outer]) in (inner, outer):

@@ -51,6 +51,7 @@ from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachab
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
+    CREATABLE,
     complete_marker,
     folder_names,
     only_temp_files,
@@ -220,7 +221,7 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
         raise _out_refused(out, f"cannot be listed: {exc.strerror}") from None
     if names is None or only_temp_files(names):
         if why := why_not_creatable(out):
-            raise _out_refused(out, why)
+            raise _out_refused(out, why, CREATABLE)
         return "new"
     if not os.path.lexists(layout.spec):
         raise _out_refused(

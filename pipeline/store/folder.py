@@ -786,6 +786,10 @@ def record_stamps(layout: Layout, shard_ids) -> dict[str, tuple[int, int]]:
     return stamps
 
 
+#: What an output folder that cannot be made is refused for wanting (every command alike).
+CREATABLE = "a folder that can be created"
+
+
 def why_not_creatable(out: str) -> str | None:
     """Why an output folder cannot be made (below a file or a dangling link, or in a folder
     this process cannot write), or None; each command refuses it as its own output's field."""
