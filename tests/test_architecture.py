@@ -245,3 +245,19 @@ def test_readers_load_neither_training_code_nor_the_build(module, never):
     code = f"import sys, {module}\nprint(' '.join(sorted(m for m in sys.modules if m.startswith({never!r}))))\n"
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"importing {module} loaded: {out.stdout}"
+
+
+#: The longest a library function may be: a longer one does several things, each of which wants a name.
+MAX_FUNCTION_LINES = 80
+
+
+def test_no_library_function_is_over_80_lines():
+    long = []
+    for package in ("pipeline", "sky", "materials", "geometry"):
+        for path in sorted((REPO / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    lines = node.end_lineno - node.lineno + 1
+                    if lines > MAX_FUNCTION_LINES:
+                        long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} ({lines} lines)")
+    assert not long, "split by what each part does: " + "; ".join(long)

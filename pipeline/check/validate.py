@@ -87,6 +87,16 @@ def validate(
         if report is not None:
             return report
         plans = plans.kept()
+    return _validate_whole(
+        root, layout, problems, spec, plans, description, spec_ok, description_ok, fast, progress, threads, start
+    )
+
+
+def _validate_whole(
+    root, layout, problems: Problems, spec, plans, description, spec_ok, description_ok, fast, progress, threads, start
+) -> Report:
+    """The report of :func:`validate`, with every record, file and marker held at once (a
+    dataset without a plan or manifest, or a repair, which needs them in ``report._state``)."""
     planned = {}
     if plans is not None:
         planned = {s.sample_id: s for s in iter_samples(plans)}
@@ -117,7 +127,22 @@ def validate(
         check_record_files(state, primary, problems)
     check_extra_files(state, primary, problems)
     state.manifest_dirty = manifest is None or any(p.path == MANIFEST_FILE for p in problems)
+    tally = _tally(state, primary, problems, description)
+    return Report(
+        root=root,
+        fast=fast,
+        problems=list(problems),
+        files_checked=len(files),
+        bytes_read=bytes_read,
+        seconds=time.perf_counter() - start,
+        _state=state,
+        **tally,
+    )
 
+
+def _tally(state: State, primary: dict, problems: Problems, description) -> dict:
+    """Expected, present, valid and flagged renders of a whole check (a report's counts)."""
+    plans, planned = state.plans, state.planned
     counts = (description or {}).get("counts")
     recorded = counts.get("renders") if isinstance(counts, dict) else None  # dataset.json: any type
     expected = (
@@ -134,19 +159,7 @@ def validate(
     if plans is None:  # nothing is valid against a plan that cannot be made
         valid = []
     flagged = sum(1 for i in present if (primary[i][1].get("stats") or {}).get("flagged"))
-    return Report(
-        root=root,
-        fast=fast,
-        expected=expected,
-        present=len(present),
-        valid=len(valid),
-        problems=list(problems),
-        flagged=flagged,
-        files_checked=len(files),
-        bytes_read=bytes_read,
-        seconds=time.perf_counter() - start,
-        _state=state,
-    )
+    return {"expected": expected, "present": len(present), "valid": len(valid), "flagged": flagged}
 
 
 def _validate_by_shard(
