@@ -295,8 +295,8 @@ def test_publish_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_pa
     holders = []
     real_check = writer.check_out
 
-    def checked_then_another_publish_starts(out, source=None, label="DIR"):
-        real_check(out, source, label)
+    def checked_then_another_publish_starts(out, source=None, label="DIR", **kwargs):
+        real_check(out, source, label, **kwargs)
         os.makedirs(out)
         holders.append(hold(Path(out), "publish"))
 
