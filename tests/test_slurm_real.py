@@ -345,3 +345,21 @@ def test_a_job_sbatch_refuses_stops_the_build_at_once(idle, builds, tmp_path):
     ) in out, out
     assert "Traceback" not in out
     assert build.seconds < 60
+
+
+def test_gpu_jobs_ask_for_gres_and_pin_each_worker_to_one_of_the_jobs_gpus(idle, builds, reference, tmp_path):
+    """--gpus-per-job 2 on the test SLURM's `gpu` GRES (no hardware; llvm renders): the job asks
+    for gpu:2, runs two workers, each with its own CUDA_VISIBLE_DEVICES, and the dataset is the
+    in-process one byte for byte."""
+    slurm = idle
+    before = set(slurm.jobs())
+    build = _run(
+        builds, slurm, tmp_path, tmp_path / "ds", "--jobs", "1", "--cores", "2", "--walltime", "00:30:00",
+        "--gpus-per-job", "2",
+    )  # fmt: skip
+    assert build.wait() == 0, build.explain(slurm)
+    jobs = {job_id: job for job_id, job in slurm.jobs().items() if job_id not in before}
+    assert jobs and all("gpu:2" in str(job) for job in jobs.values()), jobs
+    out = build.output()
+    assert re.search(r"renders per GPU: GPU 0: \d+ \([\d.]+/s\), GPU 1: \d+", out), build.explain(slurm)
+    crash.check_complete(build.out, reference)

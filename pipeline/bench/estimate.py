@@ -36,6 +36,7 @@ import time
 from dataclasses import asdict, dataclass
 
 from pipeline.bench.build_bench import warm_kernels
+from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest
 from pipeline.fields import Bool, Checked, Int, Path, field, same_as
@@ -92,11 +93,22 @@ class PlanRequest(Checked):
     )
     jobs: int | None = same_as(ClusterOptions, "jobs")
     cores: int | None = same_as(ClusterOptions, "cores")
+    gpus: int | tuple[int, ...] | None = same_as(
+        ClusterOptions,
+        "gpus",
+        doc="Also estimate the time on this many GPUs (a count, or device ids 0,2), from a "
+        "per-GPU rate: measured when this machine renders on a GPU, else the recorded figure it names.",
+    )
+    gpus_per_job: int | None = same_as(ClusterOptions, "gpus_per_job")
 
     def check(self) -> PlanRequest:
         return self.check_fields()
 
     def check_cross(self) -> None:
+        if self.gpus is not None and self.cluster in JOBQUEUE_KINDS:
+            raise self._refuse("gpus", f"not allowed with {{cluster}} {self.cluster}", "use {gpus_per_job}")
+        if self.gpus_per_job is not None and self.cluster not in JOBQUEUE_KINDS:
+            raise self._refuse("gpus_per_job", "only with {cluster} slurm or {cluster} pbs", "use {gpus}")
         if self.cluster in JOBQUEUE_KINDS:
             if self.workers is not None:
                 raise self._refuse("workers", f"not allowed with {{cluster}} {self.cluster}", "use {jobs}")
@@ -603,7 +615,24 @@ def estimates(report: PlanReport, req: PlanRequest) -> list[Estimate]:
         workers = req.workers or max(1, cores // 2)
         where = f"this machine, {workers} local worker(s)"
         out.append(_estimate(report, where, workers, max(1, cores // workers), cores / workers, cores))
+    gpus = (req.jobs or 1) * req.gpus_per_job if req.gpus_per_job else req.gpus
+    if gpus is not None:
+        out.append(_gpu_estimate(report, req, gpus if isinstance(gpus, int) else len(gpus)))
     return out
+
+
+def _gpu_estimate(report: PlanReport, req: PlanRequest, gpus: int) -> Estimate:
+    """One worker per GPU, a shard at a time, at the per-GPU rate (its source in ``where``)."""
+    t = report.timing
+    rate, source = gpu_rate(report.resolution, report.spp, t.variant, t.seconds_per_render)
+    rounds = math.ceil(report.shards / gpus)
+    shard_seconds = report.renders_per_shard / rate
+    if req.gpus_per_job:
+        where = f"--cluster {req.cluster}, {req.jobs} job(s) x {req.gpus_per_job} GPU(s)"
+    else:
+        where = f"{gpus} GPU(s), one worker each"
+    where += f", {rate:.2f} renders/s per GPU ({source})"
+    return Estimate(where, gpus, 1, rounds, shard_seconds, rounds * shard_seconds)
 
 
 __all__ = ["PlanReport", "PlanRequest", "disk_estimate", "plan_spec"]

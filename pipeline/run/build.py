@@ -177,6 +177,8 @@ class BuildRequest(Checked):
     scratch: str | None = same_as(ClusterOptions, "scratch")
     recycle_after: int = same_as(ClusterOptions, "recycle_after")
     start_timeout: int | None = same_as(ClusterOptions, "start_timeout")
+    gpus: int | tuple[int, ...] | None = same_as(ClusterOptions, "gpus")
+    gpus_per_job: int | None = same_as(ClusterOptions, "gpus_per_job")
     print_job_script: bool = fields.field(
         False,
         rule=Bool(),
@@ -596,6 +598,7 @@ def _build_locked(
         notes.append(f"removed {removed} temporary file(s) left by interrupted writes")
     if recycled:
         notes.append(f"{recycled} worker process restart(s) to bound memory (--recycle-after)")
+    notes.extend(per_gpu_notes(results, seconds))
     return BuildSummary(
         out=out,
         total=total,
@@ -609,6 +612,21 @@ def _build_locked(
         temp_removed=removed,
         recycled=recycled,
     )
+
+
+def per_gpu_notes(results: list[dict], seconds: float) -> list[str]:
+    """One note of each GPU's renders and rate, from the shards of workers pinned to a GPU."""
+    rendered: dict[str, int] = {}
+    for result in results:
+        if result.get("device") is not None:
+            rendered[result["device"]] = rendered.get(result["device"], 0) + result["rendered"]
+    if not rendered:
+        return []
+    each = ", ".join(
+        f"GPU {device}: {n} ({n / seconds:.2f}/s)" if seconds > 0 else f"GPU {device}: {n}"
+        for device, n in sorted(rendered.items())
+    )
+    return [f"renders per GPU: {each}"]
 
 
 @contextlib.contextmanager

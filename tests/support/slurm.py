@@ -70,6 +70,9 @@ class LocalSlurm:
     #: per node; RealMemory is what --mem asks are checked against.
     cpus: int = field(default_factory=lambda: os.cpu_count() or 1)
     memory_mb: int = 8000
+    #: per node: a ``gpu`` GRES of this many devices, declared in gres.conf with no hardware
+    #: behind it (each a plain file), so jobs can ask for ``--gres=gpu:N``.
+    gpus: int = 2
     partition: str = "debug"
     root: Path | None = None
     procs: list = field(default_factory=list)
@@ -97,6 +100,7 @@ class LocalSlurm:
         key.write_bytes(secrets.token_bytes(128))
         os.chmod(key, 0o400)
         (self.root / "slurm.conf").write_text(self.config())
+        (self.root / "gres.conf").write_text(self.gres_config())
         try:
             self._daemon(
                 [
@@ -223,15 +227,28 @@ class LocalSlurm:
             "InactiveLimit=0",
             "SlurmctldDebug=info",
             "SlurmdDebug=info",
+            "GresTypes=gpu",
         ]
         for name in self.node_names:
             lines.append(
                 f"NodeName={name} NodeHostname={host} NodeAddr=127.0.0.1 Port={free_port()} "
-                f"CPUs={self.cpus} RealMemory={self.memory_mb} State=UNKNOWN"
+                f"CPUs={self.cpus} RealMemory={self.memory_mb} Gres=gpu:{self.gpus} State=UNKNOWN"
             )
         lines.append(
             f"PartitionName={self.partition} Nodes={','.join(self.node_names)} Default=YES MaxTime=INFINITE State=UP"
         )
+        return "\n".join(lines) + "\n"
+
+    def gres_config(self) -> str:
+        """gres.conf (read from slurm.conf's folder): each node's GPUs, plain files standing in
+        for /dev/nvidiaN, so slurmd hands a job its devices' indices in CUDA_VISIBLE_DEVICES."""
+        lines = []
+        for name in self.node_names:
+            for i in range(self.gpus):
+                device = self.root / "dev" / f"{name}-gpu{i}"
+                device.parent.mkdir(exist_ok=True)
+                device.touch()
+                lines.append(f"NodeName={name} Name=gpu File={device}")
         return "\n".join(lines) + "\n"
 
     # ------------------------------------------------------------------ commands

@@ -15,6 +15,22 @@ between shards, once it has rendered that many samples (Mitsuba's memory grows s
 it renders in a long loop; scripts/memory_probe.py measures it, docs/cluster.md). Re-running a shard is safe
 because shard tasks are idempotent (:mod:`pipeline.run.shard`).
 
+GPUs. A local build whose variant is cuda starts one worker process per visible GPU (``--gpus``
+chooses them; ``--workers`` more than the GPUs spreads several over each), and a batch job of
+``--gpus-per-job N`` runs N worker processes. Each worker is pinned to one GPU through
+``CUDA_VISIBLE_DEVICES`` in its own environment, set before its process touches CUDA (drjit
+reads it when it first initialises CUDA), so that ``auto`` and every kernel cache see one
+device. Locally that is dask's own ``env`` of a ``Nanny`` (applied in the spawned worker
+process before the worker starts; a nanny that restarts its worker keeps it): a ``Nanny``
+subclass hands each nanny of the ``LocalCluster`` the next device. Not dask-cuda's
+``LocalCUDACluster``: it is not installed here, pulls in CUDA Python packages (pynvml), and
+would replace the ``LocalCluster`` whose settings this module depends on (spawned processes,
+SIGINT handling, memory limits, lost-worker timeout) for the one thing a nanny's ``env`` does.
+In a batch job the script starts one ``dask worker`` per GPU, each with
+``CUDA_VISIBLE_DEVICES`` set to the i-th id of the job's allocation (SLURM's or PBS's
+``CUDA_VISIBLE_DEVICES``, else ``SLURM_JOB_GPUS``, else i), named as dask-jobqueue names
+the N workers of one job, so adaptive scaling, retirement and the watch are unchanged.
+
 ``scripts/memory_probe.py --memory-probe 200`` re-measures the growth. The options are checked in
 :mod:`pipeline.run.cluster.options`; batch jobs are watched by :mod:`pipeline.run.cluster.watch`.
 """
@@ -63,8 +79,9 @@ JOB_ID_VARIABLE = {"slurm": "${SLURM_JOB_ID:-$$}", "pbs": "${PBS_JOBID:-$$}"}
 # --------------------------------------------------------------------------- jobqueue
 
 
-def _jobqueue_job_class(kind: str):
-    """dask-jobqueue's Job class of ``kind``, changed to one dask thread per worker process."""
+def _jobqueue_job_class(kind: str, gpus_per_job: int | None = None):
+    """dask-jobqueue's Job class of ``kind``, changed to one dask thread per worker process
+    (and with ``gpus_per_job``, one worker command per GPU, each pinned to its GPU)."""
     try:
         if kind == "slurm":
             from dask_jobqueue.slurm import SLURMJob as base
@@ -106,6 +123,11 @@ def _jobqueue_job_class(kind: str):
             share = WORKER_MEMORY_SHARE * self.worker_memory / self.worker_processes
             return format_bytes(share).replace(" ", "")
 
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            if gpus_per_job:
+                self._command_template = pinned_worker_commands(self._command_template, str(self.name), gpus_per_job)
+
     ShaderballJob.__name__ = ShaderballJob.__qualname__ = f"Shaderball{base.__name__}"
     ShaderballJob.refusals = []
     return ShaderballJob
@@ -129,6 +151,24 @@ def _refusal_text(error: str) -> str:
     return f"`{command}` exited {parts.get('Exit code', '?').strip()}: {output}"[:800]
 
 
+#: The shell expression of a job's GPU ids: what the batch system gives the job.
+JOB_GPUS = "${CUDA_VISIBLE_DEVICES:-${SLURM_JOB_GPUS:-${SLURM_STEP_GPUS:-}}}"
+
+
+def pinned_worker_commands(command: str, name: str, gpus: int) -> str:
+    """dask-jobqueue's one ``dask worker --nworkers N`` line as N worker lines, worker i with
+    ``CUDA_VISIBLE_DEVICES`` set to the i-th of the job's GPU ids (i itself when the batch
+    system names none), named ``NAME-i`` as ``--nworkers`` would; the job waits for them all."""
+    base = command.replace(f" --nworkers {gpus}", "")
+    lines = [f'IFS=, read -r -a SHADERBALL_GPUS <<< "{JOB_GPUS}"']
+    for i in range(gpus):
+        one = base.replace(f"--name {name}", f"--name {name}-{i}") if gpus > 1 else base
+        device = f'"${{SHADERBALL_GPUS[{i}]:-{i}}}"'
+        lines.append(f"{PINNED_GPU_ENV}={device} {CUDA_DEVICES_ENV}={device} {one} &")
+    lines.append("wait")
+    return "\n".join(lines)
+
+
 def job_script_prologue(options: ClusterOptions) -> list[str]:
     """Shell lines run before the worker starts: threads and a node-local kernel cache."""
     import dask
@@ -137,7 +177,7 @@ def job_script_prologue(options: ClusterOptions) -> list[str]:
     scratch = options.scratch or DEFAULT_SCRATCH
     job_id = JOB_ID_VARIABLE[options.cluster]
     return user_lines + [
-        f"export {RENDER_THREADS_ENV}={options.cores}",
+        f"export {RENDER_THREADS_ENV}={max(1, options.cores // (options.gpus_per_job or 1))}",
         # drjit writes compiled kernels to $HOME/.drjit by default: on NFS, with every node
         # writing and sweeping it, that breaks. One cache per job on node-local disk.
         f'export {KERNEL_CACHE_ENV}="{scratch}/shaderball-drjit-{job_id}"',
@@ -151,8 +191,9 @@ def jobqueue_kwargs(options: ClusterOptions) -> dict:
     lifetime_s, stagger_s = worker_lifetime(options.walltime)
     scratch = options.scratch or DEFAULT_SCRATCH
     return {
+        **_gpu_request(options),
         "cores": options.cores,
-        "processes": 1,
+        "processes": options.gpus_per_job or 1,
         "memory": options.memory,
         "walltime": options.walltime,
         "queue": options.queue,
@@ -167,9 +208,26 @@ def jobqueue_kwargs(options: ClusterOptions) -> dict:
     }
 
 
+def _gpu_request(options: ClusterOptions) -> dict:
+    """The batch system's own request for ``--gpus-per-job`` GPUs (with the user's configured
+    extra directives kept): SLURM's ``--gres=gpu:N``, PBS's ``ngpus=N`` in its select."""
+    import dask
+
+    n = options.gpus_per_job
+    if not n:
+        return {}
+    if options.cluster == "slurm":
+        extra = list(dask.config.get("jobqueue.slurm.job-extra-directives", None) or [])
+        return {"job_extra_directives": [*extra, f"--gres=gpu:{n}"]}
+    from dask_jobqueue.pbs import pbs_format_bytes_ceil
+
+    memory = pbs_format_bytes_ceil(memory_bytes(options.memory))
+    return {"resource_spec": f"select=1:ncpus={options.cores}:ngpus={n}:mem={memory}"}
+
+
 def job_script(options: ClusterOptions, scheduler_address: str = "tcp://SCHEDULER-HOST:PORT") -> str:
     """The batch script each job of ``options`` runs, without submitting or starting anything."""
-    job_class = _jobqueue_job_class(options.cluster)
+    job_class = _jobqueue_job_class(options.cluster, options.gpus_per_job)
     return job_class(scheduler=scheduler_address, name="shaderball-worker", **jobqueue_kwargs(options)).job_script()
 
 
@@ -178,7 +236,7 @@ def jobqueue_cluster(options: ClusterOptions, adapt: bool = True):
 
     ``adapt`` False: submit nothing (to inspect ``cluster.job_script()``).
     """
-    job_class = _jobqueue_job_class(options.cluster)
+    job_class = _jobqueue_job_class(options.cluster, options.gpus_per_job)
     import dask_jobqueue
 
     base = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[options.cluster]
@@ -252,6 +310,79 @@ def local_workers(workers: int | None) -> int:
     return workers or max(1, (os.cpu_count() or 1) // 2)
 
 
+#: The variable that names the GPUs a CUDA process sees (and numbers them from 0).
+CUDA_DEVICES_ENV = "CUDA_VISIBLE_DEVICES"
+#: Set (to its device) in a worker pinned to a GPU: each shard's result names the device.
+PINNED_GPU_ENV = "SHADERBALL_GPU"
+
+
+def visible_gpus() -> list[str]:
+    """The GPUs this process may use, as ``CUDA_VISIBLE_DEVICES`` names them: its entries when
+    it is set, else ``0..n-1`` for the n devices the CUDA driver counts (none without one)."""
+    listed = os.environ.get(CUDA_DEVICES_ENV)
+    if listed is not None:
+        return [part.strip() for part in listed.split(",") if part.strip()]
+    import ctypes
+
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+        count = ctypes.c_int(0)
+        if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
+            return []
+    except (OSError, AttributeError):
+        return []
+    return [str(i) for i in range(count.value)]
+
+
+def gpu_pins(options: ClusterOptions, variant: str | None) -> list[str] | None:
+    """The device of each local worker (``CUDA_VISIBLE_DEVICES`` of worker i), or None: not
+    pinned (no ``--gpus`` and a variant other than cuda). ``--gpus`` N: the first N visible;
+    ids: those of the visible list; ``--workers`` spreads that many workers over them."""
+    cuda = bool(variant) and variant.startswith("cuda")
+    if options.gpus is None and not cuda:
+        return None
+    visible = visible_gpus()
+    if options.gpus is None:
+        chosen = visible
+    elif isinstance(options.gpus, int):
+        if options.gpus > len(visible):
+            raise ClusterOptions.field_error(
+                "gpus", options.gpus, f"at most {len(visible)}", what=f"{len(visible)} GPU(s) visible here"
+            )
+        chosen = visible[: options.gpus]
+    else:
+        missing = [i for i in options.gpus if i >= len(visible)]
+        if missing:
+            raise ClusterOptions.field_error(
+                "gpus",
+                options.gpus,
+                f"ids from 0 to {len(visible) - 1}" if visible else "no GPU: leave it out",
+                what=f"no GPU {missing[0]} here ({len(visible)} visible)",
+            )
+        chosen = [visible[i] for i in options.gpus]
+    if not chosen:
+        return None  # cuda chosen with no device listed: nothing to pin to (resolve_variant checked it works)
+    n = options.workers or len(chosen)
+    return [chosen[i % len(chosen)] for i in range(n)]
+
+
+def _pinned_nanny(pins: list[str]):
+    """A ``Nanny`` class whose i-th instance gives its worker process ``CUDA_VISIBLE_DEVICES``
+    = ``pins[i]`` (dask applies a nanny's ``env`` in the spawned process, before the worker)."""
+    from distributed import Nanny
+
+    made = [0]
+
+    class PinnedNanny(Nanny):
+        def __init__(self, *args, env=None, **kwargs):
+            device = pins[made[0] % len(pins)]
+            made[0] += 1
+            pinned = {CUDA_DEVICES_ENV: device, PINNED_GPU_ENV: device}
+            super().__init__(*args, env={**(env or {}), **pinned}, **kwargs)
+
+    return PinnedNanny
+
+
 #: What the spawn wrapper runs before the worker's Python: SIGINT blocked, then exec. A
 #: shell can ignore a signal but not block it.
 _BLOCK_SIGINT_AND_EXEC = (
@@ -314,8 +445,10 @@ def _sigint_blocked_in_new_threads() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def connect(options: ClusterOptions) -> Iterator[Connection]:
-    """A dask client for ``options``; closes what it started (cluster, jobs) on exit."""
+def connect(options: ClusterOptions, variant: str | None = None) -> Iterator[Connection]:
+    """A dask client for ``options``; closes what it started (cluster, jobs) on exit.
+
+    ``variant``: the build's Mitsuba variant; a cuda one pins each local worker to a GPU."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -358,8 +491,10 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
                 )
             )
         else:
-            n = local_workers(options.workers)
+            pins = gpu_pins(options, variant)
+            n = len(pins) if pins else local_workers(options.workers)
             memory = memory_bytes(options.memory) if options.memory else "auto"
+            pinned = {"worker_class": _pinned_nanny(pins)} if pins else {}
             if os.name == "posix":
                 stack.enter_context(spawned_ignoring_sigint())
             with _sigint_blocked_in_new_threads():
@@ -370,14 +505,15 @@ def connect(options: ClusterOptions) -> Iterator[Connection]:
                     dashboard_address=":0",
                     silence_logs=40,
                     memory_limit=memory,
+                    **pinned,
                 )
             stack.callback(cluster.close)
             client = Client(cluster)
             stack.callback(client.close)
-            yield from _interruptible(
-                Connection(client, f"local cluster, {n} worker process(es)", max(1, (os.cpu_count() or 1) // n)),
-                local=True,
-            )
+            where = f"local cluster, {n} worker process(es)"
+            if pins:
+                where += f" on GPU(s) {', '.join(dict.fromkeys(pins))} ({CUDA_DEVICES_ENV} per worker)"
+            yield from _interruptible(Connection(client, where, max(1, (os.cpu_count() or 1) // n)), local=True)
 
 
 # --------------------------------------------------------------------------- in the worker
@@ -452,6 +588,7 @@ def shard_task(out: str, spec, shard, variant: str, threads: int | None, recycle
             raise
         return {FAILED: exc}
     result["recycled"] = after_shard(result["rendered"], recycle_after)
+    result["device"] = os.environ.get(PINNED_GPU_ENV)  # the worker's GPU, when pinned
     return result
 
 
@@ -472,7 +609,7 @@ def run_shards_on_dask(
     # Remote workers resolve paths in their own working directory: give them an absolute one.
     out_abs = os.path.abspath(out)
     token = uuid.uuid4().hex[:8]
-    with connect(options) as conn:
+    with connect(options, variant) as conn:
         client = conn.client
         dashboard = client.dashboard_link if _has_dashboard() else None
         if on_start:
@@ -493,7 +630,7 @@ def run_shards_on_dask(
         }
         watch = WorkerWatch(lambda: len(client.nthreads()), options, conn.jobqueue)
         results: list[dict] = []
-        next_report = 0.0
+        next_report, began, per_gpu = 0.0, time.monotonic(), {}
         try:
             while pending:
                 try:
@@ -505,6 +642,8 @@ def run_shards_on_dask(
                     if FAILED in result:
                         raise result[FAILED]  # an error the task reported (shard_task)
                     results.append(result)
+                    if result.get("device") is not None:
+                        per_gpu[result["device"]] = per_gpu.get(result["device"], 0) + result["rendered"]
                     # Released at once: a worker that retires (walltime, recycling) then has no
                     # results to hand to a peer first (a hung peer stalled that: measured on
                     # SLURM), and a lost worker's finished shards are not run again.
@@ -512,7 +651,7 @@ def run_shards_on_dask(
                 if pending and time.monotonic() >= next_report:  # about once a second
                     next_report = time.monotonic() + 1.0
                     watch.poll()
-                    report(watch.status())
+                    report(_with_gpu_rates(watch.status(), per_gpu, time.monotonic() - began))
                     watch.check()
             recycled = len(client.get_events(RECYCLE_EVENT))
         except KilledWorker as exc:
@@ -522,6 +661,14 @@ def run_shards_on_dask(
                 "again to resume"
             ) from None
     return results, dashboard, recycled
+
+
+def _with_gpu_rates(status: str, per_gpu: dict[str, int], seconds: float) -> str:
+    """``status`` and, for workers pinned to GPUs, each GPU's renders a second so far."""
+    if not per_gpu or seconds <= 0:
+        return status
+    rates = "per GPU: " + ", ".join(f"{d} {n / seconds:.2f}/s" for d, n in sorted(per_gpu.items()))
+    return f"{status}; {rates}" if status else rates
 
 
 def _has_dashboard() -> bool:

@@ -15,7 +15,7 @@ import socket
 from dataclasses import dataclass
 
 from pipeline.errors import ShaderballError
-from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field, format_value
+from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field, format_value, is_integer
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
@@ -40,6 +40,47 @@ RECYCLE_AFTER_RANGE = (0, 10_000_000)
 #: --start-timeout's range in seconds: below 10 s not even a local worker process starts.
 START_TIMEOUT_RANGE = (10, 10_000_000)
 _MIN_MEMORY, _MAX_MEMORY = 256 * 2**20, 64 * 2**40
+#: --gpus: a count of GPUs (the first N visible), or device ids (as CUDA numbers them here).
+GPU_COUNT_RANGE = (1, 256)
+GPU_ID_RANGE = (0, 255)
+GPUS_PER_JOB_RANGE = (1, 64)
+
+
+class Gpus(Rule):
+    """``--gpus``: ``4`` (a count: the first 4 visible GPUs) or ``0,2`` (device ids, a list:
+    a single id is written with a comma, ``3,``). Stored as an int or a tuple of ints."""
+
+    allowed = (
+        f"a count from {GPU_COUNT_RANGE[0]} to {GPU_COUNT_RANGE[1]} (e.g. 4), or device ids from "
+        f"{GPU_ID_RANGE[0]} to {GPU_ID_RANGE[1]} separated by commas (e.g. 0,2; one id: 3,)"
+    )
+    metavar = "N|ID,ID,..."
+
+    def parse(self, text: str):
+        if "," not in text:
+            return int(text)
+        return tuple(int(part) for part in text.split(",") if part.strip())
+
+    @property
+    def brief(self) -> str:
+        return (
+            f"a count {GPU_COUNT_RANGE[0]} to {GPU_COUNT_RANGE[1]}, or ids {GPU_ID_RANGE[0]} to {GPU_ID_RANGE[1]} (0,2)"
+        )
+
+    def check(self, value):
+        if isinstance(value, bool):
+            raise Reject()
+        if isinstance(value, int):
+            if GPU_COUNT_RANGE[0] <= value <= GPU_COUNT_RANGE[1]:
+                return value
+            raise Reject()
+        if not isinstance(value, (list, tuple)) or not value or not all(is_integer(v) for v in value):
+            raise Reject()
+        if not all(GPU_ID_RANGE[0] <= v <= GPU_ID_RANGE[1] for v in value):
+            raise Reject()
+        if len(set(value)) != len(value):
+            raise Reject("(repeated ids)")
+        return tuple(int(v) for v in value)
 
 
 class _Memory(Rule):
@@ -165,6 +206,24 @@ class ClusterOptions(Checked):
         unit="seconds",
     )
 
+    gpus: int | tuple[int, ...] | None = field(
+        None,
+        rule=Optional(
+            Gpus(), "unset (every visible GPU when the variant is cuda)", default_text="every visible GPU with cuda"
+        ),
+        doc="Local build: the GPUs to render on, a count (4: the first four visible) or device ids "
+        "(0,2); one worker process per GPU (or {workers} spread over them), each pinned to its GPU "
+        "through CUDA_VISIBLE_DEVICES.",
+        metavar="N|IDS",
+    )
+    gpus_per_job: int | None = field(
+        None,
+        rule=Optional(Int(*GPUS_PER_JOB_RANGE)),
+        doc="slurm/pbs: GPUs per job, asked of the batch system (--gres=gpu:N; PBS ngpus=N); the "
+        "job runs one worker process per GPU, each pinned to one of the job's GPUs.",
+        unit="GPUs",
+    )
+
     @property
     def is_jobqueue(self) -> bool:
         return self.cluster in JOBQUEUE_KINDS
@@ -177,6 +236,16 @@ class ClusterOptions(Checked):
         """The options of one kind of cluster, not another's."""
         if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
             raise self._refuse("start_timeout", "not allowed with {workers} 0", "there are no workers to wait for")
+        if self.gpus is not None and (self.scheduler is not None or self.is_jobqueue or self.workers == 0):
+            reason = (
+                "{scheduler}" if self.scheduler is not None else "{workers} 0" if self.workers == 0 else "batch jobs"
+            )
+            instead = "use {gpus_per_job}" if self.is_jobqueue else "leave it out here"
+            raise self._refuse("gpus", f"not allowed with {reason}", instead)
+        if self.gpus_per_job is not None and not self.is_jobqueue:
+            raise self._refuse(
+                "gpus_per_job", "only with {cluster} slurm or {cluster} pbs", "use {gpus} on one machine"
+            )
         if self.scheduler is not None and self.cluster != "local":
             raise self._refuse("scheduler", f"not allowed with {{cluster}} {self.cluster}", "use one or the other")
         if self.is_jobqueue:
