@@ -24,4 +24,26 @@ if diff -r -q -x '*.json' -x '*.lock' /tmp/gpu-check-w1/shards /tmp/gpu-check-w2
 else
   echo "DIFFERENT: see diff.txt" | tee -a "$out/rates.txt"; rc=1
 fi
+# DistributedDataParallel with one device (nccl, SyncBatchNorm, one spawned process) against the
+# one-process path on the 1-worker build: the first epoch's training loss within 2e-2 relative
+# (Adam turns float noise into lr-sized steps: tests/test_neural_distributed.py), and both rates.
+timeout 90 python3 -c '
+import shutil, sys, torch
+from pipeline.neural.config import TrainConfig
+from pipeline.neural.distributed import train_distributed
+from pipeline.neural.train import train
+def config(name):
+    shutil.rmtree(f"/tmp/gpu-check-{name}", ignore_errors=True)
+    return TrainConfig(dataset="/tmp/gpu-check-w1", out=f"/tmp/gpu-check-{name}", epochs=1, loss="l1",
+                       resolution=64, device="cuda").check()
+one = train(config("train-one"))
+ddp = train_distributed(config("train-ddp"), None, None, torch.device("cuda"))
+la, lb = one.history[0]["train_loss"], ddp.history[0]["train_loss"]
+ra, rb = one.history[0]["samples_per_s"], ddp.history[0]["samples_per_s"]
+rel = abs(la - lb) / la
+print(f"train, DDP with one device ({ddp.device}): loss {lb:.6f} against one process {la:.6f} "
+      f"(relative {rel:.1e}); {rb:.1f} against {ra:.1f} samples/s")
+sys.exit(0 if rel < 2e-2 else 1)
+' > "$out/ddp.log" 2>&1 || rc=1
+tail -1 "$out/ddp.log" | tee -a "$out/rates.txt"
 exit $rc

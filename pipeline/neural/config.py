@@ -170,6 +170,14 @@ class TrainConfig(Checked):
         rule=Choice(DEVICES),
         doc="Where the network runs: auto (cuda when torch sees a GPU, else cpu), cpu or cuda.",
     )
+    devices: int = field(
+        1,
+        rule=Int(1, 64),
+        doc="Processes training together, one a device, in DistributedDataParallel (gloo on a CPU, nccl on "
+        "CUDA), each taking an equal part of every batch of {batch_size} (docs/neural.md); 1: one process.",
+        unit="processes",
+        in_file=False,
+    )
     loader_workers: int = field(
         0,
         rule=_int("loader_workers"),
@@ -251,6 +259,14 @@ class TrainConfig(Checked):
         return self.check_fields()
 
     def check_cross(self) -> None:
+        if self.batch_size % self.devices:
+            raise self.field_error(
+                "batch_size",
+                self.batch_size,
+                f"a multiple of the {{devices}}, {self.devices} (each process takes an equal part of a batch)",
+            )
+        if self.devices > 1 and self.benchmark:
+            raise self.field_error("devices", self.devices, "1 with {benchmark}")
         if self.warmup_epochs > self.epochs:
             raise self.field_error(
                 "warmup_epochs", self.warmup_epochs, f"a finite number from 0 to {self.epochs:g}, the {{epochs}}"

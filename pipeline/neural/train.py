@@ -30,6 +30,7 @@ from pipeline.image.tonemap import to_srgb8
 from pipeline.neural import runfiles, speed
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.data import batches, open_dataset
+from pipeline.neural.distributed import train_distributed
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import (
     NeuralRenderer,
@@ -403,6 +404,8 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     _check_run_dir(config.out)
     device = pick_device(config.device)
     config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
+    if config.devices > 1:
+        return train_distributed(config, progress, source, device, _train)
     with speed.torch_threads(config.threads):
         return _train(config, progress, source, device)
 
@@ -422,12 +425,17 @@ class _Setup:
     old: dict | None  # the folder's config.json when it continues a run
 
 
-def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
+def _train(config: TrainConfig, progress, source, device, ranks=None) -> TrainSummary:
+    """The run in this process; ``ranks`` (pipeline.neural.distributed.Ranks) when it is one of
+    several: then only its rank 0 scores the epochs and writes files."""
     run = _set_up(config, progress, source)
     config, model = run.config, run.model
     ckpt = _resume_point(run)
     if ckpt is not None and int(ckpt["epoch"]) == config.epochs:
         return _finished(config, run.old, ckpt, device, model, run.choice)
+    if ranks is not None:
+        ranks.barrier()  # every rank has read the run folder before rank 0 writes in it
+        model = run.model = ranks.sync_batchnorm(model)
     model.to(device)
     run.loss_fn.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, betas=(0.9, 0.999))
@@ -436,17 +444,23 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
     if ckpt is not None:
         _resume_state(config.out, model, optimizer, ckpt)
         start_epoch, history = ckpt["epoch"], list(ckpt["history"])
+    if ranks is not None:
+        forward = ranks.wrap(model, config.compile)
     train_set = run.source.subset(run.train_ids)
     test_set = run.source.subset(run.test_ids) if run.test_ids else None
     train_probe = training_probe(train_set, config.splitting_seed)
-    _write_run_config(run, train_set, test_set)
+    if ranks is None or ranks.main:
+        _write_run_config(run, train_set, test_set)
     steps = math.ceil(len(train_set) / config.batch_size)
     clock = StepClock(steps * (config.epochs - start_epoch), config.epochs - start_epoch, steps)
     with deterministic_algorithms():
         for epoch in range(start_epoch + 1, config.epochs + 1):
             entry = train_epoch(
-                model, run.loss_fn, optimizer, train_set, device, config, epoch, progress, forward, clock
+                model, run.loss_fn, optimizer, train_set, device, config, epoch, progress, forward, clock, ranks
             )
+            if ranks is not None and not ranks.main:
+                history.append(entry)
+                continue
             _score_epoch(entry, run, device, train_probe, test_set)
             entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
             for text in entry["warnings"]:
@@ -460,7 +474,7 @@ def _train(config: TrainConfig, progress, source, device) -> TrainSummary:
         epochs_done=max(start_epoch, config.epochs if history else 0),
         resumed_from=start_epoch,
         history=history,
-        baseline_psnr=run.fresh["baseline"].get("test_psnr"),
+        baseline_psnr=(run.fresh.get("baseline") or {}).get("test_psnr"),  # rank 0's alone has one
         device=str(device),
         parameters=parameter_count(model),
         loss=run.choice.name,
@@ -668,19 +682,29 @@ def _finished(config: TrainConfig, old_config: dict, ckpt: dict, device, model, 
 
 
 def train_epoch(
-    model, loss_fn, optimizer, train_set, device, config: TrainConfig, epoch: int, progress, forward=None, clock=None
+    model,
+    loss_fn,
+    optimizer,
+    train_set,
+    device,
+    config: TrainConfig,
+    epoch: int,
+    progress,
+    forward=None,
+    clock=None,
+    ranks=None,
 ) -> dict:
-    """One epoch; ``forward`` runs the network (default ``model``; a compiled one, see
-    :func:`pipeline.neural.speed.step_forward`), in ``config.precision``; ``clock``
-    (:class:`StepClock`) is told of every step, and its estimate goes to ``progress``."""
+    """One epoch; ``forward`` runs the network (default ``model``; compiled: speed.step_forward) in
+    ``config.precision``; ``clock`` (:class:`StepClock`) is told of every step, its estimate goes to
+    ``progress``; with ``ranks`` (:class:`pipeline.neural.distributed.Ranks`) losses are the batch's."""
     forward = forward or model
     scaler = speed.grad_scaler(device, config.precision)
     model.train()
     loss_fn.train()
-    order = epoch_order(len(train_set), config.seed, epoch)
-    loader = batches(
-        Subset(train_set, order), config.batch_size, config.loader_workers, pin_memory=device.type == "cuda"
-    )
+    order, batch_size = epoch_order(len(train_set), config.seed, epoch), config.batch_size
+    if ranks is not None:  # this rank's part of every batch
+        order, batch_size = ranks.shard(order), batch_size // ranks.world
+    loader = batches(Subset(train_set, order), batch_size, config.loader_workers, pin_memory=device.type == "cuda")
     count = len(loader)
     lr = config.lr
     sums: dict[str, float] = {}
@@ -697,12 +721,16 @@ def train_epoch(
         scaler.step(optimizer)
         scaler.update()
         loss = float(parts["total"].detach())  # after the step, as before: no sync of its own
+        n = maps.shape[0]
+        means = {key: float(value.detach()) for key, value in parts.items()}
+        if ranks is not None:  # the whole batch's, every rank's summed
+            means, n = ranks.batch_means(means, n)
+            loss = means["total"]
         if not math.isfinite(loss):  # the weights in memory are spoilt; none is saved
             raise diverged(f"batch {index} of {count}: the training loss is {loss}", epoch, lr)
-        n = maps.shape[0]
         seen += n
-        for key, value in parts.items():
-            sums[key] = sums.get(key, 0.0) + float(value.detach()) * n
+        for key, value in means.items():
+            sums[key] = sums.get(key, 0.0) + value * n
         estimate = clock.tick() if clock is not None else None
         if estimate is not None and progress is not None:
             progress({"note": estimate})
