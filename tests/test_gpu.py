@@ -77,6 +77,25 @@ def test_smoke_build_on_cuda(cuda, tmp_path, variant, workers):
     assert report.ok, [p.message for p in report.problems]
 
 
+def test_two_workers_on_one_gpu_build_what_one_does(cuda, tmp_path):
+    """Two worker processes pinned to the same GPU (--gpus 0, --workers 2) against one: both
+    datasets valid, every sample rendered on cuda, and the same renders within the cuda
+    variant's noise (byte-equal where Mitsuba's cuda results are bit-stable)."""
+    from pipeline.run.cluster.options import ClusterOptions
+
+    outs = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        options = ClusterOptions(workers=workers, gpus=(0,)).check()
+        summary = build(str(_spec(tmp_path, "cuda")), str(out), cluster=options)
+        assert summary.rendered == 16 and validate(str(out)).ok
+        outs[workers] = out
+    for path in sorted(outs[1].rglob("*.render.exr")):
+        one = read_exr(str(path)).layers["render"]
+        two = read_exr(str(outs[2] / path.relative_to(outs[1]))).layers["render"]
+        assert np.allclose(one, two, rtol=1e-3, atol=1e-3), path.name
+
+
 def test_render_command_on_cuda(cuda, tmp_path):
     exr = tmp_path / "ball.exr"
     result = CliRunner().invoke(
