@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, Text, field, format_value
+from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, Text, field, format_value, same_as
 from pipeline.publish.facts import LICENSES
 
 #: --shard-bytes: the largest tar shard, from 64 KiB to 1 TiB.
@@ -71,12 +71,7 @@ class VerifyRequest(Checked):
 class UnpackRequest(Checked):
     """`shaderball unpack`: a publication restored as a dataset folder."""
 
-    pub: str = field(
-        rule=Path("a publication folder made by `shaderball publish`", exists="folder"),
-        doc="The publication folder.",
-        positional=True,
-        metavar="PUB",
-    )
+    pub: str = same_as(VerifyRequest, "pub", positional=True)
     out: str = field(
         rule=Path(_OUT_NEW),
         doc="New or empty folder for the dataset; left as it was if the publication is refused.",

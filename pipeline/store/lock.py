@@ -101,6 +101,24 @@ def current_holder(root: str) -> dict | None:
     nobody does. The probe creates and removes nothing: it takes a shared lock on the lock
     file as it is, which a writer's exclusive lock refuses, and lets it go at once (a writer
     starting in that instant is refused as busy; only a folder already refused asks)."""
+    probe = _probe(root)
+    return probe[1] if probe is not None and probe[0] else None
+
+
+def stale_holder(root: str) -> dict | None:
+    """The description a writer that is gone left in ``root``'s lock file (``{}`` when it
+    wrote none), or None when there is no lock file or a writer holds it now. A lock file
+    nobody holds is stale: its holder was killed (a living holder keeps its ``flock``, and
+    unlinks the file before it lets go), whatever process now has its pid. Like
+    :func:`current_holder`, the probe creates and removes nothing."""
+    probe = _probe(root)
+    return probe[1] if probe is not None and not probe[0] else None
+
+
+def _probe(root: str) -> tuple[bool, dict] | None:
+    """(whether a writer holds ``root``'s lock file now, the description in it: ``{}`` when
+    none), or None when there is no lock file or locks cannot be told here. A shared lock is
+    tried on the file as it is (a writer's exclusive lock refuses it) and let go at once."""
     try:
         fd = os.open(lock_path(root), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
@@ -111,32 +129,10 @@ def current_holder(root: str) -> dict | None:
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
-            return _read_holder(fd) or {}
+            return True, _read_holder(fd) or {}
         except OSError:
             return None
-        return None  # closing the file lets the shared lock go
-    finally:
-        os.close(fd)
-
-
-def stale_holder(root: str) -> dict | None:
-    """The description a writer that is gone left in ``root``'s lock file (``{}`` when it
-    wrote none), or None when there is no lock file or a writer holds it now. A lock file
-    nobody holds is stale: its holder was killed (a living holder keeps its ``flock``, and
-    unlinks the file before it lets go), whatever process now has its pid. Like
-    :func:`current_holder`, the probe creates and removes nothing."""
-    try:
-        fd = os.open(lock_path(root), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except OSError:
-            return None  # held now (or no locks here: nothing can be told)
-        return _read_holder(fd) or {}
+        return False, _read_holder(fd) or {}  # closing the file lets the shared lock go
     finally:
         os.close(fd)
 
