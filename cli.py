@@ -374,7 +374,7 @@ def evaluate_cmd(request: EvaluateRequest):
     return evaluate(request, progress=evaluate_progress(), command=command)
 
 
-@request_command(main, ServeOptions, json=None)
+@request_command(main, ServeOptions, json="Print the summary (with --benchmark: its figures) as JSON on stdout.")
 def serve_cmd(request: ServeOptions):
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
