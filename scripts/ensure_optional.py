@@ -11,9 +11,11 @@ and pytest's summary (-ra) gives the reason.
   (tests/test_slurm_real.py). They start their own daemons in a temporary folder and need none
   of the machine's (with systemd, Debian may start its munge service; slurmd and slurmctld stay
   down without /etc/slurm/slurm.conf).
-- **chromium**: Debian's `chromium`, for the browser test of `shaderball serve`
-  (tests/test_serve_browser.py); it drives the browser over the DevTools protocol through a
-  pipe, so no driver binary is needed.
+- **chromium**: Debian's `chromium` and `chromium-driver` (both programs, `chromium` and
+  `chromedriver`, must be found), for the browser tests of `shaderball serve`
+  (tests/test_serve_browser.py). They drive the browser with Selenium through this
+  `chromedriver`, named by its path, so Selenium Manager never downloads a driver or a
+  browser; the two packages come from one Debian release and match.
 """
 
 import os
@@ -42,11 +44,11 @@ TOOLS = {
         os.pathsep.join(("/usr/sbin", "/sbin")),
     ),
     "chromium": Tool(
-        ("chromium", "chromium-browser"),
-        False,
-        ("chromium",),
+        ("chromium", "chromedriver"),
+        True,
+        ("chromium", "chromium-driver"),
         "SHADERBALL_NO_CHROMIUM",
-        "the browser test of `shaderball serve`",
+        "the browser tests of `shaderball serve`",
     ),
 }
 

@@ -107,10 +107,10 @@ def test_only_the_latest_view_of_a_client_renders(http, app):
 
 
 def test_uploaded_maps_png_and_exr_render(http):
-    status, doc = http.json("POST", "/api/upload?client=up&map=diffuse", raw=_png(40, 30))
+    status, doc = http.upload("up", "diffuse", _png(40, 30))
     assert status == 200 and doc["texels"] == [256, 256]
     rough = encode_exr({"roughness": np.full((16, 16, 1), 0.6, np.float32)})
-    status, doc = http.json("POST", "/api/upload?client=up&map=roughness", raw=rough)
+    status, doc = http.upload("up", "roughness", rough, "image/x-exr")
     assert status == 200, doc
     status, doc = http.view("up", material={"kind": "maps"})
     frame = http.wait_frame("up", doc["generation"], lambda f: "path" in f)
@@ -241,7 +241,7 @@ def test_malformed_json_is_refused(http, raw, words):
     ids=["text", "truncated-png", "png-bomb-pillow-bound", "png-bomb-our-bound", "truncated-exr", "unknown-map"],
 )
 def test_a_bad_upload_is_refused(http, name, body, status, words):
-    got, doc = http.json("POST", f"/api/upload?client=bad&map={name}", raw=body)
+    got, doc = http.upload("bad", name, body, "application/octet-stream")
     assert (got, doc["ok"]) == (status, False) and words in doc["error"], doc
 
 
@@ -267,7 +267,7 @@ def _content_length(data: bytes) -> int:
 def test_an_oversized_upload_is_refused_unread(http):
     """The length is refused from the header: the answer comes before the body is sent."""
     with socket.create_connection((http.host, http.port), timeout=30) as sock:
-        head = f"POST /api/upload?client=bad&map=diffuse HTTP/1.1\r\nHost: x\r\nContent-Length: {MAX_UPLOAD_BYTES + 1}\r\n\r\n"
+        head = f"POST /api/upload?client=bad&map=diffuse HTTP/1.1\r\nHost: {http.host}:{http.port}\r\nContent-Type: image/png\r\nContent-Length: {MAX_UPLOAD_BYTES + 1}\r\n\r\n"
         sock.sendall(head.encode() + b"\0" * 1024)
         reply = _read_reply(sock)
     assert reply.startswith("HTTP/1.1 413")
@@ -285,7 +285,7 @@ def _exr_claiming(width: int, height: int) -> bytes:
 
 
 def test_a_bomb_exr_is_refused_from_its_header(http):
-    status, doc = http.json("POST", "/api/upload?client=bad&map=roughness", raw=_exr_claiming(50_000, 50_000))
+    status, doc = http.upload("bad", "roughness", _exr_claiming(50_000, 50_000), "image/x-exr")
     assert status == 413 and "50000 x 50000 pixels" in doc["error"], doc
 
 
@@ -322,7 +322,9 @@ def test_a_malformed_request_line_gets_a_json_error(http):
 
 def test_a_body_without_its_length_is_refused(http):
     with socket.create_connection((http.host, http.port), timeout=30) as sock:
-        sock.sendall(b"POST /api/view HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\r\n")
+        sock.sendall(
+            f"POST /api/view HTTP/1.1\r\nHost: {http.host}:{http.port}\r\nContent-Type: application/json\r\n\r\n".encode()
+        )
         reply = _read_reply(sock)
     assert reply.startswith("HTTP/1.1 411") and "Content-Length" in reply
 
@@ -331,9 +333,14 @@ def test_clients_that_go_away_and_clients_that_crowd_in_do_not_break_it(http):
     status, doc = http.view("gone", azimuth=90.0)
     for _ in range(5):  # ask for a frame and hang up before the answer
         with socket.create_connection((http.host, http.port), timeout=30) as sock:
-            sock.sendall(b"GET /api/frame?client=gone&since=999999 HTTP/1.1\r\nHost: x\r\n\r\n")
+            sock.sendall(
+                f"GET /api/frame?client=gone&since=999999 HTTP/1.1\r\nHost: {http.host}:{http.port}\r\n\r\n".encode()
+            )
         with socket.create_connection((http.host, http.port), timeout=30) as sock:
-            sock.sendall(b"POST /api/view HTTP/1.1\r\nHost: x\r\nContent-Length: 10\r\n\r\n{")
+            sock.sendall(
+                f"POST /api/view HTTP/1.1\r\nHost: {http.host}:{http.port}\r\nContent-Type: application/json\r\n"
+                "Content-Length: 10\r\n\r\n{".encode()
+            )
     results, errors = {}, []
 
     def one(i: int) -> None:
@@ -391,7 +398,7 @@ def test_bad_serve_options_exit_2_naming_them(args, words):
     assert words in result.stderr and "Traceback" not in result.stderr
 
 
-def test_ctrl_c_stops_the_server_with_one_line(tmp_path):
+def test_ctrl_c_stops_the_server_with_exit_code_130_and_one_line(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen(
         [sys.executable, "-m", "cli", "serve", "--port", "0"],
@@ -414,8 +421,8 @@ def test_ctrl_c_stops_the_server_with_one_line(tmp_path):
         out, err = proc.communicate(timeout=120)
     finally:
         proc.kill()
-    assert proc.returncode == 0, err
-    assert out.splitlines() == [f"stopped (Ctrl-C); served {url}"]
+    assert proc.returncode == 130, err
+    assert out == "" and [line for line in err.splitlines() if line.strip()][-1].startswith("stopped (Ctrl-C); served http://")
     assert "Traceback" not in err
 
 

@@ -133,3 +133,49 @@ def test_the_noise_psnr_estimate_matches_the_psnr_of_real_noise():
     measured = 10 * np.log10(255.0**2 / np.mean(errors))
     assert abs(estimate - measured) < 1.0, (estimate, measured)
     assert noise_psnr_db(clean, variance, 2, 4.0) > estimate + 4  # 4 pixels averaged: about 6 dB less noise
+
+
+def test_the_decode_budget_makes_a_decode_wait_for_room_and_refuses_one_that_waits_too_long():
+    from pipeline.serve.materials import DecodeBudget
+
+    budget, order = DecodeBudget(100), []
+    with budget.reserve(80, "first"):
+        with pytest.raises(RequestError) as refused:
+            with budget.reserve(50, "second", wait_s=0.05):
+                pass
+        assert refused.value.status == 503 and "second" in str(refused.value)
+        waiter = threading.Thread(target=lambda: _hold(budget, 50, order))
+        waiter.start()
+        waiter.join(0.2)
+        assert order == []  # no room yet: 80 + 50 > 100
+    waiter.join(60)
+    assert order == ["decoded"] and budget.used == 0
+    with budget.reserve(10**12, "huge", wait_s=0.05):  # past the whole budget: alone, not never
+        assert budget.used == 100
+
+
+def _hold(budget, nbytes: int, order: list) -> None:
+    with budget.reserve(nbytes, "waiter", wait_s=60):
+        order.append("decoded")
+
+
+def test_a_16_bit_upload_is_decoded_to_its_value_at_the_texture_size():
+    buffer = io.BytesIO()
+    Image.fromarray(np.full((300, 200), 40000, np.uint16)).save(buffer, format="PNG")
+    pixels = decode_upload("diffuse", buffer.getvalue())
+    assert pixels.shape == (TEXTURE_TEXELS, TEXTURE_TEXELS, 3) and pixels.dtype == np.float32
+    assert np.allclose(pixels, 40000 / 65535, atol=1e-5)
+
+
+def test_the_uploads_of_all_clients_together_are_bounded(monkeypatch):
+    import pipeline.serve.work as work
+
+    hub = Hub(path_resolution=16, network_resolution=None)
+    texels = np.zeros((256, 256, 3), np.float32)
+    monkeypatch.setattr(work, "MAX_STORED_UPLOAD_BYTES", 2 * texels.nbytes)
+    hub.store_upload("a", "diffuse", texels)
+    hub.store_upload("b", "diffuse", texels)
+    hub.store_upload("b", "diffuse", texels)  # replacing a map takes no more room
+    with pytest.raises(RequestError) as refused:
+        hub.store_upload("c", "diffuse", texels)
+    assert refused.value.status == 503 and "uploads" in str(refused.value)

@@ -3,15 +3,23 @@ sample (made again from the dataset's spec and plan), or maps the page uploaded 
 
 Uploads are bounded before they are decoded: the body's bytes by the server, then the
 image's pixel count from its header (Pillow's lazy open, OpenEXR's header-only read), and
-only then the pixels. A dataset sample is picked by its id, which must be in the dataset's
+only then the pixels. Memory is bounded across all clients at once, not per upload alone: a
+130 kB 16-bit PNG of 4096 x 4096 pixels decodes to hundreds of MB, and 16 of them at once
+took a server to 7.4 GB. Each decode reserves its worst case (:data:`DECODE_BYTES_PER_PIXEL`
+times the pixels its header gives) from one :data:`DECODE_BUDGET_BYTES` shared by every
+upload; one past the budget waits for others to finish (up to :data:`DECODE_WAIT_S`, then
+503). A decode keeps only what the renderer uses: each channel is resampled to
+TEXTURE_TEXELS a side as it is converted, never the whole image as float. A dataset sample is picked by its id, which must be in the dataset's
 manifest; the id never becomes a path.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import threading
 
 import numpy as np
 
@@ -50,6 +58,16 @@ TEXTURE_TEXELS = 256
 SVBRDF_TEXELS = 128
 #: An uploaded EXR: at most MAX_UPLOAD_PIXELS of up to 4 float channels, checked from its header.
 UPLOAD_EXR_BOUNDS = ExrBounds(budget_bytes=MAX_UPLOAD_PIXELS * 4 * 4)
+#: Memory one decode may take per pixel of its image, worst case: Pillow's decoded image (4 B)
+#: beside its numpy copy (up to 4 B a channel of 3: 16-bit grey comes as int32) and one channel
+#: as float32 (4 B); an EXR's float channels twice (OpenEXR's and ours). Measured: about 11 B
+#: (a 16-bit 4096 x 4096 PNG: 180 MB at its peak).
+DECODE_BYTES_PER_PIXEL = 32
+#: Bytes all uploads decoding at once may reserve together; a worst-case upload (4096 x 4096
+#: pixels: 512 MiB reserved, the budget whole) decodes alone, small ones side by side.
+DECODE_BUDGET_BYTES = 512 * 1024 * 1024
+#: Seconds an upload waits for its share of the decode budget before it is refused (503).
+DECODE_WAIT_S = 120.0
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 #: Most renders of a dataset the picker lists (its manifest is read whole, bounded by this count).
@@ -70,6 +88,32 @@ def svbrdf_maps(choice: SvbrdfChoice) -> MaterialMaps:
     return sample_svbrdf(seeded_rng(choice.seed), choice.family, SVBRDF_TEXELS)
 
 
+class DecodeBudget:
+    """Bytes of memory reserved by the decodes under way, shared by every client."""
+
+    def __init__(self, total: int):
+        self.total, self.used = total, 0
+        self.cond = threading.Condition()
+
+    @contextlib.contextmanager
+    def reserve(self, nbytes: int, label: str, wait_s: float = DECODE_WAIT_S):
+        nbytes = min(nbytes, self.total)  # the largest allowed decodes alone
+        with self.cond:
+            if not self.cond.wait_for(lambda: self.used + nbytes <= self.total, wait_s):
+                raise RequestError(f"{label}: the server is decoding other uploads; send it again shortly", 503)
+            self.used += nbytes
+        try:
+            yield
+        finally:
+            with self.cond:
+                self.used -= nbytes
+                self.cond.notify_all()
+
+
+#: The one budget of the server's process.
+DECODE_BUDGET = DecodeBudget(DECODE_BUDGET_BYTES)
+
+
 def decode_upload(name: str, data: bytes) -> np.ndarray:
     """An uploaded map (PNG or EXR bytes, texture space) as float32 (TEXTURE_TEXELS, TEXTURE_TEXELS, C)
     in [0, 1] (the normal map: unit normals); refused with a 4xx FieldError (an unknown map, too
@@ -79,11 +123,12 @@ def decode_upload(name: str, data: bytes) -> np.ndarray:
     if len(data) > MAX_UPLOAD_BYTES:
         raise too_large(f"{name} upload", f"{len(data)} bytes", f"at most {MAX_UPLOAD_BYTES} bytes")
     if data.startswith(PNG_MAGIC):
-        pixels = _decode_png(name, data)
+        decode = _decode_png
     elif data.startswith(EXR_MAGIC):
-        pixels = _decode_exr(name, data)
+        decode = _decode_exr
     else:
         raise RequestError(f"{name} upload: not a PNG or EXR file (its first bytes are {data[:8]!r})", 415)
+    pixels = decode(name, data)
     pixels = np.clip(np.nan_to_num(pixels, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
     if name == "roughness":
         return pixels[..., :1]
@@ -103,39 +148,38 @@ def _check_pixels(name: str, width: int, height: int) -> None:
         raise too_large(f"{name} upload", f"{width}x{height} pixels", f"at most {MAX_UPLOAD_PIXELS} pixels")
 
 
-def _resample(array: np.ndarray) -> np.ndarray:
-    """(h, w, C) float32 -> (TEXTURE_TEXELS, TEXTURE_TEXELS, C), bilinear (Pillow, per channel)."""
+def _resample(channels: list[np.ndarray], scale: float = 1.0) -> np.ndarray:
+    """Three (h, w) channels of any numeric type -> (TEXTURE_TEXELS, TEXTURE_TEXELS, 3) float32
+    times ``scale``, bilinear (Pillow); one channel at a time is float32 at full size."""
     from PIL import Image
 
-    channels = [
-        np.asarray(
-            Image.fromarray(np.ascontiguousarray(array[..., c], np.float32), mode="F").resize(
-                (TEXTURE_TEXELS, TEXTURE_TEXELS), Image.BILINEAR
-            ),
-            np.float32,
-        )
-        for c in range(array.shape[2])
-    ]
-    return np.stack(channels, axis=-1)
+    channels = (channels * 3)[:3] if len(channels) < 3 else channels[:3]  # grey: repeated
+    out = np.empty((TEXTURE_TEXELS, TEXTURE_TEXELS, 3), np.float32)
+    for c, channel in enumerate(channels):
+        full = Image.fromarray(np.ascontiguousarray(channel, np.float32), mode="F")
+        out[..., c] = np.asarray(full.resize((TEXTURE_TEXELS, TEXTURE_TEXELS), Image.BILINEAR), np.float32)
+        del full
+    return out * np.float32(scale)
 
 
 def _decode_png(name: str, data: bytes) -> np.ndarray:
     """A PNG upload through the project's one bounded image reader (:mod:`materials.imagefile`):
     its size from the IHDR chunk is refused here first (413, our bound), then the reader checks
     it again from Pillow's header before any pixel is decoded."""
-    if data[12:16] == b"IHDR":
-        _check_pixels(name, *_png_header_size(data))
+    if data[12:16] != b"IHDR":
+        raise RequestError(f"{name} upload: not a readable PNG (no IHDR chunk first)", 415)
+    width, height = _png_header_size(data)
+    _check_pixels(name, width, height)
     side = int(math.isqrt(MAX_UPLOAD_PIXELS))
-    try:
-        pixels, full_scale = read_image(data, f"{name} upload", side, side)
-    except MaterialError as exc:
-        raise RequestError(f"{name} upload: not a readable PNG ({exc})", 415) from None
-    array = pixels.astype(np.float32) / np.float32(full_scale)
-    if array.ndim == 2:
-        array = array[..., None]
-    if array.shape[-1] < 3:  # grey, or grey and alpha
-        array = np.repeat(array[..., :1], 3, axis=-1)
-    return _resample(array[..., :3])
+    with DECODE_BUDGET.reserve(width * height * DECODE_BYTES_PER_PIXEL, f"{name} upload"):
+        try:
+            pixels, full_scale = read_image(data, f"{name} upload", side, side)
+        except MaterialError as exc:
+            raise RequestError(f"{name} upload: not a readable PNG ({exc})", 415) from None
+        if pixels.ndim == 2:
+            pixels = pixels[..., None]
+        grey = pixels.shape[-1] < 3  # grey, or grey and alpha
+        return _resample([pixels[..., c] for c in ((0,) if grey else (0, 1, 2))], 1.0 / full_scale)
 
 
 def _png_header_size(data: bytes) -> tuple[int, int]:
@@ -156,14 +200,14 @@ def _decode_exr(name: str, data: bytes) -> np.ndarray:
             413 if too_large else 415,
         ) from None
     _check_pixels(name, header.width, header.height)
-    try:
-        layers = read_exr(data, label, UPLOAD_EXR_BOUNDS).layers
-    except ShaderballError as exc:
-        raise RequestError(f"{label}: not a readable EXR ({exc})", 415) from None
-    array = np.concatenate([np.asarray(v, np.float32) for _, v in sorted(layers.items())], axis=-1)
-    if array.shape[-1] < 3:
-        array = np.repeat(array[..., :1], 3, axis=-1)
-    return _resample(array[..., :3])
+    with DECODE_BUDGET.reserve(header.width * header.height * DECODE_BYTES_PER_PIXEL, label):
+        try:
+            layers = read_exr(data, label, UPLOAD_EXR_BOUNDS).layers
+        except ShaderballError as exc:
+            raise RequestError(f"{label}: not a readable EXR ({exc})", 415) from None
+        channels = [layer[..., c] for _, layer in sorted(layers.items()) for c in range(layer.shape[-1])]
+        del layers
+        return _resample(channels[:1] if len(channels) < 3 else channels[:3])
 
 
 def maps_from_uploads(uploads: dict[str, np.ndarray]) -> MaterialMaps:

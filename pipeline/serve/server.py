@@ -4,21 +4,50 @@ Routes (JSON unless said):
 
     GET  /                    the page (page.html, in this package; nothing from the internet)
     GET  /api/info            what the server offers: network or not, ranges, presets, samples
-    POST /api/view            {client, material, light, exposure} -> {generation}
+    POST /api/view            {client, material, light, exposure} -> {generation, known, uploads}
     POST /api/upload?client=ID&map=diffuse|specular|roughness|normal   body: PNG or EXR bytes
     GET  /api/frame?client=ID&since=VERSION   long poll: the client's frame once it changes
+                              (``known``: false when the server had forgotten the client, see
+                              pipeline.serve.work: the page uploads its maps and view again)
 
 Every refusal is a 4xx JSON ``{"ok": false, "error": "..."}`` the page shows; an unexpected
 failure is a 500 with one line, never a traceback. A client that goes away mid-answer costs
 the server nothing (BrokenPipeError and ConnectionResetError end that answer only).
+
+What a request must be, checked before any route runs (:meth:`JsonHandler.refusal`):
+
+- Its ``Host`` names this server (421 otherwise), against DNS rebinding: a page of another
+  site whose name is pointed at this address sends its own name. Allowed: ``localhost``,
+  ``127.0.0.1`` and ``[::1]``, the address bound, each with the port (without one only on
+  port 80). Bound to every address (``--host 0.0.0.0`` or ``::``), the server also allows any
+  IP literal and this machine's host names (``socket.gethostname()``, ``getfqdn()``): a
+  rebinding attack sends a DNS name, never an IP literal.
+- A POST carries its body's type (415 otherwise): ``application/json`` for /api/view; for
+  /api/upload ``image/png``, ``image/x-exr`` or ``application/octet-stream`` (the page sends
+  the first two). Neither is a type a cross-site form may send, so a browser asks the server
+  first (CORS preflight, refused: OPTIONS is a 405); and when an ``Origin`` header comes, it
+  must be this server's own, ``http://`` + the Host header (403 otherwise).
+- Content-Length is ASCII digits (400 otherwise; 411 missing; 413 past the route's limit);
+  the body arrives within :data:`BODY_STALL_S` of each read and :data:`BODY_DEADLINE_S` in
+  all (408 then, and the connection closes), or a short body whose client hung up is a 400.
+- HEAD answers GET's headers and never a body (HEAD / the page's; anything else a 405).
+
+Every error answer closes its connection, so the bytes of a body not read are never read as
+the next request. The listening socket queues :data:`LISTEN_BACKLOG` connections
+(ThreadingHTTPServer's 5 reset a burst of a page's requests).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import json
 import logging
+import re
+import signal
+import socket
 import threading
+import time
 from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -31,14 +60,18 @@ from pipeline.fields import Bool, Checked, FieldError, Int, Optional, Path, Text
 from pipeline.serve.materials import (
     DATASET_ALLOWED,
     MAX_UPLOAD_BYTES,
+    TEXTURE_TEXELS,
     DatasetSamples,
     NotADataset,
     decode_upload,
     material_maps,
     too_large,
 )
+from pipeline.serve.reference import stored_renders
 from pipeline.serve.view import (
+    ALBEDO_PNG,
     CLOUDINESS_TURBIDITY,
+    DatasetChoice,
     FrameRequest,
     RequestError,
     UploadRequest,
@@ -48,12 +81,42 @@ from pipeline.serve.view import (
     api_status,
     parse_view,
 )
-from pipeline.serve.work import PASS_TOTALS, PATH_RESOLUTION, Hub, NetworkRunner, PathTracer
+from pipeline.serve.work import (
+    PASS_TOTALS,
+    PATH_RESOLUTION,
+    Hub,
+    NetworkRunner,
+    PathTracer,
+    png_data_url,
+    texture_srgb8,
+)
+from pipeline.ui.interrupt import Stopped
 
 log = logging.getLogger(__name__)
 
 #: Largest JSON body of /api/view, bytes.
 MAX_JSON_BYTES = 64 * 1024
+#: Connections the listening socket holds before they are accepted (a burst of 64 is served).
+LISTEN_BACKLOG = 128
+#: Seconds a connection may wait for its next request, or stall while its answer is written.
+CONNECTION_IDLE_S = 60
+#: Seconds a request body may stall between two reads before it is refused (408).
+BODY_STALL_S = 10.0
+#: Seconds a whole request body may take (8 MB in 60 s: 140 kB/s), however it trickles.
+BODY_DEADLINE_S = 60.0
+#: The body types each POST route takes (the media type, parameters such as charset aside).
+POST_TYPES = {
+    "/api/view": ("application/json",),
+    "/api/upload": ("image/png", "image/x-exr", "application/octet-stream"),
+}
+#: Uploads whose bodies are read and decoded at once, all clients together (each holds up to
+#: MAX_UPLOAD_BYTES of body meanwhile; the decoded pixels have their own budget, materials.py).
+UPLOADS_AT_ONCE = 8
+#: Seconds an upload waits for its turn before it is refused (503): 16 worst-case uploads at
+#: once take about 15 s here.
+UPLOAD_WAIT_S = 120.0
+#: Content-Length as it must be spelled: ASCII digits (str.isdigit also takes "²").
+CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
 #: Longest a /api/frame long poll waits, seconds.
 FRAME_WAIT_S = 10.0
 PORT_RANGE = (0, 65535)
@@ -71,9 +134,69 @@ class QuietServer(ThreadingHTTPServer):
     only; it is logged, not printed on the terminal the server owns."""
 
     daemon_threads = True
+    request_queue_size = LISTEN_BACKLOG
+    #: serve()'s :class:`Stopper`: the loop ends (StopServing) once it is asked.
+    stopper = None
+
+    def service_actions(self):
+        if self.stopper is not None and self.stopper.asked:
+            raise StopServing
+
+    def server_bind(self):
+        super().server_bind()
+        self.upload_slots = threading.BoundedSemaphore(UPLOADS_AT_ONCE)
+        self.hosts = HostPolicy.of(self.server_address[0], self.server_address[1])
 
     def handle_error(self, request, client_address):
         log.debug("connection from %s ended by an error", client_address, exc_info=True)
+
+
+class StopServing(Exception):
+    """Raised by the server loop of :func:`serve` once Ctrl-C asked it to stop."""
+
+
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
+
+
+@dataclass(frozen=True)
+class HostPolicy:
+    """Which ``Host`` headers name this server (module docstring): ``names`` with the port,
+    and with ``any_ip`` any IP literal too."""
+
+    names: frozenset[str]
+    port: int
+    any_ip: bool
+
+    @classmethod
+    def of(cls, bound: str, port: int) -> HostPolicy:
+        address = ipaddress.ip_address(bound)
+        names = {*LOOPBACK_NAMES, f"[{bound}]" if address.version == 6 else bound}
+        if address.is_unspecified:
+            names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+        return cls(frozenset(names), port, address.is_unspecified)
+
+    def allows(self, host: str | None) -> bool:
+        if not host:
+            return False
+        host = host.strip().lower()
+        name, port = host.rsplit(":", 1) if host.rpartition(":")[0] and not host.endswith("]") else (host, "80")
+        if port != str(self.port):
+            return False
+        if name in self.names:
+            return True
+        return self.any_ip and _ip_literal(name)
+
+    def spelled(self) -> str:
+        named = " or ".join(f"{n}:{self.port}" for n in sorted(self.names))
+        return named + (f" (or any IP literal with :{self.port})" if self.any_ip else "")
+
+
+def _ip_literal(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name[1:-1] if name.startswith("[") and name.endswith("]") else name)
+    except ValueError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -149,6 +272,7 @@ class App:
         self.tracer = PathTracer(self.hub, options.variant, on_fatal=self._fatal)
         self.runner = None
         self.httpd = None
+        self.http_thread = None  # serve_in_thread's; serve() runs the loop in the main thread
 
     def _fatal(self, exc: BaseException) -> None:
         self.fatal = exc
@@ -185,11 +309,13 @@ class App:
     def serve_in_thread(self) -> threading.Thread:
         thread = threading.Thread(target=self.httpd.serve_forever, name="shaderball-http", daemon=True)
         thread.start()
+        self.http_thread = thread
         return thread
 
     def close(self) -> None:
         if self.httpd is not None:
-            self.httpd.shutdown()
+            if self.http_thread is not None and self.http_thread.is_alive():
+                self.httpd.shutdown()  # waits for a running loop only: one never started would hang it
             self.httpd.server_close()
         self.hub.close()
         for thread in (self.tracer, self.runner):
@@ -209,20 +335,33 @@ class App:
             "defaults": api_defaults(),
             "cloudiness_turbidity": list(CLOUDINESS_TURBIDITY),
             "max_upload_bytes": MAX_UPLOAD_BYTES,
+            # The paint canvases' size, and what an 8-bit albedo PNG upload means (the page
+            # converts its sRGB canvases to it before uploading).
+            "texture_texels": TEXTURE_TEXELS,
+            "albedo_png": ALBEDO_PNG,
             "samples": self.dataset.listing() if self.dataset is not None else [],
         }
 
     def view(self, doc) -> dict:
         client, view = parse_view(doc)
+        known = self.hub.knows(client)  # False: a tab whose state was forgotten sends it again
         uploads = self.hub.uploads(client)
-        generation = self.hub.submit(client, view, lambda: material_maps(view.material, self.dataset, uploads))
-        return {"ok": True, "generation": generation}
+        reference = None
+        if isinstance(view.material, DatasetChoice) and self.dataset is not None:
+            # The sample's stored render, shown beside path tracing (read once per material).
+            reference = lambda: stored_renders(self.dataset.root).reference(view.material.sample)  # noqa: E731
+        generation = self.hub.submit(
+            client, view, lambda: material_maps(view.material, self.dataset, uploads), reference
+        )
+        return {"ok": True, "generation": generation, "known": known, "uploads": sorted(uploads)}
 
     def upload(self, query: dict, body: bytes) -> dict:
         request = UploadRequest.from_doc(query)
         pixels = decode_upload(request.map, body)
         self.hub.store_upload(request.client, request.map, pixels)
-        return {"ok": True, "map": request.map, "texels": list(pixels.shape[:2])}
+        # The map as the page's canvas shows it (albedo sRGB-encoded): an EXR upload is drawn too.
+        preview = png_data_url(texture_srgb8(request.map, pixels))
+        return {"ok": True, "map": request.map, "texels": list(pixels.shape[:2]), "preview": preview}
 
     def frame(self, query: dict) -> dict:
         request = FrameRequest.from_doc(query)
@@ -239,8 +378,8 @@ class JsonHandler(BaseHTTPRequestHandler):
 
     server_version = "shaderball-serve"
     protocol_version = "HTTP/1.1"
-    #: Seconds a socket read or write may stall (a client that sends half a body lets go then).
-    timeout = 60
+    #: Seconds a socket read or write may stall (a request body: BODY_STALL_S).
+    timeout = CONNECTION_IDLE_S
 
     def send_error(self, code, message=None, explain=None):
         """http.server's own refusals (a malformed request line, a header too long) as JSON too."""
@@ -251,16 +390,40 @@ class JsonHandler(BaseHTTPRequestHandler):
         pass  # the library never prints; a request log is not wanted on the terminal
 
     def _send(self, status: int, body: bytes, content_type: str) -> None:
+        if status >= 400:
+            self.close_connection = True  # a body not read is never taken for the next request
         try:
             self.send_response(status)
             self.send_header("Content-Type", content_type)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
             self.send_header("X-Content-Type-Options", "nosniff")
+            if self.close_connection:
+                self.send_header("Connection", "close")
             self.end_headers()
-            self.wfile.write(body)
-        except (BrokenPipeError, ConnectionResetError):
+            if self.command != "HEAD":
+                self.wfile.write(body)
+        except (BrokenPipeError, ConnectionResetError, TimeoutError):
             self.close_connection = True  # the client went away: its answer is dropped
+
+    def refusal(self) -> tuple[int, str] | None:
+        """(status, message) of a request refused before its route runs, or None (module
+        docstring: Host, and a POST's Content-Type and Origin)."""
+        host = self.headers.get("Host")
+        hosts: HostPolicy = self.server.hosts
+        if not hosts.allows(host):
+            return 421, f"Host: {_shown(host)} is not allowed; {hosts.spelled()}"
+        if self.command != "POST":
+            return None
+        route = urlsplit(self.path).path
+        kind = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
+        allowed = POST_TYPES.get(route)
+        if allowed is not None and kind not in allowed:
+            return 415, f"Content-Type: {_shown(kind or None)} is not allowed; {' or '.join(allowed)}"
+        origin = self.headers.get("Origin")
+        if origin is not None and origin.strip().lower() != "http://" + host.strip().lower():
+            return 403, f"Origin: {_shown(origin)} is not allowed; this page's own, http://{host.strip()}"
+        return None
 
     def _json(self, status: int, doc: dict) -> None:
         self._send(status, json.dumps(doc).encode(), "application/json")
@@ -277,12 +440,38 @@ class JsonHandler(BaseHTTPRequestHandler):
 
     def body(self, limit: int) -> bytes:
         length = self.headers.get("Content-Length")
-        if length is None or not length.isdigit():
-            raise RequestError("Content-Length: missing or not a number; send the body with its length", 411)
+        if length is None or "Transfer-Encoding" in self.headers:
+            raise RequestError("Content-Length: missing; send the body with its length (no chunked encoding)", 411)
+        if not CONTENT_LENGTH.fullmatch(length.strip()):
+            raise RequestError(f"Content-Length: {_shown(length)} is not allowed; a number of bytes", 400)
         if int(length) > limit:
-            self.close_connection = True  # the body is not read: the connection cannot be reused
             raise too_large("body", f"{int(length)} bytes", f"at most {limit} bytes")
-        return self.rfile.read(int(length))
+        return self._read_exactly(int(length))
+
+    def _read_exactly(self, size: int) -> bytes:
+        """``size`` bytes of body, each read within BODY_STALL_S and all within BODY_DEADLINE_S:
+        408 past them, 400 when the client hangs up first."""
+        deadline, parts, got = time.monotonic() + BODY_DEADLINE_S, [], 0
+        try:
+            while got < size:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                self.connection.settimeout(min(BODY_STALL_S, left))
+                part = self.rfile.read1(min(size - got, 1 << 16))
+                if not part:
+                    raise RequestError(f"body: {got} of its {size} bytes came before the connection closed", 400)
+                parts.append(part)
+                got += len(part)
+        except TimeoutError:
+            raise RequestError(
+                f"body: {got} of its {size} bytes came; each read may stall {BODY_STALL_S:g} s, "
+                f"the whole body take {BODY_DEADLINE_S:g} s",
+                408,
+            ) from None
+        finally:
+            self.connection.settimeout(self.timeout)
+        return b"".join(parts)
 
     def answer(self, work) -> None:
         """``work()``'s document, or its refusal as a 4xx (a field as the JSON spells it), or
@@ -308,7 +497,7 @@ GET_ROUTES = {
 }
 POST_ROUTES = {
     "/api/view": lambda h: h.app.view(_json_body(h.body(MAX_JSON_BYTES))),
-    "/api/upload": lambda h: h.app.upload(h.query(), h.body(MAX_UPLOAD_BYTES)),
+    "/api/upload": lambda h: h.upload(),
 }
 PAGE_ROUTES = ("/", "/index.html")
 
@@ -317,6 +506,33 @@ class Handler(JsonHandler):
     """The routes of one app (:func:`handler_for` sets ``app``)."""
 
     app: App
+
+    def upload(self) -> dict:
+        """/api/upload, its body read only once one of the server's upload slots is free."""
+        query = self.query()
+        if not self.server.upload_slots.acquire(timeout=UPLOAD_WAIT_S):
+            raise RequestError(f"upload: {UPLOADS_AT_ONCE} uploads are under way; send it again shortly", 503)
+        try:
+            return self.app.upload(query, self.body(MAX_UPLOAD_BYTES))
+        finally:
+            self.server.upload_slots.release()
+
+    def parse_request(self) -> bool:
+        """http.server's, then the checks of :meth:`refusal` before any ``do_*`` runs."""
+        if not super().parse_request():
+            return False
+        refused = self.refusal()
+        if refused is not None:
+            self._error(*refused)
+            return False
+        return True
+
+    def do_HEAD(self):  # noqa: N802 - GET's headers, never a body (_send writes none for HEAD)
+        route = urlsplit(self.path).path
+        if route in PAGE_ROUTES:
+            self._send(200, page_bytes(), "text/html; charset=utf-8")
+        else:
+            self._error(405, f"HEAD {route}: not allowed; use GET")
 
     def do_GET(self):  # noqa: N802 - http.server's name
         route = urlsplit(self.path).path
@@ -341,12 +557,17 @@ class Handler(JsonHandler):
     def _not_allowed(self):
         self._error(405, f"{self.command}: not allowed; use GET or POST")
 
-    do_PUT = do_DELETE = do_PATCH = do_HEAD = do_OPTIONS = _not_allowed  # noqa: N815
+    do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _not_allowed  # noqa: N815
 
 
 def handler_for(app: App) -> type[Handler]:
     """The request handler class of ``app``."""
     return type("Handler", (Handler,), {"app": app})
+
+
+def _shown(value: str | None) -> str:
+    """A header's value as a refusal quotes it: bounded, printable."""
+    return "missing" if value is None else ascii(value[:80])
 
 
 def _json_body(body: bytes):
@@ -366,27 +587,73 @@ class ServeSummary:
 
 
 def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummary:
-    """Run the server until Ctrl-C. ``network_loader``: a callable returning the network
-    (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens."""
-    network = network_loader() if network_loader is not None else None
-    app = App(options, network)
-    try:
-        app.start()
-        if ready is not None:
-            ready(
-                [
-                    f"serving {app.url} (Ctrl-C stops it)",
-                    "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
-                ]
-                + (
-                    []
-                    if app.loopback
-                    else [f"--host {options.host}: other machines that reach this one can use the page"]
-                )
-            )
-        app.httpd.serve_forever()
-    except KeyboardInterrupt:
-        pass  # Ctrl-C, while starting or serving: the summary's one line says so
-    finally:
-        app.close()
-    return ServeSummary(app.url if app.httpd is not None else "nothing (stopped while starting)", "Ctrl-C")
+    """Run the server until Ctrl-C, then stop it in order and raise KeyboardInterrupt (the CLI's
+    exit code 130 and its one line). ``network_loader``: a callable returning the network
+    (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens.
+
+    Ctrl-C never raises in the middle of the work: while serve() runs, SIGINT only asks the
+    server to stop (:class:`Stopper`), and the main thread then stops it in order: the loop
+    ends, the path tracer finishes its chunk and its thread ends, the port closes, and only
+    then does the KeyboardInterrupt go up. With Python's own handler it was raised at any
+    bytecode: between the "serving" line and the loop, ``App.close`` then waited forever in
+    ``shutdown()`` for a loop never started (seen here, one run in a few, with and without a
+    network), and one raised inside ``App.close`` left interpreter shutdown running while
+    Mitsuba's thread still rendered (the SIGABRT "terminate called without an active
+    exception" and SIGSEGV reported after "interrupted"). This is a cure at the root, not an
+    ``os._exit``. Mitsuba puts its own SIGINT handler in place while it renders; a render it
+    cancels stops the server the same way (App._fatal).
+    """
+    stopper, app = Stopper(), None
+    with stopper.installed():
+        try:
+            network = network_loader() if network_loader is not None else None
+            if not stopper.asked:
+                app = App(options, network)
+                app.start()
+            if not stopper.asked:
+                if ready is not None:
+                    ready(_ready_lines(app, options, network))
+                app.httpd.stopper = stopper
+                app.httpd.serve_forever()
+        except StopServing:
+            pass  # Ctrl-C seen by the loop: stopped in order below
+        finally:
+            if app is not None:
+                app.close()
+    if stopper.asked or app is None or isinstance(app.fatal, KeyboardInterrupt):
+        served = app.url if app is not None and app.httpd is not None else "nothing (stopped while starting)"
+        raise Stopped(f"stopped (Ctrl-C); served {served}")
+    return ServeSummary(app.url, f"{type(app.fatal).__name__}: {app.fatal}")
+
+
+def _ready_lines(app: App, options: ServeOptions, network) -> list[str]:
+    lines = [
+        f"serving {app.url} (Ctrl-C stops it)",
+        "network: " + (f"{options.run} at {network.resolution} px" if network else "none; " + TRAIN_HINT),
+    ]
+    if not app.loopback:
+        lines.append(f"--host {options.host}: other machines that reach this one can use the page")
+    return lines
+
+
+class Stopper:
+    """SIGINT while :func:`serve` runs sets ``asked``, nothing else: no lock taken, no thread
+    started in a signal handler (the main thread may hold either when the signal comes). The
+    server loop sees it within its poll interval (:meth:`QuietServer.service_actions`)."""
+
+    def __init__(self):
+        self.asked = False
+
+    def on_sigint(self, signum, frame) -> None:
+        self.asked = True
+
+    @contextlib.contextmanager
+    def installed(self):
+        if threading.current_thread() is not threading.main_thread():
+            yield  # signals reach the main thread only; a caller elsewhere stops the app itself
+            return
+        previous = signal.signal(signal.SIGINT, self.on_sigint)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, previous)

@@ -43,6 +43,10 @@ SEED_RANGE = (0, 2**31 - 1)
 #: The paper's "cloudiness" 0..3 and the turbidity each stands for.
 CLOUDINESS_TURBIDITY = (2.0, 3.0, 6.0, 10.0)
 MATERIAL_KINDS = ("uniform", "svbrdf", "dataset", "maps")
+#: What an 8-bit albedo PNG upload (diffuse, specular) means: "linear" (value / 255 is the
+#: albedo, as docs/serve.md says) or "srgb". The page paints in sRGB and converts its
+#: canvases to this before uploading, so the painted colour is the colour rendered.
+ALBEDO_PNG = "linear"
 #: The maps a page uploads (texture space).
 MAP_NAMES = ("diffuse", "specular", "roughness", "normal")
 #: A client's id: the page makes one at random; it names a slot, never a file.

@@ -9,6 +9,22 @@ against the current generation before it starts, so a slider drag cancels within
 Mitsuba's variant is process-global and not every path of it is thread-safe, so every Mitsuba
 call (G-buffers, scene loads, renders) runs in :class:`PathTracer`'s one thread; the network
 runs on torch in :class:`NetworkRunner`'s thread and touches no Mitsuba.
+
+A client's life. Every request of a client (a view, an upload, a frame poll) marks it seen.
+An open tab long-polls /api/frame at most every 10 s, so it is never idle; a client with no
+request for :data:`IDLE_S` (10 minutes: a closed tab, a machine asleep) is forgotten, its
+uploads and view with it, when room is needed. Beyond :data:`MAX_CLIENTS` live clients a new
+one is refused (503), never a live one dropped. A client with no request for
+:data:`ABANDONED_S` has its path-tracing job parked, not rendered (a closed tab keeps no
+render time); its next request puts the job back in line.
+
+A tab whose state was forgotten (or a server started again) is told so: the answers of
+/api/frame and /api/view carry ``"known": false`` when the server held nothing of that client
+before the request (a frame poll then answers at once), and /api/view's answer lists the
+``uploads`` it holds. The page, on ``known: false``, uploads again every map it had uploaded
+and posts its view again (a first request of a new tab is ``known: false`` too: it has
+nothing to send again). The uploads of all clients together are bounded by
+:data:`MAX_STORED_UPLOAD_BYTES` (4 maps of each of MAX_CLIENTS clients).
 """
 
 from __future__ import annotations
@@ -39,15 +55,22 @@ from pipeline.render.renderer import (
     pass_seed,
     relative_error,
 )
-from pipeline.serve.view import View
+from pipeline.serve.materials import TEXTURE_TEXELS
+from pipeline.serve.view import MAP_NAMES, RequestError, View
 
 #: Total spp after each progressive pass; the pass sizes are the differences.
 PASS_TOTALS = (1, 4, 16, 64)
 #: A pass is rendered in chunks of at most this many spp, the generation checked before each,
 #: so a new view waits for one chunk (not a 48 spp pass) before its first pass starts.
 CHUNK_SPP = 4
-#: Most clients (tabs) held at once; the least recently seen is forgotten beyond it.
-MAX_CLIENTS = 16
+#: Most clients (tabs) held at once; a new one past it is refused (503) unless an idle one can go.
+MAX_CLIENTS = 64
+#: Seconds without a request after which a client is forgotten (its view and uploads).
+IDLE_S = 600.0
+#: Seconds without a request after which a client's path-tracing job is parked, not rendered.
+ABANDONED_S = 30.0
+#: Bytes of decoded uploads all clients hold together: every map of every client, float32 RGB.
+MAX_STORED_UPLOAD_BYTES = MAX_CLIENTS * len(MAP_NAMES) * TEXTURE_TEXELS * TEXTURE_TEXELS * 3 * 4
 #: Path-traced frames are this many pixels a side unless the network's resolution asks for more.
 PATH_RESOLUTION = 128
 #: The difference image is scaled by this before display (errors are small).
@@ -75,6 +98,17 @@ def maps_strip(screen: dict[str, np.ndarray]) -> np.ndarray:
     normal = encode_normal_texture(screen["normal"]) * screen["mask"][..., None]
     tiles = [map_srgb8(screen["diffuse"]), map_srgb8(screen["specular"]), map_srgb8(rough, False)]
     return np.concatenate(tiles + [map_srgb8(normal, False)], axis=1)
+
+
+def texture_srgb8(name: str, texels: np.ndarray) -> np.ndarray:
+    """A decoded upload (texture space, as :func:`pipeline.serve.materials.decode_upload` gives
+    it) as the page's paint canvas shows it: albedos sRGB-encoded, roughness grey, normals in
+    the (n + 1) / 2 encoding."""
+    if name == "normal":
+        return map_srgb8(encode_normal_texture(texels), False)
+    if name == "roughness":
+        return map_srgb8(np.repeat(texels[..., :1], 3, axis=2), False)
+    return map_srgb8(texels[..., :3])
 
 
 @dataclass
@@ -133,26 +167,64 @@ class Client:
     network_hdr: np.ndarray | None = None
     path_hdr: np.ndarray | None = None
     path_variance: np.ndarray | None = None
+    reference_hdr: np.ndarray | None = None  # a dataset sample's stored render, shown as a reference
+    seen: float = 0.0  # the hub's clock at the client's last request
 
 
 class Hub:
     """Every client's generation, pending jobs and latest frame; what the HTTP handlers call."""
 
-    def __init__(self, path_resolution: int, network_resolution: int | None):
+    def __init__(self, path_resolution: int, network_resolution: int | None, clock=time.monotonic):
         self.lock = threading.Condition()
         self.clients: OrderedDict[str, Client] = OrderedDict()
+        self.parked: dict[str, Job] = {}  # path-tracing jobs of abandoned clients, by client
+        self.clock = clock  # seconds, monotonic (a test's own clock moves a client's idle time)
         self.path_slots, self.network_slots = LatestSlots(), LatestSlots()
         self.path_resolution, self.network_resolution = path_resolution, network_resolution
         self.screen_gbuffer = None  # the path tracer's G-buffer, set once it is loaded
         self.generations = itertools.count(1)
 
     def client(self, client_id: str) -> Client:
-        """The client's state (made on first sight); caller holds the lock."""
-        client = self.clients.pop(client_id, None) or Client()
-        self.clients[client_id] = client
-        while len(self.clients) > MAX_CLIENTS:
-            self.clients.popitem(last=False)
+        """The client's state, seen now (made on first sight, refused 503 when MAX_CLIENTS live
+        ones are held); a parked job of it goes back in line. Caller holds the lock."""
+        now = self.clock()
+        client = self.clients.get(client_id)
+        if client is None:
+            self._forget_idle(now)
+            if len(self.clients) >= MAX_CLIENTS:
+                raise RequestError(
+                    f"client: {MAX_CLIENTS} tabs are using this server; close one, or try again once a "
+                    f"closed tab is forgotten ({IDLE_S / 60:g} minutes after its last request)",
+                    503,
+                )
+            client = self.clients[client_id] = Client()
+        client.seen = now
+        parked = self.parked.pop(client_id, None)
+        if parked is not None:
+            self.path_slots.put(parked, replace=False)  # a newer view of the client's, if any, stays
         return client
+
+    def _forget_idle(self, now: float) -> None:
+        for client_id in [k for k, c in self.clients.items() if now - c.seen > IDLE_S]:
+            del self.clients[client_id]
+            self.parked.pop(client_id, None)
+
+    def knows(self, client_id: str) -> bool:
+        """Whether the hub holds the client's state (seen, not forgotten); marks nothing."""
+        with self.lock:
+            return client_id in self.clients
+
+    def park_if_abandoned(self, job: Job) -> bool:
+        """True when ``job`` is not to be rendered now: its client is gone, or has made no
+        request for ABANDONED_S (then the job is parked until the client's next request)."""
+        with self.lock:
+            client = self.clients.get(job.client)
+            if client is None:
+                return True
+            if self.clock() - client.seen <= ABANDONED_S:
+                return False
+            self.parked[job.client] = job
+            return True
 
     def uploads(self, client_id: str) -> dict:
         with self.lock:
@@ -161,30 +233,51 @@ class Hub:
     def store_upload(self, client_id: str, name: str, pixels: np.ndarray) -> None:
         with self.lock:
             client = self.client(client_id)
+            held = sum(
+                p.nbytes for c in self.clients.values() for k, p in c.uploads.items() if c is not client or k != name
+            )
+            if held + pixels.nbytes > MAX_STORED_UPLOAD_BYTES:
+                raise RequestError(f"upload: the server holds {held} bytes of uploads, its most; try again later", 503)
             client.uploads[name] = pixels
             client.material_key = None  # the maps changed: next view makes them again
 
-    def submit(self, client_id: str, view: View, make_maps) -> int:
-        """A new view: the client's generation moves on, its pending jobs are replaced."""
+    def submit(self, client_id: str, view: View, make_maps, make_reference=None) -> int:
+        """A new view: the client's generation moves on, its pending jobs are replaced. A view
+        that differs from the client's only in its exposure renders nothing: the pictures held
+        (linear HDR) are tone-mapped again at the new exposure, in the same generation, so
+        path tracing goes on from the spp it has. ``make_reference``: (HDR, doc) of a stored
+        render to show beside path tracing (a dataset sample's), or None; made with the maps."""
         key = view.material_key()
         with self.lock:
             client = self.client(client_id)
+            if _same_scene(client, view, key):
+                client.view = view
+                self._show(client)
+                self._changed(client)
+                return client.generation
             same = client.material_key == key and client.maps is not None
             maps = client.maps if same else None
+        reference = None
         if maps is None:
             maps = make_maps()  # may raise RequestError: nothing changes then
+            reference = make_reference() if make_reference is not None else None
         with self.lock:
             client = self.client(client_id)
             if client.material_key != key or client.maps is None:
                 client.material_key, client.maps = key, maps
                 client.frame.pop("maps", None)
+                client.reference_hdr, doc = reference or (None, None)
+                client.frame.pop("reference", None)
+                if doc is not None:
+                    client.frame["reference"] = doc
             client.generation = next(self.generations)  # never reused, even by a forgotten client's id
             client.view = view
-            client.network_hdr = client.path_hdr = None
+            client.network_hdr = client.path_hdr = client.path_variance = None
             for part in ("network", "path", "diff", "error"):
                 client.frame.pop(part, None)
             if self.screen_gbuffer is not None and "maps" not in client.frame:
                 client.frame["maps"] = png_data_url(maps_strip(project_material(client.maps, self.screen_gbuffer)))
+            self._show(client)
             self._changed(client)
             job = Job(client_id, client.generation, view, client.maps)
         self.path_slots.put(job)
@@ -205,43 +298,89 @@ class Hub:
     def publish(
         self, job: Job, part: str, doc: dict, hdr: np.ndarray | None = None, variance: np.ndarray | None = None
     ) -> bool:
-        """Store a result if its generation is still the client's; False (dropped) otherwise."""
+        """Store a result if its generation is still the client's; False (dropped) otherwise.
+        A picture's ``hdr`` is kept and tone-mapped here at the client's exposure of now (the
+        job's may be older: an exposure change does not restart the job)."""
         with self.lock:
             client = self.clients.get(job.client)
             if client is None or client.generation != job.generation:
                 return False
-            client.frame[part] = doc
+            client.frame[part] = doc  # of the frame's generation: parts are cleared when it moves on
             if part == "network":
                 client.network_hdr = hdr
             elif part == "path":
                 client.path_hdr, client.path_variance = hdr, variance
-            if client.network_hdr is not None and client.path_hdr is not None:
-                client.frame["diff"] = difference(
-                    client.network_hdr, client.path_hdr, client.path_variance, job.view.exposure
-                )
+            self._show(client, part)
             self._changed(client)
             return True
 
+    def _show(self, client: Client, only: str | None = None) -> None:
+        """The client's pictures as PNGs at its view's exposure (``only``: that part and the
+        difference); caller holds the lock."""
+        exposure = client.view.exposure
+        held = {"network": client.network_hdr, "path": client.path_hdr, "reference": client.reference_hdr}
+        for part, hdr in held.items():
+            if hdr is not None and part in client.frame and only in (None, part):
+                client.frame[part] = {
+                    **client.frame[part],
+                    "png": png_data_url(hdr_to_srgb8(hdr, exposure)),
+                    "exposure": exposure,
+                }
+        if client.network_hdr is not None and client.path_hdr is not None:
+            spp = client.frame["path"]["spp"]
+            diff = difference(client.network_hdr, client.path_hdr, client.path_variance, exposure)
+            client.frame["diff"] = {**diff, "spp": spp, "exposure": exposure}
+
     def frame(self, client_id: str, since: int, wait_s: float) -> dict:
-        """The client's frame once its version passes ``since`` (or after ``wait_s``)."""
+        """The client's frame once its version passes ``since`` (or after ``wait_s``); at once,
+        with ``"known": false``, when the hub held nothing of the client (module docstring)."""
         deadline = time.monotonic() + wait_s
         with self.lock:
+            known = client_id in self.clients
             client = self.client(client_id)
-            while client.version <= since and (left := deadline - time.monotonic()) > 0:
+            while known and client.version <= since and (left := deadline - time.monotonic()) > 0:
                 self.lock.wait(left)
                 client = self.clients.get(client_id) or self.client(client_id)
-            return {"version": client.version, **client.frame}
+            return {"version": client.version, **client.frame, "known": known}
 
     def close(self) -> None:
         self.path_slots.close()
         self.network_slots.close()
 
 
-def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray, factor: int, exposure: float) -> float:
+def _same_scene(client: Client, view: View, key: tuple) -> bool:
+    """Whether ``view`` changes only the exposure of the client's view (same material, its maps
+    not changed by an upload since, same light): then nothing is rendered again. The same view
+    posted again is a new generation, as any view: it renders afresh."""
+    held = client.view
+    return (
+        held is not None
+        and client.generation > 0
+        and client.maps is not None
+        and client.material_key == key
+        and held.light == view.light
+        and held.exposure != view.exposure
+    )
+
+
+def unbiased_variance(out: np.ndarray, spp: int) -> np.ndarray | None:
+    """The variance of each pixel's luminance estimate from ``spp`` samples, or None when it
+    cannot be measured. The moment integrator gives the samples' second moment; m2 - m1^2 is
+    their variance with 1/spp weights (biased low by (spp - 1)/spp), and with one sample per
+    pixel (a box filter) it is 0 whatever the noise: the first pass's noise is unknown."""
+    if spp < 2:
+        return None
+    return (luminance_variance(out, spp) * (spp / (spp - 1))).astype(np.float32)
+
+
+def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray | None, factor: int, exposure: float) -> float | None:
     """The path-traced frame's own noise as a PSNR against its converged limit, in the displayed
     8-bit space at the network's resolution: each pixel moved by one standard deviation of its
-    estimate (the moment integrator's luminance variance, over ``factor``^2 pixels averaged),
-    through the tone map (first order)."""
+    estimate (the luminance variance of :func:`unbiased_variance`, over ``factor``^2 pixels
+    averaged), through the tone map (first order). None where the variance is not known (one
+    sample per pixel): a noisy frame is never reported as noiseless."""
+    if variance is None:
+        return None
     mean = box_down(path_hdr, factor)
     sigma = np.sqrt(box_down(variance[..., None], factor) / (factor * factor))
     delta = (tonemap(mean + sigma, exposure) - tonemap(mean, exposure)) * 255.0
@@ -249,17 +388,19 @@ def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray, factor: int, expos
     return math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
 
 
-def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, variance: np.ndarray, exposure: float) -> dict:
+def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, variance: np.ndarray | None, exposure: float) -> dict:
     """|network - path| of the displayed 8-bit pictures (at the network's resolution, the path
-    frame box-averaged to it), the PSNR between them, and the path frame's own noise as a PSNR."""
+    frame box-averaged to it), the PSNR between them, and the path frame's own noise as a PSNR
+    (None while it is unknown)."""
     factor = path_hdr.shape[0] // network_hdr.shape[0]
     reference = hdr_to_srgb8(box_down(path_hdr, factor), exposure)
     test = hdr_to_srgb8(network_hdr, exposure)
     delta = np.abs(test.astype(np.int16) - reference.astype(np.int16)).astype(np.float32) * DIFF_GAIN
+    noise = noise_psnr_db(path_hdr, variance, factor, exposure)
     return {
         "png": png_data_url(np.clip(delta, 0, 255).astype(np.uint8)),
         "psnr_db": round(psnr8(test, reference), 2),
-        "noise_psnr_db": round(noise_psnr_db(path_hdr, variance, factor, exposure), 2),
+        "noise_psnr_db": None if noise is None else round(noise, 2),
         "gain": DIFF_GAIN,
     }
 
@@ -296,8 +437,8 @@ class PathTracer(threading.Thread):
             return
         self.ready.set()
         while (job := self.hub.path_slots.take()) is not None:
-            if not self.hub.current(job):
-                continue  # stale: a newer view replaced it
+            if not self.hub.current(job) or self.hub.park_if_abandoned(job):
+                continue  # stale (a newer view replaced it), or its tab is gone (parked)
             try:
                 self.render_pass(job)
             except KeyboardInterrupt as exc:  # Mitsuba's SIGINT handler cancelled a render
@@ -335,16 +476,17 @@ class PathTracer(threading.Thread):
         started, job.pass_started = job.pass_started, None
         out = job.acc.mean()
         hdr = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
-        mask = self.hub.screen_gbuffer.mask
+        variance = unbiased_variance(out, job.acc.spp)
+        noise = None if variance is None else relative_error(out, job.acc.spp, self.hub.screen_gbuffer.mask, variance)
+        # No "png": the hub tone-maps ``hdr`` at the client's exposure of the moment it publishes.
         doc = {
-            "png": png_data_url(hdr_to_srgb8(hdr, job.view.exposure)),
             "spp": job.acc.spp,
+            "final": job.index + 1 == len(PASS_TOTALS),
             "pass_s": round(time.perf_counter() - started, 4),
             "seconds": round(time.perf_counter() - job.started, 4),
-            "noise_rel": round(relative_error(out, job.acc.spp, mask), 4),
+            "noise_rel": None if noise is None else round(noise, 4),  # None: not measurable yet (1 spp)
             "resolution": int(hdr.shape[0]),
         }
-        variance = luminance_variance(out, job.acc.spp).astype(np.float32)
         if self.hub.publish(job, "path", doc, hdr, variance) and job.index + 1 < len(PASS_TOTALS):
             job.index += 1
             self.hub.path_slots.put(job, replace=False)  # a newer view, if any, stays first
@@ -365,8 +507,7 @@ class NetworkRunner(threading.Thread):
                 started = time.perf_counter()
                 screen = project_material(job.maps, self.gbuffer_of())
                 hdr, network_s = self.network(screen, job.view.light)
-                doc = {
-                    "png": png_data_url(hdr_to_srgb8(hdr, job.view.exposure)),
+                doc = {  # the hub adds the picture, tone-mapped at the client's exposure
                     "network_ms": round(network_s * 1000, 2),
                     "frame_ms": round((time.perf_counter() - started) * 1000, 2),
                     "latency_ms": round((time.perf_counter() - job.started) * 1000, 2),

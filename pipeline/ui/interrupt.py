@@ -21,6 +21,12 @@ INTERRUPTED_MESSAGE = (
 )
 
 
+class Stopped(KeyboardInterrupt):
+    """A Ctrl-C a command has answered in order and words itself (``shaderball serve``: what
+    it served); exit code :data:`INTERRUPTED_EXIT`, the command's line instead of
+    :data:`INTERRUPTED_MESSAGE`, whose advice (resume) fits commands that write."""
+
+
 def wants_json(args: list[str]) -> bool:
     """Whether ``--json`` is among the options (before a ``--``)."""
     head = args[: args.index("--") if "--" in args else len(args)]

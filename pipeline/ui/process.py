@@ -27,7 +27,7 @@ import traceback
 import click
 
 from pipeline.errors import USER_ERRORS, caused_by_interrupt, filesystem_error
-from pipeline.ui.interrupt import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, wants_json
+from pipeline.ui.interrupt import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, Stopped, wants_json
 
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
@@ -96,7 +96,7 @@ def _failure(exc: BaseException, as_json: bool) -> tuple[int, str, dict]:
         return error.exit_code, str(error), {}
     if caused_by_interrupt(exc):  # a KeyboardInterrupt, or what one caused (drjit's import, a plugin callback)
         click.echo("", err=True)
-        return INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, {}
+        return INTERRUPTED_EXIT, str(exc) if isinstance(exc, Stopped) else INTERRUPTED_MESSAGE, {}
     if not as_json or not isinstance(exc, Exception):
         raise exc
     click.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)

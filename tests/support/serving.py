@@ -55,6 +55,14 @@ class Client:
         assert kind == "application/json", (status, kind, data[:200])
         return status, json.loads(data)
 
+    def upload(self, client: str, name: str, data: bytes, kind: str = "image/png"):
+        """POST /api/upload of ``data`` with its type, as the page sends it: (status, JSON answer)."""
+        status, answer_kind, body = self.request(
+            "POST", f"/api/upload?client={client}&map={name}", data, {"Content-Type": kind}
+        )
+        assert answer_kind == "application/json", (status, answer_kind, body[:200])
+        return status, json.loads(body)
+
     def view(self, client: str, azimuth: float = 270.0, material: dict | None = None, **light):
         doc = {
             "client": client,
@@ -75,3 +83,44 @@ class Client:
             if frame.get("generation") == generation and need(frame):
                 return frame
         raise AssertionError(f"no frame of generation {generation} within {timeout_s} s")
+
+
+def direct_render(out: Path, light: dict, material: dict, resolution: int, spp: int, seed: int):
+    """`shaderball render` of a uniform ``material`` (the API's fields: linear diffuse, grey
+    specular, roughness) under ``light`` (the API's fields), in its own process (Mitsuba's
+    variant and state stay the server's): the linear HDR render (H, W, 3) float32."""
+    import subprocess
+    import sys
+
+    from pipeline.store.exr import read_exr
+
+    triple = lambda values: ",".join(repr(float(v)) for v in values)  # noqa: E731
+    args = [
+        str(Path(sys.executable).with_name("shaderball")),
+        "render",
+        "--out",
+        str(out),
+        "--resolution",
+        str(resolution),
+        "--spp",
+        str(spp),
+        "--seed",
+        str(seed),
+        "--variant",
+        "llvm",
+        "--diffuse",
+        triple(material["diffuse"]),
+        "--specular",
+        triple([material["specular"]] * 3),
+        "--roughness",
+        repr(float(material["roughness"])),
+        "--elevation",
+        repr(float(light["elevation_deg"])),
+        "--azimuth",
+        repr(float(light["azimuth_deg"])),
+        "--turbidity",
+        repr(float(light["turbidity"])),
+    ]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, (args, done.stdout[-2000:], done.stderr[-2000:])
+    return read_exr(str(out)).layers["render"][..., :3].astype("float32")

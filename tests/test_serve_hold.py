@@ -1,0 +1,429 @@
+"""`shaderball serve` holds: malformed requests, bursts, crowds of tabs, foreign pages,
+worst-case uploads and Ctrl-C. A real server (in-process, path tracing only, no network) over
+real sockets; the memory and Ctrl-C checks run `shaderball serve` as a process of its own."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import zlib
+from http.client import HTTPConnection
+from pathlib import Path
+from struct import pack
+
+import numpy as np
+import pytest
+
+from pipeline.serve import server as server_module
+from pipeline.serve.server import HostPolicy
+from pipeline.serve.view import RequestError, UniformChoice, View
+from pipeline.serve.work import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
+from pipeline.store.exr import encode_exr
+from sky import Light
+from support.serving import Client, start_app
+
+REPO = Path(__file__).resolve().parents[1]
+VIEW_DOC = {
+    "material": {"kind": "uniform"},
+    "light": {"azimuth_deg": 100.0, "elevation_deg": 40.0, "turbidity": 3.0},
+    "exposure": 4.0,
+}
+
+
+@pytest.fixture(scope="module")
+def app():
+    app = start_app(None, None)
+    yield app
+    app.close()
+
+
+@pytest.fixture(scope="module")
+def http(app):
+    return Client(app.url)
+
+
+def _raw(http, data: bytes, shut: bool = False, timeout_s: float = 60.0) -> tuple[int, bytes, bytes]:
+    """(status, head, body) of the reply to the bytes ``data`` sent on a fresh connection;
+    ``shut``: the client closes its side once sent (a body cut short). Reads to the server's close."""
+    with socket.create_connection((http.host, http.port), timeout=timeout_s) as sock:
+        sock.sendall(data)
+        if shut:
+            sock.shutdown(socket.SHUT_WR)
+        reply = b""
+        while chunk := sock.recv(65536):
+            reply += chunk
+    head, _, body = reply.partition(b"\r\n\r\n")
+    return int(head.split(b" ", 2)[1]), head, body
+
+
+def _request(http, method: str, path: str, headers: dict[str, str], body: bytes = b"") -> bytes:
+    host = {"Host": f"127.0.0.1:{http.port}"}
+    lines = [f"{method} {path} HTTP/1.1"] + [f"{k}: {v}" for k, v in {**host, **headers}.items()]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode("utf-8") + body
+
+
+def _view_body(client: str, light: bytes | None = None) -> bytes:
+    if light is None:
+        return json.dumps({"client": client, **VIEW_DOC}).encode()
+    return b'{"client": "' + client.encode() + b'", "material": {"kind": "uniform"}, "light": {' + light + b"}}"
+
+
+JSON = {"Content-Type": "application/json", "Connection": "close"}
+BATTERY = [
+    # (what, method, path, headers, body, status, words in the error)
+    ("length-superscript", "POST", "/api/view", {**JSON, "Content-Length": "²"}, b"", 400, "Content-Length"),
+    ("length-float", "POST", "/api/view", {**JSON, "Content-Length": "1e3"}, b"", 400, "Content-Length"),
+    ("length-negative", "POST", "/api/view", {**JSON, "Content-Length": "-1"}, b"", 400, "Content-Length"),
+    ("length-huge", "POST", "/api/view", {**JSON, "Content-Length": "9" * 40}, b"", 400, "Content-Length"),
+    ("length-past-limit", "POST", "/api/view", {**JSON, "Content-Length": "9" * 15}, b"", 413, "body"),
+    ("chunked", "POST", "/api/view", {**JSON, "Transfer-Encoding": "chunked"}, b"0\r\n\r\n", 411, "Content-Length"),
+    ("since-superscript", "GET", "/api/frame?client=a&since=%C2%B2", {"Connection": "close"}, b"", 400, "since"),
+    ("since-float", "GET", "/api/frame?client=a&since=1e3", {"Connection": "close"}, b"", 400, "since"),
+    ("since-huge", "GET", "/api/frame?client=a&since=" + "9" * 40, {"Connection": "close"}, b"", 400, "since"),
+    ("azimuth-inf", "POST", "/api/view", JSON, _view_body("n", b'"azimuth_deg": 1e400'), 400, "light.azimuth_deg"),
+    ("azimuth-huge-int", "POST", "/api/view", JSON, _view_body("n", b'"azimuth_deg": 1' + b"0" * 400), 400, "light"),
+    ("no-host", "GET", "/api/info", {"Host": "", "Connection": "close"}, b"", 421, "Host"),
+    ("foreign-host", "GET", "/api/info", {"Host": "evil.example", "Connection": "close"}, b"", 421, "Host"),
+    ("text-plain", "POST", "/api/view", {"Content-Type": "text/plain", "Connection": "close"}, b"{}", 415, "Type"),
+]
+
+
+@pytest.mark.parametrize("what, method, path, headers, body, status, words", BATTERY, ids=[b[0] for b in BATTERY])
+def test_malformed_requests_are_a_4xx_naming_what_never_a_5xx(http, what, method, path, headers, body, status, words):
+    if body and "Content-Length" not in headers and "Transfer-Encoding" not in headers:
+        headers = {**headers, "Content-Length": str(len(body))}
+    got, head, reply = _raw(http, _request(http, method, path, headers, body))
+    assert got == status, (head, reply[:300])
+    doc = json.loads(reply)
+    assert doc["ok"] is False and words in doc["error"] and "internal" not in doc["error"], doc
+
+
+def test_a_body_cut_short_by_its_client_is_a_4xx(http):
+    head = _request(http, "POST", "/api/view", {**JSON, "Content-Length": "500"}, b'{"client": ')
+    status, _, body = _raw(http, head, shut=True)
+    assert status == 400 and "11 of its 500 bytes" in json.loads(body)["error"]
+
+
+def test_a_stalled_body_is_408_and_closed_not_a_500(http, monkeypatch):
+    monkeypatch.setattr(server_module, "BODY_STALL_S", 0.5)  # the figure, lowered for the test's time
+    status, _, body = _raw(http, _request(http, "POST", "/api/view", {**JSON, "Content-Length": "500"}, b'{"c'))
+    assert status == 408 and "3 of its 500 bytes" in json.loads(body)["error"]
+
+
+@pytest.mark.parametrize("path, status", [("/", 200), ("/api/info", 405), ("/nowhere", 405)])
+def test_head_answers_headers_and_never_a_body(http, path, status):
+    got, head, body = _raw(http, _request(http, "HEAD", path, {"Connection": "close"}))
+    assert got == status and body == b"", (head, body[:100])
+    if path == "/":
+        assert b"text/html" in head and b"Content-Length: 0" not in head
+
+
+def test_a_burst_of_64_connections_is_queued_and_answered_without_a_reset(app):
+    """64 connections arrive while the server accepts none (as when its accept loop is busy):
+    the listen queue holds them all, each handshake completes at once, and once the server runs
+    each gets its answer (half GET /api/info, half a view of 32 tabs). With ThreadingHTTPServer's
+    queue of 5, connections past it are dropped by the kernel (reset, or a connect that hangs)."""
+    srv = server_module.QuietServer(("127.0.0.1", 0), server_module.handler_for(app))
+    port = srv.server_address[1]
+    host = {"Host": f"127.0.0.1:{port}", "Connection": "close"}
+
+    def request(i: int) -> bytes:
+        if i % 2:
+            return _request_to(host, "GET", "/api/info", {})
+        body = _view_body(f"burst{i}")
+        return _request_to(host, "POST", "/api/view", {**JSON, "Content-Length": str(len(body))}, body)
+
+    socks, errors = [None] * 64, []
+
+    def connect(i: int) -> None:
+        try:
+            socks[i] = socket.create_connection(("127.0.0.1", port), timeout=5)  # a dropped SYN waits 1 s, 3 s...
+            socks[i].sendall(request(i))
+        except OSError as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=connect, args=(i,)) for i in range(64)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    serving = threading.Thread(target=srv.serve_forever, daemon=True)
+    serving.start()
+    try:
+        statuses = [_reply(sock) for sock in socks if sock is not None]
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        for sock in socks:
+            if sock is not None:
+                sock.close()
+    assert errors == [] and statuses == [200] * 64, (errors[:3], statuses)
+
+
+def _request_to(host: dict, method: str, path: str, headers: dict, body: bytes = b"") -> bytes:
+    lines = [f"{method} {path} HTTP/1.1"] + [f"{k}: {v}" for k, v in {**host, **headers}.items()]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
+
+
+def _reply(sock) -> int | OSError:
+    try:
+        sock.settimeout(60)
+        reply = b""
+        while chunk := sock.recv(65536):
+            reply += chunk
+        return int(reply.split(b" ", 2)[1])
+    except (OSError, IndexError) as exc:
+        return exc
+
+
+# --------------------------------------------------------------------------- Host, Origin, type
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1:{port}", "localhost:{port}", "LOCALHOST:{port}", "[::1]:{port}"])
+def test_the_served_address_and_localhost_are_allowed(http, host):
+    status, _, _ = _raw(
+        http, _request(http, "GET", "/api/info", {"Host": host.format(port=http.port), "Connection": "close"})
+    )
+    assert status == 200
+
+
+@pytest.mark.parametrize("host", ["evil.example:{port}", "127.0.0.1:1", "127.0.0.1", "rebind.127.0.0.1.nip.io:{port}"])
+def test_a_foreign_host_is_refused(http, host):
+    status, _, body = _raw(
+        http, _request(http, "GET", "/", {"Host": host.format(port=http.port), "Connection": "close"})
+    )
+    assert status == 421 and "Host: " in json.loads(body)["error"]
+
+
+def test_a_cross_origin_post_is_refused_and_a_same_origin_one_served(http):
+    body = _view_body("origin")
+    base = {**JSON, "Content-Length": str(len(body))}
+    foreign = _raw(http, _request(http, "POST", "/api/view", {**base, "Origin": "http://evil.example"}, body))
+    assert foreign[0] == 403 and "Origin" in json.loads(foreign[2])["error"]
+    null = _raw(http, _request(http, "POST", "/api/view", {**base, "Origin": "null"}, body))
+    assert null[0] == 403
+    own = _raw(http, _request(http, "POST", "/api/view", {**base, "Origin": f"http://127.0.0.1:{http.port}"}, body))
+    assert own[0] == 200, own
+    plain = {**base, "Content-Type": "text/plain", "Origin": "http://evil.example"}  # a cross-site form's
+    assert _raw(http, _request(http, "POST", "/api/view", plain, body))[0] in (403, 415)
+
+
+def _png(width: int, height: int) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.new("RGB", (width, height), (200, 100, 50)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize(
+    "kind, status", [("image/png", 200), ("application/octet-stream", 200), ("application/json", 415), (None, 415)]
+)
+def test_an_upload_needs_an_image_type(http, kind, status):
+    headers = {"Connection": "close", "Content-Length": str(len(png := _png(8, 8)))}
+    if kind:
+        headers["Content-Type"] = kind
+    got, _, body = _raw(http, _request(http, "POST", "/api/upload?client=types&map=diffuse", headers, png))
+    assert got == status, body
+
+
+def test_every_address_bound_allows_ip_literals_and_this_machines_names_not_other_names():
+    policy = HostPolicy.of("0.0.0.0", 8765)
+    assert policy.allows("192.168.1.7:8765") and policy.allows("[fe80::1]:8765")
+    assert policy.allows(f"{socket.gethostname()}:8765") and policy.allows("localhost:8765")
+    assert not policy.allows("evil.example:8765") and not policy.allows("192.168.1.7:80")
+    assert not HostPolicy.of("127.0.0.1", 8765).allows("192.168.1.7:8765")
+
+
+# --------------------------------------------------------------------------- a client's life
+
+VIEW = View(UniformChoice((0.5, 0.5, 0.5), 0.04, 0.3, False, 0.0), Light(45.0, 270.0, 3.0), 4.0)
+
+
+class Clock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_live_client_is_never_dropped_a_new_one_is_refused_an_idle_one_forgotten():
+    clock = Clock()
+    hub = Hub(path_resolution=16, network_resolution=None, clock=clock)
+    pixels = np.zeros((4, 4, 3), np.float32)
+    hub.store_upload("first", "diffuse", pixels)
+    for i in range(MAX_CLIENTS - 1):
+        hub.frame(f"tab{i}", 0, 0.0)
+    with pytest.raises(RequestError) as refused:
+        hub.frame("one-too-many", 0, 0.0)
+    assert refused.value.status == 503 and "tabs" in str(refused.value)
+    assert "diffuse" in hub.uploads("first")  # the live tab kept its upload
+    clock.now += IDLE_S - 1
+    hub.frame("first", 0, 0.0)  # an open tab polls: never idle
+    clock.now += 2  # every other tab is now idle past IDLE_S
+    assert hub.frame("newcomer", 0, 0.0)["known"] is False
+    assert hub.knows("first") and "diffuse" in hub.uploads("first")
+    assert not hub.knows("tab0")  # forgotten: idle for longer than IDLE_S
+
+
+def test_a_forgotten_client_is_told_so_and_a_held_one_is_not(http, app):
+    status, doc = http.view("told")
+    assert status == 200 and doc["known"] is False and doc["uploads"] == []  # a new tab
+    status, doc = http.view("told")
+    assert doc["known"] is True
+    status, frame = http.json("GET", "/api/frame?client=told&since=0")
+    assert frame["known"] is True
+    with app.hub.lock:
+        del app.hub.clients["told"]  # as IDLE_S of silence would
+    started = time.monotonic()
+    status, frame = http.json("GET", f"/api/frame?client=told&since={10**9}")
+    assert status == 200 and frame["known"] is False and "path" not in frame
+    assert time.monotonic() - started < server_module.FRAME_WAIT_S  # told at once, not after the poll's wait
+
+
+def test_an_abandoned_clients_job_is_parked_and_resumes_when_it_polls_again(http, app):
+    offset = [0.0]
+    app.hub.clock = lambda: time.monotonic() + offset[0]
+    try:
+        status, doc = http.view("leaver", azimuth=150.0)
+        assert status == 200
+        offset[0] = ABANDONED_S + 1  # no request for longer than ABANDONED_S: its tab is gone
+        deadline = time.monotonic() + 120
+        while "leaver" not in app.hub.parked and time.monotonic() < deadline:
+            time.sleep(0.05)
+        with app.hub.lock:
+            assert "leaver" in app.hub.parked
+            spp = app.hub.clients["leaver"].frame.get("path", {}).get("spp", 0)
+        assert spp < 64 and all(job.client != "leaver" for job in app.hub.path_slots.jobs.values())
+        frame = http.wait_frame("leaver", doc["generation"], lambda f: f.get("path", {}).get("spp") == 64)
+        assert frame["known"] is True and "leaver" not in app.hub.parked
+    finally:
+        app.hub.clock = time.monotonic
+
+
+# --------------------------------------------------------------------------- as a process
+
+
+def _serve(*args: str) -> tuple[subprocess.Popen, int]:
+    """`shaderball serve --port 0` in its own process group; (process, port) once it serves."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cli", "serve", "--port", "0", *args],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    line = proc.stderr.readline()
+    assert line.startswith("serving http://127.0.0.1:"), line + proc.stderr.read()
+    return proc, int(line.split()[1].rstrip("/").rsplit(":", 1)[1])
+
+
+def _post(port: int, path: str, body: bytes, kind: str) -> int:
+    conn = HTTPConnection("127.0.0.1", port, timeout=300)
+    try:
+        conn.request("POST", path, body=body, headers={"Content-Type": kind})
+        response = conn.getresponse()
+        response.read()
+        return response.status
+    finally:
+        conn.close()
+
+
+def png16_4096() -> bytes:
+    """The worst upload the limits let through: 4096 x 4096 pixels of 16-bit RGB, 100 kB."""
+    side = 4096
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return pack(">I", len(data)) + kind + data + pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    rows = (b"\0" + b"\x40\x00" * 3 * side) * side
+    ihdr = pack(">IIBBBBB", side, side, 16, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(rows, 9)) + chunk(b"IEND", b"")
+
+
+def _peak_rss_bytes(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError("no VmHWM")
+
+
+def _parallel(count: int, call) -> list:
+    results = [None] * count
+    threads = [threading.Thread(target=lambda i=i: results.__setitem__(i, call(i))) for i in range(count)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(600)
+    return results
+
+
+#: Peak resident memory allowed to the server under the worst uploads at once.
+PEAK_RSS_BYTES = 1536 * 1024 * 1024
+
+
+@pytest.mark.slow
+def test_worst_case_uploads_at_once_stay_within_the_memory_bound():
+    """16 tabs upload a 4096 x 4096 16-bit PNG at once, then 8 a 4096 x 4096 float EXR: the
+    server's peak resident memory (VmHWM) stays under PEAK_RSS_BYTES and every upload lands."""
+    png = png16_4096()
+    exr = encode_exr({"diffuse": np.zeros((4096, 4096, 3), np.float32)})
+    proc, port = _serve()
+    try:
+        before = _peak_rss_bytes(proc.pid)
+        pngs = _parallel(16, lambda i: _post(port, f"/api/upload?client=m{i}&map=diffuse", png, "image/png"))
+        exrs = _parallel(8, lambda i: _post(port, f"/api/upload?client=e{i}&map=normal", exr, "image/x-exr"))
+        peak = _peak_rss_bytes(proc.pid)
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.communicate(timeout=120)
+    print(f"peak RSS {peak / 2**20:.0f} MiB (at start {before / 2**20:.0f} MiB)")
+    assert pngs == [200] * 16 and exrs == [200] * 8
+    assert peak < PEAK_RSS_BYTES, f"peak RSS {peak / 2**20:.0f} MiB"
+
+
+@pytest.mark.slow
+def test_ctrl_c_to_the_process_group_exits_130_with_one_line_every_time():
+    """Ctrl-C as a terminal sends it (SIGINT to the whole process group), idle, mid-render and
+    mid-upload, nine times: exit code 130 and one line each time, never an abort or a crash."""
+    png = png16_4096()
+    ends = []
+    for i in range(9):
+        when = ("idle", "render", "upload")[i % 3]
+        proc, port = _serve()
+        try:
+            if when != "idle":
+                body = json.dumps({"client": "cc", **VIEW_DOC}).encode()
+                assert _post(port, "/api/view", body, "application/json") == 200
+            if when == "upload":
+                upload = (port, "/api/upload?client=cc&map=diffuse", png, "image/png")
+                threading.Thread(target=_swallow, args=(_post, *upload), daemon=True).start()
+            time.sleep(0.3 * (i % 4))
+            os.killpg(proc.pid, signal.SIGINT)
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        ends.append((when, proc.returncode, out, err))
+    assert [e[1] for e in ends] == [130] * 9, ends
+    for when, _, out, err in ends:  # stderr past the "serving" line: the network line, then the one line
+        said = [line for line in err.splitlines() if line.strip() and not line.startswith("network: ")]
+        assert out == "" and len(said) == 1 and said[0].startswith("stopped (Ctrl-C); served http://"), (when, out, err)
+
+
+def _swallow(call, *args):
+    try:
+        call(*args)
+    except OSError:
+        pass  # the server stopped mid-upload: what the test does
