@@ -383,7 +383,22 @@ def serve_cmd(request: ServeOptions):
       shaderball serve --run runs/smoke --dataset demo-out/smoke --benchmark
       shaderball serve --run runs/smoke --dataset demo-out/smoke-pub
     """
-    return serve_command(request, _live_network(request), say=say)
+    return serve_command(request, _live_network(request), say=say, stored=_stored_renders(request))
+
+
+def _stored_renders(options):
+    """The reader of --dataset's stored renders for `serve` (the neural stage's; torch is
+    imported at the first dataset sample shown), or None without --dataset."""
+    if options.dataset is None:
+        return None
+
+    def stored(root):
+        _neural()
+        from pipeline.neural.stored import stored_renders
+
+        return stored_renders(root)
+
+    return stored
 
 
 def _live_network(options):

@@ -422,7 +422,9 @@ def test_ctrl_c_stops_the_server_with_exit_code_130_and_one_line(tmp_path):
     finally:
         proc.kill()
     assert proc.returncode == 130, err
-    assert out == "" and [line for line in err.splitlines() if line.strip()][-1].startswith("stopped (Ctrl-C); served http://")
+    assert out == "" and [line for line in err.splitlines() if line.strip()][-1].startswith(
+        "stopped (Ctrl-C); served http://"
+    )
     assert "Traceback" not in err
 
 

@@ -147,7 +147,7 @@ def test_a_publications_stored_render_is_the_folders(reference, tmp_path):
     from click.testing import CliRunner
 
     from cli import main
-    from pipeline.serve.reference import StoredRenders
+    from pipeline.neural.stored import StoredRenders
 
     pub = tmp_path / "pub"
     result = CliRunner().invoke(main, ["publish", str(reference), "--out", str(pub)])

@@ -8,5 +8,5 @@ this package never imports torch and serves a path-traced previewer without one.
 Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.fields``,
 ``pipeline.image``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
-``pipeline.publish.names``; nothing else of the project.
+``pipeline.publish.names``, ``pipeline.ui.interrupt``; nothing else of the project.
 """

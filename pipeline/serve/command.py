@@ -153,9 +153,9 @@ def benchmark(options: ServeOptions, network_loader=None) -> BenchmarkSummary:
     return BenchmarkSummary(network_doc, path_doc, list(os.getloadavg()), os.cpu_count() or 1, options.repeats)
 
 
-def serve_command(options: ServeOptions, network_loader, say):
+def serve_command(options: ServeOptions, network_loader, say, stored=None):
     """Serve until Ctrl-C (``say`` is told the address), or with ``options.benchmark`` run the
     benchmark; a summary with lines()."""
     if options.benchmark:
         return benchmark(options, network_loader)
-    return serve(options, network_loader, ready=lambda lines: [say(line) for line in lines])
+    return serve(options, network_loader, ready=lambda lines: [say(line) for line in lines], stored=stored)

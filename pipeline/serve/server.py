@@ -1,5 +1,11 @@
 """`shaderball serve`: the HTTP side, on the standard library's ThreadingHTTPServer.
 
+Why the standard library's server rather than uvicorn/starlette or aiohttp: the work is two
+blocking threads (Mitsuba, torch) that an event loop would only hand off to; the rules below
+are each a few lines on ThreadingHTTPServer, and a framework would need the same ones (its
+Host and Origin middleware are opt-in lists too), plus a dependency in the lock. The
+tests/test_serve_hold.py figures (64 connections at once, 16 worst-case uploads) hold on it.
+
 Routes (JSON unless said):
 
     GET  /                    the page (page.html, in this package; nothing from the internet)
@@ -67,7 +73,6 @@ from pipeline.serve.materials import (
     material_maps,
     too_large,
 )
-from pipeline.serve.reference import stored_renders
 from pipeline.serve.view import (
     ALBEDO_PNG,
     CLOUDINESS_TURBIDITY,
@@ -261,9 +266,12 @@ def open_dataset(options: ServeOptions) -> DatasetSamples | None:
 class App:
     """The server's state: the hub, the workers, the dataset picker and the network."""
 
-    def __init__(self, options: ServeOptions, network=None):
+    def __init__(self, options: ServeOptions, network=None, stored=None):
+        """``network``: pipeline.neural.live.LiveNetwork or None; ``stored``: a callable giving
+        the stored renders of a dataset root (pipeline.neural.stored.stored_renders) or None,
+        then a dataset sample is shown without its stored render."""
         self.options = options.check()
-        self.network = network
+        self.network, self.stored = network, stored
         self.dataset = open_dataset(options)
         net_res = network.resolution if network is not None else None
         path_res = PATH_RESOLUTION if net_res is None else net_res * max(1, round(PATH_RESOLUTION / net_res))
@@ -347,9 +355,9 @@ class App:
         known = self.hub.knows(client)  # False: a tab whose state was forgotten sends it again
         uploads = self.hub.uploads(client)
         reference = None
-        if isinstance(view.material, DatasetChoice) and self.dataset is not None:
+        if isinstance(view.material, DatasetChoice) and self.dataset is not None and self.stored is not None:
             # The sample's stored render, shown beside path tracing (read once per material).
-            reference = lambda: stored_renders(self.dataset.root).reference(view.material.sample)  # noqa: E731
+            reference = lambda: self.stored(self.dataset.root).reference(view.material.sample)  # noqa: E731
         generation = self.hub.submit(
             client, view, lambda: material_maps(view.material, self.dataset, uploads), reference
         )
@@ -586,10 +594,11 @@ class ServeSummary:
         return [f"stopped ({self.stopped_by}); served {self.url}"]
 
 
-def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummary:
+def serve(options: ServeOptions, network_loader=None, ready=None, stored=None) -> ServeSummary:
     """Run the server until Ctrl-C, then stop it in order and raise KeyboardInterrupt (the CLI's
     exit code 130 and its one line). ``network_loader``: a callable returning the network
-    (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens.
+    (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens;
+    ``stored``: as :class:`App`'s.
 
     Ctrl-C never raises in the middle of the work: while serve() runs, SIGINT only asks the
     server to stop (:class:`Stopper`), and the main thread then stops it in order: the loop
@@ -608,7 +617,7 @@ def serve(options: ServeOptions, network_loader=None, ready=None) -> ServeSummar
         try:
             network = network_loader() if network_loader is not None else None
             if not stopper.asked:
-                app = App(options, network)
+                app = App(options, network, stored)
                 app.start()
             if not stopper.asked:
                 if ready is not None:

@@ -27,7 +27,10 @@ def start_app(dataset: Path | None, run: Path | None):
     from pipeline.serve.server import App, ServeOptions
 
     network = LiveNetwork(str(run), threads=1) if run is not None else None
-    app = App(ServeOptions(port=0, dataset=str(dataset) if dataset else None), network).start()
+    from pipeline.neural.stored import stored_renders
+
+    options = ServeOptions(port=0, dataset=str(dataset) if dataset else None)
+    app = App(options, network, stored_renders if dataset else None).start()
     app.serve_in_thread()
     return app
 

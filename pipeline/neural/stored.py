@@ -6,6 +6,8 @@ too. It is read through the project's dataset reader (:func:`pipeline.neural.dat
 as training reads it): a folder or a publication, the file's checksum and size checked against
 the manifest, the sample picked by its id from the manifest (never a path a request names).
 The render is linear HDR; the hub tone-maps it at the view's exposure like the other pictures.
+It lives in the neural stage, beside the reader it uses (torch's), and the CLI hands it to
+`shaderball serve` as it hands the network (pipeline.serve needs no torch).
 """
 
 from __future__ import annotations
@@ -14,13 +16,13 @@ import functools
 
 import numpy as np
 
+from pipeline.neural.data import open_dataset
+
 
 class StoredRenders:
     """The stored renders of the dataset ``root`` (a folder or its publication), by sample id."""
 
     def __init__(self, root: str):
-        from pipeline.neural.data import open_dataset
-
         self.dataset = open_dataset(root)
         samples = self.dataset.samples
         ids = getattr(samples, "ids", None) or [sample.id for sample in samples]
