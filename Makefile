@@ -68,13 +68,13 @@ lint: setup
 	$(VENV)/bin/ruff format --check .
 
 # The network `shaderball serve --run serve-out/run` shows out of the box (docs/serve.md): the
-# serve spec (128 materials x 5 suns at 64 px, 64 spp; about 1.5 minutes on 2 cores), then 80
-# epochs of a half-width network in bfloat16 with a cosine schedule (about 11 minutes); train's
+# serve spec (128 materials x 5 suns at 64 px, 64 spp; about 1.5 minutes on 2 cores), then 60
+# epochs of a half-width network in bfloat16 with a cosine schedule; train's
 # last lines print the held-out PSNR beside the mean image's.
 SERVE_OUT ?= serve-out
 serve-network: setup
 	$(VENV)/bin/shaderball build manifests/serve.toml --out $(SERVE_OUT)/serve
-	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 80 --loss l1 --width 0.5 \
+	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 60 --loss l1 --width 0.5 \
 		--schedule cosine --batch-size 8 --precision bf16 --threads 2 --seed 0
 	@echo "serve-network: run \`$(VENV)/bin/shaderball serve --run $(SERVE_OUT)/run --dataset $(SERVE_OUT)/serve\`"
 

@@ -11,7 +11,10 @@ Routes (JSON unless said):
     GET  /                    the page (page.html, in this package; nothing from the internet)
     GET  /api/info            what the server offers: network or not, ranges, presets, samples
     POST /api/view            {client, material, light, exposure} -> {generation, known, uploads}
+                              (a change of exposure alone keeps the generation: the pictures
+                              held are tone-mapped again, nothing renders again)
     POST /api/upload?client=ID&map=diffuse|specular|roughness|normal   body: PNG or EXR bytes
+                              -> {map, texels, preview}: the map as its canvas shows it
     GET  /api/frame?client=ID&since=VERSION   long poll: the client's frame once it changes
                               (``known``: false when the server had forgotten the client, see
                               pipeline.serve.work: the page uploads its maps and view again)
