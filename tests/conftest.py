@@ -32,3 +32,23 @@ def mi():
 def reference(tmp_path_factory) -> Path:
     """An uninterrupted smoke build, shared by the crash, resume and cluster tests."""
     return crash_module().shared_reference(tmp_path_factory)[0]
+
+
+@pytest.fixture(scope="module")
+def app(reference, tmp_path_factory):
+    """A `shaderball serve` app on a free port with the reference dataset and a tiny network
+    trained on it (the serve tests'; a module may define its own ``app``)."""
+    from support.serving import start_app, train_tiny_run
+
+    run = train_tiny_run(reference, tmp_path_factory.mktemp("serve") / "run")
+    app = start_app(reference, run)
+    yield app
+    app.close()
+
+
+@pytest.fixture(scope="module")
+def http(app):
+    """JSON requests over real HTTP to the module's ``app``."""
+    from support.serving import Client
+
+    return Client(app.url)

@@ -25,25 +25,12 @@ from PIL import Image
 
 from pipeline.serve.materials import MAX_UPLOAD_BYTES, MAX_UPLOAD_PIXELS
 from pipeline.store.exr import encode_exr
-from support.serving import Client, start_app, train_tiny_run
+from support.serving import Client
 
 torch.set_num_threads(1)
 pytestmark = pytest.mark.slow  # a smoke build, a tiny training run and real renders
 REPO = Path(__file__).resolve().parents[1]
 FULL = {"path": lambda f: f.get("path", {}).get("spp") == 64}
-
-
-@pytest.fixture(scope="module")
-def app(reference, tmp_path_factory):
-    run = train_tiny_run(reference, tmp_path_factory.mktemp("serve") / "run")
-    app = start_app(reference, run)
-    yield app
-    app.close()
-
-
-@pytest.fixture(scope="module")
-def http(app):
-    return Client(app.url)
 
 
 def _png(width: int, height: int, colour=(200, 100, 50)) -> bytes:

@@ -15,24 +15,10 @@ from PIL import Image
 
 from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.store.exr import read_exr
-from support.serving import Client, start_app, train_tiny_run
 
 torch.set_num_threads(1)
 pytestmark = pytest.mark.slow  # a smoke build, a tiny training run and real renders
 FINAL = lambda f: "network" in f and f.get("path", {}).get("spp") == 64 and "diff" in f  # noqa: E731
-
-
-@pytest.fixture(scope="module")
-def app(reference, tmp_path_factory):
-    run = train_tiny_run(reference, tmp_path_factory.mktemp("serve") / "run")
-    app = start_app(reference, run)
-    yield app
-    app.close()
-
-
-@pytest.fixture(scope="module")
-def http(app):
-    return Client(app.url)
 
 
 def _pixels(url: str) -> np.ndarray:
