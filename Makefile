@@ -73,10 +73,12 @@ lint: setup
 # last lines print the held-out PSNR beside the mean image's.
 SERVE_OUT ?= serve-out
 serve-network: setup
-	$(VENV)/bin/shaderball build manifests/serve.toml --out $(SERVE_OUT)/serve
+	start=$$(date +%s); set -e; \
+	$(VENV)/bin/shaderball build manifests/serve.toml --out $(SERVE_OUT)/serve; \
 	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 60 --loss l1 --width 0.5 \
-		--schedule cosine --batch-size 8 --precision bf16 --threads 2 --seed 0
-	@echo "serve-network: run \`$(VENV)/bin/shaderball serve --run $(SERVE_OUT)/run --dataset $(SERVE_OUT)/serve\`"
+		--schedule cosine --batch-size 8 --precision bf16 --threads 2 --seed 0; \
+	echo "serve-network: $$(( $$(date +%s) - start )) s wall, $$(nproc) cores, load average $$(cut -d' ' -f1-3 /proc/loadavg) at the end"; \
+	echo "serve-network: run \`$(VENV)/bin/shaderball serve --run $(SERVE_OUT)/run --dataset $(SERVE_OUT)/serve\`"
 
 bench: setup
 	$(VENV)/bin/shaderball bench manifests/smoke.toml

@@ -1,5 +1,5 @@
 """A headless Chromium (Debian's `chromium`) driven by Selenium through Debian's
-`chromium-driver`, the maintained WebDriver client, instead of a hand-made DevTools one.
+`chromium-driver`, the maintained WebDriver client.
 
 The driver is named by its path (``Service(executable_path=...)``), so Selenium Manager never
 looks for (or downloads) a driver or a browser: both come from the same Debian release and
