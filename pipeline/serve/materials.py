@@ -4,13 +4,13 @@ sample (made again from the dataset's spec and plan), or maps the page uploaded 
 Uploads are bounded before they are decoded: the body's bytes by the server, then the
 image's pixel count from its header (Pillow's lazy open, OpenEXR's header-only read), and
 only then the pixels. Memory is bounded across all clients at once, not per upload alone: a
-130 kB 16-bit PNG of 4096 x 4096 pixels decodes to hundreds of MB, and 16 of them at once
-took a server to 7.4 GB. Each decode reserves its worst case (:data:`DECODE_BYTES_PER_PIXEL`
+130 kB 16-bit PNG of 4096 x 4096 pixels decodes to hundreds of MB, so 16 decoded at once
+would take gigabytes. Each decode reserves its worst case (:data:`DECODE_BYTES_PER_PIXEL`
 times the pixels its header gives) from one :data:`DECODE_BUDGET_BYTES` shared by every
 upload; one past the budget waits for others to finish (up to :data:`DECODE_WAIT_S`, then
 503). A decode keeps only what the renderer uses: each channel is resampled to
-TEXTURE_TEXELS a side as it is converted, never the whole image as float. A dataset sample is picked by its id, which must be in the dataset's
-manifest; the id never becomes a path.
+TEXTURE_TEXELS a side as it is converted, never the whole image as float. A dataset sample is
+picked by its id, which must be in the dataset's manifest; the id never becomes a path.
 """
 
 from __future__ import annotations

@@ -606,14 +606,12 @@ def serve(options: ServeOptions, network_loader=None, ready=None, stored=None) -
     Ctrl-C never raises in the middle of the work: while serve() runs, SIGINT only asks the
     server to stop (:class:`Stopper`), and the main thread then stops it in order: the loop
     ends, the path tracer finishes its chunk and its thread ends, the port closes, and only
-    then does the KeyboardInterrupt go up. With Python's own handler it was raised at any
-    bytecode: between the "serving" line and the loop, ``App.close`` then waited forever in
-    ``shutdown()`` for a loop never started (seen here, one run in a few, with and without a
-    network), and one raised inside ``App.close`` left interpreter shutdown running while
-    Mitsuba's thread still rendered (the SIGABRT "terminate called without an active
-    exception" and SIGSEGV reported after "interrupted"). This is a cure at the root, not an
-    ``os._exit``. Mitsuba puts its own SIGINT handler in place while it renders; a render it
-    cancels stops the server the same way (App._fatal).
+    then does the KeyboardInterrupt go up. With Python's own handler it could be raised at
+    any bytecode: between the "serving" line and the loop, ``App.close`` would wait forever in
+    ``shutdown()`` for a loop never started; inside ``App.close``, interpreter shutdown would
+    run while Mitsuba's thread still renders (an abort or a segfault at exit). This is a cure
+    at the root, not an ``os._exit``. Mitsuba puts its own SIGINT handler in place while it
+    renders; a render it cancels stops the server the same way (App._fatal).
     """
     stopper, app = Stopper(), None
     with stopper.installed():
