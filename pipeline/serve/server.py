@@ -131,8 +131,8 @@ PORT_RANGE = (0, 65535)
 #: Sun moves the benchmark times.
 REPEATS_RANGE = (1, 100)
 TRAIN_HINT = (
-    "No network: start with --run RUN. `make serve-network` trains a small one on the smoke "
-    "dataset in a few minutes (docs/serve.md)."
+    "No network: start with --run RUN. `make serve-network` builds a dataset and trains one "
+    "(under 15 minutes on 2 cores; docs/serve.md)."
 )
 
 
