@@ -40,6 +40,7 @@ from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest
 from pipeline.fields import Bool, Checked, Int, Path, field, same_as
+from pipeline.render.limits import launch_limit_text, launch_spp
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.build import read_spec_text
 from pipeline.run.cluster.options import JOBQUEUE_KINDS, ClusterOptions
@@ -296,6 +297,12 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
         variant=spec.render.variant,
         disk=disk_estimate(spec, summary["uniform"], summary["svbrdf"]),
     )
+    split = launch_spp(spec.render.spp, spec.render.resolution**2)
+    if len(split) > 1:
+        report.notes.append(
+            f"a render is {spec.render.resolution}^2 x {spec.render.spp} samples, more than {launch_limit_text()} "
+            f"(Mitsuba's most in one launch): it renders in launches of at most {split[0]} spp, averaged"
+        )
     if not req.timing:
         return report
     if progress is not None:

@@ -7,6 +7,15 @@ INTEGRATORS = ("path",)
 RESOLUTION_RANGE = (16, 4096)
 #: Samples per pixel.
 SPP_RANGE = (1, 65536)
+#: The most samples (pixels x spp) one ``mi.render`` call takes; a render over it is split into
+#: launches (:func:`launch_spp`). Why: drjit indexes a launch's lanes in 32 bits, and above 2^32-1
+#: Mitsuba 3.9 splits the render itself (integrator.cpp): it fails where spp is no multiple of
+#: its pass ("sample_count should be a multiple of samples_per_wavefront": 4096 px at 65536 spp)
+#: and otherwise keeps every lane's sampler state between its passes, measured 24-28 bytes a lane
+#: (1024 px, its samples_per_pass 8 and 16; 4096 px at 256 spp: ~55 GiB, a segfault at once under
+#: a 6 GiB limit). One launch keeps no per-lane state: peak RSS 0.88 GB and flat through a 2^31-lane
+#: launch at 4096 px (llvm, 2 cores; 0 extra bytes a lane at 1024 px, 16 spp).
+LAUNCH_SAMPLES_MAX = 2**32 - 1
 #: Path length (Mitsuba's ``max_depth``).
 MAX_DEPTH_RANGE = (1, 64)
 
@@ -35,3 +44,25 @@ DEFAULT_RR_DEPTH = 5
 CLAMP_RANGE = (0.0, 1.0e6)
 #: Adaptive rendering's target: relative RMS standard error on the ball (0: off).
 TARGET_ERROR_RANGE = (0.0, 1.0)
+
+
+def launch_spp(spp: int, pixels: int, used=None) -> list[int]:
+    """The spp of each ``mi.render`` call that renders ``spp`` on a film of ``pixels`` pixels:
+    ``[spp]`` while ``pixels x used(spp)`` is at most :data:`LAUNCH_SAMPLES_MAX` (every render
+    under the limit stays one call, as it always was), else launches of the largest power of
+    two that fits and the remainder: 4096 px at 65536 spp -> 512 launches of 128. ``used(n)``:
+    the spp a sampler really takes when asked for ``n`` (some round up); the identity if None."""
+    used = used or (lambda n: n)
+    spp, pixels = int(spp), int(pixels)
+    if spp <= 0 or pixels * used(spp) <= LAUNCH_SAMPLES_MAX:
+        return [spp]
+    size = 1 << ((LAUNCH_SAMPLES_MAX // pixels).bit_length() - 1) if pixels <= LAUNCH_SAMPLES_MAX else 1
+    while size > 1 and pixels * used(size) > LAUNCH_SAMPLES_MAX:
+        size >>= 1
+    whole, rest = divmod(spp, size)
+    return [size] * whole + ([rest] if rest else [])
+
+
+def launch_limit_text() -> str:
+    """:data:`LAUNCH_SAMPLES_MAX` as the help words it: ``"2^32-1"``."""
+    return span((0, LAUNCH_SAMPLES_MAX)).split(" to ")[1]

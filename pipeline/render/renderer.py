@@ -34,9 +34,7 @@ from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
 from pipeline.render.emitter import emitter_dicts, update_emitter_params
-from pipeline.render.limits import (
-    DEFAULT_RR_DEPTH,
-)
+from pipeline.render.limits import DEFAULT_RR_DEPTH, launch_spp
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
 from pipeline.render.settings import RenderSettings
@@ -172,7 +170,36 @@ def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = 
     return total / spp
 
 
-def render_whole(mi, scene, spp: int, seed: int):
+def film_pixels(scene) -> int:
+    """The pixels one sample per pixel of ``scene``'s render takes (its film, border included)."""
+    film = scene.sensors()[0].film()
+    size = film.crop_size()
+    if film.sample_border():
+        size += 2 * film.rfilter().border_size()
+    return int(size[0]) * int(size[1])
+
+
+def launches(mi, scene, spp: int, sampler: str = "independent") -> list[int]:
+    """The spp of each ``mi.render`` call of a render of ``spp`` (:func:`pipeline.render.limits.launch_spp`)."""
+    return launch_spp(spp, film_pixels(scene), lambda n: sampler_spp(mi, sampler, n))
+
+
+def render_whole(mi, scene, spp: int, seed: int, sampler: str = "independent"):
+    """``spp`` samples per pixel of ``scene``: one ``mi.render`` call (:func:`render_launch`), or,
+    over :data:`pipeline.render.limits.LAUNCH_SAMPLES_MAX` samples, several (:func:`launches`;
+    launch ``j`` seeded ``pass_seed(seed, j)``) averaged in float64, weighted by the spp each used."""
+    sizes = launches(mi, scene, spp, sampler)
+    if len(sizes) == 1:  # every render under the limit: the call it always was
+        return render_launch(mi, scene, spp, seed)
+    acc = PassSum()
+    for j, n in enumerate(sizes):
+        used = sampler_spp(mi, sampler, n)
+        with _quiet(mi, used != n):
+            acc.add(render_launch(mi, scene, n, pass_seed(seed, j)), used)
+    return acc.mean()
+
+
+def render_launch(mi, scene, spp: int, seed: int):
     """``mi.render``, never cut short. Mitsuba installs a SIGINT handler for the length of a
     render that cancels it and returns what it has so far (fewer samples, no error). Here a
     cancelled render is never used: where this process ignores SIGINT (a dask worker: the
@@ -232,12 +259,9 @@ class PassSum:
 
 def render_pass(mi, scene, spp: int, seed: int, k: int, sampler: str = "independent") -> tuple[np.ndarray, int]:
     """Pass ``k`` of a render seeded ``seed``: every channel (float64) and the spp it used."""
-    used = sampler_spp(mi, sampler, spp)
-    if used == spp:
-        image = render_whole(mi, scene, spp=spp, seed=pass_seed(seed, k))
-    else:
-        with _quiet(mi):
-            image = render_whole(mi, scene, spp=spp, seed=pass_seed(seed, k))
+    used = sum(sampler_spp(mi, sampler, n) for n in launches(mi, scene, spp, sampler))
+    with _quiet(mi, used != spp):
+        image = render_whole(mi, scene, spp=spp, seed=pass_seed(seed, k), sampler=sampler)
     return np.asarray(image, dtype=np.float64), used
 
 

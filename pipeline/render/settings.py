@@ -33,6 +33,7 @@ from pipeline.render.limits import (
     SAMPLERS,
     SPP_RANGE,
     TARGET_ERROR_RANGE,
+    launch_limit_text,
 )
 from pipeline.render.mitsuba_env import SHORT_VARIANTS, VARIANT_CHOICES
 from sky.emitter import SUN_MODES
@@ -55,7 +56,12 @@ class RenderSettings(Checked):
         unit="pixels",
     )
     spp: int = field(
-        150, rule=Int(*SPP_RANGE), doc="Samples per pixel of each render; the paper: 150.", unit="samples per pixel"
+        150,
+        rule=Int(*SPP_RANGE),
+        doc="Samples per pixel of each render; the paper: 150. A render of more than "
+        f"{launch_limit_text()} samples (resolution^2 x spp, Mitsuba's most in one launch) is "
+        "rendered in several launches, averaged.",
+        unit="samples per pixel",
     )
     max_depth: int = field(
         8,
