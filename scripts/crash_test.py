@@ -35,6 +35,7 @@ import fcntl
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -568,6 +569,38 @@ def run_campaign(
     return CampaignResult(done_kills, attempts, trials, time.monotonic() - start, ref_seconds)
 
 
+#: What a work folder holds once this script has used it (its reference build, the trials'
+#: builds and the attempts' logs); the reference and the trials are removed and rebuilt.
+WORK_ENTRY = re.compile(r"reference(\.lock|\.seconds)?|trial\d{3,}|logs")
+
+
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Every argument checked before anything is written or removed (``parser.error``: exit 2)."""
+    from pipeline.dataset.spec import parse_spec
+    from pipeline.errors import ShaderballError
+
+    if not 1 <= args.kills <= 100_000:
+        parser.error(f"--kills: {args.kills} is not allowed; allowed: 1 to 100000")
+    if not 0 <= args.seed < 2**63:
+        parser.error(f"--seed: {args.seed} is not allowed; allowed: 0 to 2^63-1")
+    if args.dask_every < 0:
+        parser.error(f"--dask-every: {args.dask_every} is not allowed; allowed: 0 (never) or more")
+    try:
+        parse_spec(args.spec)
+    except (ShaderballError, OSError) as exc:
+        parser.error(f"--spec: {exc}")
+    work = args.work
+    if work is not None and (work.exists() or work.is_symlink()):
+        if not work.is_dir() or work.is_symlink():
+            parser.error(f"--work: {work} exists and is not a folder")
+        foreign = sorted(p.name for p in work.iterdir() if not WORK_ENTRY.fullmatch(p.name))
+        if foreign:
+            parser.error(
+                f"--work: {work} holds {foreign[0]!r}, which this script does not write (its reference "
+                "and trials are removed and rebuilt there): name a new or empty folder"
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--child":
@@ -587,12 +620,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=None, help="work folder (default: a new temp folder)")
     parser.add_argument("--keep", action="store_true", help="keep the work folder")
     args = parser.parse_args(argv)
-    if not 1 <= args.kills <= 100_000:
-        parser.error(f"--kills: {args.kills} is not allowed; allowed: 1 to 100000")
+    sys.path.insert(0, str(REPO))
+    check_arguments(parser, args)
     work = args.work or Path(tempfile.mkdtemp(prefix="shaderball-crash-"))
     # SIGTERM/SIGINT unwind through run_attempt's cleanup, which kills the child's group.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    sys.path.insert(0, str(REPO))
     try:
         print(f"reference build of {args.spec} in {work / 'reference'} ...", flush=True)
         result = run_campaign(

@@ -4,7 +4,13 @@
 # identical, and both rates are recorded. Run by ../shared/gpu/check.sh with $OUT (logs) and $SB (a
 # `shaderball` command); by hand: OUT=/tmp/out SB="python -m cli" bash scripts/gpu_check.sh
 set -u
-out=${OUT:-/tmp/out}; sb=${SB:-shaderball}; mkdir -p "$out"
+refuse() { printf 'error: %s\nusage: OUT=DIR SB=COMMAND bash scripts/gpu_check.sh   (from the repository root)\n' "$1" >&2; exit 2; }
+out=${OUT:-/tmp/out}; sb=${SB:-shaderball}
+[ $# -eq 0 ] || refuse "no arguments (OUT and SB come from the environment), $# given"
+[ -f manifests/paper.toml ] || refuse "no manifests/paper.toml here: run it from the repository root"
+[ ! -e "$out" ] || [ -d "$out" ] || refuse "OUT $out: exists and is not a folder"
+command -v ${sb%% *} > /dev/null || refuse "SB $sb: not a command"
+mkdir -p "$out"
 spec=/tmp/gpu-check.toml
 # 50 renders at the paper's settings: its first materials only (a smaller dataset.size).
 sed -E 's/^(materials|count|size) *= *[0-9_]+/\1 = 10/' manifests/paper.toml > "$spec"

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import sys
 
 from PIL import Image, ImageDraw, ImageFont
@@ -153,6 +154,12 @@ def main() -> None:
     parser.add_argument("out")
     parser.add_argument("--rows", type=int, default=16)
     args = parser.parse_args()
+    if not os.path.isdir(args.pub):  # every argument before the sheet is drawn or written
+        parser.error(f"PUB {args.pub}: not a folder (a publication `shaderball publish` wrote)")
+    if os.path.isdir(args.out) or not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
+        parser.error(f"OUT {args.out}: is a folder, or its folder does not exist (a PNG file to write)")
+    if not 1 <= args.rows <= 10_000:
+        parser.error(f"--rows: {args.rows} is not allowed; allowed: 1 to 10000")
     problems: list[str] = []
     buffer = io.BytesIO()
     sheet(args.pub, args.rows, problems).save(buffer, format="PNG", optimize=True)

@@ -7,9 +7,13 @@
 #
 #   scripts/neural_default_check.sh [OUT]      (default OUT: /tmp/neural-default-check)
 set -euo pipefail
+refuse() { printf 'error: %s\nusage: scripts/neural_default_check.sh [OUT]\n' "$1" >&2; exit 2; }
+[ $# -le 1 ] || refuse "at most 1 argument, $# given"
 cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-default-check}
 SB=${SHADERBALL:-.venv/bin/shaderball}
+[ ! -e "$OUT" ] || [ -d "$OUT" ] || refuse "OUT $OUT: exists and is not a folder"
+command -v "$SB" > /dev/null || refuse "SHADERBALL $SB: not a command"
 mkdir -p "$OUT"
 exec > >(tee "$OUT/check.log") 2>&1
 sed 's/^materials = 8 .*/materials = 64/' manifests/smoke.toml >"$OUT/smoke64.toml"

@@ -12,9 +12,13 @@
 # same number of optimiser steps (epochs x training renders is constant), so the sizes differ
 # in data only.
 set -euo pipefail
+refuse() { printf 'error: %s\nusage: scripts/neural_repro.sh [OUT]\n' "$1" >&2; exit 2; }
+[ $# -le 1 ] || refuse "at most 1 argument, $# given"
 cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-repro}
 SB=${SHADERBALL:-.venv/bin/shaderball}
+[ ! -e "$OUT" ] || [ -d "$OUT" ] || refuse "OUT $OUT: exists and is not a folder"
+command -v "$SB" > /dev/null || refuse "SHADERBALL $SB: not a command"
 mkdir -p "$OUT"
 # The recipe (docs/neural.md): the paper's L1 term (no VGG16 ImageNet weights here), Adam at
 # the released code's 1e-3 with a cosine decay, half the paper's channels, batch 6.

@@ -5,10 +5,17 @@
 #
 #   scripts/neural_repro_docs.sh [OUT] [DEFAULT_OUT]   (defaults: /tmp/neural-repro, /tmp/neural-default-check)
 set -euo pipefail
+refuse() { printf 'error: %s\nusage: scripts/neural_repro_docs.sh [OUT] [DEFAULT_OUT]\n' "$1" >&2; exit 2; }
+[ $# -le 2 ] || refuse "at most 2 arguments, $# given"
 cd "$(dirname "$0")/.."
 OUT=${1:-/tmp/neural-repro}
 DEFAULT_OUT=${2:-/tmp/neural-default-check}
 DOCS=docs/results/neural-mini
+# The docs folder is replaced: only once OUT holds what is copied into it.
+for f in "$OUT/sweep/sweep.md" "$OUT/sweep/data-size.png"; do
+  [ -f "$f" ] || refuse "OUT $OUT: no ${f#"$OUT/"} (scripts/neural_repro.sh writes it); $DOCS left as it is"
+done
+[ ! -e "$DEFAULT_OUT" ] || [ -d "$DEFAULT_OUT" ] || refuse "DEFAULT_OUT $DEFAULT_OUT: not a folder"
 rm -rf "$DOCS"
 mkdir -p "$DOCS/sweep"
 cp "$OUT/sweep/sweep.md" "$OUT/sweep/data-size.png" "$DOCS/sweep/"

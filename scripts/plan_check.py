@@ -96,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("specs", nargs="+", metavar="SPEC")
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for README.md and plan-check.json")
     args = parser.parse_args(argv)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):  # before the plans run: minutes
+        parser.error(f"--out: {args.out} exists and is not a folder")
     rows = [check(spec) for spec in args.specs]
     command = shlex.join([".venv/bin/python", "scripts/plan_check.py", *args.specs, "--out", args.out])
     os.makedirs(args.out, exist_ok=True)

@@ -15,10 +15,24 @@
 # 14 minutes of wall time (5.4 CPU-minutes) on the shared 2-core machine here, beside other work:
 # the two builds about a minute, training and evaluation most of the rest, the study 3.4 minutes.
 set -euo pipefail
+refuse() { printf 'error: %s\nusage: scripts/readme_pictures.sh [WORK]\n' "$1" >&2; exit 2; }
+[ $# -le 1 ] || refuse "at most 1 argument, $# given"
 cd "$(dirname "$0")/.."
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 SB=${SHADERBALL:-.venv/bin/shaderball}
 WORK=${1:-out/readme-pictures}
+command -v "$SB" > /dev/null || refuse "SHADERBALL $SB: not a command"
+# WORK is removed and rebuilt: only when it holds nothing but what this script writes there.
+if [ -e "$WORK" ] || [ -L "$WORK" ]; then
+  [ -d "$WORK" ] && [ ! -L "$WORK" ] || refuse "WORK $WORK: exists and is not a folder"
+  for entry in "$WORK"/* "$WORK"/.[!.]*; do
+    [ -e "$entry" ] || [ -L "$entry" ] || continue
+    case "${entry##*/}" in
+      smoke | train-small | run | study) ;;
+      *) refuse "WORK $WORK: holds ${entry##*/}, which this script does not write; WORK is removed: name another" ;;
+    esac
+  done
+fi
 rm -rf "$WORK"
 mkdir -p "$WORK" docs/img
 start=$SECONDS

@@ -4,6 +4,19 @@
 # file is compared. Study rows, study.json, report.md and pareto.png hold timings and differ anyway.
 #   scripts/same_outputs.sh CHECKOUT_A CHECKOUT_B OUT      (each checkout with its .venv)
 set -euo pipefail
+refuse() { printf 'error: %s\nusage: scripts/same_outputs.sh CHECKOUT_A CHECKOUT_B OUT\n' "$1" >&2; exit 2; }
+# Every argument is checked before anything is written or removed: OUT/A and OUT/B are rebuilt.
+[ $# -eq 3 ] || refuse "3 arguments expected, $# given"
+for repo in "$1" "$2"; do
+  [ -f "$repo/cli.py" ] && [ -f "$repo/manifests/smoke.toml" ] || refuse "$repo: not a shaderball checkout (no cli.py, manifests/smoke.toml)"
+  [ -x "$repo/.venv/bin/python" ] || refuse "$repo: no .venv/bin/python (each checkout with its .venv)"
+done
+[ ! -e "$3" ] || [ -d "$3" ] || refuse "OUT $3: exists and is not a folder"
+for side in A B; do
+  o="$3/$side"
+  [ ! -e "$o" ] || [ -f "$o/digests.txt" ] || [ -f "$o/build.log" ] || [ -z "$(ls -A "$o" 2>/dev/null)" ] ||
+    refuse "OUT $3: $side holds files this script did not write (no build.log); it would be removed: name another OUT"
+done
 here=$(cd "$(dirname "$0")" && pwd)
 out=$(mkdir -p "$3" && cd "$3" && pwd)
 for side in A B; do

@@ -4,8 +4,12 @@
 # and prints its exit code, wall time and pytest's summary line; the whole log goes to LOG.
 #   scripts/suite_under_load.sh [LOG]      (default: suite-under-load.log)
 set -uo pipefail
+refuse() { printf 'error: %s\nusage: scripts/suite_under_load.sh [LOG]\n' "$1" >&2; exit 2; }
+[ $# -le 1 ] || refuse "at most 1 argument, $# given"
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 log="$(realpath -m "${1:-suite-under-load.log}")"
+[ -d "$(dirname "$log")" ] || refuse "LOG $log: its folder does not exist"
+[ ! -d "$log" ] || refuse "LOG $log: is a folder"
 scratch="$(mktemp -d)"
 git clone -q "$repo" "$scratch/clone" || exit 1
 cd "$scratch/clone" || exit 1

@@ -132,6 +132,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--repeats: {args.repeats}; 2 or more (a 95% interval needs two pairs)")
     if args.limit < 1:
         parser.error(f"--limit: {args.limit}; 1 or more renders")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):  # before the runs: minutes
+        parser.error(f"--out: {args.out} exists and is not a folder")
+    if not os.path.isfile(args.spec):
+        parser.error(f"--spec: {args.spec} is not a file")
     bench_args = [args.spec, "--renders", str(args.limit), "--resolution", str(args.resolution)]
     bench_args += ["--spp", str(args.spp), "--workers", "0"]
     command = ".venv/bin/python scripts/writer_priority.py " + shlex.join(
