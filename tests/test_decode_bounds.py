@@ -97,7 +97,7 @@ def test_the_bomb_is_a_valid_exr_that_decodes_to_its_header_size():
     "command, code, words",
     [
         ("validate", 1, "decoded for a file expected to hold 64 x 64 pixels of 3 channel(s)"),
-        ("preview", 0, "expected 64 x 64 (the spec's resolution)"),
+        ("preview", 1, "expected 64 x 64 (the spec's resolution)"),  # the sheet written, the file listed
         ("publish", 1, "does not pass `shaderball validate`"),
     ],
 )
@@ -160,7 +160,7 @@ def test_train_and_evaluate_refuse_an_exr_bomb_naming_the_file(trained, shrunk, 
 def test_preview_of_renders_smaller_than_their_maps_names_the_files(shrunk, tmp_path):
     """32 x 32 renders beside 64 x 64 maps: a problem line each and "unreadable" tiles."""
     done, _peak = peak_of(["preview", shrunk, "--out", tmp_path / "p.png"], tmp_path / "n.txt", REPO)
-    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     rel = renders(shrunk)[0]
     assert f"{rel}: EXR header says its data window is 32 x 32 pixels; expected 64 x 64" in done.stdout
     assert (tmp_path / "p.png").stat().st_size > 0

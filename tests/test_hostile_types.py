@@ -435,9 +435,10 @@ def reseal_sums_only(pub: Path) -> None:
 def test_preview_marks_an_undecodable_exr_and_names_the_file(smoke, tmp_path):
     ds = tmp_path / "ds"
     shutil.copytree(smoke, ds)
-    (ds / "shards" / "s00000" / f"{FIRST}.render.exr").write_bytes(b"not an EXR at all")
+    render = ds / "shards" / "s00000" / f"{FIRST}.render.exr"
+    render.write_bytes(b"not an EXR at all".ljust(render.stat().st_size, b"\0"))  # the size its record gives
     result = run("preview", str(ds), "--out", str(tmp_path / "p.png"))
-    assert result.exit_code == 0, result.output
+    assert result.exit_code == 1, result.output  # written, with a problem: validate's "problems found"
     assert f"cannot decode EXR shards/s00000/{FIRST}.render.exr" in result.output
     assert "<bytes>" not in result.output
     assert (tmp_path / "p.png").stat().st_size > 0

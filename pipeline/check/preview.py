@@ -23,7 +23,15 @@ from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
-from pipeline.store.folder import manifest_record_count, read_bytes, resolve_inside, shard_records, unsafe_entry
+from pipeline.store.folder import (
+    OverBound,
+    Recorded,
+    manifest_record_count,
+    read_bytes,
+    resolve_inside,
+    shard_records,
+    unsafe_entry,
+)
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
@@ -41,12 +49,18 @@ class PreviewSummary:
     recorded: int
     total: int
     size: tuple[int, int]
-    #: records left out, and why (malformed, or naming a path that leaves the folder)
+    #: records left out, and why (malformed, or naming a path that leaves the folder), and
+    #: files of the chosen samples that could not be read or decoded (their tiles "unreadable")
     problems: tuple[str, ...] = ()
     #: shards whose marker marks them complete, of all planned, and the manifest's records
     shards_complete: int = 0
     shards: int = 0
     manifest_records: int | None = None
+
+    @property
+    def exit_code(self) -> int:
+        """1 when something was left out (validate's "problems found"; the sheet is written)."""
+        return 1 if self.problems else 0
 
     @property
     def complete(self) -> bool:
@@ -142,13 +156,17 @@ def label_text(record: dict) -> list[str]:
     return lines
 
 
-def _read_layers(root: str, rel: str, layer: str | None, resolution: int) -> dict:
-    """The layers of the EXR a record names at ``rel``, read only inside the folder
-    (pipeline.store.folder.resolve_inside) and decoded only if its header says it is
-    ``resolution`` pixels a side, with no more channels than a render (``layer`` "render")
-    or a maps file holds (pipeline.store.exrheader); ShaderballError naming it otherwise."""
+def _read_layers(root: str, entry: dict, layer: str | None, resolution: int) -> dict:
+    """The layers of the EXR a record's file ``entry`` names, read only inside the folder
+    (pipeline.store.folder.resolve_inside), only at the size the record gives it, and decoded
+    only if its header says it is ``resolution`` pixels a side, with no more channels than a
+    render (``layer`` "render") or a maps file holds (pipeline.store.exrheader);
+    ShaderballError naming it otherwise."""
+    rel = entry["path"]
     try:
-        data = read_bytes(resolve_inside(root, rel))
+        data = read_bytes(resolve_inside(root, rel), Recorded(entry["bytes"]))
+    except OverBound as exc:  # validate's size_mismatch, in its words
+        raise ShaderballError(f"{rel}: {exc.strerror}; run `shaderball validate`") from None
     except OSError as exc:
         raise ShaderballError(f"{rel}: cannot be read ({exc.strerror}); run `shaderball validate`") from None
     role = "render" if layer == "render" else "maps"
@@ -177,14 +195,14 @@ def _fit(picture: np.ndarray, tile: int):
     return image.resize((tile, tile), Image.NEAREST if upscale else Image.LANCZOS)
 
 
-def _tile_layers(root: str, rel: str | None, layer: str | None, resolution: int, problems: list[str]) -> dict | None:
-    """The layers of one tile's file, or None (the tile is marked unreadable and the reason
-    added to ``problems``) when it cannot be read or decoded: one bad file spoils one tile,
-    not the sheet."""
-    if rel is None:
+def _tile_layers(root: str, entry: dict | None, layer: str | None, resolution: int, problems: list[str]) -> dict | None:
+    """The layers of one tile's file (a record's file entry), or None (the tile is marked
+    unreadable and the reason added to ``problems``) when it cannot be read or decoded: one
+    bad file spoils one tile, not the sheet."""
+    if entry is None:
         return {}
     try:
-        return _read_layers(root, rel, layer, resolution)
+        return _read_layers(root, entry, layer, resolution)
     except ShaderballError as exc:
         problems.append(str(exc))
         return None
@@ -214,11 +232,12 @@ def contact_sheet(
     cache: dict[str, dict] = {}
     for r, record in enumerate(records):
         y = HEADER_HEIGHT + r * (tile + GAP)
-        files = {entry["role"]: entry["path"] for entry in record["files"]}
+        files = {entry["role"]: entry for entry in record["files"]}
         render = _tile_layers(root, files["render"], "render", resolution, problems)
-        maps_rel = files.get("maps")
+        maps = files.get("maps")
+        maps_rel = None if maps is None else maps["path"]
         if maps_rel not in cache:
-            cache[maps_rel] = _tile_layers(root, maps_rel, None, resolution, problems)
+            cache[maps_rel] = _tile_layers(root, maps, None, resolution, problems)
         layers = cache[maps_rel]
         mask = (layers or {}).get("mask")
         mask = mask[..., 0] > 0.5 if mask is not None else None

@@ -15,8 +15,10 @@ A sample is a plain dict of tensors (``maps`` (12, R, R), ``light`` (4,), ``targ
 At a network resolution R below the dataset's D (D a multiple of R), every image is
 box-averaged over D/R x D/R pixels first (renders in linear HDR, before the tone map).
 
-Every file is read as bytes once, its SHA-256 compared with the manifest's on its first
-read in a process (``check_hashes=False`` skips it), then decoded. A material's maps are
+Every file is read as bytes once, only at the size the manifest records for it (a render
+grown in place is refused before a byte is read, as validate refuses it:
+:class:`pipeline.store.folder.Recorded`), its SHA-256 compared with the manifest's on its
+first read in a process (``check_hashes=False`` skips it), then decoded. A material's maps are
 assembled once and kept (a bounded cache per process) for all its lightings. Paths that
 leave the dataset folder (absolute, ``..``, or through a symbolic link) are refused.
 
@@ -73,6 +75,8 @@ from pipeline.publish.refusal import Refused
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
 from pipeline.store.folder import (
+    OverBound,
+    Recorded,
     UnsafePath,
     file_digest,
     iter_lines,
@@ -310,9 +314,14 @@ class FolderFiles:
     def path(self, key: str) -> str:
         return os.path.join(self.root, *key.split("/"))
 
-    def read(self, key: str) -> bytes:
+    def read(self, key: str, size: int) -> bytes:
+        """The file's bytes, read only at ``size``, the manifest's (a grown file is not read)."""
         try:
-            return read_bytes(safe_path(self.root, key))
+            return read_bytes(safe_path(self.root, key), Recorded(size, MANIFEST_FILE))
+        except OverBound as exc:  # validate's size_mismatch, in its words
+            raise ShaderballError(
+                f"{self.path(key)}: {exc.strerror}; check the folder with `shaderball validate`"
+            ) from None
         except OSError as exc:
             raise ShaderballError(
                 f"{self.path(key)} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
@@ -344,8 +353,12 @@ class PublishedFiles:
             raise ShaderballError(f"{rel} is in no tar of the publication {self.root!r}")
         return rel
 
-    def read(self, key: str) -> bytes:
+    def read(self, key: str, size: int) -> bytes:
+        """The member's bytes at its checked offset: ``size``, the manifest's, as the reader
+        checked the member's (pipeline.publish.reader.read_located reads no more)."""
         try:
+            if self.located[key].size != size:  # the reader checked it: not reached
+                raise Refused("changed", f"{self.label(key)}: {self.located[key].size} bytes, the manifest says {size}")
             return read_located(self.root, self.located[key], check_sha256=False)
         except Refused as exc:  # read in a loader's worker, maybe: an error torch rebuilds from its message
             raise ShaderballError(
@@ -379,10 +392,10 @@ def refused(root: str, exc: Refused) -> ShaderballError:
 class SampleFiles:
     id: str
     material_id: str
-    render: tuple[str, str]  # (key of the file in its source, sha256)
-    maps: tuple[str, str]
+    render: tuple[str, str, int]  # (key of the file in its source, sha256, bytes)
+    maps: tuple[str, str, int]
     lighting_vector: tuple[float, float, float, float]
-    texture: tuple[str, str] | None = None
+    texture: tuple[str, str, int] | None = None
 
 
 def sample_files(files, record: dict) -> SampleFiles:
@@ -392,7 +405,7 @@ def sample_files(files, record: dict) -> SampleFiles:
         files = FolderFiles(files)
     refs = {}
     for entry in record.get("files", []):
-        refs[entry.get("role")] = (files.key(entry.get("path")), entry.get("sha256"))
+        refs[entry.get("role")] = (files.key(entry.get("path")), entry.get("sha256"), entry.get("bytes"))
     missing = [role for role in ("render", "maps") if role not in refs]
     if missing:
         raise ShaderballError(f"manifest: record {record.get('id')!r} lists no {' and no '.join(missing)} file")
@@ -457,6 +470,8 @@ class SampleColumns(Sequence):
         self.ids: list[str] = []
         self.render_paths: list[str] = []
         self.render_sha256 = bytearray()  # 32 bytes a sample
+        self.render_bytes = array("q")  # the render's size, as the manifest records it
+        self.odd_bytes: dict[int, int] = {}  # row -> a recorded size outside int64, kept as it is
         self.lighting = array("d")  # 4 a sample
         self.material = array("l")  # index into self.materials
         self.materials: list[tuple] = []  # (material id, maps ref, texture ref)
@@ -469,12 +484,15 @@ class SampleColumns(Sequence):
         number = self._material_at.setdefault(material, len(self.materials))
         if number == len(self.materials):
             self.materials.append(material)
-        sha256 = sample.render[1]
+        row, sha256, size = len(self.ids), sample.render[1], sample.render[2]
         if not _is_sha256(sha256):  # kept as it is: the file's digest will not match it when read
-            self.odd_sha256[len(self.ids)] = sha256
+            self.odd_sha256[row] = sha256
+        if not -(1 << 63) <= size < 1 << 63:  # kept as it is: no file has that size, it is refused when read
+            self.odd_bytes[row] = size
         self.ids.append(sample.id)
         self.render_paths.append(render_path)
         self.render_sha256 += bytes.fromhex(sha256) if _is_sha256(sha256) else bytes(32)
+        self.render_bytes.append(-1 if row in self.odd_bytes else size)
         self.lighting.extend(sample.lighting_vector)
         self.material.append(number)
         self.rows = range(len(self.ids))
@@ -484,7 +502,11 @@ class SampleColumns(Sequence):
         return SampleFiles(
             self.ids[row],
             material_id,
-            (self.files.key(self.render_paths[row]), self._sha256(row)),
+            (
+                self.files.key(self.render_paths[row]),
+                self._sha256(row),
+                self.odd_bytes.get(row, self.render_bytes[row]),
+            ),
             maps,
             tuple(self.lighting[4 * row : 4 * row + 4]),
             texture,
@@ -630,11 +652,11 @@ class ShaderballDataset(Dataset):
     def read_layers(
         self, ref: tuple[str, str], layers: tuple[str, ...], screen: bool = False, flagged: bool = False
     ) -> dict[str, np.ndarray]:
-        """The decoded layers of the file ``ref`` (key, sha256), which must hold ``layers``;
-        ``screen``: and be the dataset's resolution (renders, maps); ``flagged``: a render the
-        render policy flagged (bad pixels recorded), whose negative values are allowed."""
-        key, sha256 = ref
-        data = self.files.read(key)
+        """The decoded layers of the file ``ref`` (key, sha256, bytes), which must hold
+        ``layers``; ``screen``: and be the dataset's resolution (renders, maps); ``flagged``: a
+        render the render policy flagged (bad pixels recorded), whose negative values are allowed."""
+        key, sha256, size = ref
+        data = self.files.read(key, size)
         if self.check_hashes and key not in self._verified:
             if hashlib.sha256(data).hexdigest() != sha256:
                 raise self.files.changed(key)
@@ -672,8 +694,8 @@ class ShaderballDataset(Dataset):
                 f"on it (check the {self.files.kind} with {self.files.checker}, then repair or rebuild it)"
             )
 
-    def _read(self, key: str, sha256: str, layers: tuple[str, ...], flagged: bool = False) -> dict[str, np.ndarray]:
-        return self.read_layers((key, sha256), layers, screen=True, flagged=flagged)
+    def _read(self, ref: tuple[str, str, int], layers: tuple[str, ...], flagged: bool = False) -> dict[str, np.ndarray]:
+        return self.read_layers(ref, layers, screen=True, flagged=flagged)
 
     def flagged(self, sample: SampleFiles) -> bool:
         """Whether the render policy flagged the sample's render (its record, parsed when asked)."""
@@ -685,7 +707,7 @@ class ShaderballDataset(Dataset):
         if cached is not None:
             self._maps_cache.move_to_end(sample.material_id)
             return cached
-        layers = self._read(*sample.maps, MAP_LAYERS)
+        layers = self._read(sample.maps, MAP_LAYERS)
         maps, mask = assemble_maps(layers, self.factor)
         self.maps_reads += 1
         entry = (torch.from_numpy(maps), torch.from_numpy(mask))
@@ -695,7 +717,7 @@ class ShaderballDataset(Dataset):
         return entry
 
     def target(self, sample: SampleFiles) -> torch.Tensor:
-        render = self._read(*sample.render, ("render",), self.flagged(sample))["render"].astype(np.float32)
+        render = self._read(sample.render, ("render",), self.flagged(sample))["render"].astype(np.float32)
         render = box_downsample(render, self.factor)
         return torch.from_numpy(np.ascontiguousarray(tonemap(render, self.exposure).transpose(2, 0, 1)))
 

@@ -656,7 +656,7 @@ def dataset_variant(dataset) -> str:
 
 
 def _read_render(dataset, sample) -> np.ndarray:
-    return dataset._read(*sample.render, ("render",))["render"].astype(np.float32)
+    return dataset._read(sample.render, ("render",))["render"].astype(np.float32)
 
 
 def _mean(values):

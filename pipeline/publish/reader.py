@@ -65,6 +65,8 @@ from pipeline.publish.table import (
 )
 from pipeline.publish.tarsafe import Member, check_count, iter_headers, read_members, scan_tar, tar_length
 from pipeline.store.folder import (
+    OverBound,
+    Recorded,
     field_type_problem,
     json_type_name,
     read_bytes,
@@ -241,11 +243,18 @@ class Publication:
         return found
 
     def manifest_chunks(self) -> Iterator[bytes]:
-        """manifest.jsonl as published, a piece at a time; Refused at its end when its bytes are
+        """manifest.jsonl as published, a piece at a time, no more bytes than it had when checked
+        (a file grown since is refused before it is read); Refused at its end when its bytes are
         not those checked (the caller discards what it made of them)."""
+        checked = self.sizes[MANIFEST_REL]
         with _open_regular(self.path(MANIFEST_REL), MANIFEST_REL) as fh:
-            digest = hashlib.sha256()
+            if os.fstat(fh.fileno()).st_size != checked:
+                raise _resized(MANIFEST_REL, os.fstat(fh.fileno()).st_size, checked)
+            digest, read = hashlib.sha256(), 0
             for chunk in iter(lambda: fh.read(CHUNK_BYTES), b""):
+                read += len(chunk)
+                if read > checked:
+                    raise _resized(MANIFEST_REL, read, checked)
                 digest.update(chunk)
                 yield chunk
         _same(MANIFEST_REL, digest.hexdigest(), self.sums[MANIFEST_REL])
@@ -261,6 +270,13 @@ class Publication:
                     break
                 yield shard, line + b"\n"
         _same(MARKERS_REL, lines.digest.hexdigest(), self.sums[MARKERS_REL])
+
+
+def _resized(rel: str, size: int, checked: int) -> Refused:
+    return Refused(
+        "changed",
+        f"{rel}: {size} bytes, {checked} when it was checked: the publication changed while it was read; refused",
+    )
 
 
 def _same(rel: str, digest: str, checked: str) -> None:
@@ -1042,7 +1058,14 @@ def iter_folder_samples(root: str) -> Iterator[dict]:
 
 
 def _read_verified(layout: Layout, ref: FileRef) -> bytes:
-    data = read_bytes(resolve_inside(layout.root, ref.path))
+    """The bytes of a file of the folder, read only at the size the manifest records (a file
+    grown in place is refused before a byte is read) and only with the manifest's SHA-256."""
+    try:
+        data = read_bytes(resolve_inside(layout.root, ref.path), Recorded(ref.bytes, MANIFEST_FILE))
+    except OverBound as exc:
+        raise Refused(
+            "size_mismatch", f"{ref.path}: {exc.strerror}; check the folder with `shaderball validate`"
+        ) from None
     if hashlib.sha256(data).hexdigest() != ref.sha256:
         raise Refused(
             "checksum", f"{ref.path}: SHA-256 differs from the manifest's; check the folder with `shaderball validate`"

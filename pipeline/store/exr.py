@@ -22,6 +22,7 @@ from pipeline.errors import ShaderballError
 from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrHeader, ExrRefused, check_header, shown_names
+from pipeline.store.folder import read_bytes
 
 #: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
 LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
@@ -216,9 +217,8 @@ def read_exr(
     if isinstance(path_or_bytes, bytes):
         data = path_or_bytes
     else:
-        try:
-            with open(path_or_bytes, "rb") as fh:
-                data = fh.read()
+        try:  # no larger than a file of ``bounds`` can be (a file grown in place is not read)
+            data = read_bytes(os.fspath(path_or_bytes), bounds.file_bytes)
         except OSError as exc:
             raise ShaderballError(f"cannot decode EXR {label}: {exc.strerror or exc}") from None
     try:

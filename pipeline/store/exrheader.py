@@ -144,6 +144,13 @@ class ExrBounds:
             return self.budget_bytes
         return max(self.slack * expected, FLOOR_BYTES)
 
+    @property
+    def file_bytes(self) -> int:
+        """The most bytes a file within these bounds holds: its header, a chunk offset and a
+        chunk header (8 bytes each) per scanline at most, and its pixels (OpenEXR stores a
+        chunk that does not compress as it is, so no chunk is larger than its pixels)."""
+        return self.header_bytes + 16 * self.max_side + self.decoded_bytes
+
 
 #: What any EXR read may hold when nothing is known of it.
 DEFAULT_BOUNDS = ExrBounds()

@@ -13,9 +13,13 @@ A dataset folder is untrusted input: anyone may have edited it. So:
   the folder and none a symbolic link; a path that fails is never followed
   (:class:`UnsafePath`);
 - files are opened with ``O_NOFOLLOW | O_NONBLOCK`` and read only when they are regular files
-  (a FIFO or a device is refused at once, it never blocks), and never past a size bound
-  (:data:`MAX_JSON_BYTES` for a record, a description or a spec; markers and the manifest by
-  the plan's count of renders);
+  (a FIFO or a device is refused at once, it never blocks), and only within a size bound
+  given by every caller (:func:`read_bytes`, the one whole-file reader): the size a record
+  gives the file (:class:`Recorded`: a data file is read only at exactly that size), or a
+  declared budget where nothing records it (:data:`MAX_JSON_BYTES` for a record, a
+  description or a spec; markers and the manifest by the plan's count of renders). A file
+  outside its bound is refused before a byte is read (:class:`OverBound`, naming the file,
+  its size and the bound): a render grown to 8 GB costs a ``stat``, not 8 GB;
 - JSON records and markers are checked for shape before use (:func:`record_problem`,
   :func:`complete_marker`): a marker ``[1]``, a record without ``bytes``, a marker listing no
   files are reported or treated as not done, never a ``KeyError``.
@@ -36,6 +40,7 @@ import os
 import re
 import stat
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
@@ -45,7 +50,9 @@ __all__ = [
     "MANIFEST_FILE",
     "MARKER_FILE",
     "MAX_JSON_BYTES",
+    "OverBound",
     "RECORD_NAME",
+    "Recorded",
     "SHARD_NAME",
     "TEMP_PREFIX",
     "UnsafePath",
@@ -163,10 +170,49 @@ def unsafe_entry(root: str, rel) -> str | None:
     return None
 
 
-def _open_regular(path: str, limit: int | None) -> tuple[int, int]:
+@dataclass(frozen=True)
+class Recorded:
+    """The size a record gives a file, and the file that says so as validate names it
+    (``manifest.jsonl``, a marker): a bound :func:`read_bytes` reads the file within only at
+    exactly this size (larger, it was grown; smaller, truncated; either way not read)."""
+
+    size: int
+    listed_by: str = "its record"
+
+
+#: What bounds one read: a :class:`Recorded` size, or a budget in bytes (at most this many).
+Bound = Recorded | int
+
+
+class OverBound(UnsafePath):
+    """A regular file whose size is not within its bound: not read. ``strerror`` gives its size
+    and the bound, in validate's words for a recorded size (``9013 bytes, manifest.jsonl says
+    18026: the file was truncated``)."""
+
+    def __init__(self, path: str, size: int, bound: Bound):
+        self.size, self.bound = size, bound
+        if isinstance(bound, Recorded):
+            how = "truncated" if size < bound.size else "grown"
+            reason = f"{size} bytes, {bound.listed_by} says {bound.size}: the file was {how}"
+        else:
+            reason = f"{size} bytes, over the {bound}-byte bound for this file"
+        super().__init__(path, reason)
+
+
+def _limit(bound: Bound) -> int:
+    """The most bytes a read within ``bound`` takes; TypeError for anything but a bound (no
+    read is unbounded: a caller with no recorded size declares a budget)."""
+    if isinstance(bound, Recorded):
+        return bound.size
+    if isinstance(bound, int) and not isinstance(bound, bool):
+        return bound
+    raise TypeError(f"a read needs a bound (a Recorded size or a budget in bytes), not {bound!r}")
+
+
+def _open_regular(path: str, bound: Bound | None) -> tuple[int, int]:
     """(fd, size) of the regular file at ``path``, opened without following a final symbolic
-    link and without blocking on a FIFO; UnsafePath when it is not a regular file or is over
-    ``limit`` bytes."""
+    link and without blocking on a FIFO; UnsafePath when it is not a regular file, OverBound
+    when its size is not within ``bound`` (None: the caller bounds what it reads itself)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
@@ -177,9 +223,11 @@ def _open_regular(path: str, limit: int | None) -> tuple[int, int]:
     if not stat.S_ISREG(info.st_mode):
         os.close(fd)
         raise UnsafePath(path, f"{_kind(info.st_mode)}, not a regular file: not read")
-    if limit is not None and info.st_size > limit:
+    if bound is not None and (
+        info.st_size > _limit(bound) or (isinstance(bound, Recorded) and info.st_size != bound.size)
+    ):
         os.close(fd)
-        raise UnsafePath(path, f"{info.st_size} bytes, over the {limit}-byte bound for this file: not read")
+        raise OverBound(path, info.st_size, bound)
     return fd, info.st_size
 
 
@@ -195,21 +243,26 @@ def _chunks(fd: int, path: str, limit: int | None, size: int = 1 << 20):
         yield chunk
 
 
-def read_bytes(path: str, limit: int | None = None) -> bytes:
-    """The bytes of the regular file at ``path``: not through a final symbolic link, never
-    from a FIFO or a device (refused at once), at most ``limit`` bytes (UnsafePath beyond).
+def read_bytes(path: str, bound: Bound) -> bytes:
+    """The bytes of the regular file at ``path``, if its size is within ``bound``: the size a
+    record gives it (:class:`Recorded`: exactly that) or a budget (at most that many bytes).
+    The one whole-file reader of a dataset, publication, run or report file: a file outside
+    its bound is refused before anything is read (:class:`OverBound`), a file that grows while
+    read too; not through a final symbolic link, never from a FIFO or a device (UnsafePath).
     FileNotFoundError and other OSErrors pass through."""
-    fd, _size = _open_regular(path, limit)
+    limit = _limit(bound)
+    fd, _size = _open_regular(path, bound)
     try:
         return b"".join(_chunks(fd, path, limit))
     finally:
         os.close(fd)
 
 
-def read_chunks(path: str, limit: int | None = None) -> Iterator[bytes]:
+def read_chunks(path: str, bound: Bound) -> Iterator[bytes]:
     """The bytes of the regular file at ``path`` a chunk at a time, as :func:`read_bytes`
     reads them (opened by the call: OSErrors are raised by it)."""
-    fd, _size = _open_regular(path, limit)
+    limit = _limit(bound)
+    fd, _size = _open_regular(path, bound)
 
     def chunks():
         try:
@@ -220,10 +273,11 @@ def read_chunks(path: str, limit: int | None = None) -> Iterator[bytes]:
     return chunks()
 
 
-def file_digest(path: str, limit: int | None = None) -> tuple[int, str]:
+def file_digest(path: str, bound: Bound) -> tuple[int, str]:
     """(size, SHA-256 hex) of the regular file at ``path``, read as :func:`read_bytes` reads
     (streamed: a large render is not held in memory)."""
-    fd, _size = _open_regular(path, limit)
+    limit = _limit(bound)
+    fd, _size = _open_regular(path, bound)
     digest, size = hashlib.sha256(), 0
     try:
         for chunk in _chunks(fd, path, limit):
@@ -627,12 +681,13 @@ def read_manifest(layout: Layout, renders: int | None = None) -> bytes:
 LINE_CHUNK = 1 << 16
 
 
-def iter_lines(path: str, limit: int | None = None) -> Iterator[tuple[int, int, bytes]]:
+def iter_lines(path: str, bound: Bound) -> Iterator[tuple[int, int, bytes]]:
     """(line number from 1, byte offset, bytes without the newline) of every line of the
     regular file at ``path``, read a chunk at a time (as :func:`read_bytes` reads: no link, no
-    FIFO, at most ``limit`` bytes, UnsafePath beyond), so only one line is held at a time.
+    FIFO, within ``bound``, OverBound beyond), so only one line is held at a time.
     The file is opened before the first line is asked for: OSErrors are raised by the call."""
-    fd, _size = _open_regular(path, limit)
+    limit = _limit(bound)
+    fd, _size = _open_regular(path, bound)
     return _lines_of(fd, path, limit)
 
 
