@@ -34,6 +34,7 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
+from pipeline.errors import ShaderballError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
@@ -48,6 +49,7 @@ from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import atomic_file
+from pipeline.store.folder import json_type_name, short_json
 from sky import Light
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
@@ -291,13 +293,34 @@ def write_all_or_none(folder: str, files: dict[str, bytes]) -> None:
                 raise
 
 
-def same_dataset(run_config: dict, source) -> tuple[bool, str]:
+def content_problem(content) -> str | None:
+    """Why a run's ``dataset_content`` cannot be compared (None: it can, or it is absent or
+    null: a run made before it was recorded). Another type is a damaged config, never taken
+    for "not recorded"."""
+    if content is None:
+        return None
+    if not isinstance(content, dict):
+        return f"dataset_content is {json_type_name(content)} ({short_json(content)}), not an object"
+    for key in ("spec_digest", "samples_sha256"):
+        value = content.get(key)
+        if value is not None and not isinstance(value, str):
+            return f"dataset_content.{key} is {json_type_name(value)} ({short_json(value)}), not a string"
+    return None
+
+
+def same_dataset(run_config: dict, source, config_path: str = runfiles.CONFIG) -> tuple[bool, str]:
     """Whether ``source`` holds the data the run was trained on, and how that was found: by
     content, whatever folder holds it (the spec's digest and every sample's id, material,
     lighting and files' SHA-256: :func:`pipeline.neural.data.sample_digest_line`), so a
     rebuild of the same spec, a copy or the publication is the same dataset; a run that
-    recorded no content (made before it was recorded) by its manifest's SHA-256."""
+    recorded no content (made before it was recorded) by its manifest's SHA-256. A content
+    record of another shape is refused (a ShaderballError naming ``config_path``)."""
     content = run_config.get("dataset_content")
+    problem = content_problem(content)
+    if problem:
+        raise ShaderballError(
+            f"{config_path}: {problem}; the run folder is damaged (train a new run with `shaderball train`)"
+        )
     if isinstance(content, dict) and content.get("samples_sha256"):
         if getattr(source, "content", None) == content:
             return True, "the same spec digest and the same samples (ids, materials, lighting, files' SHA-256)"
@@ -325,7 +348,7 @@ class _Evaluation:
             runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
         self.exposure = float(self.config["tonemap"]["exposure"])
         self.source = _open_for_run(req, self.model.resolution, self.exposure)
-        self.same, self.compared = same_dataset(self.config, self.source)
+        self.same, self.compared = same_dataset(self.config, self.source, os.path.join(req.run, runfiles.CONFIG))
         self.dataset = self._split()
         self.indices = list(range(len(self.dataset)))[: req.limit]
         self.records = self.source.records
