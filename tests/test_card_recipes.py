@@ -5,7 +5,8 @@ card runs, in a process of its own, on the smoke publication (it works) and on c
 first render or first maps member is a bomb: a render declaring 4096 x 4096 pixels (201 MB
 decoded from 0.2 MB) and maps whose channel list comes 251 times (OpenEXR merges them: 262 MB
 decoded from 0.6 MB). Each is refused naming the member, its process's peak memory no more
-than on the good publication."""
+than on the good publication; run as a user's own script, a recipe that refuses ends with one
+`error:` line and exit status 2, not a traceback."""
 
 from __future__ import annotations
 
@@ -36,6 +37,8 @@ namespace = {}
 try:
     exec(compile(code, "recipe", "exec"), namespace)
     out = {"n": namespace.get("n"), "error": None}
+except SystemExit as exc:  # a recipe's refusal: its message is on stderr
+    out = {"n": None, "error": f"exit {exc.code}"}
 except Exception as exc:
     out = {"n": None, "error": f"{type(exc).__name__}: {exc}"[:500]}
 with open("/proc/self/status") as fh:
@@ -75,7 +78,7 @@ def run(recipe: str, pub: Path, tmp: Path) -> dict:
         [sys.executable, "-c", RUN, str(script)], cwd=pub, env=hf_env(tmp), capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads(done.stdout.splitlines()[-1])
+    return {**json.loads(done.stdout.splitlines()[-1]), "stderr": done.stderr}
 
 
 @pytest.fixture(scope="module")
@@ -108,5 +111,37 @@ def test_every_recipe_refuses_a_bomb_before_decoding_it(pub, good, tmp_path, lib
     bombed, member = with_bomb(pub, tmp_path, role)
     result = run(recipes(bombed)[library], bombed, tmp_path / "run")
     field = BOMBS[role][1][1:]
-    assert result["error"] is not None and result["error"].startswith(f"ValueError: {field}: "), result
+    assert result["error"] == "exit 2", result
+    key = member.split(".")[0]
+    if library == "webdataset" and role == "maps":  # the maps are attached to each of its samples
+        key = key + "_l0"
+    assert result["stderr"].splitlines()[-1].startswith(f"error: {key} {field}: "), result
     assert result["peak_mb"] < good[library]["peak_mb"] + 40, (result, good[library])
+
+
+def _as_a_script(code: str, pub: Path, tmp: Path) -> subprocess.CompletedProcess:
+    """``code`` saved as the user's own script and run with this Python, in the publication."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    script = tmp / "load_shaderball.py"
+    script.write_text(code)
+    return subprocess.run(
+        [sys.executable, str(script)], cwd=pub, env=hf_env(tmp), capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.parametrize("library", ["datasets", "tarfile", "webdataset", "shaderball"])
+def test_a_recipe_run_as_a_users_script_ends_with_one_line_not_a_traceback(pub, tmp_path, library):
+    bombed, member = with_bomb(pub, tmp_path, "render")
+    if library == "shaderball":  # the project's reader: it checks each member's SHA-256 first
+        blocks = re.findall(r"```python\n(.*?)```", (bombed / "README.md").read_text(), flags=re.S)
+        code = next(b for b in blocks if "from pipeline.publish import iter_samples" in b)
+        expected = "error: "
+    else:
+        code = recipes(bombed)[library]
+        expected = f"error: {member.split('.')[0]} render.exr: its EXR header says other channels or another size"
+    done = _as_a_script(code, bombed, tmp_path / "run")
+    assert done.returncode == 2, (done.returncode, done.stderr[-3000:])
+    assert "Traceback" not in done.stderr, done.stderr[-3000:]
+    assert done.stderr.splitlines()[-1].startswith(expected), done.stderr[-3000:]
+    if library == "shaderball":  # the rewritten tar is refused whole, by name
+        assert "shards/renders-" in done.stderr.splitlines()[-1], done.stderr[-3000:]

@@ -42,16 +42,23 @@ SIZE_CATEGORIES = (
     (10_000_000, "1M<n<10M"),
 )
 
-LOAD_WITH_SHADERBALL = """from pipeline.publish import iter_samples
+LOAD_WITH_SHADERBALL = """import sys
+
+from pipeline.errors import ShaderballError
+from pipeline.publish import iter_samples
 from pipeline.store.exr import read_exr
 
 root = "."  # the folder holding this card
 n = 0
-for sample in iter_samples(root):  # checks every SHA-256 and member as it streams
-    record = sample["record"]  # the manifest record (docs/manifest.md)
-    render = read_exr(sample["files"]["render"]).layers["render"]  # (H, W, 3) float32
-    maps = read_exr(sample["files"]["maps"]).layers  # diffuse, specular, roughness, normal, mask
-    n += 1
+try:
+    for sample in iter_samples(root):  # checks every SHA-256 and member as it streams
+        record = sample["record"]  # the manifest record (docs/manifest.md)
+        render = read_exr(sample["files"]["render"]).layers["render"]  # (H, W, 3) float32
+        maps = read_exr(sample["files"]["maps"]).layers  # diffuse, specular, roughness, normal, mask
+        n += 1
+except ShaderballError as exc:  # a file that is not what the publication says: one line, no traceback
+    print(f"error: {exc}", file=sys.stderr)
+    sys.exit(2)
 """
 
 #: Where a recipe's EXR check goes (:func:`exr_check`, filled in from the published spec).
@@ -73,13 +80,20 @@ EXR_ATTRIBUTES = {{
 }}
 
 
-def checked_exr(data, field):
-    """``data``, an EXR member's bytes (``field``: "render.exr" or "maps.exr"), once its header
-    says what the spec allows: each attribute once, of its type and size; the spec's window;
-    the member's channels. Anything else is refused before OpenEXR decodes a pixel."""
+def refuse(message):
+    """End this script with one line on stderr and exit status 2, not a traceback."""
+    print(f"error: {{message}}; refused, nothing of it decoded", file=sys.stderr)
+    sys.exit(2)
+
+
+def checked_exr(data, field, key="a sample"):
+    """``data``, an EXR member's bytes (``field``: "render.exr" or "maps.exr"; ``key``: its sample's
+    or material's key), once its header says what the spec allows: each attribute once, of its
+    type and size; the spec's window; the member's channels. Anything else is refused
+    (:func:`refuse`) before OpenEXR decodes a pixel."""
     names, side = EXR_MEMBERS[field]
     if data[:8] != b"v/1\\x01\\x02\\x00\\x00\\x00":  # EXR magic, version 2: single-part scanline
-        raise ValueError(f"{{field}}: not a single-part scanline EXR")
+        refuse(f"{{key}} {{field}}: not a single-part scanline EXR")
     header, at = {{}}, 8
     while data[at : at + 1] != b"\\x00":
         name, kind, _ = data[at : at + 64].split(b"\\x00", 2)
@@ -88,7 +102,7 @@ def checked_exr(data, field):
         at = start + max(size, 0)
         want, fixed = EXR_ATTRIBUTES.get(name, (None, None))
         if name in header or kind != want or size < 0 or size != (fixed or size) or at > len(data):
-            raise ValueError(f"{{field}}: EXR attribute {{name[:32]!r}} is repeated, unknown or malformed")
+            refuse(f"{{key}} {{field}}: EXR attribute {{name[:32]!r}} is repeated, unknown or malformed")
         header[name] = data[start:at]
     channels, rest = [], header.get(b"channels", b"")
     while rest[:1] not in (b"", b"\\x00"):
@@ -96,15 +110,16 @@ def checked_exr(data, field):
         channels, rest = channels + [name.decode("latin-1")], rest[16:]
     window = struct.pack("<4i", 0, 0, side - 1, side - 1)
     if sorted(channels) != sorted(names) or header.get(b"dataWindow") != window:
-        raise ValueError(f"{{field}}: its EXR header says other channels or another size than {{side}} x {{side}}")
+        refuse(f"{{key}} {{field}}: its EXR header says other channels or another size than {{side}} x {{side}}")
     if header.get(b"type", b"scanlineimage") != b"scanlineimage":
-        raise ValueError(f"{{field}}: not a scanline image")
+        refuse(f"{{key}} {{field}}: not a scanline image")
     return data
 '''
 
 LOAD_WITH_DATASETS = """import io
 import os
 import struct
+import sys
 
 import datasets
 import OpenEXR
@@ -120,8 +135,9 @@ n = 0
 for row in renders:  # __key__, render.png (a PIL image), render.exr (bytes), json (the record), __url__
     record = row["json"]  # typed: seeds int64, lighting_vector float32, nulls typed
     material = materials[row_of_material[record["material_id"]]]  # __key__, maps.png, maps.exr, json, ...
-    render = OpenEXR.File(io.BytesIO(checked_exr(row["render.exr"], "render.exr"))).channels()["render"].pixels
-    maps_exr = OpenEXR.File(io.BytesIO(checked_exr(material["maps.exr"], "maps.exr")))
+    render_exr = checked_exr(row["render.exr"], "render.exr", row["__key__"])
+    render = OpenEXR.File(io.BytesIO(render_exr)).channels()["render"].pixels
+    maps_exr = OpenEXR.File(io.BytesIO(checked_exr(material["maps.exr"], "maps.exr", material["__key__"])))
     maps = {name: c.pixels for name, c in maps_exr.channels().items()}  # (H, W, 3) "diffuse", "mask.Y", ...
     n += 1
 """
@@ -135,6 +151,7 @@ layers = {name: c.pixels for name, c in OpenEXR.File(io.BytesIO(checked_exr(row[
 LOAD_WITH_WEBDATASET = '''import io
 import json
 import struct
+import sys
 
 import OpenEXR
 import webdataset as wds
@@ -145,8 +162,8 @@ with open(f"{root}/publication.json") as fh:
 # EXR_CHECK
 
 
-def layers(data, field):
-    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field)), separate_channels=True)
+def layers(data, field, key):
+    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field, key)), separate_channels=True)
     return {name: channel.pixels for name, channel in exr.channels().items()}
 
 
@@ -169,14 +186,15 @@ dataset = wds.DataPipeline(wds.SimpleShardList(shards), wds.tarfile_to_samples()
 n = 0
 for sample in dataset:  # shuffle shards before tarfile_to_samples, samples after attach_maps
     record = json.loads(sample["json"])
-    render = layers(sample["render.exr"], "render.exr")  # {"render.R": (H, W) float32, ...}
-    maps = layers(sample["maps.exr"], "maps.exr")  # {"diffuse.R": ..., "normal.X": ..., "mask.Y": ...}
+    render = layers(sample["render.exr"], "render.exr", sample["__key__"])  # {"render.R": (H, W) float32, ...}
+    maps = layers(sample["maps.exr"], "maps.exr", sample["__key__"])  # {"diffuse.R": ..., "mask.Y": ...}
     n += 1
 '''
 
 LOAD_WITH_TARFILE = """import io
 import json
 import struct
+import sys
 import tarfile
 
 import OpenEXR
@@ -185,8 +203,8 @@ root = "."  # the folder holding this card
 # EXR_CHECK
 
 
-def layers(data, field):
-    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field)), separate_channels=True)
+def layers(data, field, key):
+    exr = OpenEXR.File(io.BytesIO(checked_exr(data, field, key)), separate_channels=True)
     return {name: channel.pixels for name, channel in exr.channels().items()}
 
 
@@ -194,7 +212,7 @@ def members(path):
     with tarfile.open(f"{root}/{path}", mode="r:") as tar:  # stream members; never extractall
         for member in tar:
             if not member.isfile():
-                raise ValueError(f"{path}: {member.name} is not a regular file")
+                refuse(f"{path}: {member.name} is not a regular file")
             key, field = member.name.split(".", 1)
             yield key, field, tar.extractfile(member).read()
 
@@ -215,8 +233,8 @@ for path in shards:
                     if kind == "maps.png":  # a material's last member
                         break
             record = json.loads(files["json"])
-            render = layers(files["render.exr"], "render.exr")
-            maps_layers = layers(maps["maps.exr"], "maps.exr")
+            render = layers(files["render.exr"], "render.exr", key)
+            maps_layers = layers(maps["maps.exr"], "maps.exr", maps["key"])
             n += 1
 maps = maps_layers
 """
