@@ -162,6 +162,28 @@ def is_integer(v: Any) -> bool:
     return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
+#: A number as a command line writes it: ASCII digits only. Python's int() and float() also read
+#: other scripts' digits ("１" full-width, "٣" Arabic-Indic) and underscores ("1_000").
+_ASCII_INT = re.compile(r"[+-]?[0-9]+")
+_ASCII_FLOAT = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(inf|infinity|nan)", re.I)
+
+
+def parse_int(text: str) -> int:
+    """``text`` (ASCII digits, a sign, spaces around) as an int; ValueError for anything else."""
+    word = text.strip(" \t")
+    if not _ASCII_INT.fullmatch(word):
+        raise ValueError(text)
+    return int(word)
+
+
+def parse_float(text: str) -> float:
+    """``text`` (ASCII digits, a point, an exponent, spaces around) as a float; ValueError else."""
+    word = text.strip(" \t")
+    if not _ASCII_FLOAT.fullmatch(word):
+        raise ValueError(text)
+    return float(word)
+
+
 class Rule:
     """What a field accepts: :meth:`check` returns the normalised value or raises Reject."""
 
@@ -176,7 +198,7 @@ class Rule:
 
     def parse(self, text: str) -> Any:
         """A command-line word as the value :meth:`check` takes (ValueError: not one)."""
-        return self.py_type(text)
+        return {int: parse_int, float: parse_float}.get(self.py_type, self.py_type)(text)
 
     @staticmethod
     def plain(value: Any) -> Any:
@@ -270,7 +292,7 @@ class Triple(Rule):
         self.allowed = allowed or "three comma-separated numbers" + (f" in [{lo:g}, {hi:g}]" if lo is not None else "")
 
     def parse(self, text: str):
-        return tuple(float(x) for x in text.split(","))
+        return tuple(parse_float(x) for x in text.split(","))
 
     def check(self, value):
         if not isinstance(value, (list, tuple)) or len(value) != 3:
@@ -361,7 +383,7 @@ class IntList(Rule):
         if self.none is not None and text.strip().lower() == self.none:
             return ()
         try:
-            return tuple(int(x) for x in text.split(","))
+            return tuple(parse_int(x) for x in text.split(","))
         except ValueError:
             raise ValueError(text) from None
 

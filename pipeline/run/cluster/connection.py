@@ -522,7 +522,7 @@ def connect(options: ClusterOptions, variant: str | None = None) -> Iterator[Con
 def worker_render_threads() -> int:
     """Mitsuba threads for a worker that was not told: the environment, else its CPUs."""
     value = os.environ.get(RENDER_THREADS_ENV, "")
-    if value.isdigit() and int(value) > 0:
+    if value.isascii() and value.isdigit() and int(value) > 0:  # "²".isdigit(), and int() refuses it
         return int(value)
     try:
         return max(1, len(os.sched_getaffinity(0)))  # the batch system's CPU set

@@ -15,7 +15,19 @@ import socket
 from dataclasses import dataclass
 
 from pipeline.errors import ShaderballError
-from pipeline.fields import Checked, Choice, Int, Optional, Reject, Rule, Text, field, format_value, is_integer
+from pipeline.fields import (
+    Checked,
+    Choice,
+    Int,
+    Optional,
+    Reject,
+    Rule,
+    Text,
+    field,
+    format_value,
+    is_integer,
+    parse_int,
+)
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
@@ -58,8 +70,8 @@ class Gpus(Rule):
 
     def parse(self, text: str):
         if "," not in text:
-            return int(text)
-        return tuple(int(part) for part in text.split(",") if part.strip())
+            return parse_int(text)
+        return tuple(parse_int(part) for part in text.split(",") if part.strip())
 
     @property
     def brief(self) -> str:
@@ -275,8 +287,8 @@ def memory_bytes(text: str) -> int:
     """``--memory`` in bytes (dask's units: 16GiB, 16GB, 16000MB), checked."""
     from dask.utils import parse_bytes
 
-    try:
-        value = parse_bytes(text)
+    try:  # dask reads any script's digits ("１６GiB"): ASCII only here, as every number
+        value = parse_bytes(text) if text.isascii() and "_" not in text else None
     except (ValueError, TypeError):
         value = None
     if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
