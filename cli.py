@@ -12,15 +12,14 @@ the packages.
 
 from __future__ import annotations
 
-import os
-import signal
-
 from pipeline.ui.interrupt import stop_on_ctrl_c_while_loading
 
-if __name__ == "__main__":  # `python -m cli`; Python's own handler is back before main() runs
-    stop_on_ctrl_c_while_loading()
+# However cli.py is started (the `shaderball` script imports it; `python -m cli` runs it), until
+# a command's body starts: Python's own handler is back then (pipeline.ui.process).
+stop_on_ctrl_c_while_loading()
 
 import dataclasses
+import os
 
 import click
 
@@ -559,5 +558,4 @@ def neural_bench_train_options_cmd(request: TrainOptionsRequest):
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     main()

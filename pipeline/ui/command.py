@@ -281,6 +281,12 @@ def _json_given_a_value(command: click.Command, args: list[str], exc: click.Usag
 class Group(click.Group):
     command_class = Command
 
+    def main(self, *args, **kwargs):
+        try:
+            return super().main(*args, **kwargs)
+        finally:  # --help, --version, a usage error: no body ran to put Python's handler back
+            process.loaded()
+
 
 def reworded(request_cls):
     """A user error as the command line words it: a field of ``request_cls`` (or one it

@@ -27,7 +27,7 @@ import traceback
 import click
 
 from pipeline.errors import USER_ERRORS, caused_by_interrupt, filesystem_error
-from pipeline.ui.interrupt import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, Stopped, wants_json
+from pipeline.ui.interrupt import INTERRUPTED_EXIT, INTERRUPTED_MESSAGE, Stopped, loaded, wants_json
 
 #: Exit code of an internal error (a bug; the traceback goes to stderr) under --json: sysexits.h's
 #: EX_SOFTWARE. Without --json the traceback is Python's own (exit code 1).
@@ -115,7 +115,8 @@ def run_command(call, as_json: bool, reword=None) -> None:
     document (with --json) and an exit code (module docstring). ``reword(exc)`` gives a
     user error the surface's spelling (a request's field as its option)."""
     ctx = click.get_current_context()
-    failed = None
+    failed = stopped = None
+    loaded()  # Ctrl-C is a KeyboardInterrupt from here (pipeline.ui.interrupt before)
     with library_output_to_stderr(as_json):
         try:
             call()
@@ -130,13 +131,38 @@ def run_command(call, as_json: bool, reword=None) -> None:
             code, message, extra = _failure(exc, as_json)
             click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
             failed = failure_doc(code, message, **extra)
+            stopped = exc if isinstance(exc, Stopped) else None
     if as_json:
         doc = failed or ctx.meta.get(_JSON_DOC)
         if doc is None:
             doc = {"ok": code == 0, "exit": code, "error": None if code == 0 else "the command stopped with no result"}
         write_json(doc)
+    if stopped is not None and _own_streams():
+        _end_now(code)
     if code:
         sys.exit(code)
 
 
-__all__ = ["INTERRUPTED_EXIT", "INTERRUPTED_MESSAGE", "wants_json"]
+def _own_streams() -> bool:
+    """Whether sys.stdout and sys.stderr are this process's file descriptors 1 and 2: the
+    command runs as its own process (click's test runner swaps in buffers, and reads the exit
+    code from SystemExit)."""
+    try:
+        return sys.stdout.fileno() == 1 and sys.stderr.fileno() == 2
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _end_now(code: int) -> None:
+    """End the process now, its output flushed, without interpreter shutdown: a command that
+    answered Ctrl-C itself (:class:`pipeline.ui.interrupt.Stopped`) has nothing left to write,
+    and may have left threads inside a native library, which shutdown would wait for or free
+    what they use."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    _flush_c_stdio()
+    os._exit(code)
+
+
+__all__ = ["INTERRUPTED_EXIT", "INTERRUPTED_MESSAGE", "loaded", "wants_json"]
