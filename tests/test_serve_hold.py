@@ -23,7 +23,7 @@ import pytest
 
 from pipeline.serve import server as server_module
 from pipeline.serve.server import HostPolicy
-from pipeline.serve.view import RequestError, UniformChoice, View
+from pipeline.serve.view import UniformChoice, View
 from pipeline.serve.work import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
 from pipeline.store.exr import encode_exr
 from sky import Light
@@ -117,12 +117,48 @@ def test_a_stalled_body_is_408_and_closed_not_a_500(http, monkeypatch):
     assert status == 408 and "3 of its 500 bytes" in json.loads(body)["error"]
 
 
-@pytest.mark.parametrize("path, status", [("/", 200), ("/api/info", 405), ("/nowhere", 405)])
-def test_head_answers_headers_and_never_a_body(http, path, status):
-    got, head, body = _raw(http, _request(http, "HEAD", path, {"Connection": "close"}))
-    assert got == status and body == b"", (head, body[:100])
-    if path == "/":
-        assert b"text/html" in head and b"Content-Length: 0" not in head
+@pytest.mark.parametrize(
+    "path", ["/", "/api/info", "/api/frame?client=headless&since=0", "/api/view", "/nowhere", "/api/frame?since=x"]
+)
+def test_head_answers_wherever_get_does_with_its_headers_and_never_a_body(http, app, path):
+    status, head, body = _raw(http, _request(http, "HEAD", path, {"Connection": "close"}))
+    get_status, get_head, get_body = _raw(http, _request(http, "GET", path, {"Connection": "close"}))
+    assert (status, body) == (get_status, b""), (head, body[:100])
+    assert _header(head, "Content-Type") == _header(get_head, "Content-Type")
+    assert int(_header(head, "Content-Length")) == len(get_body) > 0
+    assert not app.hub.knows("headless")  # a HEAD, as a GET, makes no client
+
+
+def _header(head: bytes, name: str) -> str:
+    lines = head.decode("latin-1").split("\r\n")[1:]
+    (value,) = [line.split(":", 1)[1].strip() for line in lines if line.lower().startswith(name.lower() + ":")]
+    return value
+
+
+@pytest.mark.parametrize(
+    "path, first, second",
+    [
+        ("/api/info", "Host: 127.0.0.1:{port}", "Host: evil.example"),
+        ("/", "Host: 127.0.0.1:{port}", "Host: 127.0.0.1:{port}"),
+        ("/api/info", "Host: evil.example", "Host: 127.0.0.1:{port}"),
+        ("/api/view", "Content-Length: 2", "Content-Length: 40"),
+        ("/api/view", "Content-Type: application/json", "Content-Type: text/plain"),
+        ("/api/frame?client=a", "Origin: http://127.0.0.1:{port}", "Origin: http://evil.example"),
+    ],
+)
+def test_a_header_sent_twice_is_400_even_with_a_good_one_first(http, path, first, second):
+    name = first.split(":")[0]
+    method = "POST" if path == "/api/view" else "GET"
+    lines = [f"{method} {path} HTTP/1.1", first, second, "Connection: close"]
+    if name != "Host":
+        lines.append(f"Host: 127.0.0.1:{http.port}")
+    if method == "POST" and name != "Content-Length":
+        lines.append("Content-Length: 2")
+    if method == "POST" and name != "Content-Type":
+        lines.append("Content-Type: application/json")
+    data = ("\r\n".join(lines) + "\r\n\r\n").format(port=http.port).encode() + (b"{}" if method == "POST" else b"")
+    status, head, body = _raw(http, data)
+    assert status == 400 and f"{name}: sent 2 times" in json.loads(body)["error"], (head, body)
 
 
 def test_a_burst_of_64_connections_is_queued_and_answered_without_a_reset(app):
@@ -202,6 +238,41 @@ def test_a_foreign_host_is_refused(http, host):
     assert status == 421 and "Host: " in json.loads(body)["error"]
 
 
+@pytest.mark.parametrize(
+    "method, path, headers",
+    [
+        ("GET", "/api/frame?client=g1&since=0", {"Sec-Fetch-Site": "cross-site"}),  # another site's <img>
+        ("GET", "/api/frame?client=g2&since=0", {"Sec-Fetch-Site": "same-site"}),  # another port of this host
+        ("GET", "/api/frame?client=g3&since=0", {"Origin": "http://evil.example"}),
+        ("GET", "/api/info", {"Sec-Fetch-Site": "cross-site"}),
+        ("POST", "/api/view", {"Sec-Fetch-Site": "cross-site", **JSON}),
+        ("POST", "/api/upload?client=g4&map=diffuse", {"Sec-Fetch-Site": "same-site", "Content-Type": "image/png"}),
+    ],
+)
+def test_another_sites_request_to_the_api_is_refused_and_makes_no_client(http, app, method, path, headers):
+    body = _view_body("g5") if path == "/api/view" else (_png(8, 8) if method == "POST" else b"")
+    headers = {"Connection": "close", **headers, **({"Content-Length": str(len(body))} if body else {})}
+    status, _, reply = _raw(http, _request(http, method, path, headers, body))
+    assert status == 403 and ("Sec-Fetch-Site" in headers) == ("Sec-Fetch-Site" in json.loads(reply)["error"])
+    assert not any(app.hub.knows(f"g{i}") for i in range(1, 6))
+
+
+def test_the_page_itself_may_be_linked_from_anywhere_and_its_own_requests_are_served(http):
+    for site in ("cross-site", "none"):
+        assert _raw(http, _request(http, "GET", "/", {"Sec-Fetch-Site": site, "Connection": "close"}))[0] == 200
+    own = {"Sec-Fetch-Site": "same-origin", "Connection": "close"}
+    assert _raw(http, _request(http, "GET", "/api/info", own))[0] == 200
+    body = _view_body("own-page")
+    view = {**own, **JSON, "Content-Length": str(len(body)), "Origin": f"http://127.0.0.1:{http.port}"}
+    assert _raw(http, _request(http, "POST", "/api/view", view, body))[0] == 200
+
+
+def test_a_frame_poll_never_makes_a_client_a_post_does(http, app):
+    status, frame = http.json("GET", "/api/frame?client=ghost&since=0")  # no browser headers at all
+    assert status == 200 and frame == {"version": 0, "known": False} and not app.hub.knows("ghost")
+    assert http.view("ghost")[0] == 200 and app.hub.knows("ghost")
+
+
 def test_a_cross_origin_post_is_refused_and_a_same_origin_one_served(http):
     body = _view_body("origin")
     base = {**JSON, "Content-Length": str(len(body))}
@@ -255,26 +326,29 @@ class Clock:
         return self.now
 
 
-def test_a_live_client_is_never_dropped_a_new_one_is_refused_an_idle_one_forgotten():
+def test_when_full_the_client_idle_longest_gives_way_and_a_frame_poll_makes_none():
     clock = Clock()
     hub = Hub(path_resolution=16, network_resolution=None, clock=clock)
-    pixels = np.zeros((4, 4, 3), np.float32)
-    hub.store_upload("first", "diffuse", pixels)
+    hub.store_upload("first", "diffuse", np.zeros((4, 4, 3), np.float32))  # a POST makes a client
     for i in range(MAX_CLIENTS - 1):
-        hub.frame(f"tab{i}", 0, 0.0)
-    with pytest.raises(RequestError) as refused:
-        hub.frame("one-too-many", 0, 0.0)
-    assert refused.value.status == 503 and "tabs" in str(refused.value)
-    assert "diffuse" in hub.uploads("first")  # the live tab kept its upload
-    clock.now += IDLE_S - 1
-    hub.frame("first", 0, 0.0)  # an open tab polls: never idle
-    clock.now += 2  # every other tab is now idle past IDLE_S
-    assert hub.frame("newcomer", 0, 0.0)["known"] is False
-    assert hub.knows("first") and "diffuse" in hub.uploads("first")
-    assert not hub.knows("tab0")  # forgotten: idle for longer than IDLE_S
+        clock.now += 1
+        hub.uploads(f"tab{i}")  # what a view's POST does first
+    assert len(hub.clients) == MAX_CLIENTS
+    assert hub.frame("poller", 0, 0.0) == {"version": 0, "known": False} and not hub.knows("poller")
+    clock.now += 1
+    hub.frame("first", 0, 0.0)  # an open tab polls: it is not the one idle longest
+    hub.uploads("newcomer")  # a new tab: tab0, idle longest, gives way; never a 503
+    assert hub.knows("newcomer") and hub.knows("first") and not hub.knows("tab0")
+    assert len(hub.clients) == MAX_CLIENTS and "diffuse" in hub.uploads("first")
+    clock.now += IDLE_S + 1
+    hub.frame("first", 0, 0.0)
+    hub.uploads("late")  # every client idle past IDLE_S is forgotten once room is needed
+    assert set(hub.clients) == {"first", "late"}
 
 
-def test_a_forgotten_client_is_told_so_and_a_held_one_is_not(http, app):
+def test_a_forgotten_client_is_told_so_at_once_and_a_held_one_is_not(http, app, monkeypatch):
+    # A poll's wait far longer than the client's socket timeout (60 s): told at once, or the test fails.
+    monkeypatch.setattr(server_module, "FRAME_WAIT_S", 3600.0)
     status, doc = http.view("told")
     assert status == 200 and doc["known"] is False and doc["uploads"] == []  # a new tab
     status, doc = http.view("told")
@@ -282,11 +356,24 @@ def test_a_forgotten_client_is_told_so_and_a_held_one_is_not(http, app):
     status, frame = http.json("GET", "/api/frame?client=told&since=0")
     assert frame["known"] is True
     with app.hub.lock:
-        del app.hub.clients["told"]  # as IDLE_S of silence would
-    started = time.monotonic()
+        app.hub.forget("told")  # as IDLE_S of silence, or a newer tab when full, would
     status, frame = http.json("GET", f"/api/frame?client=told&since={10**9}")
-    assert status == 200 and frame["known"] is False and "path" not in frame
-    assert time.monotonic() - started < server_module.FRAME_WAIT_S  # told at once, not after the poll's wait
+    assert status == 200 and frame == {"version": 0, "known": False}
+    # Forgotten while its long poll waits: the poll answers then.
+    assert http.view("told")[0] == 200
+    answers = []
+    poll = threading.Thread(target=lambda: answers.append(http.json("GET", f"/api/frame?client=told&since={10**9}")))
+    poll.start()
+    while poll.is_alive() and not _waiting_polls(app):
+        time.sleep(0.01)
+    with app.hub.lock:
+        app.hub.forget("told")
+    poll.join(120)
+    assert answers == [(200, {"version": 0, "known": False})]
+
+
+def _waiting_polls(app) -> int:
+    return len(app.hub.lock._waiters)  # threading.Condition's own list: the long polls waiting
 
 
 def test_an_abandoned_clients_job_is_parked_and_resumes_when_it_polls_again(http, app):

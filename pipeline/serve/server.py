@@ -87,6 +87,7 @@ from pipeline.serve.view import (
     api_error,
     api_ranges,
     api_status,
+    is_fresh,
     parse_view,
 )
 from pipeline.serve.work import (
@@ -127,6 +128,17 @@ UPLOAD_WAIT_S = 120.0
 CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
 #: Longest a /api/frame long poll waits, seconds.
 FRAME_WAIT_S = 10.0
+#: Seconds between two looks of the server loop (and of serve() while starting) at a Ctrl-C.
+STOP_POLL_S = 0.1
+#: Seconds serve(), once stopped, gives the path tracer and the network to end the call they are
+#: in; a call still under way then (a Mitsuba render, a kernel compiling) is abandoned.
+STOP_WAIT_S = 0.2
+#: Headers the server reads that a request may carry once only (a second Host, even after a
+#: good one, is how a request smuggled past a proxy or a Host check looks).
+SINGLE_HEADERS = ("Host", "Content-Length", "Content-Type", "Transfer-Encoding", "Origin", "Sec-Fetch-Site")
+#: ``Sec-Fetch-Site`` values of a request the page itself makes, or a user types (browsers send
+#: the header; "same-site" is another port of this host: another origin).
+OWN_FETCH_SITES = ("same-origin", "none")
 PORT_RANGE = (0, 65535)
 #: Sun moves the benchmark times.
 REPEATS_RANGE = (1, 100)
@@ -323,15 +335,20 @@ class App:
         self.http_thread = thread
         return thread
 
-    def close(self) -> None:
+    def close(self, wait_s: float = 60.0) -> tuple[str, ...]:
+        """Close the port and the hub (nothing is published from here), then wait up to
+        ``wait_s`` for the path tracer and the network to end the call they are in; the names
+        of those still in one are returned (abandoned: see :func:`serve`)."""
         if self.httpd is not None:
             if self.http_thread is not None and self.http_thread.is_alive():
                 self.httpd.shutdown()  # waits for a running loop only: one never started would hang it
             self.httpd.server_close()
         self.hub.close()
-        for thread in (self.tracer, self.runner):
-            if thread is not None and thread.is_alive():
-                thread.join(60)  # the pass under way ends; Mitsuba is not left mid-render at exit
+        workers = [t for t in (self.tracer, self.runner) if t is not None and t.is_alive()]
+        deadline = time.monotonic() + wait_s
+        for thread in workers:
+            thread.join(max(0.0, deadline - time.monotonic()))
+        return tuple(t.name for t in workers if t.is_alive())
 
     def info(self) -> dict:
         return {
@@ -356,6 +373,8 @@ class App:
     def view(self, doc) -> dict:
         client, view = parse_view(doc)
         known = self.hub.knows(client)  # False: a tab whose state was forgotten sends it again
+        if is_fresh(doc):
+            self.hub.start_afresh(client)  # a reloaded page: it holds none of what the server held
         uploads = self.hub.uploads(client)
         reference = None
         if isinstance(view.material, DatasetChoice) and self.dataset is not None and self.stored is not None:
@@ -419,21 +438,26 @@ class JsonHandler(BaseHTTPRequestHandler):
 
     def refusal(self) -> tuple[int, str] | None:
         """(status, message) of a request refused before its route runs, or None (module
-        docstring: Host, and a POST's Content-Type and Origin)."""
+        docstring: a header sent twice, Host, another site's request, a POST's Content-Type)."""
+        for name in SINGLE_HEADERS:
+            count = len(self.headers.get_all(name) or ())
+            if count > 1:
+                return 400, f"{name}: sent {count} times; send it once"
         host = self.headers.get("Host")
         hosts: HostPolicy = self.server.hosts
         if not hosts.allows(host):
             return 421, f"Host: {_shown(host)} is not allowed; {hosts.spelled()}"
+        route = urlsplit(self.path).path
+        if route not in PAGE_ROUTES:  # the page itself may be linked to from anywhere; its API not
+            refused = _foreign(self.headers.get("Sec-Fetch-Site"), self.headers.get("Origin"), host)
+            if refused is not None:
+                return 403, refused
         if self.command != "POST":
             return None
-        route = urlsplit(self.path).path
         kind = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
         allowed = POST_TYPES.get(route)
         if allowed is not None and kind not in allowed:
             return 415, f"Content-Type: {_shown(kind or None)} is not allowed; {' or '.join(allowed)}"
-        origin = self.headers.get("Origin")
-        if origin is not None and origin.strip().lower() != "http://" + host.strip().lower():
-            return 403, f"Origin: {_shown(origin)} is not allowed; this page's own, http://{host.strip()}"
         return None
 
     def _json(self, status: int, doc: dict) -> None:
@@ -538,14 +562,7 @@ class Handler(JsonHandler):
             return False
         return True
 
-    def do_HEAD(self):  # noqa: N802 - GET's headers, never a body (_send writes none for HEAD)
-        route = urlsplit(self.path).path
-        if route in PAGE_ROUTES:
-            self._send(200, page_bytes(), "text/html; charset=utf-8")
-        else:
-            self._error(405, f"HEAD {route}: not allowed; use GET")
-
-    def do_GET(self):  # noqa: N802 - http.server's name
+    def do_GET(self):  # noqa: N802 - http.server's name; HEAD is the same, its body unsent (_send)
         route = urlsplit(self.path).path
         if route in PAGE_ROUTES:
             self._send(200, page_bytes(), "text/html; charset=utf-8")
@@ -555,6 +572,8 @@ class Handler(JsonHandler):
             self._error(405, f"{route}: use POST")
         else:
             self._error(404, f"{route}: no such page; the page is at /")
+
+    do_HEAD = do_GET  # noqa: N815
 
     def do_POST(self):  # noqa: N802
         route = urlsplit(self.path).path
@@ -574,6 +593,17 @@ class Handler(JsonHandler):
 def handler_for(app: App) -> type[Handler]:
     """The request handler class of ``app``."""
     return type("Handler", (Handler,), {"app": app})
+
+
+def _foreign(site: str | None, origin: str | None, host: str) -> str | None:
+    """Why an API request is another site's (the browser's ``Sec-Fetch-Site``, or an
+    ``Origin`` not this server's), or None. A browser sends either where it matters; a client
+    that sends neither (curl, the benchmark) is no web page."""
+    if site is not None and site.strip().lower() not in OWN_FETCH_SITES:
+        return f"Sec-Fetch-Site: {_shown(site)} is not allowed; only this server's own page (same-origin) uses its API"
+    if origin is not None and origin.strip().lower() != "http://" + host.strip().lower():
+        return f"Origin: {_shown(origin)} is not allowed; this page's own, http://{host.strip()}"
+    return None
 
 
 def _shown(value: str | None) -> str:
@@ -598,42 +628,61 @@ class ServeSummary:
 
 
 def serve(options: ServeOptions, network_loader=None, ready=None, stored=None) -> ServeSummary:
-    """Run the server until Ctrl-C, then stop it in order and raise KeyboardInterrupt (the CLI's
-    exit code 130 and its one line). ``network_loader``: a callable returning the network
+    """Run the server until Ctrl-C, then stop it and raise :class:`Stopped` (the CLI's exit code
+    130 and its one line). ``network_loader``: a callable returning the network
     (pipeline.neural.live.LiveNetwork) or None; ``ready(lines)``: told the address once it listens;
     ``stored``: as :class:`App`'s.
 
     Ctrl-C never raises in the middle of the work: while serve() runs, SIGINT only asks the
-    server to stop (:class:`Stopper`), and the main thread then stops it in order: the loop
-    ends, the path tracer finishes its chunk and its thread ends, the port closes, and only
-    then does the KeyboardInterrupt go up. With Python's own handler it could be raised at
-    any bytecode: between the "serving" line and the loop, ``App.close`` would wait forever in
-    ``shutdown()`` for a loop never started; inside ``App.close``, interpreter shutdown would
-    run while Mitsuba's thread still renders (an abort or a segfault at exit). This is a cure
-    at the root, not an ``os._exit``. Mitsuba puts its own SIGINT handler in place while it
-    renders; a render it cancels stops the server the same way (App._fatal).
+    server to stop (:class:`Stopper`), and the main thread, which never waits on the work
+    itself, stops it: start-up (the network's load, Mitsuba's and the G-buffers', in a thread
+    of their own) is left where it is; the loop ends within :data:`STOP_POLL_S`; the port and
+    the hub close, so nothing more is published; the path tracer and the network get
+    :data:`STOP_WAIT_S` to end their call. A call still under way then (a Mitsuba render, which
+    cannot be cut short, or a kernel compiling: seconds on a busy machine) is abandoned, not
+    finished: the :class:`Stopped` raised names the threads left in one, and the process ends
+    at once after its line (pipeline.ui.process), since interpreter shutdown beside a thread
+    inside Mitsuba aborts the process ("terminate called without an active exception"). The
+    Stopper's handler then stays in place, so a second Ctrl-C cannot start that shutdown
+    either. Mitsuba puts its own SIGINT handler in place while it renders; it passes the signal
+    on to the one it replaced, the Stopper's.
     """
-    stopper, app = Stopper(), None
+    stopper = Stopper()
     with stopper.installed():
+        started = stopper.unless_stopped(lambda: _started(options, network_loader, stored, stopper))
+        if started is None:
+            stopper.keep = True
+            raise Stopped("stopped (Ctrl-C); served nothing (stopped while starting)", ("shaderball-start",))
+        app, network = started
         try:
-            network = network_loader() if network_loader is not None else None
-            if not stopper.asked:
-                app = App(options, network, stored)
-                app.start()
             if not stopper.asked:
                 if ready is not None:
                     ready(_ready_lines(app, options, network))
                 app.httpd.stopper = stopper
-                app.httpd.serve_forever()
+                app.httpd.serve_forever(poll_interval=STOP_POLL_S)
         except StopServing:
-            pass  # Ctrl-C seen by the loop: stopped in order below
+            pass  # Ctrl-C seen by the loop
         finally:
-            if app is not None:
-                app.close()
-    if stopper.asked or app is None or isinstance(app.fatal, KeyboardInterrupt):
-        served = app.url if app is not None and app.httpd is not None else "nothing (stopped while starting)"
-        raise Stopped(f"stopped (Ctrl-C); served {served}")
+            left = app.close(STOP_WAIT_S)
+            stopper.keep = bool(left)
+        if stopper.asked or isinstance(app.fatal, KeyboardInterrupt):
+            raise Stopped(f"stopped (Ctrl-C); served {app.url}", left)
     return ServeSummary(app.url, f"{type(app.fatal).__name__}: {app.fatal}")
+
+
+def _started(options: ServeOptions, network_loader, stored, stopper: Stopper) -> tuple[App, object]:
+    """The app, listening, and its network (serve()'s start-up, in a thread of its own)."""
+    network = network_loader() if network_loader is not None else None
+    app = App(options, network, stored)
+    stopper.on_stop.append(app.hub.stop)
+    try:
+        app.start()
+    except BaseException:
+        app.close()
+        raise
+    if stopper.asked:  # serve() went on without this thread: nothing is left listening
+        app.close()
+    return app, network
 
 
 def _ready_lines(app: App, options: ServeOptions, network) -> list[str]:
@@ -647,15 +696,43 @@ def _ready_lines(app: App, options: ServeOptions, network) -> list[str]:
 
 
 class Stopper:
-    """SIGINT while :func:`serve` runs sets ``asked``, nothing else: no lock taken, no thread
-    started in a signal handler (the main thread may hold either when the signal comes). The
-    server loop sees it within its poll interval (:meth:`QuietServer.service_actions`)."""
+    """SIGINT while :func:`serve` runs sets ``asked`` (and calls ``on_stop``: the hub's flag,
+    which takes no lock), nothing else: no lock taken, no thread started in a signal handler
+    (the main thread may hold either when the signal comes). The server loop sees it within its
+    poll interval (:meth:`QuietServer.service_actions`), start-up within :data:`STOP_POLL_S`
+    (:meth:`unless_stopped`). ``keep``: the handler stays in place once serve() ends (threads
+    were left running; see serve())."""
 
     def __init__(self):
         self.asked = False
+        self.keep = False
+        self.on_stop: list = []
 
     def on_sigint(self, signum, frame) -> None:
         self.asked = True
+        for stop in list(self.on_stop):
+            stop()
+
+    def unless_stopped(self, work):
+        """``work()``'s result, run in a thread of its own so that a Ctrl-C meanwhile is answered
+        at once: None then (the thread is left to itself). Its exception is raised here."""
+        done, result = threading.Event(), {}
+
+        def run():
+            try:
+                result["value"] = work()
+            except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
+                result["error"] = exc
+            finally:
+                done.set()
+
+        threading.Thread(target=run, name="shaderball-start", daemon=True).start()
+        while not done.wait(STOP_POLL_S):
+            if self.asked:
+                return None
+        if "error" in result:
+            raise result["error"]
+        return result["value"]
 
     @contextlib.contextmanager
     def installed(self):
@@ -666,4 +743,5 @@ class Stopper:
         try:
             yield
         finally:
-            signal.signal(signal.SIGINT, previous)
+            if not self.keep:
+                signal.signal(signal.SIGINT, previous)

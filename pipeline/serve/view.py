@@ -215,6 +215,9 @@ class ViewRequest(Part):
         rule=_Object("an object with elevation_deg, azimuth_deg, turbidity"), doc="The sun and sky (its own part)."
     )
     exposure: float = field(4.0, rule=_Number(*EXPOSURE_RANGE), doc="Multiplier on radiance before the tone map.")
+    fresh: bool = field(
+        False, rule=Bool(), doc="The page's first view since it loaded: what the server held for the client is dropped."
+    )
 
 
 @dataclass(frozen=True)
@@ -265,6 +268,11 @@ def parse_view(doc) -> tuple[str, View]:
     material = parse_material(request.material)
     light = LightChoice.from_doc(request.light).light()
     return request.client, View(material, light, request.exposure)
+
+
+def is_fresh(doc: dict) -> bool:
+    """``fresh`` of a view document :func:`parse_view` took: a reloaded page's first view."""
+    return ViewRequest.from_doc(doc).fresh
 
 
 def api_error(error: FieldError) -> FieldError:

@@ -10,20 +10,23 @@ Mitsuba's variant is process-global and not every path of it is thread-safe, so 
 call (G-buffers, scene loads, renders) runs in :class:`PathTracer`'s one thread; the network
 runs on torch in :class:`NetworkRunner`'s thread and touches no Mitsuba.
 
-A client's life. Every request of a client (a view, an upload, a frame poll) marks it seen.
-An open tab long-polls /api/frame at most every 10 s, so it is never idle; a client with no
-request for :data:`IDLE_S` (10 minutes: a closed tab, a machine asleep) is forgotten, its
-uploads and view with it, when room is needed. Beyond :data:`MAX_CLIENTS` live clients a new
-one is refused (503), never a live one dropped. A client with no request for
-:data:`ABANDONED_S` has its path-tracing job parked, not rendered (a closed tab keeps no
-render time); its next request puts the job back in line.
+A client's life. A client is made only by a POST of the page (a view or an upload: a request
+no other site can make, pipeline.serve.server); a GET (a frame poll, which any page's
+``<img>`` can send) never makes one. Every request of a client marks it seen. An open tab
+long-polls /api/frame at most every 10 s; a reloaded tab keeps its client id (the page keeps
+it in sessionStorage) and its first view is ``fresh``: what the server held for it is
+dropped. A client with no request for :data:`IDLE_S` (10 minutes: a closed tab, a machine
+asleep) is forgotten, its uploads and view with it, when room is needed; with
+:data:`MAX_CLIENTS` held, a new client takes the place of the one idle longest, so a new tab
+is never refused. A client with no request for :data:`ABANDONED_S` has its path-tracing job
+parked, not rendered (a closed tab keeps no render time); its next request puts the job back
+in line.
 
 A tab whose state was forgotten (or a server started again) is told so: the answers of
 /api/frame and /api/view carry ``"known": false`` when the server held nothing of that client
 before the request (a frame poll then answers at once), and /api/view's answer lists the
 ``uploads`` it holds. The page, on ``known: false``, uploads again every map it had uploaded
-and posts its view again (a first request of a new tab is ``known: false`` too: it has
-nothing to send again). The uploads of all clients together are bounded by
+and posts its view again. The uploads of all clients together are bounded by
 :data:`MAX_STORED_UPLOAD_BYTES` (4 maps of each of MAX_CLIENTS clients).
 """
 
@@ -63,7 +66,7 @@ PASS_TOTALS = (1, 4, 16, 64)
 #: A pass is rendered in chunks of at most this many spp, the generation checked before each,
 #: so a new view waits for one chunk (not a 48 spp pass) before its first pass starts.
 CHUNK_SPP = 4
-#: Most clients (tabs) held at once; a new one past it is refused (503) unless an idle one can go.
+#: Most clients (tabs) held at once; a new one past it takes the place of the one idle longest.
 MAX_CLIENTS = 64
 #: Seconds without a request after which a client is forgotten (its view and uploads).
 IDLE_S = 600.0
@@ -183,31 +186,53 @@ class Hub:
         self.path_resolution, self.network_resolution = path_resolution, network_resolution
         self.screen_gbuffer = None  # the path tracer's G-buffer, set once it is loaded
         self.generations = itertools.count(1)
+        self.stopped = False  # set once the server stops: nothing is published from then on
 
     def client(self, client_id: str) -> Client:
-        """The client's state, seen now (made on first sight, refused 503 when MAX_CLIENTS live
-        ones are held); a parked job of it goes back in line. Caller holds the lock."""
-        now = self.clock()
+        """The client's state, seen now, made if the hub holds none (only a POST of the page
+        makes one: module docstring; the one idle longest gives way when MAX_CLIENTS are held).
+        Caller holds the lock."""
+        client = self.seen(client_id)
+        if client is None:
+            self._make_room(self.clock())
+            client = self.clients[client_id] = Client(seen=self.clock())
+        return client
+
+    def seen(self, client_id: str) -> Client | None:
+        """The client's state marked seen now, its parked job back in line; None where the hub
+        holds none (nothing is made). Caller holds the lock."""
         client = self.clients.get(client_id)
         if client is None:
-            self._forget_idle(now)
-            if len(self.clients) >= MAX_CLIENTS:
-                raise RequestError(
-                    f"client: {MAX_CLIENTS} tabs are using this server; close one, or try again once a "
-                    f"closed tab is forgotten ({IDLE_S / 60:g} minutes after its last request)",
-                    503,
-                )
-            client = self.clients[client_id] = Client()
-        client.seen = now
+            return None
+        client.seen = self.clock()
+        self.clients.move_to_end(client_id)  # the first is the one idle longest
         parked = self.parked.pop(client_id, None)
         if parked is not None:
             self.path_slots.put(parked, replace=False)  # a newer view of the client's, if any, stays
         return client
 
-    def _forget_idle(self, now: float) -> None:
+    def _make_room(self, now: float) -> None:
+        """Forget the clients idle past IDLE_S, then the one idle longest while MAX_CLIENTS are held."""
         for client_id in [k for k, c in self.clients.items() if now - c.seen > IDLE_S]:
-            del self.clients[client_id]
-            self.parked.pop(client_id, None)
+            self.forget(client_id)
+        while len(self.clients) >= MAX_CLIENTS:
+            self.forget(next(iter(self.clients)))
+
+    def forget(self, client_id: str) -> None:
+        """Drop the client's state (its next request is told ``known: false``). Caller holds the lock."""
+        self.clients.pop(client_id, None)
+        self.parked.pop(client_id, None)
+        self.lock.notify_all()  # its long poll, if any, answers now
+
+    def start_afresh(self, client_id: str) -> None:
+        """A reloaded page's first view: what the hub held for the client (its uploads, maps,
+        view and pictures) is dropped; a job of it under way is stale from now (a new generation)."""
+        with self.lock:
+            client = self.clients.get(client_id)
+            if client is not None:
+                generation = next(self.generations)
+                self.clients[client_id] = Client(generation=generation, version=client.version, seen=client.seen)
+                self.parked.pop(client_id, None)
 
     def knows(self, client_id: str) -> bool:
         """Whether the hub holds the client's state (seen, not forgotten); marks nothing."""
@@ -298,12 +323,13 @@ class Hub:
     def publish(
         self, job: Job, part: str, doc: dict, hdr: np.ndarray | None = None, variance: np.ndarray | None = None
     ) -> bool:
-        """Store a result if its generation is still the client's; False (dropped) otherwise.
-        A picture's ``hdr`` is kept and tone-mapped here at the client's exposure of now (the
-        job's may be older: an exposure change does not restart the job)."""
+        """Store a result if its generation is still the client's and the server has not
+        stopped; False (dropped) otherwise. A picture's ``hdr`` is kept and tone-mapped here at
+        the client's exposure of now (the job's may be older: an exposure change does not
+        restart the job)."""
         with self.lock:
             client = self.clients.get(job.client)
-            if client is None or client.generation != job.generation:
+            if self.stopped or client is None or client.generation != job.generation:
                 return False
             client.frame[part] = doc  # of the frame's generation: parts are cleared when it moves on
             if part == "network":
@@ -333,17 +359,24 @@ class Hub:
 
     def frame(self, client_id: str, since: int, wait_s: float) -> dict:
         """The client's frame once its version passes ``since`` (or after ``wait_s``); at once,
-        with ``"known": false``, when the hub held nothing of the client (module docstring)."""
+        with ``"known": false``, when the hub holds nothing of the client, or forgets it
+        meanwhile (module docstring). Makes no client."""
         deadline = time.monotonic() + wait_s
         with self.lock:
-            known = client_id in self.clients
-            client = self.client(client_id)
-            while known and client.version <= since and (left := deadline - time.monotonic()) > 0:
+            client = self.seen(client_id)
+            while client is not None and client.version <= since and (left := deadline - time.monotonic()) > 0:
                 self.lock.wait(left)
-                client = self.clients.get(client_id) or self.client(client_id)
-            return {"version": client.version, **client.frame, "known": known}
+                client = self.clients.get(client_id)
+            if client is None:
+                return {"version": 0, "known": False}
+            return {"version": client.version, **client.frame, "known": True}
+
+    def stop(self) -> None:
+        """Publish nothing from now on (the server stops). Takes no lock: a signal handler calls it."""
+        self.stopped = True
 
     def close(self) -> None:
+        self.stop()
         self.path_slots.close()
         self.network_slots.close()
 
