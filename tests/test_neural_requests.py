@@ -15,6 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
+from pipeline.errors import ShaderballError
 from pipeline.neural.evaluate import same_dataset
 
 TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.25", "--batch-size", "4", "--threads", "1", "--seed", "1"]
@@ -176,3 +177,15 @@ def test_same_dataset_compares_content_and_says_how():
     assert same_dataset(old, _Source(content))[0]
     same, how = same_dataset(old, _Source(content, {"manifest_sha256": "n"}))
     assert not same and "manifest's SHA-256" in how
+
+
+@pytest.mark.parametrize("content", ["abc", ["spec", "samples"], 7, {"spec_digest": "s", "samples_sha256": ["x"]}])
+def test_a_dataset_content_of_another_shape_is_a_damaged_config_not_an_absent_one(content):
+    """A run's dataset_content that is not an object of strings is refused, naming the field,
+    rather than taken for a run that recorded none (and compared by its manifest instead)."""
+    run = {"dataset_content": content, "identity": {"dataset": {"manifest_sha256": "m"}}}
+    with pytest.raises(
+        ShaderballError, match=r"^config\.json: dataset_content(\.samples_sha256)? is .*, not (an object|a string)"
+    ):
+        same_dataset(run, _Source({"spec_digest": "s", "samples_sha256": "x"}))
+    assert same_dataset({**run, "dataset_content": None}, _Source({}))[0]  # recorded none: the manifest's SHA-256

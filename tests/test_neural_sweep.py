@@ -1,12 +1,20 @@
 """`shaderball sweep`: the data-size table from several runs' reports, paired
-differences with the baselines, seeds pooled, and runs on other held-out sets refused."""
+differences with the baselines, seeds pooled, and runs on other held-out sets refused; a
+report read bounded and every field sweep uses checked (missing, of another type, not a
+finite number), refused naming the file and the field."""
 
 import json
+import os
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from cli import main
 from pipeline.errors import ShaderballError
+from pipeline.fields import FieldError
 from pipeline.neural import sweep
 from pipeline.neural.config import SweepRequest
 
@@ -76,3 +84,95 @@ def test_reports_on_other_held_out_samples_are_refused(tmp_path):
     with pytest.raises(ShaderballError, match="different samples"):
         sweep.write_sweep(SweepRequest((a, b), str(tmp_path / "o")))
     assert not (tmp_path / "o").exists()
+
+
+#: Reports spoilt one field at a time, and the words of the refusal (after the file's name).
+SPOILT = [
+    ("no mean", lambda d: d.pop("mean"), "no mean (a report"),
+    ("a sample without its id", lambda d: d["samples"][3].pop("id"), "no samples[3].id (a report"),
+    ("no ci95", lambda d: d["mean"]["network"].pop("ci95"), "no mean.network.ci95 (a report"),
+    (
+        "a PSNR as text",
+        lambda d: d["mean"]["network"].update(psnr="20.5"),
+        'mean.network.psnr is a string ("20.5"), not a finite number',
+    ),
+    ("samples an object", lambda d: d.update(samples={}), "samples is an object ({}), not an array"),
+    ("a sample a number", lambda d: d["samples"].__setitem__(0, 5), "samples[0] is an integer (5), not an object"),
+    ("no samples", lambda d: d.update(samples=[]), "samples is an empty array"),
+    (
+        "a NaN PSNR",
+        lambda d: d["samples"][2]["network"].update(psnr=float("nan")),
+        "samples[2].network.psnr is a number (NaN), not a finite number",
+    ),
+    (
+        "an infinite mean",
+        lambda d: d["mean"]["mean_image"].update(psnr=float("inf")),
+        "mean.mean_image.psnr is a number (Infinity), not a finite number",
+    ),
+    (
+        "a baseline null",
+        lambda d: d["samples"][1].update(nearest_sample=None),
+        "samples[1].nearest_sample is null, not an object",
+    ),
+    (
+        "an interval of one value",
+        lambda d: d["mean"]["network"]["ci95"].update(psnr=[1.0]),
+        "mean.network.ci95.psnr is an array ([1.0]), not null or an array of two finite numbers",
+    ),
+    (
+        "a seed as text",
+        lambda d: d["run_options"].update(seed="1"),
+        'run_options.seed is a string ("1"), not an integer',
+    ),
+    ("an epoch without its number", lambda d: d["history"][-1].pop("epoch"), "no history[-1].epoch (a report"),
+    (
+        "more training renders than any machine holds",
+        lambda d: d.update(train_renders=10**30),
+        f"train_renders is {10**30}, not in [0, 1000000000000]",
+    ),
+]
+
+
+@pytest.mark.parametrize("spoil, words", [(s, w) for _name, s, w in SPOILT], ids=[n for n, _s, _w in SPOILT])
+def test_a_report_missing_a_field_or_holding_a_bad_value_is_refused_naming_both(tmp_path, spoil, words):
+    good = _report(tmp_path, 1, 100, 1.0)
+    doc = json.loads(Path(good).read_text())
+    spoil(doc)
+    bad = tmp_path / "spoilt.json"
+    bad.write_text(json.dumps(doc))
+    result = CliRunner().invoke(main, ["sweep", good, str(bad), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, (result.output, result.exception)
+    assert result.output.startswith(f"error: REPORT.json: {bad}: {words}"), result.output
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        (b"[[],[]," * 150_000 + b"[]]", "JSON arrays/objects and"),  # ~30x its size to parse
+        (b"[" * 3000 + b"]" * 3000, "not JSON (RecursionError"),
+    ],
+    ids=["brackets", "nested"],
+)
+def test_a_report_whose_parse_would_cost_more_than_its_size_is_not_parsed(tmp_path, text, words):
+    path = tmp_path / "report.json"
+    path.write_bytes(text)
+    with pytest.raises(FieldError) as caught:
+        sweep._load(str(path))
+    assert str(caught.value).startswith(f"reports: {path}: ") and words in str(caught.value)
+
+
+def test_a_report_larger_than_a_report_can_be_is_refused_before_it_is_read(tmp_path):
+    """A report grown to 65 MiB (sparse) is refused from its size, not read (a 1.5 GB one was
+    read whole, 3.3 GB of memory)."""
+    path = Path(_report(tmp_path, 1, 100, 1.0))
+    os.truncate(path, 65 << 20)
+    tracemalloc.start()
+    try:
+        with pytest.raises(FieldError) as caught:
+            sweep._load(str(path))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert f"reports: {path}: cannot be read ({65 << 20} bytes, over the" in str(caught.value)
+    assert peak < 1 << 20, peak
