@@ -12,9 +12,10 @@ SPP_RANGE = (1, 65536)
 #: Mitsuba 3.9 splits the render itself (integrator.cpp): it fails where spp is no multiple of
 #: its pass ("sample_count should be a multiple of samples_per_wavefront": 4096 px at 65536 spp)
 #: and otherwise keeps every lane's sampler state between its passes, measured 24-28 bytes a lane
-#: (1024 px, its samples_per_pass 8 and 16; 4096 px at 256 spp: ~55 GiB, a segfault at once under
-#: a 6 GiB limit). One launch keeps no per-lane state: peak RSS 0.88 GB and flat through a 2^31-lane
-#: launch at 4096 px (llvm, 2 cores; 0 extra bytes a lane at 1024 px, 16 spp).
+#: (1024 px, its samples_per_pass 8 and 16; 4096 px at 256 spp: 48-56 GiB, a segfault at once under
+#: a 6 GiB limit, as a build at 257 spp). One launch keeps none: 0 extra bytes a lane at 1024 px,
+#: 16 spp; RSS flat at 0.88 GB over 85 s of a 2^31-lane launch at 4096 px; that build split: flat
+#: at 1.3 GB (peak 2.3 GB) under the same limit (llvm, 2 cores).
 LAUNCH_SAMPLES_MAX = 2**32 - 1
 #: Path length (Mitsuba's ``max_depth``).
 MAX_DEPTH_RANGE = (1, 64)
