@@ -25,5 +25,7 @@ def test_the_benchmark_times_each_move_in_the_server_and_through_http():
     path = doc["path"]
     assert doc["ok"] is True and doc["repeats"] == 2 and doc["network"] is None
     # The page's wait holds the server's (the POST starts before the view arrives and the frame
-    # is read after the pass is published), which holds the pass itself.
-    assert 0 < path["first_pass_min_s"] <= path["first_pass_s"] <= path["latency_s"] <= path["http_latency_s"] < 60
+    # is read after the pass is published), which holds the pass itself. No bound on the times:
+    # they are the machine's (and its load's), printed, not asserted.
+    assert 0 < path["first_pass_min_s"] <= path["first_pass_s"] <= path["latency_s"] <= path["http_latency_s"]
+    print(f"\nfirst pass {path['first_pass_s']:.3f} s, slider to picture through HTTP {path['http_latency_s']:.3f} s")

@@ -178,7 +178,7 @@ def test_a_sun_drag_shows_the_new_views_pictures(served):
         _slider_drag(driver, "azimuth", 0.12)
         new_view = _view_of_page(driver)
         # The old view's pictures stay up, marked as rendering: dimmed, the status says so.
-        _wait(driver, _rendering_shown, 30)
+        _wait(driver, _rendering_shown)
     assert new_view["light"]["azimuth_deg"] < 100, new_view
     after = _wait(driver, lambda d: _settled(d, before["generation"]))
     for name in ("net", "path", "diff"):
@@ -314,7 +314,7 @@ def test_an_upload_is_drawn_on_its_canvas_and_painting_paints_over_it(served, tm
     Image.new("RGB", (32, 32), tuple(int(v) for v in upload)).save(tmp_path / "diffuse.png")
     _by_id(driver, "up-diffuse").send_keys(str(tmp_path / "diffuse.png"))
     canvas = _by_id(driver, "cv-diffuse")
-    _wait(driver, lambda d: canvas.get_attribute("data-drawn") == "1", 60)
+    _wait(driver, lambda d: canvas.get_attribute("data-drawn") == "1")
     texel = lambda x, y: driver.execute_script(  # noqa: E731
         "return Array.from(arguments[0].getContext('2d').getImageData(arguments[1], arguments[2], 1, 1).data);",
         canvas,
@@ -334,7 +334,7 @@ def test_an_upload_is_drawn_on_its_canvas_and_painting_paints_over_it(served, tm
         held = app.hub.uploads(client).get("diffuse")
         return held is not None and held[128, 128, 1] > 0.9 and [held]
 
-    (held,) = _wait(driver, painted, 60)
+    (held,) = _wait(driver, painted)
     side = held.shape[0]
     assert np.allclose(held[20, 20], upload / 255.0, atol=2 / 255), held[20, 20]
     assert np.allclose(held[side // 2, side // 2], srgb_decode(np.array([0, 255, 64]) / 255.0), atol=2 / 255)

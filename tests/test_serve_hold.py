@@ -1,6 +1,7 @@
-"""`shaderball serve` holds: malformed requests, bursts, crowds of tabs, foreign pages,
-worst-case uploads and Ctrl-C. A real server (in-process, path tracing only, no network) over
-real sockets; the memory and Ctrl-C checks run `shaderball serve` as a process of its own."""
+"""`shaderball serve` holds: malformed requests, headers sent twice, HEAD, bursts, crowds of
+tabs, other sites' requests, worst-case uploads. A real server (in-process, path tracing only, no
+network) over real sockets; the memory check runs `shaderball serve` as a process of its own
+(Ctrl-C: tests/test_serve_stop.py)."""
 
 from __future__ import annotations
 
@@ -478,39 +479,3 @@ def test_worst_case_uploads_at_once_stay_within_the_memory_bound():
     print(f"peak RSS {peak / 2**20:.0f} MiB (at start {before / 2**20:.0f} MiB)")
     assert pngs == [200] * 16 and exrs == [200] * 8
     assert peak < PEAK_RSS_BYTES, f"peak RSS {peak / 2**20:.0f} MiB"
-
-
-@pytest.mark.slow
-def test_ctrl_c_to_the_process_group_exits_130_with_one_line_every_time():
-    """Ctrl-C as a terminal sends it (SIGINT to the whole process group), idle, mid-render and
-    mid-upload, nine times: exit code 130 and one line each time, never an abort or a crash."""
-    png = png16_4096()
-    ends = []
-    for i in range(9):
-        when = ("idle", "render", "upload")[i % 3]
-        proc, port = _serve()
-        try:
-            if when != "idle":
-                body = json.dumps({"client": "cc", **VIEW_DOC}).encode()
-                assert _post(port, "/api/view", body, "application/json") == 200
-            if when == "upload":
-                upload = (port, "/api/upload?client=cc&map=diffuse", png, "image/png")
-                threading.Thread(target=_swallow, args=(_post, *upload), daemon=True).start()
-            time.sleep(0.3 * (i % 4))
-            os.killpg(proc.pid, signal.SIGINT)
-            out, err = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-        ends.append((when, proc.returncode, out, err))
-    assert [e[1] for e in ends] == [130] * 9, ends
-    for when, _, out, err in ends:  # stderr past the "serving" line: the network line, then the one line
-        said = [line for line in err.splitlines() if line.strip() and not line.startswith("network: ")]
-        assert out == "" and len(said) == 1 and said[0].startswith("stopped (Ctrl-C); served http://"), (when, out, err)
-
-
-def _swallow(call, *args):
-    try:
-        call(*args)
-    except OSError:
-        pass  # the server stopped mid-upload: what the test does
