@@ -516,9 +516,9 @@ def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
             scene = mi.load_dict(d)
             np.asarray(mi.render(scene, spp=1, seed=0))
             t0 = time.perf_counter()
-            images[name] = np.asarray(mi.render(scene, spp=ctx.settings.spp, seed=s.render_seed), dtype=np.float32)[
-                ..., 0:3
-            ]
+            images[name] = np.asarray(
+                render.render_whole(mi, scene, ctx.settings.spp, s.render_seed), dtype=np.float32
+            )[..., 0:3]
             totals[name] += time.perf_counter() - t0
             del scene
         identical &= bool(np.array_equal(images["path"], images["moment"]))

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.errors import ShaderballError
+from pipeline.render.renderer import render_whole
 
 #: Z above which a pixel's difference counts as beyond noise (two-sided p ~ 6e-5 if normal).
 Z_LIMIT = 4.0
@@ -48,7 +49,7 @@ def render_moments(mi, scene, spp: int, seed: int) -> MomentRender:
     if "nested.Y" not in names or "m2_nested.Y" not in names:
         raise ShaderballError(f"scene integrator: AOVs {names} are not the moment integrator's")
     start, cpu_start = time.perf_counter(), time.process_time()
-    out = np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    out = np.asarray(render_whole(mi, scene, spp, seed), dtype=np.float32)  # split over the launch limit
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     m1 = out[..., 3 + names.index("nested.Y")].astype(np.float64)
     m2 = out[..., 3 + names.index("m2_nested.Y")].astype(np.float64)
