@@ -10,14 +10,16 @@ Routes (JSON unless said):
 
     GET  /                    the page (page.html, in this package; nothing from the internet)
     GET  /api/info            what the server offers: network or not, ranges, presets, samples
-    POST /api/view            {client, material, light, exposure} -> {generation, known, uploads}
+    POST /api/view            {client, material, light, exposure, fresh} -> {generation, known, uploads}
                               (a change of exposure alone keeps the generation: the pictures
-                              held are tone-mapped again, nothing renders again)
+                              held are tone-mapped again, nothing renders again; ``fresh``: a
+                              reloaded page's first view, what was held for the client dropped)
     POST /api/upload?client=ID&map=diffuse|specular|roughness|normal   body: PNG or EXR bytes
                               -> {map, texels, preview}: the map as its canvas shows it
     GET  /api/frame?client=ID&since=VERSION   long poll: the client's frame once it changes
-                              (``known``: false when the server had forgotten the client, see
-                              pipeline.serve.work: the page uploads its maps and view again)
+                              (``known``: false when the server holds nothing of the client, see
+                              pipeline.serve.work: the page uploads its maps and view again; a
+                              GET never makes a client, a POST of the page does)
 
 Every refusal is a 4xx JSON ``{"ok": false, "error": "..."}`` the page shows; an unexpected
 failure is a 500 with one line, never a traceback. A client that goes away mid-answer costs
@@ -25,21 +27,27 @@ the server nothing (BrokenPipeError and ConnectionResetError end that answer onl
 
 What a request must be, checked before any route runs (:meth:`JsonHandler.refusal`):
 
+- Each header the server reads (:data:`SINGLE_HEADERS`) comes once (400 otherwise): a second
+  ``Host``, even after a good one, is how a request smuggled past a proxy's check looks.
 - Its ``Host`` names this server (421 otherwise), against DNS rebinding: a page of another
   site whose name is pointed at this address sends its own name. Allowed: ``localhost``,
   ``127.0.0.1`` and ``[::1]``, the address bound, each with the port (without one only on
   port 80). Bound to every address (``--host 0.0.0.0`` or ``::``), the server also allows any
   IP literal and this machine's host names (``socket.gethostname()``, ``getfqdn()``): a
   rebinding attack sends a DNS name, never an IP literal.
+- A request to the API (anything but the page, which any site may link to) is the page's
+  own: where a browser sends ``Sec-Fetch-Site`` it is ``same-origin`` (or ``none``, typed by
+  the user), and where an ``Origin`` comes it is ``http://`` + the Host header (403
+  otherwise). So another site's ``<img src=/api/frame?...>`` is refused, and in any case a GET
+  makes no client (pipeline.serve.work): no other page can fill the server's client slots.
 - A POST carries its body's type (415 otherwise): ``application/json`` for /api/view; for
   /api/upload ``image/png``, ``image/x-exr`` or ``application/octet-stream`` (the page sends
   the first two). Neither is a type a cross-site form may send, so a browser asks the server
-  first (CORS preflight, refused: OPTIONS is a 405); and when an ``Origin`` header comes, it
-  must be this server's own, ``http://`` + the Host header (403 otherwise).
+  first (CORS preflight, refused: OPTIONS is a 405).
 - Content-Length is ASCII digits (400 otherwise; 411 missing; 413 past the route's limit);
   the body arrives within :data:`BODY_STALL_S` of each read and :data:`BODY_DEADLINE_S` in
   all (408 then, and the connection closes), or a short body whose client hung up is a 400.
-- HEAD answers GET's headers and never a body (HEAD / the page's; anything else a 405).
+- HEAD answers wherever GET does, with GET's status and headers and never a body.
 
 Every error answer closes its connection, so the bytes of a body not read are never read as
 the next request. The listening socket queues :data:`LISTEN_BACKLOG` connections
