@@ -203,6 +203,41 @@ def test_ctrl_c_while_the_script_imports_cli_is_one_line_and_130(args, library):
         assert out == ""
 
 
+SPAWNING_MAIN = """
+import signal
+import cli  # as the `shaderball` script imports it
+import multiprocessing
+
+def child(queue):
+    queue.put(signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+
+if __name__ == "__main__":
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    process = context.Process(target=child, args=(queue,))
+    process.start()
+    print(signal.getsignal(signal.SIGINT) is signal.default_int_handler, queue.get(timeout=600))
+    process.join()
+"""
+
+
+def test_the_handler_is_the_commands_not_that_of_a_process_it_spawns(tmp_path):
+    """Imported as the script imports it, cli.py takes Ctrl-C over until a command's body runs;
+    a process the command spawns (a rank of `train --devices N`) imports cli.py again, as its
+    parent's main module, and keeps Python's own handler."""
+    main = tmp_path / "spawning.py"
+    main.write_text(SPAWNING_MAIN)
+    done = subprocess.run(
+        [sys.executable, str(main)],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0 and done.stdout.split() == ["False", "True"], (done.stdout, done.stderr)
+
+
 def _mapped(pid: int, library: str) -> bool:
     try:
         with open(f"/proc/{pid}/maps") as maps:

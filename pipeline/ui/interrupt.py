@@ -6,8 +6,8 @@ nothing), however cli.py is started: the ``shaderball`` console script imports c
 not run it as ``__main__``. Ctrl-C then stops at once with the interrupted exit code and line,
 and --json's one document, without the import's traceback; it does so until the command's body
 starts (:func:`loaded`, called by :mod:`pipeline.ui.process`), click's parsing included, and
-:mod:`pipeline.ui.process` handles Ctrl-C from there. A process that ignores SIGINT (a dask
-worker, spawned with it ignored, imports cli.py too) keeps ignoring it.
+:mod:`pipeline.ui.process` handles Ctrl-C from there. A process the command spawns imports
+cli.py too (as its parent's main module): it keeps the handler it had.
 """
 
 from __future__ import annotations
@@ -59,8 +59,11 @@ def _interrupted(signum, frame):
 
 def stop_on_ctrl_c_while_loading() -> None:
     """From now until :func:`loaded`, Ctrl-C ends the process at once (module docstring). Not
-    where SIGINT is ignored, nor outside the main thread (signals are the main thread's)."""
-    if _put_back:
+    where SIGINT is ignored, nor outside the main thread (signals are the main thread's), nor in
+    a process spawned by the command (a rank of `train --devices N`), which imports cli.py as its
+    parent's main module and runs no command: its parent answers Ctrl-C."""
+    spawned = sys.modules.get("multiprocessing.process")
+    if _put_back or (spawned is not None and spawned.current_process().name != "MainProcess"):
         return
     try:
         previous = signal.getsignal(signal.SIGINT)
