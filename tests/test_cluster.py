@@ -173,14 +173,23 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
+def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path, monkeypatch):
+    """Fast by construction, not by a clock: one connection attempt with a short timeout before
+    anything else (dask's client would retry for its own 30 s)."""
     from pipeline.run.build import build
 
-    out = tmp_path / "ds"
-    start = time.monotonic()
+    attempts, connect = [], socket.create_connection
+
+    def counted(address, timeout=None, *args, **kwargs):
+        attempts.append((address, timeout))
+        return connect(address, timeout, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "create_connection", counted)
+    out, port = tmp_path / "ds", _free_port()
     with pytest.raises(ShaderballError, match=r'scheduler: cannot reach "tcp://127.0.0.1:\d+"'):
-        build(str(SMOKE), str(out), scheduler=f"tcp://127.0.0.1:{_free_port()}")
-    assert time.monotonic() - start < 10 and not out.exists()
+        build(str(SMOKE), str(out), scheduler=f"tcp://127.0.0.1:{port}")
+    assert [(address, timeout <= 10) for address, timeout in attempts] == [(("127.0.0.1", port), True)], attempts
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("address", ["127.0.0.1:8786", "tcp://host", "http://h:1", "tcp://h:70000"])
