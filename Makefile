@@ -68,16 +68,20 @@ lint: setup
 	$(VENV)/bin/ruff format --check .
 
 # The network `shaderball serve --run serve-out/run` shows out of the box (docs/serve.md): the
-# serve spec (128 materials x 5 suns at 64 px, 64 spp; about 1.5 minutes on 2 cores), then 60
-# epochs of a half-width network in bfloat16 with a cosine schedule; train's
-# last lines print the held-out PSNR beside the mean image's.
+# serve spec (128 materials x 5 suns at 64 px, 64 spp; about 1.5 minutes on 2 cores), then a
+# half-width network with a cosine schedule, in the precision and threads train picks for the
+# machine, for as many epochs (at most 60) as fit what the build left of SERVE_MINUTES (less
+# 30 s for start-up and the last save); train's last lines print the held-out PSNR beside the
+# mean image's.
 SERVE_OUT ?= serve-out
+SERVE_MINUTES ?= 15
 serve-network: setup
 	start=$$(date +%s); set -e; \
 	$(VENV)/bin/shaderball build manifests/serve.toml --out $(SERVE_OUT)/serve; \
-	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 60 --loss l1 --width 0.5 \
-		--schedule cosine --batch-size 8 --precision bf16 --threads 2 --seed 0; \
-	echo "serve-network: $$(( $$(date +%s) - start )) s wall, $$(nproc) cores, load average $$(cut -d' ' -f1-3 /proc/loadavg) at the end"; \
+	left=$$(( $(SERVE_MINUTES) * 60 - 30 - $$(date +%s) + start )); [ $$left -ge 60 ] || left=60; \
+	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 60 \
+		--minutes $$(awk "BEGIN { print $$left / 60 }") --loss l1 --width 0.5 --schedule cosine --batch-size 8 --seed 0; \
+	echo "serve-network: $$(( $$(date +%s) - start )) s wall, $$(nproc) cores ($$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')), load average $$(cut -d' ' -f1-3 /proc/loadavg) at the end"; \
 	echo "serve-network: run \`$(VENV)/bin/shaderball serve --run $(SERVE_OUT)/run --dataset $(SERVE_OUT)/serve\`"
 
 bench: setup

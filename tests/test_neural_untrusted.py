@@ -257,7 +257,7 @@ def test_a_hostile_log_is_refused_naming_its_line(run, reference, tmp_path):
     result = _invoke(*args)
     assert (
         result.exit_code == 2
-        and 'line 1: not a run\'s log (epoch is a string ("one"), not an integer)' in result.output
+        and 'line 1: not a run\'s log (epoch is a string ("one"), not an integer from 1 to 100000)' in result.output
     )
 
 

@@ -325,7 +325,7 @@ def benchmark(config: TrainConfig, steps: int = 5, infer_repeats: int = 10) -> B
         train_rate,
         config.loss,
         infer_ms,
-        config.threads or torch.get_num_threads(),
+        speed.threads_for(config.threads),
         loaded.source,
         loaded.open_s,
         config.precision,

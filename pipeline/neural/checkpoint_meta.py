@@ -45,6 +45,7 @@ import collections
 import io
 import math
 import pickle
+import reprlib
 import zipfile
 from dataclasses import dataclass
 
@@ -69,6 +70,11 @@ MAX_PICKLE_BYTES = 64 << 20
 MAX_DEPTH = 16
 #: Names listed in a message at most (then a count).
 SHOWN = 4
+#: Integers a checkpoint holds are 64-bit (torch's sizes, strides and offsets; Adam's indices).
+INT64 = (-(2**63), 2**63 - 1)
+#: An integer of at least this size is shown by its number of digits: Python refuses to print
+#: one of over 4,300 digits (ValueError), so a message that names it would itself fail.
+SHOWN_INT = 10**20
 
 
 class CheckpointRefused(Exception):
@@ -148,18 +154,58 @@ class _Reader(pickle._Unpickler):
         return StorageRef(key, cls.dtype, numel, location)
 
 
-def _short(value, limit: int = 80) -> str:
-    text = repr(value)
+def int_text(value: int) -> str:
+    """``value`` in decimal, or, from SHOWN_INT on, its size: never fails, whatever its size."""
+    if -SHOWN_INT < value < SHOWN_INT:
+        return str(value)
+    # digits of |value| from its bits: exact for powers of ten, else one more at most
+    digits = math.floor(abs(value).bit_length() * math.log10(2)) + 1
+    return ("minus " if value < 0 else "") + f"an integer of about {digits:,} digits"
+
+
+class _Bounded(reprlib.Repr):
+    """reprlib's bounded repr (a few items of a container, the start of a string), with
+    integers shown by :func:`int_text` (reprlib's own converts them whole first)."""
+
+    def __init__(self):
+        super().__init__()
+        self.maxstring = self.maxother = 40
+
+    def repr_int(self, value, level):
+        return int_text(value)
+
+    def repr_OrderedDict(self, value, level):
+        return self.repr_dict(value, level)
+
+
+def shown(value, limit: int = 80) -> str:
+    """``value`` from an untrusted file, for a message: at most ``limit`` characters, and
+    never an exception (an integer of any size, a container of any length or depth)."""
+    text = _Bounded().repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+_short = shown
 
 
 def _name(path: tuple) -> str:
     """A place in the checkpoint as Python spells it: ``model['enc.0.weight']``."""
-    return path[0] + "".join(f"[{key!r}]" for key in path[1:]) if path else "the checkpoint"
+    return path[0] + "".join(f"[{shown(key)}]" for key in path[1:]) if path else "the checkpoint"
 
 
-def _is_int(value) -> bool:
+def is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_count(value) -> bool:
+    """An integer >= 0 that torch holds as an int64 (a size, a stride, an offset)."""
+    return is_int(value) and 0 <= value <= INT64[1]
+
+
+def _int64_problem(value, path: tuple) -> str | None:
+    if is_int(value) and not INT64[0] <= value <= INT64[1]:
+        return f"{_name(path)} is {int_text(value)}, beyond the 64-bit integers a checkpoint holds"
+    return None
 
 
 _LEAVES = (str, bytes, int, float, bool, type(None))
@@ -175,6 +221,9 @@ def _walk(root):
             found.append((path, value))
             continue
         if isinstance(value, _LEAVES):
+            problem = _int64_problem(value, path)
+            if problem:
+                raise CheckpointRefused(problem)
             continue
         if type(value) not in (dict, collections.OrderedDict, list, tuple) or getattr(value, "__dict__", None):
             raise CheckpointRefused(f"{_name(path)} is a {type(value).__name__}, which no checkpoint holds")
@@ -188,6 +237,10 @@ def _walk(root):
         for key, child in items:
             if not isinstance(key, (str, int)) or isinstance(key, bool):
                 raise CheckpointRefused(f"{_name(path)} has a key {_short(key)}, not a name or a number")
+            if _int64_problem(key, ()):
+                raise CheckpointRefused(
+                    f"{_name(path)} has a key {int_text(key)}, beyond the 64-bit integers a checkpoint holds"
+                )
             children.append((path + (key,) if path else (str(key),), child))
         stack.extend(reversed(children))
     return found
@@ -246,8 +299,8 @@ def _storage_problem(tensor: TensorRef, prefix: str, sizes: dict) -> str | None:
         return f"its storage's key {_short(storage.key)} is not a record name"
     if not isinstance(storage.location, str) or len(storage.location) > 32:
         return f"its storage's location {_short(storage.location)} is not a device"
-    if not _is_int(storage.numel) or storage.numel < 0:
-        return f"its storage's size {_short(storage.numel)} is not a count"
+    if not _is_count(storage.numel):
+        return f"its storage's size {_short(storage.numel)} is not a count (an integer from 0 to 2**63-1)"
     record = f"{prefix}data/{storage.key}"
     if record not in sizes:
         return f"its storage data/{storage.key} is not in the archive"
@@ -269,11 +322,11 @@ def layout_problem(tensor: TensorRef) -> str | None:
     if len(tensor.args) not in (6, 7):
         return f"{len(tensor.args)} rebuild arguments, where torch.save writes 6"
     storage, offset, size, stride, requires_grad, hooks, *metadata = tensor.args
-    if not _is_int(offset) or offset < 0:
-        return f"offset {_short(offset)} is not a count"
+    if not _is_count(offset):
+        return f"offset {_short(offset)} is not a count (an integer from 0 to 2**63-1)"
     for what, value in (("shape", size), ("strides", stride)):
-        if not isinstance(value, tuple) or len(value) > 8 or not all(_is_int(v) and v >= 0 for v in value):
-            return f"{what} {_short(value)} is not a tuple of at most 8 counts"
+        if not isinstance(value, tuple) or len(value) > 8 or not all(map(_is_count, value)):
+            return f"{what} {_short(value)} is not a tuple of at most 8 counts (integers from 0 to 2**63-1)"
     if len(stride) != len(size):
         return f"strides {stride} for a shape of {len(size)} dimensions {size}"
     if not isinstance(requires_grad, bool) or not (hooks is None or (isinstance(hooks, dict) and not hooks)):
@@ -335,7 +388,7 @@ def _expected(path: tuple, arch: Architecture):
     """(dtype, shape) a tensor at ``path`` must have, or None where no tensor belongs."""
     if len(path) == 2 and path[0] == "model":
         return arch.weights.get(path[1])
-    if len(path) == 4 and path[:2] == ("optimizer", "state") and _is_int(path[2]) and isinstance(path[3], str):
+    if len(path) == 4 and path[:2] == ("optimizer", "state") and is_int(path[2]) and isinstance(path[3], str):
         if not 0 <= path[2] < len(arch.parameters):
             return None
         dtype, shape = arch.parameters[path[2]]

@@ -139,6 +139,14 @@ class TrainConfig(Checked):
     epochs: int = field(
         30, rule=_int("epochs"), doc="Epochs to reach; running again with more continues the run.", unit="epochs"
     )
+    minutes: float | None = field(
+        None,
+        rule=Optional(Float(0.0, 1e6, lo_open=True), "unset (no time budget: {epochs} epochs)"),
+        doc="Time budget of a new run, from the command's start: after the first epoch (timed with its scoring, "
+        "at the full learning rate) the run's length is set to the epochs that fit, at most {epochs}, and kept "
+        "when it resumes; a cosine {schedule} decays over the epochs after the first.",
+        unit="minutes",
+    )
     batch_size: int = field(6, rule=_int("batch_size"), doc="Samples per step (the paper: 6).", unit="samples")
     lr: float = field(
         1e-3,
@@ -234,14 +242,16 @@ class TrainConfig(Checked):
     threads: int = field(
         0,
         rule=_int("threads"),
-        doc="torch intra-op threads (0: torch's default, the core count; docs/neural.md, Speed on a CPU).",
+        doc="torch intra-op threads (0: the cores this process may use: its CPU affinity, at most its cgroup's "
+        "CPU quota; docs/neural.md, Speed on a CPU).",
     )
     precision: str = field(
-        "fp32",
+        "auto",
         rule=Choice(PRECISIONS),
-        doc="fp32: the same computation on every CPU; bf16: autocast to bfloat16 (CPU or CUDA; 1.7x here, "
-        "2.1x with {channels_last}); auto: bf16 on a CPU with bfloat16 kernels, else fp32; "
-        "fp16: autocast to float16 with a gradient scaler (CUDA).",
+        doc="auto: bf16 on a CPU with bfloat16 instructions (/proc/cpuinfo's avx512_bf16 or amx_bf16: 1.7x "
+        "fp32's speed there, 2.1x with {channels_last}), else fp32 (CUDA too; emulated bf16 ran 5.4x slower "
+        "than fp32 on an AVX2 CPU); fp32: the same computation on every CPU; bf16: autocast to bfloat16 (CPU or "
+        "CUDA); fp16: autocast to float16 with a gradient scaler (CUDA).",
     )
     channels_last: bool = field(
         True, rule=Bool(), doc="Network, VGG and batches in channels-last (NHWC) memory format."
@@ -267,6 +277,8 @@ class TrainConfig(Checked):
             )
         if self.devices > 1 and self.benchmark:
             raise self.field_error("devices", self.devices, "1 with {benchmark}")
+        if self.devices > 1 and self.minutes is not None:
+            raise self.field_error("minutes", self.minutes, "unset with {devices} over 1 (one process times the run)")
         if self.warmup_epochs > self.epochs:
             raise self.field_error(
                 "warmup_epochs", self.warmup_epochs, f"a finite number from 0 to {self.epochs:g}, the {{epochs}}"

@@ -215,7 +215,7 @@ def _rank_main(rank: int, run, config: TrainConfig, source, device_type: str, in
             torch.cuda.set_device(device)
         backend = "nccl" if device.type == "cuda" else "gloo"
         dist.init_process_group(backend, init_method=init, rank=rank, world_size=config.devices, timeout=TIMEOUT)
-        threads = config.threads or (max(1, torch.get_num_threads() // config.devices) if backend == "gloo" else 0)
+        threads = config.threads or (max(1, speed.available_cores() // config.devices) if backend == "gloo" else 0)
         progress = (lambda event: events.put(("progress", event))) if rank == 0 else None
         with speed.torch_threads(threads):
             summary = run(config, progress, source, device, Ranks(rank, config.devices, device))

@@ -19,8 +19,8 @@ INTEGER_RANGES = {
     "seed": (0, 2**63 - 1),
     "threads": (0, 256),
 }
-#: --precision: auto (bf16 on a CPU with native bfloat16 kernels, else fp32), fp32, or autocast
-#: to bf16 (CPU or CUDA) or fp16 (CUDA, with a gradient scaler).
+#: --precision: auto (the default: bf16 on a CPU with bfloat16 instructions, else fp32), fp32, or
+#: autocast to bf16 (CPU or CUDA) or fp16 (CUDA, with a gradient scaler).
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 #: evaluate --spp: each low-spp path-tracing rate compared with the network.
 SPP_LADDER_RANGE = (1, 4096)

@@ -88,6 +88,11 @@ class TrainSummary:
     #: the line that said so on stderr; None when it trained nothing
     estimated_seconds: float | None = None
     estimate: str | None = None
+    #: how --minutes set the run's length (train prints it); None without --minutes
+    length_note: str | None = None
+    #: the precision and torch threads it trained with (--precision auto and --threads 0 made concrete)
+    precision: str = ""
+    threads: int = 0
 
     def __post_init__(self):
         if self.below_mean_image is None:
@@ -98,7 +103,8 @@ class TrainSummary:
 
     def lines(self) -> list[str]:
         # loss_reason is said once, before training (the progress' note), not again here
-        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device}, loss {self.loss})"]
+        how = f"{self.precision}, {self.threads} thread{'s' if self.threads != 1 else ''}, " if self.precision else ""
+        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device}, {how}loss {self.loss})"]
         if self.nothing_to_do:
             out.append(
                 f"nothing to do: the run has already trained {self.epochs_done} epochs "
@@ -106,6 +112,8 @@ class TrainSummary:
             )
         elif self.resumed_from:
             out.append(f"resumed after epoch {self.resumed_from}")
+        if self.length_note:
+            out.append(self.length_note)
         if self.history:
             last = self.history[-1]
             out.append(
@@ -349,17 +357,20 @@ def select_training_materials(train_ids: list[str], count: int | None, seed: int
     return sorted(train_ids[i] for i in order[:count])
 
 
-def learning_rate(config: TrainConfig, step: int, steps_per_epoch: int) -> float:
+def learning_rate(config: TrainConfig, step: int, steps_per_epoch: int, held_epochs: int = 0) -> float:
     """The learning rate of optimiser step ``step`` (0-based over the whole run): a linear
-    warm-up over --warmup-epochs, then constant or a cosine decay reaching 0 after the
-    last step of --epochs. A pure function of the step: resume gives the same rates."""
+    warm-up over --warmup-epochs, the full rate until ``held_epochs`` have passed (a run with
+    --minutes holds its first, timed epoch: :class:`RunLength`), then constant or a cosine
+    decay reaching 0 after the last step of the run's epochs. A pure function of the step:
+    resume gives the same rates."""
     warm = round(config.warmup_epochs * steps_per_epoch)
     if step < warm:
         return config.lr * (step + 1) / warm
-    if config.schedule == "constant":
+    hold = max(warm, held_epochs * steps_per_epoch)
+    if config.schedule == "constant" or step < hold:
         return config.lr
-    total = max(config.epochs * steps_per_epoch - warm, 1)
-    return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step - warm, total) / total))
+    total = max(config.epochs * steps_per_epoch - hold, 1)
+    return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step - hold, total) / total))
 
 
 def run_config(config: TrainConfig, source, train_ids, test_ids, resolution, vgg_sha256, params) -> dict:
@@ -400,6 +411,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     default ``config.dataset`` is opened. Nothing is written before every check passed.
     ``config.threads`` holds for the call; torch's setting is restored after.
     """
+    started = time.perf_counter()  # --minutes counts from here
     config.check()
     _check_run_dir(config.out)
     device = pick_device(config.device)
@@ -407,7 +419,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     if config.devices > 1:
         return train_distributed(config, progress, source, device, _train)
     with speed.torch_threads(config.threads):
-        return _train(config, progress, source, device)
+        return _train(config, progress, source, device, started=started)
 
 
 @dataclass
@@ -425,14 +437,17 @@ class _Setup:
     old: dict | None  # the folder's config.json when it continues a run
 
 
-def _train(config: TrainConfig, progress, source, device, ranks=None) -> TrainSummary:
+def _train(config: TrainConfig, progress, source, device, ranks=None, started=None) -> TrainSummary:
     """The run in this process; ``ranks`` (pipeline.neural.distributed.Ranks) when it is one of
-    several: then only its rank 0 scores the epochs and writes files."""
+    several: then only its rank 0 scores the epochs and writes files. ``started``: when the
+    call began (``time.perf_counter()``), which --minutes counts from."""
     run = _set_up(config, progress, source)
     config, model = run.config, run.model
     ckpt = _resume_point(run)
-    if ckpt is not None and int(ckpt["epoch"]) == config.epochs:
+    length = RunLength.of(config, ckpt, progress)
+    if ckpt is not None and int(ckpt["epoch"]) >= length.epochs:
         return _finished(config, run.old, ckpt, device, model, run.choice)
+    config = dataclasses.replace(config, epochs=length.epochs)
     if ranks is not None:
         ranks.barrier()  # every rank has read the run folder before rank 0 writes in it
         model = run.model = ranks.sync_batchnorm(model)
@@ -453,21 +468,21 @@ def _train(config: TrainConfig, progress, source, device, ranks=None) -> TrainSu
         _write_run_config(run, train_set, test_set)
     steps = math.ceil(len(train_set) / config.batch_size)
     clock = StepClock(steps * (config.epochs - start_epoch), config.epochs - start_epoch, steps)
+    epoch, step = start_epoch, (model, run.loss_fn, optimizer, train_set, device)
     with deterministic_algorithms():
-        for epoch in range(start_epoch + 1, config.epochs + 1):
-            entry = train_epoch(
-                model, run.loss_fn, optimizer, train_set, device, config, epoch, progress, forward, clock, ranks
-            )
+        while epoch < config.epochs:
+            epoch += 1
+            epoch_started = time.perf_counter()
+            entry = train_epoch(*step, config, epoch, progress, forward, clock, ranks, length.held_epochs)
             if ranks is not None and not ranks.main:
                 history.append(entry)
                 continue
             _score_epoch(entry, run, device, train_probe, test_set)
-            entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
-            for text in entry["warnings"]:
-                log.warning("%s", text)
-                if progress is not None:
-                    progress({"epoch": epoch, "epochs": config.epochs, "warning": text})
-            history.append(entry)
+            if length.to_set:  # the first epoch of a run with --minutes: its length from this one's time
+                config = dataclasses.replace(config, epochs=length.set(started, epoch_started, progress))
+            if length.held_epochs:
+                entry["schedule_epochs"] = config.epochs
+            _record_epoch(entry, history, config, progress)
             _save_epoch(config.out, model, optimizer, history, run.fresh["identity_digest"])
     return TrainSummary(
         run_dir=config.out,
@@ -481,7 +496,76 @@ def _train(config: TrainConfig, progress, source, device, ranks=None) -> TrainSu
         loss_reason=run.choice.reason,
         estimated_seconds=clock.seconds,
         estimate=clock.text,
+        length_note=length.note,
+        precision=config.precision,
+        threads=torch.get_num_threads(),
     )
+
+
+def _record_epoch(entry: dict, history: list[dict], config: TrainConfig, progress) -> None:
+    """The epoch's warnings (logged, told to ``progress``), then the epoch, into ``history``."""
+    entry["warnings"] = epoch_warnings(entry, history[-1] if history else None)
+    for text in entry["warnings"]:
+        log.warning("%s", text)
+        if progress is not None:
+            progress({"epoch": entry["epoch"], "epochs": config.epochs, "warning": text})
+    history.append(entry)
+
+
+@dataclass
+class RunLength:
+    """How many epochs a run has: ``--epochs``, or, with ``--minutes``, as many (at most
+    ``--epochs``) as fit the time from the call's start, set after the first epoch from its
+    time (training and scoring) and recorded in each epoch of the history
+    (``schedule_epochs``), so that a resumed run keeps it, with or without --minutes. Such
+    a run holds the learning rate through the first epoch (``held_epochs``): a cosine then
+    decays over the epochs after it, which are only known once it is timed."""
+
+    epochs: int
+    held_epochs: int = 0  # epochs at the full rate before the schedule (1 with --minutes)
+    minutes: float | None = None  # the budget, while the length is still to set
+    note: str | None = None
+
+    @property
+    def to_set(self) -> bool:
+        return self.minutes is not None
+
+    @classmethod
+    def of(cls, config: TrainConfig, ckpt: dict | None, progress=None) -> RunLength:
+        history = (ckpt or {}).get("history") or []
+        recorded = history[-1].get("schedule_epochs") if history else None
+        if recorded is not None:
+            return cls(recorded, held_epochs=1)
+        if config.minutes is None:
+            return cls(config.epochs)
+        if history:
+            note = f"--minutes {config.minutes:g} not used: the run started without it and trains to --epochs"
+            if progress is not None:
+                progress({"note": note})
+            return cls(config.epochs, note=note)
+        return cls(config.epochs, held_epochs=1, minutes=config.minutes)
+
+    def set(self, started: float | None, epoch_started: float, progress=None) -> int:
+        """The run's length, after its first epoch (begun at ``epoch_started``) of a call begun
+        at ``started``, said to ``progress``."""
+        now = time.perf_counter()
+        epoch_s, left_s = now - epoch_started, self.minutes * 60 - (now - (started or epoch_started))
+        self.epochs = budget_epochs(left_s, epoch_s, self.epochs)
+        self.note = (
+            f"--minutes {self.minutes:g}: the first epoch took {epoch_s:.0f} s with its scoring, "
+            f"{max(left_s, 0) / 60:.1f} min are left: the run is {self.epochs} epoch{'s' if self.epochs != 1 else ''}"
+        )
+        self.minutes = None
+        if progress is not None:
+            progress({"note": self.note})
+        return self.epochs
+
+
+def budget_epochs(left_s: float, epoch_s: float, most: int) -> int:
+    """Epochs of a run whose first epoch took ``epoch_s`` seconds with ``left_s`` seconds left:
+    the first and as many more as fit, at most ``most``."""
+    more = math.floor(left_s / epoch_s) if epoch_s > 0 else most
+    return max(1, min(most, 1 + more))
 
 
 def _set_up(config: TrainConfig, progress, source) -> _Setup:
@@ -634,6 +718,11 @@ def _resume_state(run_dir: str, model, optimizer, ckpt: dict) -> None:
             f"{path}: holds the weights only (no optimizer state), so the run cannot continue from it; "
             "restore the run's last checkpoint or train a new --out"
         )
+    problem = runfiles.optimizer_problem(ckpt["optimizer"], optimizer.state_dict())
+    if problem:
+        raise ShaderballError(
+            f"{path}: a corrupt checkpoint: {problem}; restore it, or remove it to train again from the start"
+        )
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as exc:
@@ -693,6 +782,7 @@ def train_epoch(
     forward=None,
     clock=None,
     ranks=None,
+    held_epochs: int = 0,
 ) -> dict:
     """One epoch; ``forward`` runs the network (default ``model``; compiled: speed.step_forward) in
     ``config.precision``; ``clock`` (:class:`StepClock`) is told of every step, its estimate goes to
@@ -705,13 +795,12 @@ def train_epoch(
     if ranks is not None:  # this rank's part of every batch
         order, batch_size = ranks.shard(order), batch_size // ranks.world
     loader = batches(Subset(train_set, order), batch_size, config.loader_workers, pin_memory=device.type == "cuda")
-    count = len(loader)
-    lr = config.lr
+    count, lr = len(loader), config.lr
     sums: dict[str, float] = {}
     seen, started = 0, time.perf_counter()
     for index, batch in enumerate(loader, start=1):
         maps, light, target = batch_to(batch, device, config.channels_last)
-        lr = learning_rate(config, (epoch - 1) * count + index - 1, count)
+        lr = learning_rate(config, (epoch - 1) * count + index - 1, count, held_epochs)
         for group in optimizer.param_groups:
             group["lr"] = lr
         optimizer.zero_grad(set_to_none=True)
