@@ -40,6 +40,7 @@ import pipeline.render.renderer as render
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import spec_to_toml
+from pipeline.fields import FieldError, format_value
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run import shard
@@ -81,6 +82,44 @@ def derive_spec(
     if spp is not None:
         render = dataclasses.replace(render, spp=spp)
     return dataclasses.replace(spec, dataset=dataset, render=render)
+
+
+#: The spec fields each keyword of :func:`derive_spec` sets, as (section, field).
+DERIVED_FIELDS = {
+    "renders": (("dataset", "materials"), ("dataset", "lights_per_material")),
+    "resolution": (("render", "resolution"),),
+    "spp": (("render", "spp"),),
+    "shard_size": (("dataset", "shard_size"),),
+}
+
+
+def derive_for(request, spec, named: dict[str, str] | None = None, **changes):
+    """:func:`derive_spec` for ``request``, whose options gave ``changes`` (named as the
+    keywords, or as ``named`` says: the scale benchmark's sizes are ``renders`` from its
+    ``scale``). A field of the derived spec that is refused (a shard of more renders than a
+    marker holds, more materials or shards than a spec may have) is refused as the option
+    that set it, with its value: the user typed ``--shard-size``, not ``dataset.shard_size``."""
+    try:
+        return derive_spec(spec, **changes)
+    except FieldError as exc:
+        given = {k: changes[k] for k in DERIVED_FIELDS if changes.get(k) is not None}
+        raise _refused_as_option(request, exc, given, named or {}) from None
+
+
+def _refused_as_option(request, exc: FieldError, given: dict, named: dict[str, str]) -> FieldError:
+    section = getattr(exc, "section", None) or getattr(exc.owner, "SECTION", "")
+    by_field = [k for k in given if (section, exc.name) in DERIVED_FIELDS[k]]
+    by_section = [k for k in given if any(s == section for s, _ in DERIVED_FIELDS[k])]
+    key = (by_field or by_section or list(given))[0]
+    value = given[key]
+    if by_field and exc.value == value:  # the option's own value, refused by a rule between fields
+        return request.field_error(named.get(key, key), value, exc.allowed, what=exc.what)
+    refused = f"{section}.{exc.name}" if exc.name else f"[{section}]"
+    return request.field_error(
+        named.get(key, key),
+        value,
+        f"with it the spec's {refused} ({format_value(exc.value)}) is refused: {exc.allowed}",
+    )
 
 
 @dataclass
@@ -632,14 +671,22 @@ def _cpu_with_children() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
+def bench_spec(request):
+    """The spec the build benchmark builds: ``request.spec`` cut and re-sized as its options
+    ask (:func:`derive_for`: a refusal names the option)."""
+    spec, _ = read_spec_text(request.spec)
+    resolution, spp = request.settings()
+    return derive_for(
+        request, spec, renders=request.renders, resolution=resolution, spp=spp, shard_size=request.shard_size
+    )
+
+
 def run_build_bench(request, progress=None) -> BuildBench:
     """Build ``request.spec`` (cut and re-sized as it asks) and time the same renders bare;
     see the module docstring."""
     request.check_fields()
     out = request.out
-    spec, _ = read_spec_text(request.spec)
-    resolution, spp = request.settings()
-    spec = derive_spec(spec, renders=request.renders, resolution=resolution, spp=spp, shard_size=request.shard_size)
+    spec = bench_spec(request)
     if out is not None and os.path.exists(out) and folder_names(out) != []:
         raise request.field_error("out", out, "a new or empty folder (the benchmark builds from scratch)")
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pipeline.bench.build_bench import run_build_bench
 from pipeline.bench.effects import run_effects_bench
 from pipeline.bench.scale import run_scale_bench
-from pipeline.dataset.spec import DatasetSection
+from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, DatasetSection
 from pipeline.fields import Bool, Checked, Int, IntList, Optional, Path, declared, default_of, field, same_as
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
@@ -59,7 +59,8 @@ class BenchRequest(Checked):
     renders: int | None = field(
         None,
         rule=Optional(Int(*RENDERS_RANGE), "unset (all of them)", default_text="all of them"),
-        doc="Cut the spec to about this many renders (whole materials, all their lightings).",
+        doc="Cut the spec to about this many renders (whole materials, all their lightings); the cut spec "
+        f"may have at most {MAX_SHARDS} shards of its shard_size.",
         unit="renders",
     )
     resolution: int | None = same_as(RenderSettings, "resolution", unset=_unset(0))
@@ -72,7 +73,8 @@ class BenchRequest(Checked):
         "shard_size",
         unset="the spec's",
         doc="Materials per shard (the spec's dataset.shard_size); with few materials use 1 so every "
-        "worker gets a shard.",
+        f"worker gets a shard. A shard holds at most {MAX_SHARD_RENDERS} renders (this x the spec's "
+        "lights_per_material).",
     )
     out: str | None = field(
         None,
@@ -97,7 +99,8 @@ class BenchRequest(Checked):
         rule=Optional(IntList(*SIZE_RANGE, distinct=True, min_len=2), "unset (no scale benchmark)"),
         doc="Run the scale benchmark instead: build datasets of these sizes (renders, e.g. "
         "1000,10000,50000) from SPEC [default: manifests/paper.toml], time every command over "
-        "each and write README.md, scale.png and scale.json to the out folder (docs/results/scale/).",
+        "each and write README.md, scale.png and scale.json to the out folder (docs/results/scale/). Each "
+        f"size's spec may have at most {MAX_MATERIALS} materials of SPEC's lightings and {MAX_SHARDS} shards.",
     )
     json_out: str | None = field(
         None, rule=Optional(Path("a file")), doc="Also write the figures to this JSON file.", metavar="FILE"

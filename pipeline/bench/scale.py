@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.bench.build_bench import derive_spec
+from pipeline.bench.build_bench import derive_for
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.errors import ShaderballError
 from pipeline.fields import format_value
@@ -317,6 +317,12 @@ def run_scale_bench(request, progress=None) -> ScaleBench:
                 f"at least {smallest} renders with this spec (two materials of "
                 f"{spec.dataset.lights_per_material} lightings: evaluate's set-up holds materials out)",
             )
+    # every size's spec before anything runs: a size the spec cannot hold is refused as --scale
+    warm = derive_for(request, spec, renders=smallest, resolution=resolution, spp=spp)
+    derived = {
+        size: derive_for(request, spec, {"renders": "scale"}, renders=size, resolution=resolution, spp=spp)
+        for size in sizes
+    }
     if os.path.exists(out) and not os.path.isdir(out):
         raise request.field_error("out", out, "a folder for the results page", what=f"{format_value(out)} is a file")
     say = progress or (lambda message: None)
@@ -338,13 +344,11 @@ def run_scale_bench(request, progress=None) -> ScaleBench:
         # An unmeasured build of two materials first: kernels compiled and cached, so the
         # smallest size is not charged the machine's first compilation.
         say("warm-up: a build of two materials ...")
-        warm = derive_spec(spec, renders=smallest, resolution=resolution, spp=spp)
         run_commands(warm, scratch, "warm-up", commands=("build",))
         for size in sizes:
-            derived = derive_spec(spec, renders=size, resolution=resolution, spp=spp)
-            renders = derived.dataset.materials * derived.dataset.lights_per_material
+            renders = derived[size].dataset.materials * derived[size].dataset.lights_per_material
             bench.sizes.append(renders)
-            for name, wall, peak in run_commands(derived, scratch, str(size), say):
+            for name, wall, peak in run_commands(derived[size], scratch, str(size), say):
                 bench.rows.append(Measured(name, renders, wall, peak))
         bench.machine["load_after"] = _load()
         write_results(bench, out)

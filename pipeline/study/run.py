@@ -86,6 +86,24 @@ class Ladder(IntList):
         return tuple(sorted(set(super().check(value))))
 
 
+class EvenInt(Int):
+    """An even integer from ``lo`` to ``hi`` (a reference renders as two equal halves)."""
+
+    def __init__(self, lo: int, hi: int):
+        super().__init__(lo, hi)
+        self.allowed = f"an even integer from {lo} to {hi}"
+
+    def check(self, value):
+        value = super().check(value)
+        if value % 2:
+            raise Reject()
+        return value
+
+    @property
+    def brief(self) -> str:
+        return f"even, {self.lo} to {self.hi}"
+
+
 class Families(Rule):
     """Families of configurations: ``all``, or names from FAMILIES; kept in FAMILIES' order,
     the ladder always among them."""
@@ -132,8 +150,9 @@ class StudyRequest(Checked):
     )
     reference_spp: int = field(
         4096,
-        rule=Int(2, MAX_REFERENCE_SPP),
-        doc="Samples per pixel of each reference (two halves); even, at least twice the largest spp studied.",
+        rule=EvenInt(2, MAX_REFERENCE_SPP),
+        doc="Samples per pixel of each reference (two halves); at least twice the largest of {ladder} and the "
+        f"spec's render.spp ({2 * max(DEFAULT_LADDER)} with the default {{ladder}}).",
         unit="samples per pixel",
     )
     resolution: int | None = same_as(RenderSettings, "resolution", unset="the spec's")
@@ -208,12 +227,12 @@ def check_request(req: StudyRequest):
                 f"(unknown: {', '.join(unknown)}), e.g. " + ", ".join(names[:4]),
             )
     top = max(*req.ladder, spec.render.spp)
-    ref = req.reference_spp
-    if ref % 2 or not 2 * top <= ref:
+    if req.reference_spp < 2 * top:
         raise req.field_error(
             "reference_spp",
-            ref,
-            f"an even integer from {2 * top} to {MAX_REFERENCE_SPP} (at least twice the largest spp studied, {top})",
+            req.reference_spp,
+            f"an even integer from {2 * top} to {MAX_REFERENCE_SPP} here: at least twice the largest spp studied, "
+            f"the largest of {{ladder}} ({max(req.ladder)}) and {req.spec}'s render.spp ({spec.render.spp})",
         )
     if os.path.exists(req.out) and not os.path.isdir(req.out):
         raise req.field_error("out", req.out, "a folder (new, or a study folder of this same request)")
