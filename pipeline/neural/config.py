@@ -347,6 +347,12 @@ class EvaluateRequest(Checked):
         doc="The one folder of the evaluation: results.json, results.md, grid.png (maps, reference, network, path "
         "tracing at equal time and 2 spp, denoised, error maps), and with {report} the report.",
     )
+    overwrite: bool = field(
+        False,
+        rule=Bool(),
+        doc="Replace an earlier evaluation in the {out} folder (its results, grid and report files); without it, "
+        "a folder that holds one is refused before anything runs.",
+    )
     json_out: str | None = field(
         None,
         rule=Optional(FileName(".json"), "unset (none)"),
