@@ -35,6 +35,7 @@ from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError
+from pipeline.fields import format_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
@@ -224,6 +225,7 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
     runs now (the first sample also compiles kernels and measures equal time). ``command``:
     how the caller spells ``req`` (the command line that makes it), the report's heading."""
     refuse_output_links(req)
+    refuse_earlier_evaluation(req)
     run = _Evaluation(req)
     rows, grid_rows = [], []
     show = _Progress(progress, len(run.indices))
@@ -256,6 +258,10 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
         runfiles.write_json(req.json_out, result, inside=req.run)
     if req.report:
         report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
+    else:  # --overwrite: an earlier evaluation's report would stand beside these results as theirs
+        for name in report.REPORT_FILES:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(os.path.join(out_dir, name))
     return EvaluateSummary(out_dir, len(rows), means, run.notes, table, req.report)
 
 
@@ -272,6 +278,22 @@ def refuse_output_links(req: EvaluateRequest) -> None:
     runfiles.refuse_links(EvaluateRequest, "out", req.folder, [req.run, req.folder], files)
     if req.json_out:
         runfiles.refuse_links(EvaluateRequest, "json_out", req.json_out, [req.run], [req.json_out])
+
+
+def refuse_earlier_evaluation(req: EvaluateRequest) -> None:
+    """Refuse (``out``, exit 2) a folder that holds an earlier evaluation's files, unless
+    ``overwrite``: an evaluation takes minutes and its folder is a record (the default one
+    is the same for every evaluation of a run's split), so it is replaced only when asked,
+    and the refusal comes before anything runs."""
+    names = EVALUATION_FILES + report.REPORT_FILES
+    found = [name for name in names if os.path.lexists(os.path.join(req.folder, name))]
+    if found and not req.overwrite:
+        raise EvaluateRequest.field_error(
+            "out",
+            req.folder,
+            "give {overwrite} to replace it, or name another {out}",
+            what=f"{format_value(req.folder)} holds an earlier evaluation ({', '.join(found)})",
+        )
 
 
 def write_all_or_none(folder: str, files: dict[str, bytes]) -> None:
