@@ -11,8 +11,11 @@ turbidity) are `shaderball infer`'s too. The ranges are the domain's (``sky.ligh
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +28,7 @@ from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.raster import project_material
-from pipeline.render.renderer import render_sample
+from pipeline.render.renderer import render_sample, sample_stages
 from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
@@ -219,17 +222,98 @@ def render_settings(req: RenderRequest) -> RenderSettings:
     )
 
 
-def render_to_files(req: RenderRequest) -> RenderSummary:
+class RenderProgress:
+    """``progress(dict)`` of one render: ``what`` runs now, passes ``done`` of ``total`` (at most:
+    an adaptive render may stop sooner), samples per pixel ``spp_done`` of ``spp``, ``elapsed_s``
+    and ``eta_s`` (None until a pass is done; the first pass also compiles kernels, so the
+    ETA falls after it). A re-render of bad pixels counts its passes again.
+
+    While a pass renders it is said again every ``TICK_S`` seconds, from a thread of its own
+    (Mitsuba renders without holding Python's lock): the largest pass comes first and is most
+    of the time (128 of 150 spp), so without it a render would say nothing for most of its
+    time. Calls never overlap."""
+
+    TICK_S = 1.0
+
+    def __init__(self, progress, settings: RenderSettings):
+        self.progress = progress
+        self.passes = [n for stage in sample_stages(settings) for n in stage]
+        self.total = len(self.passes)
+        self.spp, self.done, self.spp_done, self.rendered = settings.spp, 0, 0, 0
+        self.what = ""
+        self.started = time.perf_counter()
+        self.lock = threading.Lock()
+
+    def say(self, what: str) -> None:
+        if self.progress is None:
+            return
+        with self.lock:
+            self.what = what
+            elapsed = time.perf_counter() - self.started
+            eta = elapsed / self.rendered * (self.spp - self.spp_done) if self.rendered else None
+            self.progress(
+                {
+                    "what": what,
+                    "done": self.done,
+                    "total": self.total,
+                    "spp_done": self.spp_done,
+                    "spp": self.spp,
+                    "elapsed_s": elapsed,
+                    "eta_s": eta,
+                }
+            )
+
+    def _next(self) -> str:
+        return f"rendering pass {self.done + 1} of {self.total} ({self.passes[self.done]} spp)"
+
+    def on_pass(self, spp: int) -> None:
+        """After each pass of :func:`pipeline.render.renderer.render_sample`."""
+        if self.done == self.total:  # a re-render of bad pixels: its passes count again
+            self.done, self.spp_done = 0, 0
+        self.done += 1
+        self.spp_done += spp
+        self.rendered += spp
+        self.say(self._next() if self.done < self.total else f"rendered {self.total} of {self.total} passes")
+
+    @contextlib.contextmanager
+    def rendering(self):
+        """Say the pass that renders now every TICK_S seconds, until the block ends."""
+        if self.progress is None:
+            yield
+            return
+        stop = threading.Event()
+
+        def tick():
+            while not stop.wait(self.TICK_S):
+                self.say(self.what)
+
+        self.say(self._next())
+        ticker = threading.Thread(target=tick, name="render-progress", daemon=True)
+        ticker.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            ticker.join()
+
+
+def render_to_files(req: RenderRequest, progress=None) -> RenderSummary:
     """Render, then write the EXR (render + screen-space maps) and the optional PNG; ``req``
-    was checked when built."""
+    was checked when built. ``progress(dict)``: what runs, passes done, ETA (:class:`RenderProgress`)."""
     maps = load_material(req)  # may raise on a bad SVBRDF file: still nothing written
     maps.check()
 
     variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
+    settings = render_settings(req).resolved(variant)
+    show = RenderProgress(progress, settings)
+    show.say(f"loading the shaderball, its G-buffer and the scene ({variant}; the first pass compiles kernels)")
     ball, camera = build_shaderball(), default_camera()
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
-    settings = render_settings(req).resolved(variant)
-    result = render_sample(ball, camera, maps, req.light, settings, req.seed, mask=gbuffer.mask)
+    with show.rendering():
+        result = render_sample(
+            ball, camera, maps, req.light, settings, req.seed, mask=gbuffer.mask, on_pass=show.on_pass
+        )
+    show.say(f"writing {req.out}")
     screen = project_material(maps, gbuffer)
     meta = {
         "stats": result.stats,

@@ -147,7 +147,7 @@ def pass_plan(spp: int, variant: str) -> list[int]:
     return power_of_two_passes(spp) if determinism(variant) == BYTE_IDENTICAL else [int(spp)]
 
 
-def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = None) -> np.ndarray:
+def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = None, on_pass=None) -> np.ndarray:
     """Every channel of ``spp`` samples per pixel, rendered as power-of-two passes, averaged.
 
     Why: in the llvm variant a render whose spp is not a power of two is not
@@ -158,15 +158,21 @@ def render_in_passes(mi, scene, spp: int, seed: int, passes: list[int] | None = 
     float64, weighted by their spp: exact for every channel of the moment integrator,
     whose channels are per-pixel means too. Cost: one kernel per distinct pass size
     (cached) and a little render time at 150 spp (`shaderball bench` measures it). ``passes`` (:func:`pass_plan`) may
-    say otherwise; a single pass is seeded like the first of several.
+    say otherwise; a single pass is seeded like the first of several. ``on_pass(n)``: called
+    after each pass with its spp (a command's progress).
     """
     passes = power_of_two_passes(spp) if passes is None else passes
     if len(passes) == 1:  # no float64 sum to make: the pass itself (same values, half the copies)
-        return np.asarray(render_whole(mi, scene, spp=passes[0], seed=pass_seed(seed, 0)), dtype=np.float64)
+        image = np.asarray(render_whole(mi, scene, spp=passes[0], seed=pass_seed(seed, 0)), dtype=np.float64)
+        if on_pass is not None:
+            on_pass(passes[0])
+        return image
     total = None
     for k, n in enumerate(passes):
         image = np.asarray(render_whole(mi, scene, spp=n, seed=pass_seed(seed, k)), dtype=np.float64) * n
         total = image if total is None else total + image
+        if on_pass is not None:
+            on_pass(n)
     return total / spp
 
 
@@ -320,6 +326,22 @@ class RenderOutput(NamedTuple):
     error_estimate: float  # relative_error of the result (over ``mask``)
 
 
+def render_stages(spp: int, sampler: str, target_error: float, single_pass: bool) -> list[list[int]]:
+    """The passes :func:`render_scene` renders, stage by stage (the spp of each; an adaptive
+    render may stop after any stage)."""
+    if target_error <= 0 and sampler == "independent":
+        return [[int(spp)] if single_pass else power_of_two_passes(spp)]
+    stages = adaptive_stages(spp) if target_error > 0 else [power_of_two_passes(spp)]
+    return [[sum(stage)] for stage in stages] if single_pass else stages
+
+
+def sample_stages(settings: RenderSettings) -> list[list[int]]:
+    """The passes :func:`render_sample` renders with ``settings`` (its variant resolved), stage
+    by stage: :func:`render_stages` on this variant."""
+    single_pass = determinism(settings.variant) != BYTE_IDENTICAL
+    return render_stages(settings.spp, settings.sampler, settings.target_error, single_pass)
+
+
 def render_scene(
     mi,
     scene,
@@ -330,6 +352,7 @@ def render_scene(
     target_error: float = 0.0,
     mask: np.ndarray | None = None,
     single_pass: bool = False,
+    on_pass=None,
 ) -> RenderOutput:
     """Render a loaded scene (moment integrator): image, luminance variance, spp used, error.
 
@@ -343,20 +366,21 @@ def render_scene(
     function of the passes rendered, which are deterministic, so the result is too.
 
     ``single_pass`` (a variant whose re-renders are not byte-identical anyway, :func:`pass_plan`):
-    each stage is one pass instead of power-of-two passes.
+    each stage is one pass instead of power-of-two passes (:func:`render_stages` says which).
+    ``on_pass(n)``: called after each pass with its spp.
     """
+    stages = render_stages(spp, sampler, target_error, single_pass)
     if target_error <= 0 and sampler == "independent":
-        out, used = render_in_passes(mi, scene, spp, seed, [int(spp)] if single_pass else None), int(spp)
+        out, used = render_in_passes(mi, scene, spp, seed, stages[0], on_pass), int(spp)
     else:
-        stages = adaptive_stages(spp) if target_error > 0 else [power_of_two_passes(spp)]
-        if single_pass:
-            stages = [[sum(stage)] for stage in stages]
         acc, k = PassSum(), 0
         for stage in stages:
             for n in stage:
                 image, n_used = render_pass(mi, scene, n, seed, k, sampler)
                 acc.add(image, n_used)
                 k += 1
+                if on_pass is not None:
+                    on_pass(n)
             if target_error > 0 and relative_error(acc.mean(), acc.spp, mask) <= target_error:
                 break
         out, used = acc.mean(), acc.spp
@@ -446,11 +470,13 @@ def render_sample(
     seed: int,
     mask: np.ndarray | None = None,
     scene: MaterialScene | None = None,
+    on_pass=None,
 ) -> RenderResult:
     """Render one material under one light, re-rendering bad (NaN/Inf/negative) results.
 
     ``scene``: a :class:`MaterialScene` kept across renders (a build keeps one for all its
-    materials and lightings); None loads a scene for this render only.
+    materials and lightings); None loads a scene for this render only. ``on_pass(n)``: called
+    after each pass of each attempt with its spp (:func:`render_scene`).
     """
     settings.check()
     mi = load_mitsuba(settings.variant)
@@ -469,6 +495,7 @@ def render_sample(
             target_error=settings.target_error,
             mask=mask,
             single_pass=single_pass,
+            on_pass=on_pass,
         )
         stats = render_stats(image, variance, mask)
         attempts.append({"seed": attempt_seed, "nan": stats["nan"], "inf": stats["inf"], "negative": stats["negative"]})
