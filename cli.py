@@ -470,7 +470,7 @@ def figures_cmd(request: FiguresRequest):
     return make_figure(request, progress=say)
 
 
-@main.group("neural-bench", cls=Group)
+@main.group("neural-bench", cls=Group, subcommand_metavar="KIND [ARGS]...")
 def neural_bench():
     """The neural stage's measurements (docs/neural.md): KIND is loaders (a dataset folder
     against its publication), collate (torch's collation against ours, idle and loaded), denoise

@@ -46,9 +46,17 @@ from pipeline.errors import ShaderballError
 MISSING = object()
 
 
+class AsTyped(str):
+    """A command-line word echoed in a refusal as the user typed it: ``--spp: 0,1 is not
+    allowed`` rather than the value it was read as (``[0, 1]``)."""
+
+
 def format_value(value: Any) -> str:
-    """A value as TOML would spell it, shortened for a one-line message."""
-    if value is MISSING:
+    """A value as TOML would spell it (a command-line word as it was typed), shortened for a
+    one-line message."""
+    if isinstance(value, AsTyped):
+        text = str(value)
+    elif value is MISSING:
         text = "(missing)"
     elif value is None:
         text = "none"
@@ -115,11 +123,12 @@ class FieldError(ShaderballError):
         what = f"{format_value(self.value)} is not allowed" if self.what is None else spell(self.what)
         return f"{where}: {what}; {spell(self.allowed)}"
 
-    def labelled(self, label) -> FieldError:
-        """The same refusal with every field spelled by ``label(name)`` (a surface's words)."""
+    def labelled(self, label, value: Any = MISSING) -> FieldError:
+        """The same refusal with every field spelled by ``label(name)`` (a surface's words),
+        and its value as that surface shows it where ``value`` is given (:class:`AsTyped`)."""
         error = FieldError(
             label(self.name) if self.name else self.where,
-            self.value,
+            self.value if value is MISSING else value,
             self.allowed,
             what=self.what,
             name=self.name,

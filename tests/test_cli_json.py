@@ -90,7 +90,7 @@ def test_exit_2_bad_usage_is_json(smoke, pub, tmp_path):
     assert_failure(shaderball("publish", str(smoke), "--out", str(pub), "--json"), 2, "new or empty")
     assert_failure(shaderball("validate", str(smoke), "--fast", "--repair", "--json"), 2, "not allowed with --repair")
     # click's own refusals, before the command runs
-    assert_failure(shaderball("info", "--json"), 2, "Missing argument")
+    assert_failure(shaderball("info", "--json"), 2, "DIR|SPEC: missing; ")
     assert_failure(
         shaderball("publish", str(smoke), "--out", str(tmp_path / "p"), "--json", "--shard-bytes", "x"), 2, "x"
     )

@@ -98,7 +98,7 @@ class BenchRequest(Checked):
         None,
         rule=Optional(IntList(*SIZE_RANGE, distinct=True, min_len=2), "unset (no scale benchmark)"),
         doc="Run the scale benchmark instead: build datasets of these sizes (renders, e.g. "
-        "1000,10000,50000) from SPEC [default: manifests/paper.toml], time every command over "
+        "1000,10000,50000) from SPEC (manifests/paper.toml if none is given), time every command over "
         "each and write README.md, scale.png and scale.json to the out folder (docs/results/scale/). Each "
         f"size's spec may have at most {MAX_MATERIALS} materials of SPEC's lightings and {MAX_SHARDS} shards.",
     )

@@ -18,7 +18,7 @@ TILE_RANGE = (32, 1024)
 #: validate --repair's local dask workers (0: in this process).
 REPAIR_WORKERS_RANGE = (0, 1024)
 
-DATASET_FOLDER = "a dataset folder made by `shaderball build`"
+DATASET_FOLDER = "a dataset folder written by `shaderball build`"
 
 
 def _directory(doc: str = "The dataset folder.", metavar: str = "DIR", what: str = DATASET_FOLDER):
@@ -48,7 +48,7 @@ class ValidateRequest(Checked):
     )
     spec: str | None = field(
         None,
-        rule=Optional(Path("an existing spec file", exists="file"), "unset (DIR/spec.toml)"),
+        rule=Optional(Path("a spec file", exists="file"), "unset (DIR/spec.toml)"),
         doc="With {repair}: restore an unreadable or edited DIR/spec.toml from this spec, "
         "if its digest is the one dataset.json records.",
         metavar="SPEC",
@@ -95,7 +95,7 @@ class InfoRequest(Checked):
     directory: str = _directory(
         "A dataset folder, or a spec file (then what `shaderball plan SPEC` prints without timing).",
         "DIR|SPEC",
-        "a dataset folder made by `shaderball build`, or a spec file",
+        "a dataset folder written by `shaderball build`, or a spec file",
     )
 
 

@@ -26,7 +26,7 @@ class PublishRequest(Checked):
     """`shaderball publish`: a validated dataset folder into a publication."""
 
     directory: str = field(
-        rule=Path("a dataset folder made by `shaderball build`", exists="folder"),
+        rule=Path("a dataset folder written by `shaderball build`", exists="folder"),
         doc="The dataset folder.",
         positional=True,
         metavar="DIR",
@@ -60,7 +60,7 @@ class VerifyRequest(Checked):
     """`shaderball verify`: a publication checked without extracting it."""
 
     pub: str = field(
-        rule=Path("a publication folder made by `shaderball publish`", exists="folder"),
+        rule=Path("a publication folder written by `shaderball publish`", exists="folder"),
         doc="The publication folder.",
         positional=True,
         metavar="PUB",

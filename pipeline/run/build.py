@@ -148,7 +148,7 @@ class BuildRequest(Checked):
     (ClusterOptions' declarations)."""
 
     spec: str = fields.field(
-        rule=Path("an existing spec file (manifests/*.toml)", exists="file"),
+        rule=Path("a spec file (manifests/*.toml)", exists="file"),
         doc="The dataset spec (see manifests/ and docs/spec.md).",
         positional=True,
         metavar="SPEC",

@@ -16,21 +16,25 @@ refused while parsing, a rule between fields, a check deep in the library.
 Spellings that exist only here: ``--json`` (a flag), an option renamed in the past
 (hidden; given, it exits 2 naming the new one), and a value given to ``--json``
 (``--json=FILE``, ``--json FILE``: exit 2 naming ``--json-out`` where the command writes one).
+click's own refusals (a missing operand, an unknown option, a word too many, an unknown
+command) read as the fields' do (:mod:`pipeline.ui.usage`), with --json's document too.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
 import shlex
 import sys
 
 import click
 
 from pipeline.errors import USER_ERRORS
-from pipeline.fields import FIELD_REF, MISSING, Bool, FieldError, Many, Optional, declared, default_of
+from pipeline.fields import FIELD_REF, MISSING, AsTyped, Bool, FieldError, Many, Optional, declared, default_of
 from pipeline.ui import process
 from pipeline.ui.options import FieldType, option_help
+from pipeline.ui.usage import ExtraOperands, unknown_command, usage_refusal
 
 
 def option_name(name: str) -> str:
@@ -101,9 +105,9 @@ def _option(f, label) -> click.Option:
         if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5", "1,2,4"; () as the rule's word for none
             inner = rule.rule if isinstance(rule, Optional) else rule
             default = ",".join(f"{v:g}" for v in default) if default else getattr(inner, "none", None) or ""
-        kwargs = dict(type=FieldType(rule), default=None if required else default)
-        kwargs["show_default"] = not required and default is not None
-        kwargs["required"] = required
+        kwargs = dict(type=FieldType(rule), required=required, show_default=not required and default is not None)
+        if not required:  # a required one has none: click refuses it missing (pipeline.ui.usage)
+            kwargs["default"] = default
         if f.metadata.get("metavar"):
             kwargs["metavar"] = f.metadata["metavar"]
     kwargs["help"] = _spelled(option_help(f), label)
@@ -209,48 +213,79 @@ def show_result(result, as_json: bool) -> int:
     return code
 
 
-class Command(click.Command):
-    """A command whose --json holds for its own usage errors too (a bad option value, a
-    missing argument: click refuses them before the command runs): stdout gets the failure
-    document, stderr the message, exit code 2."""
+#: click's refusal that is help, not an error (a group given no command): shown as click shows it.
+_HELP_ERRORS = tuple(
+    getattr(click.exceptions, name) for name in ("NoArgsIsHelpError",) if hasattr(click.exceptions, name)
+)
+
+
+class _Refusing:
+    """Every refusal of the command line in the project's one form (:mod:`pipeline.ui.usage`),
+    printed by :func:`pipeline.ui.process.refuse`: ``error: OPT: ...`` on stderr, exit code
+    2, and with --json the failure document on stdout. Help that a closed stdout cut short
+    ends quietly (:func:`pipeline.ui.process.end_quietly`)."""
+
+    def _json_wanted(self, args) -> bool:
+        return process.wants_json(list(args))
 
     def make_context(self, info_name, args, parent=None, **extra):
-        json_wanted = any(p.name == "as_json" for p in self.params) and process.wants_json(args)
-        args = list(args)
-        given = list(args)  # click consumes ``args`` while parsing
+        as_json = self._json_wanted(args)
         try:
-            _refuse_json_with_a_value(self, info_name, args, parent)
+            self._before_parsing(info_name, list(args), parent)
             return super().make_context(info_name, args, parent=parent, **extra)
-        except click.UsageError as exc:
-            exc = _json_given_a_value(self, given, exc)
-            if not json_wanted:
-                raise exc from None
-            exc.show()
-            process.write_json(process.failure_doc(exc.exit_code, exc.format_message()))
-            sys.exit(exc.exit_code)
+        except _HELP_ERRORS:
+            raise
         except click.ClickException as exc:
-            if not json_wanted:
-                raise
-            exc.show()
-            process.write_json(process.failure_doc(exc.exit_code, exc.format_message()))
-            sys.exit(exc.exit_code)
+            process.refuse(usage_refusal(exc, self), as_json)
         except USER_ERRORS as exc:  # an option's value refused by its declaration
-            click.echo(f"error: {exc}", err=True)
-            if json_wanted:
-                process.write_json(process.failure_doc(exc.exit_code, str(exc)))
-            sys.exit(exc.exit_code)
+            process.refuse(exc, as_json)
+        except BrokenPipeError as exc:  # --help, --version into a closed pipe
+            if not process.stdout_closed(exc):
+                raise
+            process.end_quietly()
+
+    def _before_parsing(self, info_name, args: list[str], parent) -> None:
+        """A refusal of ``args`` before click parses them (none here)."""
 
 
-def _json_flag_message(command: click.Command, given: str) -> str:
+class Command(_Refusing, click.Command):
+    """A command whose every refusal reads in the project's form, and whose --json holds for
+    them too (a bad option value, a missing operand, an unknown option, a word too many:
+    click refuses them before the command runs): stdout gets the failure document, stderr the
+    message, exit code 2."""
+
+    allow_extra_args = True  # words left over are refused by parse_args, in the project's words
+
+    def _json_wanted(self, args) -> bool:
+        return any(p.name == "as_json" for p in self.params) and process.wants_json(list(args))
+
+    def _before_parsing(self, info_name, args: list[str], parent) -> None:
+        _refuse_json_with_a_value(self, info_name, args, parent)
+
+    def parse_args(self, ctx, args):
+        given = list(args)  # click consumes ``args`` while parsing
+        rest = super().parse_args(ctx, args)
+        if rest and not ctx.resilient_parsing:
+            head = given[: given.index("--") if "--" in given else len(given)]
+            after_json = [head[i + 1] for i, word in enumerate(head[:-1]) if word == "--json"]
+            if rest[0] in after_json:  # ``--json out.json``: a value given to the flag, not an operand
+                raise click.UsageError(_json_flag_message(self, f"--json {rest[0]}", rest[0]), ctx)
+            raise ExtraOperands(rest, ctx)
+        return rest
+
+
+def _json_flag_message(command: click.Command, given: str, value: str = "") -> str:
     writes = any("--json-out" in getattr(p, "opts", ()) for p in command.params)
-    tail = "write the file with --json-out FILE" if writes else "this command writes no JSON file"
+    value = value or "FILE"
+    tail = f"write the file with --json-out {value}" if writes else f"keep the document with --json > {value}"
     return f"{given}: --json is a flag (one JSON document on stdout) and takes no value; {tail}"
 
 
 def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str], parent=None) -> None:
-    """``--json=FILE``, or ``--json FILE.json`` (a JSON file's name after the flag, where no
-    operand of the command is one): a usage error naming ``--json-out``, before anything
-    else is checked."""
+    """``--json=FILE``, or ``--json FILE.json`` (a JSON file's name after the flag, where the
+    command takes no JSON file as an operand, or, where it does, a name that is no file: an
+    output meant, not an input): a usage error naming ``--json-out``, before anything else
+    is checked. The flag never takes the next word as its value."""
     head = args[: args.index("--") if "--" in args else len(args)]
     takes_json_files = any(
         isinstance(p, click.Argument) and ".json" in (p.metavar or "").lower() for p in command.params
@@ -259,33 +294,45 @@ def _refuse_json_with_a_value(command: click.Command, info_name, args: list[str]
         value = head[i + 1] if i + 1 < len(head) else ""
         given = None
         if flag.startswith("--json="):
-            given = flag
-        elif flag == "--json" and not takes_json_files and value.lower().endswith(".json"):
-            given = f"--json {value}"
+            given, value = flag, flag.split("=", 1)[1]
+        elif flag == "--json" and value and not value.startswith("-"):
+            if takes_json_files and not os.path.lexists(value):
+                given = f"--json {value}"
+            elif not takes_json_files and value.lower().endswith(".json"):
+                given = f"--json {value}"
         if given is not None:
             ctx = click.Context(command, info_name=info_name, parent=parent)
-            raise click.UsageError(_json_flag_message(command, given), ctx)
+            raise click.UsageError(_json_flag_message(command, given, value), ctx)
 
 
-def _json_given_a_value(command: click.Command, args: list[str], exc: click.UsageError) -> click.UsageError:
-    """click's "unexpected extra argument" where a word follows --json: say that --json takes
-    no value rather than that the word is extra."""
-    head = args[: args.index("--") if "--" in args else len(args)]
-    for i, flag in enumerate(head[:-1]):
-        word = head[i + 1]
-        if flag == "--json" and not word.startswith("-") and word in exc.format_message():
-            return click.UsageError(_json_flag_message(command, f"--json {word}"), exc.ctx)
-    return exc
+class Group(_Refusing, click.Group):
+    """A group whose refusals (an unknown command or option) read as every command's do."""
 
-
-class Group(click.Group):
     command_class = Command
+
+    def resolve_command(self, ctx, args):
+        name = args[0] if args else ""
+        as_json = process.wants_json(list(args))
+        if name and not name.startswith("-") and not ctx.resilient_parsing and self.get_command(ctx, name) is None:
+            process.refuse(unknown_command(self, ctx, name), as_json)
+        try:
+            return super().resolve_command(ctx, args)
+        except click.ClickException as exc:
+            process.refuse(usage_refusal(exc, self), as_json)
 
     def main(self, *args, **kwargs):
         try:
             return super().main(*args, **kwargs)
         finally:  # --help, --version, a usage error: no body ran to put Python's handler back
             process.loaded()
+
+
+def as_typed(value):
+    """A request's value as the command line types it: a tuple as ``1,2`` (``0.5,0.5,0.5``),
+    not ``[1, 2]``; anything else as it is."""
+    if not isinstance(value, (tuple, list)):
+        return value
+    return AsTyped(",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value))
 
 
 def reworded(request_cls):
@@ -299,7 +346,7 @@ def reworded(request_cls):
             return exc
         owner = exc.owner
         if owner is request_cls or (owner is not None and getattr(owner, "FIELD_PREFIX", "") == ""):
-            return exc.labelled(label)
+            return exc.labelled(label, as_typed(exc.value))
         return exc
 
     return reword

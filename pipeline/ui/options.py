@@ -11,9 +11,11 @@ so ``TrainConfig(**options)`` takes them as they come.
 
 from __future__ import annotations
 
+import re
+
 import click
 
-from pipeline.fields import Bool, Choice, FieldError, Optional, Path, Reject, Rule, declared, default_of
+from pipeline.fields import AsTyped, Bool, Choice, FieldError, Optional, Path, Reject, Rule, declared, default_of
 
 
 class FieldType(click.ParamType):
@@ -43,7 +45,8 @@ class FieldType(click.ParamType):
             return self.rule.check(parsed)
         except Reject as exc:
             allowed = self.rule.allowed + (f" {exc.detail}" if exc.detail else "")
-            raise refused(param, ctx, parsed, allowed, what=exc.what) from None
+            shown = parsed if isinstance(parsed, str) else AsTyped(value.strip())  # "0,1", not [0, 1]
+            raise refused(param, ctx, shown, allowed, what=exc.what) from None
 
 
 def refused(param, ctx, value, allowed: str, what: str | None = None) -> FieldError:
@@ -54,19 +57,27 @@ def refused(param, ctx, value, allowed: str, what: str | None = None) -> FieldEr
     return FieldError(where, value, allowed, what=what, name=param.name)
 
 
+#: A bracket that ends a field's help text ("[default: the dataset's]", "[required, except
+#: with --benchmark]"): it goes after what is allowed, where click puts its own "[default: 30]".
+_TRAILING_BRACKET = re.compile(r"\s*(\[(?:default|required)\b[^\]]*\])(\.?)\s*$")
+
+
 def option_help(f) -> str:
-    """The field's help: its text, then what it allows and its unit."""
+    """The field's help, in one order for every option: its text, what it allows (with its
+    unit), then its default or requirement in brackets."""
     rule, unit = f.metadata["rule"], f.metadata["unit"]
-    text = f.metadata["doc"].rstrip()
+    text, brackets = f.metadata["doc"].rstrip(), []
+    if match := _TRAILING_BRACKET.search(text):
+        text, brackets = text[: match.start()] + match.group(2), [match.group(1)]
     inner = rule.rule if isinstance(rule, Optional) else rule
     if not isinstance(inner, (Bool, Choice, Path)):
         brief = rule.brief
         if unit:  # "degrees in [0, 90]", "1 to 65536 samples per pixel"
             brief = f"{unit} in {brief}" if brief[0] in "[(" else f"{brief} {unit}"
         text = f"{text} Allowed: {brief}."
-    if isinstance(rule, Optional) and rule.default_text and "[default:" not in text:
-        text = f"{text} [default: {rule.default_text}]"
-    return text
+    if isinstance(rule, Optional) and rule.default_text and not brackets and "[default:" not in text:
+        brackets.append(f"[default: {rule.default_text}]")
+    return " ".join([text, *brackets])
 
 
 def option_from(cls, name: str, *, flag: str | None = None, unset: str | None = None, **changes) -> click.Option:

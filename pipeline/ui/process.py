@@ -5,6 +5,11 @@ exit code of each way it ends, Ctrl-C, and stdout kept for the one JSON document
   code (2, or the error's own: 1 refused, 3 busy, 4 file system); an OSError the library did
   not name is one line and exit code 4; Ctrl-C is one line saying how to go on, exit code 130.
   No traceback for any of them.
+- A command refused before its body runs (a missing operand or option, an unknown option or
+  command, an extra operand: click's refusals, in the project's form) is the same: ``error:
+  OPT: ...`` on stderr, exit code 2 (:func:`refuse`).
+- A stdout whose reader has gone (``shaderball plan SPEC | head -1``) ends the command quietly,
+  as a Unix tool that SIGPIPE ends: nothing on stderr, exit status 141 (:func:`end_quietly`).
 - With --json, stdout carries exactly one JSON document whatever happens: the command's
   result with ``"ok": true``, or ``{"ok": false, "exit": N, "error": "..."}`` (plus what a
   refusal adds: ``kind``, ``message``) for every failure, an internal error included (exit
@@ -21,6 +26,8 @@ import contextlib
 import ctypes
 import json
 import os
+import select
+import signal
 import sys
 import traceback
 
@@ -36,17 +43,68 @@ INTERNAL_EXIT = 70
 _JSON_DOC = "shaderball.json_doc"
 
 
+#: Exit status of a command whose stdout's reader went away before it was done writing: 128 +
+#: SIGPIPE, the status a shell reports for a Unix tool that the signal ended (`yes | head -1`).
+PIPE_CLOSED_EXIT = 128 + signal.SIGPIPE
+
+
 def emit_json(doc: dict) -> None:
     """The document a --json command prints on stdout once it returns (:func:`run_command`)."""
     click.get_current_context().meta[_JSON_DOC] = doc
 
 
-def write_json(doc: dict) -> None:
-    click.echo(json.dumps(doc, indent=1, sort_keys=True))
+def write_json(doc: dict, code: int = 0) -> None:
+    """Print ``doc`` on stdout; if stdout's reader has gone, end quietly with ``code`` (a
+    refusal's own) or, for a result no one reads, :data:`PIPE_CLOSED_EXIT`."""
+    try:
+        click.echo(json.dumps(doc, indent=1, sort_keys=True))
+    except BrokenPipeError as exc:
+        if not stdout_closed(exc):
+            raise
+        end_quietly(code or PIPE_CLOSED_EXIT)
 
 
 def failure_doc(code: int, error: str, **extra) -> dict:
     return {"ok": False, "exit": code, "error": error, **extra}
+
+
+def refuse(exc: BaseException, as_json: bool):
+    """End a command refused before its body ran (a user error, or click's own refusal in the
+    project's words: :func:`pipeline.ui.command.usage_refusal`): ``error: ...`` on stderr,
+    with --json the failure document on stdout, the error's exit code (2)."""
+    code = getattr(exc, "exit_code", 2)
+    click.echo(f"error: {exc}", err=True)
+    if as_json:
+        extra = exc.to_dict() if hasattr(exc, "to_dict") else {}
+        write_json(failure_doc(code, str(exc), **extra), code)
+    sys.exit(code)
+
+
+def stdout_closed(exc: BaseException) -> bool:
+    """Whether ``exc`` is the failed write of a stdout whose reader has gone: a BrokenPipeError
+    while file descriptor 1 is a pipe with no reader left (poll says POLLERR), not a socket
+    of the library's that a peer closed."""
+    if not isinstance(exc, BrokenPipeError):
+        return False
+    try:
+        poller = select.poll()
+        poller.register(1, select.POLLOUT)
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll(): the broken pipe is taken as stdout's
+        return True
+
+
+def end_quietly(code: int = PIPE_CLOSED_EXIT):
+    """End a command whose stdout's reader has gone, as Python's docs advise for SIGPIPE (the
+    signal module, "Note on SIGPIPE"): stdout pointed at /dev/null, so that what is left in
+    its buffer goes nowhere at exit instead of failing again, then exit, with no message: a
+    reader that stopped reading (`head -1`) wanted no more. Exit status ``code``: 141, as a
+    shell reports for a Unix tool that SIGPIPE ended, unless the command had failed already."""
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    sys.exit(code)
 
 
 @contextlib.contextmanager
@@ -116,6 +174,7 @@ def run_command(call, as_json: bool, reword=None) -> None:
     user error the surface's spelling (a request's field as its option)."""
     ctx = click.get_current_context()
     failed = stopped = None
+    closed = False
     loaded()  # Ctrl-C is a KeyboardInterrupt from here (pipeline.ui.interrupt before)
     with library_output_to_stderr(as_json):
         try:
@@ -126,21 +185,31 @@ def run_command(call, as_json: bool, reword=None) -> None:
         except click.exceptions.Exit as exc:  # ctx.exit(N)
             code = exc.exit_code
         except BaseException as exc:  # noqa: BLE001 - mapped to a message; re-raised where it is a bug
-            if reword is not None and isinstance(exc, USER_ERRORS):
-                exc = reword(exc)
-            code, message, extra = _failure(exc, as_json)
-            click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
-            failed = failure_doc(code, message, **extra)
-            stopped = exc if isinstance(exc, Stopped) else None
+            if stdout_closed(exc):  # ended below, once fd 1 is stdout again
+                code, closed = PIPE_CLOSED_EXIT, True
+            else:
+                code, failed, stopped = _reported(exc, as_json, reword)
+    if closed:
+        end_quietly()
     if as_json:
         doc = failed or ctx.meta.get(_JSON_DOC)
         if doc is None:
             doc = {"ok": code == 0, "exit": code, "error": None if code == 0 else "the command stopped with no result"}
-        write_json(doc)
+        write_json(doc, code)
     if stopped is not None and _own_streams():
         _end_now(code)
     if code:
         sys.exit(code)
+
+
+def _reported(exc: BaseException, as_json: bool, reword) -> tuple[int, dict, Stopped | None]:
+    """The exit code, failure document and Ctrl-C stop of an exception that ended a command,
+    its message printed on stderr."""
+    if reword is not None and isinstance(exc, USER_ERRORS):
+        exc = reword(exc)
+    code, message, extra = _failure(exc, as_json)
+    click.echo(f"error: {message}" if code != INTERRUPTED_EXIT else message, err=True)
+    return code, failure_doc(code, message, **extra), exc if isinstance(exc, Stopped) else None
 
 
 def _own_streams() -> bool:
