@@ -43,7 +43,7 @@ def test_json_given_a_value_is_one_document_naming_json_out(args, tmp_path, monk
     doc = json.loads(result.stdout)  # exactly one document
     assert doc["ok"] is False and doc["error"].startswith("--json=out.json: --json is a flag"), doc
     if args[0] == "evaluate":  # it writes a file of results with --json-out; train none
-        assert "write the file with --json-out FILE" in doc["error"], doc
+        assert "write the file with --json-out out.json" in doc["error"], doc  # the name given
     assert not list(tmp_path.iterdir())
 
 
