@@ -103,6 +103,8 @@ def derive_for(request, spec, named: dict[str, str] | None = None, **changes):
         return derive_spec(spec, **changes)
     except FieldError as exc:
         given = {k: changes[k] for k in DERIVED_FIELDS if changes.get(k) is not None}
+        if not given:  # nothing changed: the spec's own refusal
+            raise
         raise _refused_as_option(request, exc, given, named or {}) from None
 
 
