@@ -57,6 +57,7 @@ from pipeline.ui.command import Group, Printed, command_line, renamed_option, re
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
+    render_progress,
     say,
     study_progress,
     training_progress,
@@ -107,7 +108,7 @@ def render_cmd(request: RenderRequest):
     Example:
       shaderball render --out demo-out/ball.exr --png demo-out/ball.png --resolution 64 --spp 16 --elevation 30
     """
-    return render_to_files(request)
+    return render_to_files(request, progress=render_progress())
 
 
 @request_command(

@@ -1,5 +1,5 @@
 """Progress on stderr, one printer per kind of command: a build's bar, validate's stages, a
-study's steps, training's batches, evaluate's samples, and plain messages.
+study's steps, training's batches, evaluate's samples, a render's passes, and plain messages.
 
 Hand-written rather than tqdm or rich: on a terminal a bar is redrawn in place (``\\r``);
 anywhere else (a log, a batch job, a pipe) every update is a line of its own, in full, and a
@@ -126,5 +126,31 @@ def evaluate_progress():
         click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive)
         if interactive and p["done"] >= p["total"]:
             click.echo("", err=True)
+
+    return show
+
+
+def render_progress():
+    """render's bar on stderr: passes done of total, spp, elapsed, ETA and what runs now. On a
+    terminal it is redrawn in place (every second while a pass renders); anywhere else a line
+    is printed when the pass or the step changes, and every 10 s of a long pass."""
+    interactive = sys.stderr.isatty()
+    last = {"key": None, "t": 0.0, "width": 0}
+
+    def show(p: dict):
+        key, now = (p["done"], p["what"]), time.monotonic()
+        if not interactive and key == last["key"] and now - last["t"] < 10.0:
+            return
+        last["key"], last["t"] = key, now
+        width = 20
+        filled = width * p["done"] // max(p["total"], 1)
+        line = (
+            f"[{'#' * filled}{'.' * (width - filled)}] pass {p['done']}/{p['total']} "
+            f"({p['spp_done']}/{p['spp']} spp)  elapsed {format_seconds(p['elapsed_s'])}  "
+            f"ETA {format_seconds(p['eta_s'])}  | {p['what']}"
+        )
+        padded, last["width"] = line.ljust(last["width"]), len(line)
+        done = p["done"] >= p["total"]
+        click.echo(("\r" + padded) if interactive else line, err=True, nl=not interactive or done)
 
     return show
