@@ -71,14 +71,14 @@ lint: setup
 # serve spec (128 materials x 5 suns at 64 px, 64 spp; about 1.5 minutes on 2 cores), then a
 # half-width network with a cosine schedule, in the precision and threads train picks for the
 # machine, for as many epochs (at most 60) as fit what the build left of SERVE_MINUTES (less
-# 30 s for start-up and the last save); train's last lines print the held-out PSNR beside the
-# mean image's.
+# 45 s for train's start-up and the last epoch's ups and downs); train's last lines print the
+# held-out PSNR beside the mean image's.
 SERVE_OUT ?= serve-out
 SERVE_MINUTES ?= 15
 serve-network: setup
 	start=$$(date +%s); set -e; \
 	$(VENV)/bin/shaderball build manifests/serve.toml --out $(SERVE_OUT)/serve; \
-	left=$$(( $(SERVE_MINUTES) * 60 - 30 - $$(date +%s) + start )); [ $$left -ge 60 ] || left=60; \
+	left=$$(( $(SERVE_MINUTES) * 60 - 45 - $$(date +%s) + start )); [ $$left -ge 60 ] || left=60; \
 	$(VENV)/bin/shaderball train $(SERVE_OUT)/serve --out $(SERVE_OUT)/run --epochs 60 \
 		--minutes $$(awk "BEGIN { print $$left / 60 }") --loss l1 --width 0.5 --schedule cosine --batch-size 8 --seed 0; \
 	echo "serve-network: $$(( $$(date +%s) - start )) s wall, $$(nproc) cores ($$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')), load average $$(cut -d' ' -f1-3 /proc/loadavg) at the end"; \

@@ -5,6 +5,7 @@ length to the epochs that fit a time budget, kept when the run resumes."""
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -88,6 +89,21 @@ def test_the_epochs_a_budget_holds(left_s, epoch_s, most, epochs):
     assert train_module.budget_epochs(left_s, epoch_s, most) == epochs
 
 
+def test_a_budget_shortens_a_run_that_falls_behind_and_never_lengthens_it(monkeypatch):
+    """A 60 s budget: the first epoch's 10 s sets 6 epochs; a second of 20 s (15 s a mean, 30 s
+    left) cuts them to 4; a fast third does not bring them back."""
+    clock = iter([10.0, 30.0, 35.0])
+    monkeypatch.setattr(train_module.time, "perf_counter", lambda: next(clock))
+    length = train_module.RunLength(60, held_epochs=1, minutes=1.0, started=0.0)
+    notes = []
+    lengths = [length.after_epoch(epoch, 0.0, lambda e: notes.append(e["note"])) for epoch in (1, 2, 3)]
+    assert lengths == [6, 4, 4]
+    assert notes == [
+        "--minutes 1: the first epoch took 10 s with its scoring, 0.8 min are left: the run is 6 epochs",
+        "--minutes 1: 15 s an epoch so far, 0.5 min left after epoch 2: the run is 4 epochs (was 6)",
+    ]
+
+
 def test_a_held_first_epoch_then_a_cosine_over_the_rest():
     config = TrainConfig(dataset="d", out="o", epochs=4, lr=1e-3, schedule="cosine")
     steps = 10
@@ -149,3 +165,12 @@ def test_a_budgeted_run_resumed_without_its_budget_keeps_its_schedule(tmp_path):
 def test_a_budget_is_refused_with_several_processes(tmp_path):
     with pytest.raises(ShaderballError, match="^minutes: 5.0 is not allowed; unset with devices over 1"):
         train(train_config(tmp_path, minutes=5, devices=2, batch_size=2), source=FakeSource())
+
+
+def test_make_serve_network_leaves_the_machine_to_train():
+    """The out-of-the-box network's recipe forces no precision or threads (bf16 on a CPU
+    without bf16 instructions ran 5.4x slower than fp32) and trains to a time budget."""
+    makefile = (Path(__file__).resolve().parents[1] / "Makefile").read_text()
+    recipe = makefile.split("\nserve-network:", 1)[1].split("\n\n", 1)[0]
+    assert "shaderball train" in recipe and "--minutes" in recipe
+    assert "--precision" not in recipe and "--threads" not in recipe

@@ -143,8 +143,9 @@ class TrainConfig(Checked):
         None,
         rule=Optional(Float(0.0, 1e6, lo_open=True), "unset (no time budget: {epochs} epochs)"),
         doc="Time budget of a new run, from the command's start: after the first epoch (timed with its scoring, "
-        "at the full learning rate) the run's length is set to the epochs that fit, at most {epochs}, and kept "
-        "when it resumes; a cosine {schedule} decays over the epochs after the first.",
+        "at the full learning rate) the run's length is set to the epochs that fit, at most {epochs}, then "
+        "shortened after any epoch that says the rest would not fit, and kept when it resumes; a cosine "
+        "{schedule} decays over the epochs after the first [default: none, {epochs} epochs].",
         unit="minutes",
     )
     batch_size: int = field(6, rule=_int("batch_size"), doc="Samples per step (the paper: 6).", unit="samples")

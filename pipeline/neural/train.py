@@ -444,7 +444,7 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
     run = _set_up(config, progress, source)
     config, model = run.config, run.model
     ckpt = _resume_point(run)
-    length = RunLength.of(config, ckpt, progress)
+    length = RunLength.of(config, ckpt, started, progress)
     if ckpt is not None and int(ckpt["epoch"]) >= length.epochs:
         return _finished(config, run.old, ckpt, device, model, run.choice)
     config = dataclasses.replace(config, epochs=length.epochs)
@@ -478,8 +478,8 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
                 history.append(entry)
                 continue
             _score_epoch(entry, run, device, train_probe, test_set)
-            if length.to_set:  # the first epoch of a run with --minutes: its length from this one's time
-                config = dataclasses.replace(config, epochs=length.set(started, epoch_started, progress))
+            if length.budgeted:  # a run with --minutes: its length from the epochs' times
+                config = dataclasses.replace(config, epochs=length.after_epoch(epoch, epoch_started, progress))
             if length.held_epochs:
                 entry["schedule_epochs"] = config.epochs
             _record_epoch(entry, history, config, progress)
@@ -515,23 +515,27 @@ def _record_epoch(entry: dict, history: list[dict], config: TrainConfig, progres
 @dataclass
 class RunLength:
     """How many epochs a run has: ``--epochs``, or, with ``--minutes``, as many (at most
-    ``--epochs``) as fit the time from the call's start, set after the first epoch from its
-    time (training and scoring) and recorded in each epoch of the history
-    (``schedule_epochs``), so that a resumed run keeps it, with or without --minutes. Such
-    a run holds the learning rate through the first epoch (``held_epochs``): a cosine then
-    decays over the epochs after it, which are only known once it is timed."""
+    ``--epochs``) as fit the time from the call's start: set after the first epoch from its time
+    (training and scoring), then shortened after any epoch whose mean time so far says the rest
+    would not fit (never lengthened). Each epoch of the history records it
+    (``schedule_epochs``), and a resumed run keeps the last, with or without --minutes. Such a
+    run holds the learning rate through the first epoch (``held_epochs``): a cosine then decays
+    over the epochs after it, which are only known once it is timed."""
 
     epochs: int
     held_epochs: int = 0  # epochs at the full rate before the schedule (1 with --minutes)
-    minutes: float | None = None  # the budget, while the length is still to set
+    minutes: float | None = None  # the budget, in the call that started the run
+    started: float = 0.0  # time.perf_counter() when that call began
     note: str | None = None
+    times: list[float] = field(default_factory=list)  # each epoch's seconds, scoring and saving included
+    mark: float | None = None  # when the last epoch's time was taken
 
     @property
-    def to_set(self) -> bool:
+    def budgeted(self) -> bool:
         return self.minutes is not None
 
     @classmethod
-    def of(cls, config: TrainConfig, ckpt: dict | None, progress=None) -> RunLength:
+    def of(cls, config: TrainConfig, ckpt: dict | None, started: float | None, progress=None) -> RunLength:
         history = (ckpt or {}).get("history") or []
         recorded = history[-1].get("schedule_epochs") if history else None
         if recorded is not None:
@@ -543,29 +547,42 @@ class RunLength:
             if progress is not None:
                 progress({"note": note})
             return cls(config.epochs, note=note)
-        return cls(config.epochs, held_epochs=1, minutes=config.minutes)
+        begun = time.perf_counter() if started is None else started
+        return cls(config.epochs, held_epochs=1, minutes=config.minutes, started=begun)
 
-    def set(self, started: float | None, epoch_started: float, progress=None) -> int:
-        """The run's length, after its first epoch (begun at ``epoch_started``) of a call begun
-        at ``started``, said to ``progress``."""
+    def after_epoch(self, epoch: int, epoch_started: float, progress=None) -> int:
+        """The run's length after ``epoch`` (the first begun at ``epoch_started``; each later one
+        timed from the last's call, so its saving counts), said to ``progress`` when it is set or
+        shortened."""
         now = time.perf_counter()
-        epoch_s, left_s = now - epoch_started, self.minutes * 60 - (now - (started or epoch_started))
-        self.epochs = budget_epochs(left_s, epoch_s, self.epochs)
-        self.note = (
-            f"--minutes {self.minutes:g}: the first epoch took {epoch_s:.0f} s with its scoring, "
-            f"{max(left_s, 0) / 60:.1f} min are left: the run is {self.epochs} epoch{'s' if self.epochs != 1 else ''}"
-        )
-        self.minutes = None
+        self.times.append(now - (epoch_started if self.mark is None else self.mark))
+        self.mark = now
+        left_s, per_epoch = self.minutes * 60 - (now - self.started), sum(self.times) / len(self.times)
+        fits = budget_epochs(left_s, per_epoch, self.epochs, done=epoch)
+        if len(self.times) > 1 and fits >= self.epochs:
+            return self.epochs
+        was, self.epochs = self.epochs, fits
+        plural = "s" if fits != 1 else ""
+        if len(self.times) == 1:
+            self.note = (
+                f"--minutes {self.minutes:g}: the first epoch took {per_epoch:.0f} s with its scoring, "
+                f"{max(left_s, 0) / 60:.1f} min are left: the run is {fits} epoch{plural}"
+            )
+        else:
+            self.note = (
+                f"--minutes {self.minutes:g}: {per_epoch:.0f} s an epoch so far, {max(left_s, 0) / 60:.1f} min "
+                f"left after epoch {epoch}: the run is {fits} epoch{plural} (was {was})"
+            )
         if progress is not None:
             progress({"note": self.note})
         return self.epochs
 
 
-def budget_epochs(left_s: float, epoch_s: float, most: int) -> int:
-    """Epochs of a run whose first epoch took ``epoch_s`` seconds with ``left_s`` seconds left:
-    the first and as many more as fit, at most ``most``."""
+def budget_epochs(left_s: float, epoch_s: float, most: int, done: int = 1) -> int:
+    """Epochs of a run that has ``done`` epochs of ``epoch_s`` seconds each with ``left_s``
+    seconds left: those and as many more as fit, at most ``most`` (and at least ``done``)."""
     more = math.floor(left_s / epoch_s) if epoch_s > 0 else most
-    return max(1, min(most, 1 + more))
+    return max(done, min(most, done + more))
 
 
 def _set_up(config: TrainConfig, progress, source) -> _Setup:
