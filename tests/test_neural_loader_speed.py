@@ -57,9 +57,12 @@ def test_worker_batches_equal_in_process_ones_and_lie_in_shared_memory(reference
 
 @pytest.mark.slow
 def test_the_loader_keeps_a_fair_share_with_two_busy_processes(reference):
-    """Best of 3 passes each, alternated, with the intra-op threads at the core count: the loaded
-    rate stays above a quarter of the unloaded one. A fair share of 2 cores against 2 spinners is
-    about 2/3; torch's collation fell to 1/15 (643 -> 42 samples/s)."""
+    """3 pairs of passes, each a pass without and a pass with two busy processes beside it, with
+    the intra-op threads at the core count: in the best pair the loaded rate stays above a quarter
+    of the other. A fair share of 2 cores against 2 spinners is about 2/3 (more when the machine
+    is busy already: the pass without is loaded too); torch's collation fell to 1/15 (643 -> 42
+    samples/s). A ratio within a pair, run back to back, so the machine's own load changing
+    between passes counts little."""
     before = torch.get_num_threads()
     torch.set_num_threads(os.cpu_count() or 1)
     try:
@@ -70,7 +73,8 @@ def test_the_loader_keeps_a_fair_share_with_two_busy_processes(reference):
                 loaded.append(measure_loader(str(reference), None, DEFAULT_EXPOSURE, True, 6, 0).samples_per_s)
     finally:
         torch.set_num_threads(before)
-    assert max(loaded) >= 0.25 * max(idle), f"idle {idle}, with two busy processes {loaded} samples/s"
+    ratios = [with_busy / without for with_busy, without in zip(loaded, idle)]
+    assert max(ratios) >= 0.25, f"without {idle}, with two busy processes {loaded} samples/s"
 
 
 def test_the_loader_rate_leaves_start_up_out(reference):
