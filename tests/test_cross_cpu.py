@@ -28,7 +28,7 @@ def test_builds_for_another_cpu_have_the_same_plan_and_renders_within_their_nois
         cwd=REPO,
         capture_output=True,
         text=True,
-        timeout=900,
+        timeout=600,  # ~25 s of CPU: fails with the command named before pytest's 900 s would
     )
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
