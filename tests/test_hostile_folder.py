@@ -48,8 +48,9 @@ def validate_json(*args) -> tuple[int, list[dict]]:
     return result.exit_code, json.loads(result.stdout)["problems"]
 
 
-def cli_process(*args, timeout: float = 60) -> subprocess.CompletedProcess:
-    """The CLI in its own process, for inputs that could hang or exhaust memory."""
+def cli_process(*args, timeout: float = 180) -> subprocess.CompletedProcess:
+    """The CLI in its own process, for inputs that could hang or exhaust memory (a hang fails at
+    ``timeout``: ~60x a command's time on the smoke dataset on 2 idle cores, ample when busy)."""
     return subprocess.run(
         [sys.executable, "-m", "cli", *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=timeout
     )
