@@ -11,6 +11,7 @@ Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): m
 """
 
 import errno
+import json
 import re
 
 from geometry.errors import GeometryError
@@ -61,9 +62,26 @@ def filesystem_error(exc: OSError, where: str, hint: str) -> FilesystemError:
 USER_ERRORS = (ShaderballError, MaterialError, SkyError, GeometryError)
 
 
+def quoted(text) -> str:
+    """A user's word (a path, a name) inside a message, in the project's one quoting style:
+    double quotes, JSON's escapes for control characters (as pipeline.fields.format_value
+    shows a refused string)."""
+    return json.dumps(str(text), ensure_ascii=False)
+
+
 def short_repr(value, limit: int = 60) -> str:
-    """``repr(value)`` cut to ``limit`` characters, for messages that quote user data."""
-    text = repr(value)
+    """``value`` cut to ``limit`` characters, for messages that quote user data: a string (and
+    the strings inside a list or table) in double quotes (:func:`quoted`), anything else as
+    Python writes it."""
+    if isinstance(value, str):
+        text = quoted(value)
+    elif isinstance(value, (list, tuple, dict)):
+        try:
+            text = json.dumps(value, ensure_ascii=False)
+        except (TypeError, ValueError):
+            text = repr(value)
+    else:
+        text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

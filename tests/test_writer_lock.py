@@ -232,7 +232,7 @@ def test_repair_and_a_second_build_during_a_build_are_refused_and_readers_run_be
         repair = run("validate", out, "--repair")
         assert repair.returncode == 3, repair
         assert repair.stderr.startswith(
-            f"error: DIR: {str(out)!r} is being written by another writer: build, pid {build.pid} on host "
+            f"error: DIR: {json.dumps(str(out))} is being written by another writer: build, pid {build.pid} on host "
         ), repair.stderr
         assert "Traceback" not in repair.stderr
         other = run("build", _spec_with_seed(tmp_path, 7), "--out", out, "--workers", 0)
@@ -276,7 +276,7 @@ def test_a_build_killed_with_kill_9_does_not_block_its_resume(tmp_path, referenc
 
 
 def _busy_line(folder: Path, purpose: str, pid: int) -> str:
-    return f"error: PUB: {str(folder)!r} is being written by another writer: {purpose}, pid {pid} on host "
+    return f"error: PUB: {json.dumps(str(folder))} is being written by another writer: {purpose}, pid {pid} on host "
 
 
 @pytest.mark.slow

@@ -47,7 +47,7 @@ from functools import cached_property
 import numpy as np
 
 from pipeline.dataset.spec import DatasetSpec, list_map_files
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from sky.portable import asin_deg, sin_deg
 from sky.sampling import unit_points
 
@@ -263,7 +263,7 @@ def _svbrdf_arrays(spec: DatasetSpec, imported: Mapping[str, Sequence[str]]):
     for i, folder in enumerate(folders):
         names = sorted(imported.get(folder, ()))
         if not names:
-            raise ShaderballError(f"materials.svbrdf_folders: {folder!r} holds no map file to import")
+            raise ShaderballError(f"materials.svbrdf_folders: {quoted(folder)} holds no map file to import")
         order = seeded_rng(int(index_seeds(seed, STREAM_IMPORT, i))).permutation(len(names))
         file_orders[i] = [os.path.join(folder, names[j]) for j in order.tolist()]
     chosen = seeded_rng(int(index_seeds(seed, STREAM_SVBRDF, 0))).permutation(n)[:k]

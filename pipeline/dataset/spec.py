@@ -39,7 +39,7 @@ import tomllib
 
 from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import (
     MISSING,
     Bool,
@@ -562,10 +562,10 @@ def read_spec_file(path: str | os.PathLike, name: str = "spec file") -> tuple[by
             regular = stat.S_ISREG(os.fstat(fh.fileno()).st_mode)
             data = fh.read(MAX_SPEC_BYTES + 1)
     except OSError as exc:
-        raise ShaderballError(f"{name}: cannot read {path!r}: {exc.strerror}") from None
+        raise ShaderballError(f"{name}: cannot read {quoted(path)}: {exc.strerror}") from None
     if len(data) > MAX_SPEC_BYTES:
         raise ShaderballError(
-            f"{name}: {path!r} is larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
+            f"{name}: {quoted(path)} is larger than {MAX_SPEC_BYTES} bytes; a spec is a short TOML file (docs/spec.md)"
         )
     return data, os.path.dirname(os.path.abspath(path)) if regular else os.getcwd()
 

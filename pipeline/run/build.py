@@ -35,7 +35,7 @@ from pipeline.dataset.spec import (
     spec_to_dict,
     spec_to_toml,
 )
-from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, short_repr
+from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, quoted, short_repr
 from pipeline.fields import Bool, Checked, Path, format_value, same_as
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
@@ -534,7 +534,7 @@ def build(
         raise filesystem_error(
             exc,
             out,
-            f"every write is atomic, so nothing in {out!r} is torn: fix the "
+            f"every write is atomic, so nothing in {quoted(out)} is torn: fix the "
             "cause and run the same command again to resume",
         ) from None
 

@@ -14,7 +14,7 @@ from pipeline.check.report import Progress, RepairAction, Report
 from pipeline.check.request import ValidateRequest
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
-from pipeline.errors import SetupError, filesystem_error
+from pipeline.errors import SetupError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
 from pipeline.run.build import build, recorded_guarantee, write_manifest
 from pipeline.store.atomic import write_text_atomic
@@ -33,7 +33,7 @@ def restore_spec(state: State, spec_path: str) -> RepairAction:
             "spec",
             spec_path,
             "a dataset whose dataset.json records its spec's digest",
-            what=f"cannot be checked: {DESCRIPTION_FILE} of {state.layout.root!r} is missing or has no "
+            what=f"cannot be checked: {DESCRIPTION_FILE} of {quoted(state.layout.root)} is missing or has no "
             "spec_digest, so no spec can be confirmed as the one it was built from",
         )
     spec = parse_spec(spec_path)
@@ -42,7 +42,7 @@ def restore_spec(state: State, spec_path: str) -> RepairAction:
             "spec",
             spec_path,
             "the spec this dataset was built from",
-            what=f"{spec_path!r} has digest {spec_digest(spec)[:12]}, "
+            what=f"{quoted(spec_path)} has digest {spec_digest(spec)[:12]}, "
             f"{DESCRIPTION_FILE} says the dataset was built from {recorded[:12]}: not this dataset's spec",
         )
     write_text_atomic(state.layout.spec, spec_to_toml(spec))

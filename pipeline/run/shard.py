@@ -33,7 +33,7 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import MaterialPlan, SamplePlan, ShardPlan
 from pipeline.dataset.record import model_record
 from pipeline.dataset.spec import DatasetSpec
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint
 from pipeline.render.raster import project_material
@@ -276,7 +276,7 @@ def run_shard_in_process(
     """
     if not os.path.isfile(Layout(out).spec):
         raise ShaderballError(
-            f"worker on {socket.gethostname()}: the dataset directory {out!r} is not visible "
+            f"worker on {socket.gethostname()}: the dataset directory {quoted(out)} is not visible "
             "here (no spec.toml); every worker needs it at the same path on a shared filesystem"
         )
     load_mitsuba(variant)

@@ -42,6 +42,7 @@ import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from pipeline.errors import quoted
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
 
@@ -853,7 +854,7 @@ def why_not_creatable(out: str) -> str | None:
         probe = os.path.dirname(probe)
     if not os.path.isdir(probe):
         what = "a dangling symbolic link" if os.path.islink(probe) else "a file"
-        return f"cannot be created: {probe!r} is {what}, not a folder"
+        return f"cannot be created: {quoted(probe)} is {what}, not a folder"
     if not os.access(probe, os.W_OK):
         return f"cannot be created: {probe} is not writable"
     return None

@@ -44,7 +44,7 @@ import socket
 import stat
 import sys
 
-from pipeline.errors import FilesystemError, FolderBusy, ShaderballError
+from pipeline.errors import FilesystemError, FolderBusy, ShaderballError, quoted
 from pipeline.store.layout import LOCK_FILE
 
 #: Bytes of the holder's description read back (it is one short JSON line).
@@ -89,7 +89,7 @@ def busy(root: str, holder: dict | None, label: str = "DIR") -> FolderBusy:
     """The refusal of a writer that finds ``root`` held by ``holder``; ``label`` names the
     folder as its command calls it (DIR, PUB)."""
     return FolderBusy(
-        f"{label}: {root!r} is being written by another writer: {holder_text(holder)}. "
+        f"{label}: {quoted(root)} is being written by another writer: {holder_text(holder)}. "
         "One writer at a time (build, validate --repair, unpack, publish --out): wait for it to "
         "finish, or stop it (a writer that is killed releases the folder at once); "
         "readers (validate, info, preview, publish of a dataset, train) may run beside it"
@@ -145,13 +145,13 @@ def _open_lock_file(root: str) -> int:
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise ShaderballError(
-                f"{path!r} is a symbolic link; a dataset folder holds none "
+                f"{quoted(path)} is a symbolic link; a dataset folder holds none "
                 "(`shaderball validate` reports it); remove it"
             ) from None
-        raise FilesystemError(f"cannot create the writer lock {path!r}: {exc.strerror}") from None
+        raise FilesystemError(f"cannot create the writer lock {quoted(path)}: {exc.strerror}") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
-        raise ShaderballError(f"{path!r} is not a regular file; remove it (it is the writer lock)")
+        raise ShaderballError(f"{quoted(path)} is not a regular file; remove it (it is the writer lock)")
     return fd
 
 
@@ -176,14 +176,14 @@ def _acquire(root: str, purpose: str, label: str) -> int:
         except OSError as exc:
             os.close(fd)
             raise FilesystemError(
-                f"the filesystem of {root!r} refuses file locks ({exc.strerror}), so two writers "
+                f"the filesystem of {quoted(root)} refuses file locks ({exc.strerror}), so two writers "
                 "could not be kept apart; use a filesystem (or mount option) with flock support"
             ) from None
         if _same_file(fd, path):
             break
         os.close(fd)  # its holder unlinked it as we locked it: take the new one
     else:
-        raise FolderBusy(f"{root!r}: the writer lock {path!r} kept changing hands; try again")
+        raise FolderBusy(f"{quoted(root)}: the writer lock {quoted(path)} kept changing hands; try again")
     info = {
         "purpose": purpose,
         "pid": os.getpid(),
