@@ -16,11 +16,16 @@ cd "$scratch/clone" || exit 1
 python3 -c 'while True: pass' & b1=$!
 python3 -c 'while True: pass' & b2=$!
 trap 'kill $b1 $b2 2>/dev/null' EXIT
+# pytest lists its 25 slowest steps in the log; the slowest is printed below: pytest-timeout
+# stops a test at 900 s (pyproject.toml), and on a busy machine no test should come near that.
+export PYTEST_ADDOPTS="${PYTEST_ADDOPTS:-} --durations=25"
 start=$(date +%s)
 ./.ci/run > "$log" 2>&1
 rc=$?
 wall=$(( $(date +%s) - start ))
 summary=$(grep -E '^[0-9]+ (passed|failed)|^=+ .*(passed|failed)' "$log" | tail -1)
 echo "commit $(git rev-parse --short HEAD): exit $rc, wall ${wall} s ($(( wall / 60 ))m$(( wall % 60 ))s) with two busy processes beside it; load average $(cut -d' ' -f1-3 /proc/loadavg); $summary" | tee -a "$log"
+slowest=$(awk '/slowest [0-9]+ durations/ {on = 1; next} on && /^[0-9.]+s (setup|call|teardown) / {print; exit}' "$log" | tr -s ' ')
+echo "slowest step: ${slowest:-none listed} (pytest's timeout: 900 s a test)" | tee -a "$log"
 rm -rf "$scratch"
 exit $rc
