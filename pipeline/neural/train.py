@@ -538,8 +538,8 @@ class RunLength:
     def of(cls, config: TrainConfig, ckpt: dict | None, started: float | None, progress=None) -> RunLength:
         history = (ckpt or {}).get("history") or []
         recorded = history[-1].get("schedule_epochs") if history else None
-        if recorded is not None:
-            return cls(recorded, held_epochs=1)
+        if recorded is not None:  # at most --epochs: a constant schedule's run may be cut short
+            return cls(min(recorded, config.epochs), held_epochs=1)
         if config.minutes is None:
             return cls(config.epochs)
         if history:
