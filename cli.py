@@ -327,6 +327,7 @@ def train_cmd(request: TrainConfig, as_json: bool):
     Example:
       shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
+    request.check_run()  # refused before torch loads (seconds) or any data is read
     _neural()
     if request.benchmark:
         from pipeline.neural.bench import benchmark

@@ -52,8 +52,10 @@ from pipeline.neural.limits import (
     SPP_LADDER_RANGE,
     STEPS_RANGE,
     TRAINING_VARIANTS,
+    VGG16_FILE,
     WIDTH_RANGE,
 )
+from pipeline.neural.runfolder import check_run_folder
 from pipeline.render.command import RenderRequest
 from pipeline.render.settings import RenderSettings
 
@@ -62,6 +64,8 @@ SCHEDULES = ("constant", "cosine")
 #: Network resolutions: multiples of this (the encoder halves the image 4 times).
 RESOLUTION_MULTIPLE = 16
 NETWORK_RESOLUTION_RANGE = (16, 4096)
+#: What the dataset operand of the neural commands must be.
+A_DATASET = "a dataset folder written by `shaderball build`, or its publication (`shaderball publish`)"
 
 
 class NetworkResolution(Rule):
@@ -245,6 +249,7 @@ class TrainConfig(Checked):
         rule=_int("threads"),
         doc="torch intra-op threads (0: the cores this process may use: its CPU affinity, at most its cgroup's "
         "CPU quota; docs/neural.md, Speed on a CPU).",
+        unit="threads",
     )
     precision: str = field(
         "auto",
@@ -284,6 +289,29 @@ class TrainConfig(Checked):
             raise self.field_error(
                 "warmup_epochs", self.warmup_epochs, f"a finite number from 0 to {self.epochs:g}, the {{epochs}}"
             )
+
+    def check_run(self, *, dataset_opened: bool = False) -> None:
+        """The checks of a run's paths and options that need neither torch nor the data (the command
+        line makes them before torch loads): the {out} folder (unless {benchmark}), the dataset
+        there (unless ``dataset_opened``: the caller hands the data over), a named VGG16 file, fp16
+        on the CPU."""
+        if not self.benchmark:
+            check_run_folder(TrainConfig, "out", self.out)
+        if not dataset_opened and not self.dataset and not self.benchmark:
+            raise self.field_error("dataset", self.dataset, A_DATASET, what="missing")
+        if not dataset_opened and self.dataset and not os.path.lexists(self.dataset):
+            raise self.field_error(
+                "dataset", self.dataset, A_DATASET, what=f"{format_value(self.dataset)} does not exist"
+            )
+        if self.loss != "l1" and self.vgg_weights is not None and not os.path.isfile(self.vgg_weights):
+            raise self.field_error(
+                "vgg_weights",
+                self.vgg_weights,
+                f"torchvision's vgg16 state dict ({VGG16_FILE})",
+                what=f"{format_value(self.vgg_weights)} is not a file",
+            )
+        if self.precision == "fp16" and self.device == "cpu":
+            raise self.field_error("precision", self.precision, "fp32 or bf16 on a CPU (fp16 autocast is for CUDA)")
 
     @property
     def splitting_seed(self) -> int:

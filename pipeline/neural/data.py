@@ -67,7 +67,7 @@ from pipeline.check.inspect import content_issues, sample_expectations
 from pipeline.errors import ShaderballError
 from pipeline.fields import FieldError
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
-from pipeline.neural.config import TrainConfig
+from pipeline.neural.config import A_DATASET, TrainConfig
 from pipeline.neural.network import check_network_resolution
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
@@ -190,10 +190,6 @@ def worker_message(exc: Exception) -> str:
 def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader:
     """A DataLoader over ``dataset`` that collates with :func:`collate_samples` (:class:`Batches`)."""
     return Batches(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
-
-
-#: What the dataset operand of the neural commands must be.
-A_DATASET = "a dataset folder written by `shaderball build`, or its publication (`shaderball publish`)"
 
 
 def dataset_refused(root: str, what: str, allowed: str = A_DATASET) -> FieldError:

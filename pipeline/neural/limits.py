@@ -19,6 +19,8 @@ INTEGER_RANGES = {
     "seed": (0, 2**63 - 1),
     "threads": (0, 256),
 }
+#: torchvision's VGG16 ImageNet weights' file name (torch hub's cache holds it under this name).
+VGG16_FILE = "vgg16-397923af.pth"
 #: --precision: auto (the default: bf16 on a CPU with bfloat16 instructions, else fp32), fp32, or
 #: autocast to bf16 (CPU or CUDA) or fp16 (CUDA, with a gradient scaler).
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")

@@ -38,6 +38,16 @@ from pipeline.neural.checkpoint_meta import shown
 from pipeline.neural.config import InferRequest
 from pipeline.neural.limits import INTEGER_RANGES
 from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
+from pipeline.neural.runfolder import (  # noqa: F401 - the run files' names, read here as runfiles.NAME
+    BEST_CHECKPOINT,
+    CHECKPOINT,
+    CONFIG,
+    LOG,
+    LOG_CSV,
+    LOSS_PNG,
+    RUN_FILES,
+    refuse_links,
+)
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.folder import (
     MAX_JSON_BYTES,
@@ -47,12 +57,8 @@ from pipeline.store.folder import (
     short_json,
     structure_problem,
 )
-from pipeline.store.links import first_link
 
-CONFIG = "config.json"
-LOG = "log.jsonl"
-#: The per-epoch log as CSV, for spreadsheets and plotting tools; these columns, in this order.
-LOG_CSV = "log.csv"
+#: The per-epoch log.csv's columns, in this order.
 CSV_COLUMNS = (
     "epoch",
     "train_loss",
@@ -66,28 +72,10 @@ CSV_COLUMNS = (
     "train_psnr",
     "samples_per_s",
 )
-CHECKPOINT = "checkpoint.pt"
-#: The checkpoint of the epoch with the best held-out PSNR so far (runs with a held-out split):
-#: the weights only, no optimizer state.
-BEST_CHECKPOINT = "checkpoint-best.pt"
 #: What `--checkpoint` names: the last epoch's or the best held-out one's, or else a file.
 CHECKPOINT_CHOICES = {"last": CHECKPOINT, "best": BEST_CHECKPOINT}
-LOSS_PNG = "loss.png"
 CHECKPOINT_FORMAT = "shaderball-neural-checkpoint"
 CHECKPOINT_VERSION = 1
-
-
-#: Every file a training run writes into its folder.
-RUN_FILES = (CONFIG, LOG, LOG_CSV, CHECKPOINT, BEST_CHECKPOINT, LOSS_PNG)
-
-
-def refuse_links(request, field: str, value, roots, paths) -> None:
-    """Refuse (``request``'s ``field``, exit 2) the first of ``paths`` that is, or passes
-    through, a symbolic link inside one of ``roots`` (a run folder, an output folder):
-    :func:`pipeline.store.links.first_link`, checked before anything is written."""
-    found = first_link(roots, paths)
-    if found:
-        raise request.field_error(field, value, f"remove the link, or name another {{{field}}}", what=found[1])
 
 
 def write_json(path: str, obj, inside: str | None = None) -> None:

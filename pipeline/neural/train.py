@@ -313,24 +313,6 @@ def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
     return out
 
 
-def _check_run_dir(run_dir: str | None) -> None:
-    if not run_dir:
-        raise TrainConfig.field_error("out", run_dir, "name the run folder (or pass {benchmark})", what="missing")
-    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
-        raise TrainConfig.field_error("out", run_dir, "a folder", what=f"{run_dir!r} is a file")
-    if os.path.isdir(run_dir) and os.listdir(run_dir) and not os.path.isfile(os.path.join(run_dir, runfiles.CONFIG)):
-        raise TrainConfig.field_error(
-            "out",
-            run_dir,
-            f"a new or empty folder, or a run folder (with {runfiles.CONFIG})",
-            what=f"{run_dir!r} holds other files",
-        )
-    # No run file is written through (or over) a symbolic link in the run folder.
-    runfiles.refuse_links(
-        TrainConfig, "out", run_dir, [run_dir], [os.path.join(run_dir, n) for n in runfiles.RUN_FILES]
-    )
-
-
 def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -> dict:
     """What a run computes: a resume must match it. The options of OPTIONAL_IDENTITY join only when not
     their defaults, so older runs keep their digest."""
@@ -413,7 +395,7 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     """
     started = time.perf_counter()  # --minutes counts from here
     config.check()
-    _check_run_dir(config.out)
+    config.check_run(dataset_opened=source is not None)
     device = pick_device(config.device)
     config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))
     if config.devices > 1:
@@ -588,15 +570,16 @@ def budget_epochs(left_s: float, epoch_s: float, most: int, done: int = 1) -> in
 def _set_up(config: TrainConfig, progress, source) -> _Setup:
     """The dataset (``source``, else ``config.dataset`` opened) split by material, the loss
     (said to ``progress``), the network initialised from the seed, the run's config.json."""
+    config_path = os.path.join(config.out, runfiles.CONFIG)
+    old = runfiles.read_config(config.out) if os.path.isfile(config_path) else None
+    # the loss (and its refusals) before the data is read
+    choice = choose_loss(config, (old or {}).get("identity", {}).get("loss") if config.loss == "auto" else None)
     if source is None:
         source = open_dataset(
             config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.hash_check
         )
     pool, test_ids = split_materials(source.material_ids, config.test_fraction, config.splitting_seed)
     train_ids = select_training_materials(pool, config.train_materials, config.splitting_seed)
-    config_path = os.path.join(config.out, runfiles.CONFIG)
-    old = runfiles.read_config(config.out) if os.path.isfile(config_path) else None
-    choice = choose_loss(config, (old or {}).get("identity", {}).get("loss") if config.loss == "auto" else None)
     requested = config.loss
     config = dataclasses.replace(config, loss=choice.name)
     loss_fn, vgg_sha = make_loss(choice, config.vgg_weight)

@@ -19,13 +19,14 @@ from torch import nn
 
 from pipeline.errors import ShaderballError
 from pipeline.neural.config import TrainConfig
+from pipeline.neural.limits import VGG16_FILE
 
 #: torchvision's VGG16 feature configuration: conv widths, "M" for a 2x2 max pool.
 VGG16_CONFIG = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
 #: Index (in ``features``) of the ReLU after conv3_3: the paper's feature layer.
 RELU3_3 = 15
 #: torch hub's file name for torchvision's VGG16 ImageNet weights (the hash prefix is torch's).
-HUB_FILENAME = "vgg16-397923af.pth"
+HUB_FILENAME = VGG16_FILE
 #: SHA-256 of that file: it begins with the prefix torch hub puts in the name.
 VGG16_IMAGENET_SHA256 = "397923af8e79cdbb6a7127f12361acd7a2f83e06b05044ddf496e83de57a5bf0"
 #: ImageNet normalisation the weights were trained with (inputs in [0, 1], sRGB).
