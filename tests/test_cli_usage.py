@@ -253,6 +253,42 @@ def _texts(tmp_path):
         yield f"{name} unknown option", invoke(*name.split(), *valid_args(command, tmp_path), "--nope").output
         for param in _required(command):
             yield f"{name} no {param.name}", invoke(*name.split(), *valid_args(command, tmp_path, param)).output
+    for name, command in NEURAL_OPERANDS:
+        yield f"{name} a bad folder", _bad_folder(name, command, tmp_path)[1].output
+
+
+#: The neural commands that read a folder (a dataset, a run, a report) named by an operand.
+NEURAL_OPERANDS = [
+    (name, command)
+    for name, command in COMMANDS
+    if command.request_cls.__module__ == "pipeline.neural.config"
+    and any(isinstance(p, click.Argument) for p in command.params)
+]
+
+
+def _bad_folder(name, command, tmp_path):
+    """``name`` with each operand a folder that holds no dataset, run or report, the required
+    options valid (train's --out too): the folder, and the result."""
+    folder = tmp_path / "not-a-dataset"
+    folder.mkdir(exist_ok=True)
+    operands = [str(folder) for p in command.params if isinstance(p, click.Argument)]
+    options = valid_args(command, tmp_path)[len(_arguments(command)) :]
+    if name == "train":
+        options += ["--out", str(tmp_path / "run")]
+    return folder, invoke(*name.split(), *operands, *options)
+
+
+def _arguments(command):
+    return [p for p in command.params if isinstance(p, click.Argument) and p.required]
+
+
+@pytest.mark.parametrize("name, command", NEURAL_OPERANDS, ids=[n for n, _ in NEURAL_OPERANDS])
+def test_a_bad_folder_is_named_in_double_quotes(name, command, tmp_path):
+    folder, result = _bad_folder(name, command, tmp_path)
+    assert result.exit_code == 2, result.output
+    line = result.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: ") and json.dumps(str(folder)) in line, line
+    assert not MINORITY["a single-quoted word"].search(line), line
 
 
 def test_one_quoting_style_and_one_wording(tmp_path):

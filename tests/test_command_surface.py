@@ -194,7 +194,7 @@ def test_neural_bench_loaders_on_a_folder_and_its_publication(reference, tmp_pat
     ]
     swapped = _cli("neural-bench", "loaders", pub, reference, "--repeats", 1)
     assert swapped.returncode == 2 and "a dataset folder, then its publication as PUB" in swapped.stderr
-    assert swapped.stderr.splitlines()[-1].startswith(f"error: DIR: '{pub}' is a publication; ")
+    assert swapped.stderr.splitlines()[-1].startswith(f'error: DIR: "{pub}" is a publication; ')
 
 
 @pytest.mark.slow

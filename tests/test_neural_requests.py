@@ -87,7 +87,7 @@ def test_loaders_names_its_operands_dir_and_pub(tmp_path):
     assert missing.exit_code == 2 and "error: PUB: " in missing.output and "does not exist" in missing.output
     empty = _invoke("neural-bench", "loaders", tmp_path / "a", tmp_path / "b")
     assert empty.exit_code == 2, empty.output
-    assert f"error: DIR: '{tmp_path / 'a'}' has no dataset.json; " in empty.stderr, empty.output
+    assert f'error: DIR: "{tmp_path / "a"}" has no dataset.json; ' in empty.stderr, empty.output
     assert "DATASET" not in empty.output
 
 
@@ -95,7 +95,7 @@ def test_loaders_names_its_operands_dir_and_pub(tmp_path):
 def test_loaders_names_pub_when_the_publication_is_refused(reference, tmp_path):
     (tmp_path / "b").mkdir()
     result = _invoke("neural-bench", "loaders", reference, tmp_path / "b", "--repeats", 1)
-    assert result.exit_code == 2 and f"error: PUB: '{tmp_path / 'b'}' has no dataset.json; " in result.stderr
+    assert result.exit_code == 2 and f'error: PUB: "{tmp_path / "b"}" has no dataset.json; ' in result.stderr
     assert "DATASET" not in result.output and "DIR" not in result.output
 
 
@@ -154,7 +154,7 @@ def test_evaluate_refuses_another_dataset_saying_how_it_compared(tiny_run, refer
     (other / "manifest.jsonl").write_text("\n".join(lines) + "\n")
     result = _invoke("evaluate", run, other, "--spp", "none", "--no-flip", "--limit", 1, "--out", tmp_path / "ev")
     assert result.exit_code == 2, result.output
-    assert result.output.startswith(f"error: DATASET: '{other}' is not the dataset the run was trained on: ")
+    assert result.output.startswith(f'error: DATASET: "{other}" is not the dataset the run was trained on: ')
     assert "its samples differ from the run's" in result.output and "--split all" in result.output
     assert "--split: " not in result.output  # --split was not given: it is not what is wrong
     assert not (tmp_path / "ev").exists()

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, default_collate
 
+from pipeline.errors import quoted
 from pipeline.fields import FieldError
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
@@ -373,15 +374,17 @@ def _check_pair(req: LoadersRequest, folder: LoaderRate, pub: LoaderRate) -> Non
     """A dataset folder, then its publication: the same samples."""
     allowed = "a dataset folder, then its publication as {pub}"
     if folder.source != "dataset folder":
-        raise LoadersRequest.field_error("folder", req.folder, allowed, what=f"{req.folder!r} is a {folder.source}")
+        raise LoadersRequest.field_error(
+            "folder", req.folder, allowed, what=f"{quoted(req.folder)} is a {folder.source}"
+        )
     if pub.source != "publication":
-        raise LoadersRequest.field_error("pub", req.pub, allowed, what=f"{req.pub!r} is a {pub.source}")
+        raise LoadersRequest.field_error("pub", req.pub, allowed, what=f"{quoted(req.pub)} is a {pub.source}")
     if folder.ids != pub.ids:
         raise LoadersRequest.field_error(
             "pub",
             req.pub,
             "the publication of {folder}",
-            what=f"{req.pub!r} does not hold the samples of {req.folder!r}",
+            what=f"{quoted(req.pub)} does not hold the samples of {quoted(req.folder)}",
         )
 
 
@@ -477,7 +480,7 @@ def compare_denoisers(req: DenoiseRequest, progress=None) -> dict:
                 "dataset",
                 root,
                 "a dataset built with storage.texture_maps = true (the comparison re-renders samples)",
-                what=f"{root!r} stores no texture maps",
+                what=f"{quoted(root)} stores no texture maps",
             )
         record = dataset.records[sample.id]
         truth = tracer.render(record, maps, reference_spp)[0]

@@ -64,7 +64,7 @@ from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
 from pipeline.check.inspect import content_issues, sample_expectations
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted, short_repr
 from pipeline.fields import FieldError
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.neural.config import A_DATASET, TrainConfig
@@ -103,8 +103,8 @@ def safe_path(root: str, rel: str) -> str:
         return resolve_inside(root, rel)
     except UnsafePath as exc:
         raise ShaderballError(
-            f"manifest: file path {rel!r} is refused: {exc.strerror} (the dataset folder "
-            f"{root!r} must hold it; check it with `shaderball validate`)"
+            f"manifest: file path {quoted(rel)} is refused: {exc.strerror} (the dataset folder "
+            f"{quoted(root)} must hold it; check it with `shaderball validate`)"
         ) from None
 
 
@@ -202,7 +202,7 @@ def read_json_file(path: str, root: str):
     """A small JSON file of the dataset folder ``root`` (a regular file, bounded: pipeline.store.folder)."""
     value, why = read_json_checked(path)
     if why == "missing":
-        raise dataset_refused(root, f"{root!r} has no {os.path.basename(path)}")
+        raise dataset_refused(root, f"{quoted(root)} has no {os.path.basename(path)}")
     if why is not None:
         raise ShaderballError(f"{path}: not readable JSON ({why}); check the folder with `shaderball validate`")
     return value
@@ -218,7 +218,7 @@ def folder_manifest(root: str) -> tuple[dict, str]:
     layout = Layout(root)
     if not os.path.isdir(root):
         raise dataset_refused(
-            root, f"{root!r} does not exist" if not os.path.lexists(root) else f"{root!r} is not a folder"
+            root, f"{quoted(root)} does not exist" if not os.path.lexists(root) else f"{quoted(root)} is not a folder"
         )
     description = read_json_file(layout.description, root)
     if not isinstance(description, dict):
@@ -226,7 +226,7 @@ def folder_manifest(root: str) -> tuple[dict, str]:
     if not os.path.lexists(layout.manifest):
         raise dataset_refused(
             root,
-            f"{root!r} is incomplete: no {os.path.basename(layout.manifest)} (written when a build completes)",
+            f"{quoted(root)} is incomplete: no {os.path.basename(layout.manifest)} (written when a build completes)",
             "finish it with `shaderball build SPEC --out DIR`",
         )
     try:
@@ -260,11 +260,11 @@ def _count_check(records, description: dict, root: str):
     if expected is not None and len(records) != expected:
         raise dataset_refused(
             root,
-            f"{root!r} is incomplete: the manifest lists {len(records)} of {expected} renders",
+            f"{quoted(root)} is incomplete: the manifest lists {len(records)} of {expected} renders",
             "finish it with `shaderball build`",
         )
     if not records:
-        raise dataset_refused(root, f"{root!r} has no renders", "a dataset of one render or more")
+        raise dataset_refused(root, f"{quoted(root)} has no renders", "a dataset of one render or more")
     return records
 
 
@@ -346,7 +346,7 @@ class PublishedFiles:
 
     def key(self, rel: str) -> str:
         if rel not in self.located:  # the reader checked every manifest path: not reached
-            raise ShaderballError(f"{rel} is in no tar of the publication {self.root!r}")
+            raise ShaderballError(f"{rel} is in no tar of the publication {quoted(self.root)}")
         return rel
 
     def read(self, key: str, size: int) -> bytes:
@@ -380,7 +380,7 @@ class PublishedFiles:
 def refused(root: str, exc: Refused) -> ShaderballError:
     """A publication the reader refuses, as a user error of the training stage (exit code 2):
     when it is opened, naming the dataset; a file read later, naming the publication."""
-    what = f"{root!r} is a publication that does not verify ({exc.kind}): {exc.message}"
+    what = f"{quoted(root)} is a publication that does not verify ({exc.kind}): {exc.message}"
     return dataset_refused(root, what, "check it with `shaderball verify`")
 
 
@@ -404,12 +404,14 @@ def sample_files(files, record: dict) -> SampleFiles:
         refs[entry.get("role")] = (files.key(entry.get("path")), entry.get("sha256"), entry.get("bytes"))
     missing = [role for role in ("render", "maps") if role not in refs]
     if missing:
-        raise ShaderballError(f"manifest: record {record.get('id')!r} lists no {' and no '.join(missing)} file")
+        raise ShaderballError(
+            f"manifest: record {short_repr(record.get('id'))} lists no {' and no '.join(missing)} file"
+        )
     if not isinstance(record.get("material_id"), str):
-        raise ShaderballError(f"manifest: record {record.get('id')!r} has no material_id")
+        raise ShaderballError(f"manifest: record {short_repr(record.get('id'))} has no material_id")
     vector = record.get("lighting_vector")
     if not (isinstance(vector, list) and len(vector) == 4 and all(isinstance(v, (int, float)) for v in vector)):
-        raise ShaderballError(f"manifest: record {record.get('id')!r} has no 4-value lighting_vector")
+        raise ShaderballError(f"manifest: record {short_repr(record.get('id'))} has no 4-value lighting_vector")
     return SampleFiles(
         record["id"],
         record["material_id"],
@@ -734,7 +736,7 @@ def one_resolution(sizes: set, root: str) -> int:
     if len(sizes) != 1 or not isinstance(next(iter(sizes)), int):
         raise dataset_refused(
             root,
-            f"{root!r} has renders of several or unknown resolutions {sorted(map(str, sizes))}",
+            f"{quoted(root)} has renders of several or unknown resolutions {sorted(map(str, sizes))}",
             "a dataset of one render resolution; check it with `shaderball validate`",
         )
     return next(iter(sizes))
@@ -781,7 +783,7 @@ def is_publication(root: str) -> bool:
     if published and folder:
         raise dataset_refused(
             root,
-            f"{root!r} holds both a dataset folder's {folder[0]} and a publication's {published[0]}; it is neither",
+            f"{quoted(root)} holds both a dataset folder's {folder[0]} and a publication's {published[0]}; it is neither",
             "name a folder `shaderball build` or `shaderball publish` wrote",
         )
     return bool(published)
@@ -828,7 +830,9 @@ def open_published(
     description = json.loads(publication.source_files[DESCRIPTION_FILE])
     if not isinstance(description, dict):
         raise dataset_refused(
-            root, f"{root!r}: its dataset/{DESCRIPTION_FILE} is not a JSON object", "check it with `shaderball verify`"
+            root,
+            f"{quoted(root)}: its dataset/{DESCRIPTION_FILE} is not a JSON object",
+            "check it with `shaderball verify`",
         )
     manifest = publication.source_files[MANIFEST_FILE]
     where = os.path.join(root, "dataset", MANIFEST_FILE)

@@ -25,6 +25,7 @@ import numpy as np
 
 from geometry import Camera, Shaderball
 from materials import MaterialMaps
+from pipeline.errors import quoted
 from pipeline.neural.data import box_downsample
 from pipeline.render.gbuffer import SURFACES, first_hits
 from pipeline.render.limits import RESOLUTION_RANGE
@@ -69,7 +70,7 @@ class AuxBuffers:
         albedo: str = "lobes",
     ):
         if albedo not in ALBEDOS:
-            raise ValueError(f"albedo: {albedo!r}; allowed: {', '.join(ALBEDOS)}")
+            raise ValueError(f"albedo: {quoted(albedo)}; allowed: {', '.join(ALBEDOS)}")
         self.supersample = max(1, min(supersample, RESOLUTION_RANGE[1] // resolution))
         self.kind = albedo
         hits = first_hits(ball, camera, resolution * self.supersample, variant)

@@ -34,7 +34,7 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import format_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
@@ -395,7 +395,7 @@ class _Evaluation:
                 "dataset",
                 req.dataset,
                 "the run's dataset (the same spec and files, in any folder), or {split} all",
-                what=f"{req.dataset!r} is not the dataset the run was trained on: {self.compared}, so the run's "
+                what=f"{quoted(req.dataset)} is not the dataset the run was trained on: {self.compared}, so the run's "
                 f"{req.split} split does not apply",
             )
         dataset = source.subset((self.config.get("split") or {}).get(req.split) or [])
@@ -682,7 +682,7 @@ def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
             f"a dataset whose render resolution is a multiple of {resolution} (e.g. the run's own dataset), or a "
             f"run trained for this dataset (`shaderball train DATASET --out NEWRUN`, with --resolution a multiple "
             f"of 16 dividing {exc.native})",
-            what=f"{req.dataset!r} has {exc.native}x{exc.native} renders; the run {req.run!r} was trained at "
+            what=f"{quoted(req.dataset)} has {exc.native}x{exc.native} renders; the run {quoted(req.run)} was trained at "
             f"{resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, so its "
             "network cannot take these renders",
         ) from None
@@ -694,7 +694,7 @@ def dataset_variant(dataset) -> str:
     if len(variants) != 1 or not isinstance(next(iter(variants)), str):
         raise dataset_refused(
             dataset.root,
-            f"{dataset.root!r} has renders of several or unknown Mitsuba variants {sorted(map(str, variants))}",
+            f"{quoted(dataset.root)} has renders of several or unknown Mitsuba variants {sorted(map(str, variants))}",
             "a dataset rendered with one variant; check it with `shaderball validate`",
         )
     return next(iter(variants))

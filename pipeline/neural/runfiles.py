@@ -32,7 +32,7 @@ import zipfile
 
 import torch
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.neural import checkpoint_meta
 from pipeline.neural.checkpoint_meta import shown
 from pipeline.neural.config import InferRequest
@@ -278,7 +278,7 @@ def read_config(run_dir: str) -> dict:
             "run",
             run_dir,
             "a training run folder: make one with `shaderball train`",
-            what=f"{run_dir!r} is not a training run (no {CONFIG})",
+            what=f"{quoted(run_dir)} is not a training run (no {CONFIG})",
         )
     if why is not None:
         raise ShaderballError(f"{path}: not readable JSON ({why}); the run folder is damaged")
@@ -604,7 +604,7 @@ def _missing(path: str, checkpoint: str):
     if checkpoint == "last":
         raise ShaderballError(f"{path}: no checkpoint (the run has not finished an epoch yet)")
     raise InferRequest.field_error(
-        "checkpoint", checkpoint, "last, best, or a checkpoint file", what=f"{path!r}: no such file"
+        "checkpoint", checkpoint, "last, best, or a checkpoint file", what=f"{quoted(path)}: no such file"
     )
 
 

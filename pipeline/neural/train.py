@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import Subset
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import to_srgb8
 from pipeline.neural import runfiles, speed
@@ -608,7 +608,7 @@ def _resume_point(run: _Setup) -> dict | None:
             "out",
             config.out,
             "a new {out} folder, or the same options",
-            what=f"{config.out!r} is a run of another configuration (differs in: {', '.join(changed)})",
+            what=f"{quoted(config.out)} is a run of another configuration (differs in: {', '.join(changed)})",
         )
     fresh["baseline"] = old.get("baseline")
     if not os.path.isfile(os.path.join(config.out, runfiles.CHECKPOINT)):
@@ -621,7 +621,7 @@ def _resume_point(run: _Setup) -> dict | None:
         raise TrainConfig.field_error(
             "epochs",
             config.epochs,
-            f"at least {done}: {config.out!r} has already trained {done} epochs "
+            f"at least {done}: {quoted(config.out)} has already trained {done} epochs "
             f"(pass {{epochs}} {done} or more to continue it, or a new {{out}} to start again)",
         )
     return ckpt

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from pipeline.errors import ShaderballError
+from pipeline.errors import ShaderballError, quoted
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.limits import VGG16_FILE
 
@@ -102,7 +102,10 @@ def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None
         source = "vgg_weights"
         if not os.path.isfile(path):
             raise TrainConfig.field_error(
-                "vgg_weights", path, f"torchvision's vgg16 state dict ({HUB_FILENAME})", what=f"{path!r} is not a file"
+                "vgg_weights",
+                path,
+                f"torchvision's vgg16 state dict ({HUB_FILENAME})",
+                what=f"{quoted(path)} is not a file",
             )
     else:
         source = "torch hub cache"
@@ -120,7 +123,7 @@ def find_vgg_weights(path: str | None = None, expected_sha256: str | None = None
     weights = VggWeights(path=path, sha256=digest, source=source)
     if digest != expected:
         raise weights.refused(
-            f"{path!r} has SHA-256 {digest}, not the expected {expected}"
+            f"{quoted(path)} has SHA-256 {digest}, not the expected {expected}"
             + ("" if expected_sha256 else f" of torchvision's {HUB_FILENAME}"),
             "pass {vgg_sha256} with the file's digest to use other VGG16 weights on purpose",
         )
@@ -133,11 +136,11 @@ def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
         state = torch.load(weights.path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types for a bad file
         raise weights.refused(
-            f"{weights.path!r} is not a readable torch state dict ({exc})", "torchvision's vgg16 state dict"
+            f"{quoted(weights.path)} is not a readable torch state dict ({exc})", "torchvision's vgg16 state dict"
         ) from exc
     if not isinstance(state, dict):
         raise weights.refused(
-            f"{weights.path!r} holds a {type(state).__name__}, not a state dict", "torchvision's vgg16 state dict"
+            f"{quoted(weights.path)} holds a {type(state).__name__}, not a state dict", "torchvision's vgg16 state dict"
         )
     features = vgg16_features(upto=RELU3_3)
     wanted = {f"features.{k}": v for k, v in features.state_dict().items()}
@@ -147,7 +150,7 @@ def load_vgg16_relu3_3(weights: VggWeights) -> nn.Sequential:
         if not isinstance(value, torch.Tensor) or value.shape != ref.shape:
             got = None if value is None else tuple(getattr(value, "shape", ()))
             raise weights.refused(
-                f"{weights.path!r} is not torchvision's vgg16 state dict: {key} is {got}, expected shape "
+                f"{quoted(weights.path)} is not torchvision's vgg16 state dict: {key} is {got}, expected shape "
                 f"{tuple(ref.shape)}",
                 f"torchvision's vgg16 state dict ({HUB_FILENAME})",
             )
