@@ -112,7 +112,10 @@ def test_train_says_its_loss_once_and_how_long_it_will_take(tiny_run, reference,
     _out, result = tiny_run
     assert result.output.count("loss: l1 (--loss l1)") == 1, result.output
     estimate = [line for line in result.stderr.splitlines() if line.startswith("estimate: about ")]
-    assert len(estimate) == 1 and " for 1 epoch (" in estimate[0] and " s a step x " in estimate[0], result.stderr
+    assert len(estimate) == 1 and " for 1 epoch (" in estimate[0] and " s scoring an epoch" in estimate[0], (
+        result.stderr
+    )
+    assert "epoch 1/1 done: " in result.stderr, result.stderr
     doc = json.loads(_invoke("train", reference, "--out", tmp_path / "r", "--epochs", 1, *TINY, "--json").stdout)
     assert doc["ok"] and doc["estimated_seconds"] > 0 and doc["estimate"].startswith("estimate: about ")
 

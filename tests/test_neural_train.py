@@ -48,11 +48,21 @@ def test_run_files_progress_and_baseline(tmp_path):
     assert events[0] == {"note": "loss: l1 (--loss l1)"} == {"note": summary.loss_reason}
     batches = [e for e in events[1:] if "batch" in e]
     assert [(e["epoch"], e["batch"]) for e in batches] == [(1, 1), (1, 2), (1, 3), (2, 1), (2, 2), (2, 3)]
-    # how long it will take, said once, from the first epoch's steps (3: timed whole, the first left out)
+    # the training steps' time, said once, from the first epoch's steps (3: timed whole, the first left out)
     notes = [e["note"] for e in events[1:] if "note" in e]
-    assert len(notes) == 1 and notes[0] == summary.estimate and events.index({"note": notes[0]}) == 3
-    assert notes[0].startswith("estimate: about ") and " for 2 epochs (" in notes[0] and " x 6 steps" in notes[0]
-    assert summary.estimated_seconds > 0 and summary.to_dict()["estimated_seconds"] == summary.estimated_seconds
+    assert notes[0].startswith("training steps: about ") and events.index({"note": notes[0]}) == 3
+    assert " for 2 epochs (" in notes[0] and " x 6 steps" in notes[0]
+    # then the whole run's, after the first epoch: its training and its scoring, times the epochs
+    whole = [e for e in events if e.get("note", "").startswith("estimate: about ")]
+    assert len(whole) == 1 and whole[0]["note"] == summary.estimate and " for 2 epochs (" in summary.estimate
+    assert whole[0]["train_s"] == log[0]["time_s"] and whole[0]["score_s"] > 0
+    assert summary.estimated_seconds == pytest.approx(2 * (whole[0]["train_s"] + whole[0]["score_s"]))
+    assert summary.to_dict()["estimated_seconds"] == summary.estimated_seconds
+    # and after each epoch: the epochs done of the run's, the time so far, an ETA from the epochs measured
+    done = [e for e in events if e.get("note", "").startswith("epoch ")]
+    assert [e["note"].split(":")[0] for e in done] == ["epoch 1/2 done", "epoch 2/2 done"]
+    assert " so far, ETA " in done[0]["note"] and done[0]["eta_s"] > 0 and done[1]["eta_s"] == 0
+    assert events.index(whole[0]) < events.index(done[0]) and done[0]["elapsed_s"] <= done[1]["elapsed_s"]
     assert batches[-1]["eta_s"] == 0 and batches[0]["samples_per_s"] > 0
 
 

@@ -450,6 +450,7 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
         _write_run_config(run, train_set, test_set)
     steps = math.ceil(len(train_set) / config.batch_size)
     clock = StepClock(steps * (config.epochs - start_epoch), config.epochs - start_epoch, steps)
+    run_clock = RunClock(time.perf_counter() if started is None else started, start_epoch)
     epoch, step = start_epoch, (model, run.loss_fn, optimizer, train_set, device)
     with deterministic_algorithms():
         while epoch < config.epochs:
@@ -459,13 +460,16 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
             if ranks is not None and not ranks.main:
                 history.append(entry)
                 continue
+            scoring_started = time.perf_counter()
             _score_epoch(entry, run, device, train_probe, test_set)
+            score_s = time.perf_counter() - scoring_started
             if length.budgeted:  # a run with --minutes: its length from the epochs' times
                 config = dataclasses.replace(config, epochs=length.after_epoch(epoch, epoch_started, progress))
             if length.held_epochs:
                 entry["schedule_epochs"] = config.epochs
             _record_epoch(entry, history, config, progress)
             _save_epoch(config.out, model, optimizer, history, run.fresh["identity_digest"])
+            run_clock.after_epoch(epoch, config.epochs, entry["time_s"], score_s, epoch_started, progress)
     return TrainSummary(
         run_dir=config.out,
         epochs_done=max(start_epoch, config.epochs if history else 0),
@@ -476,8 +480,8 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
         parameters=parameter_count(model),
         loss=run.choice.name,
         loss_reason=run.choice.reason,
-        estimated_seconds=clock.seconds,
-        estimate=clock.text,
+        estimated_seconds=run_clock.seconds,
+        estimate=run_clock.text,
         length_note=length.note,
         precision=config.precision,
         threads=torch.get_num_threads(),
@@ -698,10 +702,53 @@ class StepClock:
         per_step = (self.times[-1] - self.times[first]) / (done - first)
         self.seconds = per_step * self.steps
         self.text = (
-            f"estimate: about {_duration(self.seconds)} for {self.epochs} epoch{'s' if self.epochs != 1 else ''} "
-            f"({per_step:.3g} s a step x {self.steps:,} steps; the held-out scoring after each epoch comes on top)"
+            f"training steps: about {_duration(self.seconds)} for {self.epochs} epoch{'s' if self.epochs != 1 else ''} "
+            f"({per_step:.3g} s a step x {self.steps:,} steps; the estimate with the held-out scoring follows the "
+            "first epoch)"
         )
         return self.text
+
+
+def run_estimate(train_s: float, score_s: float, epochs: int) -> tuple[float, str]:
+    """The seconds of ``epochs`` epochs that each train for ``train_s`` and score for ``score_s``
+    (the training and held-out probes after the epoch), and the line that says so."""
+    seconds = (train_s + score_s) * epochs
+    return seconds, (
+        f"estimate: about {_duration(seconds)} for {epochs} epoch{'s' if epochs != 1 else ''} "
+        f"({train_s:.3g} s training + {score_s:.3g} s scoring an epoch, measured on the first)"
+    )
+
+
+@dataclass
+class RunClock:
+    """The whole of a call's run: after its first epoch, the estimate from that epoch's training
+    and scoring times and the run's length (--minutes' epochs once the budget set them); after
+    every epoch, the epochs done, the time so far and an ETA from the epochs measured (each
+    timed whole, saving included). Each line goes to ``progress`` as a note."""
+
+    started: float  # when the call began (time.perf_counter())
+    first_epoch: int  # epochs done when the call began
+    times: list[float] = field(default_factory=list)
+    seconds: float | None = None
+    text: str | None = None
+
+    def after_epoch(self, epoch: int, epochs: int, train_s: float, score_s: float, epoch_started: float, progress):
+        now = time.perf_counter()
+        self.times.append(now - epoch_started)
+        if self.text is None:
+            self.seconds, self.text = run_estimate(train_s, score_s, epochs - self.first_epoch)
+            if progress is not None:
+                progress({"note": self.text, "estimate_s": self.seconds, "train_s": train_s, "score_s": score_s})
+        elapsed, eta = now - self.started, sum(self.times) / len(self.times) * (epochs - epoch)
+        if progress is not None:
+            progress(
+                {
+                    "note": f"epoch {epoch}/{epochs} done: {_duration(elapsed)} so far, "
+                    + (f"ETA {_duration(eta)}" if epoch < epochs else "the run is complete"),
+                    "elapsed_s": elapsed,
+                    "eta_s": eta,
+                }
+            )
 
 
 def _duration(seconds: float) -> str:
