@@ -96,12 +96,12 @@ def test_a_killed_publish_beside_other_files_is_refused_and_kept(reference, tmp_
 
 
 HOLD = r"""
-import fcntl, os, sys, time
+import fcntl, os, sys
 fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)
 os.write(fd, b'{"purpose": "publish", "pid": %d}' % os.getpid())
 fcntl.flock(fd, fcntl.LOCK_EX)
 print("held", flush=True)
-time.sleep(120)
+sys.stdin.read()  # held until the test kills it (or ends: its stdin closes), however long that takes
 """
 
 
@@ -111,7 +111,9 @@ def test_a_lock_is_stale_once_its_holder_is_gone(reference, whole, tmp_path):
     killed (SIGKILL: no clean-up) the lock is stale, and the same publish takes it over."""
     pub = tmp_path / "pub"
     pub.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(pub / LOCK_FILE)], stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(pub / LOCK_FILE)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         assert stale_holder(str(pub)) is None and partial_publication(str(pub)) is None
@@ -120,6 +122,7 @@ def test_a_lock_is_stale_once_its_holder_is_gone(reference, whole, tmp_path):
     finally:
         holder.kill()
         holder.wait(timeout=60)
+        holder.stdin.close()
     assert stale_holder(str(pub)) == {"purpose": "publish", "pid": holder.pid}
     with open(pub / LOCK_FILE, "rb") as fh:  # nobody holds it: anyone may lock it now
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
