@@ -12,10 +12,9 @@ import torch
 from click.testing import CliRunner
 
 from cli import main
-from pipeline.neural import runfiles
 from pipeline.neural.evaluate import EVALUATION_FILES
-from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.report import REPORT_FILES
+from support.neural_fakes import untrained_run
 
 torch.set_num_threads(1)
 #: The cheapest evaluation: one sample, the network and its baselines only.
@@ -26,30 +25,6 @@ def _invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
 
 
-def _run_folder(folder, resolution: int = 32):
-    """A run folder of a network of ``resolution`` pixels (its initial weights, seeded): what
-    evaluate reads of a run, without training one."""
-    torch.manual_seed(0)
-    os.makedirs(folder)
-    runfiles.write_json(
-        os.path.join(folder, runfiles.CONFIG),
-        {
-            "identity": {"dataset": {}},
-            "identity_digest": "untrained",
-            "network": {"resolution": resolution},
-            "tonemap": {"name": "reinhard+srgb", "exposure": 4.0},
-        },
-    )
-    runfiles.save_checkpoint(
-        str(folder),
-        epoch=1,
-        model_state=NeuralRenderer(resolution).state_dict(),
-        optimizer_state={},
-        history=[],
-        identity_digest="untrained",
-    )
-
-
 def _state(folder):
     return {name: (os.stat(folder / name).st_mtime_ns, (folder / name).read_bytes()) for name in os.listdir(folder)}
 
@@ -57,7 +32,8 @@ def _state(folder):
 @pytest.mark.slow
 def test_an_earlier_evaluation_is_refused_unless_overwrite_which_replaces_it_whole(reference, tmp_path):
     run = tmp_path / "run"
-    _run_folder(run)
+    torch.manual_seed(0)
+    untrained_run(run, 32)
     folder = run / "evaluation-all"  # the default folder: the same for every evaluation of the split
     first = _invoke("evaluate", run, reference, *CHEAP, "--report")
     assert first.exit_code == 0, first.output

@@ -13,7 +13,7 @@ from cli import main
 from pipeline.image.tonemap import inverse_tonemap
 from pipeline.neural import runfiles
 from pipeline.neural.evaluate import NETWORK_Y_CAP
-from pipeline.neural.network import NeuralRenderer
+from support.neural_fakes import untrained_run
 
 torch.set_num_threads(1)
 
@@ -22,31 +22,9 @@ def _invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
 
 
-def _fake_run(folder, resolution):
-    """A run folder whose network is ``resolution`` pixels (random weights)."""
-    os.makedirs(folder)
-    runfiles.write_json(
-        os.path.join(folder, runfiles.CONFIG),
-        {
-            "identity": {"dataset": {}},
-            "identity_digest": "fake",
-            "network": {"resolution": resolution},
-            "tonemap": {"name": "reinhard+srgb", "exposure": 4.0},
-        },
-    )
-    runfiles.save_checkpoint(
-        str(folder),
-        epoch=1,
-        model_state=NeuralRenderer(resolution).state_dict(),
-        optimizer_state={},
-        history=[],
-        identity_digest="fake",
-    )
-
-
 @pytest.mark.slow
 def test_a_run_whose_resolution_does_not_divide_the_datasets_names_what_to_do(reference, tmp_path):
-    _fake_run(tmp_path / "run48", 48)  # the smoke dataset is 64x64: 48 does not divide it
+    untrained_run(tmp_path / "run48", 48)  # the smoke dataset is 64x64: 48 does not divide it
     result = _invoke("evaluate", tmp_path / "run48", reference, "--split", "all", "--spp", "none")
     assert result.exit_code == 2, result.output
     assert "--resolution" not in result.output.replace("train DATASET --out NEWRUN`, with --resolution", "")
@@ -95,7 +73,7 @@ def test_evaluate_records_reference_spp_equal_time_mean_image_and_intervals(trai
 
 @pytest.mark.slow
 def test_a_saturated_network_has_a_bounded_relmse(reference, tmp_path):
-    _fake_run(tmp_path / "sat", 32)
+    untrained_run(tmp_path / "sat", 32, digest="fake")
     ckpt = runfiles.load_checkpoint(str(tmp_path / "sat"))
     last_bias = [k for k in ckpt["model"] if k.endswith(".bias")][-1]
     ckpt["model"][last_bias].fill_(50.0)  # sigmoid(50): every output value 1

@@ -3,10 +3,14 @@ so the training loop is tested in seconds without Mitsuba."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from pipeline.neural import runfiles
+from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import TrainConfig
 
 
@@ -79,3 +83,26 @@ def train_config(tmp_path, name="run", **kw) -> TrainConfig:
 
 #: The files a finished training run folder holds (with a held-out split).
 RUN_FILES = ["checkpoint-best.pt", "checkpoint.pt", "config.json", "log.csv", "log.jsonl", "loss.png"]
+
+
+def untrained_run(folder, resolution: int, digest: str = "untrained") -> None:
+    """A run folder whose network is ``resolution`` pixels with its initial (random) weights:
+    what evaluate reads of a run, without training one."""
+    os.makedirs(folder)
+    runfiles.write_json(
+        os.path.join(folder, runfiles.CONFIG),
+        {
+            "identity": {"dataset": {}},
+            "identity_digest": digest,
+            "network": {"resolution": resolution},
+            "tonemap": {"name": "reinhard+srgb", "exposure": 4.0},
+        },
+    )
+    runfiles.save_checkpoint(
+        str(folder),
+        epoch=1,
+        model_state=NeuralRenderer(resolution).state_dict(),
+        optimizer_state={},
+        history=[],
+        identity_digest=digest,
+    )
