@@ -150,9 +150,10 @@ def test_a_report_missing_a_field_or_holding_a_bad_value_is_refused_naming_both(
     "text, words",
     [
         (b"[[],[]," * 150_000 + b"[]]", "JSON arrays/objects and"),  # ~30x its size to parse
-        (b"[" * 3000 + b"]" * 3000, "not JSON (RecursionError"),
+        (b"[" * 3000 + b"]" * 3000, "nested 3000 deep"),
+        (b'[{"a": "[[[[" }, ' + b"[" * 40 + b"]" * 41, "nested 41 deep"),
     ],
-    ids=["brackets", "nested"],
+    ids=["brackets", "nested", "nested-beside-a-string"],
 )
 def test_a_report_whose_parse_would_cost_more_than_its_size_is_not_parsed(tmp_path, text, words):
     path = tmp_path / "report.json"

@@ -22,6 +22,7 @@ import json
 import math
 import os
 import platform
+import re
 
 import numpy as np
 
@@ -47,6 +48,11 @@ MAX_REPORT_BYTES = 64 << 20
 #: costs ~3 times its size; a text of bare brackets would cost ~30 times, which this bounds.
 BYTES_PER_CONTAINER, BYTES_PER_VALUE = 32, 8
 STRUCTURE_ALLOWANCE = 4096
+#: The deepest nesting of arrays and objects a report.json may have (one holds 4 levels): checked
+#: before parsing, since how deep json.loads goes before RecursionError depends on the process's
+#: recursion limit, which other libraries raise.
+MAX_REPORT_DEPTH = 32
+_JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 
 NUMBER, PAIR = "a finite number", "null or an array of two finite numbers"
 #: Every field of a report sweep reads: (dotted name, kind, required); a field not required
@@ -104,6 +110,9 @@ def _load(path: str) -> dict:
             f"{containers} JSON arrays/objects and {values} values in {len(data)} bytes, more than a report "
             f"holds (one per {BYTES_PER_CONTAINER} and {BYTES_PER_VALUE} bytes): not parsed",
         )
+    depth = _nesting(data)
+    if depth > MAX_REPORT_DEPTH:
+        raise _refused(path, f"arrays/objects nested {depth} deep, more than a report's {MAX_REPORT_DEPTH}: not parsed")
     try:
         doc = json.loads(data)
     except (ValueError, RecursionError) as exc:  # UnicodeDecodeError is a ValueError
@@ -112,6 +121,13 @@ def _load(path: str) -> dict:
     if problem:
         raise _refused(path, problem)
     return doc
+
+
+def _nesting(data: bytes) -> int:
+    """How deep ``data``'s arrays and objects nest, strings left out (their brackets are text)."""
+    bare = np.frombuffer(_JSON_STRING.sub(b"", data), dtype=np.uint8)
+    steps = np.isin(bare, (ord("["), ord("{"))).astype(np.int64) - np.isin(bare, (ord("]"), ord("}")))
+    return int(np.cumsum(steps).max(initial=0))
 
 
 def _finite(value) -> bool:
