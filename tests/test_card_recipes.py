@@ -119,6 +119,24 @@ def test_every_recipe_refuses_a_bomb_before_decoding_it(pub, good, tmp_path, lib
     assert result["peak_mb"] < good[library]["peak_mb"] + 40, (result, good[library])
 
 
+@pytest.mark.parametrize("library", ["datasets", "tarfile", "webdataset"])
+def test_every_recipe_refuses_a_member_larger_than_the_spec_allows(pub, good, tmp_path, library):
+    """A render member padded to 40 MB (a good EXR, decodable, with zeros after it): refused by
+    its size, and by the tarfile recipe before a byte of it is read."""
+    copy = tmp_path / "pub"
+    shutil.copytree(pub, copy)
+    index = json.loads((copy / "publication.json").read_text())
+    tar = copy / next(s["path"] for s in index["shards"] if s["kind"] == "renders")
+    items = members(tar)
+    name = next(n for n, _ in items if n.endswith(".render.exr"))
+    rewrite_tar(tar, [(n, d + bytes(40 << 20) if n == name else d) for n, d in items])
+    result = run(recipes(copy)[library], copy, tmp_path / "run")
+    assert result["error"] == "exit 2", result
+    assert " bytes, more than " in result["stderr"].splitlines()[-1], result
+    if library == "tarfile":
+        assert result["peak_mb"] < good[library]["peak_mb"] + 20, (result, good[library])
+
+
 def _as_a_script(code: str, pub: Path, tmp: Path) -> subprocess.CompletedProcess:
     """``code`` saved as the user's own script and run with this Python, in the publication."""
     tmp.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,7 @@ from pipeline.publish.names import (
 from pipeline.publish.previews import preview_factor
 from pipeline.publish.table import COLUMN_DOCS
 from pipeline.store.exr import LAYER_CHANNELS
+from pipeline.store.exrheader import ExrBounds
 from pipeline.store.records import dumps
 
 EFFECTS = (
@@ -69,8 +70,10 @@ CHECK_HERE = "# EXR_CHECK\n"
 #: channels and side of each member). OpenEXR would decode whatever a header says: a 2 MB
 #: render can declare 20000 x 20000 pixels, or list its channels twice (OpenEXR merges the
 #: lists), or hide an attribute inside another of the wrong size.
-EXR_CHECK = '''#: What this publication's spec allows each EXR member: its channels, and its side in pixels.
+EXR_CHECK = '''#: What this publication's spec allows each EXR member: its channels, its side in pixels, and
+#: the most bytes it can hold (header, chunk offsets, pixels); any other member: OTHER_MEMBER_BYTES.
 EXR_MEMBERS = {members}
+OTHER_MEMBER_BYTES = {other_bytes}
 #: The attributes its EXR files hold: type, and size where the type fixes it.
 EXR_ATTRIBUTES = {{
     b"channels": (b"chlist", None), b"compression": (b"compression", 1), b"dataWindow": (b"box2i", 16),
@@ -91,7 +94,9 @@ def checked_exr(data, field, key="a sample"):
     or material's key), once its header says what the spec allows: each attribute once, of its
     type and size; the spec's window; the member's channels. Anything else is refused
     (:func:`refuse`) before OpenEXR decodes a pixel."""
-    names, side = EXR_MEMBERS[field]
+    names, side, most = EXR_MEMBERS[field]
+    if len(data) > most:
+        refuse(f"{{key}} {{field}}: {{len(data)}} bytes, more than an EXR of the spec holds ({{most}})")
     if data[:8] != b"v/1\\x01\\x02\\x00\\x00\\x00":  # EXR magic, version 2: single-part scanline
         refuse(f"{{key}} {{field}}: not a single-part scanline EXR")
     header, at = {{}}, 8
@@ -214,6 +219,9 @@ def members(path):
             if not member.isfile():
                 refuse(f"{path}: {member.name} is not a regular file")
             key, field = member.name.split(".", 1)
+            most = EXR_MEMBERS[field][2] if field in EXR_MEMBERS else OTHER_MEMBER_BYTES
+            if member.size > most:  # refused before a byte of it is read
+                refuse(f"{key} {field}: {member.size} bytes, more than such a member holds ({most})")
             yield key, field, tar.extractfile(member).read()
 
 
@@ -240,6 +248,11 @@ maps = maps_layers
 """
 
 
+#: The most bytes a recipe reads of a member that is not an EXR (a record's JSON, a preview PNG):
+#: a 4096 px 8-bit RGB PNG stored uncompressed is ~50 MB.
+OTHER_MEMBER_BYTES = 64 << 20
+
+
 def exr_check(spec) -> str:
     """The recipes' :data:`EXR_CHECK` for a publication of ``spec``: each EXR member's channels
     (the render's; the maps' ``storage.layers``) and side (``render.resolution``)."""
@@ -248,8 +261,9 @@ def exr_check(spec) -> str:
     lines = ["{"]
     for field, layers in roles.items():
         names = [f"{layer}.{suffix}" for layer in layers for suffix in LAYER_CHANNELS[layer]]
-        lines.append(f"    {field!r}: ({names!r}, {side}),".replace("'", '"'))
-    return EXR_CHECK.format(members="\n".join(lines + ["}"]))
+        most = ExrBounds(shape=(side, side), channels=len(names)).file_bytes
+        lines.append(f"    {field!r}: ({names!r}, {side}, {most}),".replace("'", '"'))
+    return EXR_CHECK.format(members="\n".join(lines + ["}"]), other_bytes=OTHER_MEMBER_BYTES)
 
 
 def recipe(template: str, spec) -> str:
