@@ -37,7 +37,10 @@ def page_text() -> str:
 
 if __name__ == "__main__":
     if set(sys.argv[1:]) - {"--write"}:  # checked before anything runs or is written
-        print(f"error: unknown arguments {sys.argv[1:]}\nusage: scripts/albedo_results.py [--write]", file=sys.stderr)
+        print(
+            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/albedo_results.py [--write]",
+            file=sys.stderr,
+        )
         sys.exit(2)
     text = page_text()
     if "--write" in sys.argv[1:]:

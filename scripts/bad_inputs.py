@@ -303,7 +303,10 @@ def write_readme_count(count: int, readme: Path = REPO / "README.md") -> None:
 
 if __name__ == "__main__":
     if set(sys.argv[1:]) - {"--write"}:  # checked before anything runs or is written
-        print(f"error: unknown arguments {sys.argv[1:]}\nusage: scripts/bad_inputs.py [--write]", file=sys.stderr)
+        print(
+            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/bad_inputs.py [--write]",
+            file=sys.stderr,
+        )
         sys.exit(2)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     rows = run_all()

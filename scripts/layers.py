@@ -233,7 +233,7 @@ def write_diagram(contract) -> None:
 
 def main(argv: list[str]) -> int:
     if set(argv) - {"--write"}:  # checked before anything is written
-        print(f"error: unknown arguments {argv}\nusage: scripts/layers.py [--write]", file=sys.stderr)
+        print(f"error: unknown arguments: {' '.join(argv)}\nusage: scripts/layers.py [--write]", file=sys.stderr)
         return 2
     contract = load_contract()
     problems = contract_problems(contract)

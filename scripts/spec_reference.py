@@ -34,7 +34,10 @@ def render() -> str:
 
 if __name__ == "__main__":
     if set(sys.argv[1:]) - {"--write"}:  # checked before anything is written
-        print(f"error: unknown arguments {sys.argv[1:]}\nusage: scripts/spec_reference.py [--write]", file=sys.stderr)
+        print(
+            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/spec_reference.py [--write]",
+            file=sys.stderr,
+        )
         sys.exit(2)
     text = render()
     if "--write" in sys.argv[1:]:
