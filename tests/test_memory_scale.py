@@ -175,6 +175,7 @@ def test_a_command_grows_under_a_kilobyte_per_render(command, datasets, tmp_path
     small, large = SIZES
     extra = (large - small) * 5  # 5 lightings a material
     slope = (peaks[large] - peaks[small]) / extra
+    print(f"{command}: {slope:.0f} bytes per extra render ({peaks[small]} -> {peaks[large]} B)")  # with -s
     assert slope < BYTES_PER_RENDER, (
         f"{command}: {slope:.0f} bytes per extra render ({peaks[small]} -> {peaks[large]} B over {extra} renders)"
     )

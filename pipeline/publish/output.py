@@ -82,7 +82,10 @@ class Output:
         self.out = out
         #: folders this write created (os.mkdir succeeded), in creation order
         self.created_dirs: list[str] = []
-        #: files this write writes: absolute path -> (st_dev, st_ino) once written (None before)
+        self.root = os.path.abspath(out)
+        #: files this write writes: path relative to ``root`` -> (st_dev, st_ino) once written
+        #: (None before). Relative: a full path per file grew unpack's memory by ~300 bytes a
+        #: render more, as long as the folder's own path.
         self.written: dict[str, tuple[int, int] | None] = {}
         try:
             self._make_dirs(os.path.abspath(out))
@@ -112,9 +115,8 @@ class Output:
         """Where ``rel`` is written in ``out``: its folders created (and recorded) first, and the
         path recorded as this write's (a writer may fill it through the path itself)."""
         path = os.path.join(self.out, *rel.split("/"))
-        absolute = os.path.abspath(path)
-        self._make_dirs(os.path.dirname(absolute))
-        self.written.setdefault(absolute, None)
+        self._make_dirs(os.path.dirname(os.path.abspath(path)))
+        self.written.setdefault(rel, None)
         return path
 
     def write(self, rel: str, data: bytes) -> str:
@@ -136,10 +138,10 @@ class Output:
 
     def adopt(self, rel: str, sha256: str, size: int) -> str:
         """Count the file ``rel`` (written through :meth:`path`) as this write's, as it is now."""
-        path = os.path.abspath(self.path(rel))
+        path = self.path(rel)
         try:
             info = os.lstat(path)
-            self.written[path] = (info.st_dev, info.st_ino)
+            self.written[rel] = (info.st_dev, info.st_ino)
         except OSError:
             pass
         self.files += 1
@@ -153,14 +155,15 @@ class Output:
         file it wrote (a regular file; the same inode once written), then each folder it
         created, deepest first, if it is empty (``os.rmdir``). Never raises; may be called
         again (after the writer lock's file is gone, its folders go too)."""
-        for path, identity in list(self.written.items()):
+        for rel, identity in list(self.written.items()):
+            path = os.path.join(self.root, *rel.split("/"))
             try:
                 info = os.lstat(path)
                 if stat.S_ISREG(info.st_mode) and identity in (None, (info.st_dev, info.st_ino)):
                     os.unlink(path)
             except OSError:
                 pass
-            del self.written[path]
+            del self.written[rel]
         for path in sorted(self.created_dirs, key=lambda p: p.count(os.sep), reverse=True):
             try:
                 os.rmdir(path)
