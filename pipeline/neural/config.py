@@ -145,7 +145,7 @@ class TrainConfig(Checked):
     )
     minutes: float | None = field(
         None,
-        rule=Optional(Float(0.0, 1e6, lo_open=True), "unset (no time budget: {epochs} epochs)"),
+        rule=Optional(Float(0.0, 1e6, lo_open=True), "unset (no time budget)"),
         doc="Time budget of a new run, from the command's start: after the first epoch (timed with its scoring, "
         "at the full learning rate) the run's length is set to the epochs that fit, at most {epochs}, then "
         "shortened after any epoch that says the rest would not fit, and kept when it resumes; a cosine "
