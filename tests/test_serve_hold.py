@@ -25,7 +25,7 @@ import pytest
 from pipeline.serve import server as server_module
 from pipeline.serve.server import HostPolicy
 from pipeline.serve.view import UniformChoice, View
-from pipeline.serve.work import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
+from pipeline.serve.workers import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
 from pipeline.store.exr import encode_exr
 from sky import Light
 from support.serving import Client, start_app

@@ -83,7 +83,7 @@ def test_the_first_pass_reports_its_noise_unknown_and_later_passes_measure_it(ht
 
 
 def test_the_variance_of_a_pixels_mean_is_unbiased_and_unknown_from_one_sample():
-    from pipeline.serve.work import unbiased_variance
+    from pipeline.serve.workers import unbiased_variance
 
     rng = np.random.default_rng(3)
     samples = rng.exponential(0.2, size=(4, 8, 8))  # 4 samples of 8x8 pixels' luminance

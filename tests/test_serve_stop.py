@@ -325,7 +325,7 @@ def test_a_render_under_way_at_ctrl_c_is_abandoned_not_finished(monkeypatch):
     Ctrl-C: serve() ends with the render still held, naming the path tracer among the threads it
     left; let go afterwards, the render's pass is never published."""
     from pipeline.serve import server
-    from pipeline.serve.work import PathTracer
+    from pipeline.serve.workers import PathTracer
     from pipeline.ui.interrupt import Stopped
 
     calls, held, let_go, tracers = [], threading.Event(), threading.Event(), []

@@ -11,7 +11,6 @@ from __future__ import annotations
 import statistics
 
 from pipeline.dataset.spec import spec_to_toml
-from pipeline.publish.facts import CITATION, PublicationFacts
 from pipeline.publish.hub import yaml_configs
 from pipeline.publish.names import (
     CROISSANT_FILE,
@@ -23,6 +22,7 @@ from pipeline.publish.names import (
     SUMS_FILE,
 )
 from pipeline.publish.previews import preview_factor
+from pipeline.publish.publication_facts import CITATION, PublicationFacts
 from pipeline.publish.table import COLUMN_DOCS
 from pipeline.store.exr import LAYER_CHANNELS
 from pipeline.store.exrheader import ExrBounds

@@ -10,7 +10,6 @@ checksums and the tar that holds them), never the tars.
 
 from __future__ import annotations
 
-from pipeline.publish.facts import CITATION, LICENSES, PublicationFacts
 from pipeline.publish.names import (
     INDEX_FILE,
     MARKERS_REL,
@@ -20,6 +19,7 @@ from pipeline.publish.names import (
     SAMPLES_FILE,
     SOURCE_FILES,
 )
+from pipeline.publish.publication_facts import CITATION, LICENSES, PublicationFacts
 from pipeline.publish.table import COLUMN_DOCS
 
 CONFORMS_TO = "http://mlcommons.org/croissant/1.1"

@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 from pipeline.publish.exrcheck import check_exr_header, member_bounds
-from pipeline.publish.lines import CHUNK_BYTES, LineReader, scan
+from pipeline.publish.line_reader import CHUNK_BYTES, LineReader, scan
 from pipeline.publish.names import (
     CROISSANT_FILE,
     DATASET_DIR,

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, Text, field, format_value, same_as
-from pipeline.publish.facts import LICENSES
+from pipeline.publish.publication_facts import LICENSES
 
 #: --shard-bytes: the largest tar shard, from 64 KiB to 1 TiB.
 SHARD_BYTES_RANGE = (1 << 16, 1 << 40)

@@ -28,7 +28,6 @@ from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.publish.card import EFFECTS, dataset_card
 from pipeline.publish.croissant import croissant_metadata
-from pipeline.publish.facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.names import (
     CARD_FILE,
     CROISSANT_FILE,
@@ -51,6 +50,7 @@ from pipeline.publish.names import (
 )
 from pipeline.publish.output import Output, check_out, held_output
 from pipeline.publish.previews import maps_preview, render_preview
+from pipeline.publish.publication_facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.refusal import Refused
 from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, PublishRequest
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row

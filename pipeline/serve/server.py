@@ -18,7 +18,7 @@ Routes (JSON unless said):
                               -> {map, texels, preview}: the map as its canvas shows it
     GET  /api/frame?client=ID&since=VERSION   long poll: the client's frame once it changes
                               (``known``: false when the server holds nothing of the client, see
-                              pipeline.serve.work: the page uploads its maps and view again; a
+                              pipeline.serve.workers: the page uploads its maps and view again; a
                               GET never makes a client, a POST of the page does)
 
 Every refusal is a 4xx JSON ``{"ok": false, "error": "..."}`` the page shows; an unexpected
@@ -39,7 +39,7 @@ What a request must be, checked before any route runs (:meth:`JsonHandler.refusa
   own: where a browser sends ``Sec-Fetch-Site`` it is ``same-origin`` (or ``none``, typed by
   the user), and where an ``Origin`` comes it is ``http://`` + the Host header (403
   otherwise). So another site's ``<img src=/api/frame?...>`` is refused, and in any case a GET
-  makes no client (pipeline.serve.work): no other page can fill the server's client slots.
+  makes no client (pipeline.serve.workers): no other page can fill the server's client slots.
 - A POST carries its body's type (415 otherwise): ``application/json`` for /api/view; for
   /api/upload ``image/png``, ``image/x-exr`` or ``application/octet-stream`` (the page sends
   the first two). Neither is a type a cross-site form may send, so a browser asks the server
@@ -98,7 +98,7 @@ from pipeline.serve.view import (
     is_fresh,
     parse_view,
 )
-from pipeline.serve.work import (
+from pipeline.serve.workers import (
     PASS_TOTALS,
     PATH_RESOLUTION,
     Hub,

@@ -13,7 +13,7 @@ from PIL import Image
 from pipeline.fields import FieldError
 from pipeline.serve.materials import MAX_UPLOAD_BYTES, TEXTURE_TEXELS, decode_upload, maps_from_uploads
 from pipeline.serve.view import RequestError, UniformChoice, View, api_error, api_status, parse_view
-from pipeline.serve.work import Hub, Job, LatestSlots
+from pipeline.serve.workers import Hub, Job, LatestSlots
 from sky import Light
 
 VIEW = View(UniformChoice((0.5, 0.5, 0.5), 0.04, 0.3, False, 0.0), Light(45.0, 270.0, 3.0), 4.0)
@@ -120,7 +120,7 @@ def test_the_noise_psnr_estimate_matches_the_psnr_of_real_noise():
     """Frames of a known per-pixel variance: the estimate is within 1 dB of the PSNR their
     noise actually costs through the tone map (not rounded to 8 bits, which would floor it)."""
     from pipeline.image.tonemap import tonemap
-    from pipeline.serve.work import noise_psnr_db
+    from pipeline.serve.workers import noise_psnr_db
 
     rng = np.random.default_rng(5)
     clean = rng.uniform(0.01, 0.3, size=(64, 64, 1)).astype(np.float32).repeat(3, axis=2)
@@ -168,11 +168,11 @@ def test_a_16_bit_upload_is_decoded_to_its_value_at_the_texture_size():
 
 
 def test_the_uploads_of_all_clients_together_are_bounded(monkeypatch):
-    import pipeline.serve.work as work
+    import pipeline.serve.workers as workers
 
     hub = Hub(path_resolution=16, network_resolution=None)
     texels = np.zeros((256, 256, 3), np.float32)
-    monkeypatch.setattr(work, "MAX_STORED_UPLOAD_BYTES", 2 * texels.nbytes)
+    monkeypatch.setattr(workers, "MAX_STORED_UPLOAD_BYTES", 2 * texels.nbytes)
     hub.store_upload("a", "diffuse", texels)
     hub.store_upload("b", "diffuse", texels)
     hub.store_upload("b", "diffuse", texels)  # replacing a map takes no more room

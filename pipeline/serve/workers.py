@@ -1,4 +1,4 @@
-"""The server's work: one Mitsuba thread, one network thread, fed by latest-wins slots.
+"""The server's workers: one Mitsuba thread, one network thread, fed by latest-wins slots.
 
 Each client (a browser tab) has a generation counter. A new view bumps it and replaces the
 client's pending jobs; a job whose generation is no longer the client's is dropped before it
