@@ -29,7 +29,20 @@ from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
 from pipeline.check.validate import validate
-from pipeline.errors import ShaderballError
+from pipeline.errors import Printed
+from pipeline.neural.command import (
+    collate_command,
+    denoise_command,
+    evaluate_command,
+    export_command,
+    infer_command,
+    live_network,
+    loaders_command,
+    stored_renders,
+    sweep_command,
+    train_command,
+    train_options_command,
+)
 from pipeline.neural.config import (
     CollateRequest,
     DenoiseRequest,
@@ -53,7 +66,7 @@ from pipeline.run.repair import repair
 from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.run import StudyRequest, run_study
 from pipeline.ui import process
-from pipeline.ui.command import Group, Printed, command_line, renamed_option, request_command
+from pipeline.ui.command import Group, command_line, renamed_option, request_command
 from pipeline.ui.progress import (
     build_progress,
     evaluate_progress,
@@ -306,19 +319,12 @@ def unpack_cmd(request: UnpackRequest):
     return unpack(request.pub, request.out, validate_after=request.validate, progress=say)
 
 
-def _neural():
-    """pipeline.neural imports torch: an optional dependency (the `train` extra), loaded only here."""
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        raise ShaderballError("the neural stage needs torch: pip install -e '.[train]'") from None
-
-
 @request_command(
     main,
     TrainConfig,
     renamed=(renamed_option("--workers", "--loader-workers", "--workers means dask worker processes; train has none"),),
     json="Print the summary (or benchmark) as JSON on stdout.",
+    needs_torch=True,
 )
 def train_cmd(request: TrainConfig, as_json: bool):
     """Train the paper's network on a dataset folder or its publication (docs/neural.md); resumes a killed run.
@@ -327,18 +333,10 @@ def train_cmd(request: TrainConfig, as_json: bool):
     Example:
       shaderball train demo-out/smoke --out runs/smoke --epochs 1
     """
-    request.check_run()  # refused before torch loads (seconds) or any data is read
-    _neural()
-    if request.benchmark:
-        from pipeline.neural.bench import benchmark
-
-        return benchmark(request)
-    from pipeline.neural.train import train
-
-    return train(request, progress=None if as_json else training_progress())
+    return train_command(request, progress=None if as_json else training_progress())
 
 
-@request_command(main, InferRequest, json="Print the summary as JSON on stdout.")
+@request_command(main, InferRequest, json="Print the summary as JSON on stdout.", needs_torch=True)
 def infer_cmd(request: InferRequest):
     """The trained network's picture of one material under one sun (no path tracing).
 
@@ -346,10 +344,7 @@ def infer_cmd(request: InferRequest):
     Example:
       shaderball infer runs/smoke --out runs/smoke-ball.exr --png runs/smoke-ball.png --elevation 30 --roughness 0.2
     """
-    _neural()
-    from pipeline.neural.infer import infer_to_files
-
-    return infer_to_files(request)
+    return infer_command(request)
 
 
 @request_command(
@@ -357,6 +352,7 @@ def infer_cmd(request: InferRequest):
     EvaluateRequest,
     renamed=(renamed_option("--samples", "--limit"),),
     json="Print the summary as JSON on stdout (progress stays on stderr).",
+    needs_torch=True,
 )
 def evaluate_cmd(request: EvaluateRequest):
     """PSNR/SSIM (8-bit sRGB), relMSE and HDR-FLIP of the network against path-traced references.
@@ -368,14 +364,19 @@ def evaluate_cmd(request: EvaluateRequest):
     Example:
       shaderball evaluate runs/smoke demo-out/smoke --limit 2 --no-flip --report
     """
-    _neural()
-    from pipeline.neural.evaluate import evaluate
+    return evaluate_command(
+        request,
+        progress=evaluate_progress(),
+        command=command_line("evaluate", dataclasses.replace(request, out=request.folder)),
+    )
 
-    command = command_line("evaluate", dataclasses.replace(request, out=request.folder))
-    return evaluate(request, progress=evaluate_progress(), command=command)
 
-
-@request_command(main, ServeOptions, json="Print the summary (with --benchmark: its figures) as JSON on stdout.")
+@request_command(
+    main,
+    ServeOptions,
+    json="Print the summary (with --benchmark: its figures) as JSON on stdout.",
+    needs_torch=lambda request: request.run is not None,
+)
 def serve_cmd(request: ServeOptions):
     """A local web page: the network's picture beside progressive path tracing (docs/serve.md).
 
@@ -384,36 +385,7 @@ def serve_cmd(request: ServeOptions):
       shaderball serve --run runs/smoke --dataset demo-out/smoke --benchmark
       shaderball serve --run runs/smoke --dataset demo-out/smoke-pub
     """
-    return serve_command(request, _live_network(request), say=say, stored=_stored_renders(request))
-
-
-def _stored_renders(options):
-    """The reader of --dataset's stored renders for `serve` (the neural stage's; torch is
-    imported at the first dataset sample shown), or None without --dataset."""
-    if options.dataset is None:
-        return None
-
-    def stored(root):
-        _neural()
-        from pipeline.neural.stored import stored_renders
-
-        return stored_renders(root)
-
-    return stored
-
-
-def _live_network(options):
-    """The loader of --run's network for `serve` (torch is imported only when there is one)."""
-    if options.run is None:
-        return None
-
-    def load():
-        _neural()
-        from pipeline.neural.live import LiveNetwork
-
-        return LiveNetwork(options.run, checkpoint=options.checkpoint, threads=options.threads)
-
-    return load
+    return serve_command(request, say=say, network=live_network, stored=stored_renders)
 
 
 # Commands over finished work: a network exported, runs compared, the docs' figures, the neural
@@ -423,7 +395,10 @@ from pipeline.figures.command import FiguresRequest, make_figure
 
 
 @request_command(
-    main, ExportRequest, json="Print what the file's extra shaderball.json holds, and its path, as JSON on stdout."
+    main,
+    ExportRequest,
+    json="Print what the file's extra shaderball.json holds, and its path, as JSON on stdout.",
+    needs_torch=True,
 )
 def export_cmd(request: ExportRequest):
     """The trained network as a TorchScript file, for torch without this package (docs/neural.md).
@@ -432,17 +407,14 @@ def export_cmd(request: ExportRequest):
     Example:
       shaderball export runs/smoke --out runs/smoke/net.pt
     """
-    _neural()
-    from pipeline.neural.export import export_torchscript
-
-    meta = export_torchscript(request)
-    side = meta["resolution"]
-    text = f"wrote {request.out}: TorchScript, {side}x{side}, {request.checkpoint} checkpoint"
-    return Printed({"out": request.out, **meta}, text)
+    return export_command(request)
 
 
 @request_command(
-    main, SweepRequest, json="Print the summary (what sweep.json holds) as JSON on stdout instead of the table."
+    main,
+    SweepRequest,
+    json="Print the summary (what sweep.json holds) as JSON on stdout instead of the table.",
+    needs_torch=True,
 )
 def sweep_cmd(request: SweepRequest):
     """Runs of several training-set sizes and seeds side by side: the data-size curve (docs/neural.md).
@@ -454,10 +426,7 @@ def sweep_cmd(request: SweepRequest):
     Example:
       shaderball sweep runs/smoke/evaluation-test/report.json --out runs/sweep
     """
-    _neural()
-    from pipeline.neural.sweep import write_sweep
-
-    return Printed(*write_sweep(request, command=command_line("sweep", request)))
+    return sweep_command(request, command=command_line("sweep", request))
 
 
 @request_command(main, FiguresRequest, json="Print what was written (or the tables) as JSON on stdout.")
@@ -487,7 +456,7 @@ def neural_bench():
 _BENCH_JSON = "Print every figure as JSON on stdout instead of the table."
 
 
-@request_command(neural_bench, LoadersRequest, name="loaders", json=_BENCH_JSON)
+@request_command(neural_bench, LoadersRequest, name="loaders", json=_BENCH_JSON, needs_torch=True)
 def neural_bench_loaders_cmd(request: LoadersRequest):
     """The loader's samples/s on a dataset folder DIR and on its publication PUB, passes alternated.
 
@@ -495,14 +464,10 @@ def neural_bench_loaders_cmd(request: LoadersRequest):
     Example:
       shaderball neural-bench loaders demo-out/smoke demo-out/smoke-pub --repeats 1
     """
-    _neural()
-    from pipeline.neural.bench import compare_loaders, loaders_table
-
-    result = compare_loaders(request, progress=say)
-    return Printed(result, loaders_table(result))
+    return loaders_command(request, progress=say)
 
 
-@request_command(neural_bench, CollateRequest, name="collate", json=_BENCH_JSON)
+@request_command(neural_bench, CollateRequest, name="collate", json=_BENCH_JSON, needs_torch=True)
 def neural_bench_collate_cmd(request: CollateRequest):
     """The loader's samples/s with torch's default collation and with the project's, on the
     machine as it is and with --busy spinning processes beside it.
@@ -511,11 +476,7 @@ def neural_bench_collate_cmd(request: CollateRequest):
     Example:
       shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
     """
-    _neural()
-    from pipeline.neural.bench import collation_table, compare_collation
-
-    result = compare_collation(request, progress=say)
-    return Printed(result, collation_table(result))
+    return collate_command(request, progress=say)
 
 
 @request_command(
@@ -527,6 +488,7 @@ def neural_bench_collate_cmd(request: CollateRequest):
         renamed_option("--samples", "--draws"),
     ),
     json=_BENCH_JSON,
+    needs_torch=True,
 )
 def neural_bench_denoise_cmd(request: DenoiseRequest):
     """OIDN fed each choice of auxiliary buffers, against fresh high-spp renders of the same
@@ -536,14 +498,10 @@ def neural_bench_denoise_cmd(request: DenoiseRequest):
     Example:
       shaderball neural-bench denoise demo-out/smoke --draws 1 --spp 1 --reference-spp 4
     """
-    _neural()
-    from pipeline.neural.bench import compare_denoisers, denoise_table
-
-    result = compare_denoisers(request, progress=say)
-    return Printed(result, denoise_table(result))
+    return denoise_command(request, progress=say)
 
 
-@request_command(neural_bench, TrainOptionsRequest, name="train-options", json=_BENCH_JSON)
+@request_command(neural_bench, TrainOptionsRequest, name="train-options", json=_BENCH_JSON, needs_torch=True)
 def neural_bench_train_options_cmd(request: TrainOptionsRequest):
     """Training samples/s of each speed option (random inputs, a fresh network each), variants
     alternated; a randomly initialised VGG16 stands in for ImageNet weights.
@@ -552,11 +510,7 @@ def neural_bench_train_options_cmd(request: TrainOptionsRequest):
     Example:
       shaderball neural-bench train-options --resolution 32 --loss l1 --repeats 1 --steps 1 --variants baseline,--channels-last
     """
-    _neural()
-    from pipeline.neural.bench import compare_training, training_table
-
-    result = compare_training(request, progress=say)
-    return Printed(result, training_table(result))
+    return train_options_command(request, progress=say)
 
 
 if __name__ == "__main__":

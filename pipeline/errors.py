@@ -4,7 +4,9 @@ The domain packages (``materials``, ``sky``, ``geometry``) import nothing of
 ``pipeline``, so each raises its own ``ValueError`` subclass; :data:`USER_ERRORS` is
 the one list of every type that means "the user's input was refused". Code that
 reports a user error catches ``USER_ERRORS``, never ``ShaderballError`` alone, so a
-domain error reaches the user as the same clear message and exit code.
+domain error reaches the user as the same clear message and exit code. How a command's result
+is printed where it is not an error is here too (:class:`Printed`: its text, its --json
+document, its exit code), so every layer of the library can return one.
 
 Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``; nothing else of the project.
@@ -56,6 +58,24 @@ def filesystem_error(exc: OSError, where: str, hint: str) -> FilesystemError:
     name = errno.errorcode.get(exc.errno, str(exc.errno)) if exc.errno is not None else "?"
     path = exc.filename if exc.filename is not None else where
     return FilesystemError(f"{path}: {exc.strerror or exc} ({name}); {hint}")
+
+
+#: The refusal of a command of the neural stage where torch is not installed (an optional extra).
+NEEDS_TORCH = "the neural stage needs torch: pip install -e '.[train]'"
+
+
+class Printed:
+    """A command's result that is a document (its --json) and the text printed without --json;
+    ``exit_code``: the command's exit code where success is not 0."""
+
+    def __init__(self, doc: dict, text: str, exit_code: int = 0):
+        self.doc, self.text, self.exit_code = doc, text, exit_code
+
+    def to_dict(self) -> dict:
+        return self.doc
+
+    def lines(self) -> list[str]:
+        return self.text.rstrip("\n").split("\n") if self.text else []
 
 
 #: Every error type whose message is meant for the user (a clean message and its exit code at the CLI).

@@ -153,9 +153,14 @@ def benchmark(options: ServeOptions, network_loader=None) -> BenchmarkSummary:
     return BenchmarkSummary(network_doc, path_doc, list(os.getloadavg()), os.cpu_count() or 1, options.repeats)
 
 
-def serve_command(options: ServeOptions, network_loader, say, stored=None):
+def serve_command(options: ServeOptions, *, say, network=None, stored=None):
     """Serve until Ctrl-C (``say`` is told the address), or with ``options.benchmark`` run the
-    benchmark; a summary with lines()."""
+    benchmark; a summary with lines(). ``network``: a function of ``options`` giving the
+    network of ``options.run`` (pipeline.neural.command.live_network), called where there is
+    a run; ``stored``: a function of a dataset root giving its stored renders, used where
+    there is ``options.dataset``."""
+    network_loader = (lambda: network(options)) if network is not None and options.run is not None else None
+    stored = stored if options.dataset is not None else None
     if options.benchmark:
         return benchmark(options, network_loader)
     return serve(options, network_loader, ready=lambda lines: [say(line) for line in lines], stored=stored)

@@ -23,14 +23,16 @@ command) read as the fields' do (:mod:`pipeline.ui.usage`), with --json's docume
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import inspect
 import os
 import shlex
 import sys
+from collections.abc import Callable
 
 import click
 
-from pipeline.errors import USER_ERRORS
+from pipeline.errors import NEEDS_TORCH, USER_ERRORS, ShaderballError
 from pipeline.fields import FIELD_REF, MISSING, AsTyped, Bool, FieldError, Many, Optional, declared, default_of
 from pipeline.ui import process
 from pipeline.ui.options import FieldType, option_help
@@ -173,19 +175,6 @@ JSON_HELP = "Print the result as one JSON document on stdout (progress stays on 
 def json_option(help: str = JSON_HELP) -> click.Option:
     """``--json``, a flag (``as_json``): one JSON document on stdout (:mod:`pipeline.ui.process`)."""
     return click.Option(["--json", "as_json"], is_flag=True, help=help)
-
-
-class Printed:
-    """A result that is a document (--json) and the text printed without --json."""
-
-    def __init__(self, doc: dict, text: str, exit_code: int = 0):
-        self.doc, self.text, self.exit_code = doc, text, exit_code
-
-    def to_dict(self) -> dict:
-        return self.doc
-
-    def lines(self) -> list[str]:
-        return self.text.rstrip("\n").split("\n") if self.text else []
 
 
 def result_doc(result) -> dict:
@@ -360,28 +349,27 @@ def request_command(
     json: str | None = JSON_HELP,
     renamed: tuple[click.Option, ...] = (),
     skip: tuple[str, ...] = (),
-    extra: tuple[click.Parameter, ...] = (),
+    needs_torch: bool | Callable[[object], bool] = False,
 ):
     """Decorator: ``body(request)`` as a command of ``group`` whose parameters are
     ``request_cls``'s fields (module docstring). ``json``: --json's help (None: no --json);
     ``renamed``: hidden old spellings; ``skip``: fields the command line does not set;
-    ``extra``: parameters that are not the request's (passed to the body by name)."""
+    ``needs_torch``: the body runs the neural stage (True, or a function of the request:
+    where it does), refused before the body runs where torch is not installed."""
 
     def decorate(body):
-        params = params_of(request_cls, skip) + list(extra) + list(renamed)
+        params = params_of(request_cls, skip) + list(renamed)
         if json is not None:
             params.append(json_option(json))
-        extra_names = {p.name for p in extra}
         takes = set(inspect.signature(body).parameters)
         reword = reworded(request_cls)
 
         def callback(as_json: bool = False, **values):
-            given = {k: values.pop(k) for k in list(values) if k in extra_names}
-
             def call():
                 request = request_cls(**values).check_fields()
-                if "as_json" in takes:
-                    given["as_json"] = as_json
+                if needs_torch is True or callable(needs_torch) and needs_torch(request):
+                    refuse_without_torch()
+                given = {"as_json": as_json} if "as_json" in takes else {}
                 code = show_result(body(request, **given), as_json)
                 if code:
                     sys.exit(code)
@@ -398,6 +386,19 @@ def request_command(
         group.add_command(command)
         command.body = body
         command.request_cls = request_cls
+        command.needs_torch = needs_torch
         return body
 
     return decorate
+
+
+def refuse_without_torch() -> None:
+    """The neural stage's commands need torch, an optional extra (``pip install -e '.[train]'``):
+    refused, exit code 2, where it is not installed. Looked up, not imported: the body's own
+    refusals (a bad path) still come before torch loads (seconds)."""
+    try:
+        found = importlib.util.find_spec("torch") is not None
+    except (ImportError, ValueError):  # a finder that refuses it; ``sys.modules["torch"] = None``
+        found = False
+    if not found:
+        raise ShaderballError(NEEDS_TORCH)
