@@ -1,12 +1,11 @@
-"""Click options generated from typed fields (``pipeline.fields``): a parameter is declared
-once, in the dataclass that owns it, and the command line reads that declaration.
+"""Click parameter types and help generated from typed fields (``pipeline.fields``): a
+parameter is declared once, in the dataclass that owns it, and the command line reads that
+declaration (:func:`pipeline.ui.command.params_of` makes a command's parameters with these).
 
-``options_from(TrainConfig, "epochs", "lr")`` makes ``--epochs`` and ``--lr`` with the
-field's type, default and help (its text, then what it allows and its unit); the value is
-checked by the field's rule while the command line is parsed, and a refusal reads as the
-class's own, a :class:`pipeline.fields.FieldError`: ``error: --epochs: 0 is not allowed;
-an integer from 1 to 100000`` (exit code 2, before anything runs). The command's parameter is the field's name,
-so ``TrainConfig(**options)`` takes them as they come.
+A value is checked by its field's rule while the command line is parsed (:class:`FieldType`),
+and a refusal reads as the class's own, a :class:`pipeline.fields.FieldError`: ``error:
+--epochs: 0 is not allowed; an integer from 1 to 100000`` (exit code 2, before anything
+runs); :func:`option_help` writes a field's help in one order for every option.
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ import re
 
 import click
 
-from pipeline.fields import AsTyped, Bool, Choice, FieldError, Optional, Path, Reject, Rule, declared, default_of
+from pipeline.fields import AsTyped, Bool, Choice, FieldError, Optional, Path, Reject, Rule
 
 
 class FieldType(click.ParamType):
@@ -78,39 +77,3 @@ def option_help(f) -> str:
     if isinstance(rule, Optional) and rule.default_text and not brackets and "[default:" not in text:
         brackets.append(f"[default: {rule.default_text}]")
     return " ".join([text, *brackets])
-
-
-def option_from(cls, name: str, *, flag: str | None = None, unset: str | None = None, **changes) -> click.Option:
-    """One click option of ``cls``'s field ``name``; ``flag`` spells a boolean's switch
-    (``"--hash-check/--no-hash-check"``); ``unset``: the option defaults to None, which
-    means this (``"the spec's"``); ``changes`` go to click.option as they are."""
-    f = declared(cls)[name]
-    rule = f.metadata["rule"]
-    default = default_of(f)
-    spelled = cls.field_label(name) if cls.FIELD_PREFIX == "--" else "--" + name.replace("_", "-")
-    if isinstance(rule, Bool):
-        decl = flag or (f"{spelled}/--no-{name.replace('_', '-')}" if default else spelled)
-        kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default) and "/" in decl)
-    else:
-        if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5"
-            default = ",".join(f"{v:g}" for v in default)
-        kwargs = dict(type=FieldType(rule), default=default, show_default=default is not None)
-        decl = spelled
-    kwargs["help"] = option_help(f)
-    if unset is not None:
-        kwargs.update(default=None, show_default=False, help=f"{kwargs['help']} [default: {unset}]")
-    kwargs.update(changes)
-    return click.option(decl, name, **kwargs)
-
-
-def options_from(cls, *names: str, **per_name: dict):
-    """One decorator of the options of ``cls``'s fields ``names``, in that order (as
-    --help lists them); ``per_name[name]`` holds :func:`option_from`'s keywords."""
-    options = [option_from(cls, name, **per_name.get(name, {})) for name in names]
-
-    def apply(func):
-        for option in reversed(options):
-            func = option(func)
-        return func
-
-    return apply
