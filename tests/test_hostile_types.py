@@ -294,7 +294,7 @@ def test_memory_before_refusal_is_bounded_by_the_structure(good, tmp_path):
 def test_a_record_line_with_more_structure_than_a_record_is_refused_before_parsing(pub, monkeypatch, line, kind, words):
     (pub / "dataset" / "manifest.jsonl").write_bytes(line + b"\n")
     reseal(pub)
-    monkeypatch.setattr("pipeline.publish.reader.json.loads", lambda *a: pytest.fail("parsed"))
+    monkeypatch.setattr("pipeline.publish.small_files.json.loads", lambda *a: pytest.fail("parsed"))
     with pytest.raises(Refused) as caught:
         open_publication(str(pub))
     assert caught.value.kind == kind and words in str(caught.value)

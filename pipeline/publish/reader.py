@@ -15,6 +15,10 @@ whose size, SHA-256, EXR header or record must be the expected one. Any differen
 :meth:`Publication.locate` streams every tar so and says where each checked member's bytes
 lie; :func:`read_located` reads one again there (the training stage's map-style loader,
 pipeline.neural.data).
+
+The reads of single files, without trusting them, are pipeline.publish.small_files; the
+checks of the line files against each other, and the members a row's tars must hold,
+pipeline.publish.rows.
 """
 
 from __future__ import annotations
@@ -22,7 +26,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import stat
 from array import array
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -30,10 +33,6 @@ from dataclasses import dataclass
 from pipeline.publish.exrcheck import check_exr_header, member_bounds
 from pipeline.publish.line_reader import CHUNK_BYTES, LineReader, scan
 from pipeline.publish.names import (
-    CROISSANT_FILE,
-    DATASET_DIR,
-    FORMAT,
-    FORMAT_VERSION,
     INDEX_FILE,
     MARKERS_REL,
     MATERIALS,
@@ -41,62 +40,45 @@ from pipeline.publish.names import (
     PLAIN_FILES,
     RENDERS,
     SAMPLES_FILE,
-    SHARDS_DIR,
     SOURCE_FILES,
     SUMS_FILE,
-    TAR_KINDS,
     TAR_NAME,
-    allowed_file,
     paired_tar,
-    tar_rel,
 )
 from pipeline.publish.previews import preview_problem
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
 from pipeline.publish.request import VerifyRequest, format_value
-from pipeline.publish.table import (
-    PREVIEW_ROLES,
-    FileRef,
-    file_refs,
-    material_member,
-    material_row,
-    preview_member,
-    record_member,
-    sample_row,
+from pipeline.publish.rows import (
+    LINE_FILES,
+    MANIFEST_REL,
+    Expected,
+    Section,
+    TarEntry,
+    check_manifest,
+    check_rows,
+    checked_row,
+    lighting_members,
+    material_members,
+    tar_entries,
 )
+from pipeline.publish.small_files import (
+    Shape,
+    check_croissant,
+    open_regular,
+    parse_json,
+    parse_sums,
+    read_small,
+    record_shape,
+    resized,
+    same_as_checked,
+    shown,
+    walk_files,
+)
+from pipeline.publish.table import FileRef, file_refs
 from pipeline.publish.tarsafe import Member, check_count, iter_headers, read_members, scan_tar, tar_length
-from pipeline.store.folder import (
-    OverBound,
-    Recorded,
-    field_type_problem,
-    json_type_name,
-    read_bytes,
-    read_manifest,
-    resolve_inside,
-    short_json,
-    structure_problem,
-)
+from pipeline.store.folder import OverBound, Recorded, read_bytes, read_manifest, resolve_inside, structure_problem
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
-from pipeline.store.records import dumps, without_timings
-
-HEX = frozenset("0123456789abcdef")
-MANIFEST_REL = SOURCE_FILES[MANIFEST_FILE]
-#: The files read a line at a time, never whole.
-LINE_FILES = (MANIFEST_REL, SAMPLES_FILE, MARKERS_REL)
-
-
-@dataclass(frozen=True)
-class Expected:
-    """A member a tar must hold: its name, what it is, its size and SHA-256, and where it
-    lives in the dataset folder (``path``, relative, the layout's)."""
-
-    name: str
-    role: str  # maps, texture, record, render
-    size: int
-    sha256: str
-    path: str | None  # None for a member derived by publish (a preview, a material's row)
-    sample_id: str | None
-    material_id: str
-    record: bytes | None = None  # a lighting's members: its manifest line
+from pipeline.store.records import without_timings
 
 
 @dataclass(frozen=True)
@@ -110,30 +92,6 @@ class Located:
     name: str
     offset: int
     size: int
-    sha256: str
-
-
-@dataclass
-class TarEntry:
-    rel: str
-    sha256: str
-    size: int
-    number: int
-    kind: str  # materials, renders
-    count: int = 0  # the members it must hold
-
-
-@dataclass(frozen=True)
-class Section:
-    """Where the rows of one tar pair lie: the number of their first line in the manifest
-    (and ``samples.jsonl``, line for line), how many, their offsets in both files, and the
-    SHA-256 of those lines as :func:`open_publication` checked them (each manifest line and
-    its row, each with a newline)."""
-
-    first_line: int
-    lines: int
-    manifest_offset: int
-    table_offset: int
     sha256: str
 
 
@@ -199,7 +157,7 @@ class Publication:
     def checked_members(self, tar: TarEntry, before: int = 0) -> Iterator[tuple[Expected, Member, bytes]]:
         """As :meth:`members`, with where each member's bytes lie in the tar (``Member``)."""
         label = tar.rel
-        with _open_regular(self.path(tar.rel), label) as fh:
+        with open_regular(self.path(tar.rel), label) as fh:
             digest = hashlib.sha256()
             for block in iter(lambda: fh.read(CHUNK_BYTES), b""):
                 digest.update(block)
@@ -247,171 +205,29 @@ class Publication:
         (a file grown since is refused before it is read); Refused at its end when its bytes are
         not those checked (the caller discards what it made of them)."""
         checked = self.sizes[MANIFEST_REL]
-        with _open_regular(self.path(MANIFEST_REL), MANIFEST_REL) as fh:
+        with open_regular(self.path(MANIFEST_REL), MANIFEST_REL) as fh:
             if os.fstat(fh.fileno()).st_size != checked:
-                raise _resized(MANIFEST_REL, os.fstat(fh.fileno()).st_size, checked)
+                raise resized(MANIFEST_REL, os.fstat(fh.fileno()).st_size, checked)
             digest, read = hashlib.sha256(), 0
             for chunk in iter(lambda: fh.read(CHUNK_BYTES), b""):
                 read += len(chunk)
                 if read > checked:
-                    raise _resized(MANIFEST_REL, read, checked)
+                    raise resized(MANIFEST_REL, read, checked)
                 digest.update(chunk)
                 yield chunk
-        _same(MANIFEST_REL, digest.hexdigest(), self.sums[MANIFEST_REL])
+        same_as_checked(MANIFEST_REL, digest.hexdigest(), self.sums[MANIFEST_REL])
 
     def markers(self) -> Iterator[tuple[str, bytes]]:
         """(shard id, its COMPLETE.json bytes) for each line of markers.jsonl, as checked; Refused
         at the end when the file's bytes are not those checked."""
-        with _open_regular(self.path(MARKERS_REL), MARKERS_REL) as fh:
+        with open_regular(self.path(MARKERS_REL), MARKERS_REL) as fh:
             lines = LineReader(fh, MARKERS_REL)
             for shard in self.shards:
                 line = lines.next(self.marker_bytes, lambda n: f"{MARKERS_REL} line {n}")
                 if line is None:
                     break
                 yield shard, line + b"\n"
-        _same(MARKERS_REL, lines.digest.hexdigest(), self.sums[MARKERS_REL])
-
-
-def _resized(rel: str, size: int, checked: int) -> Refused:
-    return Refused(
-        "changed",
-        f"{rel}: {size} bytes, {checked} when it was checked: the publication changed while it was read; refused",
-    )
-
-
-def _same(rel: str, digest: str, checked: str) -> None:
-    if digest != checked:
-        raise Refused(
-            "changed", f"{rel}: its SHA-256 is not the one checked: the publication changed while it was read; refused"
-        )
-
-
-# --------------------------------------------------------------------------- small files
-
-
-def _open_regular(path: str, label: str):
-    """Open a file for reading without following a symbolic link; refuse anything but a file."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-    except FileNotFoundError:
-        raise Refused("missing_file", f"{label}: missing") from None
-    except OSError as exc:
-        raise Refused("not_regular", f"{label}: cannot be opened as a regular file ({exc.strerror}); refused") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise Refused("not_regular", f"{label}: not a regular file; refused")
-    return os.fdopen(fd, "rb")
-
-
-def shown(name: str) -> str:
-    """A name from the file system or a tar header, as a one-line message may show it: as is
-    when every character prints, else as its repr (a newline never reaches the message raw)."""
-    return name if name.isprintable() else repr(name)
-
-
-def _walk(root: str, limits: Limits) -> dict[str, int]:
-    """Every file under ``root`` (relative path -> size); links, devices and unknown folders refused."""
-    files: dict[str, int] = {}
-    entries = 0
-    pending = [""]
-    while pending:
-        folder = pending.pop()
-        with os.scandir(os.path.join(root, *folder.split("/")) if folder else root) as it:
-            for entry in it:
-                entries += 1
-                if entries > limits.entries:
-                    raise Refused(
-                        "too_many_files", f"the publication has more than {limits.entries} files and folders; refused"
-                    )
-                rel = f"{folder}/{entry.name}" if folder else entry.name
-                mode = entry.stat(follow_symlinks=False).st_mode
-                if stat.S_ISLNK(mode):
-                    raise Refused("link", f"{shown(rel)}: a symbolic link inside PUB; refused")
-                if stat.S_ISDIR(mode):
-                    if folder or entry.name not in (DATASET_DIR, SHARDS_DIR):
-                        raise Refused(
-                            "unlisted_file", f"{shown(rel + '/')}: a folder that is no part of a publication; refused"
-                        )
-                    pending.append(rel)
-                elif stat.S_ISREG(mode):
-                    files[rel] = entry.stat(follow_symlinks=False).st_size
-                else:
-                    raise Refused(
-                        "not_regular", f"{shown(rel)}: not a regular file (a device, FIFO or socket); refused"
-                    )
-    return files
-
-
-def _read_small(root: str, rel: str, size_cap: int) -> bytes:
-    chunks, size = [], 0
-    with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
-        # a piece at a time: one read of the cap would allocate all of it, whatever the file's size
-        while size <= size_cap and (chunk := fh.read(min(1 << 20, size_cap + 1 - size))):
-            chunks.append(chunk)
-            size += len(chunk)
-    if size > size_cap:
-        raise Refused("too_large", f"{rel}: over the cap of {size_cap} bytes for a file read into memory; refused")
-    return b"".join(chunks)
-
-
-def _parse_sums(data: bytes) -> dict[str, str]:
-    sums: dict[str, str] = {}
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError:
-        raise Refused("bad_sums", f"{SUMS_FILE}: not ASCII text; refused") from None
-    for number, line in enumerate(text.split("\n"), start=1):
-        if not line:
-            continue
-        sha, sep, rel = line.partition("  ")
-        if not sep or len(sha) != 64 or not set(sha) <= HEX:
-            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: not 'SHA256  PATH' ({line[:80]!r}); refused")
-        if not allowed_file(rel):
-            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is not a file a publication holds; refused")
-        if rel in sums:
-            raise Refused("bad_sums", f"{SUMS_FILE} line {number}: {rel!r} is listed twice; refused")
-        sums[rel] = sha
-    return sums
-
-
-@dataclass(frozen=True)
-class Shape:
-    """What one JSON text may hold: bytes, arrays and objects (``[`` and ``{``), values (``,``
-    and ``:``). Counted in the bytes before parsing (a bracket inside a string counts too:
-    the count can only be too high), so a text whose parse would cost far more memory than
-    its size (``[[],[],...]``: ~30x) is refused first."""
-
-    bytes: int
-    containers: int
-    values: int
-
-
-def record_shape(limits: Limits) -> Shape:
-    return Shape(limits.record_bytes, limits.record_containers, limits.record_values)
-
-
-def _structure(data: bytes) -> tuple[int, int]:
-    return data.count(b"[") + data.count(b"{"), data.count(b",") + data.count(b":")
-
-
-def _check_size(size: int, where: str, shape: Shape) -> None:
-    if size > shape.bytes:
-        raise Refused("too_large", f"{where}: {size} bytes, over the cap of {shape.bytes} for one JSON text; refused")
-
-
-def _json(data: bytes, where: str, shape: Shape):
-    _check_size(len(data), where, shape)
-    containers, values = _structure(data)
-    if containers > shape.containers or values > shape.values:
-        raise Refused(
-            "too_complex",
-            f"{where}: {containers} JSON arrays/objects and {values} values, over the caps of "
-            f"{shape.containers} and {shape.values} (what parsing it may cost in memory); refused before parsing",
-        )
-    try:
-        return json.loads(data)
-    except (ValueError, RecursionError) as exc:
-        raise Refused("bad_json", f"{where}: not JSON ({str(exc)[:80]}); refused") from None
+        same_as_checked(MARKERS_REL, lines.digest.hexdigest(), self.sums[MARKERS_REL])
 
 
 def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
@@ -421,7 +237,7 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
         raise VerifyRequest.field_error(
             "pub", root, "a folder written by `shaderball publish`", what=f"{format_value(root)} {why}"
         )
-    files = _walk(root, limits)
+    files = walk_files(root, limits)
     if SUMS_FILE not in files:
         raise Refused("missing_file", f"{SUMS_FILE}: missing; PUB is not a (finished) publication")
     total = sum(files.values())
@@ -429,7 +245,7 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
         raise Refused(
             "too_large", f"the publication holds {total} bytes, over the cap of {limits.total_bytes}; refused"
         )
-    sums = _parse_sums(_read_small(root, SUMS_FILE, limits.text_bytes))
+    sums = parse_sums(read_small(root, SUMS_FILE, limits.text_bytes))
     for rel in sorted(set(files) - set(sums) - {SUMS_FILE}):
         raise Refused("unlisted_file", f"{shown(rel)}: not listed in {SUMS_FILE}; refused")
     for rel in sorted(set(sums) - set(files)):
@@ -441,32 +257,32 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     counts: dict[str, tuple[int, bool]] = {}  # lines, and whether the last ends with a newline
     for rel in sorted(r for r in sums if not TAR_NAME.match(r)):
         if rel in LINE_FILES:
-            with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
+            with open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
                 digest, lines, newline = scan(fh)
             counts[rel] = lines, newline
         else:
-            data = _read_small(root, rel, limits.text_bytes)
+            data = read_small(root, rel, limits.text_bytes)
             digest = hashlib.sha256(data).hexdigest()
             texts[rel] = data
         if digest != sums[rel]:
             raise Refused("checksum", f"{rel}: SHA-256 differs from {SUMS_FILE}'s; the file changed or is corrupt")
-    samples, shards = _manifest(root, sums, limits)
+    samples, shards = check_manifest(root, sums, limits)
     metadata = Shape(
         limits.text_bytes,
         4096 + limits.json_containers_per_file * len(sums),
         65536 + limits.json_values_per_file * len(sums),
     )
-    index = _json(texts[INDEX_FILE], INDEX_FILE, metadata)
-    tars = _tars(index, sums, files)
+    index = parse_json(texts[INDEX_FILE], INDEX_FILE, metadata)
+    tars = tar_entries(index, sums, files)
     if counts[SAMPLES_FILE][0] != samples:
         raise Refused("bad_table", f"{SAMPLES_FILE}: {counts[SAMPLES_FILE][0]} rows for {samples} manifest records")
-    _check_croissant(texts, sums, metadata)
+    check_croissant(texts, sums, metadata)
     lines, newline = counts[MARKERS_REL]
     if not newline or lines != shards:
         raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({shards}); refused")
-    checked = _check_rows(root, sums, tars, limits)
+    checked = check_rows(root, sums, tars, limits)
     small = {name: texts[rel] for name, rel in SOURCE_FILES.items() if rel in texts}
-    _json(small[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
+    parse_json(small[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
     return Publication(
         root=root,
         limits=limits,
@@ -480,316 +296,6 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     )
 
 
-def _checked_record(line: bytes, where: str, shape: Shape) -> dict:
-    """A manifest line's record: its shape before it is parsed, then the layout of its ids and
-    paths and the types of its fields."""
-    record = _json(line, where, shape)
-    file_refs(record, where)
-    why = field_type_problem(record)
-    if why:
-        raise Refused("bad_record", f"{where}: {why}; refused")
-    return record
-
-
-def _manifest(root: str, sums: dict[str, str], limits: Limits) -> tuple[int, int]:
-    """(records, source shards) of the manifest, every line checked (:func:`_checked_record`),
-    its id unique, each shard's records adjacent (as a build writes them), one at a time."""
-    rel = MANIFEST_REL
-    shape = record_shape(limits)
-    ids: set[str] = set()
-    done: set[str] = set()
-    shard = None
-    with _open_regular(os.path.join(root, *rel.split("/")), rel) as fh:
-        lines = LineReader(fh, rel)
-        while (line := lines.next(shape.bytes, lambda n: f"{rel} line {n}")) is not None:
-            number = lines.number
-            if number > limits.members:
-                raise Refused(
-                    "too_many_members", f"{rel}: more than {limits.members} lines (the cap on members); refused"
-                )
-            where = f"{rel} line {number}"
-            record = _checked_record(line, where, shape)
-            if record["id"] in ids:
-                raise Refused("duplicate", f"{where}: a second record for {record['id']}; refused")
-            ids.add(record["id"])
-            if record["shard"] != shard:
-                if record["shard"] in done:
-                    raise Refused(
-                        "bad_marker",
-                        f"{where} ({record['id']}): the records of shard {record['shard']} are not "
-                        "adjacent (a build writes each shard's together); refused",
-                    )
-                if shard is not None:
-                    done.add(shard)
-                shard = record["shard"]
-    _same(rel, lines.digest.hexdigest(), sums[rel])
-    if not ids:
-        raise Refused("bad_record", f"{rel}: no records")
-    return len(ids), len(done) + 1
-
-
-def _tars(index, sums: dict[str, str], files: dict[str, int]) -> list[TarEntry]:
-    if not isinstance(index, dict) or index.get("format") != FORMAT or index.get("format_version") != FORMAT_VERSION:
-        raise Refused("bad_index", f"{INDEX_FILE}: not a {FORMAT} version {FORMAT_VERSION} index; refused")
-    shards = index.get("shards")
-    listed = sorted(r for r in sums if TAR_NAME.match(r))
-    if not isinstance(shards, list) or [s.get("path") if isinstance(s, dict) else None for s in shards] != listed:
-        raise Refused("bad_index", f"{INDEX_FILE}: its shards are not the tars {SUMS_FILE} lists ({len(listed)})")
-    numbers = {
-        kind: [TAR_NAME.match(r).group(2) for r in listed if TAR_NAME.match(r).group(1) == kind] for kind in TAR_KINDS
-    }
-    for kind in TAR_KINDS:
-        if numbers[kind] != [f"{n:06d}" for n in range(len(numbers[MATERIALS]))]:
-            raise Refused(
-                "bad_index",
-                f"{SHARDS_DIR}/{kind}-*.tar: tars must be numbered from 000000 without gaps, "
-                "a materials tar and a renders tar for each number",
-            )
-    for number, rel in enumerate(listed):
-        said = shards[number].get("bytes")
-        if isinstance(said, bool) or not isinstance(said, int):
-            raise Refused(
-                "bad_index",
-                f"{rel}: {INDEX_FILE} gives its size as {json_type_name(said)} ({short_json(said)}), "
-                f"not an integer number of bytes (the file has {files[rel]})",
-            )
-        if said != files[rel]:
-            raise Refused("bad_index", f"{rel}: {files[rel]} bytes, {INDEX_FILE} says {said}")
-    return [
-        TarEntry(rel, sums[rel], files[rel], int(TAR_NAME.match(rel).group(2)), TAR_NAME.match(rel).group(1))
-        for rel in listed
-    ]
-
-
-def _sum_and_size(row: dict, column: str, limits: Limits) -> tuple[str, int] | None:
-    """A row's (SHA-256, size) of a member it names (``column``_sha256, ``column``_bytes), or None."""
-    sha, size = row.get(f"{column}_sha256"), row.get(f"{column}_bytes")
-    if (
-        not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= HEX)
-        or isinstance(size, bool)
-        or not isinstance(size, int)
-        or not 0 <= size <= limits.member_bytes
-    ):
-        return None
-    return sha, size
-
-
-@dataclass(frozen=True)
-class Row:
-    """One manifest line and its ``samples.jsonl`` row, checked against each other."""
-
-    number: int
-    line: bytes
-    record: dict
-    refs: dict[str, FileRef]
-    tar: TarEntry  # its renders tar
-    material_row: dict  # the row of its material (pipeline.publish.table.material_row)
-    record_sha256: str
-    record_bytes: int
-    previews: dict[str, tuple[str, int]]
-
-
-def _row(number: int, line: bytes, row_line: bytes, by_rel: dict[str, TarEntry], limits: Limits) -> Row:
-    """The manifest's line ``number`` and the table's row of that number, which must be the
-    row that line gives; any disagreement is refused."""
-    manifest = MANIFEST_REL
-    record = _checked_record(line, f"{manifest} line {number}", record_shape(limits))
-    row = _json(row_line, f"{SAMPLES_FILE} line {number}", record_shape(limits))
-    tar_rel = row.get("shard") if isinstance(row, dict) else None
-    sums = {c: _sum_and_size(row, c, limits) for c in ("record", *PREVIEW_ROLES)} if isinstance(row, dict) else {}
-    if (
-        not isinstance(tar_rel, str)
-        or tar_rel not in by_rel
-        or TAR_NAME.match(tar_rel).group(1) != RENDERS
-        or not sums
-        or None in sums.values()
-    ):
-        raise Refused(
-            "bad_table",
-            f"{SAMPLES_FILE} line {number}: no valid shard, record_sha256 and record_bytes "
-            "(or preview SHA-256 and size); refused",
-        )
-    sha, size = sums["record"]
-    previews = {role: sums[role] for role in PREVIEW_ROLES}
-    expected_row = sample_row(record, tar_rel, sha, size, previews)
-    if dumps(expected_row).encode("utf-8") != row_line:
-        raise Refused(
-            "bad_table",
-            f"{SAMPLES_FILE} line {number}: differs from the row {manifest} line {number} ({record['id']}) gives; refused",
-        )
-    refs = file_refs(record, f"{manifest} line {number}")
-    return Row(number, line, record, refs, by_rel[tar_rel], material_row(expected_row), sha, size, previews)
-
-
-def _shared_of(row: Row) -> dict:
-    """What every lighting of a material must agree on: its maps' (and texture's) SHA-256 and
-    size, and its maps preview's."""
-    shared = {r: (row.refs[r].sha256, row.refs[r].bytes) for r in ("maps", "texture") if r in row.refs}
-    shared["maps_preview"] = row.previews["maps_preview"]
-    return shared
-
-
-def _material_members(row: Row) -> list[Expected]:
-    """A material's members in its materials tar: its row, maps (and texture), maps preview."""
-    material = row.record["material_id"]
-    data = (dumps(row.material_row) + "\n").encode("utf-8")
-    members = [
-        Expected(
-            material_member(material), "material", len(data), hashlib.sha256(data).hexdigest(), None, None, material
-        )
-    ]
-    members += [_shared(row.refs[role], material) for role in ("maps", "texture") if role in row.refs]
-    members.append(_preview(row.record, "maps_preview", row.previews, None))
-    return members
-
-
-def _lighting_members(row: Row) -> list[Expected]:
-    """A lighting's members in its renders tar: its record, render and render preview (each
-    with its manifest line)."""
-    sample, material, shard = row.record["id"], row.record["material_id"], row.record["shard"]
-    render = row.refs["render"]
-    return [
-        Expected(
-            record_member(sample),
-            "record",
-            row.record_bytes,
-            row.record_sha256,
-            Layout.record_rel(shard, sample),
-            sample,
-            material,
-            row.line,
-        ),
-        Expected(render.member, "render", render.bytes, render.sha256, render.path, sample, material, row.line),
-        _preview(row.record, "render_preview", row.previews, sample, row.line),
-    ]
-
-
-def _check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: Limits) -> dict:
-    """The manifest, the samples table and the markers read together, a line of each at a
-    time: each table row must be the one its record gives, each tar pair's rows adjacent and
-    in the tars' order, each material's lightings adjacent in one pair and agreeing on its
-    maps, each marker the one of its shard. Counts each tar's members and notes where each
-    pair's rows lie (:class:`Section`); keeps no more than a shard's records and the ids of
-    the materials."""
-    shape = record_shape(limits)
-    paths = {rel: os.path.join(root, *rel.split("/")) for rel in LINE_FILES}
-    with (
-        _open_regular(paths[MANIFEST_REL], MANIFEST_REL) as manifest_fh,
-        _open_regular(paths[SAMPLES_FILE], SAMPLES_FILE) as table_fh,
-        _open_regular(paths[MARKERS_REL], MARKERS_REL) as markers_fh,
-    ):
-        manifest = LineReader(manifest_fh, MANIFEST_REL)
-        table = LineReader(table_fh, SAMPLES_FILE)
-        markers = LineReader(markers_fh, MARKERS_REL)
-        rows = _RowsCheck(tars, markers, limits)
-        while True:
-            m_offset, t_offset = manifest.offset, table.offset
-            line = manifest.next(shape.bytes, lambda n: f"{MANIFEST_REL} line {n}")
-            if line is None:
-                break
-            number = manifest.number
-            row_line = table.next(shape.bytes, lambda n: f"{SAMPLES_FILE} line {n}")
-            if row_line is None:
-                _same(SAMPLES_FILE, "", sums[SAMPLES_FILE])
-            rows.add(_row(number, line, row_line, rows.by_rel, limits), row_line, m_offset, t_offset)
-        rows.finish()
-    for rel, reader in ((MANIFEST_REL, manifest), (SAMPLES_FILE, table), (MARKERS_REL, markers)):
-        _same(rel, reader.digest.hexdigest(), sums[rel])
-    return {
-        "materials": len(rows.seen),
-        "sections": rows.sections,
-        "shards": rows.shards,
-        "marker_bytes": rows.marker_bytes,
-    }
-
-
-class _PairRows:
-    """The rows of the tar pair being read: where the first lies, how many, their SHA-256 so far
-    (each manifest line and its row, each with a newline)."""
-
-    def __init__(self, tar: TarEntry, first_line: int, manifest_offset: int, table_offset: int):
-        self.tar = tar  # its renders tar
-        self.first_line, self.manifest_offset, self.table_offset = first_line, manifest_offset, table_offset
-        self.lines = 0
-        self.digest = hashlib.sha256()
-
-    def section(self) -> Section:
-        return Section(self.first_line, self.lines, self.manifest_offset, self.table_offset, self.digest.hexdigest())
-
-
-class _RowsCheck:
-    """What :func:`_check_rows` keeps while it reads, and its checks of one row against the
-    rows before it: its tar pair's, its material's and its shard's (with ``markers``)."""
-
-    def __init__(self, tars: list[TarEntry], markers: LineReader, limits: Limits):
-        self.by_rel = {t.rel: t for t in tars}
-        self.markers, self.limits = markers, limits
-        self.sections: dict[int, Section] = {}
-        self.shards: list[str] = []
-        self.seen: dict[str, int] = {}  # material -> the number of its tar pair
-        self.marker_bytes = 0
-        self.pair: _PairRows | None = None
-        self.current = None  # (material, what its lightings share)
-        self.shard_rows: list[tuple[bytes, dict]] = []
-
-    def add(self, row: Row, row_line: bytes, manifest_offset: int, table_offset: int) -> None:
-        """The next row (``row_line`` its line of the table, the offsets those of both lines)."""
-        self._join_pair(row, row_line, manifest_offset, table_offset)
-        self._join_material(row)
-        row.tar.count += 3
-        if self.shard_rows and row.record["shard"] != self.shard_rows[0][1]["shard"]:
-            self._check_shard()
-            self.shard_rows = []
-        self.shard_rows.append((row.line, row.record))
-
-    def finish(self) -> None:
-        """After the last row: the last pair's section, the last shard's marker."""
-        if self.pair:
-            self.sections[self.pair.tar.number] = self.pair.section()
-        if self.shard_rows:
-            self._check_shard()
-
-    def _join_pair(self, row: Row, row_line: bytes, manifest_offset: int, table_offset: int) -> None:
-        tar, pair = row.tar, self.pair
-        if not pair or pair.tar is not tar:
-            if pair and tar.number < pair.tar.number:
-                raise Refused(
-                    "bad_table",
-                    f"{SAMPLES_FILE} line {row.number}: {row.record['id']} is in {tar.rel}, before "
-                    "the tar of the sample above it; refused",
-                )
-            if pair:
-                self.sections[pair.tar.number] = pair.section()
-            pair = self.pair = _PairRows(tar, row.number, manifest_offset, table_offset)
-        pair.lines += 1
-        pair.digest.update(row.line + b"\n" + row_line + b"\n")
-
-    def _join_material(self, row: Row) -> None:
-        tar, number = row.tar, row.number
-        material = row.record["material_id"]
-        shared = _shared_of(row)
-        if material not in self.seen:
-            self.seen[material] = tar.number
-            self.current = (material, shared)
-            self.by_rel[paired_tar(tar.rel, MATERIALS)].count += len(_material_members(row))
-        elif self.seen[material] != tar.number:
-            raise Refused(
-                "bad_table",
-                f"{SAMPLES_FILE} line {number}: material {material} is split across "
-                f"{tar_rel(self.seen[material])} and {tar.rel}; refused",
-            )
-        elif self.current != (material, shared):
-            raise Refused(
-                "bad_record",
-                f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps differ "
-                "from its other lightings', or its lightings are not adjacent; refused",
-            )
-
-    def _check_shard(self) -> None:
-        self.marker_bytes = max(self.marker_bytes, _check_marker(self.markers, self.shard_rows, self.limits))
-        self.shards.append(self.shard_rows[0][1]["shard"])
-
-
 def _section_members(publication: Publication, kind: str, at: Section) -> Iterator[Expected]:
     """The members one tar of a pair must hold, in order, derived again from its section of
     the manifest and the table (each line checked again); Refused at the end when those lines
@@ -799,8 +305,8 @@ def _section_members(publication: Publication, kind: str, at: Section) -> Iterat
     material = None
     shape = record_shape(publication.limits)
     with (
-        _open_regular(publication.path(MANIFEST_REL), MANIFEST_REL) as manifest_fh,
-        _open_regular(publication.path(SAMPLES_FILE), SAMPLES_FILE) as table_fh,
+        open_regular(publication.path(MANIFEST_REL), MANIFEST_REL) as manifest_fh,
+        open_regular(publication.path(SAMPLES_FILE), SAMPLES_FILE) as table_fh,
     ):
         manifest_fh.seek(at.manifest_offset)
         table_fh.seek(at.table_offset)
@@ -812,85 +318,18 @@ def _section_members(publication: Publication, kind: str, at: Section) -> Iterat
             if line is None or row_line is None:
                 break
             digest.update(line + b"\n" + row_line + b"\n")
-            row = _row(number, line, row_line, by_rel, publication.limits)
+            row = checked_row(number, line, row_line, by_rel, publication.limits)
             if kind == RENDERS:
-                yield from _lighting_members(row)
+                yield from lighting_members(row)
             elif row.record["material_id"] != material:
                 material = row.record["material_id"]
-                yield from _material_members(row)
+                yield from material_members(row)
     if digest.hexdigest() != at.sha256:
         raise Refused(
             "changed",
             f"{MANIFEST_REL} and {SAMPLES_FILE} lines {at.first_line}-{at.first_line + at.lines - 1}: not those "
             "checked when the publication was opened: it changed while it was read; refused",
         )
-
-
-def _preview(
-    record: dict, role: str, previews: dict[str, tuple[str, int]], sample: str | None, line: bytes | None = None
-) -> Expected:
-    sha, size = previews[role]
-    return Expected(preview_member(record, role), "preview", size, sha, None, sample, record["material_id"], line)
-
-
-def _shared(ref: FileRef, material: str) -> Expected:
-    return Expected(ref.member, ref.role, ref.bytes, ref.sha256, ref.path, None, material)
-
-
-def _check_croissant(texts: dict[str, bytes], sums: dict[str, str], shape: Shape) -> None:
-    """croissant.json's SHA-256 of each file must be the one SHA256SUMS lists."""
-    metadata = _json(texts[CROISSANT_FILE], CROISSANT_FILE, shape)
-    objects = metadata.get("distribution") if isinstance(metadata, dict) else None
-    if not isinstance(objects, list):
-        raise Refused("bad_croissant", f"{CROISSANT_FILE}: no distribution list; refused")
-    for entry in objects:
-        if isinstance(entry, dict) and entry.get("@type") == "cr:FileObject":
-            rel = entry.get("contentUrl")
-            if not isinstance(rel, str) or rel not in sums or entry.get("sha256") != sums[rel]:
-                raise Refused(
-                    "bad_croissant",
-                    f"{CROISSANT_FILE}: FileObject {rel!r} has a SHA-256 that is not "
-                    f"{SUMS_FILE}'s (or names no file of PUB); refused",
-                )
-
-
-def _check_marker(markers: LineReader, rows: list[tuple[bytes, dict]], limits: Limits) -> int:
-    """The next line of markers.jsonl must be the complete marker of the shard whose records
-    (manifest lines and records) are ``rows``; returns its size."""
-    number = markers.number + 1
-    where = f"{MARKERS_REL} line {number}"
-    shard = rows[0][1]["shard"]
-    # a marker holds its shard's records (but for timings) and a few fields of its own
-    own = [_structure(line) for line, _record in rows]
-    shape = Shape(
-        sum(len(line) + 64 for line, _record in rows) + limits.record_bytes,
-        sum(c for c, _ in own) + limits.record_containers,
-        sum(v for _, v in own) + limits.record_values,
-    )
-    line = markers.next(shape.bytes, lambda n: where)
-    if line is None:
-        raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard; refused")
-    marker = _json(line, where, shape)
-    if not isinstance(marker, dict) or marker.get("shard") != shard or marker.get("complete") is not True:
-        raise Refused("bad_marker", f"{where}: not the complete marker of shard {shard}")
-    mine = [record for _line, record in rows]
-    theirs = marker.get("records")
-    if (
-        not isinstance(theirs, list)
-        or len(theirs) != len(mine)
-        or marker.get("samples") != [r["id"] for r in mine]
-        or any(
-            not isinstance(t, dict)
-            or not isinstance(t.get("stats", {}), dict)
-            or without_timings(t) != without_timings(r)
-            for t, r in zip(theirs, mine)
-        )
-    ):
-        raise Refused(
-            "bad_marker",
-            f"{where}: the marker of shard {shard} does not hold the manifest's records of that shard; refused",
-        )
-    return len(line) + 1
 
 
 def _scan_in_order(fh, label: str, limits: Limits, before: int, expected: Iterator[Expected]):
@@ -954,7 +393,7 @@ def _check_member(
             f"{where}: SHA-256 {digest[:16]}... differs from the manifest's {expected.sha256[:16]}...; refused",
         )
     if expected.role == "record":
-        record = _json(data, where, record_shape(limits))
+        record = parse_json(data, where, record_shape(limits))
         if (
             not isinstance(record, dict)
             or not isinstance(record.get("stats", {}), dict)
@@ -1078,7 +517,7 @@ def read_located(root: str, at: Located, check_sha256: bool = True) -> bytes:
     ``pread``, no ``tarfile``, nothing extracted); the tar must still have the size it had
     and, with ``check_sha256``, the bytes the manifest's SHA-256. Raises :class:`Refused`."""
     label = f"{at.tar}: member {at.name!r}"
-    with _open_regular(os.path.join(root, *at.tar.split("/")), at.tar) as fh:
+    with open_regular(os.path.join(root, *at.tar.split("/")), at.tar) as fh:
         size = os.fstat(fh.fileno()).st_size
         if size != at.tar_size:
             raise Refused(
