@@ -34,6 +34,30 @@ def reference(tmp_path_factory) -> Path:
     return crash_module().shared_reference(tmp_path_factory)[0]
 
 
+@pytest.fixture(scope="session")
+def smoke(tmp_path_factory) -> Path:
+    """The smoke dataset, built once per session (once per machine under xdist), shared by the
+    publish and validate tests: read it, or copy it before a change."""
+    from support.publishing import smoke_build
+
+    return smoke_build(tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def tiny_run(reference, tmp_path_factory) -> Path:
+    """A run trained one epoch on the reference dataset with ``support.neural_fakes.TINY``, shared
+    by the checkpoint, run-file and link tests: read it, or copy it before a change."""
+    from click.testing import CliRunner
+
+    from cli import main
+    from support.neural_fakes import TINY
+
+    out = tmp_path_factory.mktemp("tiny") / "run"
+    result = CliRunner().invoke(main, ["train", str(reference), "--out", str(out), "--epochs", "1", *TINY])
+    assert result.exit_code == 0, result.output
+    return out
+
+
 @pytest.fixture(scope="module")
 def app(reference, tmp_path_factory):
     """A `shaderball serve` app on a free port with the reference dataset and a tiny network

@@ -23,7 +23,6 @@ from pipeline.publish.writer import publish
 from pipeline.store.lock import writer_lock
 from pipeline.ui.command import Command
 from scripts import cli_reference
-from support.publishing import smoke_build
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
@@ -32,11 +31,6 @@ JSON_COMMANDS = (
     *("build", "render", "validate", "info", "plan", "publish", "verify", "unpack", "train", "infer", "study"),
     *("bench", "evaluate", "scene", "preview"),
 )
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

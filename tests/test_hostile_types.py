@@ -27,7 +27,7 @@ from pipeline.run.cluster import options as cluster
 from pipeline.store import folder as store_folder
 from pipeline.store.records import dumps
 from support.bombs import PEAK
-from support.publishing import members, reseal, rewrite_tar, sha, smoke_build
+from support.publishing import members, reseal, rewrite_tar, sha
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
@@ -35,11 +35,6 @@ REPO = Path(__file__).resolve().parents[1]
 FIRST = "m000000_l0"
 MARKER = "shards/s00000/COMPLETE.json"
 RECORD_FILE = f"shards/s00000/{FIRST}.json"
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

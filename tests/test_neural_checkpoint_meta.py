@@ -24,10 +24,10 @@ from pipeline.errors import ShaderballError
 from pipeline.neural import checkpoint_meta, runfiles
 from pipeline.neural.infer import load_run_model
 from support.bombs import PEAK
+from support.neural_fakes import TINY
 
 torch.set_num_threads(1)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.1", "--batch-size", "8", "--seed", "3"]
 #: The address space each refused command runs in (torch and the CLI need ~1.5 GiB of it).
 LIMIT = 3 << 30
 #: The peak resident memory of a refusal: the imports' (~300 MB) and a margin, far below the
@@ -52,14 +52,6 @@ class Forged:
 
 def _invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
-
-
-@pytest.fixture(scope="module")
-def run(reference, tmp_path_factory):
-    out = tmp_path_factory.mktemp("meta") / "run"
-    result = _invoke("train", reference, "--out", out, "--epochs", 1, *TINY)
-    assert result.exit_code == 0, result.output
-    return out
 
 
 def _trusted(path):
@@ -187,8 +179,8 @@ def _commands(run_dir, reference, out):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
-def test_a_forged_tensor_is_refused_by_every_command_naming_it(run, reference, tmp_path, case):
-    broken, words = _forge(run, tmp_path / "broken", case)
+def test_a_forged_tensor_is_refused_by_every_command_naming_it(tiny_run, reference, tmp_path, case):
+    broken, words = _forge(tiny_run, tmp_path / "broken", case)
     out = tmp_path / "out"
     out.mkdir()
     before = {p.name: p.read_bytes() for p in broken.iterdir()}
@@ -207,8 +199,8 @@ def _limited():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["1gib-stride-0", "4tib-stride-0", "optimizer-1gib"])
-def test_a_refusal_stays_within_a_modest_memory_limit(run, reference, tmp_path, case):
-    broken, words = _forge(run, tmp_path / "broken", case)
+def test_a_refusal_stays_within_a_modest_memory_limit(tiny_run, reference, tmp_path, case):
+    broken, words = _forge(tiny_run, tmp_path / "broken", case)
     out = tmp_path / "out"
     out.mkdir()
     commands = _commands(broken, reference, out)
@@ -229,9 +221,9 @@ def test_a_refusal_stays_within_a_modest_memory_limit(run, reference, tmp_path, 
     assert os.listdir(out) == []
 
 
-def test_the_metadata_is_read_without_torch_load(run, monkeypatch, tmp_path):
+def test_the_metadata_is_read_without_torch_load(tiny_run, monkeypatch, tmp_path):
     """The refusal comes from data.pkl alone: torch.load is never reached."""
-    broken, words = _forge(run, tmp_path / "broken", "4tib-stride-0")
+    broken, words = _forge(tiny_run, tmp_path / "broken", "4tib-stride-0")
 
     def no_load(*args, **kwargs):
         raise AssertionError("torch.load reached")
@@ -242,14 +234,14 @@ def test_the_metadata_is_read_without_torch_load(run, monkeypatch, tmp_path):
     assert words in str(caught.value)
 
 
-def test_a_global_no_checkpoint_holds_is_refused_unread(run, tmp_path, monkeypatch):
+def test_a_global_no_checkpoint_holds_is_refused_unread(tiny_run, tmp_path, monkeypatch):
     """bytearray(n) allocates n bytes from one integer: torch's reader allows it, this one does not."""
 
     class Bomb:
         def __reduce__(self):
             return bytearray, (1 << 40,)
 
-    broken = shutil.copytree(run, tmp_path / "broken")
+    broken = shutil.copytree(tiny_run, tmp_path / "broken")
     ckpt = _trusted(broken / "checkpoint.pt")
     ckpt["history"][0]["x"] = Bomb()
     torch.save(ckpt, broken / "checkpoint.pt")
@@ -258,9 +250,9 @@ def test_a_global_no_checkpoint_holds_is_refused_unread(run, tmp_path, monkeypat
         runfiles.load_checkpoint(str(broken))
 
 
-def test_a_good_checkpoint_loads_with_the_same_weights_and_outputs(run):
-    path = run / "checkpoint.pt"
-    ckpt = runfiles.load_checkpoint(str(run))
+def test_a_good_checkpoint_loads_with_the_same_weights_and_outputs(tiny_run):
+    path = tiny_run / "checkpoint.pt"
+    ckpt = runfiles.load_checkpoint(str(tiny_run))
     trusted = _trusted(path)
     assert ckpt["model"].keys() == trusted["model"].keys()
     for name, tensor in trusted["model"].items():
@@ -269,7 +261,7 @@ def test_a_good_checkpoint_loads_with_the_same_weights_and_outputs(run):
         for key, value in entry.items():
             assert torch.equal(ckpt["optimizer"]["state"][index][key], value)
     assert ckpt["history"] == trusted["history"] and ckpt["epoch"] == trusted["epoch"]
-    model, _config = load_run_model(str(run), torch.device("cpu"))
+    model, _config = load_run_model(str(tiny_run), torch.device("cpu"))
     reference = type(model)(model.resolution, model.width).eval()
     reference.load_state_dict(trusted["model"])
     g = torch.Generator().manual_seed(0)
@@ -278,10 +270,10 @@ def test_a_good_checkpoint_loads_with_the_same_weights_and_outputs(run):
         assert torch.equal(model(maps, light), reference(maps, light))
 
 
-def test_a_channels_last_checkpoint_is_one_dense_layout(run, tmp_path):
+def test_a_channels_last_checkpoint_is_one_dense_layout(tiny_run, tmp_path):
     """Strides that permute the dimensions (channels-last, as `train --channels-last` saves
     them) describe each value once: accepted."""
-    broken = shutil.copytree(run, tmp_path / "broken")
+    broken = shutil.copytree(tiny_run, tmp_path / "broken")
     ckpt = _trusted(broken / "checkpoint.pt")
     ckpt["model"] = {
         k: v.contiguous(memory_format=torch.channels_last) if v.dim() == 4 else v for k, v in ckpt["model"].items()

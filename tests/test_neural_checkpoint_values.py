@@ -18,23 +18,15 @@ from click.testing import CliRunner
 
 from cli import main
 from pipeline.neural import checkpoint_meta
+from support.neural_fakes import TINY
 
 torch.set_num_threads(1)
-TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.1", "--batch-size", "8", "--seed", "3"]
 #: 5,000 decimal digits: over the 4,300 Python converts to text.
 HUGE = 10**4999 + 7
 
 
 def _invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
-
-
-@pytest.fixture(scope="module")
-def run(reference, tmp_path_factory):
-    out = tmp_path_factory.mktemp("values") / "run"
-    result = _invoke("train", reference, "--out", out, "--epochs", 1, *TINY)
-    assert result.exit_code == 0, result.output
-    return out
 
 
 class Forged:
@@ -225,8 +217,8 @@ def _forge(run, dest, case):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
-def test_a_number_out_of_range_is_refused_naming_it(run, reference, tmp_path, case):
-    broken, words = _forge(run, tmp_path / "broken", case)
+def test_a_number_out_of_range_is_refused_naming_it(tiny_run, reference, tmp_path, case):
+    broken, words = _forge(tiny_run, tmp_path / "broken", case)
     out = tmp_path / "out"
     out.mkdir()
     before = {p.name: p.read_bytes() for p in broken.iterdir()}

@@ -22,13 +22,12 @@ from pipeline.neural import runfiles
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import Diverged, train
 from pipeline.store.exr import encode_exr, read_exr
-from support.neural_fakes import FakeSource, train_config
+from support.neural_fakes import TINY, FakeSource, train_config
 from support.publishing import rerecord
 
 torch.set_num_threads(1)
 RENDER = "shards/s00000/m000000_l0.render.exr"
 MAPS = "shards/s00000/m000000.maps.exr"
-TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.1", "--batch-size", "8", "--seed", "3"]
 
 
 def _invoke(*args):
@@ -180,14 +179,6 @@ def test_a_resumed_run_that_diverges_keeps_the_last_finite_checkpoint(tmp_path):
 # --------------------------------------------------------------------------- run folders
 
 
-@pytest.fixture(scope="module")
-def run(reference, tmp_path_factory):
-    out = tmp_path_factory.mktemp("untrusted") / "run"
-    result = _invoke("train", reference, "--out", out, "--epochs", 1, *TINY)
-    assert result.exit_code == 0, result.output
-    return out
-
-
 def _copy_run(run, dest):
     shutil.copytree(run, dest)
     return dest
@@ -227,9 +218,9 @@ CONFIG_CASES = {
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CONFIG_CASES))
-def test_a_hostile_config_is_refused_naming_the_field(run, reference, tmp_path, case):
+def test_a_hostile_config_is_refused_naming_the_field(tiny_run, reference, tmp_path, case):
     edit, words = CONFIG_CASES[case]
-    broken = _copy_run(run, tmp_path / "broken")
+    broken = _copy_run(tiny_run, tmp_path / "broken")
     config = json.loads((broken / "config.json").read_text())
     edit(config)
     text = json.dumps(config).replace(json.dumps(NEST), "[" * 100_000 + "]" * 100_000)
@@ -245,8 +236,8 @@ def test_a_hostile_config_is_refused_naming_the_field(run, reference, tmp_path, 
 
 
 @pytest.mark.slow
-def test_a_hostile_log_is_refused_naming_its_line(run, reference, tmp_path):
-    broken = _copy_run(run, tmp_path / "broken")
+def test_a_hostile_log_is_refused_naming_its_line(tiny_run, reference, tmp_path):
+    broken = _copy_run(tiny_run, tmp_path / "broken")
     log = broken / "log.jsonl"
     log.write_text(log.read_text() + "[" * 100_000 + "]" * 100_000 + "\n")
     args = ["evaluate", broken, reference, "--spp", "none", "--out", tmp_path / "ev", "--report"]
@@ -274,9 +265,9 @@ def _zip_bomb(checkpoint: bytes, zeros: int) -> bytes:
 
 
 @pytest.mark.slow
-def test_a_compressed_checkpoint_is_refused_before_torch_load_reads_it(run, tmp_path, monkeypatch):
+def test_a_compressed_checkpoint_is_refused_before_torch_load_reads_it(tiny_run, tmp_path, monkeypatch):
     bomb = tmp_path / "bomb.pt"
-    bomb.write_bytes(_zip_bomb((run / "checkpoint.pt").read_bytes(), 200 << 20))
+    bomb.write_bytes(_zip_bomb((tiny_run / "checkpoint.pt").read_bytes(), 200 << 20))
     assert bomb.stat().st_size * 50 < 200 << 20  # it would expand 50-fold and more
 
     def no_load(*args, **kwargs):
@@ -284,9 +275,9 @@ def test_a_compressed_checkpoint_is_refused_before_torch_load_reads_it(run, tmp_
 
     monkeypatch.setattr(torch, "load", no_load)
     with pytest.raises(ShaderballError, match=r"bomb.pt: a corrupt checkpoint, member .* is compressed"):
-        runfiles.load_checkpoint(str(run), checkpoint=str(bomb), parameters=40_000)
+        runfiles.load_checkpoint(str(tiny_run), checkpoint=str(bomb), parameters=40_000)
     monkeypatch.undo()
-    result = _invoke("infer", run, "--out", tmp_path / "x.exr", "--checkpoint", bomb)
+    result = _invoke("infer", tiny_run, "--out", tmp_path / "x.exr", "--checkpoint", bomb)
     assert result.exit_code == 2 and "torch.save stores its members uncompressed" in result.output, result.output
     assert "remove it" not in result.output and "name a checkpoint this run's configuration wrote" in result.output
     assert not (tmp_path / "x.exr").exists()
@@ -301,8 +292,8 @@ def test_a_checkpoint_over_the_budget_of_its_network_is_refused_unread(tmp_path)
 
 
 @pytest.mark.slow
-def test_weights_that_do_not_fit_get_the_whole_message_right_for_the_case(run, reference, tmp_path):
-    broken = _copy_run(run, tmp_path / "broken")
+def test_weights_that_do_not_fit_get_the_whole_message_right_for_the_case(tiny_run, reference, tmp_path):
+    broken = _copy_run(tiny_run, tmp_path / "broken")
     ckpt = runfiles.load_checkpoint(str(broken))
     other = NeuralRenderer(16, 0.2).state_dict()  # the run's network is of width 0.1
     state = {k: ckpt[k] for k in ("epoch", "history", "identity_digest")}
@@ -322,8 +313,8 @@ def test_weights_that_do_not_fit_get_the_whole_message_right_for_the_case(run, r
 
 
 @pytest.mark.slow
-def test_infer_and_evaluate_refuse_nan_weights_and_write_nothing(run, reference, tmp_path):
-    broken = _copy_run(run, tmp_path / "broken")
+def test_infer_and_evaluate_refuse_nan_weights_and_write_nothing(tiny_run, reference, tmp_path):
+    broken = _copy_run(tiny_run, tmp_path / "broken")
     ckpt = runfiles.load_checkpoint(str(broken))
     name = next(iter(ckpt["model"]))
     ckpt["model"][name].view(-1)[0] = float("nan")

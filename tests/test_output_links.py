@@ -14,20 +14,11 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.links import ThroughLink, first_link, link_below
-
-TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.1", "--batch-size", "8", "--seed", "3"]
+from support.neural_fakes import TINY
 
 
 def _invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
-
-
-@pytest.fixture(scope="module")
-def run(reference, tmp_path_factory):
-    out = tmp_path_factory.mktemp("links") / "run"
-    result = _invoke("train", reference, "--out", out, "--epochs", 1, *TINY)
-    assert result.exit_code == 0, result.output
-    return out
 
 
 @pytest.fixture
@@ -59,8 +50,8 @@ def _evaluate(run_dir, reference, *more):
 
 
 @pytest.mark.slow
-def test_evaluate_refuses_a_default_folder_that_is_a_link(run, reference, tmp_path, outside):
-    copy = shutil.copytree(run, tmp_path / "run")
+def test_evaluate_refuses_a_default_folder_that_is_a_link(tiny_run, reference, tmp_path, outside):
+    copy = shutil.copytree(tiny_run, tmp_path / "run")
     (copy / "evaluation-all").symlink_to(outside)
     before, outside_before = _state(copy), _state(outside)
     result = _evaluate(copy, reference, "--split", "all")
@@ -70,8 +61,8 @@ def test_evaluate_refuses_a_default_folder_that_is_a_link(run, reference, tmp_pa
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["results.json", "grid.png", "report.md", "learning-curve.csv"])
-def test_evaluate_refuses_a_file_of_its_folder_that_is_a_link(run, reference, tmp_path, outside, name):
-    copy = shutil.copytree(run, tmp_path / "run")
+def test_evaluate_refuses_a_file_of_its_folder_that_is_a_link(tiny_run, reference, tmp_path, outside, name):
+    copy = shutil.copytree(tiny_run, tmp_path / "run")
     (copy / "evaluation-test").mkdir()
     (copy / "evaluation-test" / name).symlink_to(outside / "precious.txt")
     before, outside_before = _state(copy), _state(outside)
@@ -81,8 +72,8 @@ def test_evaluate_refuses_a_file_of_its_folder_that_is_a_link(run, reference, tm
 
 
 @pytest.mark.slow
-def test_evaluate_refuses_an_out_folder_or_json_out_through_a_link_in_the_run(run, reference, tmp_path, outside):
-    copy = shutil.copytree(run, tmp_path / "run")
+def test_evaluate_refuses_an_out_folder_or_json_out_through_a_link_in_the_run(tiny_run, reference, tmp_path, outside):
+    copy = shutil.copytree(tiny_run, tmp_path / "run")
     (copy / "elsewhere").symlink_to(outside)
     before, outside_before = _state(copy), _state(outside)
     result = _evaluate(copy, reference, "--out", copy / "elsewhere" / "ev")
@@ -100,8 +91,8 @@ def test_evaluate_refuses_an_out_folder_or_json_out_through_a_link_in_the_run(ru
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["log.jsonl", "loss.png", "checkpoint-best.pt", "log.csv"])
-def test_a_resumed_run_refuses_a_run_file_that_is_a_link(run, reference, tmp_path, outside, name):
-    copy = shutil.copytree(run, tmp_path / "run")
+def test_a_resumed_run_refuses_a_run_file_that_is_a_link(tiny_run, reference, tmp_path, outside, name):
+    copy = shutil.copytree(tiny_run, tmp_path / "run")
     target = outside / "precious.txt"
     if (copy / name).exists():
         os.remove(copy / name)
@@ -113,8 +104,8 @@ def test_a_resumed_run_refuses_a_run_file_that_is_a_link(run, reference, tmp_pat
 
 
 @pytest.mark.slow
-def test_export_and_infer_refuse_a_file_inside_the_run_through_a_link(run, tmp_path, outside):
-    copy = shutil.copytree(run, tmp_path / "run")
+def test_export_and_infer_refuse_a_file_inside_the_run_through_a_link(tiny_run, tmp_path, outside):
+    copy = shutil.copytree(tiny_run, tmp_path / "run")
     (copy / "elsewhere").symlink_to(outside)
     (copy / "net.pt").symlink_to(outside / "precious.txt")
     before, outside_before = _state(copy), _state(outside)

@@ -22,7 +22,7 @@ from pipeline.publish.names import MEMBER_NAME
 from pipeline.publish.tarsafe import BLOCK, padded
 from pipeline.publish.writer import publish
 from pipeline.store.records import without_timings
-from support.publishing import files_of, hf_env, smoke_build
+from support.publishing import files_of, hf_env
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session) and a few publishes
 
@@ -30,11 +30,6 @@ SHARD_BYTES = 300_000  # several tars from the 1.2 MB smoke dataset
 #: The largest relative error of mlcroissant's floats, measured by scripts/croissant_floats.py
 #: on the smoke publication (4.2e-13), rounded up to a power of ten.
 CROISSANT_REL = 1e-12
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -25,17 +25,12 @@ from pipeline.publish.refusal import Limits, Refused
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish, write_publication
 from pipeline.store.exr import encode_exr, read_exr
-from support.publishing import entry, files_of, members, rerecord, reseal, rewrite_tar, sha, smoke_build
+from support.publishing import entry, files_of, members, rerecord, reseal, rewrite_tar, sha
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
 TAR = "shards/renders-000000.tar"
 RENDER = "m000000_l0.render.exr"
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

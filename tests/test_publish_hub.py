@@ -28,7 +28,7 @@ from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish
 from pipeline.store.exr import read_exr
 from support.bombs import png_bomb
-from support.publishing import SMOKE, files_of, hf_env, members, reseal, rewrite_tar, sha, smoke_build
+from support.publishing import SMOKE, files_of, hf_env, members, reseal, rewrite_tar, sha
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session), a publish, the clients
 
@@ -82,11 +82,6 @@ for kind in ("renders", "materials"):
     out[f"plain_{kind}"] = [plain.num_rows, sorted(plain.column_names), repr(plain.features.get("render.png") or plain.features.get("maps.png"))]
 print(json.dumps(out))
 """
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -22,17 +22,11 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.publish.writer import publish
 from pipeline.store.layout import MANIFEST_FILE
-from support.publishing import smoke_build
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session)
 
 REPO = Path(__file__).resolve().parents[1]
 CRASH = REPO / "scripts" / "crash_test.py"
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> Path:
-    return smoke_build(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

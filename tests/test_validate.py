@@ -8,10 +8,8 @@ changes a dataset works on its own copy.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -35,25 +33,10 @@ EXTRA = "shards/s00003/stray.exr"
 slow = pytest.mark.slow  # the tests that use the built dataset
 
 
-@pytest.fixture(scope="session")
-def smoke_dataset(tmp_path_factory) -> Path:
-    from pipeline.run.build import build
-
-    base = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        base = base.parent  # shared by the workers of this run
-    target = base / "validate-smoke"
-    with open(base / "validate-smoke.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (target / "manifest.jsonl").exists():
-            build(str(SMOKE), str(target), workers=0)
-    return target
-
-
 @pytest.fixture
-def dataset(smoke_dataset, tmp_path) -> Path:
+def dataset(smoke, tmp_path) -> Path:
     copy = tmp_path / "ds"
-    shutil.copytree(smoke_dataset, copy)
+    shutil.copytree(smoke, copy)
     return copy
 
 
@@ -128,13 +111,13 @@ FAULTS = {
 
 
 @slow
-def test_clean_dataset_is_valid(smoke_dataset):
-    result = invoke(str(smoke_dataset), "--json")
+def test_clean_dataset_is_valid(smoke):
+    result = invoke(str(smoke), "--json")
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
     assert (report["expected"], report["present"], report["valid"]) == (16, 16, 16)
     assert report["problems"] == [] and report["ok"] is True
-    human = invoke(str(smoke_dataset))
+    human = invoke(str(smoke))
     assert human.exit_code == 0 and "valid: no problems found" in human.stdout
 
 
@@ -181,17 +164,15 @@ def test_fast_cli_exit_codes(dataset):
 
 @slow
 @pytest.mark.parametrize("name", FAULTS)
-def test_repair_restores_byte_identical_files(smoke_dataset, dataset, name):
+def test_repair_restores_byte_identical_files(smoke, dataset, name):
     FAULTS[name][0](dataset)
     result = invoke(str(dataset), "--repair", "--json")
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
     assert report["problems"] == [] and report["valid"] == 16
     assert len(report["repair"]["before"]["problems"]) == 1 and report["repair"]["actions"]
-    assert exr_digests(dataset) == exr_digests(smoke_dataset)
-    assert [without_timings(r) for r in manifest_lines(dataset)] == [
-        without_timings(r) for r in manifest_lines(smoke_dataset)
-    ]
+    assert exr_digests(dataset) == exr_digests(smoke)
+    assert [without_timings(r) for r in manifest_lines(dataset)] == [without_timings(r) for r in manifest_lines(smoke)]
     assert not (dataset / EXTRA).exists()
 
 
@@ -206,13 +187,13 @@ def test_repair_rewrites_only_what_is_bad(dataset):
 
 
 @slow
-def test_usage_errors_exit_2(tmp_path, smoke_dataset):
+def test_usage_errors_exit_2(tmp_path, smoke):
     missing = invoke(str(tmp_path / "nope"))
     assert missing.exit_code == 2 and "does not exist" in missing.output
     (tmp_path / "notes.txt").write_text("hello")
     not_dataset = invoke(str(tmp_path))
     assert not_dataset.exit_code == 2 and "not a shaderball dataset" in not_dataset.output
-    both = invoke(str(smoke_dataset), "--fast", "--repair")
+    both = invoke(str(smoke), "--fast", "--repair")
     assert both.exit_code == 2
 
 
@@ -242,7 +223,7 @@ def rewrite_consistently(root: Path, rel: str, layers: dict, meta: dict, half=()
 
 
 @slow
-def test_bad_map_values_found_and_regenerated(smoke_dataset, dataset):
+def test_bad_map_values_found_and_regenerated(smoke, dataset):
     from pipeline.store.exr import read_exr
 
     image = read_exr(str(dataset / MAPS))
@@ -258,7 +239,7 @@ def test_bad_map_values_found_and_regenerated(smoke_dataset, dataset):
     assert all(p.path == MAPS and MAPS in p.message for p in report.problems)
     assert report.valid == 14  # both lightings of the material
     _before, after, _actions = repair(str(dataset))
-    assert after.ok and exr_digests(dataset) == exr_digests(smoke_dataset)
+    assert after.ok and exr_digests(dataset) == exr_digests(smoke)
 
 
 @slow
@@ -287,7 +268,7 @@ def test_edited_statistic_is_a_stats_mismatch(dataset):
 
 
 @slow
-def test_unfinished_build_falls_back_to_shards_and_repair_finishes(smoke_dataset, dataset):
+def test_unfinished_build_falls_back_to_shards_and_repair_finishes(smoke, dataset):
     (dataset / "manifest.jsonl").unlink()
     (dataset / "shards/s00003/COMPLETE.json").unlink()
     report = validate(str(dataset))
@@ -295,7 +276,7 @@ def test_unfinished_build_falls_back_to_shards_and_repair_finishes(smoke_dataset
     assert (report.expected, report.present) == (16, 16)
     _before, after, actions = repair(str(dataset))
     assert after.ok and "rerender" not in [a.action for a in actions]
-    assert exr_digests(dataset) == exr_digests(smoke_dataset)
+    assert exr_digests(dataset) == exr_digests(smoke)
 
 
 @slow
@@ -315,9 +296,9 @@ def test_edited_spec_snapshot_is_kept_until_its_spec_is_given(dataset):
 
 
 @slow
-def test_progress_once_per_file_and_json_schema(smoke_dataset):
+def test_progress_once_per_file_and_json_schema(smoke):
     seen = []
-    report = validate(str(smoke_dataset), progress=seen.append)
+    report = validate(str(smoke), progress=seen.append)
     assert [p.done for p in seen] == list(range(1, report.files_checked + 1))
     assert report.files_checked == 32  # 16 renders + 8 maps + 8 texture files
     data = json.loads(report.to_json())

@@ -82,6 +82,9 @@ def train_config(tmp_path, name="run", **kw) -> TrainConfig:
 
 
 #: The files a finished training run folder holds (with a held-out split).
+#: The options of the tiny run that the checkpoint, run-file and link tests share (conftest's
+#: ``tiny_run``, one epoch); a test that resumes it passes them again.
+TINY = ["--loss", "l1", "--resolution", "16", "--width", "0.1", "--batch-size", "8", "--seed", "3"]
 RUN_FILES = ["checkpoint-best.pt", "checkpoint.pt", "config.json", "log.csv", "log.jsonl", "loss.png"]
 
 
