@@ -191,9 +191,19 @@ def test_unknown_section_is_named(tmp_path):
         parse_spec(path)
 
 
-def test_typo_in_dataset_key_is_not_ignored(tmp_path):
-    path = write_spec(tmp_path, MINIMAL + "light_per_material = 3\n")
-    with pytest.raises(SpecError, match="dataset.light_per_material: unknown key"):
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        pytest.param(
+            MINIMAL + "light_per_material = 3\n", "dataset.light_per_material: unknown key", id="typo-in-a-key"
+        ),
+        pytest.param("[render]\nspp = 4\n", r"\[dataset\]: missing; a \[dataset\] section", id="no-dataset-section"),
+        pytest.param("render = 4\n" + MINIMAL, r"\[render\]: 4 is not a table", id="section-not-a-table"),
+    ],
+)
+def test_a_malformed_spec_is_refused_naming_what_is_wrong(tmp_path, text, message):
+    path = write_spec(tmp_path, text)
+    with pytest.raises(SpecError, match=message):
         parse_spec(path)
 
 
@@ -202,18 +212,6 @@ def test_required_dataset_keys(tmp_path, missing):
     lines = [ln for ln in MINIMAL.splitlines() if not ln.startswith(missing)]
     path = write_spec(tmp_path, "\n".join(lines) + "\n")
     with pytest.raises(SpecError, match=rf"{path}: dataset\.{missing}: missing; required: "):
-        parse_spec(path)
-
-
-def test_missing_dataset_section(tmp_path):
-    path = write_spec(tmp_path, "[render]\nspp = 4\n")
-    with pytest.raises(SpecError, match=r"\[dataset\]: missing; a \[dataset\] section"):
-        parse_spec(path)
-
-
-def test_section_that_is_not_a_table(tmp_path):
-    path = write_spec(tmp_path, "render = 4\n" + MINIMAL)
-    with pytest.raises(SpecError, match=r"\[render\]: 4 is not a table"):
         parse_spec(path)
 
 
