@@ -1,7 +1,8 @@
 """Checking a dataset folder: ``validate``, ``info``, ``preview``.
 
 ``validate`` is split by concern: ``report`` (problem kinds, report types, output),
-``inspect`` (EXR and file checks), ``crosscheck`` (records against files and the plan),
+``inspect`` (EXR and file checks), ``loading`` (the plan, manifest and markers read first),
+``crosscheck`` (records against files and the plan, over ``discrepancies``: one record's),
 ``byshard`` (those checks one shard at a time over a compact index of the manifest);
 ``validate`` keeps the entry point. ``snapshot`` reads the spec a folder was built from.
 

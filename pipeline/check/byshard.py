@@ -6,7 +6,7 @@ plan order, and keeps a compact index: for every planned sample, the byte offset
 and line number of its first record (numpy arrays, 20 bytes a render). The second pass
 goes shard by shard in plan order: the shard is planned, its records are read back at
 their offsets, its marker is read, its files are inspected, and the checks of
-:mod:`pipeline.check.crosscheck` run on a :class:`~pipeline.check.crosscheck.State` that
+:mod:`pipeline.check.crosscheck` run on a :class:`~pipeline.check.loading.State` that
 holds this shard alone; then all of it is dropped. Files that are no part of the dataset
 are found by one walk of the folder, each shard folder's allowed names made from its plan
 when the walk reaches it.
@@ -28,22 +28,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.check.crosscheck import (
-    ROOT_FILES,
-    Source,
-    State,
     check_extra_files,
     check_files,
     check_markers,
     check_missing_samples,
     check_record_files,
     check_records,
-    expected_files,
-    load_markers,
-    manifest_line_record,
     referenced_files,
     render_present,
 )
+from pipeline.check.discrepancies import expected_files
 from pipeline.check.inspect import inspect_all
+from pipeline.check.loading import ROOT_FILES, Source, State, load_markers, manifest_line_record
 from pipeline.check.report import Problems
 from pipeline.dataset.plan import Plan, sample_id, shard_id
 from pipeline.store.folder import (
@@ -97,7 +93,7 @@ class ManifestIndex:
 
 def index_manifest(layout, plans: Plan, parse: Problems, order: Problems) -> ManifestIndex:
     """One pass over the manifest: line problems into ``parse`` (as
-    :func:`pipeline.check.crosscheck.load_manifest` reports them), duplicates, records the
+    :func:`pipeline.check.loading.load_manifest` reports them), duplicates, records the
     plan does not have and the first record out of plan order into ``order`` (as
     :func:`pipeline.check.crosscheck.check_records_against_plan`). OSError when the manifest
     cannot be read (the caller then checks the dataset whole, which reports it)."""

@@ -83,7 +83,7 @@ class Report:
     bytes_read: int = 0
     seconds: float = 0.0
     # What repair() needs; not part of the JSON report.
-    _state: object | None = field(default=None, repr=False, compare=False)  # crosscheck.State
+    _state: object | None = field(default=None, repr=False, compare=False)  # loading.State
 
     @property
     def ok(self) -> bool:

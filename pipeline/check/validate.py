@@ -24,6 +24,7 @@ lists), rewrites the manifest from the shard markers and validates again.
 Library code: nothing here prints; progress goes to a callback. This module holds the entry
 point; the work is split by concern: :mod:`pipeline.check.report` (problem kinds, the
 report, its JSON and text), :mod:`pipeline.check.inspect` (one file read, decoded, checked),
+:mod:`pipeline.check.loading` (the plan, manifest and markers read first),
 :mod:`pipeline.check.crosscheck` (records against the plan, the files and each other).
 """
 
@@ -34,21 +35,17 @@ from collections.abc import Callable
 
 from pipeline.check.byshard import Phases, check_by_shard, check_extra_by_shard, index_manifest
 from pipeline.check.crosscheck import (
-    State,
     check_extra_files,
     check_files_and_records,
     check_markers,
     check_record_files,
     check_records_against_plan,
-    check_root,
     fallback_records,
-    load_manifest,
-    load_markers,
-    load_plan,
     referenced_files,
     render_present,
 )
 from pipeline.check.inspect import inspect_all
+from pipeline.check.loading import State, check_root, load_manifest, load_markers, load_plan
 from pipeline.check.report import PROBLEM_KINDS, Problem, Problems, Progress, RepairAction, Report
 from pipeline.dataset.plan import iter_samples
 from pipeline.store.folder import shard_ids_on_disk

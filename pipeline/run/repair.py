@@ -8,8 +8,10 @@ import os
 import shutil
 from collections.abc import Callable
 
-from pipeline.check.crosscheck import State, check_root, expected_files, marker_record, record_ok
+from pipeline.check.crosscheck import marker_record
+from pipeline.check.discrepancies import expected_files, record_ok
 from pipeline.check.inspect import expectations, inspect_file
+from pipeline.check.loading import State, check_root
 from pipeline.check.report import Progress, RepairAction, Report
 from pipeline.check.request import ValidateRequest
 from pipeline.check.validate import validate
