@@ -28,7 +28,6 @@ from pipeline.bench.estimate import PlanRequest, plan_spec
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
-from pipeline.check.validate import validate
 from pipeline.errors import Printed
 from pipeline.neural.command import (
     collate_command,
@@ -62,7 +61,7 @@ from pipeline.render.command import RenderRequest, render_to_files
 from pipeline.render.scene_command import SceneRequest, write_scene
 from pipeline.run.build import BuildRequest, build
 from pipeline.run.cluster.connection import job_script
-from pipeline.run.repair import repair
+from pipeline.run.repair import validate_or_repair
 from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.run import StudyRequest, run_study
 from pipeline.ui import process
@@ -175,15 +174,7 @@ def validate_cmd(request: ValidateRequest):
       shaderball validate demo-out/smoke
       shaderball validate demo-out/smoke --fast --json
     """
-    show = validate_progress()
-    if not request.repair:
-        report = validate(request.directory, fast=request.fast, progress=show)
-        return Printed(report.to_dict(), "\n".join(report.lines()), exit_code=0 if report.ok else 1)
-    before, report, actions = repair(request.directory, workers=request.workers, progress=show, spec_path=request.spec)
-    doc = {**report.to_dict(), "repair": {"before": before.to_dict(), "actions": [a.to_dict() for a in actions]}}
-    text = [f"before repair: {len(before.problems)} problem(s); {len(actions)} action(s)"]
-    text += [f"  {action.action}: {action.message}" for action in actions] + report.lines()
-    return Printed(doc, "\n".join(text), exit_code=0 if report.ok else 1)
+    return validate_or_repair(request, progress=validate_progress())
 
 
 @request_command(

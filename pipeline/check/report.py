@@ -89,6 +89,11 @@ class Report:
     def ok(self) -> bool:
         return not self.problems
 
+    @property
+    def exit_code(self) -> int:
+        """`shaderball validate`'s: 0 for a valid dataset, 1 for an invalid one."""
+        return 0 if self.ok else 1
+
     def counts(self) -> dict[str, int]:
         return dict(Counter(p.kind for p in self.problems))
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Callable
+from typing import NamedTuple
 
 from pipeline.check.crosscheck import marker_record
 from pipeline.check.discrepancies import expected_files, record_ok
@@ -273,9 +274,38 @@ def rebuild(root: str, workers: int, progress, n_shards: int, variant: str | Non
     build(Layout(root).spec, root, workers=workers, progress=forward, variant=variant)
 
 
+class Repaired(NamedTuple):
+    """What a repair did: the report before, the report after, the actions between."""
+
+    before: Report
+    after: Report
+    actions: list[RepairAction]
+
+    @property
+    def exit_code(self) -> int:
+        return self.after.exit_code
+
+    def to_dict(self) -> dict:
+        done = {"before": self.before.to_dict(), "actions": [a.to_dict() for a in self.actions]}
+        return {**self.after.to_dict(), "repair": done}
+
+    def lines(self) -> list[str]:
+        head = f"before repair: {len(self.before.problems)} problem(s); {len(self.actions)} action(s)"
+        return [head, *(f"  {a.action}: {a.message}" for a in self.actions), *self.after.lines()]
+
+
+def validate_or_repair(request: ValidateRequest, *, progress: Callable[[Progress], None] | None = None):
+    """`shaderball validate`: the :class:`Report` of ``request.directory``, or with
+    ``request.repair`` what the repair did (:class:`Repaired`); exit code 1 where the dataset
+    is (still) not valid."""
+    if not request.repair:
+        return validate(request.directory, fast=request.fast, progress=progress)
+    return repair(request.directory, workers=request.workers, progress=progress, spec_path=request.spec)
+
+
 def repair(
     root: str, *, workers: int = 0, progress: Callable[[Progress], None] | None = None, spec_path: str | None = None
-) -> tuple[Report, Report, list[RepairAction]]:
+) -> Repaired:
     """Fix what :func:`validate` finds; return (report before, report after, actions).
 
     A writer: it holds ``root`` (pipeline.store.lock) from the first check to the last, so
@@ -291,7 +321,7 @@ def repair(
 
 def _repair_locked(
     root: str, *, workers: int, progress: Callable[[Progress], None] | None, spec_path: str | None
-) -> tuple[Report, Report, list[RepairAction]]:
+) -> Repaired:
     """:func:`repair` under the lock.
 
     Deletes extra files; keeps every sample whose best record (the marker's, the record
@@ -308,21 +338,21 @@ def _repair_locked(
     """
     before = validate(root, progress=progress, keep_state=True)
     if before.ok:
-        return before, before, []
+        return Repaired(before, before, [])
     state, actions = before._state, []
     if (state.plans is None or not state.spec_ok) and spec_path is not None:
         actions.append(restore_spec(state, spec_path))
         current = validate(root, progress=progress, keep_state=True)
         if current.ok:
-            return before, current, actions
+            return Repaired(before, current, actions)
         state = current._state
     if state.plans is None or not state.spec_ok:
-        return before, before, actions + [unrepairable_spec()]
+        return Repaired(before, before, actions + [unrepairable_spec()])
     variant = repair_variant(state)  # the dataset's own, or SetupError before anything changes
     affected, lost = settle_files(state, actions)
     actions = resume_build(root, state, affected, lost, actions, workers=workers, progress=progress, variant=variant)
     after = validate(root, progress=progress)
-    return before, after, actions
+    return Repaired(before, after, actions)
 
 
 def unrepairable_spec() -> RepairAction:
