@@ -190,7 +190,7 @@ def preview_cmd(request: PreviewRequest):
     Example:
       shaderball preview demo-out/smoke --out demo-out/smoke-preview.png
     """
-    return write_preview(request.directory, request.out, samples=request.rows, tile=request.tile)
+    return write_preview(request)
 
 
 @request_command(main, InfoRequest, json="Print the figures as JSON instead.")

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.check.info import dataset_info
 from pipeline.check.preview import write_preview
+from pipeline.check.request import PreviewRequest
 from pipeline.check.validate import validate
 from pipeline.errors import USER_ERRORS
 from pipeline.publish import names
@@ -135,7 +136,7 @@ def test_every_field_of_a_record_of_any_type_is_a_problem_never_a_crash(smoke, t
         "validate --fast": lambda: validate(str(ds), fast=True),
         "validate": lambda: validate(str(ds)),
         "info": lambda: json.dumps(dataset_info(str(ds)).to_dict()),
-        "preview": lambda: write_preview(str(ds), str(tmp_path / "p.png"), samples=1),
+        "preview": lambda: write_preview(PreviewRequest(str(ds), str(tmp_path / "p.png"), rows=1)),
     }
     crashes = []
     for path in _record_paths(record):
@@ -172,7 +173,7 @@ def test_every_field_of_dataset_json_and_a_marker_of_any_type_is_never_a_crash(s
                 for name, call in (
                     ("validate --fast", lambda: validate(str(ds), fast=True)),
                     ("info", lambda: json.dumps(dataset_info(str(ds)).to_dict())),
-                    ("preview", lambda: write_preview(str(ds), str(tmp_path / "p.png"), samples=2)),
+                    ("preview", lambda: write_preview(PreviewRequest(str(ds), str(tmp_path / "p.png"), rows=2))),
                 ):
                     try:
                         call()

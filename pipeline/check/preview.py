@@ -278,11 +278,11 @@ def _read_chosen(layout: Layout, counts: dict[str, int], places: list[int]) -> l
     return [chosen[place] for place in places]
 
 
-def write_preview(root: str, out: str, *, samples: int = 8, tile: int | None = None) -> PreviewSummary:
-    """Write the contact sheet of the dataset at ``root`` to the PNG ``out``."""
+def write_preview(request: PreviewRequest) -> PreviewSummary:
+    """Write the contact sheet of the dataset ``request.directory`` to the PNG ``request.out``."""
     from PIL import Image
 
-    PreviewRequest(directory=root, out=out, rows=samples, tile=tile).check_fields()
+    root, out, samples, tile = request.directory, request.out, request.rows, request.tile
     layout = Layout(root)
     if not os.path.isdir(root) or not os.path.lexists(layout.spec):
         raise dir_refused(root, "is not a dataset folder", f"{DATASET_FOLDER} (with its spec.toml)", PreviewRequest)

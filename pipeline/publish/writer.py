@@ -23,6 +23,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 
 from pipeline.check.preview import write_preview
+from pipeline.check.request import PreviewRequest
 from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
@@ -680,7 +681,7 @@ def _copy_sources(output: Output, layout: Layout, packed: _Packed) -> None:
 def _write_contact_sheet(output: Output, root: str, progress: Callable[[str], None] | None) -> None:
     if progress:
         progress("drawing the contact sheet")
-    write_preview(root, output.path(PREVIEW_FILE), samples=PREVIEW_SAMPLES)
+    write_preview(PreviewRequest(directory=root, out=output.path(PREVIEW_FILE), rows=PREVIEW_SAMPLES))
     with open(output.path(PREVIEW_FILE), "rb") as fh:
         output.adopt(PREVIEW_FILE, hashlib.sha256(fh.read()).hexdigest(), os.path.getsize(output.path(PREVIEW_FILE)))
 
