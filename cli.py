@@ -19,13 +19,12 @@ from pipeline.ui.interrupt import stop_on_ctrl_c_while_loading
 stop_on_ctrl_c_while_loading()
 
 import dataclasses
-import os
 
 import click
 
 from pipeline.bench.command import BenchRequest, run_bench
 from pipeline.bench.estimate import PlanRequest, plan_spec
-from pipeline.check.info import dataset_info
+from pipeline.bench.info import info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
 from pipeline.errors import Printed
@@ -204,9 +203,7 @@ def info_cmd(request: InfoRequest):
       shaderball info demo-out/smoke
       shaderball info manifests/paper.toml
     """
-    if os.path.isfile(request.directory):
-        return plan_spec(PlanRequest(spec=request.directory, timing=False))
-    return dataset_info(request.directory)
+    return info(request)
 
 
 @request_command(

@@ -141,8 +141,8 @@ def test_an_internal_error_is_json_with_exit_70_and_library_output_stays_off_std
             os.write(1, b"C library noise on fd 1\\n")
             print("a stray print")
             raise ZeroDivisionError("a bug")
-        import cli as _cli
-        _cli.dataset_info = broken
+        import pipeline.bench.info as _info
+        _info.dataset_info = broken
         """
     )
     done = shaderball("info", str(smoke), "--json", code=code)
@@ -187,10 +187,10 @@ def test_every_json_command_goes_through_the_wrapper():
 def test_ctrl_c_is_json_too(smoke):
     code = textwrap.dedent(
         """
-        import cli as _cli
+        import pipeline.bench.info as _info
         def interrupted(root):
             raise KeyboardInterrupt
-        _cli.dataset_info = interrupted
+        _info.dataset_info = interrupted
         """
     )
     done = shaderball("info", str(smoke), "--json", code=code)
