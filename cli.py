@@ -273,14 +273,7 @@ def publish_cmd(request: PublishRequest):
     Example:
       shaderball publish demo-out/smoke --out demo-out/smoke-pub
     """
-    return publish(
-        request.directory,
-        request.out,
-        shard_bytes=request.shard_bytes,
-        license_id=request.license,
-        url=request.url,
-        progress=say,
-    )
+    return publish(request, progress=say)
 
 
 @request_command(main, VerifyRequest, json="Print the report (or the refusal: kind, message) as JSON only.")
@@ -293,7 +286,7 @@ def verify_cmd(request: VerifyRequest):
     Example:
       shaderball verify demo-out/smoke-pub
     """
-    return verify(request.pub, progress=say)
+    return verify(request, progress=say)
 
 
 @request_command(main, UnpackRequest, json="Print the summary (or the refusal) as JSON only.")
@@ -304,7 +297,7 @@ def unpack_cmd(request: UnpackRequest):
     Example:
       shaderball unpack demo-out/smoke-pub --out demo-out/smoke-copy
     """
-    return unpack(request.pub, request.out, validate_after=request.validate, progress=say)
+    return unpack(request, progress=say)
 
 
 @request_command(

@@ -1,6 +1,6 @@
 """Every whole-file read of a dataset, publication or report file is bounded by what the file
 should be: the size its record gives it, or a declared budget where nothing records one
-(pipeline.store.folder.read_bytes). A render grown in place (os.truncate: a sparse file, no
+(pipeline.store.bounded_read.read_bytes). A render grown in place (os.truncate: a sparse file, no
 disk used) is refused by preview, train and evaluate as validate refuses it, in its words,
 before a byte of it is read; so are a grown file under the publication reader, a grown
 publication manifest and an EXR read from its path.
@@ -86,7 +86,7 @@ def grown(reference, tmp_path_factory):
 
 
 def test_a_read_outside_its_bound_is_refused_before_anything_is_read(tmp_path):
-    from pipeline.store.folder import OverBound, Recorded, read_bytes, read_chunks
+    from pipeline.store.bounded_read import OverBound, Recorded, read_bytes, read_chunks
 
     path = tmp_path / "m000000_l0.render.exr"
     path.write_bytes(b"x" * 1000)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish
 from support.bombs import exr_bomb
 from support.exrcraft import merged_channels_bomb
@@ -54,7 +55,7 @@ BOMBS = {
 @pytest.fixture(scope="module")
 def pub(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("recipes") / "pub"
-    publish(str(smoke_build(tmp_path_factory)), str(out), shard_bytes=300_000)
+    publish(PublishRequest(str(smoke_build(tmp_path_factory)), str(out), shard_bytes=300_000))
     return out
 
 

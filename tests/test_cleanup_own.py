@@ -15,6 +15,7 @@ import pytest
 import pipeline.publish.unpack as unpack_module
 from pipeline.publish.output import held_output
 from pipeline.publish.refusal import Refused
+from pipeline.publish.request import UnpackRequest
 from pipeline.store.layout import LOCK_FILE
 
 #: Run as another process: write argv[2] into the file argv[1] (its folders made as needed),
@@ -57,7 +58,7 @@ def stubbed_unpack(monkeypatch, tmp_path):
 
         monkeypatch.setattr(unpack_module, "_write_in_completion_order", write_then_refuse)
         with pytest.raises(Refused):
-            unpack_module.unpack(str(pub), str(out), validate_after=False)
+            unpack_module.unpack(UnpackRequest(str(pub), str(out), validate=False))
 
     return run
 

@@ -19,6 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 import cli
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish
 from pipeline.store.lock import writer_lock
 from pipeline.ui.command import Command
@@ -36,7 +37,7 @@ JSON_COMMANDS = (
 @pytest.fixture(scope="module")
 def pub(smoke, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("cli-json") / "pub"
-    publish(str(smoke), str(out))
+    publish(PublishRequest(str(smoke), str(out)))
     return out
 
 

@@ -23,6 +23,7 @@ from pipeline.errors import USER_ERRORS
 from pipeline.publish import names
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import Refused
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish, write_publication
 from pipeline.run.cluster import options as cluster
 from pipeline.store import folder as store_folder
@@ -41,7 +42,7 @@ RECORD_FILE = f"shards/s00000/{FIRST}.json"
 @pytest.fixture(scope="module")
 def good(smoke, tmp_path_factory) -> Path:
     pub = tmp_path_factory.mktemp("round3") / "good"
-    publish(str(smoke), str(pub))
+    publish(PublishRequest(str(smoke), str(pub)))
     return pub
 
 

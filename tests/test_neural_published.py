@@ -28,6 +28,7 @@ from pipeline.neural.data import PublishedFiles, is_publication, open_dataset
 from pipeline.neural.denoise import AuxBuffers, material_albedo
 from pipeline.neural.evaluate import PathTracer
 from pipeline.neural.splits import split_materials
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish
 from pipeline.render.gbuffer import SURFACES, load_gbuffer
 from pipeline.render.scene import GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID
@@ -48,7 +49,7 @@ def _invoke(*args):
 @pytest.fixture(scope="module")
 def pub(reference, tmp_path_factory):
     out = tmp_path_factory.mktemp("neural-pub") / "pub"
-    publish(str(reference), str(out), shard_bytes=SHARD_BYTES)
+    publish(PublishRequest(str(reference), str(out), shard_bytes=SHARD_BYTES))
     assert len(list((out / "shards").iterdir())) >= 3
     return out
 

@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.publish import iter_folder_samples, iter_samples
 from pipeline.publish.names import MEMBER_NAME
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.tarsafe import BLOCK, padded
 from pipeline.publish.writer import publish
 from pipeline.store.records import without_timings
@@ -35,7 +36,7 @@ CROISSANT_REL = 1e-12
 @pytest.fixture(scope="module")
 def published(smoke, tmp_path_factory) -> tuple[Path, object]:
     pub = tmp_path_factory.mktemp("publish") / "pub"
-    summary = publish(str(smoke), str(pub), shard_bytes=SHARD_BYTES)
+    summary = publish(PublishRequest(str(smoke), str(pub), shard_bytes=SHARD_BYTES))
     return pub, summary
 
 

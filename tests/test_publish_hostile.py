@@ -22,6 +22,7 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import Limits, Refused
+from pipeline.publish.request import PublishRequest, VerifyRequest
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish, write_publication
 from pipeline.store.exr import encode_exr, read_exr
@@ -36,7 +37,7 @@ RENDER = "m000000_l0.render.exr"
 @pytest.fixture(scope="module")
 def good(smoke, tmp_path_factory) -> Path:
     pub = tmp_path_factory.mktemp("hostile") / "good"
-    publish(str(smoke), str(pub), shard_bytes=300_000)
+    publish(PublishRequest(str(smoke), str(pub), shard_bytes=300_000))
     return pub
 
 
@@ -365,7 +366,7 @@ def test_a_consistent_publication_of_an_invalid_dataset_is_unpacked_then_refused
 )
 def test_caps_refuse_before_reading(good, limits, kind, words):
     with pytest.raises(Refused) as caught:
-        verify(str(good), limits)
+        verify(VerifyRequest(str(good)), limits=limits)
     assert caught.value.kind == kind and words in str(caught.value) and caught.value.exit_code == 1
 
 
@@ -402,7 +403,7 @@ def test_any_changed_byte_of_a_tar_is_refused_even_with_every_checksum_resealed(
         (pub / TAR).write_bytes(bytes(data))
         reseal(pub)
         with pytest.raises(Refused) as caught:
-            verify(str(pub))
+            verify(VerifyRequest(str(pub)))
         kinds.add(caught.value.kind)
         shutil.rmtree(pub)
     assert {"not_tar", "member_checksum", "trailing_data"} <= kinds  # a header's own checksum breaks first
@@ -442,7 +443,7 @@ def test_mangled_metadata_is_refused_or_harmless_never_a_crash(good, tmp_path, r
                 )
             )
         try:
-            verify(str(pub))
+            verify(VerifyRequest(str(pub)))
         except Refused:
             pass  # any other exception fails the test
         shutil.rmtree(pub)

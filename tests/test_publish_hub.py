@@ -24,6 +24,7 @@ from pipeline.dataset.spec import parse_spec
 from pipeline.publish.card import EXR_TWO_LINES, exr_check
 from pipeline.publish.previews import PREVIEW_SIDE, encode_png, maps_preview, render_preview
 from pipeline.publish.refusal import Refused
+from pipeline.publish.request import PublishRequest, VerifyRequest
 from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish
 from pipeline.store.exr import read_exr
@@ -87,7 +88,7 @@ print(json.dumps(out))
 @pytest.fixture(scope="module")
 def pub(smoke, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("hub") / "pub"
-    publish(str(smoke), str(out), shard_bytes=SHARD_BYTES)
+    publish(PublishRequest(str(smoke), str(out), shard_bytes=SHARD_BYTES))
     return out
 
 
@@ -257,7 +258,7 @@ def test_a_forged_preview_is_refused(pub, tmp_path):
     rewrite_tar(tar, [(n, d[:-20] + bytes(20) if n == name else d) for n, d in items])  # changed, re-sealed
     reseal(forged)
     with pytest.raises(Refused) as caught:
-        verify(str(forged))
+        verify(VerifyRequest(str(forged)))
     assert caught.value.kind == "member_checksum" and name in str(caught.value)
     # a consistent forgery: the table names the new bytes, which are no PNG
     payload = b"#!/bin/sh\nrm -rf /\n"
@@ -268,7 +269,7 @@ def test_a_forged_preview_is_refused(pub, tmp_path):
     (forged / "samples.jsonl").write_text("".join(dumps(r) + "\n" for r in table))
     reseal(forged)
     with pytest.raises(Refused) as caught:
-        verify(str(forged))
+        verify(VerifyRequest(str(forged)))
     assert caught.value.kind == "preview" and f"member '{name}': not a PNG" in str(caught.value)
 
 
@@ -327,7 +328,7 @@ def test_verify_decodes_previews_within_their_size_and_refuses_a_broken_one(pub,
     make, words = FORGED_PREVIEWS[case]
     forged, name = forged_preview(pub, tmp_path, column, make)
     with pytest.raises(Refused) as caught:
-        verify(str(forged))
+        verify(VerifyRequest(str(forged)))
     assert caught.value.kind == "preview", caught.value
     assert f"member '{name}': " in str(caught.value) and words in str(caught.value), str(caught.value)
     assert len(str(caught.value)) < 400
@@ -364,7 +365,7 @@ def test_croissant_float_error_is_pandas_fast_parser(pub):
 
 def test_publishing_twice_gives_identical_previews_and_card(smoke, pub, tmp_path):
     again = tmp_path / "again"
-    publish(str(smoke), str(again), shard_bytes=SHARD_BYTES)
+    publish(PublishRequest(str(smoke), str(again), shard_bytes=SHARD_BYTES))
     assert files_of(again) == files_of(pub)
     assert (
         hashlib.sha256((pub / "README.md").read_bytes()).digest()

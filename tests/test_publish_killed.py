@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import partial_publication, publish
 from pipeline.store.layout import LOCK_FILE
 from pipeline.store.lock import stale_holder
@@ -38,7 +39,7 @@ CRASH = REPO / "scripts" / "crash_test.py"
 def whole(reference, tmp_path_factory) -> dict[str, bytes]:
     """The publication of the smoke dataset written in one go: every file's bytes."""
     out = tmp_path_factory.mktemp("whole") / "pub"
-    publish(str(reference), str(out))
+    publish(PublishRequest(str(reference), str(out)))
     return files_of(out)
 
 

@@ -20,6 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
+from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish
 from pipeline.store.layout import MANIFEST_FILE
 
@@ -32,7 +33,7 @@ CRASH = REPO / "scripts" / "crash_test.py"
 @pytest.fixture(scope="module")
 def pub(smoke, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("killed-unpack") / "pub"
-    publish(str(smoke), str(out))
+    publish(PublishRequest(str(smoke), str(out)))
     return out
 
 

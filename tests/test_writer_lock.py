@@ -17,6 +17,7 @@ import pytest
 
 from pipeline.errors import FolderBusy
 from pipeline.publish import unpack as unpack_module
+from pipeline.publish.request import UnpackRequest
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE
 from pipeline.store.lock import holder_text, holds_lock, writer_lock
@@ -185,7 +186,7 @@ def test_unpack_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_pat
     monkeypatch.setattr(unpack_module, "Output", output_then_a_build_starts)
     try:
         with pytest.raises(FolderBusy, match="build, pid"):
-            unpack_module.unpack(str(tmp_path / "pub"), str(out))
+            unpack_module.unpack(UnpackRequest(str(tmp_path / "pub"), str(out)))
         assert os.listdir(out) == [LOCK_FILE]  # the build's lock; unpack wrote nothing
     finally:
         for proc in holders:

@@ -42,11 +42,8 @@ from pipeline.check.inspect import inspect_all
 from pipeline.check.loading import ROOT_FILES, Source, State, load_markers, manifest_line_record
 from pipeline.check.report import Problems
 from pipeline.dataset.plan import Plan, sample_id, shard_id
-from pipeline.store.folder import (
-    SHARD_NAME,
-    iter_manifest,
-    read_line_at,
-)
+from pipeline.store.bounded_read import read_line_at
+from pipeline.store.folder import SHARD_NAME, iter_manifest
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, SHARDS_DIR, Layout
 
 #: A sample id as the plan writes it: ``m<6-digit material>_l<light>``.

@@ -19,11 +19,10 @@ from pipeline.check.discrepancies import (
 from pipeline.check.inspect import FileFacts, expectations
 from pipeline.check.loading import ROOT_FILES, Source, State
 from pipeline.check.report import Problems, summarise
+from pipeline.store.bounded_read import list_bound
 from pipeline.store.folder import (
-    field_type_problem,
     is_empty_folder,
     is_temp_file,
-    list_bound,
     read_json_in,
     record_file_names,
     shard_ids_on_disk,
@@ -31,6 +30,7 @@ from pipeline.store.folder import (
     walk_folder,
 )
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, SHARDS_DIR
+from pipeline.store.record_fields import field_type_problem
 from pipeline.store.records import without_timings
 
 

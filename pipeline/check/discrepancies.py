@@ -11,8 +11,8 @@ from pipeline.check.loading import State
 from pipeline.dataset.record import lighting_discrepancies, model_record
 from pipeline.errors import short_repr
 from pipeline.image.stats import is_bad
-from pipeline.store.folder import field_type_problem
 from pipeline.store.layout import Layout
+from pipeline.store.record_fields import field_type_problem
 from pipeline.store.records import RUN_DEPENDENT_STATS
 
 #: Relative tolerance for recomputed float statistics (same pixels, same float64 sums).

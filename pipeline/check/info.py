@@ -19,14 +19,13 @@ from pipeline.check.request import InfoRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import shard_id
 from pipeline.dataset.spec import spec_digest
+from pipeline.store.bounded_read import read_json_checked, unsafe_entry
 from pipeline.store.folder import (
     disk_usage,
     manifest_record_count,
-    read_json_checked,
     read_manifest,
     shard_records,
     symlinks_and_odd_files,
-    unsafe_entry,
 )
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
 

@@ -16,9 +16,9 @@ import numpy as np
 from pipeline.check.report import Progress
 from pipeline.errors import USER_ERRORS
 from pipeline.image.stats import render_stats
+from pipeline.store.bounded_read import UnsafePath, read_bytes, resolve_inside
 from pipeline.store.exr import read_exr
 from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds
-from pipeline.store.folder import UnsafePath, read_bytes, resolve_inside
 
 #: Largest |length - 1| of a stored normal: half floats carry 11 significant bits, so a unit
 #: vector rounded per component is off by up to ~1e-3 in length; measured here: <= 2.5e-4.

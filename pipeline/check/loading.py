@@ -14,16 +14,10 @@ from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
 from pipeline.dataset.spec import spec_digest
 from pipeline.errors import USER_ERRORS, short_repr
-from pipeline.store.folder import (
-    description_problem,
-    field_type_problem,
-    list_bound,
-    read_json_checked,
-    read_json_in,
-    read_manifest,
-    structure_problem,
-)
+from pipeline.store.bounded_read import list_bound, read_json_checked, structure_problem
+from pipeline.store.folder import read_json_in, read_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
+from pipeline.store.record_fields import description_problem, field_type_problem
 from pipeline.store.records import read_json
 
 #: Files at the top of DIR that belong to the dataset.

@@ -22,16 +22,9 @@ from pipeline.check.snapshot import read_snapshot
 from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.bounded_read import OverBound, Recorded, read_bytes, resolve_inside, unsafe_entry
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
-from pipeline.store.folder import (
-    OverBound,
-    Recorded,
-    manifest_record_count,
-    read_bytes,
-    resolve_inside,
-    shard_records,
-    unsafe_entry,
-)
+from pipeline.store.folder import manifest_record_count, shard_records
 from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
@@ -158,7 +151,7 @@ def label_text(record: dict) -> list[str]:
 
 def _read_layers(root: str, entry: dict, layer: str | None, resolution: int) -> dict:
     """The layers of the EXR a record's file ``entry`` names, read only inside the folder
-    (pipeline.store.folder.resolve_inside), only at the size the record gives it, and decoded
+    (pipeline.store.bounded_read.resolve_inside), only at the size the record gives it, and decoded
     only if its header says it is ``resolution`` pixels a side, with no more channels than a
     render (``layer`` "render") or a maps file holds (pipeline.store.exrheader);
     ShaderballError naming it otherwise."""

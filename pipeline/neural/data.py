@@ -17,7 +17,7 @@ box-averaged over D/R x D/R pixels first (renders in linear HDR, before the tone
 
 Every file is read as bytes once, only at the size the manifest records for it (a render
 grown in place is refused before a byte is read, as validate refuses it:
-:class:`pipeline.store.folder.Recorded`), its SHA-256 compared with the manifest's on its
+:class:`pipeline.store.bounded_read.Recorded`), its SHA-256 compared with the manifest's on its
 first read in a process (``check_hashes=False`` skips it), then decoded. A material's maps are
 assembled once and kept (a bounded cache per process) for all its lightings. Paths that
 leave the dataset folder (absolute, ``..``, or through a symbolic link) are refused.
@@ -72,24 +72,24 @@ from pipeline.neural.network import check_network_resolution
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import Located, open_publication, read_located
 from pipeline.publish.refusal import Refused
-from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
-from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
-from pipeline.store.folder import (
+from pipeline.store.bounded_read import (
     OverBound,
     Recorded,
     UnsafePath,
     file_digest,
     iter_lines,
-    iter_manifest,
     list_bound,
     read_bytes,
     read_json_checked,
     read_line_at,
-    record_problem,
     resolve_inside,
     structure_problem,
 )
+from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
+from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
+from pipeline.store.folder import iter_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
+from pipeline.store.record_fields import record_problem
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
 #: Materials whose assembled maps a process keeps (400x400: 7.7 MB each).
@@ -97,7 +97,7 @@ DEFAULT_CACHE_MATERIALS = 64
 
 
 def safe_path(root: str, rel: str) -> str:
-    """``rel`` (a manifest path) inside ``root`` (pipeline.store.folder.resolve_inside: no
+    """``rel`` (a manifest path) inside ``root`` (pipeline.store.bounded_read.resolve_inside: no
     ``..``, not absolute, through no symbolic link), or a ShaderballError naming it."""
     try:
         return resolve_inside(root, rel)
@@ -240,7 +240,7 @@ def folder_manifest(root: str) -> tuple[dict, str]:
 
 
 def parse_records(data: bytes, description: dict, root: str, where: str, checker: str) -> list[dict]:
-    """The records of a manifest's bytes, each checked (pipeline.store.folder.record_problem),
+    """The records of a manifest's bytes, each checked (pipeline.store.record_fields.record_problem),
     as many as ``dataset.json`` counts."""
     records = [_checked_record(line, number, where, checker) for number, _offset, line in _byte_lines(data)]
     return _count_check(records, description, root)

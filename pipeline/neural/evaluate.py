@@ -50,7 +50,7 @@ from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import atomic_file
-from pipeline.store.folder import json_type_name, short_json
+from pipeline.store.record_fields import json_type_name, short_json
 from sky import Light
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]

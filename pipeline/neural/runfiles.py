@@ -4,7 +4,7 @@ Every file is replaced atomically (:mod:`pipeline.store.atomic`: temporary file 
 folder, fsync, rename), so a kill at any instant leaves the previous complete file or the new one.
 
 A run folder is untrusted input, as a dataset folder is: ``config.json`` is read bounded
-(:func:`pipeline.store.folder.read_json_checked`: a regular file, its size and JSON
+(:func:`pipeline.store.bounded_read.read_json_checked`: a regular file, its size and JSON
 structure bounded before it is parsed) and checked field by field (:func:`config_problem`)
 before any field is used; a checkpoint's zip archive is checked against a budget derived
 from the network's parameter count before ``torch.load`` decompresses anything
@@ -49,14 +49,8 @@ from pipeline.neural.runfolder import (  # noqa: F401 - the run files' names, re
     refuse_links,
 )
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.folder import (
-    MAX_JSON_BYTES,
-    json_type_name,
-    read_bytes,
-    read_json_checked,
-    short_json,
-    structure_problem,
-)
+from pipeline.store.bounded_read import MAX_JSON_BYTES, read_bytes, read_json_checked, structure_problem
+from pipeline.store.record_fields import json_type_name, short_json
 
 #: The per-epoch log.csv's columns, in this order.
 CSV_COLUMNS = (

@@ -33,7 +33,8 @@ from pipeline.neural.config import SweepRequest
 from pipeline.neural.limits import INTEGER_RANGES
 from pipeline.neural.report import bootstrap_ci95
 from pipeline.store.atomic import write_bytes_atomic
-from pipeline.store.folder import json_type_name, read_bytes, short_json
+from pipeline.store.bounded_read import read_bytes
+from pipeline.store.record_fields import json_type_name, short_json
 
 BASELINES = ("mean_image", "nearest_sample")
 SEED_COLOURS = (plot.BLUE, plot.RED, plot.GREEN, plot.PURPLE, plot.ORANGE)

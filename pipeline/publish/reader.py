@@ -76,7 +76,8 @@ from pipeline.publish.small_files import (
 )
 from pipeline.publish.table import FileRef, file_refs
 from pipeline.publish.tarsafe import Member, check_count, iter_headers, read_members, scan_tar, tar_length
-from pipeline.store.folder import OverBound, Recorded, read_bytes, read_manifest, resolve_inside, structure_problem
+from pipeline.store.bounded_read import OverBound, Recorded, read_bytes, resolve_inside, structure_problem
+from pipeline.store.folder import read_manifest
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
 from pipeline.store.records import without_timings
 

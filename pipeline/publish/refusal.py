@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.errors import ShaderballError
-from pipeline.store.folder import MAX_JSON_BYTES, RECORD_CONTAINERS, RECORD_VALUES
+from pipeline.store.bounded_read import MAX_JSON_BYTES, RECORD_CONTAINERS, RECORD_VALUES
 
 
 class Refused(ShaderballError):

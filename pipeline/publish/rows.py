@@ -50,8 +50,8 @@ from pipeline.publish.table import (
     record_member,
     sample_row,
 )
-from pipeline.store.folder import field_type_problem, json_type_name, short_json
 from pipeline.store.layout import MANIFEST_FILE, Layout
+from pipeline.store.record_fields import field_type_problem, json_type_name, short_json
 from pipeline.store.records import dumps, without_timings
 
 MANIFEST_REL = SOURCE_FILES[MANIFEST_FILE]

@@ -60,14 +60,11 @@ class UnpackSummary:
 
 
 def unpack(
-    pub: str,
-    out: str,
-    *,
-    limits: Limits = DEFAULT_LIMITS,
-    validate_after: bool = True,
-    progress: Callable[[str], None] | None = None,
+    request: UnpackRequest, *, limits: Limits = DEFAULT_LIMITS, progress: Callable[[str], None] | None = None
 ) -> UnpackSummary:
-    """Restore the dataset folder of the publication ``pub`` into ``out`` (new or empty)."""
+    """Restore the dataset folder of the publication ``request.pub`` into ``request.out`` (new
+    or empty), validated after unless ``request.validate`` is False."""
+    pub, out, validate_after = request.pub, request.out, request.validate
     start = time.perf_counter()
     check_out(out, pub, owner=UnpackRequest)
     publication = open_publication(pub, limits)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 from pipeline.publish.reader import Publication, open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits
+from pipeline.publish.request import VerifyRequest
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,11 @@ def verify_publication(publication: Publication, progress: Callable[[str], None]
     )
 
 
-def verify(pub: str, limits: Limits = DEFAULT_LIMITS, progress: Callable[[str], None] | None = None) -> VerifyReport:
+def verify(
+    request: VerifyRequest, *, limits: Limits = DEFAULT_LIMITS, progress: Callable[[str], None] | None = None
+) -> VerifyReport:
+    """`shaderball verify`: every file of the publication ``request.pub`` checked, without
+    extracting it; raise Refused on the first problem."""
     start = time.perf_counter()
-    report = verify_publication(open_publication(pub, limits), progress)
+    report = verify_publication(open_publication(request.pub, limits), progress)
     return VerifyReport(**{**report.__dict__, "seconds": time.perf_counter() - start})

@@ -57,16 +57,8 @@ from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, Publi
 from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
 from pipeline.publish.tarsafe import BLOCK, member_bytes, open_writer, padded, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
-from pipeline.store.folder import (
-    MAX_JSON_BYTES,
-    is_temp_file,
-    iter_manifest,
-    list_bound,
-    read_bytes,
-    read_chunks,
-    real_dir,
-    resolve_inside,
-)
+from pipeline.store.bounded_read import MAX_JSON_BYTES, list_bound, read_bytes, read_chunks, resolve_inside
+from pipeline.store.folder import is_temp_file, iter_manifest, real_dir
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.lock import holder_text, stale_holder
 from pipeline.store.records import dumps

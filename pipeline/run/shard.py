@@ -40,8 +40,9 @@ from pipeline.render.raster import project_material
 from pipeline.render.renderer import MaterialScene, RenderSettings, render_sample
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, write_exr
-from pipeline.store.folder import complete_marker, real_dir, record_problem
+from pipeline.store.folder import complete_marker, real_dir
 from pipeline.store.layout import Layout
+from pipeline.store.record_fields import record_problem
 from pipeline.store.records import SCHEMA_VERSION, dumps, file_entry, file_ok, read_json
 from sky import Light
 

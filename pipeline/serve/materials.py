@@ -43,9 +43,10 @@ from pipeline.serve.view import (
     UploadRequest,
     with_status,
 )
+from pipeline.store.bounded_read import read_bytes
 from pipeline.store.exr import read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
-from pipeline.store.folder import read_bytes, read_manifest
+from pipeline.store.folder import read_manifest
 from pipeline.store.layout import SPEC_FILE, Layout
 
 #: Largest upload body, bytes.

@@ -21,8 +21,8 @@ import numpy as np
 from pipeline.errors import ShaderballError
 from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.store.atomic import write_bytes_atomic
+from pipeline.store.bounded_read import read_bytes
 from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrHeader, ExrRefused, check_header, shown_names
-from pipeline.store.folder import read_bytes
 
 #: Channel suffixes per layer; a layer not listed here with C channels uses "0".."C-1".
 LAYER_CHANNELS: dict[str, tuple[str, ...]] = {

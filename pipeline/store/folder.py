@@ -6,333 +6,66 @@ Build (progress, resume, the sweep of temporary files), info, preview, validate,
 training loader and the crash harness read folders through this module, so they agree on
 what a file is and on what is safe to open.
 
-A dataset folder is untrusted input: anyone may have edited it. So:
-
-- a path named in a manifest, record or marker is opened only through :func:`resolve_inside`:
-  a plain relative path (no ``..``, not absolute, no backslash), every component of it inside
-  the folder and none a symbolic link; a path that fails is never followed
-  (:class:`UnsafePath`);
-- files are opened with ``O_NOFOLLOW | O_NONBLOCK`` and read only when they are regular files
-  (a FIFO or a device is refused at once, it never blocks), and only within a size bound
-  given by every caller (:func:`read_bytes`, the one whole-file reader): the size a record
-  gives the file (:class:`Recorded`: a data file is read only at exactly that size), or a
-  declared budget where nothing records it (:data:`MAX_JSON_BYTES` for a record, a
-  description or a spec; markers and the manifest by the plan's count of renders). A file
-  outside its bound is refused before a byte is read (:class:`OverBound`, naming the file,
-  its size and the bound): a render grown to 8 GB costs a ``stat``, not 8 GB;
-- JSON records and markers are checked for shape before use (:func:`record_problem`,
-  :func:`complete_marker`): a marker ``[1]``, a record without ``bytes``, a marker listing no
-  files are reported or treated as not done, never a ``KeyError``.
-
-The folder given by the user (DIR itself) may be a symbolic link: that is their choice.
-What is checked is everything below it. Between the check of a path and its opening, a
-process that can write the folder could swap a component for a link; the last component is
-opened with ``O_NOFOLLOW``, the ones before it are not re-checked (a writer with that access
-can write the data itself anyway).
+A dataset folder is untrusted input: anyone may have edited it. A path in it is opened, and a
+file read, only within a bound (pipeline.store.bounded_read); JSON records and markers are
+checked for shape before use (:func:`~pipeline.store.record_fields.record_problem`,
+:func:`complete_marker`): a marker ``[1]``, a record without ``bytes``, a marker listing no
+files are reported or treated as not done, never a ``KeyError`` (the fields' types:
+pipeline.store.record_fields).
 """
 
 from __future__ import annotations
 
-import errno
-import hashlib
-import json
 import os
 import re
 import stat
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 from pipeline.errors import quoted
 from pipeline.store.atomic import TEMP_PREFIX
+from pipeline.store.bounded_read import (
+    MAX_JSON_BYTES,
+    UnsafePath,
+    file_kind,
+    iter_lines,
+    list_bound,
+    read_bytes,
+    read_json_checked,
+    resolve_inside,
+)
 from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, SHARDS_DIR, SPEC_FILE, Layout
+from pipeline.store.record_fields import record_problem
 
 __all__ = [
     "LOCK_FILE",
     "MANIFEST_FILE",
     "MARKER_FILE",
-    "MAX_JSON_BYTES",
-    "OverBound",
     "RECORD_NAME",
-    "Recorded",
     "SHARD_NAME",
     "TEMP_PREFIX",
-    "UnsafePath",
     "complete_marker",
     "disk_usage",
-    "file_digest",
     "is_lock_file",
     "is_record_file",
     "is_temp_file",
-    "iter_lines",
     "iter_manifest",
     "manifest_record_count",
-    "read_line_at",
     "only_temp_files",
-    "read_bytes",
-    "read_chunks",
-    "read_json",
-    "read_json_checked",
     "read_json_in",
     "read_manifest",
     "read_spec_snapshot",
     "record_file_names",
-    "record_problem",
     "recorded_count",
-    "rel_problem",
     "real_dir",
     "remove_temp_files",
-    "resolve_inside",
     "shard_ids_on_disk",
     "shard_records",
     "symlinks_and_odd_files",
     "folder_names",
     "walk_folder",
     "is_empty_folder",
-    "unsafe_entry",
-    "list_bound",
     "marker_records",
 ]
-
-#: Largest record file, description or spec read from a folder (a record is ~3 kB).
-MAX_JSON_BYTES = 1 << 20
-#: Largest marker or manifest without a plan to size them by (the paper's 250,000 renders
-#: make a ~800 MB manifest).
-MAX_LIST_BYTES = 1 << 32
-
-
-class UnsafePath(OSError):
-    """A path that leaves the folder, passes through a symbolic link, or names something that
-    is not a regular file, or a file over its size bound: never followed, never read.
-    ``strerror`` says which (an OSError, so callers that report unreadable files report it)."""
-
-    def __init__(self, path: str, reason: str):
-        super().__init__(errno.EPERM, reason, path)
-
-
-def list_bound(renders: int | None) -> int:
-    """Size bound of a marker or manifest listing ``renders`` records."""
-    return MAX_LIST_BYTES if renders is None else 4096 + renders * MAX_JSON_BYTES
-
-
-def rel_problem(rel) -> str | None:
-    """Why ``rel`` is not a plain relative path inside a folder (None when it is)."""
-    if not isinstance(rel, str) or not rel:
-        return f"{rel!r} is not a path"
-    if rel.startswith("/") or "\\" in rel or "\0" in rel or ":" in rel.split("/")[0]:
-        return f"{rel!r} is absolute or not a plain relative path"
-    if any(part in ("", ".", "..") for part in rel.split("/")):
-        return f"{rel!r} leaves the folder or is not a plain relative path ('..', '.' or an empty part)"
-    return None
-
-
-def _kind(mode: int) -> str:
-    for test, name in (
-        (stat.S_ISLNK, "a symbolic link"),
-        (stat.S_ISFIFO, "a FIFO"),
-        (stat.S_ISSOCK, "a socket"),
-        (stat.S_ISCHR, "a character device"),
-        (stat.S_ISBLK, "a block device"),
-        (stat.S_ISDIR, "a directory"),
-    ):
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
-def resolve_inside(root: str, rel) -> str:
-    """The path of ``rel`` (a path a record names, relative to DIR with forward slashes)
-    inside ``root``, after checking that it stays there: UnsafePath if it is absolute, has a
-    ``..``, or passes through a symbolic link (none is followed). A part that does not exist
-    ends the walk: opening the path then fails with FileNotFoundError."""
-    problem = rel_problem(rel)
-    if problem:
-        raise UnsafePath(str(rel), f"{problem}: it is not followed")
-    path = root
-    for part in rel.split("/"):
-        path = os.path.join(path, part)
-        try:
-            mode = os.lstat(path).st_mode
-        except FileNotFoundError:
-            break
-        except OSError:
-            break  # e.g. ENOTDIR: opening it reports the reason
-        if stat.S_ISLNK(mode):
-            where = os.path.relpath(path, root).replace(os.sep, "/")
-            raise UnsafePath(rel, f"{where} is a symbolic link (to {os.readlink(path)!r}): not followed")
-    return path
-
-
-def unsafe_entry(root: str, rel) -> str | None:
-    """Why ``rel`` may not be opened inside ``root`` (None when it may)."""
-    try:
-        resolve_inside(root, rel)
-    except UnsafePath as exc:
-        return exc.strerror
-    return None
-
-
-@dataclass(frozen=True)
-class Recorded:
-    """The size a record gives a file, and the file that says so as validate names it
-    (``manifest.jsonl``, a marker): a bound :func:`read_bytes` reads the file within only at
-    exactly this size (larger, it was grown; smaller, truncated; either way not read)."""
-
-    size: int
-    listed_by: str = "its record"
-
-
-#: What bounds one read: a :class:`Recorded` size, or a budget in bytes (at most this many).
-Bound = Recorded | int
-
-
-class OverBound(UnsafePath):
-    """A regular file whose size is not within its bound: not read. ``strerror`` gives its size
-    and the bound, in validate's words for a recorded size (``9013 bytes, manifest.jsonl says
-    18026: the file was truncated``)."""
-
-    def __init__(self, path: str, size: int, bound: Bound):
-        self.size, self.bound = size, bound
-        if isinstance(bound, Recorded):
-            how = "truncated" if size < bound.size else "grown"
-            reason = f"{size} bytes, {bound.listed_by} says {bound.size}: the file was {how}"
-        else:
-            reason = f"{size} bytes, over the {bound}-byte bound for this file"
-        super().__init__(path, reason)
-
-
-def _limit(bound: Bound) -> int:
-    """The most bytes a read within ``bound`` takes; TypeError for anything but a bound (no
-    read is unbounded: a caller with no recorded size declares a budget)."""
-    if isinstance(bound, Recorded):
-        return bound.size
-    if isinstance(bound, int) and not isinstance(bound, bool):
-        return bound
-    raise TypeError(f"a read needs a bound (a Recorded size or a budget in bytes), not {bound!r}")
-
-
-def _open_regular(path: str, bound: Bound | None) -> tuple[int, int]:
-    """(fd, size) of the regular file at ``path``, opened without following a final symbolic
-    link and without blocking on a FIFO; UnsafePath when it is not a regular file, OverBound
-    when its size is not within ``bound`` (None: the caller bounds what it reads itself)."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise UnsafePath(path, "a symbolic link: not followed") from None
-        raise
-    info = os.fstat(fd)
-    if not stat.S_ISREG(info.st_mode):
-        os.close(fd)
-        raise UnsafePath(path, f"{_kind(info.st_mode)}, not a regular file: not read")
-    if bound is not None and (
-        info.st_size > _limit(bound) or (isinstance(bound, Recorded) and info.st_size != bound.size)
-    ):
-        os.close(fd)
-        raise OverBound(path, info.st_size, bound)
-    return fd, info.st_size
-
-
-def _chunks(fd: int, path: str, limit: int | None, size: int = 1 << 20):
-    total = 0
-    while True:
-        chunk = os.read(fd, size)
-        if not chunk:
-            return
-        total += len(chunk)
-        if limit is not None and total > limit:
-            raise UnsafePath(path, f"grew past the {limit}-byte bound for this file while read: not read")
-        yield chunk
-
-
-def read_bytes(path: str, bound: Bound) -> bytes:
-    """The bytes of the regular file at ``path``, if its size is within ``bound``: the size a
-    record gives it (:class:`Recorded`: exactly that) or a budget (at most that many bytes).
-    The one whole-file reader of a dataset, publication, run or report file: a file outside
-    its bound is refused before anything is read (:class:`OverBound`), a file that grows while
-    read too; not through a final symbolic link, never from a FIFO or a device (UnsafePath).
-    FileNotFoundError and other OSErrors pass through."""
-    limit = _limit(bound)
-    fd, _size = _open_regular(path, bound)
-    try:
-        return b"".join(_chunks(fd, path, limit))
-    finally:
-        os.close(fd)
-
-
-def read_chunks(path: str, bound: Bound) -> Iterator[bytes]:
-    """The bytes of the regular file at ``path`` a chunk at a time, as :func:`read_bytes`
-    reads them (opened by the call: OSErrors are raised by it)."""
-    limit = _limit(bound)
-    fd, _size = _open_regular(path, bound)
-
-    def chunks():
-        try:
-            yield from _chunks(fd, path, limit)
-        finally:
-            os.close(fd)
-
-    return chunks()
-
-
-def file_digest(path: str, bound: Bound) -> tuple[int, str]:
-    """(size, SHA-256 hex) of the regular file at ``path``, read as :func:`read_bytes` reads
-    (streamed: a large render is not held in memory)."""
-    limit = _limit(bound)
-    fd, _size = _open_regular(path, bound)
-    digest, size = hashlib.sha256(), 0
-    try:
-        for chunk in _chunks(fd, path, limit):
-            digest.update(chunk)
-            size += len(chunk)
-    finally:
-        os.close(fd)
-    return size, digest.hexdigest()
-
-
-#: What one record may hold, counted in its bytes before it is parsed: arrays and objects
-#: (``[``, ``{``) and values (``,``, ``:``); a record of the smoke dataset holds 26 and 179.
-#: Parsing ``[[],[],...]`` costs ~30 times its size in memory: a parse is bounded by the
-#: structure of what is parsed, not only by its size (a bracket inside a string counts too:
-#: the count can only be too high).
-RECORD_CONTAINERS = 256
-RECORD_VALUES = 4096
-
-
-def structure_problem(data: bytes, records: int = 1) -> str | None:
-    """Why ``data`` holds more JSON structure than ``records`` records may (None if not)."""
-    containers = data.count(b"[") + data.count(b"{")
-    values = data.count(b",") + data.count(b":")
-    if containers <= RECORD_CONTAINERS * records and values <= RECORD_VALUES * records:
-        return None
-    return (
-        f"{containers} JSON arrays/objects and {values} values, more than {records} record(s) may hold "
-        f"(at most {RECORD_CONTAINERS} and {RECORD_VALUES} each): not parsed"
-    )
-
-
-def read_json_checked(path: str, limit: int = MAX_JSON_BYTES):
-    """(value, None) for a readable JSON file, else (None, why: 'missing', 'a FIFO, ...').
-    Its structure is bounded by its size bound: one record's per :data:`MAX_JSON_BYTES`."""
-    try:
-        data = read_bytes(path, limit)
-    except FileNotFoundError:
-        return None, "missing"
-    except OSError as exc:
-        return None, exc.strerror or str(exc)
-    too_much = structure_problem(data, -(-limit // MAX_JSON_BYTES) + 1)
-    if too_much:
-        return None, too_much
-    try:
-        return json.loads(data.decode("utf-8")), None
-    except (UnicodeDecodeError, ValueError) as exc:
-        return None, f"not JSON (torn or edited: {exc})"
-    except RecursionError:
-        return None, "not JSON this reader accepts (nested too deeply)"
-
-
-def read_json(path: str, limit: int = MAX_JSON_BYTES):
-    """A JSON file's content, or None when it is missing, torn, unsafe or over ``limit``."""
-    return read_json_checked(path, limit)[0]
 
 
 def read_json_in(layout: Layout, rel: str, limit: int = MAX_JSON_BYTES):
@@ -348,174 +81,6 @@ def read_json_in(layout: Layout, rel: str, limit: int = MAX_JSON_BYTES):
 def read_spec_snapshot(layout: Layout) -> bytes:
     """DIR/spec.toml's bytes (a regular file, bounded); OSError (UnsafePath included) if not."""
     return read_bytes(os.path.join(layout.root, SPEC_FILE), MAX_JSON_BYTES)
-
-
-#: JSON type names, as a message says them.
-_JSON_NAMES = {dict: "an object", list: "an array", str: "a string", int: "an integer", float: "a number"}
-_NUMBER = (int, float)
-#: The type of every field a record carries (docs/manifest.md), checked wherever a record is
-#: read (manifest, marker, record file, publication) before any field is used: a field may
-#: be absent (what is missing is reported by the checks that need it), never of another type.
-RECORD_FIELDS = {
-    "id": str,
-    "material_id": str,
-    "shard": str,
-    "material_index": int,
-    "light_index": int,
-    "schema": int,
-    "files": list,
-    "lighting": dict,
-    "lighting_vector": list,
-    "material": dict,
-    "render": dict,
-    "seeds": dict,
-    "effects": dict,
-    "stats": dict,
-}
-#: Fields inside them that readers use as numbers, strings or containers.
-RECORD_SUBFIELDS = {
-    "lighting": {
-        "elevation_deg": _NUMBER,
-        "azimuth_deg": _NUMBER,
-        "turbidity": _NUMBER,
-        "direction": list,
-        "policy": dict,
-        "requested": dict,
-    },
-    "material": {"kind": str, "values": dict},
-    "render": {"spp": int, "resolution": int, "max_depth": int, "integrator": str, "variant": str, "sun": str},
-    "seeds": {"light": int, "material": int, "render": int, "render_used": int},
-}
-#: A file entry of ``files``.
-FILE_ENTRY_FIELDS = {"role": str, "path": str, "bytes": int, "sha256": str}
-
-
-def json_type_name(value) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true/false"
-    return next((name for kind, name in _JSON_NAMES.items() if isinstance(value, kind)), type(value).__name__)
-
-
-def _type_problem(where: str, value, kind) -> str | None:
-    kinds = kind if isinstance(kind, tuple) else (kind,)
-    if isinstance(value, bool) or not isinstance(value, kinds):
-        wanted = " or ".join(_JSON_NAMES[k] for k in kinds)
-        return f"{where} is {json_type_name(value)} ({short_json(value)}), not {wanted}"
-    return None
-
-
-def short_json(value, limit: int = 40) -> str:
-    text = json.dumps(value, sort_keys=True, ensure_ascii=True)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def field_type_problem(record) -> str | None:
-    """Why a record's fields cannot be used as their types (:data:`RECORD_FIELDS`,
-    :data:`RECORD_SUBFIELDS`, :data:`FILE_ENTRY_FIELDS`), or None. Naming the field, its
-    type and value: ``stats is an array ([]), not an object``."""
-    if not isinstance(record, dict):
-        return f"not a record (a JSON {json_type_name(record)}, not an object)"
-    problem = _fields_problem(record, RECORD_FIELDS, RECORD_SUBFIELDS)
-    if problem:
-        return problem
-    for index, entry in enumerate(record.get("files", [])):
-        if not isinstance(entry, dict):
-            return f"files[{index}] is {json_type_name(entry)}, not an object"
-        for name, kind in FILE_ENTRY_FIELDS.items():
-            if name in entry:
-                problem = _type_problem(f"files[{index}].{name}", entry[name], kind)
-                if problem:
-                    return problem
-    return None
-
-
-#: The type of every field ``dataset.json`` carries (docs/manifest.md); absent is allowed.
-DESCRIPTION_FIELDS = {
-    "name": str,
-    "version": str,
-    "shaderball": str,
-    "spec_digest": str,
-    "plan_digest": str,
-    "plan_format": int,
-    "layout_version": int,
-    "variant": str,
-    "colorspace": str,
-    "counts": dict,
-    "determinism": dict,
-    "libraries": dict,
-    "machine": dict,
-}
-DESCRIPTION_SUBFIELDS = {
-    "counts": {
-        "materials": int,
-        "renders": int,
-        "shards": int,
-        "svbrdf": int,
-        "uniform": int,
-        "svbrdf_sources": dict,
-    },
-}
-
-
-def description_problem(description) -> str | None:
-    """Why ``dataset.json``'s fields cannot be used as their types, or None."""
-    if not isinstance(description, dict):
-        return f"not a JSON object (a JSON {json_type_name(description)})"
-    return _fields_problem(description, DESCRIPTION_FIELDS, DESCRIPTION_SUBFIELDS)
-
-
-def _fields_problem(obj: dict, fields: dict, subfields: dict) -> str | None:
-    """The first field of ``obj`` (or of one of its objects named in ``subfields``, checked
-    after its own type) that is not of its type; absent fields are allowed."""
-    for key, kind in fields.items():
-        if key in obj:
-            problem = _type_problem(key, obj[key], kind)
-            if problem:
-                return problem
-    for key, inner in subfields.items():
-        for name, kind in inner.items():
-            if name in obj.get(key, {}):
-                problem = _type_problem(f"{key}.{name}", obj[key][name], kind)
-                if problem:
-                    return problem
-    return None
-
-
-def record_problem(record, shard_id: str | None = None) -> str | None:
-    """Why ``record`` (from a marker or a record file) cannot be used, or None: a JSON
-    object with a string ``id`` and a list ``files`` of entries, each a ``role``, a plain
-    relative ``path`` (inside ``shards/<shard_id>/`` when given), an integer ``bytes`` and a
-    ``sha256`` string, with a ``render`` among them."""
-    if not isinstance(record, dict):
-        return f"not a record (a JSON {type(record).__name__}, not an object)"
-    if not isinstance(record.get("id"), str):
-        return "a record without an id"
-    problem = field_type_problem(record)
-    if problem:
-        return f"record {record['id']}: {problem}"
-    files = record.get("files")
-    if not isinstance(files, list) or not files:
-        return f"record {record['id']}: no files listed"
-    for entry in files:
-        if not isinstance(entry, dict):
-            return f"record {record['id']}: a file entry that is not an object"
-        missing = [
-            key
-            for key, kind in (("role", str), ("path", str), ("bytes", int), ("sha256", str))
-            if not isinstance(entry.get(key), kind) or isinstance(entry.get(key), bool)
-        ]
-        if missing:
-            return f"record {record['id']}: a file entry without {', '.join(missing)}"
-        problem = rel_problem(entry["path"])
-        if problem:
-            return f"record {record['id']}: file path {problem}"
-        if shard_id is not None and not entry["path"].startswith(f"{SHARDS_DIR}/{shard_id}/"):
-            return f"record {record['id']}: file path {entry['path']!r} is not in its shard's folder"
-    if not any(entry["role"] == "render" for entry in files):
-        return f"record {record['id']}: no render file listed"
-    return None
 
 
 def complete_marker(
@@ -677,55 +242,9 @@ def read_manifest(layout: Layout, renders: int | None = None) -> bytes:
     return read_bytes(layout.manifest, list_bound(renders))
 
 
-#: Bytes read at a time by :func:`iter_lines`: a few records' worth, so what a reader of lines
-#: holds does not grow with the file up to a larger chunk.
-LINE_CHUNK = 1 << 16
-
-
-def iter_lines(path: str, bound: Bound) -> Iterator[tuple[int, int, bytes]]:
-    """(line number from 1, byte offset, bytes without the newline) of every line of the
-    regular file at ``path``, read a chunk at a time (as :func:`read_bytes` reads: no link, no
-    FIFO, within ``bound``, OverBound beyond), so only one line is held at a time.
-    The file is opened before the first line is asked for: OSErrors are raised by the call."""
-    limit = _limit(bound)
-    fd, _size = _open_regular(path, bound)
-    return _lines_of(fd, path, limit)
-
-
-def _lines_of(fd: int, path: str, limit: int | None) -> Iterator[tuple[int, int, bytes]]:
-    number, offset, parts = 0, 0, []  # parts: the line so far (a long line is not re-copied per chunk)
-    try:
-        for chunk in _chunks(fd, path, limit, LINE_CHUNK):
-            start = 0
-            while (end := chunk.find(b"\n", start)) >= 0:
-                line = b"".join([*parts, chunk[start:end]]) if parts else chunk[start:end]
-                parts = []
-                number += 1
-                yield number, offset, line
-                offset += len(line) + 1
-                start = end + 1
-            if start < len(chunk):
-                parts.append(chunk[start:])
-        if parts:
-            yield number + 1, offset, b"".join(parts)
-    finally:
-        os.close(fd)
-
-
 def iter_manifest(layout: Layout, renders: int | None = None) -> Iterator[tuple[int, int, bytes]]:
     """:func:`iter_lines` of the manifest, bounded as :func:`read_manifest` bounds it."""
     return iter_lines(layout.manifest, list_bound(renders))
-
-
-def read_line_at(path: str, offset: int, limit: int) -> bytes:
-    """The line of the regular file at ``path`` that starts at byte ``offset`` (a line
-    :func:`iter_lines` found), without its newline; at most ``limit`` bytes are read."""
-    fd, _size = _open_regular(path, None)
-    try:
-        data = os.pread(fd, limit + 1, offset)
-    finally:
-        os.close(fd)
-    return data.split(b"\n", 1)[0]
 
 
 def manifest_record_count(layout: Layout, renders: int | None = None) -> int | None:
@@ -789,7 +308,7 @@ def symlinks_and_odd_files(root: str) -> list[tuple[str, str]]:
             if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
                 continue
             rel = os.path.relpath(path, root).replace(os.sep, "/")
-            what = _kind(mode)
+            what = file_kind(mode)
             if stat.S_ISLNK(mode):
                 try:
                     what += f" (to {os.readlink(path)!r})"

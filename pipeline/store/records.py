@@ -6,7 +6,7 @@ import json
 import os
 
 from pipeline.store.atomic import sha256_file
-from pipeline.store.folder import file_digest, read_json, resolve_inside
+from pipeline.store.bounded_read import file_digest, read_json, resolve_inside
 
 __all__ = ["RUN_DEPENDENT_STATS", "SCHEMA_VERSION", "dumps", "file_entry", "file_ok", "read_json", "without_timings"]
 
@@ -26,7 +26,7 @@ def file_entry(root: str, rel: str, role: str, sha256: str | None = None) -> dic
 
 
 def file_ok(root: str, entry, hash_check: bool = True) -> bool:
-    """The file of a record's entry is inside ``root`` (pipeline.store.folder.resolve_inside:
+    """The file of a record's entry is inside ``root`` (pipeline.store.bounded_read.resolve_inside:
     no ``..``, not absolute, through no symbolic link), a regular file with the recorded
     size (and SHA-256). A malformed entry is simply not ok."""
     if (
