@@ -173,6 +173,7 @@ def test_unpack_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_pat
     """The race the lock closes: DIR was new when unpack looked, a build took it before the
     first write. unpack is refused (exit code 3) and writes nothing there."""
     out = tmp_path / "ds"
+    (tmp_path / "pub").mkdir()  # the request names an existing folder; its reading is stubbed
     holders = []
     real_output = unpack_module.Output
 
