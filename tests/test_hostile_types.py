@@ -27,6 +27,7 @@ from pipeline.publish.request import PublishRequest
 from pipeline.publish.writer import publish, write_publication
 from pipeline.run.cluster import options as cluster
 from pipeline.store import folder as store_folder
+from pipeline.store.record_fields import RECORD_SUBFIELDS
 from pipeline.store.records import dumps
 from support.bombs import PEAK
 from support.publishing import members, reseal, rewrite_tar, sha
@@ -118,7 +119,7 @@ def test_a_record_whose_stats_is_a_list_is_reported_by_every_command(smoke, tmp_
 
 def _record_paths(record: dict) -> list[tuple]:
     paths = [(key,) for key in record]
-    paths += [(key, name) for key in store_folder.RECORD_SUBFIELDS for name in record.get(key, {})]
+    paths += [(key, name) for key in RECORD_SUBFIELDS for name in record.get(key, {})]
     paths += [("files", 0, name) for name in record["files"][0]]
     paths += [("files", 0)]
     return paths
