@@ -162,6 +162,8 @@ def _unbounded_reads(tree: ast.AST, strict: bool):
 STRICT = (
     "pipeline/check/preview.py",
     "pipeline/neural/data.py",
+    "pipeline/neural/file_sources.py",
+    "pipeline/neural/manifest_index.py",
     "pipeline/neural/sweep.py",
     "pipeline/neural/evaluate.py",
     "pipeline/publish/reader.py",

@@ -46,6 +46,9 @@ finite, in range, unit normals; a render finite, and non-negative unless the ren
 flagged it), on its first read in a process. The policy is to stop, never to skip: a ShaderballError (exit code 2) names
 the file and what is wrong, and training writes nothing for an epoch it did not finish
 (a fresh run reads every sample for its baseline before it writes anything).
+
+Where a sample's files are read is pipeline.neural.file_sources; what opening a dataset
+keeps of its manifest, pipeline.neural.manifest_index.
 """
 
 from __future__ import annotations
@@ -53,10 +56,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from array import array
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -64,48 +65,33 @@ from torch.utils.data import DataLoader, Dataset, get_worker_info
 
 from materials import encode_normal_map
 from pipeline.check.inspect import content_issues, sample_expectations
-from pipeline.errors import ShaderballError, quoted, short_repr
+from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import FieldError
 from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
-from pipeline.neural.config import A_DATASET, TrainConfig
+from pipeline.neural.config import TrainConfig
+from pipeline.neural.file_sources import FolderFiles, PublishedFiles, dataset_refused, refused
+from pipeline.neural.manifest_index import (
+    ManifestIndex,
+    SampleColumns,
+    SampleFiles,
+    byte_lines,
+    checked_record,
+    expected_renders,
+    folder_manifest,
+    index_records,
+)
 from pipeline.neural.network import check_network_resolution
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
-from pipeline.publish.reader import Located, open_publication, read_located
+from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import Refused
-from pipeline.store.bounded_read import (
-    OverBound,
-    Recorded,
-    UnsafePath,
-    file_digest,
-    iter_lines,
-    list_bound,
-    read_bytes,
-    read_json_checked,
-    read_line_at,
-    resolve_inside,
-    structure_problem,
-)
+from pipeline.store.bounded_read import file_digest, iter_lines, list_bound
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
-from pipeline.store.folder import iter_manifest
-from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, Layout
-from pipeline.store.record_fields import record_problem
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
 #: Materials whose assembled maps a process keeps (400x400: 7.7 MB each).
 DEFAULT_CACHE_MATERIALS = 64
-
-
-def safe_path(root: str, rel: str) -> str:
-    """``rel`` (a manifest path) inside ``root`` (pipeline.store.bounded_read.resolve_inside: no
-    ``..``, not absolute, through no symbolic link), or a ShaderballError naming it."""
-    try:
-        return resolve_inside(root, rel)
-    except UnsafePath as exc:
-        raise ShaderballError(
-            f"manifest: file path {quoted(rel)} is refused: {exc.strerror} (the dataset folder "
-            f"{quoted(root)} must hold it; check it with `shaderball validate`)"
-        ) from None
 
 
 def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
@@ -192,82 +178,6 @@ def batches(dataset, batch_size: int, workers: int = 0, **options) -> DataLoader
     return Batches(dataset, batch_size=batch_size, num_workers=workers, collate_fn=collate_samples, **options)
 
 
-def dataset_refused(root: str, what: str, allowed: str = A_DATASET) -> FieldError:
-    """``root``, the command's dataset (the field ``dataset``), refused: ``what`` is wrong
-    with it, ``allowed`` says what to do."""
-    return TrainConfig.field_error("dataset", root, allowed, what=what)
-
-
-def read_json_file(path: str, root: str):
-    """A small JSON file of the dataset folder ``root`` (a regular file, bounded: pipeline.store.folder)."""
-    value, why = read_json_checked(path)
-    if why == "missing":
-        raise dataset_refused(root, f"{quoted(root)} has no {os.path.basename(path)}")
-    if why is not None:
-        raise ShaderballError(f"{path}: not readable JSON ({why}); check the folder with `shaderball validate`")
-    return value
-
-
-def _expected(description: dict) -> int | None:
-    counts = description.get("counts") if isinstance(description.get("counts"), dict) else {}
-    return counts.get("renders") if isinstance(counts.get("renders"), int) else None
-
-
-def folder_manifest(root: str) -> tuple[dict, str]:
-    """dataset.json of a complete dataset folder and its manifest's path (checked readable)."""
-    layout = Layout(root)
-    if not os.path.isdir(root):
-        raise dataset_refused(
-            root, f"{quoted(root)} does not exist" if not os.path.lexists(root) else f"{quoted(root)} is not a folder"
-        )
-    description = read_json_file(layout.description, root)
-    if not isinstance(description, dict):
-        raise ShaderballError(f"{layout.description}: not a JSON object; check the folder with `shaderball validate`")
-    if not os.path.lexists(layout.manifest):
-        raise dataset_refused(
-            root,
-            f"{quoted(root)} is incomplete: no {os.path.basename(layout.manifest)} (written when a build completes)",
-            "finish it with `shaderball build SPEC --out DIR`",
-        )
-    try:
-        for _line in iter_manifest(layout, _expected(description)):
-            break  # opened and within its bound: read a line at a time by index_records
-    except OSError as exc:
-        raise ShaderballError(
-            f"{layout.manifest} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
-        ) from None
-    return description, layout.manifest
-
-
-def parse_records(data: bytes, description: dict, root: str, where: str, checker: str) -> list[dict]:
-    """The records of a manifest's bytes, each checked (pipeline.store.record_fields.record_problem),
-    as many as ``dataset.json`` counts."""
-    records = [_checked_record(line, number, where, checker) for number, _offset, line in _byte_lines(data)]
-    return _count_check(records, description, root)
-
-
-def _byte_lines(data: bytes):
-    """(line number, offset, line) of every non-empty line of ``data``."""
-    offset = 0
-    for number, line in enumerate(data.split(b"\n"), start=1):
-        if line.strip():
-            yield number, offset, line
-        offset += len(line) + 1
-
-
-def _count_check(records, description: dict, root: str):
-    expected = _expected(description)
-    if expected is not None and len(records) != expected:
-        raise dataset_refused(
-            root,
-            f"{quoted(root)} is incomplete: the manifest lists {len(records)} of {expected} renders",
-            "finish it with `shaderball build`",
-        )
-    if not records:
-        raise dataset_refused(root, f"{quoted(root)} has no renders", "a dataset of one render or more")
-    return records
-
-
 def decode_exr(data: bytes, label: str, bounds: ExrBounds) -> dict[str, np.ndarray]:
     """The layers of an EXR file's bytes, its header checked against ``bounds`` before
     anything decodes it (:func:`pipeline.store.exrheader.check_header`)."""
@@ -276,315 +186,6 @@ def decode_exr(data: bytes, label: str, bounds: ExrBounds) -> dict[str, np.ndarr
     except ExrRefused as exc:
         raise ShaderballError(str(exc)) from None
     return read_exr(data, label, bounds).layers
-
-
-def _checked_record(line: bytes, number: int, where: str, checker: str) -> dict:
-    """The record on manifest line ``number``, checked (a ShaderballError naming the line)."""
-    too_much = structure_problem(line)
-    if too_much:
-        raise ShaderballError(f"{where} line {number}: {too_much}; check it with {checker}")
-    try:
-        record = json.loads(line)
-    except (ValueError, RecursionError):
-        raise ShaderballError(f"{where} line {number} is not JSON; check it with {checker}") from None
-    problem = record_problem(record)
-    if problem:
-        raise ShaderballError(f"{where} line {number}: {problem}; check it with {checker}")
-    return record
-
-
-class FolderFiles:
-    """The files of a dataset folder; a file's key is its manifest path, checked to lie inside
-    (the path itself: no second string a sample)."""
-
-    kind = "dataset folder"
-    checker = "`shaderball validate`"
-
-    def __init__(self, root: str):
-        self.root = root
-
-    def key(self, rel: str) -> str:
-        safe_path(self.root, rel)
-        return rel
-
-    def path(self, key: str) -> str:
-        return os.path.join(self.root, *key.split("/"))
-
-    def read(self, key: str, size: int) -> bytes:
-        """The file's bytes, read only at ``size``, the manifest's (a grown file is not read)."""
-        try:
-            return read_bytes(safe_path(self.root, key), Recorded(size, MANIFEST_FILE))
-        except OverBound as exc:  # validate's size_mismatch, in its words
-            raise ShaderballError(
-                f"{self.path(key)}: {exc.strerror}; check the folder with `shaderball validate`"
-            ) from None
-        except OSError as exc:
-            raise ShaderballError(
-                f"{self.path(key)} cannot be read ({exc.strerror}); check the folder with `shaderball validate`"
-            ) from None
-
-    def label(self, key: str) -> str:
-        return self.path(key)
-
-    def changed(self, key: str) -> ShaderballError:
-        return ShaderballError(
-            f"{self.path(key)} does not match its SHA-256 in the manifest; repair the folder with "
-            "`shaderball validate --repair`"
-        )
-
-
-class PublishedFiles:
-    """The files of a publication that passed :meth:`pipeline.publish.reader.Publication.locate`;
-    a file's key is its path in the dataset folder's layout, its bytes lie in a tar."""
-
-    kind = "publication"
-    checker = "`shaderball unpack`, which validates what it unpacks"
-
-    def __init__(self, root: str, located: dict[str, Located]):
-        self.root = root
-        self.located = located
-
-    def key(self, rel: str) -> str:
-        if rel not in self.located:  # the reader checked every manifest path: not reached
-            raise ShaderballError(f"{rel} is in no tar of the publication {quoted(self.root)}")
-        return rel
-
-    def read(self, key: str, size: int) -> bytes:
-        """The member's bytes at its checked offset: ``size``, the manifest's, as the reader
-        checked the member's (pipeline.publish.reader.read_located reads no more)."""
-        try:
-            if self.located[key].size != size:  # the reader checked it: not reached
-                raise Refused("changed", f"{self.label(key)}: {self.located[key].size} bytes, the manifest says {size}")
-            return read_located(self.root, self.located[key], check_sha256=False)
-        except Refused as exc:  # read in a loader's worker, maybe: an error torch rebuilds from its message
-            raise ShaderballError(
-                f"{self.label(key)}: the publication does not verify ({exc.kind}): {exc.message}; check it with "
-                "`shaderball verify`"
-            ) from None
-        except OSError as exc:
-            raise ShaderballError(
-                f"{self.label(key)} cannot be read ({exc.strerror}); check the publication with `shaderball verify`"
-            ) from None
-
-    def label(self, key: str) -> str:
-        at = self.located[key]
-        return f"{os.path.join(self.root, at.tar)}: member {at.name}"
-
-    def changed(self, key: str) -> ShaderballError:
-        return ShaderballError(
-            f"{self.label(key)} does not match its SHA-256 in the manifest: the "
-            "publication changed since it was verified; check it with `shaderball verify`"
-        )
-
-
-def refused(root: str, exc: Refused) -> ShaderballError:
-    """A publication the reader refuses, as a user error of the training stage (exit code 2):
-    when it is opened, naming the dataset; a file read later, naming the publication."""
-    what = f"{quoted(root)} is a publication that does not verify ({exc.kind}): {exc.message}"
-    return dataset_refused(root, what, "check it with `shaderball verify`")
-
-
-@dataclass(frozen=True, slots=True)
-class SampleFiles:
-    id: str
-    material_id: str
-    render: tuple[str, str, int]  # (key of the file in its source, sha256, bytes)
-    maps: tuple[str, str, int]
-    lighting_vector: tuple[float, float, float, float]
-    texture: tuple[str, str, int] | None = None
-
-
-def sample_files(files, record: dict) -> SampleFiles:
-    """A record's files (``files``: a :class:`FolderFiles` or :class:`PublishedFiles`, or a
-    dataset folder's path)."""
-    if isinstance(files, str):
-        files = FolderFiles(files)
-    refs = {}
-    for entry in record.get("files", []):
-        refs[entry.get("role")] = (files.key(entry.get("path")), entry.get("sha256"), entry.get("bytes"))
-    missing = [role for role in ("render", "maps") if role not in refs]
-    if missing:
-        raise ShaderballError(
-            f"manifest: record {short_repr(record.get('id'))} lists no {' and no '.join(missing)} file"
-        )
-    if not isinstance(record.get("material_id"), str):
-        raise ShaderballError(f"manifest: record {short_repr(record.get('id'))} has no material_id")
-    vector = record.get("lighting_vector")
-    if not (isinstance(vector, list) and len(vector) == 4 and all(isinstance(v, (int, float)) for v in vector)):
-        raise ShaderballError(f"manifest: record {short_repr(record.get('id'))} has no 4-value lighting_vector")
-    return SampleFiles(
-        record["id"],
-        record["material_id"],
-        refs["render"],
-        refs["maps"],
-        tuple(float(v) for v in vector),
-        refs.get("texture"),
-    )
-
-
-class ManifestRecords(Mapping):
-    """The manifest's records by sample id, each parsed when asked for: only where its line
-    lies is kept (a byte offset and a length, numpy arrays), in the manifest file of a folder
-    or in the manifest's bytes a publication's reader holds."""
-
-    def __init__(self, source: str | bytes, offsets: np.ndarray, lengths: np.ndarray, positions: dict[str, int]):
-        self.source, self.offsets, self.lengths, self.positions = source, offsets, lengths, positions
-
-    def __getitem__(self, sample_id: str) -> dict:
-        position = self.positions[sample_id]
-        offset, length = int(self.offsets[position]), int(self.lengths[position])
-        if isinstance(self.source, bytes):
-            line = self.source[offset : offset + length]
-        else:
-            try:
-                line = read_line_at(self.source, offset, length)
-            except OSError as exc:
-                raise ShaderballError(f"{self.source} cannot be read ({exc.strerror})") from None
-        try:
-            record = json.loads(line)
-        except (ValueError, RecursionError):
-            record = None
-        if not isinstance(record, dict) or record.get("id") != sample_id:
-            raise ShaderballError(
-                f"{self.source if isinstance(self.source, str) else 'the manifest'}: changed since it "
-                f"was opened (no record of {sample_id} where it was); open the dataset again"
-            )
-        return record
-
-    def __iter__(self):
-        return iter(self.positions)
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-
-class SampleColumns(Sequence):
-    """Every sample's :class:`SampleFiles`, kept as columns (its id, its render's path and
-    SHA-256, its lighting vector, its material's number; a material's id and maps once) and
-    made when asked for: ~0.2 kB a sample where a list of them holds ~0.7 kB."""
-
-    def __init__(self, files):
-        self.files = files
-        self.ids: list[str] = []
-        self.render_paths: list[str] = []
-        self.render_sha256 = bytearray()  # 32 bytes a sample
-        self.render_bytes = array("q")  # the render's size, as the manifest records it
-        self.odd_bytes: dict[int, int] = {}  # row -> a recorded size outside int64, kept as it is
-        self.lighting = array("d")  # 4 a sample
-        self.material = array("l")  # index into self.materials
-        self.materials: list[tuple] = []  # (material id, maps ref, texture ref)
-        self._material_at: dict = {}
-        self.odd_sha256: dict[int, object] = {}  # row -> a recorded sha256 that is not 64 lowercase hex digits
-        self.rows: range | np.ndarray = range(0)  # the samples of this view, in order
-
-    def append(self, sample: SampleFiles, render_path: str) -> None:
-        material = (sample.material_id, sample.maps, sample.texture)
-        number = self._material_at.setdefault(material, len(self.materials))
-        if number == len(self.materials):
-            self.materials.append(material)
-        row, sha256, size = len(self.ids), sample.render[1], sample.render[2]
-        if not _is_sha256(sha256):  # kept as it is: the file's digest will not match it when read
-            self.odd_sha256[row] = sha256
-        if not -(1 << 63) <= size < 1 << 63:  # kept as it is: no file has that size, it is refused when read
-            self.odd_bytes[row] = size
-        self.ids.append(sample.id)
-        self.render_paths.append(render_path)
-        self.render_sha256 += bytes.fromhex(sha256) if _is_sha256(sha256) else bytes(32)
-        self.render_bytes.append(-1 if row in self.odd_bytes else size)
-        self.lighting.extend(sample.lighting_vector)
-        self.material.append(number)
-        self.rows = range(len(self.ids))
-
-    def _one(self, row: int) -> SampleFiles:
-        material_id, maps, texture = self.materials[self.material[row]]
-        return SampleFiles(
-            self.ids[row],
-            material_id,
-            (
-                self.files.key(self.render_paths[row]),
-                self._sha256(row),
-                self.odd_bytes.get(row, self.render_bytes[row]),
-            ),
-            maps,
-            tuple(self.lighting[4 * row : 4 * row + 4]),
-            texture,
-        )
-
-    def _sha256(self, row: int):
-        if row in self.odd_sha256:
-            return self.odd_sha256[row]
-        return self.render_sha256[32 * row : 32 * row + 32].hex()
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        return self._one(int(self.rows[index]))
-
-    def material_ids(self) -> list[str]:
-        return sorted({self.materials[self.material[row]][0] for row in self.rows})
-
-    def of_materials(self, material_ids) -> SampleColumns:
-        """The samples of these materials, in order (a view: the columns are shared)."""
-        keep = set(material_ids)
-        view = SampleColumns.__new__(SampleColumns)
-        view.__dict__.update(self.__dict__)
-        view.rows = np.asarray([row for row in self.rows if self.materials[self.material[row]][0] in keep], np.int64)
-        return view
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_material_at"] = {}  # only needed while appending
-        return state
-
-
-@dataclass
-class ManifestIndex:
-    """What opening a dataset keeps of its manifest: the records by id (parsed when asked
-    for), each sample's files and lighting vector, the renders' resolutions, and the
-    digest of what the manifest says of the samples (:func:`sample_digest_line`)."""
-
-    records: ManifestRecords
-    samples: SampleColumns
-    resolutions: set
-    samples_sha256: str = ""
-
-
-def sample_digest_line(record: dict) -> bytes:
-    """What a record says of its sample's data, as canonical JSON: its id, material, lighting
-    vector and files (role, path, SHA-256). A rebuild of the same spec writes the same bytes
-    in every file, but not the same manifest (each record holds its render's time)."""
-    files = sorted((e.get("role"), e.get("path"), e.get("sha256")) for e in record.get("files", []))
-    data = [record.get("id"), record.get("material_id"), record.get("lighting_vector"), files]
-    return json.dumps(data, separators=(",", ":")).encode() + b"\n"
-
-
-def index_records(lines, source: str | bytes, files, description: dict, root: str, where: str, checker: str):
-    """:class:`ManifestIndex` of the manifest ``lines`` ((number, offset, line) of each line),
-    each record checked as :func:`parse_records` checks it, one at a time."""
-    offsets, lengths, positions, samples, resolutions = array("q"), array("q"), {}, SampleColumns(files), set()
-    content = hashlib.sha256()
-    for number, offset, line in lines:
-        if not line.strip():
-            continue
-        record = _checked_record(line, number, where, checker)
-        sample = sample_files(files, record)  # every path checked now, and again when read
-        render_path = [e.get("path") for e in record["files"] if e.get("role") == "render"][-1]
-        samples.append(sample, render_path)
-        positions[record["id"]] = len(offsets)  # a repeated id: its last record, as a dict of them keeps
-        offsets.append(offset)
-        lengths.append(len(line))
-        resolutions.add((record.get("render") or {}).get("resolution"))
-        content.update(sample_digest_line(record))
-    _count_check(samples, description, root)
-    records = ManifestRecords(source, np.frombuffer(offsets, np.int64), np.frombuffer(lengths, np.int64), positions)
-    return ManifestIndex(records, samples, resolutions, content.hexdigest())
-
-
-def _is_sha256(text) -> bool:
-    return isinstance(text, str) and len(text) == 64 and all(c in "0123456789abcdef" for c in text)
 
 
 class ShaderballDataset(Dataset):
@@ -801,7 +402,7 @@ def open_dataset(
     if is_publication(root):
         return open_published(root, resolution, exposure, check_hashes, cache_materials)
     description, path = folder_manifest(root)
-    bound = list_bound(_expected(description))
+    bound = list_bound(expected_renders(description))
     files = FolderFiles(root)
     try:
         index = index_records(iter_lines(path, bound), path, files, description, root, path, "`shaderball validate`")
@@ -837,11 +438,11 @@ def open_published(
     manifest = publication.source_files[MANIFEST_FILE]
     where = os.path.join(root, "dataset", MANIFEST_FILE)
     keep = set()
-    for number, _offset, line in _byte_lines(manifest):
-        keep.update(entry["path"] for entry in _checked_record(line, number, where, "`shaderball verify`")["files"])
+    for number, _offset, line in byte_lines(manifest):
+        keep.update(entry["path"] for entry in checked_record(line, number, where, "`shaderball verify`")["files"])
     files = PublishedFiles(root, {path: at for path, at in located.items() if path in keep})
     del keep
-    index = index_records(_byte_lines(manifest), manifest, files, description, root, where, "`shaderball verify`")
+    index = index_records(byte_lines(manifest), manifest, files, description, root, where, "`shaderball verify`")
     manifest_sha256 = hashlib.sha256(manifest).hexdigest()
     return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
 

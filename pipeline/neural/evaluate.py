@@ -41,8 +41,9 @@ from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
 from pipeline.neural import report, runfiles, speed
 from pipeline.neural.config import EvaluateRequest
-from pipeline.neural.data import ResolutionMismatch, box_downsample, dataset_refused, open_dataset
+from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
+from pipeline.neural.file_sources import dataset_refused
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
@@ -333,7 +334,7 @@ def content_problem(content) -> str | None:
 def same_dataset(run_config: dict, source, config_path: str = runfiles.CONFIG) -> tuple[bool, str]:
     """Whether ``source`` holds the data the run was trained on, and how that was found: by
     content, whatever folder holds it (the spec's digest and every sample's id, material,
-    lighting and files' SHA-256: :func:`pipeline.neural.data.sample_digest_line`), so a
+    lighting and files' SHA-256: :func:`pipeline.neural.manifest_index.sample_digest_line`), so a
     rebuild of the same spec, a copy or the publication is the same dataset; a run that
     recorded no content (made before it was recorded) by its manifest's SHA-256. A content
     record of another shape is refused (a ShaderballError naming ``config_path``)."""
