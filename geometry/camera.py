@@ -68,7 +68,7 @@ def default_camera(params: ShaderballParams | None = None) -> Camera:
     DEFAULT_DISTANCE_M away, DEFAULT_ELEVATION_DEG above the horizontal, on the -y side,
     with the narrowest field of view that keeps the box DEFAULT_MARGIN inside the frame.
     """
-    params = (params or ShaderballParams()).check()
+    params = params or ShaderballParams()
     half_width = max(params.shell_radius_m, params.pedestal_radius_m)
     top = params.top_z_m
     target = np.array([0.0, 0.0, 0.5 * top])

@@ -50,7 +50,7 @@ class ShaderballParams:
     #: atlas layout; larger values shrink the texture on the ball).
     texture_repeats: int = 1
 
-    def check(self) -> ShaderballParams:
+    def __post_init__(self):
         """Raise GeometryError naming the field, its value and the allowed range."""
         _in_range("shell_radius_m", self.shell_radius_m, 0.05, 10.0)
         r = self.shell_radius_m
@@ -72,7 +72,6 @@ class ShaderballParams:
         _in_range("ground_half_size_m", self.ground_half_size_m, 4.0 * r, 1.0e4)
         _in_range("segments", self.segments, 32, 1024, integer=True)
         _in_range("texture_repeats", self.texture_repeats, 1, 64, integer=True)
-        return self
 
     @property
     def inner_radius_m(self) -> float:

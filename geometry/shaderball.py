@@ -79,7 +79,7 @@ def entry_dir(params: ShaderballParams, cache_dir: str | None = None) -> str:
 
 def build_shaderball(params: ShaderballParams | None = None, cache_dir: str | None = None) -> Shaderball:
     """The shaderball for ``params``: loaded from the cache, or built and cached."""
-    params = (params or ShaderballParams()).check()
+    params = params or ShaderballParams()
     folder = entry_dir(params, cache_dir)
     if _entry_complete(folder):
         try:

@@ -77,9 +77,6 @@ class UniformRanges:
     normal_tilt_max_deg: float = 20.0
 
     def __post_init__(self):
-        self.check()
-
-    def check(self) -> UniformRanges:
         """Raise :class:`MaterialError` naming the field, its value and what is allowed."""
         for f in fields(self):
             value = getattr(self, f.name)
@@ -96,7 +93,6 @@ class UniformRanges:
                 allowed = number_allowed(low, high)
             if not ok:
                 raise refusal(f"UniformRanges.{f.name}", value, allowed)
-        return self
 
 
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:

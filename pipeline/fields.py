@@ -140,12 +140,15 @@ class FieldError(ShaderballError):
 
 class Reject(Exception):
     """Raised by a rule; the class turns it into a FieldError naming the field. ``detail``
-    follows what is allowed; ``what`` replaces "<value> is not allowed"."""
+    follows what is allowed; ``what`` replaces "<value> is not allowed"; ``allowed``
+    replaces the rule's words for what is allowed."""
 
-    def __init__(self, detail: str = "", *, what: str | None = None):
+    def __init__(self, detail: str = "", *, what: str | None = None, allowed: str | None = None):
         super().__init__(detail)
         self.detail = detail
         self.what = what
+        #: What is allowed, where it is not the rule's own words (one item of :class:`Many`).
+        self.allowed = allowed
 
 
 # --------------------------------------------------------------------------- rules
@@ -428,7 +431,15 @@ class Many(Rule):
     def check(self, value):
         if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
             raise Reject()
-        return tuple(self.item.check(v) for v in value)
+        return tuple(self._item(v) for v in value)
+
+    def _item(self, value):
+        """One value checked; refused as the command line refuses that word."""
+        try:
+            return self.item.check(value)
+        except Reject as exc:
+            what = exc.what or f"{format_value(value)} is not allowed"
+            raise Reject(exc.detail, what=what, allowed=exc.allowed or self.item.allowed) from None
 
 
 class Bool(Rule):
@@ -581,9 +592,11 @@ def default_of(f: dataclasses.Field) -> Any:
 
 
 class Checked:
-    """Mixin: check every declared field by its rule, then the class's cross-field rules
-    (:meth:`check_cross`). A frozen dataclass is checked when built; a mutable one by
-    :meth:`check_fields`."""
+    """Mixin of a dataclass: every instance is checked when it is made (``__post_init__``):
+    each declared field by its rule, then the class's rules between fields
+    (:meth:`check_cross`). A refused value raises :class:`FieldError` naming the field, the
+    same refusal for a Python caller as for the command line; what takes an instance never
+    checks it again. A subclass with a ``__post_init__`` of its own calls this one first."""
 
     #: How a refusal names a field: ``"--"`` makes ``--split-seed`` of ``split_seed``;
     #: anything else is a prefix (``"render."`` makes ``render.spp``).
@@ -603,7 +616,7 @@ class Checked:
     def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> FieldError:
         return FieldError(cls.field_label(name), value, allowed, what=what, name=name, owner=cls)
 
-    def check_fields(self):
+    def __post_init__(self):
         for f in fields(self):
             rule: Rule | None = f.metadata.get("rule")
             if rule is None:
@@ -612,11 +625,10 @@ class Checked:
             try:
                 normalised = rule.check(value)
             except Reject as exc:
-                allowed = rule.allowed + (f" {exc.detail}" if exc.detail else "")
+                allowed = (exc.allowed or rule.allowed) + (f" {exc.detail}" if exc.detail else "")
                 raise self.field_error(f.name, value, allowed, what=exc.what) from None
             object.__setattr__(self, f.name, normalised)
         self.check_cross()
-        return self
 
     def check_cross(self) -> None:
         """Rules between fields; raise :meth:`field_error` naming one of them."""

@@ -81,12 +81,9 @@ class Light:
     turbidity: float
 
     def __post_init__(self):
-        self.check()
-
-    def check(self, prefix: str = "light") -> None:
-        _check_in(f"{prefix}.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
-        _check_in(f"{prefix}.azimuth_deg", self.azimuth_deg, AZIMUTH_RANGE)
-        _check_in(f"{prefix}.turbidity", self.turbidity, TURBIDITY_RANGE)
+        _check_in("light.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
+        _check_in("light.azimuth_deg", self.azimuth_deg, AZIMUTH_RANGE)
+        _check_in("light.turbidity", self.turbidity, TURBIDITY_RANGE)
 
     @property
     def direction(self) -> np.ndarray:
@@ -134,14 +131,11 @@ class LightingRanges:
             value = getattr(self, name)
             if isinstance(value, list):
                 object.__setattr__(self, name, tuple(value))
-        self.check()
-
-    def check(self, prefix: str = "lighting") -> None:
-        _check_interval(f"{prefix}.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
-        _check_interval(f"{prefix}.azimuth_deg", self.azimuth_deg, AZIMUTH_BOUNDS, MAX_AZIMUTH_SPAN_DEG)
-        _check_interval(f"{prefix}.turbidity", self.turbidity, TURBIDITY_RANGE)
+        _check_interval("lighting.elevation_deg", self.elevation_deg, ELEVATION_RANGE)
+        _check_interval("lighting.azimuth_deg", self.azimuth_deg, AZIMUTH_BOUNDS, MAX_AZIMUTH_SPAN_DEG)
+        _check_interval("lighting.turbidity", self.turbidity, TURBIDITY_RANGE)
         if self.scheme not in SCHEMES:
-            raise refusal(f"{prefix}.scheme", self.scheme, "one of " + ", ".join(f'"{s}"' for s in SCHEMES))
+            raise refusal("lighting.scheme", self.scheme, "one of " + ", ".join(f'"{s}"' for s in SCHEMES))
 
     def to_dict(self) -> dict:
         return {

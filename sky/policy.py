@@ -93,18 +93,15 @@ class LightingPolicy:
     margin_deg: float = 0.1
 
     def __post_init__(self):
-        self.check()
-
-    def check(self, prefix: str = "sky.policy") -> None:
         if self.floor not in FLOOR_MODES:
-            raise refusal(f"{prefix}.floor", self.floor, "one of " + ", ".join(f'"{m}"' for m in FLOOR_MODES))
+            raise refusal("sky.policy.floor", self.floor, "one of " + ", ".join(f'"{m}"' for m in FLOOR_MODES))
         margin = self.margin_deg
         if (
             isinstance(margin, bool)
             or not isinstance(margin, (int, float))
             or not MARGIN_RANGE[0] <= margin <= MARGIN_RANGE[1]
         ):
-            raise refusal(f"{prefix}.margin_deg", margin, number_allowed(*MARGIN_RANGE))
+            raise refusal("sky.policy.margin_deg", margin, number_allowed(*MARGIN_RANGE))
 
     def to_dict(self) -> dict:
         return {"floor": self.floor, "margin_deg": float(self.margin_deg)}
@@ -136,8 +133,6 @@ SAFE_ELEVATION_DEG = round(max(f for _, _, f in FLOOR_TABLE) + DEFAULT_POLICY.ma
 
 def apply_policy(light: Light, policy: LightingPolicy = DEFAULT_POLICY) -> tuple[Light, dict]:
     """(effective light, JSON-serialisable record of what was changed and why)."""
-    light.check()
-    policy.check()
     floor = elevation_floor_deg(light.turbidity, policy)
     actions = []
     effective = light

@@ -70,10 +70,10 @@ def test_bench_settings_are_the_renderers_declarations_and_each_benchmarks_own_d
     for name in ("spp", "resolution"):
         mine, theirs = declared(BenchRequest)[name].metadata["rule"], declared(RenderSettings)[name].metadata["rule"]
         assert mine.rule is theirs  # the same declaration, optional here
-    assert BenchRequest(spec=str(SMOKE)).check_fields().settings() == (None, None)
-    assert BenchRequest(effects=True).check_fields().settings() == (128, 64)
-    assert BenchRequest(scale=(10, 20), out="x").check_fields().settings() == (16, 1)
-    assert BenchRequest(effects=True, spp=8).check_fields().settings() == (128, 8)
+    assert BenchRequest(spec=str(SMOKE)).settings() == (None, None)
+    assert BenchRequest(effects=True).settings() == (128, 64)
+    assert BenchRequest(scale=(10, 20), out="x").settings() == (16, 1)
+    assert BenchRequest(effects=True, spp=8).settings() == (128, 8)
 
 
 def test_bench_needs_a_spec_or_effects(tmp_path):
@@ -193,7 +193,7 @@ def test_a_scene_moved_to_a_light_renders_the_bytes_of_a_scene_loaded_for_it(mi)
     assert off_by_rounding > 0
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT).check()
+    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT)
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.3).to_maps(1)
 
     def render(scene, seed):
@@ -234,7 +234,7 @@ def test_a_single_pass_is_the_pass_the_power_of_two_plan_renders_for_a_power_of_
     from pipeline.render.renderer import RenderSettings, pass_seed, render_in_passes, scene_dict
     from sky import Light
 
-    settings = RenderSettings(resolution=32, spp=8, variant=VARIANT).check()
+    settings = RenderSettings(resolution=32, spp=8, variant=VARIANT)
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
     scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0), settings)[0])
     one = render_in_passes(mi, scene, 8, 5, [8])
@@ -262,7 +262,7 @@ def test_power_of_two_passes_render_identically_across_repeats_and_thread_counts
     from pipeline.render.renderer import RenderSettings, render_in_passes, scene_dict
     from sky import Light
 
-    settings = RenderSettings(resolution=64, spp=150, variant=VARIANT).check()
+    settings = RenderSettings(resolution=64, spp=150, variant=VARIANT)
     maps = UniformMaterial((0.5, 0.3, 0.2), (0.04,) * 3, 0.4).to_maps(1)
     scene = mi.load_dict(scene_dict(build_shaderball(), default_camera(), maps, Light(35.0, 300.0, 3.0), settings)[0])
     threads = dr.thread_count()

@@ -35,7 +35,7 @@ def scene_of(mi):
     from sky import Light
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant=VARIANT).check()
+    settings = RenderSettings(resolution=RESOLUTION, spp=SPP, variant=VARIANT)
     light = Light(35.0, 300.0, 3.0)
 
     def make(maps, effects=None, bsdf=None):

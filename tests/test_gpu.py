@@ -86,7 +86,7 @@ def test_two_workers_on_one_gpu_build_what_one_does(cuda, tmp_path):
     outs = {}
     for workers in (1, 2):
         out = tmp_path / f"w{workers}"
-        options = ClusterOptions(workers=workers, gpus=(0,)).check()
+        options = ClusterOptions(workers=workers, gpus=(0,))
         summary = build(str(_spec(tmp_path, "cuda")), str(out), cluster=options)
         assert summary.rendered == 16 and validate(str(out)).ok
         outs[workers] = out

@@ -49,7 +49,7 @@ def test_gpus_beyond_the_visible_ones_are_refused_naming_the_field(monkeypatch):
 )
 def test_misplaced_gpu_options_are_refused(options, field):
     with pytest.raises(ShaderballError) as caught:
-        ClusterOptions(**options).check()
+        ClusterOptions(**options)
     assert getattr(caught.value, "name", field) == field
 
 
@@ -133,7 +133,7 @@ def test_plan_gpu_options_are_checked():
     from pipeline.bench.estimate import PlanRequest
 
     with pytest.raises(ShaderballError):
-        PlanRequest(spec=str(SMOKE), gpus_per_job=2).check()
+        PlanRequest(spec=str(SMOKE), gpus_per_job=2)
     with pytest.raises(ShaderballError):
-        PlanRequest(spec=str(SMOKE), gpus=2, cluster="slurm", jobs=1, cores=2).check()
-    assert PlanRequest(spec=str(SMOKE), gpus_per_job=2, cluster="pbs", jobs=2, cores=8).check().gpus_per_job == 2
+        PlanRequest(spec=str(SMOKE), gpus=2, cluster="slurm", jobs=1, cores=2)
+    assert PlanRequest(spec=str(SMOKE), gpus_per_job=2, cluster="pbs", jobs=2, cores=8).gpus_per_job == 2

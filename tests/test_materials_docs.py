@@ -54,7 +54,7 @@ def test_figures_defaults_are_the_requests_and_another_figures_option_is_refused
     import cli
     from pipeline.figures.command import FiguresRequest
 
-    sheet = FiguresRequest(name="contact-sheet", out="x.png").check_fields()
+    sheet = FiguresRequest(name="contact-sheet", out="x.png")
     assert (sheet.examples, sheet.resolution, sheet.seed) == (4, 128, contact_sheet.SHEET_SEED)
     assert {"examples": sheet.examples, "resolution": sheet.resolution} == SHEET_ARGS  # what the docs run
     monkeypatch.chdir(tmp_path)

@@ -37,9 +37,9 @@ def _losses(events):
 
 def test_a_batch_not_divisible_by_the_devices_is_refused_naming_both():
     with pytest.raises(FieldError) as caught:
-        TrainConfig(dataset="x", out="y", batch_size=5, devices=2).check()
+        TrainConfig(dataset="x", out="y", batch_size=5, devices=2)
     assert caught.value.name == "batch_size" and "{devices}" in caught.value.allowed
-    assert TrainConfig(dataset="x", out="y", batch_size=6, devices=3).check().devices == 3
+    assert TrainConfig(dataset="x", out="y", batch_size=6, devices=3).devices == 3
 
 
 @pytest.mark.parametrize("length,world", [(10, 1), (10, 2), (9, 2), (7, 4), (2, 3)])

@@ -36,7 +36,7 @@ def test_a_scene_moved_to_each_material_renders_the_bytes_of_a_scene_loaded_for_
     from pipeline.render.renderer import MaterialScene, RenderSettings, plan_effects, scene_dict
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT).check()
+    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT)
     samples = _samples()
     plans = [plan_effects(maps).key() for maps, _ in samples]
     # the held scene meets a change of effect plan both ways, not only one plan
@@ -77,14 +77,14 @@ def test_a_held_scene_is_loaded_again_for_other_settings_or_geometry(mi):
     from pipeline.render.renderer import MaterialScene, RenderSettings
 
     ball, camera = build_shaderball(), default_camera()
-    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT).check()
+    settings = RenderSettings(resolution=32, spp=4, variant=VARIANT)
     (maps, lights), (other, _) = _samples()[:2]
     with MaterialScene() as held:
         assert held.step(ball, camera, maps, settings) == "load"
         first, _, _ = held.lit(mi, ball, camera, maps, lights[0], settings)
         assert held.step(ball, camera, maps, settings) == "light"
         assert held.step(ball, camera, other, settings) == "material"
-        bigger = RenderSettings(resolution=48, spp=4, variant=VARIANT).check()
+        bigger = RenderSettings(resolution=48, spp=4, variant=VARIANT)
         assert held.step(ball, camera, maps, bigger) == "load"
         assert held.step(ball, default_camera(), maps, settings) == "load"
         scene, _, _ = held.lit(mi, ball, camera, maps, lights[0], bigger)

@@ -240,7 +240,7 @@ def test_adaptive_render_stops_at_its_target_and_is_byte_identical(scene_setup):
     assert totals == [16, 32, 64, 128, 256] and adaptive_stages(150)[-1] == [16, 4, 2]
     used = {}
     for target in (0.3, 0.09, 0.001):
-        settings = RenderSettings(resolution=16, spp=256, target_error=target, variant=VARIANT).check()
+        settings = RenderSettings(resolution=16, spp=256, target_error=target, variant=VARIANT)
         a = render_sample(ball, camera, GOLD, LIGHT, settings, 5, mask=gbuffer.mask)
         b = render_sample(ball, camera, GOLD, LIGHT, settings, 5, mask=gbuffer.mask)
         assert a.image.tobytes() == b.image.tobytes() and a.variance.tobytes() == b.variance.tobytes()
@@ -293,7 +293,7 @@ def test_adaptive_stopping_is_not_biased(mi, scene_setup):
 
 def test_sampler_records_the_spp_it_used_and_clamp_bounds_every_pixel(scene_setup):
     ball, camera, gbuffer = scene_setup
-    ortho = RenderSettings(resolution=16, spp=16, sampler="orthogonal", variant=VARIANT).check()
+    ortho = RenderSettings(resolution=16, spp=16, sampler="orthogonal", variant=VARIANT)
     r = render_sample(ball, camera, GOLD, LIGHT, ortho, 3, mask=gbuffer.mask)
     assert r.stats["spp_used"] == 25  # Mitsuba's orthogonal sampler: a prime squared
     plain = render_sample(ball, camera, GOLD, LIGHT, RenderSettings(resolution=16, spp=16, variant=VARIANT), 3)
@@ -335,12 +335,12 @@ def test_study_request_keeps_its_ladder_sorted_and_its_families_in_order(tmp_pat
     from pipeline.study.configs import FAMILIES
 
     spec = tiny_spec(tmp_path)
-    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), ladder=(8, 2, 8), configs="all").check_fields()
+    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), ladder=(8, 2, 8), configs="all")
     assert req.ladder == (2, 8) and req.configs == FAMILIES
-    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("clamp", "denoise")).check_fields()
+    req = StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("clamp", "denoise"))
     assert req.configs == ("ladder", "denoise", "clamp")  # the ladder always, in FAMILIES' order
     with pytest.raises(ShaderballError, match=r"^configs: .* is not allowed; all, or comma-separated names"):
-        StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("bogus",)).check_fields()
+        StudyRequest(spec=spec, out=str(tmp_path / "o"), configs=("bogus",))
 
 
 def test_a_study_folder_of_another_request_is_refused_naming_out(tmp_path):

@@ -686,7 +686,6 @@ def bench_spec(request):
 def run_build_bench(request, progress=None) -> BuildBench:
     """Build ``request.spec`` (cut and re-sized as it asks) and time the same renders bare;
     see the module docstring."""
-    request.check_fields()
     out = request.out
     spec = bench_spec(request)
     if out is not None and os.path.exists(out) and folder_names(out) != []:

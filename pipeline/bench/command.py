@@ -148,7 +148,6 @@ class BenchRequest(Checked):
 def run_bench(request: BenchRequest, progress=None):
     """Run the benchmark ``request`` asks for; write its figures to ``json_out`` where given;
     returns its result (``lines()``, ``to_dict()``)."""
-    request.check_fields()
     if request.benchmark == "scale":
         result = run_scale_bench(request, progress=progress)
     elif request.benchmark == "effects":

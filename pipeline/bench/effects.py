@@ -204,7 +204,7 @@ def run_effects_bench(
     mi = load_mitsuba(variant)
     import drjit as dr
 
-    settings = RenderSettings(resolution=resolution, spp=spp, variant=variant).check()
+    settings = RenderSettings(resolution=resolution, spp=spp, variant=variant)
     ball, camera = build_shaderball(), default_camera()
     light = Light(35.0, 300.0, 3.0)  # sun from the camera's left, above: highlights and shading
 

@@ -102,9 +102,6 @@ class PlanRequest(Checked):
     )
     gpus_per_job: int | None = same_as(ClusterOptions, "gpus_per_job")
 
-    def check(self) -> PlanRequest:
-        return self.check_fields()
-
     def check_cross(self) -> None:
         if self.gpus is not None and self.cluster in JOBQUEUE_KINDS:
             raise self._refuse("gpus", f"not allowed with {{cluster}} {self.cluster}", "use {gpus_per_job}")
@@ -274,7 +271,6 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
     """Counts and disk of ``req.spec``; with ``req.timing`` also the timed renders and the time
     estimates (``progress(str)`` says when they start). Nothing is written outside a temporary
     folder, removed after."""
-    req.check()
     spec, _text = read_spec_text(req.spec)
     plans = plan_dataset(spec)
     summary = plans.summary()

@@ -103,7 +103,7 @@ def memory_probe(renders: int, resolution: int = 64, spp: int = 16, progress=Non
     """Render ``renders`` samples in this process, one shard after another; track RSS.
     ``progress(done, rss_mib)`` after each shard; the figures are refused as
     :class:`ProbeRequest` words it."""
-    ProbeRequest(renders, resolution, spp).check_fields()
+    ProbeRequest(renders, resolution, spp)
     spec = probe_spec(renders, resolution, spp)
     plans = plan_dataset(spec)
     out = tempfile.mkdtemp(prefix="shaderball-memory-probe-")

@@ -303,7 +303,6 @@ def measure_child(argv: list[str], log_path: str) -> tuple[float, int]:
 def run_scale_bench(request, progress=None) -> ScaleBench:
     """Build a dataset of each of ``request.scale``'s sizes and measure every command over it;
     write the results to ``request.out``."""
-    request.check_fields()
     out, sizes = request.out, sorted(request.scale)
     resolution, spp = request.settings()
     spec_arg = request.spec or DEFAULT_SPEC

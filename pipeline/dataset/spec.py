@@ -169,9 +169,6 @@ class _Section(Checked):
 
     SECTION: ClassVar[str]
 
-    def __post_init__(self):
-        self.check_fields()
-
     @classmethod
     def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> SpecError:
         return SpecError(cls.SECTION, name, value, allowed, what=what)

@@ -86,7 +86,6 @@ class Figure:
 
 def make_figure(request: FiguresRequest, progress=None) -> Figure:
     """Make the figure ``request`` names (``progress(str)`` hears of its steps)."""
-    request.check_fields()
     if request.name == "albedo-table":
         text = (
             models_markdown() if request.models else markdown(with_samplers=not request.no_samplers, progress=progress)

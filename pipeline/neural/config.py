@@ -121,7 +121,7 @@ def _int(name: str) -> Int:
     return Int(*INTEGER_RANGES[name])
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainConfig(Checked):
     """`shaderball train`: a run's every option (a resume must repeat those that change what
     it computes: pipeline.neural.train.IDENTITY_FIELDS)."""
@@ -270,10 +270,6 @@ class TrainConfig(Checked):
         in_file=False,
     )
 
-    def check(self) -> TrainConfig:
-        """Check every field by its declaration, then the rules between fields; return self."""
-        return self.check_fields()
-
     def check_cross(self) -> None:
         if self.batch_size % self.devices:
             raise self.field_error(
@@ -352,9 +348,6 @@ class InferRequest(Checked):
         metavar="last|best|FILE",
     )
 
-    def __post_init__(self):
-        self.check_fields()
-
 
 @dataclass(frozen=True)
 class EvaluateRequest(Checked):
@@ -417,9 +410,6 @@ class EvaluateRequest(Checked):
     flip: bool = field(True, rule=Bool(), doc="HDR-FLIP, the slowest metric (most of an evaluation's time at 64x64).")
     hash_check: bool = same_as(TrainConfig, "hash_check")
 
-    def __post_init__(self):
-        self.check_fields()
-
     @property
     def folder(self) -> str:
         """The folder the evaluation writes: ``out``, else the run's ``evaluation-<split>``."""
@@ -434,9 +424,6 @@ class ExportRequest(Checked):
     out: str = field(rule=FileName(".pt", ".pth", ".ts"), doc="TorchScript file to write (.pt, .pth or .ts).")
     checkpoint: str = same_as(InferRequest, "checkpoint")
 
-    def __post_init__(self):
-        self.check_fields()
-
 
 @dataclass(frozen=True)
 class SweepRequest(Checked):
@@ -449,9 +436,6 @@ class SweepRequest(Checked):
         metavar="REPORT.json",
     )
     out: str = field(rule=Folder("a folder"), doc="Folder for sweep.md, sweep.json and data-size.png.")
-
-    def __post_init__(self):
-        self.check_fields()
 
 
 @dataclass(frozen=True)
@@ -476,9 +460,6 @@ class LoadersRequest(Checked):
     repeats: int = field(3, rule=Int(*REPEATS_RANGE), doc="Passes over each; the best counts.", unit="passes")
     hash_check: bool = same_as(TrainConfig, "hash_check")
 
-    def __post_init__(self):
-        self.check_fields()
-
 
 @dataclass(frozen=True)
 class CollateRequest(Checked):
@@ -490,9 +471,6 @@ class CollateRequest(Checked):
     batch_size: int = same_as(TrainConfig, "batch_size")
     loader_workers: int = same_as(TrainConfig, "loader_workers")
     resolution: int | None = same_as(TrainConfig, "resolution")
-
-    def __post_init__(self):
-        self.check_fields()
 
 
 @dataclass(frozen=True)
@@ -511,9 +489,6 @@ class DenoiseRequest(Checked):
         doc="Path-tracing rates denoised, in samples per pixel.",
     )
     reference_spp: int = same_as(RenderSettings, "spp", default=256, doc="Samples per pixel of the reference renders.")
-
-    def __post_init__(self):
-        self.check_fields()
 
 
 @dataclass(frozen=True)
@@ -544,9 +519,6 @@ class TrainOptionsRequest(Checked):
         metavar="NAME,NAME,...",
     )
 
-    def __post_init__(self):
-        self.check_fields()
-
     def config(self) -> TrainConfig:
         """The baseline's training options: these, on the CPU, in fp32 and NCHW."""
         return TrainConfig(
@@ -557,4 +529,4 @@ class TrainOptionsRequest(Checked):
             threads=self.threads,
             precision="fp32",
             channels_last=False,
-        ).check()
+        )

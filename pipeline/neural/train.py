@@ -394,7 +394,6 @@ def train(config: TrainConfig, progress=None, source=None) -> TrainSummary:
     ``config.threads`` holds for the call; torch's setting is restored after.
     """
     started = time.perf_counter()  # --minutes counts from here
-    config.check()
     config.check_run(dataset_opened=source is not None)
     device = pick_device(config.device)
     config = dataclasses.replace(config, precision=speed.resolve_precision(config.precision, device))

@@ -149,9 +149,6 @@ class RenderRequest(Checked):
         kw_only=True,
     )
 
-    def __post_init__(self):
-        self.check_fields()
-
     def check_cross(self) -> None:
         check_output(type(self), "out", self.out, ".exr")
         if self.png is not None:

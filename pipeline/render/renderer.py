@@ -478,7 +478,6 @@ def render_sample(
     materials and lightings); None loads a scene for this render only. ``on_pass(n)``: called
     after each pass of each attempt with its spp (:func:`render_scene`).
     """
-    settings.check()
     mi = load_mitsuba(settings.variant)
     start = time.perf_counter()
     loaded, lighting, effects = (scene or MaterialScene()).lit(mi, ball, camera, maps, light, settings)

@@ -51,9 +51,6 @@ class SceneRequest(Checked):
         RenderSettings, "variant", doc="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
     )
 
-    def __post_init__(self):
-        self.check_fields()
-
     def check_cross(self) -> None:
         if os.path.exists(self.out) and not os.path.isdir(self.out):
             raise self.field_error(

@@ -124,13 +124,6 @@ class RenderSettings(Checked):
         in_file=False,
     )
 
-    def __post_init__(self):
-        self.check_fields()
-
-    def check(self) -> RenderSettings:
-        """Self (checked when built); for callers that check explicitly."""
-        return self
-
     def resolved(self, variant: str) -> RenderSettings:
         """These settings rendering with ``variant``, the full name resolved once."""
         return dataclasses.replace(self, variant=variant)

@@ -188,7 +188,7 @@ class BuildRequest(Checked):
     def cluster_options(self) -> ClusterOptions:
         """Where the workers come from, checked (a refusal names this request's field)."""
         names = fields.declared(ClusterOptions)
-        return ClusterOptions(**{name: getattr(self, name) for name in names}).check()
+        return ClusterOptions(**{name: getattr(self, name) for name in names})
 
     def check_cross(self) -> None:
         if self.print_job_script and self.cluster not in ("slurm", "pbs"):
@@ -520,7 +520,6 @@ def build(
         cluster = ClusterOptions(workers=workers, scheduler=scheduler)
     elif workers is not None or scheduler is not None:
         raise TypeError("build(): pass workers and scheduler inside cluster=, not beside it")
-    cluster.check()
     if cluster.scheduler:
         check_scheduler_reachable(cluster.scheduler)  # before anything is written
     plans = plan_dataset(spec)

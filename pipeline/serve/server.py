@@ -268,13 +268,6 @@ class ServeOptions(Checked):
     #: The path tracer's Mitsuba variant (not a command-line option).
     variant: str = "llvm"
 
-    def __post_init__(self):
-        self.check_fields()
-
-    def check(self) -> ServeOptions:
-        """Self (checked when built); for callers that check explicitly."""
-        return self
-
 
 def open_dataset(options: ServeOptions) -> DatasetSamples | None:
     """The samples of ``options.dataset`` (None without one); refused naming ``dataset``."""
@@ -293,7 +286,7 @@ class App:
         """``network``: pipeline.neural.live.LiveNetwork or None; ``stored``: a callable giving
         the stored renders of a dataset root (pipeline.neural.stored.stored_renders) or None,
         then a dataset sample is shown without its stored render."""
-        self.options = options.check()
+        self.options = options
         self.network, self.stored = network, stored
         self.dataset = open_dataset(options)
         net_res = network.resolution if network is not None else None

@@ -118,9 +118,6 @@ class Part(Checked):
     #: The HTTP status of a refusal of a field, where not 400.
     STATUS: ClassVar[dict[str, int]] = {}
 
-    def __post_init__(self):
-        self.check_fields()
-
     @classmethod
     def from_doc(cls, doc: dict):
         """The part of ``doc`` (a dict): a field it leaves out takes its default; a required

@@ -211,7 +211,6 @@ class StudySummary:
 
 def check_request(req: StudyRequest):
     """The parsed spec; a refusal names the field, its value and what is allowed."""
-    req.check_fields()
     spec = parse_spec(req.spec)
     if req.only:
         names = [
@@ -484,7 +483,7 @@ def measure_config(
     key = config.settings_key()
     seed = derived_seed(subject.sample.render_seed, repr(key), "repeat", repeat)
     if (key, repeat) not in cache:
-        settings = replace(ctx.base, spp=config.spp, **config.changes).check()
+        settings = replace(ctx.base, spp=config.spp, **config.changes)
         for old in [k for k, v in cache.items() if "passes" in v]:  # pass stacks are big: keep one
             del cache[old]
         # Warm once per settings and scene structure: later renders find the kernels cached.

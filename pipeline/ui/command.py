@@ -341,6 +341,11 @@ def reworded(request_cls):
     return reword
 
 
+def request_of(request_cls, values: dict):
+    """The request that the command line's parsed ``values`` make (checked as it is made)."""
+    return request_cls(**values)
+
+
 def request_command(
     group: click.Group,
     request_cls,
@@ -366,7 +371,7 @@ def request_command(
 
         def callback(as_json: bool = False, **values):
             def call():
-                request = request_cls(**values).check_fields()
+                request = request_of(request_cls, values)
                 if needs_torch is True or callable(needs_torch) and needs_torch(request):
                     refuse_without_torch()
                 given = {"as_json": as_json} if "as_json" in takes else {}

@@ -43,7 +43,7 @@ class FieldType(click.ParamType):
         try:
             return self.rule.check(parsed)
         except Reject as exc:
-            allowed = self.rule.allowed + (f" {exc.detail}" if exc.detail else "")
+            allowed = (exc.allowed or self.rule.allowed) + (f" {exc.detail}" if exc.detail else "")
             shown = parsed if isinstance(parsed, str) else AsTyped(value.strip())  # "0,1", not [0, 1]
             raise refused(param, ctx, shown, allowed, what=exc.what) from None
 

@@ -187,7 +187,6 @@ def job_script_prologue(options: ClusterOptions) -> list[str]:
 
 def jobqueue_kwargs(options: ClusterOptions) -> dict:
     """Keyword arguments for a dask-jobqueue Job or Cluster of ``options``."""
-    options.check()
     lifetime_s, stagger_s = worker_lifetime(options.walltime)
     scratch = options.scratch or DEFAULT_SCRATCH
     return {
@@ -452,7 +451,6 @@ def connect(options: ClusterOptions, variant: str | None = None) -> Iterator[Con
     import dask
     from distributed import Client, LocalCluster
 
-    options.check()
     config = {
         "distributed.worker.multiprocessing-method": "spawn",  # LLVM JIT and fork() don't mix
         "distributed.worker.daemon": False,

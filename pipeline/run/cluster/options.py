@@ -240,10 +240,6 @@ class ClusterOptions(Checked):
     def is_jobqueue(self) -> bool:
         return self.cluster in JOBQUEUE_KINDS
 
-    def check(self) -> ClusterOptions:
-        """Return self, or raise a ShaderballError naming the option, value and what's allowed."""
-        return self.check_fields()
-
     def check_cross(self) -> None:
         """The options of one kind of cluster, not another's."""
         if self.start_timeout is not None and self.workers == 0 and not self.scheduler:
