@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
+import pipeline.neural.run_clock as run_clock
 import pipeline.neural.train as train_module
 from pipeline.errors import ShaderballError
 from pipeline.neural import runfiles, speed
@@ -86,15 +87,15 @@ def test_threads_0_keep_to_the_cgroup_quota(tmp_path, monkeypatch):
     "left_s, epoch_s, most, epochs", [(100, 10, 60, 11), (100, 30, 60, 4), (-5, 10, 60, 1), (1e9, 1, 60, 60)]
 )
 def test_the_epochs_a_budget_holds(left_s, epoch_s, most, epochs):
-    assert train_module.budget_epochs(left_s, epoch_s, most) == epochs
+    assert run_clock.budget_epochs(left_s, epoch_s, most) == epochs
 
 
 def test_a_budget_shortens_a_run_that_falls_behind_and_never_lengthens_it(monkeypatch):
     """A 60 s budget: the first epoch's 10 s sets 6 epochs; a second of 20 s (15 s a mean, 30 s
     left) cuts them to 4; a fast third does not bring them back."""
     clock = iter([10.0, 30.0, 35.0])
-    monkeypatch.setattr(train_module.time, "perf_counter", lambda: next(clock))
-    length = train_module.RunLength(60, held_epochs=1, minutes=1.0, started=0.0)
+    monkeypatch.setattr(run_clock.time, "perf_counter", lambda: next(clock))
+    length = run_clock.RunLength(60, held_epochs=1, minutes=1.0, started=0.0)
     notes = []
     lengths = [length.after_epoch(epoch, 0.0, lambda e: notes.append(e["note"])) for epoch in (1, 2, 3)]
     assert lengths == [6, 4, 4]

@@ -193,7 +193,7 @@ def test_the_best_checkpoint_holds_the_weights_only_and_resume_uses_the_last(tmp
 
 
 def test_a_run_below_the_mean_image_says_so_with_what_to_try():
-    from pipeline.neural.train import TrainSummary
+    from pipeline.neural.train_summary import TrainSummary
 
     history = [{"epoch": 2, "train_loss": 0.2, "test_loss": 0.3, "test_psnr": 17.01, "lr": 1e-3}]
     below = TrainSummary("RUN", 2, 0, history=history, baseline_psnr=17.30)

@@ -20,7 +20,8 @@ from cli import main
 from pipeline.errors import ShaderballError
 from pipeline.neural import runfiles
 from pipeline.neural.network import NeuralRenderer
-from pipeline.neural.train import Diverged, train
+from pipeline.neural.train import train
+from pipeline.neural.train_summary import Diverged
 from pipeline.store.exr import encode_exr, read_exr
 from support.neural_fakes import TINY, FakeSource, train_config
 from support.publishing import rerecord

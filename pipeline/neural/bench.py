@@ -45,8 +45,9 @@ from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.evaluate import PathTracer, dataset_variant
 from pipeline.neural.limits import TRAINING_VARIANTS
 from pipeline.neural.loss import RenderLoss
+from pipeline.neural.loss_choice import choose_loss
 from pipeline.neural.network import NeuralRenderer
-from pipeline.neural.train import TrainConfig, choose_loss, pick_device
+from pipeline.neural.train import TrainConfig, pick_device
 from pipeline.neural.vgg import RELU3_3, random_vgg16_state_dict, vgg16_features
 from pipeline.render.mitsuba_env import resolve_variant
 

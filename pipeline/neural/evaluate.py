@@ -47,7 +47,8 @@ from pipeline.neural.file_sources import dataset_refused
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
 from pipeline.neural.limits import SPP_LADDER_RANGE
 from pipeline.neural.report import bootstrap_ci95
-from pipeline.neural.train import SATURATED_FRACTION, mean_image, pick_device
+from pipeline.neural.train import mean_image, pick_device
+from pipeline.neural.train_summary import SATURATED_FRACTION
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import atomic_file

@@ -6,6 +6,9 @@ checkpointing every epoch into the run folder. Everything random derives from
 (a generator seeded by (seed, epoch)), so a run killed at any instant and started again
 with the same command continues from its last checkpoint to the same weights as an
 uninterrupted run (on the same device, torch version, thread count and --precision).
+
+The run's length and estimates are pipeline.neural.run_clock; its summary and warnings,
+pipeline.neural.train_summary; its loss, pipeline.neural.loss_choice.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import logging
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -32,14 +35,12 @@ from pipeline.neural.config import TrainConfig
 from pipeline.neural.data import batches, open_dataset
 from pipeline.neural.distributed import train_distributed
 from pipeline.neural.loss import RenderLoss
-from pipeline.neural.network import (
-    NeuralRenderer,
-    light_input,
-    parameter_count,
-)
+from pipeline.neural.loss_choice import LossChoice, choose_loss, make_loss
+from pipeline.neural.network import NeuralRenderer, light_input, parameter_count
 from pipeline.neural.plot import loss_curve_png
+from pipeline.neural.run_clock import RunClock, RunLength, StepClock
 from pipeline.neural.splits import split_materials
-from pipeline.neural.vgg import HUB_FILENAME, VggWeights, find_vgg_weights, hub_cache_path, load_vgg16_relu3_3
+from pipeline.neural.train_summary import TrainSummary, diverged, epoch_warnings
 from pipeline.store.atomic import write_bytes_atomic
 
 #: Config fields that change what a run computes: a resume must match them.
@@ -58,136 +59,9 @@ OPTIONAL_IDENTITY = {
 SUBSET_STREAM = 0x5B5E
 #: At most this many training samples are scored after every epoch (the training curve).
 TRAIN_EVAL_SAMPLES = 256
-#: A held-out output at 8-bit 0 or 255 is saturated; more than this fraction of them is a warning.
-SATURATED_FRACTION = 0.99
-#: A held-out loss whose relative change over an epoch is below this "does not move".
-STALL_RELATIVE = 1e-5
 #: Key of the per-epoch order stream beside the seed.
 ORDER_STREAM = 0x0DE5
-#: Steps timed after the first (which starts the loader and warms up) before a run says how
-#: long it will take; a first epoch of fewer steps is timed whole.
-ESTIMATE_STEPS = 5
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class TrainSummary:
-    run_dir: str
-    epochs_done: int
-    resumed_from: int  # epochs already done when this call started
-    history: list[dict] = field(default_factory=list)
-    baseline_psnr: float | None = None
-    device: str = "cpu"
-    parameters: int = 0
-    nothing_to_do: bool = False  # the run already had --epochs epochs; nothing was written
-    loss: str = ""  # the loss trained with: l1+vgg or l1
-    loss_reason: str = ""  # one line: which loss, and why (--loss auto's choice)
-    #: what to try when the held-out PSNR ends below the training-set mean image's; None otherwise
-    below_mean_image: str | None = None
-    #: the seconds this call's steps were estimated to take, from its first steps (StepClock), and
-    #: the line that said so on stderr; None when it trained nothing
-    estimated_seconds: float | None = None
-    estimate: str | None = None
-    #: how --minutes set the run's length (train prints it); None without --minutes
-    length_note: str | None = None
-    #: the precision and torch threads it trained with (--precision auto and --threads 0 made concrete)
-    precision: str = ""
-    threads: int = 0
-
-    def __post_init__(self):
-        if self.below_mean_image is None:
-            self.below_mean_image = below_mean_image_advice(self.history, self.baseline_psnr)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def lines(self) -> list[str]:
-        # loss_reason is said once, before training (the progress' note), not again here
-        how = f"{self.precision}, {self.threads} thread{'s' if self.threads != 1 else ''}, " if self.precision else ""
-        out = [f"run: {self.run_dir} ({self.parameters:,} parameters, {self.device}, {how}loss {self.loss})"]
-        if self.nothing_to_do:
-            out.append(
-                f"nothing to do: the run has already trained {self.epochs_done} epochs "
-                "(pass a larger --epochs to continue it); nothing written"
-            )
-        elif self.resumed_from:
-            out.append(f"resumed after epoch {self.resumed_from}")
-        if self.length_note:
-            out.append(self.length_note)
-        if self.history:
-            last = self.history[-1]
-            out.append(
-                f"epoch {last['epoch']}: train loss {last['train_loss']:.4f}"
-                + (
-                    f", held-out loss {last['test_loss']:.4f}, PSNR {last['test_psnr']:.2f} dB"
-                    if last.get("test_loss") is not None
-                    else ""
-                )
-            )
-        if self.baseline_psnr is not None:
-            out.append(f"baseline (training-set mean image) PSNR on held-out: {self.baseline_psnr:.2f} dB")
-        if self.history and self.history[-1].get("warnings"):
-            out.extend(f"warning: {text}" for text in self.history[-1]["warnings"])
-        if self.below_mean_image:
-            out.append(f"warning: {self.below_mean_image}")
-        return out
-
-
-def below_mean_image_advice(history: list[dict], baseline_psnr: float | None) -> str | None:
-    """What to try when the last epoch's held-out PSNR is below the training-set mean image's
-    (the run has not learnt more than the average picture); None when it is above, or unknown."""
-    last = history[-1].get("test_psnr") if history else None
-    if last is None or baseline_psnr is None or last >= baseline_psnr:
-        return None
-    epoch, lr = history[-1].get("epoch"), history[-1].get("lr")
-    at = f" (now {lr:g})" if lr else ""
-    return (
-        f"held-out PSNR {last:.2f} dB after epoch {epoch} is below the training-set mean image's "
-        f"{baseline_psnr:.2f} dB: the network predicts worse than the average picture. Try more epochs "
-        f"(a larger --epochs continues this run), another --lr{at}: lower if the loss jumps about or the "
-        "outputs saturate, higher if it falls slowly; or more training data (more materials)"
-    )
-
-
-@dataclass(frozen=True)
-class LossChoice:
-    """The loss a run trains with and why (``--loss auto`` resolved)."""
-
-    name: str  # l1+vgg or l1
-    reason: str  # one line for the summary, the log and config.json
-    weights: VggWeights | None  # the VGG16 weights (l1+vgg), their SHA-256 checked
-
-
-def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
-    """``config.loss``, with ``auto`` resolved: the run's own loss when it resumes one
-    (``run_loss``), the paper's l1+vgg when --vgg-weights is given or the weights are in torch
-    hub's cache, else l1. An explicit l1+vgg without usable weights is refused (ShaderballError)."""
-    if config.loss == "l1":
-        return LossChoice("l1", "loss: l1 (--loss l1)", None)
-    if config.loss == "l1+vgg" or config.vgg_weights is not None or run_loss == "l1+vgg":
-        weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
-        why = (
-            "--loss l1+vgg"
-            if config.loss == "l1+vgg"
-            else ("the run's own loss" if run_loss == "l1+vgg" else "--loss auto, --vgg-weights given")
-        )
-        return LossChoice("l1+vgg", f"loss: l1+vgg, the paper's L1 + VGG16 ({why}; weights {weights.path})", weights)
-    if run_loss == "l1":
-        return LossChoice("l1", "loss: l1 (--loss auto: the run's own loss)", None)
-    try:
-        weights = find_vgg_weights(None, config.vgg_sha256)
-    except ShaderballError as exc:
-        found = os.path.isfile(hub_cache_path())
-        why = (getattr(exc, "what", None) or str(exc)) if found else f"no VGG16 ImageNet weights at {hub_cache_path()}"
-        return LossChoice(
-            "l1",
-            f"loss: l1 (--loss auto: {why}; for the paper's L1 + VGG16 put {HUB_FILENAME} there or pass "
-            "--vgg-weights FILE)",
-            None,
-        )
-    return LossChoice(
-        "l1+vgg", f"loss: l1+vgg, the paper's L1 + VGG16 (--loss auto: weights found at {weights.path})", weights
-    )
 
 
 def pick_device(name: str) -> torch.device:
@@ -217,12 +91,6 @@ def deterministic_algorithms():
         yield
     finally:
         torch.use_deterministic_algorithms(before)
-
-
-def make_loss(choice: LossChoice, vgg_weight: float) -> tuple[RenderLoss, str | None]:
-    if choice.name == "l1":
-        return RenderLoss("l1"), None
-    return RenderLoss("l1+vgg", load_vgg16_relu3_3(choice.weights), vgg_weight), choice.weights.sha256
 
 
 def batch_to(
@@ -275,42 +143,6 @@ def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: in
             saturated += int(np.count_nonzero((p8 == 0) | (p8 == 255)))
             values += p8.size
     return {"loss": losses / n, "psnr": float(np.mean(psnrs)), "saturated": saturated / values}
-
-
-def smaller_lr(lr: float | None) -> str:
-    return f"a smaller --lr (e.g. --lr {lr / 10:g}; the released code's Adam uses 1e-3)" if lr else "a smaller --lr"
-
-
-class Diverged(ShaderballError):
-    """A run whose loss or weights stopped being finite: it stops, and saves nothing of the epoch."""
-
-
-def diverged(what: str, epoch: int, lr: float) -> Diverged:
-    kept = f"{runfiles.CHECKPOINT} keeps epoch {epoch - 1}" if epoch > 1 else "no checkpoint is written"
-    return Diverged(
-        f"epoch {epoch}: {what}: the run stops, nothing of epoch {epoch} is saved ({kept}). The dataset's samples "
-        f"are checked as they load, so the optimiser diverged: train again with {smaller_lr(lr)} in a new --out"
-    )
-
-
-def epoch_warnings(entry: dict, previous: dict | None) -> list[str]:
-    """What says a run is not learning after an epoch: saturated held-out outputs, or a
-    held-out loss that did not move (the paper's lr 1e-2 does both)."""
-    hint = "try " + smaller_lr(entry.get("lr"))
-    out = []
-    if entry.get("test_saturated") is not None and entry["test_saturated"] > SATURATED_FRACTION:
-        out.append(
-            f"epoch {entry['epoch']}: {100 * entry['test_saturated']:.1f}% of held-out output values are "
-            f"saturated (0 or 1 after the tone map): the sigmoid has stopped passing gradients; {hint}"
-        )
-    if previous is not None and previous.get("test_loss") is not None and entry.get("test_loss") is not None:
-        before, after = previous["test_loss"], entry["test_loss"]
-        if abs(after - before) <= STALL_RELATIVE * max(abs(before), 1e-12):
-            out.append(
-                f"epoch {entry['epoch']}: the held-out loss did not move ({before:.6g} -> {after:.6g}, "
-                f"less than {STALL_RELATIVE:.0e} relative); {hint}"
-            )
-    return out
 
 
 def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -> dict:
@@ -497,79 +329,6 @@ def _record_epoch(entry: dict, history: list[dict], config: TrainConfig, progres
     history.append(entry)
 
 
-@dataclass
-class RunLength:
-    """How many epochs a run has: ``--epochs``, or, with ``--minutes``, as many (at most
-    ``--epochs``) as fit the time from the call's start: set after the first epoch from its time
-    (training and scoring), then shortened after any epoch whose mean time so far says the rest
-    would not fit (never lengthened). Each epoch of the history records it
-    (``schedule_epochs``), and a resumed run keeps the last, with or without --minutes. Such a
-    run holds the learning rate through the first epoch (``held_epochs``): a cosine then decays
-    over the epochs after it, which are only known once it is timed."""
-
-    epochs: int
-    held_epochs: int = 0  # epochs at the full rate before the schedule (1 with --minutes)
-    minutes: float | None = None  # the budget, in the call that started the run
-    started: float = 0.0  # time.perf_counter() when that call began
-    note: str | None = None
-    times: list[float] = field(default_factory=list)  # each epoch's seconds, scoring and saving included
-    mark: float | None = None  # when the last epoch's time was taken
-
-    @property
-    def budgeted(self) -> bool:
-        return self.minutes is not None
-
-    @classmethod
-    def of(cls, config: TrainConfig, ckpt: dict | None, started: float | None, progress=None) -> RunLength:
-        history = (ckpt or {}).get("history") or []
-        recorded = history[-1].get("schedule_epochs") if history else None
-        if recorded is not None:  # at most --epochs: a constant schedule's run may be cut short
-            return cls(min(recorded, config.epochs), held_epochs=1)
-        if config.minutes is None:
-            return cls(config.epochs)
-        if history:
-            note = f"--minutes {config.minutes:g} not used: the run started without it and trains to --epochs"
-            if progress is not None:
-                progress({"note": note})
-            return cls(config.epochs, note=note)
-        begun = time.perf_counter() if started is None else started
-        return cls(config.epochs, held_epochs=1, minutes=config.minutes, started=begun)
-
-    def after_epoch(self, epoch: int, epoch_started: float, progress=None) -> int:
-        """The run's length after ``epoch`` (the first begun at ``epoch_started``; each later one
-        timed from the last's call, so its saving counts), said to ``progress`` when it is set or
-        shortened."""
-        now = time.perf_counter()
-        self.times.append(now - (epoch_started if self.mark is None else self.mark))
-        self.mark = now
-        left_s, per_epoch = self.minutes * 60 - (now - self.started), sum(self.times) / len(self.times)
-        fits = budget_epochs(left_s, per_epoch, self.epochs, done=epoch)
-        if len(self.times) > 1 and fits >= self.epochs:
-            return self.epochs
-        was, self.epochs = self.epochs, fits
-        plural = "s" if fits != 1 else ""
-        if len(self.times) == 1:
-            self.note = (
-                f"--minutes {self.minutes:g}: the first epoch took {per_epoch:.0f} s with its scoring, "
-                f"{max(left_s, 0) / 60:.1f} min are left: the run is {fits} epoch{plural}"
-            )
-        else:
-            self.note = (
-                f"--minutes {self.minutes:g}: {per_epoch:.0f} s an epoch so far, {max(left_s, 0) / 60:.1f} min "
-                f"left after epoch {epoch}: the run is {fits} epoch{plural} (was {was})"
-            )
-        if progress is not None:
-            progress({"note": self.note})
-        return self.epochs
-
-
-def budget_epochs(left_s: float, epoch_s: float, most: int, done: int = 1) -> int:
-    """Epochs of a run that has ``done`` epochs of ``epoch_s`` seconds each with ``left_s``
-    seconds left: those and as many more as fit, at most ``most`` (and at least ``done``)."""
-    more = math.floor(left_s / epoch_s) if epoch_s > 0 else most
-    return max(done, min(most, done + more))
-
-
 def _set_up(config: TrainConfig, progress, source) -> _Setup:
     """The dataset (``source``, else ``config.dataset`` opened) split by material, the loss
     (said to ``progress``), the network initialised from the seed, the run's config.json."""
@@ -675,85 +434,6 @@ def _save_epoch(run_dir: str, model, optimizer, history: list[dict], identity_di
     runfiles.write_log(os.path.join(run_dir, runfiles.LOG), history, inside=run_dir)
     runfiles.write_log_csv(os.path.join(run_dir, runfiles.LOG_CSV), history, inside=run_dir)
     write_bytes_atomic(os.path.join(run_dir, runfiles.LOSS_PNG), loss_curve_png(history), inside=run_dir)
-
-
-class StepClock:
-    """How long a call's ``steps`` training steps (``epochs`` epochs of ``per_epoch``) will
-    take, from its first ones: the first step (the loader started, the first batch read,
-    kernels chosen) is left out and the next ESTIMATE_STEPS are timed, or the rest of the
-    first epoch when it has fewer. Told once (:meth:`tick`'s line); then ``seconds``."""
-
-    def __init__(self, steps: int, epochs: int, per_epoch: int):
-        self.steps, self.epochs, self.per_epoch = steps, epochs, per_epoch
-        self.times = [time.perf_counter()]
-        self.seconds: float | None = None
-        self.text: str | None = None
-
-    def tick(self) -> str | None:
-        """Called after each step: the estimate's line when it is made, else None."""
-        if self.text is not None:
-            return None
-        self.times.append(time.perf_counter())
-        done = len(self.times) - 1
-        if done < min(1 + ESTIMATE_STEPS, self.per_epoch):
-            return None
-        first = 1 if done > 1 else 0
-        per_step = (self.times[-1] - self.times[first]) / (done - first)
-        self.seconds = per_step * self.steps
-        self.text = (
-            f"training steps: about {_duration(self.seconds)} for {self.epochs} epoch{'s' if self.epochs != 1 else ''} "
-            f"({per_step:.3g} s a step x {self.steps:,} steps; the estimate with the held-out scoring follows the "
-            "first epoch)"
-        )
-        return self.text
-
-
-def run_estimate(train_s: float, score_s: float, epochs: int) -> tuple[float, str]:
-    """The seconds of ``epochs`` epochs that each train for ``train_s`` and score for ``score_s``
-    (the training and held-out probes after the epoch), and the line that says so."""
-    seconds = (train_s + score_s) * epochs
-    return seconds, (
-        f"estimate: about {_duration(seconds)} for {epochs} epoch{'s' if epochs != 1 else ''} "
-        f"({train_s:.3g} s training + {score_s:.3g} s scoring an epoch, measured on the first)"
-    )
-
-
-@dataclass
-class RunClock:
-    """The whole of a call's run: after its first epoch, the estimate from that epoch's training
-    and scoring times and the run's length (--minutes' epochs once the budget set them); after
-    every epoch, the epochs done, the time so far and an ETA from the epochs measured (each
-    timed whole, saving included). Each line goes to ``progress`` as a note."""
-
-    started: float  # when the call began (time.perf_counter())
-    first_epoch: int  # epochs done when the call began
-    times: list[float] = field(default_factory=list)
-    seconds: float | None = None
-    text: str | None = None
-
-    def after_epoch(self, epoch: int, epochs: int, train_s: float, score_s: float, epoch_started: float, progress):
-        now = time.perf_counter()
-        self.times.append(now - epoch_started)
-        if self.text is None:
-            self.seconds, self.text = run_estimate(train_s, score_s, epochs - self.first_epoch)
-            if progress is not None:
-                progress({"note": self.text, "estimate_s": self.seconds, "train_s": train_s, "score_s": score_s})
-        elapsed, eta = now - self.started, sum(self.times) / len(self.times) * (epochs - epoch)
-        if progress is not None:
-            progress(
-                {
-                    "note": f"epoch {epoch}/{epochs} done: {_duration(elapsed)} so far, "
-                    + (f"ETA {_duration(eta)}" if epoch < epochs else "the run is complete"),
-                    "elapsed_s": elapsed,
-                    "eta_s": eta,
-                }
-            )
-
-
-def _duration(seconds: float) -> str:
-    if seconds < 90:
-        return f"{max(seconds, 1):.0f} s"
-    return f"{seconds / 60:.1f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def _resume_state(run_dir: str, model, optimizer, ckpt: dict) -> None:
