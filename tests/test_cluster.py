@@ -6,7 +6,6 @@ only that shard's unfinished samples. Also worker recycling and the memory probe
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import signal
@@ -21,10 +20,10 @@ import pytest
 from pipeline.errors import ShaderballError
 from pipeline.run.cluster.options import ClusterOptions
 from support import VARIANT
+from support.clusters import DASK, SHADERBALL, start_group, start_scheduler
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
-DASK = str(Path(sys.executable).with_name("dask"))
 
 
 from conftest import crash_module  # noqa: E402
@@ -32,56 +31,22 @@ from conftest import crash_module  # noqa: E402
 crash = crash_module()
 
 
-def _start(cmd: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:
-    return subprocess.Popen(
-        cmd,
-        cwd=REPO,
-        stdin=subprocess.DEVNULL,
-        stdout=open(log, "ab"),
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-        env=dict(os.environ, **(env or {})),
-    )
-
-
 @pytest.fixture
 def dask_cluster(tmp_path):
     """(address, [processes]): a scheduler and 2 single-thread workers on 127.0.0.1."""
     from distributed import Client
 
-    scheduler_file = tmp_path / "scheduler.json"
     procs = []
     try:
-        procs.append(
-            _start(
-                [
-                    DASK,
-                    "scheduler",
-                    "--host",
-                    "127.0.0.1",
-                    "--port",
-                    "0",
-                    "--no-dashboard",
-                    "--scheduler-file",
-                    str(scheduler_file),
-                ],
-                tmp_path / "scheduler.log",
-            )
-        )
-        deadline = time.monotonic() + 60
-        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
-            assert time.monotonic() < deadline, (tmp_path / "scheduler.log").read_text()
-            assert procs[0].poll() is None, (tmp_path / "scheduler.log").read_text()
-            time.sleep(0.1)
-        address = json.loads(scheduler_file.read_text())["address"]
+        address = start_scheduler(tmp_path, procs)
         for i in range(2):
             procs.append(
-                _start(
+                start_group(
                     [
                         DASK,
                         "worker",
                         "--scheduler-file",
-                        str(scheduler_file),
+                        str(tmp_path / "scheduler.json"),
                         "--host",
                         "127.0.0.1",
                         "--nthreads",
@@ -129,19 +94,8 @@ def test_build_on_a_scheduler_survives_a_worker_killed_mid_shard(tmp_path, refer
 
     address, _procs = dask_cluster
     out = tmp_path / "ds"
-    build = _start(
-        [
-            sys.executable,
-            "-c",
-            "import cli; cli.main()",
-            "build",
-            str(SMOKE),
-            "--out",
-            str(out),
-            "--scheduler",
-            address,
-        ],
-        tmp_path / "build.log",
+    build = start_group(
+        [*SHADERBALL, "build", str(SMOKE), "--out", str(out), "--scheduler", address], tmp_path / "build.log"
     )
     try:
         with Client(address, timeout="30s") as client:

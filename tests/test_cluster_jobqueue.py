@@ -13,6 +13,7 @@ from click.testing import CliRunner
 from pipeline.errors import ShaderballError
 from pipeline.run.cluster.connection import WORKER_MEMORY_SHARE, job_script, jobqueue_cluster
 from pipeline.run.cluster.options import ClusterOptions, walltime_seconds, worker_lifetime
+from support.clusters import slurm_build_command, stand_in_slurm
 
 pytest.importorskip("dask_jobqueue")
 
@@ -201,8 +202,7 @@ def test_cli_bad_option_exits_2_and_writes_nothing(tmp_path):
     assert not (tmp_path / "ds").exists()
 
 
-FAKE_SBATCH = """#!/bin/bash
-# Stand-in for SLURM's sbatch: copy the job script (as sbatch does: dask-jobqueue deletes its
+FAKE_SBATCH = """# Stand-in for SLURM's sbatch: copy the job script (as sbatch does: dask-jobqueue deletes its
 # file once sbatch returns), run it on this machine detached in its own session; the job id
 # is its process id (= its process group, for scancel).
 cp "$1" "$FAKE_SLURM_DIR/job-$$.sh"
@@ -210,8 +210,7 @@ setsid bash "$FAKE_SLURM_DIR/job-$$.sh" > "$FAKE_SLURM_DIR/job-$$.log" 2>&1 < /d
 echo $! >> "$FAKE_SLURM_DIR/jobs"
 echo "Submitted batch job $!"
 """
-FAKE_SCANCEL = """#!/bin/bash
-for job in "$@"; do kill -TERM -- "-$job" 2>/dev/null; done
+FAKE_SCANCEL = """for job in "$@"; do kill -TERM -- "-$job" 2>/dev/null; done
 exit 0
 """
 
@@ -230,37 +229,9 @@ def test_slurm_build_runs_its_job_scripts_end_to_end(tmp_path):
     bin_dir, slurm_dir, scratch = tmp_path / "bin", tmp_path / "slurm", tmp_path / "scratch"
     for folder in (bin_dir, slurm_dir, scratch):
         folder.mkdir()
-    for name, text in (("sbatch", FAKE_SBATCH), ("scancel", FAKE_SCANCEL)):
-        (bin_dir / name).write_text(text)
-        (bin_dir / name).chmod(0o755)
-    env = dict(
-        os.environ,
-        PATH=f"{bin_dir}:{os.environ['PATH']}",
-        FAKE_SLURM_DIR=str(slurm_dir),
-        DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}',
-    )
+    env = stand_in_slurm(bin_dir, slurm_dir, {"sbatch": FAKE_SBATCH, "scancel": FAKE_SCANCEL})
     out = tmp_path / "ds"
-    cmd = [
-        sys.executable,
-        "-c",
-        "import cli; cli.main()",
-        "build",
-        "manifests/smoke.toml",
-        "--out",
-        str(out),
-        "--cluster",
-        "slurm",
-        "--jobs",
-        "2",
-        "--cores",
-        "1",
-        "--memory",
-        "2GiB",
-        "--walltime",
-        "00:30:00",
-        "--scratch",
-        str(scratch),
-    ]
+    cmd = slurm_build_command(out, "--cores", "1", "--scratch", str(scratch))
     try:
         result = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=400)
     finally:

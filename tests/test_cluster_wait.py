@@ -9,11 +9,8 @@ tests/test_slurm_real.py.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
-import sys
-import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,12 +19,13 @@ from conftest import crash_module
 
 from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
-from pipeline.run.build import BuildRequest
+from pipeline.run.request import BuildRequest
 from pipeline.run.cluster.connection import _refusal_text
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.cluster.watch import QUEUE_POLL_S, JobState, WorkerWatch, describe_jobs, slurm_job_states
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.ui.command import label_for
+from support.clusters import SHADERBALL, slurm_build_command, stand_in, stand_in_slurm, start_scheduler
 
 REPO = Path(__file__).resolve().parents[1]
 crash = crash_module()
@@ -200,13 +198,8 @@ def test_bad_start_timeouts(changes, message):
         ClusterOptions(**base).check()
 
 
-def _stand_in(folder: Path, name: str, text: str) -> None:
-    (folder / name).write_text("#!/bin/bash\n" + text)
-    (folder / name).chmod(0o755)
-
-
 def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):
-    _stand_in(
+    stand_in(
         tmp_path,
         "squeue",
         'echo "$@" > "$(dirname "$0")/args"\n'
@@ -215,7 +208,7 @@ def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):
     monkeypatch.setenv("PATH", f"{tmp_path}:{os.environ['PATH']}")
     assert slurm_job_states(["7", "8"]) == [JobState("7", "PENDING", "PartitionDown"), JobState("8", "RUNNING")]
     assert (tmp_path / "args").read_text().split() == ["--noheader", "--format=%i|%T|%r", f"--user={os.getuid()}"]
-    _stand_in(tmp_path, "squeue", "echo 'squeue: error: Unable to contact slurm controller' >&2; exit 1\n")
+    stand_in(tmp_path, "squeue", "echo 'squeue: error: Unable to contact slurm controller' >&2; exit 1\n")
     with pytest.raises(
         ShaderballError,
         match=r"squeue --noheader --format=%i\|%T\|%r --user=\d+` exited 1: "
@@ -245,37 +238,11 @@ mv "$FAKE_SLURM_DIR/q" "$FAKE_SLURM_DIR/queue"; echo "$job" >> "$FAKE_SLURM_DIR/
 def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
-    for name, text in (("sbatch", PENDING_SBATCH), ("squeue", PENDING_SQUEUE), ("scancel", PENDING_SCANCEL)):
-        _stand_in(bin_dir, name, text)
+    scripts = {"sbatch": PENDING_SBATCH, "squeue": PENDING_SQUEUE, "scancel": PENDING_SCANCEL}
+    env = stand_in_slurm(bin_dir, tmp_path, scripts)
     (tmp_path / "queue").touch()
-    env = dict(
-        os.environ,
-        PATH=f"{bin_dir}:{os.environ['PATH']}",
-        FAKE_SLURM_DIR=str(tmp_path),
-        DASK_JOBQUEUE__SLURM__SCHEDULER_OPTIONS='{"host": "127.0.0.1"}',
-    )
     out = tmp_path / "ds"
-    cmd = [
-        sys.executable,
-        "-c",
-        "import cli; cli.main()",
-        "build",
-        "manifests/smoke.toml",
-        "--out",
-        str(out),
-        "--cluster",
-        "slurm",
-        "--jobs",
-        "2",
-        "--cores",
-        "2",
-        "--memory",
-        "2GiB",
-        "--walltime",
-        "00:30:00",
-        "--start-timeout",
-        "10",
-    ]
+    cmd = slurm_build_command(out, "--cores", "2", "--start-timeout", "10")
     # 300 s: ~12 s on 2 idle cores; only so a build that never stops fails instead of hanging
     result = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 2, result.stdout + result.stderr
@@ -297,48 +264,15 @@ def test_a_build_whose_jobs_never_start_stops_at_the_start_timeout(tmp_path):
 
 @pytest.mark.slow
 def test_a_scheduler_without_workers_stops_at_the_start_timeout(tmp_path):
-    dask = str(Path(sys.executable).with_name("dask"))
-    scheduler_file = tmp_path / "scheduler.json"
-    scheduler = subprocess.Popen(
-        [
-            dask,
-            "scheduler",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            "0",
-            "--no-dashboard",
-            "--scheduler-file",
-            str(scheduler_file),
-        ],
-        cwd=tmp_path,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
-    )
+    procs = []
     try:
-        deadline = time.monotonic() + 60
-        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
-            assert time.monotonic() < deadline and scheduler.poll() is None, "dask scheduler did not start"
-            time.sleep(0.1)
-        address = json.loads(scheduler_file.read_text())["address"]
-        cmd = [
-            sys.executable,
-            "-c",
-            "import cli; cli.main()",
-            "build",
-            "manifests/smoke.toml",
-            "--out",
-            str(tmp_path / "ds"),
-            "--scheduler",
-            address,
-            "--start-timeout",
-            "10",
-        ]
+        address = start_scheduler(tmp_path, procs)
+        build = ["build", "manifests/smoke.toml", "--out", str(tmp_path / "ds"), "--scheduler", address]
+        cmd = [*SHADERBALL, *build, "--start-timeout", "10"]
         result = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     finally:
-        crash.kill_group(scheduler)
+        for proc in procs:
+            crash.kill_group(proc)
     assert result.returncode == 2, result.stdout + result.stderr
     assert "| waiting for a worker (none connected)" in result.stderr
     assert (

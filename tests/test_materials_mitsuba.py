@@ -89,6 +89,15 @@ def _random_params(rng, n):
     return d, s, r
 
 
+def _random_lanes(mi, dr, seed, n, **extra):
+    """n lanes of random parameters lit from random directions: (rng, d, s, r, wi, bsdf, si),
+    ``rng`` seeded with ``seed`` and drawn from in that order, ready for the test's next draws."""
+    rng = np.random.default_rng(seed)
+    d, s, r = _random_params(rng, n)
+    wi = _random_dirs(rng, n)
+    return (rng, d, s, r, wi, *_lanes(mi, dr, d, s, r, wi, **extra))
+
+
 def _sample(mi, bsdf, si, rng, count, ctx=None):
     ctx = ctx or mi.BSDFContext()
     s1 = mi.Float(rng.uniform(size=count).astype(np.float32))
@@ -117,11 +126,9 @@ def test_register_is_idempotent_and_defaults_load(mi):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_eval_matches_reference_random_sweep(mi, dr, model):
-    rng = np.random.default_rng(1)
     n = 40000
-    d, s, r = _random_params(rng, n)
-    wi, wo = _random_dirs(rng, n), _random_dirs(rng, n)
-    bsdf, si = _lanes(mi, dr, d, s, r, wi, model=model)
+    rng, d, s, r, wi, bsdf, si = _random_lanes(mi, dr, 1, n, model=model)
+    wo = _random_dirs(rng, n)
     value = _np3(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
     ref = brdf_ref.eval_brdf(wi.astype(np.float64), wo.astype(np.float64), Z, d, s, r, normalize=False, model=model)
     assert np.all(ref > 0)
@@ -136,11 +143,8 @@ def test_eval_matches_reference_random_sweep(mi, dr, model):
 def test_eval_matches_reference_at_sampled_directions(mi, dr, model, peak):
     # Sampled directions crowd the specular peaks, where the value is largest (the floored
     # model's peaks are capped: D <= alpha^2 / (pi 1e-6)).
-    rng = np.random.default_rng(2)
     n = 40000
-    d, s, r = _random_params(rng, n)
-    wi = _random_dirs(rng, n)
-    bsdf, si = _lanes(mi, dr, d, s, r, wi, model=model)
+    rng, d, s, r, wi, bsdf, si = _random_lanes(mi, dr, 2, n, model=model)
     bs, _ = _sample(mi, bsdf, si, rng, n)
     wo = _np3(bs.wo)
     ok = bs.pdf.numpy() > 0
@@ -178,11 +182,8 @@ def test_plugin_and_reference_are_their_code_where_the_floors_act(mi, dr):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_sample_pdf_eval_agree(mi, dr, model):
-    rng = np.random.default_rng(3)
     n = 40000
-    d, s, r = _random_params(rng, n)
-    wi = _random_dirs(rng, n)
-    bsdf, si = _lanes(mi, dr, d, s, r, wi, model=model)
+    rng, d, s, r, wi, bsdf, si = _random_lanes(mi, dr, 3, n, model=model)
     bs, weight = _sample(mi, bsdf, si, rng, n)
     weight = _np3(weight)
     pdf_s = bs.pdf.numpy()
@@ -323,11 +324,8 @@ def test_mean_weight_equals_quadrature_albedo(mi, dr, r, theta, model):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_eval_over_cosine_is_reciprocal(mi, dr, model):
-    rng = np.random.default_rng(6)
     n = 40000
-    d, s, r = _random_params(rng, n)
-    wi = _random_dirs(rng, n)
-    bsdf, si = _lanes(mi, dr, d, s, r, wi, model=model)
+    rng, d, s, r, wi, bsdf, si = _random_lanes(mi, dr, 6, n, model=model)
     bs, _ = _sample(mi, bsdf, si, rng, n)
     wo = _np3(bs.wo)
     wo[: n // 2] = _random_dirs(rng, n // 2)  # half sampled (peaks), half uniform
@@ -502,11 +500,9 @@ def test_lobe_switches_leave_out_a_lobe(mi, dr):
 
 
 def test_context_selects_one_component(mi, dr):
-    rng = np.random.default_rng(10)
     n = 4000
-    d, s, r = _random_params(rng, n)
-    wi, wo = _random_dirs(rng, n), _random_dirs(rng, n)
-    bsdf, si = _lanes(mi, dr, d, s, r, wi)
+    rng, d, s, r, wi, bsdf, si = _random_lanes(mi, dr, 10, n)
+    wo = _random_dirs(rng, n)
     for component, kept in ((0, "specular"), (1, "diffuse")):
         ctx = mi.BSDFContext()
         ctx.component = component

@@ -10,35 +10,19 @@ from cli import main
 from pipeline.store.exr import read_exr
 
 SMALL = ["--resolution", "48", "--spp", "4"]
+#: The render of the first tests: a seeded material and sun, rendered twice to the same bytes.
+BALL = [
+    *SMALL,
+    *("--diffuse", "0.6,0.3,0.1", "--roughness", "0.2", "--seed", "5"),
+    *("--elevation", "30", "--azimuth", "0", "--turbidity", "3"),
+]
 
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     out = tmp_path_factory.mktemp("render")
     exr, png = out / "ball.exr", out / "ball.png"
-    result = CliRunner().invoke(
-        main,
-        [
-            "render",
-            *SMALL,
-            "--diffuse",
-            "0.6,0.3,0.1",
-            "--roughness",
-            "0.2",
-            "--elevation",
-            "30",
-            "--azimuth",
-            "0",
-            "--turbidity",
-            "3",
-            "--seed",
-            "5",
-            "--out",
-            str(exr),
-            "--png",
-            str(png),
-        ],
-    )
+    result = CliRunner().invoke(main, ["render", *BALL, "--out", str(exr), "--png", str(png)])
     assert result.exit_code == 0, result.output
     return exr, png, result.output
 
@@ -67,25 +51,7 @@ def test_render_writes_layers_and_stats(rendered):
 def test_same_seed_same_bytes(rendered, tmp_path):
     exr, _, _ = rendered
     again = tmp_path / "again.exr"
-    args = [
-        "render",
-        *SMALL,
-        "--diffuse",
-        "0.6,0.3,0.1",
-        "--roughness",
-        "0.2",
-        "--elevation",
-        "30",
-        "--azimuth",
-        "0",
-        "--turbidity",
-        "3",
-        "--seed",
-        "5",
-        "--out",
-        str(again),
-    ]
-    assert CliRunner().invoke(main, args).exit_code == 0
+    assert CliRunner().invoke(main, ["render", *BALL, "--out", str(again)]).exit_code == 0
     first, second = read_exr(str(exr)), read_exr(str(again))
     np.testing.assert_array_equal(first.layers["render"], second.layers["render"])
 

@@ -19,13 +19,13 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 from conftest import crash_module
 
+from support.clusters import SHADERBALL
 from support.slurm import LocalSlurm, die_with_parent, unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,9 +76,7 @@ class Build:
         self.out, self.cwd = out, tmp_path
         # --scratch: each test's jobs compile their kernels afresh, in a folder pytest removes.
         self.command = [
-            sys.executable,
-            "-c",
-            "import cli; cli.main()",
+            *SHADERBALL,
             "build",
             str(SMOKE),
             "--out",
