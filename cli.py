@@ -27,7 +27,6 @@ from pipeline.bench.estimate import PlanRequest, plan_spec
 from pipeline.bench.info import info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
-from pipeline.errors import Printed
 from pipeline.neural.command import (
     collate_command,
     denoise_command,
@@ -58,9 +57,9 @@ from pipeline.publish.verify import verify
 from pipeline.publish.writer import publish
 from pipeline.render.command import RenderRequest, render_to_files
 from pipeline.render.scene_command import SceneRequest, write_scene
-from pipeline.run.build import BuildRequest, build
-from pipeline.run.cluster.connection import job_script
+from pipeline.run.command import build_command
 from pipeline.run.repair import validate_or_repair
+from pipeline.run.request import BuildRequest
 from pipeline.serve.command import ServeOptions, serve_command
 from pipeline.study.run import StudyRequest, run_study
 from pipeline.ui import process
@@ -136,22 +135,7 @@ def build_cmd(request: BuildRequest):
     Example:
       shaderball build manifests/smoke.toml --out demo-out/smoke
     """
-    options = request.cluster_options()
-    if request.print_job_script:
-        script = job_script(options)
-        return Printed({"job_script": script}, script)
-
-    def started(where, dashboard):
-        click.echo(f"building with {where}" + (f"; dashboard {dashboard}" if dashboard else ""), err=True)
-
-    return build(
-        request.spec,
-        request.out,
-        cluster=options,
-        allow_spec_change=request.allow_spec_change,
-        progress=build_progress(),
-        on_start=started,
-    )
+    return build_command(request, progress=build_progress(), say=say)
 
 
 @request_command(

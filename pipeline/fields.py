@@ -113,7 +113,7 @@ class FieldError(ShaderballError):
         super().__init__(self._words(where, label))
 
     def _words(self, where: str, label) -> str:
-        names = set(declared(self.owner)) if self.owner is not None and dataclasses.is_dataclass(self.owner) else None
+        names = set(flattened(self.owner)) if self.owner is not None and dataclasses.is_dataclass(self.owner) else None
 
         def spell(text: str) -> str:
             return FIELD_REF.sub(
@@ -577,6 +577,43 @@ def same_as(cls, name: str, *, unset: str | None = None, **changes):
     return field(changes.pop("default", default), **{k: v for k, v in kwargs.items() if k != "default"})
 
 
+def part(cls, *, doc: str):
+    """A field whose value is a whole :class:`Checked` class: a part that several requests
+    share (a render's material and light, a build's cluster options), declared once in ``cls``
+    and nested, not copied field by field. The part is made from its own defaults when left
+    out, from a dict of its fields, or given as an instance; the command line spells its
+    fields as options of their own (``--workers``, not ``--cluster-options-workers``: the
+    names of a request and its parts never clash, pipeline.ui.command checks it)."""
+    if any(default_of(f) is MISSING for f in declared(cls).values()):
+        raise TypeError(f"{cls.__name__}: a part has a default for every field")
+    return dataclasses.field(default_factory=cls, metadata={"part": cls, "doc": doc})
+
+
+def parts(cls) -> dict[str, type]:
+    """The fields of ``cls`` declared with :func:`part`, by name, and each one's class."""
+    return {f.name: f.metadata["part"] for f in fields(cls) if "part" in f.metadata}
+
+
+def flattened(cls, _path: tuple[str, ...] = ()) -> dict[str, tuple[dataclasses.Field, tuple[str, ...]]]:
+    """Every declared field of ``cls`` and of its parts (their parts too), in declaration
+    order, by name: the field and the path of parts that holds it (``("cluster_options",)``;
+    ``()`` for ``cls``'s own). A name declared twice over a request and its parts is a
+    TypeError: one name, one field."""
+    out: dict[str, tuple[dataclasses.Field, tuple[str, ...]]] = {}
+    for f in fields(cls):
+        if "part" in f.metadata:
+            inner = flattened(f.metadata["part"], (*_path, f.name))
+        elif "rule" in f.metadata:
+            inner = {f.name: (f, _path)}
+        else:
+            continue
+        clash = set(inner) & set(out)
+        if clash:
+            raise TypeError(f"{cls.__name__}: {sorted(clash)} declared twice (a field and a part's)")
+        out.update(inner)
+    return out
+
+
 def declared(cls) -> dict[str, dataclasses.Field]:
     """The fields of ``cls`` declared with :func:`field`, by name."""
     return {f.name: f for f in fields(cls) if "rule" in f.metadata}
@@ -618,6 +655,9 @@ class Checked:
 
     def __post_init__(self):
         for f in fields(self):
+            if "part" in f.metadata:
+                self._made_part(f.name, f.metadata["part"])
+                continue
             rule: Rule | None = f.metadata.get("rule")
             if rule is None:
                 continue
@@ -629,6 +669,15 @@ class Checked:
                 raise self.field_error(f.name, value, allowed, what=exc.what) from None
             object.__setattr__(self, f.name, normalised)
         self.check_cross()
+
+    def _made_part(self, name: str, cls: type) -> None:
+        """A part given as a dict of its fields is made (and so checked) here; an instance
+        was checked when it was made."""
+        value = getattr(self, name)
+        if isinstance(value, dict) and not set(value) - {f.name for f in fields(cls)}:
+            object.__setattr__(self, name, cls(**value))
+        elif not isinstance(value, cls):
+            raise self.field_error(name, value, f"a {cls.__name__} or a dict of its fields")
 
     def check_cross(self) -> None:
         """Rules between fields; raise :meth:`field_error` naming one of them."""

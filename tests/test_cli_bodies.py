@@ -17,8 +17,6 @@ import pytest
 import cli
 
 REPO = Path(__file__).resolve().parents[1]
-#: Bodies still being reshaped elsewhere: they must not be one call yet (strict), so the list shrinks.
-NOT_YET_ONE_CALL = {"build"}
 
 
 def _commands(group: click.Group, prefix: str = ""):
@@ -50,15 +48,7 @@ def _one_call(body) -> str | None:
     return None
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(name, marks=pytest.mark.xfail(strict=True, reason="reshaped elsewhere"))
-        if name in NOT_YET_ONE_CALL
-        else name
-        for name in COMMANDS
-    ],
-)
+@pytest.mark.parametrize("name", COMMANDS)
 def test_every_command_body_is_one_call_with_its_request(name):
     body = COMMANDS[name].body
     assert _one_call(body) is None, f"shaderball {name}: {_one_call(body)}"

@@ -149,7 +149,7 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path, monkeypat
 @pytest.mark.parametrize("address", ["127.0.0.1:8786", "tcp://host", "http://h:1", "tcp://h:70000"])
 def test_bad_scheduler_address_is_refused(address):
     with pytest.raises(ShaderballError, match=r"scheduler: .* is not allowed; tcp://HOST:PORT"):
-        ClusterOptions(scheduler=address).check()
+        ClusterOptions(scheduler=address)
 
 
 def test_a_worker_that_cannot_see_the_dataset_refuses_the_shard(tmp_path):

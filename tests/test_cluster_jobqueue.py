@@ -126,7 +126,7 @@ def test_user_prologue_from_dask_config_comes_first():
 )
 def test_bad_options_name_option_value_and_range(changes, message):
     with pytest.raises(ShaderballError, match=message):
-        _options("slurm", **changes).check()
+        _options("slurm", **changes)
 
 
 @pytest.mark.parametrize(
@@ -146,7 +146,7 @@ def test_jobqueue_options_are_refused_on_a_local_cluster(option):
     name = option[0].lstrip("-").replace("-", "_")
     value = int(option[1]) if option[1].isdigit() else option[1]
     with pytest.raises(ShaderballError, match=f"{name}: only with cluster slurm or cluster pbs"):
-        ClusterOptions(**{name: value}).check()
+        ClusterOptions(**{name: value})
 
 
 def test_worker_lifetime_leaves_a_margin():

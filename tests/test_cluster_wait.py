@@ -42,7 +42,7 @@ class Clock:
 def _slurm(**changes) -> ClusterOptions:
     base = dict(cluster="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
     base.update(changes)
-    return ClusterOptions(**base).check()
+    return ClusterOptions(**base)
 
 
 def _jobqueue(*job_ids, refusals=()):
@@ -195,7 +195,7 @@ def test_bad_start_timeouts(changes, message):
     base = dict(cluster="slurm", cores=2, memory="4GiB", walltime="00:30:00", start_timeout=30)
     base.update(changes)
     with pytest.raises(ShaderballError, match=message):
-        ClusterOptions(**base).check()
+        ClusterOptions(**base)
 
 
 def test_squeue_output_is_read_for_our_jobs_only(tmp_path, monkeypatch):

@@ -338,7 +338,7 @@ def test_no_name_pattern_accepts_a_trailing_newline_or_other_digits():
     ):
         assert pattern.match(good_word) and not pattern.match(good_word + "\n"), pattern
     with pytest.raises(USER_ERRORS):
-        cluster.ClusterOptions(cluster="slurm", queue="gpu\n#SBATCH --uid=0").check()
+        cluster.ClusterOptions(cluster="slurm", queue="gpu\n#SBATCH --uid=0")
 
 
 def _rename_shard(root: Path, old: str, new: str) -> None:

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
-from pipeline import __version__, fields
+from pipeline import __version__
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.materialize import check_imported_files
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset, plan_summary
@@ -36,7 +36,7 @@ from pipeline.dataset.spec import (
     spec_to_toml,
 )
 from pipeline.errors import USER_ERRORS, ShaderballError, filesystem_error, quoted, short_repr
-from pipeline.fields import Bool, Checked, Path, format_value, same_as
+from pipeline.fields import format_value
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,
@@ -48,6 +48,7 @@ from pipeline.render.mitsuba_env import (
 from pipeline.render.renderer import MaterialScene
 from pipeline.run.cluster.connection import run_shards_on_dask
 from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
+from pipeline.run.request import BuildRequest
 from pipeline.run.shard import run_shard_in_process
 from pipeline.store.atomic import write_chunks_atomic, write_text_atomic
 from pipeline.store.folder import (
@@ -140,61 +141,6 @@ def _describe_differences(diffs, limit: int = 4) -> str:
     shown = [f"{s}.{k} = {short_repr(o)} in the dataset, {short_repr(n)} in the spec" for s, k, o, n in diffs[:limit]]
     more = f" and {len(diffs) - limit} more" if len(diffs) > limit else ""
     return "; ".join(shown) + more
-
-
-@dataclass(frozen=True)
-class BuildRequest(Checked):
-    """What `shaderball build` is asked: the spec, the folder, and where the workers come from
-    (ClusterOptions' declarations)."""
-
-    spec: str = fields.field(
-        rule=Path("a spec file (manifests/*.toml)", exists="file"),
-        doc="The dataset spec (see manifests/ and docs/spec.md).",
-        positional=True,
-        metavar="SPEC",
-    )
-    out: str = fields.field(
-        rule=Path("a new or empty folder, or a dataset folder built from the same spec"),
-        doc="Dataset folder. Created if missing; an existing one built from the same spec is "
-        "resumed (only missing or unverified samples are rendered); another spec is refused.",
-        metavar="DIR",
-    )
-    workers: int | None = same_as(ClusterOptions, "workers")
-    scheduler: str | None = same_as(ClusterOptions, "scheduler")
-    allow_spec_change: bool = fields.field(
-        False,
-        rule=Bool(),
-        doc="Accept a spec that differs from DIR/spec.toml in dataset.name or dataset.version only "
-        "(no sample depends on them); any other difference is refused.",
-    )
-    cluster: str = same_as(ClusterOptions, "cluster")
-    jobs: int | None = same_as(ClusterOptions, "jobs")
-    cores: int | None = same_as(ClusterOptions, "cores")
-    memory: str | None = same_as(ClusterOptions, "memory")
-    walltime: str | None = same_as(ClusterOptions, "walltime")
-    queue: str | None = same_as(ClusterOptions, "queue")
-    account: str | None = same_as(ClusterOptions, "account")
-    scratch: str | None = same_as(ClusterOptions, "scratch")
-    recycle_after: int = same_as(ClusterOptions, "recycle_after")
-    start_timeout: int | None = same_as(ClusterOptions, "start_timeout")
-    gpus: int | tuple[int, ...] | None = same_as(ClusterOptions, "gpus")
-    gpus_per_job: int | None = same_as(ClusterOptions, "gpus_per_job")
-    print_job_script: bool = fields.field(
-        False,
-        rule=Bool(),
-        doc="slurm/pbs: print the batch script each job would run, then exit; nothing is submitted or written.",
-    )
-
-    def cluster_options(self) -> ClusterOptions:
-        """Where the workers come from, checked (a refusal names this request's field)."""
-        names = fields.declared(ClusterOptions)
-        return ClusterOptions(**{name: getattr(self, name) for name in names})
-
-    def check_cross(self) -> None:
-        if self.print_job_script and self.cluster not in ("slurm", "pbs"):
-            raise self.field_error(
-                "print_job_script", True, "give {cluster} slurm or {cluster} pbs", what="needs batch jobs"
-            )
 
 
 def _out_refused(out: str, what: str, allowed: str = "a new or empty folder, or a dataset of the same spec"):

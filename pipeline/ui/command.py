@@ -23,6 +23,7 @@ command) read as the fields' do (:mod:`pipeline.ui.usage`), with --json's docume
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib.util
 import inspect
 import os
@@ -33,7 +34,7 @@ from collections.abc import Callable
 import click
 
 from pipeline.errors import NEEDS_TORCH, USER_ERRORS, ShaderballError
-from pipeline.fields import FIELD_REF, MISSING, AsTyped, Bool, FieldError, Many, Optional, declared, default_of
+from pipeline.fields import FIELD_REF, MISSING, AsTyped, Bool, FieldError, Many, Optional, default_of, flattened, parts
 from pipeline.ui import process
 from pipeline.ui.options import FieldType, option_help
 from pipeline.ui.usage import ExtraOperands, unknown_command, usage_refusal
@@ -44,9 +45,15 @@ def option_name(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+def _fields(request_cls) -> dict:
+    """``request_cls``'s fields and its parts', by name (pipeline.fields.flattened): a part's
+    fields are options of the command as the request's own are, spelled by their own names."""
+    return {name: f for name, (f, _) in flattened(request_cls).items()}
+
+
 def label_for(request_cls):
     """How the command line spells ``request_cls``'s fields: an operand by its metavar."""
-    fields = declared(request_cls)
+    fields = _fields(request_cls)
 
     def label(name: str) -> str:
         f = fields.get(name)
@@ -119,7 +126,7 @@ def _option(f, label) -> click.Option:
 def params_of(request_cls, skip=()) -> list[click.Parameter]:
     """The click parameters of ``request_cls``'s declared fields, in declaration order:
     operands first (as usage lines list them), then options."""
-    fields = [f for f in declared(request_cls).values() if f.name not in skip]
+    fields = [f for f in _fields(request_cls).values() if f.name not in skip]
     label = label_for(request_cls)
     operands = [_argument(f) for f in fields if f.metadata.get("positional")]
     options = [_option(f, label) for f in fields if not f.metadata.get("positional")]
@@ -132,8 +139,9 @@ def command_line(words: str, request, *, every: bool = False, skip: tuple[str, .
     ``every`` each one that is set (a flag where it is not its default); ``skip``: fields the
     command line does not set."""
     argv, options = ["shaderball", *words.split()], []
-    for f in declared(type(request)).values():
-        value, default = getattr(request, f.name), default_of(f)
+    for f, path in flattened(type(request)).values():
+        holder = functools.reduce(getattr, path, request)
+        value, default = getattr(holder, f.name), default_of(f)
         if f.name in skip:
             continue
         if f.metadata.get("positional"):
@@ -324,17 +332,24 @@ def as_typed(value):
     return AsTyped(",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value))
 
 
+def _part_classes(cls) -> list[type]:
+    found = list(parts(cls).values())
+    return found + [inner for part_cls in found for inner in _part_classes(part_cls)]
+
+
 def reworded(request_cls):
     """A user error as the command line words it: a field of ``request_cls`` (or one it
-    shares with a class that has no spelling of its own) spelled as its option."""
+    shares with a class that has no spelling of its own, or one of its parts') spelled as its
+    option."""
     label = label_for(request_cls)
-    names = set(declared(request_cls))
+    names = set(flattened(request_cls))
+    own = {request_cls, *_part_classes(request_cls)}
 
     def reword(exc):
         if not isinstance(exc, FieldError) or not exc.name or exc.name not in names:
             return exc
         owner = exc.owner
-        if owner is request_cls or (owner is not None and getattr(owner, "FIELD_PREFIX", "") == ""):
+        if owner in own or (owner is not None and getattr(owner, "FIELD_PREFIX", "") == ""):
             return exc.labelled(label, as_typed(exc.value))
         return exc
 
@@ -342,8 +357,13 @@ def reworded(request_cls):
 
 
 def request_of(request_cls, values: dict):
-    """The request that the command line's parsed ``values`` make (checked as it is made)."""
-    return request_cls(**values)
+    """The request that the command line's parsed ``values`` make (checked as it is made),
+    each part made from its own fields' values first."""
+    own = dict(values)
+    for name, part_cls in parts(request_cls).items():
+        names = set(flattened(part_cls))
+        own[name] = request_of(part_cls, {k: own.pop(k) for k in list(own) if k in names})
+    return request_cls(**own)
 
 
 def request_command(
