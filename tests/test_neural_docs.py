@@ -49,7 +49,7 @@ def test_every_picture_and_script_it_names_exists():
 def test_the_equal_time_description_is_the_codes():
     """docs/neural.md says how `evaluate` measures equal time with the constants the code uses:
     how many CPU times it takes the least of, and the two spp it probes path tracing at."""
-    from pipeline.neural.evaluate import EQUAL_TIME_PROBE_SPP, EQUAL_TIME_REPEATS
+    from pipeline.neural.equal_time import EQUAL_TIME_PROBE_SPP, EQUAL_TIME_REPEATS
 
     text = " ".join(open(DOC, encoding="utf-8").read().split())  # prose wraps: single spaces
     said = re.search(

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from cli import main
 from pipeline.image.tonemap import inverse_tonemap
 from pipeline.neural import runfiles
-from pipeline.neural.evaluate import NETWORK_Y_CAP
+from pipeline.neural.scores import NETWORK_Y_CAP
 from support.neural_fakes import untrained_run
 
 torch.set_num_threads(1)
@@ -162,7 +162,7 @@ def test_evaluate_into_a_file_is_refused_before_anything_is_written(trained, ref
 
 
 def test_equal_time_spp_solves_the_line_and_never_runs_away_on_noise():
-    from pipeline.neural.evaluate import equal_time_spp
+    from pipeline.neural.equal_time import equal_time_spp
 
     # 0.1 s fixed + 0.01 s per spp: the network's 0.3 s buys 20 spp; less than 1 spp's time: 1
     assert equal_time_spp(0.3, {1: 0.11, 64: 0.74}) == 20

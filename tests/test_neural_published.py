@@ -26,7 +26,7 @@ from pipeline.neural.bench import compare_loaders
 from pipeline.neural.config import LoadersRequest
 from pipeline.neural.data import is_publication, open_dataset
 from pipeline.neural.denoise import AuxBuffers, material_albedo
-from pipeline.neural.evaluate import PathTracer
+from pipeline.neural.equal_time import PathTracer
 from pipeline.neural.file_sources import PublishedFiles
 from pipeline.neural.splits import split_materials
 from pipeline.publish.request import PublishRequest

@@ -42,7 +42,8 @@ from pipeline.neural import speed
 from pipeline.neural.config import CollateRequest, DenoiseRequest, LoadersRequest, TrainOptionsRequest
 from pipeline.neural.data import collate_samples, open_dataset
 from pipeline.neural.denoise import AuxBuffers
-from pipeline.neural.evaluate import PathTracer, dataset_variant
+from pipeline.neural.equal_time import PathTracer
+from pipeline.neural.evaluate import dataset_variant
 from pipeline.neural.limits import TRAINING_VARIANTS
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.loss_choice import choose_loss

@@ -17,6 +17,9 @@ equal-time row matched) and grid.png (the maps, the reference, the network, path
 equal time and at 2 spp with and without the denoiser, error maps; two samples per material
 class); with ``report`` also report.md, report.json and the learning curve
 (:mod:`pipeline.neural.report`).
+
+Path tracing beside the network (low spp, equal time) is pipeline.neural.equal_time; the
+scores and their table, pipeline.neural.scores.
 """
 
 from __future__ import annotations
@@ -31,48 +34,30 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from geometry import build_shaderball, default_camera
-from materials import MaterialMaps
-from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import format_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
-from pipeline.image.tonemap import hdr_to_srgb8, inverse_tonemap, to_srgb8
-from pipeline.neural import report, runfiles, speed
+from pipeline.image.tonemap import hdr_to_srgb8, to_srgb8
+from pipeline.neural import report, runfiles
 from pipeline.neural.config import EvaluateRequest
 from pipeline.neural.data import ResolutionMismatch, box_downsample, open_dataset
 from pipeline.neural.denoise import AuxBuffers
+from pipeline.neural.equal_time import EQUAL_TIME_PROBE_SPP, PathTracer, measure_equal_time
 from pipeline.neural.file_sources import dataset_refused
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
-from pipeline.neural.limits import SPP_LADDER_RANGE
-from pipeline.neural.report import bootstrap_ci95
+from pipeline.neural.scores import NETWORK_Y_CAP, image_scores, ldr_scores, markdown_table, method_label, method_means
 from pipeline.neural.train import mean_image, pick_device
 from pipeline.neural.train_summary import SATURATED_FRACTION
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
-from pipeline.render.renderer import RenderSettings, render_sample
 from pipeline.store.atomic import atomic_file
 from pipeline.store.record_fields import json_type_name, short_json
-from sky import Light
 
 __all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
-#: Low-spp renders get seeds of their own: this plus the spp, beside the record's seed.
-PT_SEED_OFFSET = 0x5EED
 GRID_SPP = 2
 #: A compared path-tracing row with more than this fraction of the references' spp shares
 #: much of their noise: its scores are optimistic, and a note says so.
 REFERENCE_SPP_FRACTION = 0.25
-#: The network's (and the mean image's) output is capped here before the inverse tone map
-#: for relMSE and HDR-FLIP: the largest value that does not round to 8-bit 255. An output
-#: of 1 says only "at least this bright"; uncapped it inverts to 1e6 / exposure.
-NETWORK_Y_CAP = 254.5 / 255.0
-#: spp at which path tracing's CPU time is measured to fit t(spp) = a + b spp (equal time).
-EQUAL_TIME_PROBE_SPP = (1, 64)
-#: Each probe is timed this many times and the least CPU time kept: other work on the machine
-#: only adds time (spinning threads, cache), so the minimum is the cost (measured: a median of
-#: 3 taken beside two training runs gave the network 0.42 s instead of 0.018 s, and 8 spp less
-#: time than 1, which sent the fit to 4096 spp).
-EQUAL_TIME_REPEATS = 5
 DENOISER = (
     "Intel Open Image Denoise (pyoidn), RT filter, HDR; '+ OIDN': with the noise-free first-hit albedo "
     "(material: d(1-s)+s; pedestal 0.5, ground 0.3) and world-space shading normal, each taken at 4x4 "
@@ -102,105 +87,6 @@ class EvaluateSummary:
             *self.table.splitlines(),
             *self.notes,
         ]
-
-
-def _scores(
-    hdr: np.ndarray, srgb8: np.ndarray, ref_hdr: np.ndarray, ref8: np.ndarray, time_s: float, flip: bool = True, **extra
-) -> dict:
-    return {
-        "psnr": metrics.psnr8(srgb8, ref8),
-        "ssim": metrics.ssim8(srgb8, ref8),
-        "relmse": metrics.relmse(hdr, ref_hdr),
-        "flip": metrics.hdr_flip(hdr, ref_hdr) if flip else None,
-        "time_s": time_s,
-        **extra,
-    }
-
-
-def network_hdr(y: np.ndarray, exposure: float) -> np.ndarray:
-    """A [0, 1] output as linear radiance for relMSE and HDR-FLIP, capped at NETWORK_Y_CAP."""
-    return inverse_tonemap(np.minimum(y, NETWORK_Y_CAP), exposure)
-
-
-def _ldr_scores(y: np.ndarray, ref_hdr, ref8, exposure: float, time_s: float, flip: bool = True, **extra) -> dict:
-    """Scores of a [0, 1] image (the network's, the mean image), with its saturated fraction."""
-    y8 = to_srgb8(y)
-    saturated = float(np.count_nonzero((y8 == 0) | (y8 == 255)) / y8.size)
-    return _scores(network_hdr(y, exposure), y8, ref_hdr, ref8, time_s, flip, saturated=saturated, **extra)
-
-
-def _cpu_timed(fn, *args):
-    """(result, CPU seconds of this process: every thread, Mitsuba's and torch's, counted)."""
-    started = time.process_time()
-    out = fn(*args)
-    return out, time.process_time() - started
-
-
-def equal_time_spp(network_cpu_s: float, probe: dict[int, float], hi: int = SPP_LADDER_RANGE[1]) -> int:
-    """The spp whose render takes the network's CPU time, from CPU times at two spp
-    (a line a + b spp through them); at least 1, at most ``hi``. A probe whose larger spp took
-    no more time than its smaller (noise) gives 1 spp to a network faster than either render
-    and otherwise charges the larger probe's whole time per spp (no fixed part): fewer spp,
-    never a runaway to ``hi``."""
-    (s0, t0), (s1, t1) = sorted(probe.items())
-    per_spp = (t1 - t0) / (s1 - s0)
-    fixed = t0 - per_spp * s0
-    if per_spp <= 0 or fixed < 0:
-        if network_cpu_s <= min(t0, t1):  # faster than any render
-            return 1
-        per_spp, fixed = t1 / s1, 0.0
-    return int(min(hi, max(1, round((network_cpu_s - fixed) / per_spp))))
-
-
-def pt_cpu_time(probe: dict[int, float], spp: int) -> float:
-    """Path tracing's CPU time at ``spp`` on the line :func:`equal_time_spp` solves (its time
-    per spp alone, when the larger probe took no more time)."""
-    (s0, t0), (s1, t1) = sorted(probe.items())
-    per_spp = (t1 - t0) / (s1 - s0)
-    fixed = t0 - per_spp * s0
-    if per_spp <= 0 or fixed < 0:
-        per_spp, fixed = t1 / s1, 0.0
-    return fixed + per_spp * spp
-
-
-TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
-
-
-class PathTracer:
-    """Low-spp renders of a dataset's sample, with the sample's material, light and settings,
-    under ``variant`` (resolved once by the caller)."""
-
-    def __init__(self, dataset, variant: str):
-        self.dataset, self.factor, self.variant = dataset, dataset.factor, variant
-        self.ball, self.camera = build_shaderball(), default_camera()
-        self.warm = False
-
-    def material(self, sample) -> MaterialMaps | None:
-        """The sample's texture-space maps (its texture file), or None if the dataset stores none."""
-        if sample.texture is None:
-            return None
-        layers = self.dataset.read_layers(sample.texture, TEXTURE_LAYERS)
-        return MaterialMaps(layers["diffuse"], layers["specular"], layers["roughness"][..., 0], layers["normal"])
-
-    def render(self, record: dict, maps, spp: int) -> tuple[np.ndarray, float]:
-        r = record["render"]
-        settings = RenderSettings(
-            resolution=r["resolution"],
-            spp=spp,
-            max_depth=r["max_depth"],
-            integrator=r["integrator"],
-            sun=r["sun"],
-            variant=self.variant,
-            model=r.get("model", DEFAULT_MODEL),
-        )  # absent: the default model
-        light = Light.from_dict(record["lighting"]["requested"])
-        seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2**32
-        if not self.warm:  # the first render compiles kernels: keep that out of the timings
-            render_sample(self.ball, self.camera, maps, light, settings, seed)
-            self.warm = True
-        result = render_sample(self.ball, self.camera, maps, light, settings, seed)
-        image = box_downsample(np.asarray(result.image, dtype=np.float32), self.factor)
-        return image, float(result.stats["time_s"])
 
 
 class _Progress:
@@ -241,7 +127,7 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
             grid_rows.append((title, report.grid_pictures(maps_chw, pictures)))
         show.done = n
         show(f"{row['id']}: done")
-    means = _means(rows)
+    means = method_means(rows)
     run.notes += _result_notes(means, run)
     result = _results(req, run, rows, means, command)
     table = markdown_table(means, len(rows), run.model.resolution, run.ref_spp, run.equal_time)
@@ -259,7 +145,7 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
     if req.json_out:
         runfiles.write_json(req.json_out, result, inside=req.run)
     if req.report:
-        report.write_report(out_dir, result, table, report.class_table(result["by_class"], _label), req.run)
+        report.write_report(out_dir, result, table, report.class_table(result["by_class"], method_label), req.run)
     else:  # --overwrite: an earlier evaluation's report would stand beside these results as theirs
         for name in report.REPORT_FILES:
             with contextlib.suppress(FileNotFoundError):
@@ -382,8 +268,8 @@ class _Evaluation:
         self.kinds = MaterialKinds(self.records)
         self._baselines()
         self._path_tracing()
-        self.scores = functools.partial(_scores, flip=req.flip)
-        self.ldr_scores = functools.partial(_ldr_scores, flip=req.flip)
+        self.scores = functools.partial(image_scores, flip=req.flip)
+        self.ldr_scores = functools.partial(ldr_scores, flip=req.flip)
         self.equal_time = None
         self.aux_albedo = (None, None)  # (material id, its albedo buffer): a material's lightings are adjacent
 
@@ -491,7 +377,7 @@ class _Evaluation:
         record, exposure = self.records[sample.id], self.exposure
         if self.equal_time is None:  # measured once, on this machine, in this run
             show(f"{sample.id}: equal time (the network's CPU time, path tracing at {EQUAL_TIME_PROBE_SPP} spp)")
-            self.equal_time = _measure_equal_time(self.model, item, sample, self.tracer, record, maps, self.device)
+            self.equal_time = measure_equal_time(self.model, item, sample, self.tracer, record, maps, self.device)
         spp = self.equal_time["spp"]
         image, t = self.tracer.render(record, maps, spp)
         pictures["equal time"] = hdr_to_srgb8(image, exposure)
@@ -522,23 +408,6 @@ class _Evaluation:
         if self.aux_albedo[0] != sample.material_id:
             self.aux_albedo = (sample.material_id, self.aux.albedo(maps))
         return self.aux_albedo[1]
-
-
-def _means(rows: list[dict]) -> dict:
-    """Each method's mean scores over the samples that have it, with 95% intervals by
-    material (:func:`pipeline.neural.report.bootstrap_ci95`)."""
-    methods = [k for k in rows[0] if k not in ("id", "material_id", "class")]
-    means = {
-        m: {k: _mean([r[m][k] for r in rows if m in r]) for k, v in rows[0][m].items() if not isinstance(v, str)}
-        for m in methods
-    }
-    for m in methods:
-        have = [r for r in rows if m in r]
-        groups = [r["material_id"] for r in have]
-        means[m]["ci95"] = {
-            k: bootstrap_ci95([r[m][k] for r in have], groups) for k in ("psnr", "ssim", "relmse", "flip")
-        }
-    return means
 
 
 def _result_notes(means: dict, run: _Evaluation) -> list[str]:
@@ -642,36 +511,6 @@ def nearest_sample(sample, training_samples, kinds):
     return best
 
 
-def _measure_equal_time(model, item, sample, tracer, record, maps, device) -> dict:
-    """The spp at which a render takes the network's CPU time per image on this machine: the
-    least of EQUAL_TIME_REPEATS CPU times of the network (one torch thread: an idle intra-op
-    thread spins, so on a loaded machine two threads' CPU time was 20x the work) and of path
-    tracing at each of EQUAL_TIME_PROBE_SPP (kernels compiled first)."""
-    args = (model, item["maps"].numpy(), sample.lighting_vector, device)
-    with speed.torch_threads(1):  # idle threads spin: beside other work 2 threads burnt 0.40 s CPU, not 0.018
-        network_all = [_cpu_timed(run_network, *args)[1] for _ in range(EQUAL_TIME_REPEATS)]
-    tracer.render(record, maps, EQUAL_TIME_PROBE_SPP[0])  # compiles and warms
-    probe_all = {
-        spp: [_cpu_timed(tracer.render, record, maps, spp)[1] for _ in range(EQUAL_TIME_REPEATS)]
-        for spp in EQUAL_TIME_PROBE_SPP
-    }
-    probe = {spp: min(times) for spp, times in probe_all.items()}
-    network_cpu_s = min(network_all)
-    lo, hi = EQUAL_TIME_PROBE_SPP
-    spp = equal_time_spp(network_cpu_s, probe)
-    return {
-        "spp": spp,
-        "network_cpu_s": network_cpu_s,
-        "pt_cpu_s_at_spp": pt_cpu_time(probe, spp),
-        "pt_cpu_s": {str(k): v for k, v in probe.items()},
-        "network_cpu_s_all": network_all,
-        "pt_cpu_s_all": {str(k): v for k, v in probe_all.items()},
-        "how": f"CPU time of this process (every thread) per image, measured on the first sample: the least of "
-        f"{EQUAL_TIME_REPEATS} runs of the network (one torch thread) and of path tracing at {lo} and {hi} spp; a line through the two "
-        "solved for the network's time (if the larger spp took no more time, its time per spp with no fixed part)",
-    }
-
-
 def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
     """The dataset at the run's network resolution; a dataset it does not divide is refused with
     what the user can do (evaluate has no --resolution: the run fixes it)."""
@@ -704,67 +543,3 @@ def dataset_variant(dataset) -> str:
 
 def _read_render(dataset, sample) -> np.ndarray:
     return dataset._read(sample.render, ("render",))["render"].astype(np.float32)
-
-
-def _mean(values):
-    values = [v for v in values if v is not None]
-    return float(np.mean(values)) if values else None
-
-
-def _label(method: str, means: dict | None = None) -> str:
-    if method == "network":
-        return "neural renderer"
-    if method == "mean_image":
-        return "mean training image"
-    if method == "nearest_sample":
-        return "nearest training sample (same class, lighting)"
-    if method.startswith("pt_equal_time"):
-        spp = (means or {}).get("pt_equal_time", {}).get("spp")
-        label = f"path tracing, equal CPU time ({spp:.0f} spp)" if spp else "path tracing, equal CPU time"
-        return label + (" + OIDN (its time added)" if method.endswith("+oidn") else "")
-    spp, _, extra = method[2:].partition("+")
-    return f"path tracing, {spp} spp" + {"": "", "oidn": " + OIDN", "oidn-colour": " + OIDN, colour only"}[extra]
-
-
-def markdown_table(
-    means: dict, samples: int, resolution: int, reference_spp: int | None = None, equal_time: dict | None = None
-) -> str:
-    """Table 1: a row per method; the network's and the equal-time row's matched CPU times in a
-    column of their own (``equal_time``: :func:`_measure_equal_time`'s figures)."""
-
-    def fmt(v, spec):
-        return "-" if v is None else format(v, spec)
-
-    def interval(m, key, spec):
-        ci = (m.get("ci95") or {}).get(key)
-        return f"{fmt(m[key], spec)} [{fmt(ci[0], spec)}, {fmt(ci[1], spec)}]" if ci else fmt(m[key], spec)
-
-    lines = [
-        f"{samples} samples at {resolution}x{resolution}"
-        + (f", references of {reference_spp} spp" if reference_spp else "")
-        + "; PSNR/SSIM on 8-bit sRGB, relMSE and HDR-FLIP on linear HDR; time per image; "
-        "[95% interval, bootstrap over materials]",
-        "",
-        "| method | PSNR (dB) | SSIM | relMSE | HDR-FLIP | time (ms) | CPU time matched (ms) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    matched = {}
-    if equal_time:
-        matched = {"network": equal_time["network_cpu_s"], "pt_equal_time": equal_time.get("pt_cpu_s_at_spp")}
-    for method, m in means.items():
-        cpu = matched.get(method)
-        lines.append(
-            f"| {_label(method, means)} | {interval(m, 'psnr', '.2f')} | {fmt(m['ssim'], '.4f')} | "
-            f"{fmt(m['relmse'], '.4g')} | {fmt(m['flip'], '.4f')} | {fmt(m['time_s'] * 1000, '.1f')} | "
-            f"{fmt(None if cpu is None else cpu * 1000, '.1f')} |"
-        )
-    if equal_time:
-        lines += [
-            "",
-            f"Equal time: the network's CPU time per image on one torch thread, "
-            f"{1000 * equal_time['network_cpu_s']:.1f} ms, matched by path tracing at {equal_time['spp']} spp "
-            f"({1000 * equal_time['pt_cpu_s_at_spp']:.1f} ms of CPU on the line through its CPU times at "
-            + " and ".join(f"{k} spp ({1000 * v:.1f} ms)" for k, v in equal_time["pt_cpu_s"].items())
-            + "); time (ms) is wall time per image.",
-        ]
-    return "\n".join(lines) + "\n"
