@@ -13,7 +13,7 @@ from click.testing import CliRunner
 import cli
 from pipeline.fields import FieldError, Optional, declared, default_of
 from pipeline.neural.config import TrainConfig
-from pipeline.render.command import RenderRequest
+from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.ui.command import label_for
@@ -62,8 +62,8 @@ def test_render_settings_options_carry_the_settings_default_and_rule(command):
 
 
 @pytest.mark.parametrize("command", ["render", "infer"])
-def test_render_and_infer_take_the_render_request_declarations(command):
-    fields = declared(RenderRequest)
+def test_render_and_infer_take_the_parts_declarations(command):
+    fields = {**declared(MaterialPart), **declared(SunSkyPart)}
     options = options_of(command)
     for name in ("diffuse", "specular", "roughness", "normal", "svbrdf", "elevation", "azimuth", "turbidity"):
         assert options[name].type.rule is fields[name].metadata["rule"], f"{command} {name}"

@@ -26,7 +26,7 @@ import pytest
 from click.testing import CliRunner
 
 import cli
-from pipeline.fields import IntList, StrList, Triple, declared
+from pipeline.fields import IntList, StrList, Triple, flattened
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = str(REPO / "manifests" / "smoke.toml")
@@ -247,7 +247,7 @@ def _texts(tmp_path):
         yield f"{group_name or 'shaderball'} unknown command", invoke(*group_name.split(), "nope").output
     for name, command in COMMANDS:
         yield f"{name} --help", invoke(*name.split(), "--help").output
-        for f in declared(command.request_cls).values():
+        for f, _ in flattened(command.request_cls).values():
             rule = f.metadata["rule"]
             yield f"{name} {f.name}", f"{f.metadata['doc']} {rule.allowed} {getattr(rule, 'item', rule).allowed}"
         yield f"{name} unknown option", invoke(*name.split(), *valid_args(command, tmp_path), "--nope").output

@@ -19,10 +19,10 @@ from conftest import crash_module
 
 from pipeline.check.validate import validate
 from pipeline.errors import ShaderballError
-from pipeline.run.request import BuildRequest
 from pipeline.run.cluster.connection import _refusal_text
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.cluster.watch import QUEUE_POLL_S, JobState, WorkerWatch, describe_jobs, slurm_job_states
+from pipeline.run.request import BuildRequest
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.ui.command import label_for
 from support.clusters import SHADERBALL, slurm_build_command, stand_in, stand_in_slurm, start_scheduler

@@ -18,12 +18,18 @@ import pytest
 from test_cli_usage import COMMANDS, SMOKE, invoke, refusal
 
 from pipeline.fields import Checked, FieldError, Int, declared, field, flattened, part, parts
+from pipeline.render.command import RenderRequest
+from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.request import BuildRequest
 from pipeline.ui.command import params_of, request_of
 
 #: Which part each command nests, and which class it is.
-NESTED = {"build": {"cluster_options": ClusterOptions}}
+NESTED = {
+    "build": {"cluster_options": ClusterOptions},
+    "render": {"material": MaterialPart, "sun_sky": SunSkyPart},
+    "infer": {"material": MaterialPart, "sun_sky": SunSkyPart},
+}
 
 
 @pytest.mark.parametrize("name", sorted(NESTED))
@@ -64,6 +70,36 @@ def test_a_bad_value_in_a_part_is_refused_alike(tmp_path):
     assert message.startswith("--workers: ") and message.split(": ", 1)[1] == str(info.value).split(": ", 1)[1]
     with pytest.raises(FieldError, match="cluster_options: .* a ClusterOptions or a dict of its fields"):
         BuildRequest(spec=SMOKE, out=out, cluster_options={"no_such_field": 1})
+
+
+def test_render_and_infer_refuse_a_part_value_alike(tmp_path):
+    """The sun of `render` and of `infer` is one declaration: the same words for the same value."""
+    with pytest.raises(FieldError) as info:
+        RenderRequest(out=str(tmp_path / "x.exr"), sun_sky={"elevation": 95.0})
+    for words in (
+        ["render", "--out", str(tmp_path / "x.exr")],
+        ["infer", str(tmp_path), "--out", str(tmp_path / "y.exr")],
+    ):
+        message = refusal(invoke(*words, "--elevation", "95"))
+        assert message == "--elevation: 95 is not allowed; " + info.value.allowed, message
+
+
+def test_a_rendered_record_keeps_its_flat_names(tmp_path):
+    """An EXR's ``request`` record is one flat table (its parts' fields among the others), as
+    before the parts: readers of old and new renders see the same keys in the same order."""
+    record = RenderRequest(out=str(tmp_path / "x.exr")).record()
+    assert list(record)[:9] == [
+        "diffuse",
+        "specular",
+        "roughness",
+        "normal",
+        "svbrdf",
+        "svbrdf_colorspace",
+        "elevation_deg",
+        "azimuth_deg",
+        "turbidity",
+    ]
+    assert "material" not in record and "sun_sky" not in record and "out" not in record
 
 
 def test_a_rule_between_a_request_and_its_part_names_the_option(tmp_path):

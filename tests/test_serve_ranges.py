@@ -102,7 +102,7 @@ def test_spec_render_serve_and_sky_refuse_an_elevation_with_the_same_words(tmp_p
     assert number == "a finite number from 0 to 90"
 
     with pytest.raises(FieldError) as render:
-        RenderRequest(elevation=95.0, out=str(tmp_path / "x.exr"))
+        RenderRequest(sun_sky={"elevation": 95.0}, out=str(tmp_path / "x.exr"))
     assert (render.value.name, render.value.allowed) == ("elevation", number)
     assert str(render.value) == f"elevation: 95.0 is not allowed; {number}"
 

@@ -36,6 +36,7 @@ from pipeline.fields import (
     Text,
     field,
     format_value,
+    part,
     same_as,
 )
 from pipeline.image.tonemap import DEFAULT_EXPOSURE
@@ -56,7 +57,8 @@ from pipeline.neural.limits import (
     WIDTH_RANGE,
 )
 from pipeline.neural.runfolder import check_run_folder
-from pipeline.render.command import RenderRequest
+from pipeline.render.command import check_output
+from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.render.settings import RenderSettings
 
 #: --schedule: constant (after any warm-up), or cosine decay to 0 at the last epoch.
@@ -331,15 +333,8 @@ class InferRequest(Checked):
     png: str | None = field(
         None, rule=Optional(FileName(".png"), "unset (none)"), doc="Also write the network's picture as PNG."
     )
-    diffuse: tuple[float, float, float] = same_as(RenderRequest, "diffuse")
-    specular: tuple[float, float, float] = same_as(RenderRequest, "specular")
-    roughness: float = same_as(RenderRequest, "roughness")
-    normal: tuple[float, float, float] = same_as(RenderRequest, "normal")
-    svbrdf: str | None = same_as(RenderRequest, "svbrdf")
-    svbrdf_colorspace: str = same_as(RenderRequest, "svbrdf_colorspace")
-    elevation: float = same_as(RenderRequest, "elevation")
-    azimuth: float = same_as(RenderRequest, "azimuth")
-    turbidity: float = same_as(RenderRequest, "turbidity")
+    material: MaterialPart = part(MaterialPart, doc="The material the network is shown.")
+    sun_sky: SunSkyPart = part(SunSkyPart, doc="The sun and sky it is lit by.")
     device: str = same_as(TrainConfig, "device")
     checkpoint: str = field(
         "last",
@@ -347,6 +342,11 @@ class InferRequest(Checked):
         doc="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of {run}.",
         metavar="last|best|FILE",
     )
+
+    def check_cross(self) -> None:
+        check_output(type(self), "out", self.out, ".exr")  # the files' folders writable, as render's
+        if self.png is not None:
+            check_output(type(self), "png", self.png, ".png")
 
 
 @dataclass(frozen=True)

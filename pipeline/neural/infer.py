@@ -25,13 +25,11 @@ from pipeline.neural.config import InferRequest
 from pipeline.neural.data import assemble_maps
 from pipeline.neural.network import NeuralRenderer, light_input
 from pipeline.neural.train import pick_device
-from pipeline.render.command import RenderRequest, load_material
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
 from pipeline.render.raster import project_material
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
-from sky import Light
 from sky.policy import apply_policy
 
 
@@ -113,23 +111,8 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     model, config = load_run_model(req.run, device, req.checkpoint)
     load_s = time.perf_counter() - started
     resolution = model.resolution
-    render_req = RenderRequest(
-        diffuse=req.diffuse,
-        specular=req.specular,
-        roughness=req.roughness,
-        normal=req.normal,
-        svbrdf=req.svbrdf,
-        svbrdf_colorspace=req.svbrdf_colorspace,
-        elevation=req.elevation,
-        azimuth=req.azimuth,
-        turbidity=req.turbidity,
-        resolution=resolution,
-        out=req.out,
-        png=req.png,
-    )  # checked when built: the files' folders too
-    material = load_material(render_req)
-    material.check()
-    effective, _ = apply_policy(Light(req.elevation, req.azimuth, req.turbidity))
+    material = req.material.maps()
+    effective, _ = apply_policy(req.sun_sky.light())
     vector = [float(v) for v in effective.lighting_vector()]
 
     started = time.perf_counter()

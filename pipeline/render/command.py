@@ -2,17 +2,15 @@
 
 :class:`RenderRequest` declares every input once (``pipeline.fields``) and checks itself
 when built: a bad value raises a :class:`pipeline.fields.FieldError` naming the field, the
-value and what is allowed, before anything is rendered or written. Its material fields
-(``diffuse``, ``specular``, ``roughness``, ``normal``, ``svbrdf``, ``svbrdf_colorspace``)
-and sun fields (``elevation``, ``azimuth``, ``turbidity``, in degrees and Hosek-Wilkie
-turbidity) are `shaderball infer`'s too. The ranges are the domain's (``sky.lighting``,
-``materials.maps``), declared there once.
+value and what is allowed, before anything is rendered or written. Its material and its
+sun and sky are parts (pipeline.render.parts) that `shaderball infer` nests too.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import os
 import threading
 import time
@@ -21,19 +19,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from materials import ALBEDO_RANGE, ROUGHNESS_RANGE, UniformMaterial, load_deschaintre
-from pipeline.fields import Checked, Choice, Float, Int, Optional, Reject, Triple, field, same_as
+from pipeline.fields import Checked, Int, Optional, field, flattened, part, same_as
 from pipeline.fields import Path as PathRule
 from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
+from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import render_sample, sample_stages
 from pipeline.render.settings import RenderSettings
 from pipeline.store.atomic import write_bytes_atomic
 from pipeline.store.exr import write_exr
 from sky import Light
-from sky.lighting import AZIMUTH_RANGE, ELEVATION_RANGE, TURBIDITY_RANGE
 
 SEED_RANGE = (0, 2**32 - 1)
 #: How a render's EXR records the sun of its request: by the names of a Light's record.
@@ -56,68 +53,13 @@ def check_output(owner, name: str, path: str, suffix: str) -> str:
     return path
 
 
-class _Normal(Triple):
-    """A tangent-space direction: three numbers with Z > 0 (normalised when used)."""
-
-    metavar = "X,Y,Z"
-
-    def __init__(self):
-        super().__init__(None, None, "a tangent-space direction X,Y,Z with Z > 0")
-
-    def check(self, value):
-        value = super().check(value)
-        if value[2] <= 0:
-            raise Reject()
-        return value
-
-
-class _Colour(Triple):
-    metavar = "R,G,B"
-
-
 @dataclass(frozen=True)
 class RenderRequest(Checked):
     """Everything `shaderball render` needs, each input declared once (pipeline.fields);
     checked when built."""
 
-    diffuse: tuple[float, float, float] = field(
-        (0.5, 0.5, 0.5), rule=_Colour(*ALBEDO_RANGE), doc="Uniform diffuse albedo, linear RGB."
-    )
-    specular: tuple[float, float, float] = field(
-        (0.04, 0.04, 0.04),
-        rule=_Colour(*ALBEDO_RANGE),
-        doc="Uniform specular albedo (F0), linear RGB; 0.04 is a typical dielectric.",
-    )
-    roughness: float = field(0.3, rule=Float(*ROUGHNESS_RANGE), doc="Uniform roughness; GGX alpha = roughness^2.")
-    normal: tuple[float, float, float] = field(
-        (0.0, 0.0, 1.0), rule=_Normal(), doc="Uniform tangent-space normal (normalised)."
-    )
-    svbrdf: str | None = field(
-        None,
-        rule=Optional(PathRule("an existing PNG strip or folder of maps", exists="any"), "unset (the uniform values)"),
-        doc="Spatially varying material instead of the uniform values: a Deschaintre et al. "
-        "PNG strip (photo|normal|diffuse|roughness|specular) or a folder of maps.",
-    )
-    svbrdf_colorspace: str = field(
-        "raw",
-        rule=Choice(("raw", "srgb")),
-        doc="How 8-bit albedo maps of {svbrdf} are decoded: raw (as Deschaintre's renderer) or sRGB.",
-    )
-    elevation: float = field(
-        45.0,
-        rule=Float(*ELEVATION_RANGE),
-        doc="Sun elevation above the horizon. Below ~2.4-7 degrees (by turbidity) the sun is raised to the "
-        "floor where Mitsuba's sky is non-negative; the move is printed and recorded.",
-        unit="degrees",
-    )
-    azimuth: float = field(
-        270.0,
-        rule=Float(*AZIMUTH_RANGE),
-        doc="Sun azimuth, counter-clockwise from +x seen from above: 0 lights the ball from the image's "
-        "right, 90 from behind, 270 from the camera's side.",
-        unit="degrees",
-    )
-    turbidity: float = field(3.0, rule=Float(*TURBIDITY_RANGE), doc="Atmospheric turbidity (1: very clear, 10: hazy).")
+    material: MaterialPart = part(MaterialPart, doc="The material rendered.")
+    sun_sky: SunSkyPart = part(SunSkyPart, doc="The sun and sky it is lit by.")
     spp: int = same_as(RenderSettings, "spp")
     resolution: int = same_as(RenderSettings, "resolution")
     max_depth: int = same_as(RenderSettings, "max_depth")
@@ -154,15 +96,15 @@ class RenderRequest(Checked):
         if self.png is not None:
             check_output(type(self), "png", self.png, ".png")
 
-    @property
-    def light(self) -> Light:
-        """The sun and sky asked for (before the low-sun policy)."""
-        return Light(self.elevation, self.azimuth, self.turbidity)
-
     def record(self) -> dict:
-        """The request as a render's EXR records it: every field but the files written, the
-        sun by a Light record's names (``elevation_deg``, ``azimuth_deg``)."""
-        return {RECORDED_AS.get(k, k): v for k, v in self.__dict__.items() if k not in ("out", "png")}
+        """The request as a render's EXR records it: every field but the files written (its
+        parts' fields too, as one flat table), the sun by a Light record's names
+        (``elevation_deg``, ``azimuth_deg``)."""
+        return {
+            RECORDED_AS.get(name, name): getattr(functools.reduce(getattr, path, self), name)
+            for name, (_, path) in flattened(type(self)).items()
+            if name not in ("out", "png")
+        }
 
 
 @dataclass
@@ -197,14 +139,6 @@ class RenderSummary:
             f"effects: {', '.join(k for k, v in self.effects.items() if v) or 'none'}",
         ]
         return lines + self.extra
-
-
-def load_material(req: RenderRequest):
-    """The request's material as MaterialMaps (uniform values or an imported SVBRDF)."""
-
-    if req.svbrdf:
-        return load_deschaintre(req.svbrdf, req.svbrdf_colorspace)
-    return UniformMaterial(req.diffuse, req.specular, req.roughness, req.normal).to_maps(1)
 
 
 def render_settings(req: RenderRequest) -> RenderSettings:
@@ -297,8 +231,7 @@ class RenderProgress:
 def render_to_files(req: RenderRequest, progress=None) -> RenderSummary:
     """Render, then write the EXR (render + screen-space maps) and the optional PNG; ``req``
     was checked when built. ``progress(dict)``: what runs, passes done, ETA (:class:`RenderProgress`)."""
-    maps = load_material(req)  # may raise on a bad SVBRDF file: still nothing written
-    maps.check()
+    maps = req.material.maps()  # may raise on a bad SVBRDF file: still nothing written
 
     variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
     settings = render_settings(req).resolved(variant)
@@ -308,7 +241,7 @@ def render_to_files(req: RenderRequest, progress=None) -> RenderSummary:
     gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
     with show.rendering():
         result = render_sample(
-            ball, camera, maps, req.light, settings, req.seed, mask=gbuffer.mask, on_pass=show.on_pass
+            ball, camera, maps, req.sun_sky.light(), settings, req.seed, mask=gbuffer.mask, on_pass=show.on_pass
         )
     show.say(f"writing {req.out}")
     screen = project_material(maps, gbuffer)
