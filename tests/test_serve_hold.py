@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from pipeline.serve import server as server_module
-from pipeline.serve.server import HostPolicy
+from pipeline.serve import transport
+from pipeline.serve.transport import HostPolicy
 from pipeline.serve.view import UniformChoice, View
 from pipeline.serve.workers import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
 from pipeline.store.exr import encode_exr
@@ -113,7 +114,7 @@ def test_a_body_cut_short_by_its_client_is_a_4xx(http):
 
 
 def test_a_stalled_body_is_408_and_closed_not_a_500(http, monkeypatch):
-    monkeypatch.setattr(server_module, "BODY_STALL_S", 0.5)  # the figure, lowered for the test's time
+    monkeypatch.setattr(transport, "BODY_STALL_S", 0.5)  # the figure, lowered for the test's time
     status, _, body = _raw(http, _request(http, "POST", "/api/view", {**JSON, "Content-Length": "500"}, b'{"c'))
     assert status == 408 and "3 of its 500 bytes" in json.loads(body)["error"]
 

@@ -14,7 +14,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from pipeline.serve import server as server_module
+from pipeline.serve.transport import JsonHandler
 from support.browser import start_browser, unavailable_reason
 from support.serving import Client, start_app
 
@@ -96,7 +96,7 @@ def test_another_sites_page_takes_no_client_and_a_new_tab_still_works(app, drive
     other = ThreadingHTTPServer(("127.0.0.1", 0), handler)
     threading.Thread(target=other.serve_forever, daemon=True).start()
     answered: list[tuple[str, object]] = []
-    refusal = server_module.JsonHandler.refusal
+    refusal = JsonHandler.refusal
 
     def recorded(self):
         got = refusal(self)
@@ -104,7 +104,7 @@ def test_another_sites_page_takes_no_client_and_a_new_tab_still_works(app, drive
             answered.append((self.path, got))
         return got
 
-    monkeypatch.setattr(server_module.JsonHandler, "refusal", recorded)
+    monkeypatch.setattr(JsonHandler, "refusal", recorded)
     try:
         driver.get(f"http://127.0.0.1:{other.server_address[1]}/")
         _wait(driver, lambda d: d.execute_script("return Array.from(document.images).every((i) => i.complete);"))
