@@ -23,8 +23,9 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.publish.pub_folder import partial_publication
 from pipeline.publish.request import PublishRequest
-from pipeline.publish.writer import partial_publication, publish
+from pipeline.publish.writer import publish
 from pipeline.store.layout import LOCK_FILE
 from pipeline.store.lock import stale_holder
 from support.publishing import files_of

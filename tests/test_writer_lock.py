@@ -300,18 +300,18 @@ def test_publish_into_a_folder_another_writer_holds_is_refused_naming_it(tmp_pat
 def test_publish_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_path, reference, monkeypatch):
     """The race the lock closes: PUB was new when publish looked, another publish took it
     before the first write. This one is refused (exit code 3) and writes nothing there."""
-    from pipeline.publish import writer
+    from pipeline.publish import pub_folder, writer
 
     pub = tmp_path / "pub"
     holders = []
-    real_check = writer.check_out
+    real_check = pub_folder.check_out
 
     def checked_then_another_publish_starts(out, source=None, label="DIR", **kwargs):
         real_check(out, source, label, **kwargs)
         os.makedirs(out)
         holders.append(hold(Path(out), "publish"))
 
-    monkeypatch.setattr(writer, "check_out", checked_then_another_publish_starts)
+    monkeypatch.setattr(pub_folder, "check_out", checked_then_another_publish_starts)
     try:
         with pytest.raises(FolderBusy) as refused:
             writer.publish(str(reference), str(pub))

@@ -8,6 +8,9 @@ the user. A material's maps are stored once, before its lightings, in the same t
 
 PUB is held for writing (pipeline.store.lock) from its first check to its last file, as
 unpack holds its DIR: a second publish into it is refused (exit code 3) naming the first.
+
+PUB, held while it is written, is pipeline.publish.pub_folder; the members of each
+material, planned from the manifest, pipeline.publish.material_members.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import itertools
 import json
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 
@@ -29,99 +32,40 @@ from pipeline.check.validate import validate
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.publish.card import EFFECTS, dataset_card
 from pipeline.publish.croissant import croissant_metadata
+from pipeline.publish.material_members import (
+    MaterialGroup,
+    draw_previews,
+    manifest_records,
+    material_groups,
+    read_checked,
+)
 from pipeline.publish.names import (
     CARD_FILE,
     CROISSANT_FILE,
-    DATASET_DIR,
     FORMAT,
     FORMAT_VERSION,
     INDEX_FILE,
     MARKERS_REL,
     MATERIALS,
-    PREVIEW_FIELDS,
     PREVIEW_FILE,
     RENDERS,
     SAMPLES_FILE,
-    SHARDS_DIR,
     SOURCE_FILES,
     SUMS_FILE,
-    allowed_file,
-    member_name,
     tar_rel,
 )
-from pipeline.publish.output import Output, check_out, held_output
-from pipeline.publish.previews import maps_preview, render_preview
+from pipeline.publish.output import Output
+from pipeline.publish.pub_folder import held_publication
 from pipeline.publish.publication_facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.refusal import Refused
 from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, PublishRequest
-from pipeline.publish.table import file_refs, material_member, material_row, record_member, sample_row
-from pipeline.publish.tarsafe import BLOCK, member_bytes, open_writer, padded, tar_size, write_member
+from pipeline.publish.tarsafe import member_bytes, open_writer, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
 from pipeline.store.bounded_read import MAX_JSON_BYTES, list_bound, read_bytes, read_chunks, resolve_inside
-from pipeline.store.folder import is_temp_file, iter_manifest, real_dir
-from pipeline.store.layout import LOCK_FILE, MANIFEST_FILE, MARKER_FILE, Layout
-from pipeline.store.lock import holder_text, stale_holder
+from pipeline.store.layout import MANIFEST_FILE, MARKER_FILE, Layout
 from pipeline.store.records import dumps
 
 PREVIEW_SAMPLES = 8
-#: How publish's messages name its output folder.
-PUB_LABEL = "PUB"
-
-
-@dataclass(frozen=True)
-class PackedMember:
-    """A member to write: its name, the source file (None for a derived member: a preview or
-    a material's row, whose bytes are ``data``), its size and its SHA-256."""
-
-    name: str
-    source: str | None
-    size: int
-    sha256: str | None
-    data: bytes | None = None
-
-
-def derived(name: str, data: bytes) -> PackedMember:
-    return PackedMember(name, None, len(data), hashlib.sha256(data).hexdigest(), data)
-
-
-@dataclass
-class MaterialGroup:
-    """A material's members: its maps (and texture) and their preview for the materials tar,
-    then each lighting's record, render and render preview for the renders tar."""
-
-    material_id: str
-    shared: list[PackedMember] = field(default_factory=list)  # maps, texture (source files)
-    lightings: list[PackedMember] = field(default_factory=list)  # record, render per lighting
-    records: list[dict] = field(default_factory=list)
-    shared_bytes: int = 0  # tar bytes of the maps and texture members
-    maps_preview: PackedMember | None = None
-    render_previews: list[PackedMember] = field(default_factory=list)
-    record_sums: list[tuple[str, int]] = field(default_factory=list)
-
-    def rows(self, index: int) -> list[dict]:
-        """The samples table's rows of the material's lightings, in the tar pair ``index``."""
-        maps = (self.maps_preview.sha256, self.maps_preview.size)
-        return [
-            sample_row(
-                record, tar_rel(index, RENDERS), *sums, {"render_preview": (p.sha256, p.size), "maps_preview": maps}
-            )
-            for record, sums, p in zip(self.records, self.record_sums, self.render_previews)
-        ]
-
-    def materials_members(self, index: int) -> list[PackedMember]:
-        row = derived(material_member(self.material_id), (dumps(material_row(self.rows(index)[0])) + "\n").encode())
-        return [row, *self.shared, self.maps_preview]
-
-    def renders_members(self) -> list[PackedMember]:
-        out = []
-        for i, preview in enumerate(self.render_previews):
-            out += [*self.lightings[2 * i : 2 * i + 2], preview]
-        return out
-
-    def sizes(self) -> tuple[list[int], list[int]]:
-        """Member sizes in its materials tar and its renders tar (a row's size does not depend
-        on the tar's number: six digits always)."""
-        return [m.size for m in self.materials_members(0)], [m.size for m in self.renders_members()]
 
 
 @dataclass(frozen=True)
@@ -211,160 +155,6 @@ def publish(
         )
 
 
-# --------------------------------------------------------------------------- PUB, and a killed publish's
-
-
-@contextlib.contextmanager
-def held_publication(out: str, root: str, progress: Callable[[str], None] | None):
-    """PUB checked (new or empty; pipeline.publish.output) and held for writing while the block
-    writes it: (the Output, what it replaced). A PUB that holds only what a publish killed
-    mid-way left (:func:`partial_publication`) is cleared first, saying so through
-    ``progress``; what it replaced is that message, else None."""
-    holder = partial_publication(out)
-    check_out(out, root, PUB_LABEL, leftover=lambda _out: holder is not None)
-    clear = None
-    if holder is not None:
-        replaced = f"found a partial publication (killed {holder_text(holder)}): replacing it"
-
-        def clear(folder: str) -> bool:
-            leftovers = publication_leftovers(folder)
-            if leftovers is None:
-                return False  # something else came in meanwhile: refused as filled
-            if progress:
-                progress(f"{folder}: {replaced}")
-            for rel in leftovers:  # files, then their folders (each only if empty)
-                path = os.path.join(folder, *rel.split("/"))
-                if rel in (DATASET_DIR, SHARDS_DIR):
-                    with contextlib.suppress(OSError):  # not empty: another process wrote into it
-                        os.rmdir(path)
-                else:
-                    with contextlib.suppress(FileNotFoundError):
-                        os.unlink(path)
-            return True
-
-    with held_output(out, "publish", PUB_LABEL, clear=clear) as output:
-        yield output, (replaced if holder is not None else None)
-
-
-def partial_publication(out: str) -> dict | None:
-    """The description (pipeline.store.lock) of the publish that was killed while it wrote
-    ``out``, when ``out`` holds nothing else: its lock file, left by a ``publish`` that is gone
-    (:func:`pipeline.store.lock.stale_holder`), beside files publish writes (a publication's,
-    temporary ones). Else None. (SHA256SUMS is written last, but a publish killed after it,
-    before it let the folder go, did not finish either: the lock file is no publication's.)"""
-    if not real_dir(out):
-        return None
-    holder = stale_holder(out)
-    if holder is None or holder.get("purpose") != "publish" or publication_leftovers(out) is None:
-        return None
-    return holder
-
-
-def publication_leftovers(out: str) -> list[str] | None:
-    """What is in ``out`` besides its lock file, relative to it (files first, then the folders
-    ``dataset`` and ``shards``), when each is something publish writes: a regular file of a
-    publication (pipeline.publish.names), or a temporary file (pipeline.store.atomic), at the
-    places publish puts them. Else None."""
-    files, folders = [], []
-    for sub in ("", DATASET_DIR, SHARDS_DIR):
-        folder = os.path.join(out, sub)
-        if sub:
-            if not os.path.lexists(folder):
-                continue
-            if not real_dir(folder):
-                return None
-            folders.append(sub)
-        with os.scandir(folder) as entries:
-            for entry in entries:
-                rel = f"{sub}/{entry.name}" if sub else entry.name
-                if not sub and entry.name in (LOCK_FILE, DATASET_DIR, SHARDS_DIR):
-                    continue
-                ours = is_temp_file(entry.name) or allowed_file(rel) or rel == SUMS_FILE
-                if not ours or not entry.is_file(follow_symlinks=False):
-                    return None
-                files.append(rel)
-    return files + folders
-
-
-# --------------------------------------------------------------------------- planning
-
-
-def manifest_records(layout: Layout):
-    """(line number, record) of every non-empty line of the manifest, a line at a time (a
-    regular file, bounded: pipeline.store.folder). Publish runs on a validated folder, so
-    every line is a record; ``write_publication`` on an unvalidated one stops at the first
-    line that is not JSON."""
-    for number, _offset, line in iter_manifest(layout):
-        if line.strip():
-            yield number, json.loads(line)
-
-
-def material_groups(layout: Layout, records) -> Iterator[MaterialGroup]:
-    """Members of each material in plan order (the manifest's), one material at a time;
-    ``records``: (line number, record) in manifest order; previews not yet drawn."""
-    group = None
-    for number, record in records:
-        refs = file_refs(record, f"manifest.jsonl line {number}")
-        if group is None or group.material_id != record["material_id"]:
-            if group is not None:
-                yield group
-            group = MaterialGroup(record["material_id"])
-            for role in ("maps", "texture"):
-                if role in refs:
-                    ref = refs[role]
-                    group.shared.append(PackedMember(ref.member, ref.path, ref.bytes, ref.sha256))
-                    group.shared_bytes += BLOCK + padded(ref.bytes)
-        record_rel = Layout.record_rel(record["shard"], record["id"])
-        group.lightings.append(
-            PackedMember(record_member(record["id"]), record_rel, os.path.getsize(layout.path(record_rel)), None)
-        )
-        render = refs["render"]
-        group.lightings.append(PackedMember(render.member, render.path, render.bytes, render.sha256))
-        group.records.append(record)
-    if group is not None:
-        yield group
-
-
-def draw_previews(layout: Layout, group: MaterialGroup, side: int) -> None:
-    """Read the material's files once (each checked against the manifest): the records'
-    SHA-256, and the previews of its maps and renders (pipeline.publish.previews)."""
-    maps = _read_checked(layout, group.shared[0])
-    group.maps_preview = derived(
-        member_name(group.material_id, PREVIEW_FIELDS["maps_preview"]), maps_preview(maps, side)
-    )
-    group.render_previews, group.record_sums = [], []
-    for i, record in enumerate(group.records):
-        record_member_, render_member = group.lightings[2 * i : 2 * i + 2]
-        data = _read_checked(layout, record_member_)
-        group.record_sums.append((hashlib.sha256(data).hexdigest(), len(data)))
-        group.lightings[2 * i] = PackedMember(
-            record_member_.name, record_member_.source, len(data), hashlib.sha256(data).hexdigest()
-        )
-        preview = render_preview(_read_checked(layout, render_member), maps, side)
-        group.render_previews.append(derived(member_name(record["id"], PREVIEW_FIELDS["render_preview"]), preview))
-
-
-# --------------------------------------------------------------------------- writing
-
-
-def _read_checked(layout: Layout, member: PackedMember) -> bytes:
-    try:  # inside the folder, through no link, a regular file (pipeline.store.folder)
-        data = read_bytes(resolve_inside(layout.root, member.source), member.size)
-    except OSError as exc:
-        raise Refused(
-            "changed",
-            f"{member.source}: cannot be read ({exc.strerror}): the folder changed while "
-            "it was published; publish again",
-        ) from None
-    if len(data) != member.size or (member.sha256 and hashlib.sha256(data).hexdigest() != member.sha256):
-        raise Refused(
-            "changed",
-            f"{member.source}: {len(data)} bytes whose SHA-256 differs from the manifest's: "
-            "the folder changed while it was published; publish again",
-        )
-    return data
-
-
 class TarPair:
     """The materials tar and the renders tar of number ``index``, each written atomically as
     materials join them: a material's members are written when it joins, then dropped."""
@@ -398,7 +188,7 @@ class TarPair:
             (RENDERS, group.renders_members()),
         ):
             for member in members:
-                data = member.data if member.source is None else _read_checked(self.layout, member)
+                data = member.data if member.source is None else read_checked(self.layout, member)
                 with _naming(self.paths[kind]):
                     write_member(self.tars[kind], member.name, data)
                 self.body[kind] += member_bytes(member.size)
