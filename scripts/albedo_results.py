@@ -15,7 +15,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from pipeline.figures import albedo_table  # noqa: E402
-from scripts.results_page import head  # noqa: E402
+from scripts.results_page import head, write_flag  # noqa: E402
 
 PAGE = REPO / "docs" / "results" / "albedo.md"
 
@@ -36,14 +36,9 @@ def page_text() -> str:
 
 
 if __name__ == "__main__":
-    if set(sys.argv[1:]) - {"--write"}:  # checked before anything runs or is written
-        print(
-            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/albedo_results.py [--write]",
-            file=sys.stderr,
-        )
-        sys.exit(2)
+    write = write_flag(sys.argv[1:], "albedo_results.py")  # checked before anything runs or is written
     text = page_text()
-    if "--write" in sys.argv[1:]:
+    if write:
         PAGE.parent.mkdir(parents=True, exist_ok=True)
         PAGE.write_text(text)
     else:

@@ -21,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
-from scripts.results_page import head  # noqa: E402
+from scripts.results_page import head, write_flag  # noqa: E402
 
 SMOKE = (REPO / "manifests" / "smoke.toml").read_text()
 
@@ -302,16 +302,11 @@ def write_readme_count(count: int, readme: Path = REPO / "README.md") -> None:
 
 
 if __name__ == "__main__":
-    if set(sys.argv[1:]) - {"--write"}:  # checked before anything runs or is written
-        print(
-            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/bad_inputs.py [--write]",
-            file=sys.stderr,
-        )
-        sys.exit(2)
+    write = write_flag(sys.argv[1:], "bad_inputs.py")  # checked before anything runs or is written
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     rows = run_all()
     result = table(rows)
-    if "--write" in sys.argv[1:]:
+    if write:
         write_page(result, len(rows))
         write_readme_count(len(rows))
     else:

@@ -23,6 +23,15 @@ def machine() -> str:
     return f"{cpu_model()} ({os.cpu_count()} CPUs), {system}, Python {platform.python_version()}"
 
 
+def write_flag(argv: list[str], script: str) -> bool:
+    """Whether ``argv`` (a page script's arguments) asks for ``--write``; any other argument ends
+    the script with exit 2 and its usage, before anything runs or is written."""
+    if set(argv) - {"--write"}:
+        print(f"error: unknown arguments: {' '.join(argv)}\nusage: scripts/{script} [--write]", file=sys.stderr)
+        sys.exit(2)
+    return "--write" in argv
+
+
 def head(title: str, command: str) -> str:
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     return f"# {title}\n\nWritten by `{command}` on {date}.\n\nMachine: {machine()}.\n\n"

@@ -33,14 +33,12 @@ def render() -> str:
 
 
 if __name__ == "__main__":
-    if set(sys.argv[1:]) - {"--write"}:  # checked before anything is written
-        print(
-            f"error: unknown arguments: {' '.join(sys.argv[1:])}\nusage: scripts/spec_reference.py [--write]",
-            file=sys.stderr,
-        )
-        sys.exit(2)
+    sys.path.insert(0, str(REPO))
+    from scripts.results_page import write_flag
+
+    write = write_flag(sys.argv[1:], "spec_reference.py")  # checked before anything is written
     text = render()
-    if "--write" in sys.argv[1:]:
+    if write:
         PAGE.write_text(text, encoding="utf-8")
         print(f"wrote {PAGE.relative_to(REPO)}")
     else:

@@ -8,16 +8,15 @@ contract says (re-run ``python scripts/layers.py --write``).
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
 
+from support.scripts import script_module
+
 REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("layers", REPO / "scripts" / "layers.py")
-layers = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(layers)
+layers = script_module("layers")
 
 CONTRACT = layers.load_contract()
 

@@ -1,21 +1,15 @@
 """Every bad input of docs/results/bad-inputs.md: non-zero exit, a message naming the input, nothing
 written; and the table of that generated page is the one the script prints today."""
 
-import importlib.util
 from pathlib import Path
+
+from support.scripts import script_module
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("bad_inputs", REPO / "scripts" / "bad_inputs.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_every_bad_input_is_refused_cleanly():
-    script = _script()
+    script = script_module("bad_inputs")
     rows = script.run_all()
     assert len(rows) >= 30
     for row in rows:

@@ -9,7 +9,6 @@ repository (manifests/) is read there. A command added without an example fails 
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import select
@@ -25,11 +24,10 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
+from support.scripts import script_module
 
 REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("cli_reference", REPO / "scripts" / "cli_reference.py")
-cli_reference = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cli_reference)
+cli_reference = script_module("cli_reference")
 
 #: The folders examples write into; each is a folder of the test's own.
 OUTPUT_ROOTS = ("demo-out", "runs")

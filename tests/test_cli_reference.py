@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import click
 
 from cli import main
+from support.scripts import script_module
 
 REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("cli_reference", REPO / "scripts" / "cli_reference.py")
-cli_reference = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cli_reference)
+cli_reference = script_module("cli_reference")
 
 
 def test_docs_cli_md_is_the_generated_reference():

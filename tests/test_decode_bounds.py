@@ -7,7 +7,6 @@ previews of the wrong size or that do not decode."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -20,6 +19,7 @@ from pipeline.store.exr import encode_exr, read_exr
 from pipeline.store.exrheader import ExrBounds
 from support.bombs import exr_bomb, peak_of, png_bomb
 from support.publishing import rerecord
+from support.scripts import script_module
 
 pytestmark = pytest.mark.slow  # a smoke build (once per session), commands in their own processes
 
@@ -221,18 +221,11 @@ def test_a_build_refuses_an_image_bomb_in_svbrdf_folders_before_writing(tmp_path
     assert not (tmp_path / "ds").exists()
 
 
-def _hub_script():
-    spec = importlib.util.spec_from_file_location("hub_contact_sheet", REPO / "scripts" / "hub_contact_sheet.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_the_hub_contact_sheet_draws_wrong_previews_as_grey_tiles(good_pub, tmp_path):
     """Previews verify accepts (a PNG header within the caps) that are 4096 x 4096, or whose
     pixels do not decode: grey tiles and a line each, and the sheet keeps the publication's
     preview size (an unbounded read sized the sheet from the first preview: 5.8 GB)."""
-    hub = _hub_script()
+    hub = script_module("hub_contact_sheet")
     rows, strips, side = hub.previews(str(good_pub))
     assert side == 64
     rows = rows[:3]

@@ -2,23 +2,17 @@
 hand-written and how words are counted), carry no history, and state no machine's Python patch
 version."""
 
-import importlib.util
 import platform
 import re
 from pathlib import Path
 
+from support.scripts import script_module
+
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("doc_words", REPO / "scripts" / "doc_words.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_the_counting_rule_counts_what_it_says(tmp_path):
-    script = _script()
+    script = script_module("doc_words")
     (tmp_path / "docs" / "results" / "x").mkdir(parents=True)
     (tmp_path / "README.md").write_text("one two three\n")
     (tmp_path / "docs" / "page.md").write_text("four  five\nsix\n")
@@ -35,7 +29,7 @@ def test_the_counting_rule_counts_what_it_says(tmp_path):
 
 
 def test_the_hand_written_docs_are_within_their_word_limits():
-    script = _script()
+    script = script_module("doc_words")
     per_page = script.counts()
     print(script.report(per_page))
     assert "README.md" in per_page and "docs/publish.md" in per_page
@@ -46,7 +40,7 @@ def test_the_hand_written_docs_are_within_their_word_limits():
 
 
 def test_no_page_or_test_name_refers_to_an_issue_number():
-    script = _script()
+    script = script_module("doc_words")
     found = []
     for page in script.hand_written_pages():
         for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1):
@@ -61,7 +55,7 @@ def test_no_page_states_which_python_patch_version_runs():
     """Which Python a machine runs belongs in a results page's head (docs/results/, written on that
     machine), never in a hand-written page: it is stale on the next machine (a fresh Debian 12 has
     its own, and so does every set-up a reader makes)."""
-    script = _script()
+    script = script_module("doc_words")
     stated = []
     for page in script.hand_written_pages():
         text = page.read_text(encoding="utf-8")

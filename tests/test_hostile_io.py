@@ -28,15 +28,12 @@ from pipeline.fields import Reject, StrList
 from pipeline.run.build import plan_digest
 from support.hostile import copy_dataset
 from support.plans import PLAN_DIGESTS
+from support.processes import cli, has_mapped, started
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
 PAPER = REPO / "manifests" / "paper.toml"
 crash = crash_module()
-
-
-def cli(*args) -> list[str]:
-    return [sys.executable, "-m", "cli", *map(str, args)]
 
 
 def run_shell(command: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -254,15 +251,7 @@ def test_validate_json_prints_json_alone_whatever_the_exr_library_prints(tmp_pat
 
 
 def _interrupt(command: list[str], ready, delay_s: float) -> subprocess.CompletedProcess:
-    proc = subprocess.Popen(
-        command,
-        cwd=REPO,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    proc = started(command)
     try:
         deadline = time.monotonic() + 240
         while not ready() and time.monotonic() < deadline and proc.poll() is None:
@@ -342,26 +331,6 @@ def _children(pid: int) -> list[tuple[int, str]]:
     return found
 
 
-def _has_mapped(pid: int, library: str) -> bool:
-    try:
-        with open(f"/proc/{pid}/maps") as fh:
-            return library in fh.read()
-    except OSError:
-        return False
-
-
-def _started(command: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(
-        command,
-        cwd=REPO,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-
-
 def _finish(proc: subprocess.Popen) -> tuple[str, str]:
     try:
         return proc.communicate(timeout=240)
@@ -391,10 +360,10 @@ def test_ctrl_c_while_the_cli_or_mitsuba_loads_prints_one_line(tmp_path, referen
         args = cli("build", SMOKE, "--out", tmp_path / "ds", "--workers", 0)
     else:
         args = cli("validate", reference, "--json")
-    proc = _started(args)
+    proc = started(args)
     try:
         deadline = time.monotonic() + 120
-        while not _has_mapped(proc.pid, loaded) and time.monotonic() < deadline:
+        while not has_mapped(proc.pid, loaded) and time.monotonic() < deadline:
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.002)
         os.killpg(proc.pid, signal.SIGINT)
@@ -410,7 +379,7 @@ def test_ctrl_c_while_the_cli_or_mitsuba_loads_prints_one_line(tmp_path, referen
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_ctrl_c_while_the_local_cluster_starts_stops_the_build_once_it_is_up(tmp_path):
     out = tmp_path / "ds"
-    proc = _started(cli("build", SMOKE, "--out", out, "--workers", 2))
+    proc = started(cli("build", SMOKE, "--out", out, "--workers", 2))
     held: list[int] = []
     try:
         deadline = time.monotonic() + 240

@@ -11,12 +11,11 @@ import pytest
 import torch
 
 import pipeline.neural.run_clock as run_clock
-import pipeline.neural.train as train_module
 from pipeline.errors import ShaderballError
 from pipeline.neural import runfiles, speed
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.train import learning_rate, train
-from support.neural_fakes import FakeSource, train_config
+from support.neural_fakes import FakeSource, epoch_threads, train_config
 
 torch.set_num_threads(1)
 
@@ -66,14 +65,7 @@ def test_a_cgroup_quota_in_cores(text, cores):
 def test_threads_0_keep_to_the_cgroup_quota(tmp_path, monkeypatch):
     """torch counts the cores of the process's affinity but not its cgroup's CPU quota: a
     container granted 1 CPU trains on 1 thread, not on the host's cores."""
-    seen = []
-    real = train_module.train_epoch
-
-    def spy(*args, **kwargs):
-        seen.append(torch.get_num_threads())
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(train_module, "train_epoch", spy)
+    seen = epoch_threads(monkeypatch)
     monkeypatch.setattr(speed, "_quota_cores", lambda: 1)
     torch.set_num_threads(2)
     try:

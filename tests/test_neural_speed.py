@@ -10,7 +10,7 @@ from pipeline.neural import runfiles, speed
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import train
-from support.neural_fakes import FakeSource, train_config
+from support.neural_fakes import FakeSource, epoch_threads, train_config
 
 torch.set_num_threads(1)
 
@@ -54,16 +54,7 @@ def test_channels_last_computes_the_same_loss_and_gradients():
 
 
 def test_threads_hold_for_the_call_only(tmp_path, monkeypatch):
-    seen = []
-    import pipeline.neural.train as train_module
-
-    real = train_module.train_epoch
-
-    def spy(*args, **kwargs):
-        seen.append(torch.get_num_threads())
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(train_module, "train_epoch", spy)
+    seen = epoch_threads(monkeypatch)
     before = torch.get_num_threads()
     _run(tmp_path, "threads", threads=2)
     assert seen == [2] * 4 and torch.get_num_threads() == before

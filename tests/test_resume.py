@@ -223,6 +223,26 @@ def test_after_a_late_second_run_validate_passes(tmp_path, reference):
     assert report.ok, [p.message for p in report.problems]
 
 
+def _resume_is_refused(tmp_path, reference, change: dict, match: str) -> None:
+    """A copy of the reference with ``change`` made to its dataset.json (a key whose value is
+    "<drop>" taken out) and one shard's marker gone: its resume is refused (``match``) and
+    changes nothing."""
+    out = tmp_path / "ds"
+    shutil.copytree(reference, out)
+    description = json.loads((out / "dataset.json").read_text())
+    for key, value in change.items():
+        if value == "<drop>":
+            description.pop(key, None)
+        else:
+            description[key] = value
+    (out / "dataset.json").write_text(json.dumps(description))
+    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
+    before = _snapshot(out)
+    with pytest.raises(ShaderballError, match=match):
+        build(str(SMOKE), str(out), workers=0)
+    assert _snapshot(out) == before
+
+
 @pytest.mark.parametrize(
     "change,message",
     [
@@ -233,18 +253,7 @@ def test_after_a_late_second_run_validate_passes(tmp_path, reference):
 )
 def test_resume_by_another_installation_is_refused(tmp_path, reference, change, message):
     """Same spec, but samples would be made differently: resuming would mix two datasets."""
-    import json
-
-    out = tmp_path / "ds"
-    shutil.copytree(reference, out)
-    description = json.loads((out / "dataset.json").read_text())
-    description.update(change)
-    (out / "dataset.json").write_text(json.dumps(description))
-    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
-    before = _snapshot(out)
-    with pytest.raises(ShaderballError, match=f"built by another installation: .*{message}.*new directory"):
-        build(str(SMOKE), str(out), workers=0)
-    assert _snapshot(out) == before
+    _resume_is_refused(tmp_path, reference, change, f"built by another installation: .*{message}.*new directory")
 
 
 @pytest.mark.parametrize(
@@ -258,22 +267,7 @@ def test_resume_by_another_installation_is_refused(tmp_path, reference, change, 
 )
 def test_resume_of_a_dataset_of_another_plan_format_is_refused(tmp_path, reference, change, message):
     """Plan format 1 planned CPU-dependent elevations: never mixed with format 2's."""
-    import json
-
-    out = tmp_path / "ds"
-    shutil.copytree(reference, out)
-    description = json.loads((out / "dataset.json").read_text())
-    for key, value in change.items():
-        if value == "<drop>":
-            description.pop(key, None)
-        else:
-            description[key] = value
-    (out / "dataset.json").write_text(json.dumps(description))
-    (out / "shards" / "s00003" / "COMPLETE.json").unlink()
-    before = _snapshot(out)
-    with pytest.raises(ShaderballError, match=f"{message}.*plans format 2.*build into a new directory"):
-        build(str(SMOKE), str(out), workers=0)
-    assert _snapshot(out) == before
+    _resume_is_refused(tmp_path, reference, change, f"{message}.*plans format 2.*build into a new directory")
 
 
 def test_validate_names_another_plan_format_instead_of_every_record(tmp_path, reference):

@@ -29,7 +29,7 @@ from pipeline.serve.view import UniformChoice, View
 from pipeline.serve.workers import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
 from pipeline.store.exr import encode_exr
 from sky import Light
-from support.serving import Client, start_app
+from support.serving import start_app
 
 REPO = Path(__file__).resolve().parents[1]
 VIEW_DOC = {
@@ -41,14 +41,10 @@ VIEW_DOC = {
 
 @pytest.fixture(scope="module")
 def app():
+    """An app with neither dataset nor network (conftest's ``http`` talks to it)."""
     app = start_app(None, None)
     yield app
     app.close()
-
-
-@pytest.fixture(scope="module")
-def http(app):
-    return Client(app.url)
 
 
 def _raw(http, data: bytes, shut: bool = False, timeout_s: float = 60.0) -> tuple[int, bytes, bytes]:

@@ -26,10 +26,13 @@ import numpy as np
 import pytest
 
 from pipeline.ui.interrupt import INTERRUPTED_MESSAGE
+from support.processes import has_mapped, started
 from support.serving import Client
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = Path(sys.executable).with_name("shaderball")
+#: The environment the `shaderball` script runs in: this checkout's code first.
+SCRIPT_ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 STOPPED_STARTING = "stopped (Ctrl-C); served nothing (stopped while starting)"
 #: Lines serve prints before Ctrl-C, which are not its answer to it.
 SERVING_LINES = ("serving http://", "network: ", "--host ")
@@ -46,15 +49,7 @@ class Served:
 
     def __init__(self, *args: str):
         self.started = time.monotonic()
-        self.proc = subprocess.Popen(
-            [str(SCRIPT), "serve", "--port", "0", *args],
-            cwd=REPO,
-            env={**os.environ, "PYTHONPATH": str(REPO)},
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            start_new_session=True,
-        )
+        self.proc = started([str(SCRIPT), "serve", "--port", "0", *args], env=SCRIPT_ENV, text=False)
         self.lines: list[str] = []
         self.out = b""
         self.keep = None  # a connection held open until the process ends
@@ -84,12 +79,8 @@ class Served:
         """Wait until a native library whose file name holds ``library`` is mapped; False if the
         process ended first."""
         while self.proc.poll() is None:
-            try:
-                with open(f"/proc/{self.proc.pid}/maps") as maps:
-                    if library in maps.read():
-                        return True
-            except OSError:
-                return False
+            if has_mapped(self.proc.pid, library):
+                return True
             time.sleep(0.002)
         return False
 
@@ -176,18 +167,9 @@ def _in_background(call) -> None:
 def test_ctrl_c_while_the_script_imports_cli_is_one_line_and_130(args, library):
     """The `shaderball` script imports cli.py (it does not run it as __main__): Ctrl-C once a
     native library of cli.py's imports is mapped, so while they go on."""
-    proc = subprocess.Popen(
-        [str(SCRIPT), *args],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    proc = started([str(SCRIPT), *args], env=SCRIPT_ENV)
     try:
-        while proc.poll() is None and not _mapped(proc.pid, library):
+        while proc.poll() is None and not has_mapped(proc.pid, library):
             time.sleep(0.001)
         os.killpg(proc.pid, signal.SIGINT)
         out, err = proc.communicate(timeout=600)
@@ -230,20 +212,12 @@ def test_the_handler_is_the_commands_not_that_of_a_process_it_spawns(tmp_path):
     done = subprocess.run(
         [sys.executable, str(main)],
         cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
+        env=SCRIPT_ENV,
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert done.returncode == 0 and done.stdout.split() == ["False", "True"], (done.stdout, done.stderr)
-
-
-def _mapped(pid: int, library: str) -> bool:
-    try:
-        with open(f"/proc/{pid}/maps") as maps:
-            return library in maps.read()
-    except OSError:
-        return False
 
 
 def _calibrated_start_s() -> float:

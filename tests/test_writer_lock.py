@@ -21,6 +21,7 @@ from pipeline.publish.request import UnpackRequest
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE
 from pipeline.store.lock import holder_text, holds_lock, writer_lock
+from support.processes import cli, started
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -33,29 +34,13 @@ HOLD = (
 )
 
 
-def cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "cli", *map(str, args)]
-
-
-def start(cmd: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(
-        cmd,
-        cwd=REPO,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-        text=True,
-    )
-
-
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(cli(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
 
 def hold(folder: Path, purpose: str = "build") -> subprocess.Popen:
     """A process that holds ``folder``'s lock until it is killed."""
-    proc = start([sys.executable, "-c", HOLD, str(folder), purpose])
+    proc = started([sys.executable, "-c", HOLD, str(folder), purpose])
     assert proc.stdout.readline().strip() == "held", proc.stderr.read()
     return proc
 
@@ -207,7 +192,7 @@ def test_two_builds_of_different_specs_on_one_new_folder_one_is_refused(tmp_path
 
     out = tmp_path / "mix"
     other = _spec_with_seed(tmp_path, 7)
-    procs = [start(cli("build", spec, "--out", out, "--workers", 0)) for spec in (SMOKE, other)]
+    procs = [started(cli("build", spec, "--out", out, "--workers", 0)) for spec in (SMOKE, other)]
     outputs = [p.communicate(timeout=400) for p in procs]
     codes = [p.returncode for p in procs]
     assert sorted(codes)[0] == 0 and sorted(codes)[1] in (2, 3), (codes, outputs)
@@ -226,7 +211,7 @@ def test_repair_and_a_second_build_during_a_build_are_refused_and_readers_run_be
     """Without the lock repair would delete a live build's files; deterministically:
     the writers start once the build holds the folder."""
     out = tmp_path / "ds"
-    build = start(cli("build", SMOKE, "--out", out, "--workers", 0))
+    build = started(cli("build", SMOKE, "--out", out, "--workers", 0))
     try:
         holder = wait_for_lock(out, build)
         assert holder["purpose"] == "build" and holder["pid"] == build.pid
@@ -265,7 +250,7 @@ def test_a_build_killed_with_kill_9_does_not_block_its_resume(tmp_path, referenc
     from conftest import crash_module
 
     out = tmp_path / "ds"
-    build = start(cli("build", SMOKE, "--out", out, "--workers", 0))
+    build = started(cli("build", SMOKE, "--out", out, "--workers", 0))
     wait_for_lock(out, build)
     kill9(build)
     resumed = run("build", SMOKE, "--out", out, "--workers", 0)
@@ -328,7 +313,7 @@ def test_a_second_publish_while_the_first_holds_the_folder_is_refused_and_the_fi
     """Two real publish processes: the second starts once the first holds PUB, and the first
     is stopped (SIGSTOP) meanwhile, so it cannot finish before the second looks."""
     pub = tmp_path / "pub"
-    first = start(cli("publish", reference, "--out", pub))
+    first = started(cli("publish", reference, "--out", pub))
     try:
         holder = wait_for_lock(pub, first)
         assert holder["purpose"] == "publish" and holder["pid"] == first.pid
@@ -356,7 +341,7 @@ def test_a_second_publish_while_the_first_holds_the_folder_is_refused_and_the_fi
 @pytest.mark.slow
 def test_two_publishes_started_together_into_one_folder_exactly_one_succeeds(tmp_path, reference):
     pub = tmp_path / "pub"
-    procs = [start(cli("publish", reference, "--out", pub)) for _ in range(2)]
+    procs = [started(cli("publish", reference, "--out", pub)) for _ in range(2)]
     outputs = [p.communicate(timeout=400) for p in procs]
     codes = [p.returncode for p in procs]
     assert sorted(codes)[0] == 0 and sorted(codes)[1] in (2, 3), (codes, outputs)

@@ -109,3 +109,18 @@ def untrained_run(folder, resolution: int, digest: str = "untrained") -> None:
         history=[],
         identity_digest=digest,
     )
+
+
+def epoch_threads(monkeypatch) -> list[int]:
+    """torch's thread count at each training epoch from now on (``train_epoch`` spied on)."""
+    from pipeline.neural import train as train_module
+
+    seen = []
+    real = train_module.train_epoch
+
+    def spy(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "train_epoch", spy)
+    return seen
