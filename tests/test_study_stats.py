@@ -14,7 +14,7 @@ import pytest
 
 from pipeline.study import stats
 from pipeline.study.configs import Config
-from pipeline.study.report import comparisons, recommend, summarise
+from pipeline.study.evidence import comparisons, recommend, summarise
 
 CLASSES = ("dielectric", "metal", "bricks", "tiles")  # in order of error: dielectric smallest
 SAMPLES = 16
