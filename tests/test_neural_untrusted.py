@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from cli import main
 from pipeline.errors import ShaderballError
-from pipeline.neural import runfiles
+from pipeline.neural import run_checks, runfiles
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import train
 from pipeline.neural.train_summary import Diverged
@@ -174,7 +174,7 @@ def test_a_resumed_run_that_diverges_keeps_the_last_finite_checkpoint(tmp_path):
     with pytest.raises(Diverged, match=r"epoch 2: .*checkpoint.pt keeps epoch 1"):
         train(train_config(tmp_path, epochs=2, test_fraction=0.0), source=_Poisoned())
     assert (tmp_path / "run" / runfiles.CHECKPOINT).read_bytes() == before
-    assert runfiles.nonfinite_weights(runfiles.load_checkpoint(str(tmp_path / "run"))["model"]) == 0
+    assert run_checks.nonfinite_weights(runfiles.load_checkpoint(str(tmp_path / "run"))["model"]) == 0
 
 
 # --------------------------------------------------------------------------- run folders
@@ -287,7 +287,7 @@ def test_a_compressed_checkpoint_is_refused_before_torch_load_reads_it(tiny_run,
 def test_a_checkpoint_over_the_budget_of_its_network_is_refused_unread(tmp_path):
     big = tmp_path / "big.pt"
     with zipfile.ZipFile(big, "w", zipfile.ZIP_STORED) as out:
-        out.writestr("archive/data/0", bytes(runfiles.checkpoint_budget(1000) + 1))
+        out.writestr("archive/data/0", bytes(run_checks.checkpoint_budget(1000) + 1))
     with pytest.raises(ShaderballError, match=r"big.pt: a corrupt checkpoint, \d+ bytes, over the \d+ a checkpoint of"):
         runfiles.load_checkpoint(str(tmp_path), checkpoint=str(big), parameters=1000)
 

@@ -1,7 +1,7 @@
 """A checkpoint's tensors checked from their metadata, before any tensor is made or touched.
 
 A checkpoint is untrusted input. Its zip archive is bounded first (its size and members:
-:func:`pipeline.neural.runfiles.checkpoint_archive_problem`); but a tensor in it is
+:func:`pipeline.neural.run_checks.checkpoint_archive_problem`); but a tensor in it is
 described by its storage (a member of the archive, bounded) *and* by a shape, strides and
 an offset into that storage, which nothing bounds: a storage of 4 values with shape
 ``(2**40,)`` and stride ``(0,)`` is a few bytes in the file, and anything that reads it whole

@@ -30,7 +30,7 @@ from torch.utils.data import Subset
 from pipeline.errors import ShaderballError, quoted
 from pipeline.image.metrics import psnr8
 from pipeline.image.tonemap import to_srgb8
-from pipeline.neural import runfiles, speed
+from pipeline.neural import run_checks, runfiles, speed
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.data import batches, open_dataset
 from pipeline.neural.distributed import train_distributed
@@ -407,7 +407,7 @@ def _score_epoch(entry: dict, run: _Setup, device, train_probe, test_set) -> Non
     """The epoch's weights checked finite, then scored on the training probe and the held-out
     split (into ``entry``)."""
     model, config = run.model, run.config
-    bad = runfiles.nonfinite_weights(model.state_dict())
+    bad = run_checks.nonfinite_weights(model.state_dict())
     if bad:
         raise diverged(f"{bad:,} weight value(s) are NaN or infinite", entry["epoch"], entry["lr"])
     if train_probe is not None:
@@ -444,7 +444,7 @@ def _resume_state(run_dir: str, model, optimizer, ckpt: dict) -> None:
             f"{path}: holds the weights only (no optimizer state), so the run cannot continue from it; "
             "restore the run's last checkpoint or train a new --out"
         )
-    problem = runfiles.optimizer_problem(ckpt["optimizer"], optimizer.state_dict())
+    problem = run_checks.optimizer_problem(ckpt["optimizer"], optimizer.state_dict())
     if problem:
         raise ShaderballError(
             f"{path}: a corrupt checkpoint: {problem}; restore it, or remove it to train again from the start"
