@@ -59,7 +59,7 @@ def test_render_threads_from_the_environment_take_ascii_digits_only(monkeypatch)
     """ "²".isdigit() is True and int("²") raises: a worker used to die on it."""
     import os
 
-    from pipeline.run.cluster.connection import RENDER_THREADS_ENV, worker_render_threads
+    from pipeline.run.cluster.worker_env import RENDER_THREADS_ENV, worker_render_threads
 
     cpus = len(os.sched_getaffinity(0))
     for text in ("²", "１"):

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 from pipeline.errors import ShaderballError
-from pipeline.run.cluster.connection import connect, gpu_pins, job_script
+from pipeline.run.cluster.connection import connect, job_script
 from pipeline.run.cluster.options import ClusterOptions
+from pipeline.run.cluster.worker_env import gpu_pins
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
