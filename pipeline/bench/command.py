@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pipeline.bench.build_bench import run_build_bench
 from pipeline.bench.effects import run_effects_bench
 from pipeline.bench.scale import run_scale_bench
-from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, DatasetSection
+from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, SPEC_FILE, DatasetSection
 from pipeline.fields import Bool, Checked, Int, IntList, Optional, Path, declared, default_of, field, same_as
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
@@ -49,10 +49,8 @@ class BenchRequest(Checked):
 
     spec: str | None = field(
         None,
-        rule=Optional(
-            Path("a spec file", exists="file"), "unset (the effects benchmark; the scale benchmark's default)"
-        ),
-        doc="The spec file.",
+        rule=Optional(SPEC_FILE, "unset (the effects benchmark; the scale benchmark's default)"),
+        doc="The dataset spec (manifests/*.toml; docs/spec.md).",
         positional=True,
         metavar="SPEC",
     )

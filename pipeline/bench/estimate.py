@@ -38,8 +38,8 @@ from dataclasses import asdict, dataclass
 from pipeline.bench.build_bench import warm_kernels
 from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
-from pipeline.dataset.spec import spec_digest
-from pipeline.fields import Bool, Checked, Int, Path, field, same_as
+from pipeline.dataset.spec import spec_digest, spec_operand
+from pipeline.fields import Bool, Checked, Int, field, same_as
 from pipeline.render.limits import launch_limit_text, launch_spp
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.build import read_spec_text
@@ -70,7 +70,7 @@ TIMING_TEXELS = (512, 1024)
 class PlanRequest(Checked):
     """What `shaderball plan` is asked; the cluster's fields are ClusterOptions' declarations."""
 
-    spec: str = field(rule=Path("a spec file", exists="file"), doc="The spec file.", positional=True, metavar="SPEC")
+    spec: str = spec_operand()
     renders: int = field(
         DEFAULT_RENDERS,
         rule=Int(*RENDERS_RANGE),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pipeline.dataset.spec import SPEC_FILE
 from pipeline.fields import Bool, Checked, Int, Optional, Path, Text, field, format_value
 
 #: preview's rows: samples spread over the renders recorded so far.
@@ -21,15 +22,17 @@ REPAIR_WORKERS_RANGE = (0, 1024)
 DATASET_FOLDER = "a dataset folder written by `shaderball build`"
 
 
-def _directory(doc: str = "The dataset folder.", metavar: str = "DIR", what: str = DATASET_FOLDER):
-    return field(rule=Path(what, exists="any"), doc=doc, positional=True, metavar=metavar)
+def dataset_operand(doc: str = "The dataset folder.", metavar: str = "DIR", what: str = DATASET_FOLDER, exists="any"):
+    """The dataset folder operand (``DIR``) of validate, preview, info, publish and
+    neural-bench loaders, declared once."""
+    return field(rule=Path(what, exists=exists), doc=doc, positional=True, metavar=metavar)
 
 
 @dataclass(frozen=True)
 class ValidateRequest(Checked):
     """`shaderball validate`: a dataset folder checked, and with ``repair`` mended."""
 
-    directory: str = _directory()
+    directory: str = dataset_operand()
     repair: bool = field(
         False,
         rule=Bool(),
@@ -48,7 +51,7 @@ class ValidateRequest(Checked):
     )
     spec: str | None = field(
         None,
-        rule=Optional(Path("a spec file", exists="file"), "unset (DIR/spec.toml)"),
+        rule=Optional(SPEC_FILE, "unset (DIR/spec.toml)"),
         doc="With {repair}: restore an unreadable or edited DIR/spec.toml from this spec, "
         "if its digest is the one dataset.json records.",
         metavar="SPEC",
@@ -67,7 +70,7 @@ class ValidateRequest(Checked):
 class PreviewRequest(Checked):
     """`shaderball preview`: a contact sheet of a dataset, complete or partial."""
 
-    directory: str = _directory()
+    directory: str = dataset_operand()
     out: str = field(
         rule=Text(r"(?s).*\.[pP][nN][gG]", "a file name ending in .png"),
         doc="PNG file to write: one row per sample, its tone-mapped render beside its four maps, "
@@ -92,7 +95,7 @@ class PreviewRequest(Checked):
 class InfoRequest(Checked):
     """`shaderball info`: counts, sizes and completion of a dataset folder, or a spec's plan."""
 
-    directory: str = _directory(
+    directory: str = dataset_operand(
         "A dataset folder, or a spec file (then what `shaderball plan SPEC` prints without timing).",
         "DIR|SPEC",
         "a dataset folder written by `shaderball build`, or a spec file",

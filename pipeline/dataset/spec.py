@@ -49,6 +49,7 @@ from pipeline.fields import (
     Float,
     Int,
     Pair,
+    Path,
     Reject,
     Rule,
     StrList,
@@ -539,6 +540,17 @@ class DatasetSpec:
 
 
 # --------------------------------------------------------------------------- parsing
+
+
+#: A spec file that is there: the rule of every command's SPEC (and of validate --spec).
+SPEC_FILE = Path("a spec file", exists="file")
+
+
+def spec_operand():
+    """The SPEC operand of build, plan and study, declared once."""
+    return field(
+        rule=SPEC_FILE, doc="The dataset spec (manifests/*.toml; docs/spec.md).", positional=True, metavar="SPEC"
+    )
 
 
 #: Largest spec file read (the paper's spec is ~2 kB; 20,000 svbrdf_folders fit in ~1 MB).

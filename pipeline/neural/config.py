@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from pipeline.check.request import dataset_operand
 from pipeline.fields import (
     Bool,
     Checked,
@@ -57,6 +58,7 @@ from pipeline.neural.limits import (
     WIDTH_RANGE,
 )
 from pipeline.neural.runfolder import check_run_folder
+from pipeline.publish.request import VerifyRequest
 from pipeline.render.command import check_output
 from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.render.settings import RenderSettings
@@ -442,18 +444,8 @@ class SweepRequest(Checked):
 class LoadersRequest(Checked):
     """`shaderball neural-bench loaders`: the loader on a dataset folder and on its publication."""
 
-    folder: str = field(
-        rule=Path("a dataset folder written by `shaderball build`", exists="folder"),
-        doc="A dataset folder.",
-        positional=True,
-        metavar="DIR",
-    )
-    pub: str = field(
-        rule=Path("the dataset folder's publication (`shaderball publish`)", exists="folder"),
-        doc="Its publication.",
-        positional=True,
-        metavar="PUB",
-    )
+    folder: str = dataset_operand(exists="folder")
+    pub: str = same_as(VerifyRequest, "pub", positional=True)
     resolution: int | None = same_as(TrainConfig, "resolution")
     batch_size: int = same_as(TrainConfig, "batch_size")
     loader_workers: int = same_as(TrainConfig, "loader_workers")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pipeline.check.request import dataset_operand
 from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, Text, field, format_value, same_as
 from pipeline.publish.publication_facts import LICENSES
 
@@ -25,12 +26,7 @@ _OUT_NEW = "a new or empty folder (nothing in it is overwritten)"
 class PublishRequest(Checked):
     """`shaderball publish`: a validated dataset folder into a publication."""
 
-    directory: str = field(
-        rule=Path("a dataset folder written by `shaderball build`", exists="folder"),
-        doc="The dataset folder.",
-        positional=True,
-        metavar="DIR",
-    )
+    directory: str = dataset_operand(exists="folder")
     out: str = field(
         rule=Path(_OUT_NEW),
         doc="New or empty folder for the publication: tar shards, samples.jsonl, README.md (dataset "

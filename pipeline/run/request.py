@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pipeline.dataset.spec import spec_operand
 from pipeline.fields import Bool, Checked, Path, field, part
 from pipeline.run.cluster.options import ClusterOptions
 
@@ -13,12 +14,7 @@ from pipeline.run.cluster.options import ClusterOptions
 class BuildRequest(Checked):
     """What `shaderball build` is asked: the spec, the folder, and where the workers come from."""
 
-    spec: str = field(
-        rule=Path("a spec file (manifests/*.toml)", exists="file"),
-        doc="The dataset spec (see manifests/ and docs/spec.md).",
-        positional=True,
-        metavar="SPEC",
-    )
+    spec: str = spec_operand()
     out: str = field(
         rule=Path("a new or empty folder, or a dataset folder built from the same spec"),
         doc="Dataset folder. Created if missing; an existing one built from the same spec is "

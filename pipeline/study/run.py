@@ -43,7 +43,7 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import parse_spec, spec_digest
+from pipeline.dataset.spec import parse_spec, spec_digest, spec_operand
 from pipeline.fields import Bool, Checked, Int, IntList, Optional, Reject, Rule, StrList, field, format_value, same_as
 from pipeline.fields import Path as PathRule
 from pipeline.image.denoise import denoise
@@ -133,9 +133,7 @@ class Families(Rule):
 class StudyRequest(Checked):
     """What `shaderball study` is asked; each field declared once (pipeline.fields)."""
 
-    spec: str = field(
-        rule=PathRule("a spec file", exists="file"), doc="The spec file.", positional=True, metavar="SPEC"
-    )
+    spec: str = spec_operand()
     out: str = field(
         rule=PathRule("a folder"),
         doc="Study folder: request.json, references/, rows/, then study.json, study.csv, pareto.png, "
