@@ -17,7 +17,7 @@ import pytest
 
 from pipeline.errors import FolderBusy
 from pipeline.publish import unpack as unpack_module
-from pipeline.publish.request import UnpackRequest
+from pipeline.publish.request import PublishRequest, UnpackRequest
 from pipeline.store.atomic import TEMP_PREFIX
 from pipeline.store.layout import LOCK_FILE
 from pipeline.store.lock import holder_text, holds_lock, writer_lock
@@ -299,7 +299,7 @@ def test_publish_is_refused_when_a_writer_took_the_folder_after_its_check(tmp_pa
     monkeypatch.setattr(pub_folder, "check_out", checked_then_another_publish_starts)
     try:
         with pytest.raises(FolderBusy) as refused:
-            writer.publish(str(reference), str(pub))
+            writer.publish(PublishRequest(str(reference), str(pub)))
         assert str(refused.value).startswith(_busy_line(pub, "publish", holders[0].pid)[len("error: ") :])
         assert refused.value.exit_code == 3
         assert os.listdir(pub) == [LOCK_FILE]  # the other publish's lock; nothing of this one

@@ -112,23 +112,21 @@ class PublishSummary:
 
 def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> None:
     """The options of a publication, refused by their declarations (PublishRequest)."""
-    PublishRequest(directory=".", out=".", shard_bytes=shard_bytes, license=license_id, url=url).check_fields()
+    PublishRequest(directory=".", out=".", shard_bytes=shard_bytes, license=license_id, url=url)
 
 
-def publish(
-    root: str,
-    out: str,
-    *,
-    shard_bytes: int = DEFAULT_SHARD_BYTES,
-    license_id: str = DEFAULT_LICENSE,
-    url: str | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> PublishSummary:
-    """Validate the dataset at ``root`` fully, then publish it to ``out``.
+def publish(request: PublishRequest, *, progress: Callable[[str], None] | None = None) -> PublishSummary:
+    """Validate the dataset ``request.directory`` fully, then publish it to ``request.out``.
 
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
     """
-    check_options(shard_bytes, license_id, url)
+    root, out, shard_bytes, license_id, url = (
+        request.directory,
+        request.out,
+        request.shard_bytes,
+        request.license,
+        request.url,
+    )
     start = time.perf_counter()
     # PUB is held from here, validation included: a second publish into it is refused at once.
     with held_publication(out, root, progress) as (output, replaced):
