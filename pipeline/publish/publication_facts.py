@@ -4,7 +4,7 @@ dataset card (pipeline.publish.card) and of the Croissant metadata (pipeline.pub
 from __future__ import annotations
 
 from array import array
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from pipeline.dataset.spec import DatasetSpec
 
@@ -43,16 +43,8 @@ class TarFacts:
     last: str
 
     def to_dict(self) -> dict:
-        return {
-            "path": self.path,
-            "kind": self.kind,
-            "bytes": self.bytes,
-            "members": self.members,
-            "samples": self.samples,
-            "materials": self.materials,
-            "first": self.first,
-            "last": self.last,
-        }
+        """Every field but the SHA-256 (SHA256SUMS lists each file's)."""
+        return {k: v for k, v in asdict(self).items() if k != "sha256"}
 
 
 def _number(value) -> bool:

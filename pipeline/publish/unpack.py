@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 from pipeline.check.validate import validate
 from pipeline.errors import filesystem_error
@@ -41,15 +41,7 @@ class UnpackSummary:
     seconds: float
 
     def to_dict(self) -> dict:
-        return {
-            "pub": self.pub,
-            "out": self.out,
-            "files": self.files,
-            "samples": self.samples,
-            "bytes_written": self.bytes_written,
-            "validated": self.validated,
-            "seconds": round(self.seconds, 3),
-        }
+        return {**asdict(self), "seconds": round(self.seconds, 3)}
 
     def lines(self) -> list[str]:
         check = "valid (`shaderball validate`)" if self.validated else "not validated (--no-validate)"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 from pipeline.publish.reader import Publication, open_publication
 from pipeline.publish.refusal import DEFAULT_LIMITS, Limits
@@ -24,17 +24,7 @@ class VerifyReport:
     seconds: float
 
     def to_dict(self) -> dict:
-        return {
-            "pub": self.pub,
-            "ok": True,
-            "files": self.files,
-            "tars": self.tars,
-            "members": self.members,
-            "samples": self.samples,
-            "materials": self.materials,
-            "bytes_checked": self.bytes_checked,
-            "seconds": round(self.seconds, 3),
-        }
+        return {"pub": self.pub, "ok": True, **asdict(self), "seconds": round(self.seconds, 3)}
 
     def lines(self) -> list[str]:
         return [
