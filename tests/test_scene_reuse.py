@@ -32,7 +32,7 @@ def _samples():
 
 def test_a_scene_moved_to_each_material_renders_the_bytes_of_a_scene_loaded_for_it(mi):
     from geometry import build_shaderball, default_camera
-    from pipeline.bench.build_bench import KernelCounter
+    from pipeline.render.kernels import KernelCounter
     from pipeline.render.renderer import MaterialScene, RenderSettings, plan_effects, scene_dict
 
     ball, camera = build_shaderball(), default_camera()

@@ -62,25 +62,17 @@ from materials.brdf_ref import (
     check_model,
 )
 from materials.maps import MaterialMaps, encode_normal_map
-from pipeline.render.mitsuba_env import load_mitsuba
+from pipeline.render.mitsuba_env import load_mitsuba, register_plugin
 
 PLUGIN_NAME = "shaderball_ct"
 INV_PI = 1.0 / math.pi
 
-_REGISTERED: set[str] = set()
 _CLASSES: dict[str, type] = {}
 
 
 def register(variant: str) -> None:
     """Register ``shaderball_ct`` with Mitsuba for ``variant``; calling it again is a no-op."""
-
-    mi = load_mitsuba(variant)
-    name = mi.variant()
-    if name in _REGISTERED:
-        return
-    cls = plugin_class(variant)
-    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
-    _REGISTERED.add(name)
+    register_plugin(variant, PLUGIN_NAME, "bsdf", lambda mi: plugin_class(variant))
 
 
 def plugin_class(variant: str) -> type:

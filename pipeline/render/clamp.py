@@ -13,11 +13,9 @@ Like the BSDF plugin, the class is defined once per Mitsuba variant, after it is
 
 from __future__ import annotations
 
-from pipeline.render.mitsuba_env import load_mitsuba
+from pipeline.render.mitsuba_env import register_plugin
 
 PLUGIN_NAME = "shaderball_clamp"
-
-_REGISTERED: set[str] = set()
 
 
 def wrap_in_clamp(nested: dict, limit: float) -> dict:
@@ -27,13 +25,7 @@ def wrap_in_clamp(nested: dict, limit: float) -> dict:
 
 def register_clamp(variant: str) -> None:
     """Register ``shaderball_clamp`` with Mitsuba for ``variant``; calling it again is a no-op."""
-    mi = load_mitsuba(variant)
-    name = mi.variant()
-    if name in _REGISTERED:
-        return
-    cls = _define_class(mi)
-    mi.register_integrator(PLUGIN_NAME, lambda props: cls(props))
-    _REGISTERED.add(name)
+    register_plugin(variant, PLUGIN_NAME, "integrator", _define_class)
 
 
 def _define_class(mi):

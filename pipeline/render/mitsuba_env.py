@@ -146,6 +146,23 @@ def load_mitsuba(variant: str):
     return mi
 
 
+#: (variant, plugin name) of every Python plugin registered in this process.
+_PLUGINS: set[tuple[str, str]] = set()
+
+
+def register_plugin(variant: str, name: str, kind: str, make_class) -> None:
+    """Register the Python plugin ``name`` with Mitsuba for ``variant``: ``kind`` "bsdf" or
+    "integrator", its class ``make_class(mi)`` made after the variant is loaded (a class
+    registered under one variant is not found under another). Calling it again is a no-op."""
+    mi = load_mitsuba(variant)
+    key = (mi.variant(), name)
+    if key in _PLUGINS:
+        return
+    cls = make_class(mi)
+    getattr(mi, f"register_{kind}")(name, lambda props: cls(props))
+    _PLUGINS.add(key)
+
+
 #: Re-rendering a sample on the same machine and versions gives the same bytes. Holds for the
 #: llvm variant, whose renders are split into power-of-two passes for it (docs/build.md,
 #: Determinism; tests/test_build.py).

@@ -49,6 +49,7 @@ from pipeline.fields import Path as PathRule
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.render.gbuffer import load_gbuffer
+from pipeline.render.kernels import KernelCounter
 from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint, resolve_variant
 from pipeline.render.raster import project_material
 from pipeline.render.renderer import (
@@ -317,7 +318,7 @@ class SampleScene:
         # The independent sampler's kernels do not depend on the spp; the other samplers' do
         # (measured: ~0.8 s per new sample count at 80x80), so they are warmed with the very
         # passes they are timed with.
-        with CompileTimer() as warm_compiled:
+        with KernelCounter() as warm_compiled:
             if warm and passes:
                 for p in sorted(set(passes)):
                     render_pass(mi, scene, 1 if settings.sampler == "independent" else p, seed, 99, settings.sampler)
@@ -331,7 +332,7 @@ class SampleScene:
                     target_error=settings.target_error,
                     mask=mask,
                 )
-        with CompileTimer() as compiled:
+        with KernelCounter() as compiled:
             wall, cpu = time.perf_counter(), time.process_time()
             if passes:
                 done = [render_pass(mi, scene, p, seed, k, settings.sampler) for k, p in enumerate(passes)]
@@ -358,36 +359,15 @@ class SampleScene:
                 }
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         result.update(
-            wall_s=max(0.0, wall - compiled.seconds),
-            cpu_s=max(0.0, cpu - compiled.seconds),
+            wall_s=max(0.0, wall - compiled.compile_s),
+            cpu_s=max(0.0, cpu - compiled.compile_s),
             load_wall_s=load_wall,
             load_cpu_s=load_cpu,
-            compile_s=warm_compiled.seconds + compiled.seconds,
-            kernels_compiled=warm_compiled.count + compiled.count,
+            compile_s=warm_compiled.compile_s + compiled.compile_s,
+            kernels_compiled=warm_compiled.compiled + compiled.compiled,
         )
         del scene
         return result
-
-
-class CompileTimer:
-    """drjit's backend compile time (s) and count of the kernels compiled while active (not
-    found in its memory or disk cache): what kernel compilation costs."""
-
-    def __enter__(self):
-        import drjit as dr
-
-        self._dr, self.seconds, self.count = dr, 0.0, 0
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
-        dr.kernel_history()  # clears
-        return self
-
-    def __exit__(self, *exc):
-        dr = self._dr
-        for k in dr.kernel_history():
-            if k["type"] == dr.KernelType.JIT and not k.get("cache_hit"):
-                self.count += 1
-                self.seconds += k.get("backend_time", 0.0) / 1000.0
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 @dataclass
