@@ -54,12 +54,19 @@ def _effect_order(name: str) -> tuple[int, str]:
     return (EFFECT_ORDER.index(name) if name in EFFECT_ORDER else len(EFFECT_ORDER), name)
 
 
-def _human_bytes(n: float) -> str:
+def human_bytes(n: float) -> str:
+    """``n`` bytes as people read them: ``512 B``, ``3.2 MiB``."""
     for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
         if n < 1024 or unit == "TiB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024.0
     return f"{n:.1f} TiB"
+
+
+def problems_line(head: str, problems: list[str]) -> str:
+    """``head (N; run `shaderball validate`): `` and the first five problems."""
+    more = " ..." if len(problems) > 5 else ""
+    return f"{head} ({len(problems)}; run `shaderball validate`): " + "; ".join(problems[:5]) + more
 
 
 @dataclass
@@ -115,14 +122,14 @@ class DatasetInfo:
             f"{self.shards_started - self.shards_complete} in progress; manifest.jsonl {manifest}",
         ]
         parts = [
-            f"{self.files[r]['count']} {r} ({ROLE_NOTES[r]}) {_human_bytes(self.files[r]['bytes'])}"
+            f"{self.files[r]['count']} {r} ({ROLE_NOTES[r]}) {human_bytes(self.files[r]['bytes'])}"
             for r in FILE_ROLES
             if r in self.files
         ]
         out.append(
             "files: "
             + (", ".join(parts) if parts else "none recorded yet")
-            + f"; {_human_bytes(self.disk_bytes)} on disk in all"
+            + f"; {human_bytes(self.disk_bytes)} on disk in all"
             + (f"; {self.temp_files} temporary file(s) of an interrupted write" if self.temp_files else "")
         )
         if self.kinds:
@@ -139,11 +146,7 @@ class DatasetInfo:
             )
             out.append(f"renders flagged bad: {self.flagged}; re-rendered with a new seed: {self.rerendered}{noise}")
         if self.problems:
-            out.append(
-                f"NOT READ ({len(self.problems)}; run `shaderball validate`): "
-                + "; ".join(self.problems[:5])
-                + (" ..." if len(self.problems) > 5 else "")
-            )
+            out.append(problems_line("NOT READ", self.problems))
         return out
 
     def to_dict(self) -> dict:

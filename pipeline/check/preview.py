@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.check.info import shard_render_counts
+from pipeline.check.info import problems_line, shard_render_counts
 from pipeline.check.request import DATASET_FOLDER, PreviewRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.errors import ShaderballError
@@ -72,11 +72,7 @@ class PreviewSummary:
             "samples: " + ", ".join(self.samples),
         ]
         if self.problems:
-            out.append(
-                f"left out ({len(self.problems)}; run `shaderball validate`): "
-                + "; ".join(self.problems[:5])
-                + (" ..." if len(self.problems) > 5 else "")
-            )
+            out.append(problems_line("left out", self.problems))
         return out
 
 
