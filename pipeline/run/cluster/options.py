@@ -58,6 +58,56 @@ GPU_ID_RANGE = (0, 255)
 GPUS_PER_JOB_RANGE = (1, 64)
 
 
+_MEMORY_TEXT = "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB"
+_WALLTIME_TEXT = f"HH:MM:SS from {WALLTIME_SPAN}"
+_SCHEDULER_TEXT = "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
+
+
+def memory_bytes(text: str) -> int:
+    """``--memory`` in bytes (dask's units: 16GiB, 16GB, 16000MB), checked."""
+    from dask.utils import parse_bytes
+
+    try:  # dask reads any script's digits ("１６GiB"): ASCII only here, as every number
+        value = parse_bytes(text) if text.isascii() and "_" not in text else None
+    except (ValueError, TypeError):
+        value = None
+    if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
+        raise ClusterOptions.field_error("memory", text, _MEMORY_TEXT)
+    return int(value)
+
+
+def walltime_seconds(text: str) -> int:
+    match = _WALLTIME.match(text)
+    seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
+    if seconds is None or seconds < _MIN_WALLTIME_S:
+        raise ClusterOptions.field_error("walltime", text, _WALLTIME_TEXT)
+    return seconds
+
+
+def scheduler_host_port(address: str) -> tuple[str, int]:
+    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z", address, re.ASCII)
+    if match is None or not 0 < int(match[2]) < 65536:
+        raise ClusterOptions.field_error("scheduler", address, _SCHEDULER_TEXT)
+    return match[1].strip("[]"), int(match[2])
+
+
+class _Parsed(Rule):
+    """A text that ``parse`` reads without a refusal (an amount of memory, a wall time, a
+    scheduler's address); the text itself is kept."""
+
+    def __init__(self, parse, allowed: str):
+        self.parse_text, self.allowed = parse, allowed
+
+    def check(self, value):
+        if not isinstance(value, str):
+            raise Reject()
+        try:
+            self.parse_text(value)
+        except ShaderballError:
+            raise Reject() from None
+        return value
+
+
 class Gpus(Rule):
     """``--gpus``: ``4`` (a count: the first 4 visible GPUs) or ``0,2`` (device ids, a list:
     a single id is written with a comma, ``3,``). Stored as an int or a tuple of ints."""
@@ -95,45 +145,6 @@ class Gpus(Rule):
         return tuple(int(v) for v in value)
 
 
-class _Memory(Rule):
-    allowed = "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB"
-
-    def check(self, value):
-        if not isinstance(value, str):
-            raise Reject()
-        try:
-            memory_bytes(value)
-        except ShaderballError:
-            raise Reject() from None
-        return value
-
-
-class _Walltime(Rule):
-    allowed = f"HH:MM:SS from {WALLTIME_SPAN}"
-
-    def check(self, value):
-        if not isinstance(value, str):
-            raise Reject()
-        try:
-            walltime_seconds(value)
-        except ShaderballError:
-            raise Reject() from None
-        return value
-
-
-class _Scheduler(Rule):
-    allowed = "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
-
-    def check(self, value):
-        if not isinstance(value, str):
-            raise Reject()
-        try:
-            scheduler_host_port(value)
-        except ShaderballError:
-            raise Reject() from None
-        return value
-
-
 _SHELL_WORD_TEXT = "1 to 128 characters from A-Z a-z 0-9 _ . @ : + -"
 
 
@@ -155,7 +166,7 @@ class ClusterOptions(Checked):
     )
     scheduler: str | None = field(
         None,
-        rule=Optional(_Scheduler()),
+        rule=Optional(_Parsed(scheduler_host_port, _SCHEDULER_TEXT)),
         metavar="ADDRESS",
         doc="Use an existing dask scheduler, e.g. tcp://10.0.0.1:8786, instead of a local cluster "
         "(its workers need DIR at the same path; docs/cluster.md).",
@@ -168,14 +179,14 @@ class ClusterOptions(Checked):
     )
     memory: str | None = field(
         None,
-        rule=Optional(_Memory()),
+        rule=Optional(_Parsed(memory_bytes, _MEMORY_TEXT)),
         metavar="SIZE",
         doc="Memory per worker (local) or per job (slurm/pbs), e.g. 16GiB; a worker past 95% of "
         "its limit is restarted and its shard runs again.",
     )
     walltime: str | None = field(
         None,
-        rule=Optional(_Walltime()),
+        rule=Optional(_Parsed(walltime_seconds, _WALLTIME_TEXT)),
         metavar="HH:MM:SS",
         doc="slurm/pbs: wall-clock limit per job; workers retire about 5 min "
         "(or 5%; half the walltime below 10 min) before it and a new job replaces each.",
@@ -279,29 +290,6 @@ class ClusterOptions(Checked):
         return self.field_error(name, getattr(self, name), allowed, what=what)
 
 
-def memory_bytes(text: str) -> int:
-    """``--memory`` in bytes (dask's units: 16GiB, 16GB, 16000MB), checked."""
-    from dask.utils import parse_bytes
-
-    try:  # dask reads any script's digits ("１６GiB"): ASCII only here, as every number
-        value = parse_bytes(text) if text.isascii() and "_" not in text else None
-    except (ValueError, TypeError):
-        value = None
-    if value is None or not _MIN_MEMORY <= value <= _MAX_MEMORY:
-        raise ClusterOptions.field_error(
-            "memory", text, "an amount from 256MiB to 64TiB with a unit, e.g. 16GiB or 64GB"
-        )
-    return int(value)
-
-
-def walltime_seconds(text: str) -> int:
-    match = _WALLTIME.match(text)
-    seconds = None if match is None else int(match[1]) * 3600 + int(match[2]) * 60 + int(match[3])
-    if seconds is None or seconds < _MIN_WALLTIME_S:
-        raise ClusterOptions.field_error("walltime", text, f"HH:MM:SS from {WALLTIME_SPAN}")
-    return seconds
-
-
 def worker_lifetime(walltime: str) -> tuple[int, int]:
     """(lifetime, stagger) in seconds: workers retire before the batch system kills the job.
 
@@ -314,15 +302,6 @@ def worker_lifetime(walltime: str) -> tuple[int, int]:
     total = walltime_seconds(walltime)
     margin = min(max(300, total // 20), total // 2)
     return total - margin, margin // 2
-
-
-def scheduler_host_port(address: str) -> tuple[str, int]:
-    match = re.match(r"^(?:tcp|tls)://(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z", address, re.ASCII)
-    if match is None or not 0 < int(match[2]) < 65536:
-        raise ClusterOptions.field_error(
-            "scheduler", address, "tcp://HOST:PORT or tls://HOST:PORT, e.g. tcp://10.0.0.1:8786"
-        )
-    return match[1].strip("[]"), int(match[2])
 
 
 def check_scheduler_reachable(address: str, timeout_s: float = 5.0) -> None:
