@@ -523,11 +523,18 @@ def denoise_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _loader_setup(result: dict, which: str) -> str:
+    """The line above a loader table: what was loaded, how, and which of the repeats counts."""
+    return (
+        f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
+        f"{result['workers']} loader workers, {which} of {result['repeats']}"
+    )
+
+
 def loaders_table(result: dict) -> str:
     """:func:`compare_loaders`' result as markdown."""
     lines = [
-        f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
-        f"{result['workers']} loader workers, best of {result['repeats']}",
+        _loader_setup(result, "best"),
         "",
         "| source | samples/s | opening (s) |",
         "|---|---|---|",
@@ -541,8 +548,7 @@ def loaders_table(result: dict) -> str:
 def collation_table(result: dict) -> str:
     """:func:`compare_collation`'s result as markdown."""
     lines = [
-        f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
-        f"{result['workers']} loader workers, median of {result['repeats']}",
+        _loader_setup(result, "median"),
         "",
         "| machine | collation | samples/s |",
         "|---|---|---|",
