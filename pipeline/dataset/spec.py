@@ -264,78 +264,75 @@ class DatasetSection(_Section):
             )
 
 
+def _uniform(name: str, *, doc: str, unit: str = ""):
+    """A [materials] field that is ``materials.UniformRanges``' field ``name``: its default
+    and its limits (UNIFORM_LIMITS) are the sampler's, declared there once."""
+    default = next(f.default for f in fields(UniformRanges) if f.name == name)
+    rule = Pair if isinstance(default, tuple) else Float
+    return field(default, rule=rule(*UNIFORM_LIMITS[name]), doc=doc, unit=unit)
+
+
 @dataclass(frozen=True)
 class MaterialsSection(_Section):
     """[materials]: ranges of uniform materials, sources of spatially varying ones."""
 
     SECTION: ClassVar[str] = "materials"
 
-    # Uniform materials: the fields, defaults and limits of materials.UniformRanges
-    # (a test keeps them equal). The model: a dielectric (grey specular of a few percent,
+    # Uniform materials: the fields of materials.UniformRanges (a test keeps them equal),
+    # each with its default and limits (_uniform). The model: a dielectric (grey specular of a few percent,
     # coloured diffuse) or, with probability metal_probability, a metal (coloured
     # specular, almost no diffuse); colours drawn in HSV with V in sRGB-encoded units.
-    roughness: tuple[float, float] = field(
-        (0.05, 1.0),
-        rule=Pair(*UNIFORM_LIMITS["roughness"]),
+    roughness: tuple[float, float] = _uniform(
+        "roughness",
         doc="Range of a uniform material's roughness r, drawn uniformly (GGX alpha = r^2). "
         "Below ~0.05 highlights are near-mirror images of the sun and noise grows sharply.",
     )
-    metal_probability: float = field(
-        0.3,
-        rule=Float(*UNIFORM_LIMITS["metal_probability"]),
+    metal_probability: float = _uniform(
+        "metal_probability",
         doc="Probability that a uniform material is a metal (coloured specular, ~no diffuse).",
         unit="probability",
     )
-    dielectric_specular: tuple[float, float] = field(
-        (0.02, 0.08),
-        rule=Pair(*UNIFORM_LIMITS["dielectric_specular"]),
+    dielectric_specular: tuple[float, float] = _uniform(
+        "dielectric_specular",
         doc="Range of a dielectric's grey specular albedo (water ~0.02, plastics ~0.04-0.05, gems ~0.08+).",
         unit="linear albedo",
     )
-    diffuse_value_srgb: tuple[float, float] = field(
-        (0.15, 0.95),
-        rule=Pair(*UNIFORM_LIMITS["diffuse_value_srgb"]),
+    diffuse_value_srgb: tuple[float, float] = _uniform(
+        "diffuse_value_srgb",
         doc="Range of a dielectric's diffuse brightness, HSV value in sRGB-encoded units "
         "(0.15: 0.02 linear, charcoal; 0.95: 0.89 linear, fresh snow).",
         unit="sRGB-encoded value",
     )
-    diffuse_saturation: tuple[float, float] = field(
-        (0.0, 0.85),
-        rule=Pair(*UNIFORM_LIMITS["diffuse_saturation"]),
+    diffuse_saturation: tuple[float, float] = _uniform(
+        "diffuse_saturation",
         doc="Range of a dielectric's diffuse saturation (HSV).",
     )
-    metal_value_srgb: tuple[float, float] = field(
-        (0.55, 1.0),
-        rule=Pair(*UNIFORM_LIMITS["metal_value_srgb"]),
+    metal_value_srgb: tuple[float, float] = _uniform(
+        "metal_value_srgb",
         doc="Range of a metal's specular brightness, HSV value in sRGB-encoded units "
         "(0.55: 0.26 linear, dark titanium-like metals; 1.0: silver).",
         unit="sRGB-encoded value",
     )
-    metal_saturation: tuple[float, float] = field(
-        (0.0, 0.5),
-        rule=Pair(*UNIFORM_LIMITS["metal_saturation"]),
+    metal_saturation: tuple[float, float] = _uniform(
+        "metal_saturation",
         doc="Range of a metal's specular saturation (HSV); gold and copper are ~0.4-0.5.",
     )
-    metal_hue: tuple[float, float] = field(
-        (0.0, 0.17),
-        rule=Pair(*UNIFORM_LIMITS["metal_hue"]),
+    metal_hue: tuple[float, float] = _uniform(
+        "metal_hue",
         doc="Range of a metal's specular hue (HSV, 0 = red, 1/6 = yellow): copper, gold and "
         "brass lie in ~0.03-0.15; greys (low saturation) are hue-neutral.",
     )
-    metal_diffuse_fraction: tuple[float, float] = field(
-        (0.0, 0.1),
-        rule=Pair(*UNIFORM_LIMITS["metal_diffuse_fraction"]),
+    metal_diffuse_fraction: tuple[float, float] = _uniform(
+        "metal_diffuse_fraction",
         doc="Range of a metal's diffuse albedo as a fraction of the room left, 1 - specular (dirt, oxide).",
     )
-    flat_normal_probability: float = field(
-        0.5,
-        rule=Float(*UNIFORM_LIMITS["flat_normal_probability"]),
+    flat_normal_probability: float = _uniform(
+        "flat_normal_probability",
         doc="Probability that a uniform material's normal is flat, (0, 0, 1).",
         unit="probability",
     )
-    normal_tilt_max_deg: float = field(
-        20.0,
-        rule=Float(*UNIFORM_LIMITS["normal_tilt_max_deg"]),
+    normal_tilt_max_deg: float = _uniform(
+        "normal_tilt_max_deg",
         doc="Largest tilt from (0, 0, 1) of a non-flat uniform normal; the tilt is uniform in "
         "solid angle, towards a uniform azimuth.",
         unit="degrees",
