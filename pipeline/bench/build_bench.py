@@ -41,6 +41,7 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.fields import FieldError, format_value
+from pipeline.render.kernels import KernelCounter
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run import shard
@@ -124,6 +125,11 @@ def _refused_as_option(request, exc: FieldError, given: dict, named: dict[str, s
     )
 
 
+def _over(part: float, whole: float) -> float:
+    """``part / whole``, infinite where ``whole`` is none (a ratio of times)."""
+    return part / whole if whole > 0 else math.inf
+
+
 @dataclass
 class SampleTiming:
     sample_id: str
@@ -170,7 +176,7 @@ class BuildBench:
 
     @property
     def ratio(self) -> float:
-        return self.build_s / self.bare_s if self.bare_s > 0 else math.inf
+        return _over(self.build_s, self.bare_s)
 
     @property
     def bare_cpu_s(self) -> float:
@@ -179,20 +185,20 @@ class BuildBench:
     @property
     def cpu_ratio(self) -> float:
         """Build CPU over bare-render CPU: less disturbed than wall time on a shared machine."""
-        return self.build_cpu_s / self.bare_cpu_s if self.bare_cpu_s > 0 else math.inf
+        return _over(self.build_cpu_s, self.bare_cpu_s)
 
     @property
     def records_ratio(self) -> float:
         """The build from its first render on over the records' render times per worker process:
         both taken in the same run, so other load on the machine moves both alike."""
         per_process = self.records_render_s / max(self.processes, 1)
-        return (self.build_s - self.startup_s) / per_process if per_process > 0 else math.inf
+        return _over(self.build_s - self.startup_s, per_process)
 
     @property
     def steady_ratio(self) -> float:
         """Build wall time from its first render on, over the bare renders: the ratio a long
         build tends to, where the start-up (spec, plan, cluster) is spread over many renders."""
-        return (self.build_s - self.startup_s) / self.bare_s if self.bare_s > 0 else math.inf
+        return _over(self.build_s - self.startup_s, self.bare_s)
 
     @property
     def render_call_ratio(self) -> float | None:
@@ -399,35 +405,6 @@ def warm_kernels(spec, plans, variant: str) -> float:
                 np.asarray(mi.render(scene, spp=1, seed=0))
                 del scene
     return time.perf_counter() - start
-
-
-class KernelCounter:
-    """Counts drjit kernels compiled (not found in the memory or disk cache) while active.
-
-    A kernel's hash covers the Mitsuba objects alive in the process (virtual calls are
-    traced over every registered instance), so two scenes alive at once give new kernels:
-    the measurements below keep one scene alive at a time, as a build worker does.
-    """
-
-    def __init__(self):
-        import drjit as dr
-
-        self._dr = dr
-        self.compiled = 0
-        self.compile_s = 0.0
-
-    def __enter__(self):
-        self._dr.set_flag(self._dr.JitFlag.KernelHistory, True)
-        self._dr.kernel_history()  # clears
-        return self
-
-    def __exit__(self, *exc):
-        dr = self._dr
-        for k in dr.kernel_history():
-            if k["type"] == dr.KernelType.JIT and not k.get("cache_hit"):
-                self.compiled += 1
-                self.compile_s += k.get("backend_time", 0.0) / 1000.0
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 def _stored_render(layout, sample) -> np.ndarray:

@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass
 
 from pipeline.bench.build_bench import warm_kernels
 from pipeline.bench.gpu_rate import gpu_rate
+from pipeline.check.info import human_bytes
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest, spec_operand
 from pipeline.fields import Bool, Checked, Int, field, same_as
@@ -192,10 +193,10 @@ class PlanReport:
             f"{self.svbrdf:,} svbrdf) x {self.lights_per_material} lightings; {self.resolution}x{self.resolution} px, "
             f"{self.spp} spp, variant {self.variant}",
             f"shards: {self.shards:,} of {self.shard_size} materials ({self.renders_per_shard} renders)",
-            f"disk (pixel data before EXR compression): {_human(d['total_bytes'])} = renders "
-            f"{_human(d['render_bytes'])} ({_human(d['bytes_per_render'])} each) + screen-space maps "
-            f"{_human(d['maps_bytes'])} ({_human(d['bytes_per_material_maps'])} a material) + texture maps "
-            f"{_human(d['texture_bytes'])}",
+            f"disk (pixel data before EXR compression): {human_bytes(d['total_bytes'])} = renders "
+            f"{human_bytes(d['render_bytes'])} ({human_bytes(d['bytes_per_render'])} each) + screen-space maps "
+            f"{human_bytes(d['maps_bytes'])} ({human_bytes(d['bytes_per_material_maps'])} a material) + texture maps "
+            f"{human_bytes(d['texture_bytes'])}",
         ]
         t = self.timing
         if t is not None:
@@ -214,8 +215,8 @@ class PlanReport:
             if x:
                 out.append(f"extrapolated: {x['text']}")
             out.append(
-                f"disk as written (EXR compressed, records, markers, manifest): {_human(t.bytes_per_render)} a "
-                f"render, {_human(t.bytes_per_render * self.renders)} in all"
+                f"disk as written (EXR compressed, records, markers, manifest): {human_bytes(t.bytes_per_render)} a "
+                f"render, {human_bytes(t.bytes_per_render * self.renders)} in all"
             )
             for e in self.estimates:
                 out.append(
@@ -224,14 +225,6 @@ class PlanReport:
                 )
         out.extend(f"note: {n}" for n in self.notes)
         return out
-
-
-def _human(n: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if n < 1024 or unit == "TiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024.0
-    return f"{n:.1f} TiB"
 
 
 def _hours(seconds: float) -> str:
