@@ -29,6 +29,20 @@ def mi():
 
 
 @pytest.fixture(scope="session")
+def cache_dir(tmp_path_factory) -> str:
+    """The geometry and G-buffer cache of this session."""
+    return str(tmp_path_factory.getbasetemp() / "shaderball-cache")
+
+
+@pytest.fixture(scope="session")
+def ball(cache_dir):
+    """The default shaderball, built once a session (the geometry, G-buffer and raster tests)."""
+    from geometry import ShaderballParams, build_shaderball
+
+    return build_shaderball(ShaderballParams(), cache_dir=cache_dir)
+
+
+@pytest.fixture(scope="session")
 def reference(tmp_path_factory) -> Path:
     """An uninterrupted smoke build, shared by the crash, resume and cluster tests."""
     return crash_module().shared_reference(tmp_path_factory)[0]

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from geometry import ShaderballParams, build_shaderball, default_camera
+from geometry import default_camera
 from pipeline.errors import ShaderballError
 from pipeline.render.gbuffer import (
     compute_gbuffer,
@@ -23,16 +23,6 @@ from pipeline.render.raster import bilinear_lookup, decode_normal, encode_normal
 from pipeline.render.scene import BALL_SHAPE_ID
 from pipeline.store.exr import read_exr
 from support import VARIANT
-
-
-@pytest.fixture(scope="session")
-def cache_dir(tmp_path_factory):
-    return str(tmp_path_factory.getbasetemp() / "shaderball-cache")
-
-
-@pytest.fixture(scope="session")
-def ball(cache_dir):
-    return build_shaderball(ShaderballParams(), cache_dir=cache_dir)
 
 
 @pytest.fixture(scope="session")

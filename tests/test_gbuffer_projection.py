@@ -11,16 +11,11 @@ render black; they are counted and must stay a tiny share.
 import numpy as np
 import pytest
 
-from geometry import ShaderballParams, build_shaderball, default_camera
+from geometry import default_camera
 from pipeline.render.gbuffer import facing_mask, load_gbuffer
 from pipeline.render.raster import project
 from pipeline.render.scene import BALL_SHAPE_ID, bitmap_texture, sensor_dict, shape_dicts
 from support import VARIANT
-
-
-@pytest.fixture(scope="module")
-def ball(tmp_path_factory):
-    return build_shaderball(ShaderballParams(), cache_dir=str(tmp_path_factory.getbasetemp() / "shaderball-cache"))
 
 
 def _mitsuba_lookup(mi, ball, camera, resolution, texture):

@@ -13,16 +13,6 @@ from geometry.errors import GeometryError
 from geometry.patches import band_frame, uv_signed_areas
 
 
-@pytest.fixture(scope="session")
-def cache_dir(tmp_path_factory):
-    return str(tmp_path_factory.getbasetemp() / "shaderball-cache")
-
-
-@pytest.fixture(scope="session")
-def ball(cache_dir):
-    return build_shaderball(ShaderballParams(), cache_dir=cache_dir)
-
-
 def _face_areas(positions, faces):
     p = positions[faces].astype(np.float64)
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
