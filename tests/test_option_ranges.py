@@ -7,7 +7,6 @@ lightings, the study's ladder)."""
 from __future__ import annotations
 
 import math
-import os
 
 import click
 import pytest
@@ -28,9 +27,8 @@ from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.ui.command import reworded
 from pipeline.ui.options import FieldType
+from support import SMOKE
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
 #: The classes whose fields a command's options feed: the spec's sections, the renderer's
 #: settings, the cluster's options.
 FED = (DatasetSection, MaterialsSection, LightingSection, StorageSection, RenderSettings, ClusterOptions)

@@ -28,10 +28,7 @@ from pipeline.dataset.plan import (
 )
 from pipeline.dataset.spec import parse_spec, parse_spec_text
 from pipeline.errors import ShaderballError
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
-PAPER = os.path.join(REPO, "manifests", "paper.toml")
+from support import PAPER, REPO, SMOKE
 
 
 def make_spec(materials=8, lights=2, fraction=0.5, shard_size=2, seed=11, extra=""):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import json
-import os
 import subprocess
 import sys
 import textwrap
@@ -37,10 +36,7 @@ from pipeline.dataset.spec import (
 )
 from pipeline.errors import ShaderballError
 from pipeline.fields import FieldError
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SMOKE = os.path.join(REPO, "manifests", "smoke.toml")
-PAPER = os.path.join(REPO, "manifests", "paper.toml")
+from support import PAPER, REPO, SMOKE
 
 MINIMAL = '[dataset]\nname = "tiny"\nseed = 7\nmaterials = 4\n'
 
