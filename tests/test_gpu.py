@@ -27,6 +27,7 @@ from pipeline.render.mitsuba_env import CUDA_VARIANT, WITHIN_NOISE, cuda_works, 
 from pipeline.run.build import build
 from pipeline.store.exr import read_exr
 from support import VARIANT
+from support.material_cases import bsdf_chi2
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -121,27 +122,7 @@ def test_scene_command_on_cuda(cuda, tmp_path, monkeypatch):
 @pytest.mark.parametrize("model", brdf_ref.MODELS)
 @pytest.mark.parametrize("r, theta", [(0.3, 0), (0.3, 60), (0.7, 80)])
 def test_chi2_sample_matches_pdf_on_cuda(cuda, model, r, theta):
-    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
-
-    params = {
-        "type": "shaderball_ct",
-        "diffuse": {"type": "rgb", "value": [0.5] * 3},
-        "specular": {"type": "rgb", "value": [0.5] * 3},
-        "roughness": r,
-        "model": model,
-    }
-    t = np.radians(theta)
-    sample, pdf = BSDFAdapter("shaderball_ct", params, wi=cuda.Vector3f(float(np.sin(t)), 0.0, float(np.cos(t))))
-    test = ChiSquareTest(
-        domain=SphericalDomain(),
-        sample_func=sample,
-        pdf_func=pdf,
-        sample_dim=3,
-        sample_count=1_000_000,
-        res=101,
-        ires=32,
-        seed=theta + 7,
-    )
+    test = bsdf_chi2(cuda.Vector3f, 0.5, 0.5, r, model, theta, ires=32, seed=theta + 7)
     assert test.run(0.01, test_count=6, quiet=True), test.messages
 
 

@@ -19,12 +19,11 @@ from materials.errors import MaterialError
 from support.material_cases import (
     HARD_NORMALS,
     HARD_ROUGHNESS,
+    Z,
     deschaintre_code_brdf,
     floor_cases,
     hard_directions,
 )
-
-Z = np.array([0.0, 0.0, 1.0])
 
 
 def _dir(theta_deg, phi_deg=0.0):

@@ -18,12 +18,12 @@ from support import VARIANT
 from support.material_cases import (
     HARD_NORMALS,
     HARD_ROUGHNESS,
+    Z,
+    bsdf_chi2,
     deschaintre_code_brdf,
     floor_cases,
     hard_directions,
 )
-
-Z = np.array([0.0, 0.0, 1.0])
 
 
 @pytest.fixture(scope="module")
@@ -222,32 +222,13 @@ def _chi2_cases():
 
 @pytest.mark.parametrize("model, r, theta, material", list(_chi2_cases()))
 def test_chi2_sample_matches_pdf(mi, model, r, theta, material):
-    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
-
     d, s = {"metal": (0.0, 1.0), "mixed": (0.5, 0.5)}[material]
-    params = {
-        "type": "shaderball_ct",
-        "diffuse": {"type": "rgb", "value": [d] * 3},
-        "specular": {"type": "rgb", "value": [s] * 3},
-        "roughness": r,
-        "model": model,
-    }
-    t = np.radians(theta)
-    sample, pdf = BSDFAdapter("shaderball_ct", params, wi=mi.Vector3f(float(np.sin(t)), 0.0, float(np.cos(t))))
     # ires=32: Mitsuba's default 4 x 4 trapezoid per cell misintegrates lobes of alpha <= 0.125
     # near the pole and the horizon, failing Mitsuba's own roughconductor there too; at the
     # floored model's sampling alpha 0.0316 it needs 64 (so does roughconductor at normal incidence).
     sampling_alpha = float(brdf_ref.sampling_alpha(r * r, model))
-    test = ChiSquareTest(
-        domain=SphericalDomain(),
-        sample_func=sample,
-        pdf_func=pdf,
-        sample_dim=3,
-        sample_count=1_000_000,
-        res=101,
-        ires=32 if sampling_alpha >= 0.05 else 64,
-        seed=int(r * r * 1000) + theta,
-    )
+    ires = 32 if sampling_alpha >= 0.05 else 64
+    test = bsdf_chi2(mi.Vector3f, d, s, r, model, theta, ires=ires, seed=int(r * r * 1000) + theta)
     assert test.run(0.01, test_count=40, quiet=True), test.messages
 
 

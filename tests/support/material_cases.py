@@ -123,3 +123,31 @@ def floor_cases(rng, count: int):
     keep = (wi[:, 2] > 0) & (wo[:, 2] > 0)
     labels = np.array(["ggx"] * half + ["smith"] * rest)
     return wi[keep], wo[keep], np.concatenate([r_ggx, r_smith])[keep], labels[keep]
+
+
+def bsdf_chi2(vector3f, d: float, s: float, r: float, model: str, theta_deg: float, *, ires: int, seed: int):
+    """Mitsuba's chi-square test of ``shaderball_ct``'s sampled directions against its pdf: a grey
+    material (diffuse ``d``, specular ``s``, roughness ``r``) lit at ``theta_deg`` from the
+    normal; ``vector3f`` is the variant's ``mi.Vector3f``. ``ires``: the pdf's integration
+    resolution per cell."""
+    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
+
+    params = {
+        "type": "shaderball_ct",
+        "diffuse": {"type": "rgb", "value": [d] * 3},
+        "specular": {"type": "rgb", "value": [s] * 3},
+        "roughness": r,
+        "model": model,
+    }
+    t = np.radians(theta_deg)
+    sample, pdf = BSDFAdapter("shaderball_ct", params, wi=vector3f(float(np.sin(t)), 0.0, float(np.cos(t))))
+    return ChiSquareTest(
+        domain=SphericalDomain(),
+        sample_func=sample,
+        pdf_func=pdf,
+        sample_dim=3,
+        sample_count=1_000_000,
+        res=101,
+        ires=ires,
+        seed=seed,
+    )
