@@ -28,17 +28,14 @@ from pipeline.bench.info import info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
 from pipeline.neural.command import (
-    collate_command,
-    denoise_command,
+    bench_command,
     evaluate_command,
     export_command,
     infer_command,
     live_network,
-    loaders_command,
     stored_renders,
     sweep_command,
     train_command,
-    train_options_command,
 )
 from pipeline.neural.config import (
     CollateRequest,
@@ -429,7 +426,7 @@ def neural_bench_loaders_cmd(request: LoadersRequest):
     Example:
       shaderball neural-bench loaders demo-out/smoke demo-out/smoke-pub --repeats 1
     """
-    return loaders_command(request, progress=say)
+    return bench_command(request, progress=say)
 
 
 @request_command(neural_bench, CollateRequest, name="collate", json=_BENCH_JSON, needs_torch=True)
@@ -441,7 +438,7 @@ def neural_bench_collate_cmd(request: CollateRequest):
     Example:
       shaderball neural-bench collate demo-out/smoke --repeats 1 --busy 0
     """
-    return collate_command(request, progress=say)
+    return bench_command(request, progress=say)
 
 
 @request_command(
@@ -463,7 +460,7 @@ def neural_bench_denoise_cmd(request: DenoiseRequest):
     Example:
       shaderball neural-bench denoise demo-out/smoke --draws 1 --spp 1 --reference-spp 4
     """
-    return denoise_command(request, progress=say)
+    return bench_command(request, progress=say)
 
 
 @request_command(neural_bench, TrainOptionsRequest, name="train-options", json=_BENCH_JSON, needs_torch=True)
@@ -475,7 +472,7 @@ def neural_bench_train_options_cmd(request: TrainOptionsRequest):
     Example:
       shaderball neural-bench train-options --resolution 32 --loss l1 --repeats 1 --steps 1 --variants baseline,--channels-last
     """
-    return train_options_command(request, progress=say)
+    return bench_command(request, progress=say)
 
 
 if __name__ == "__main__":

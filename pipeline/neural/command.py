@@ -66,36 +66,20 @@ def sweep_command(request: SweepRequest, *, command: str | None = None) -> Print
     return Printed(*write_sweep(request, command=command))
 
 
-def loaders_command(request: LoadersRequest, *, progress=None) -> Printed:
-    """`shaderball neural-bench loaders`: every figure, and their table."""
-    from pipeline.neural.bench import compare_loaders, loaders_table
+def bench_command(
+    request: LoadersRequest | CollateRequest | DenoiseRequest | TrainOptionsRequest, *, progress=None
+) -> Printed:
+    """`shaderball neural-bench KIND`: every figure of the kind the request asks for, and their table."""
+    from pipeline.neural import bench
 
-    result = compare_loaders(request, progress=progress)
-    return Printed(result, loaders_table(result))
-
-
-def collate_command(request: CollateRequest, *, progress=None) -> Printed:
-    """`shaderball neural-bench collate`: every figure, and their table."""
-    from pipeline.neural.bench import collation_table, compare_collation
-
-    result = compare_collation(request, progress=progress)
-    return Printed(result, collation_table(result))
-
-
-def denoise_command(request: DenoiseRequest, *, progress=None) -> Printed:
-    """`shaderball neural-bench denoise`: every figure, and their table."""
-    from pipeline.neural.bench import compare_denoisers, denoise_table
-
-    result = compare_denoisers(request, progress=progress)
-    return Printed(result, denoise_table(result))
-
-
-def train_options_command(request: TrainOptionsRequest, *, progress=None) -> Printed:
-    """`shaderball neural-bench train-options`: every figure, and their table."""
-    from pipeline.neural.bench import compare_training, training_table
-
-    result = compare_training(request, progress=progress)
-    return Printed(result, training_table(result))
+    measure, table = {
+        LoadersRequest: (bench.compare_loaders, bench.loaders_table),
+        CollateRequest: (bench.compare_collation, bench.collation_table),
+        DenoiseRequest: (bench.compare_denoisers, bench.denoise_table),
+        TrainOptionsRequest: (bench.compare_training, bench.training_table),
+    }[type(request)]
+    result = measure(request, progress=progress)
+    return Printed(result, table(result))
 
 
 def live_network(options):
