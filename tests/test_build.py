@@ -209,7 +209,7 @@ def test_a_bad_map_made_beside_the_renders_stops_the_shard_naming_it(tmp_path, m
     from materials.maps import MaterialMaps
     from pipeline.dataset.plan import plan_dataset
     from pipeline.run import shard as shard_mod
-    from pipeline.run.build import read_spec_text
+    from pipeline.run.out_folder import read_spec_text
     from pipeline.store.layout import Layout
     from support import VARIANT
 

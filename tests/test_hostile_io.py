@@ -25,7 +25,7 @@ from pipeline.dataset.plan import KIND_SVBRDF, KIND_UNIFORM, plan_dataset, plan_
 from pipeline.dataset.spec import MAP_LAYERS, parse_spec, parse_spec_bytes
 from pipeline.errors import ShaderballError
 from pipeline.fields import Reject, StrList
-from pipeline.run.build import plan_digest
+from pipeline.run.out_folder import plan_digest
 from support.hostile import copy_dataset
 from support.plans import PLAN_DIGESTS
 from support.processes import cli, has_mapped, started

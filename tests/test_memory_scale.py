@@ -105,7 +105,8 @@ WRITE = (
 MANIFEST = (
     "import sys, tracemalloc\n"
     "from pipeline.dataset.plan import plan_dataset\n"
-    "from pipeline.run.build import read_spec_text, write_manifest\n"
+    "from pipeline.run.build import write_manifest\n"
+    "from pipeline.run.out_folder import read_spec_text\n"
     "plans = plan_dataset(read_spec_text(sys.argv[1] + '/spec.toml')[0])\n"
     "tracemalloc.start()\n"
     "write_manifest(sys.argv[1], plans)\n"

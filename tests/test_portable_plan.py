@@ -21,7 +21,7 @@ import pytest
 
 from pipeline.dataset.plan import STREAM_LIGHTS, index_seeds, plan_dataset, seeded_rng
 from pipeline.dataset.spec import parse_spec
-from pipeline.run.build import plan_digest
+from pipeline.run.out_folder import plan_digest
 from sky.portable import DEG_PER_RAD, RAD_PER_DEG, asin_deg, asin_rad, asin_scalar, sin_deg, sin_rad, sin_scalar
 from sky.sampling import unit_points
 from support.plans import PAPER, PLAN_DIGESTS, REPO, SMOKE
@@ -83,7 +83,7 @@ DIGEST_SCRIPT = """
 import json, sys
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
-from pipeline.run.build import plan_digest
+from pipeline.run.out_folder import plan_digest
 import numpy._core._multiarray_umath as umath
 enabled = [name for name in umath.__cpu_dispatch__ if umath.__cpu_features__.get(name)]
 print(json.dumps({"enabled": enabled, "digests": [plan_digest(plan_dataset(parse_spec(p))) for p in sys.argv[1:]]}))

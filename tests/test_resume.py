@@ -18,7 +18,8 @@ from click.testing import CliRunner
 
 from pipeline.dataset.spec import parse_spec, spec_to_toml
 from pipeline.errors import ShaderballError
-from pipeline.run.build import build, check_output_dir, sweep_temp_files
+from pipeline.run.build import build, sweep_temp_files
+from pipeline.run.out_folder import check_output_dir
 from pipeline.store.layout import Layout
 
 REPO = Path(__file__).resolve().parents[1]

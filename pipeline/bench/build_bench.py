@@ -45,7 +45,8 @@ from pipeline.render.kernels import KernelCounter
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict
 from pipeline.run import shard
-from pipeline.run.build import build, read_spec_text
+from pipeline.run.build import build
+from pipeline.run.out_folder import read_spec_text
 from pipeline.run.shard import worker_context, write_material_files
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr, write_exr

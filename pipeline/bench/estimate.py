@@ -43,8 +43,8 @@ from pipeline.dataset.spec import spec_digest, spec_operand
 from pipeline.fields import Bool, Checked, Int, field, same_as
 from pipeline.render.limits import launch_limit_text, launch_spp
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
-from pipeline.run.build import read_spec_text
 from pipeline.run.cluster.options import JOBQUEUE_KINDS, ClusterOptions
+from pipeline.run.out_folder import read_spec_text
 from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
 from pipeline.store.layout import MARKER_FILE, Layout

@@ -40,7 +40,7 @@ planned = time.perf_counter()
 out = {"plan_s": planned - imported, "renders": summary["renders"], "shards": summary["shards"],
        "first_shard_samples": len(first)}
 if sys.argv[2] == "digest":
-    from pipeline.run.build import plan_digest
+    from pipeline.run.out_folder import plan_digest
     t = time.perf_counter()
     out["digest"] = plan_digest(plans)[:12]
     out["digest_s"] = time.perf_counter() - t

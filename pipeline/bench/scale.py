@@ -40,7 +40,7 @@ from pipeline.errors import ShaderballError
 from pipeline.fields import format_value
 from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png
 from pipeline.render.mitsuba_env import cpu_model
-from pipeline.run.build import read_spec_text
+from pipeline.run.out_folder import read_spec_text
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.store.records import dumps
 

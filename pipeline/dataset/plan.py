@@ -54,7 +54,7 @@ from sky.sampling import unit_points
 #: The plan format: what a plan digest is a digest of. 2 (shaderball 0.2.0): sun elevations
 #: come from :mod:`sky.portable`'s sin and arcsin, the same bits on every machine. 1 (0.1.0)
 #: used numpy's vectorised arcsin, whose last bits depend on the CPU: a format-1 dataset
-#: is refused on resume rather than mixed (pipeline.run.build.check_same_installation).
+#: is refused on resume rather than mixed (pipeline.run.out_folder.check_same_installation).
 PLAN_FORMAT = 2
 
 STREAM_MATERIAL = 1

@@ -19,7 +19,8 @@ from pipeline.check.validate import validate
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
 from pipeline.errors import SetupError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
-from pipeline.run.build import build, recorded_guarantee, write_manifest
+from pipeline.run.build import build, write_manifest
+from pipeline.run.out_folder import recorded_guarantee
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
 from pipeline.store.lock import writer_lock
