@@ -4,6 +4,10 @@ Domain packages import nothing of ``pipeline``; :data:`pipeline.errors.USER_ERRO
 lists this type so the CLI reports it like its own errors (a clear message, exit 2).
 A refusal of a value reads as the project's every refusal: ``<field>: <value> is not
 allowed; <what is allowed>`` (``pipeline.fields.FieldError`` words the commands' and the spec's).
+
+sky/errors.py is its twin on purpose: the domain packages import neither each other nor
+``pipeline`` (docs/architecture.md), and a module both could share would be a new top-level
+package, outside the layout the design fixes, for some 40 lines.
 """
 
 from __future__ import annotations
