@@ -58,7 +58,8 @@ from pipeline.run.command import build_command
 from pipeline.run.repair import validate_or_repair
 from pipeline.run.request import BuildRequest
 from pipeline.serve.command import ServeOptions, serve_command
-from pipeline.study.run import StudyRequest, run_study
+from pipeline.study.request import StudyRequest
+from pipeline.study.run import run_study
 from pipeline.ui import process
 from pipeline.ui.command import Group, command_line, renamed_option, request_command
 from pipeline.ui.progress import (

@@ -40,7 +40,8 @@ from pipeline.render.renderer import (
     scene_dict,
 )
 from pipeline.study.configs import study_configs
-from pipeline.study.run import StudyRequest, run_study
+from pipeline.study.request import StudyRequest
+from pipeline.study.run import run_study
 from pipeline.ui.command import command_line
 from sky import Light
 from support import VARIANT
