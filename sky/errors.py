@@ -47,11 +47,11 @@ def refusal(field: str, value, allowed: str) -> SkyError:
 
 
 def number_allowed(lo: float, hi: float) -> str:
-    """What a number in [lo, hi] allows, in the words of ``pipeline.fields.Float``."""
+    """What a number in [lo, hi] allows, in the words of ``pipeline.fields.rules.Float``."""
     return f"a finite number from {lo:g} to {hi:g}"
 
 
 def pair_allowed(lo: float, hi: float, max_span: float | None = None) -> str:
-    """What a closed interval within [lo, hi] allows, in the words of ``pipeline.fields.Pair``."""
+    """What a closed interval within [lo, hi] allows, in the words of ``pipeline.fields.rules.Pair``."""
     text = f"a pair [lo, hi] of finite numbers with {lo:g} <= lo <= hi <= {hi:g}"
     return text + (f" and hi - lo <= {max_span:g}" if max_span is not None else "")

@@ -35,7 +35,7 @@ def test_int_and_float_options_take_ascii_digits_only(tmp_path, option, value):
 
 
 def test_the_rules_parse_ascii_only():
-    from pipeline.fields import Float, Int, IntList, Triple
+    from pipeline.fields.rules import Float, Int, IntList, Triple
 
     for text in NOT_ASCII:
         for rule in (Int(0, 100), Float(0, 100), IntList(0, 100), Triple(0, 100)):

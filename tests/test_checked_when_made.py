@@ -21,7 +21,8 @@ import pytest
 from test_cli_usage import COMMANDS, SMOKE, invoke, refusal, valid_args
 
 import pipeline
-from pipeline.fields import Checked, Choice, FieldError, Float, Int, Many, Optional, Path, declared
+from pipeline.fields import Checked, FieldError, declared
+from pipeline.fields.rules import Choice, Float, Int, Many, Optional, Path
 from pipeline.ui.command import request_of
 
 

@@ -11,7 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 import cli
-from pipeline.fields import FieldError, Optional, declared, default_of
+from pipeline.fields import FieldError, declared, default_of
+from pipeline.fields.rules import Optional
 from pipeline.neural.config import TrainConfig
 from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.render.settings import RenderSettings

@@ -26,7 +26,8 @@ import pytest
 from click.testing import CliRunner
 
 import cli
-from pipeline.fields import IntList, StrList, Triple, flattened
+from pipeline.fields import flattened
+from pipeline.fields.rules import IntList, StrList, Triple
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = str(REPO / "manifests" / "smoke.toml")

@@ -24,7 +24,7 @@ from conftest import crash_module
 from pipeline.dataset.plan import KIND_SVBRDF, KIND_UNIFORM, plan_dataset, plan_summary
 from pipeline.dataset.spec import MAP_LAYERS, parse_spec, parse_spec_bytes
 from pipeline.errors import ShaderballError
-from pipeline.fields import Reject, StrList
+from pipeline.fields.rules import Reject, StrList
 from pipeline.run.out_folder import plan_digest
 from support.hostile import copy_dataset
 from support.plans import PLAN_DIGESTS

@@ -22,7 +22,8 @@ from pipeline.dataset.spec import (
     StorageSection,
     parse_spec,
 )
-from pipeline.fields import FieldError, Float, Int, Optional, declared
+from pipeline.fields import FieldError, declared
+from pipeline.fields.rules import Float, Int, Optional
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.ui.command import reworded

@@ -17,7 +17,8 @@ import click
 import pytest
 from test_cli_usage import COMMANDS, SMOKE, invoke, refusal
 
-from pipeline.fields import Checked, FieldError, Int, declared, field, flattened, part, parts
+from pipeline.fields import Checked, FieldError, declared, field, flattened, part, parts
+from pipeline.fields.rules import Int
 from pipeline.render.command import RenderRequest
 from pipeline.render.parts import MaterialPart, SunSkyPart
 from pipeline.run.cluster.options import ClusterOptions

@@ -13,7 +13,8 @@ import pytest
 
 from materials import ALBEDO_RANGE, ROUGHNESS_RANGE
 from pipeline.dataset.spec import SpecError, parse_spec_text
-from pipeline.fields import FieldError, Float, Pair
+from pipeline.fields import FieldError
+from pipeline.fields.rules import Float, Pair
 from pipeline.render.command import RenderRequest
 from pipeline.serve import view
 from pipeline.serve.server import App, ServeOptions

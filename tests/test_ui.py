@@ -56,7 +56,7 @@ def test_evaluate_off_a_terminal_prints_a_bar_line_per_step_saying_what_runs(cap
 def test_int_lists_are_one_rule():
     """A comma-separated list of integers is the IntList rule: parsed from the command line,
     refused in the project's one form."""
-    from pipeline.fields import IntList, Reject
+    from pipeline.fields.rules import IntList, Reject
 
     rule = IntList(1, 4096, none="none")
     assert rule.check(rule.parse("1,2,16")) == (1, 2, 16)

@@ -40,7 +40,8 @@ import pipeline.render.renderer as render
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import spec_to_toml
-from pipeline.fields import FieldError, format_value
+from pipeline.fields import FieldError
+from pipeline.fields.rules import format_value
 from pipeline.render.kernels import KernelCounter
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.render.renderer import MaterialScene, pass_plan, render_in_passes, scene_dict

@@ -15,7 +15,8 @@ from pipeline.bench.build_bench import run_build_bench
 from pipeline.bench.effects import run_effects_bench
 from pipeline.bench.scale import run_scale_bench
 from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, SPEC_FILE, DatasetSection
-from pipeline.fields import Bool, Checked, Int, IntList, Optional, Path, declared, default_of, field, same_as
+from pipeline.fields import Checked, declared, default_of, field, same_as
+from pipeline.fields.rules import Bool, Int, IntList, Optional, Path
 from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.atomic import write_text_atomic

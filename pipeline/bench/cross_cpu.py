@@ -37,7 +37,8 @@ import time
 import numpy as np
 
 from pipeline.errors import ShaderballError
-from pipeline.fields import FieldError, format_value
+from pipeline.fields import FieldError
+from pipeline.fields.rules import format_value
 from pipeline.render.mitsuba_env import (
     LLVM_VARIANT,
     llvm_target,

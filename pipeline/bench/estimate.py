@@ -40,7 +40,8 @@ from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.check.info import human_bytes
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
 from pipeline.dataset.spec import spec_digest, spec_operand
-from pipeline.fields import Bool, Checked, Int, field, same_as
+from pipeline.fields import Checked, field, same_as
+from pipeline.fields.rules import Bool, Int
 from pipeline.render.limits import launch_limit_text, launch_spp
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.cluster.options import JOBQUEUE_KINDS, ClusterOptions

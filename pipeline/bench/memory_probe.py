@@ -17,7 +17,8 @@ from pathlib import Path
 
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import parse_spec
-from pipeline.fields import Checked, Int, field, same_as
+from pipeline.fields import Checked, field, same_as
+from pipeline.fields.rules import Int
 from pipeline.render.settings import RenderSettings
 from pipeline.run.build import prepare
 from pipeline.run.shard import run_shard_in_process

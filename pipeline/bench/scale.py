@@ -37,7 +37,7 @@ import numpy as np
 from pipeline.bench.build_bench import derive_for
 from pipeline.dataset.spec import spec_to_toml
 from pipeline.errors import ShaderballError
-from pipeline.fields import format_value
+from pipeline.fields.rules import format_value
 from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png
 from pipeline.render.mitsuba_env import cpu_model
 from pipeline.run.out_folder import read_spec_text

@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.dataset.spec import SPEC_FILE
-from pipeline.fields import Bool, Checked, Int, Optional, Path, Text, field, format_value
+from pipeline.fields import Checked, field
+from pipeline.fields.rules import Bool, Int, Optional, Path, Text, format_value
 
 #: preview's rows: samples spread over the renders recorded so far.
 ROWS_RANGE = (1, 200)

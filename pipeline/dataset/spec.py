@@ -40,12 +40,11 @@ import tomllib
 from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.errors import ShaderballError, quoted
-from pipeline.fields import (
+from pipeline.fields import Checked, FieldError, field
+from pipeline.fields.rules import (
     MISSING,
     Bool,
-    Checked,
     Choice,
-    FieldError,
     Float,
     Int,
     Pair,
@@ -54,7 +53,6 @@ from pipeline.fields import (
     Rule,
     StrList,
     Text,
-    field,
     format_value,
 )
 from pipeline.image.formats import EXR_COMPRESSIONS

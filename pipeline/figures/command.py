@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, declared, default_of, field
+from pipeline.fields import Checked, declared, default_of, field
+from pipeline.fields.rules import Bool, Choice, Int, Optional, Path
 from pipeline.figures.albedo_table import markdown, models_markdown
 from pipeline.figures.contact_sheet import EXAMPLES_RANGE, RESOLUTION_RANGE, SHEET_SEED, write_contact_sheet
 from pipeline.figures.sun_positions import sun_positions

@@ -21,9 +21,9 @@ import os
 from dataclasses import dataclass
 
 from pipeline.check.request import dataset_operand
-from pipeline.fields import (
+from pipeline.fields import Checked, field, part, same_as
+from pipeline.fields.rules import (
     Bool,
-    Checked,
     Choice,
     Float,
     Int,
@@ -35,10 +35,7 @@ from pipeline.fields import (
     Rule,
     StrList,
     Text,
-    field,
     format_value,
-    part,
-    same_as,
 )
 from pipeline.image.tonemap import DEFAULT_EXPOSURE
 from pipeline.neural.limits import (

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.errors import ShaderballError, quoted
-from pipeline.fields import format_value
+from pipeline.fields.rules import format_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
 from pipeline.image.tonemap import hdr_to_srgb8, to_srgb8

@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pipeline.check.request import dataset_operand
-from pipeline.fields import Bool, Checked, Choice, Int, Optional, Path, Text, field, format_value, same_as
+from pipeline.fields import Checked, field, same_as
+from pipeline.fields.rules import Bool, Choice, Int, Optional, Path, Text, format_value
 from pipeline.publish.publication_facts import LICENSES
 
 #: --shard-bytes: the largest tar shard, from 64 KiB to 1 TiB.

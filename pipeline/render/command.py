@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from pipeline.fields import Checked, Int, Optional, field, flattened, part, same_as
-from pipeline.fields import Path as PathRule
+from pipeline.fields import Checked, field, flattened, part, same_as
+from pipeline.fields.rules import Int, Optional
+from pipeline.fields.rules import Path as PathRule
 from pipeline.image.tonemap import preview_srgb8
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant

@@ -22,7 +22,8 @@ import numpy as np
 from geometry import Camera, Shaderball
 from geometry.shaderball import default_cache_dir
 from pipeline.errors import USER_ERRORS
-from pipeline.fields import FieldError, Int, Reject
+from pipeline.fields import FieldError
+from pipeline.fields.rules import Int, Reject
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID, sensor_dict, shape_dicts

@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from materials import ALBEDO_RANGE, ROUGHNESS_RANGE, MaterialMaps, UniformMaterial, load_deschaintre
-from pipeline.fields import Checked, Choice, Float, Optional, Path, Reject, Triple, field
+from pipeline.fields import Checked, field
+from pipeline.fields.rules import Choice, Float, Optional, Path, Reject, Triple
 from sky import Light
 from sky.lighting import AZIMUTH_RANGE, ELEVATION_RANGE, TURBIDITY_RANGE
 

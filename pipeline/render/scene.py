@@ -15,7 +15,8 @@ import math
 import numpy as np
 
 from geometry import Camera, Shaderball
-from pipeline.fields import Choice, FieldError
+from pipeline.fields import FieldError
+from pipeline.fields.rules import Choice
 from pipeline.render.limits import SAMPLERS as RENDER_SAMPLERS
 from pipeline.render.mitsuba_env import load_mitsuba
 

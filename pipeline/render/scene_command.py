@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from pipeline.fields import Checked, Path, field, format_value, same_as
+from pipeline.fields import Checked, field, same_as
+from pipeline.fields.rules import Path, format_value
 from pipeline.image.srgb import srgb_encode
 from pipeline.render.gbuffer import gbuffer_key_inputs, load_gbuffer, seam_band
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
-from pipeline.fields import Checked, Choice, Float, Int, field
+from pipeline.fields import Checked, field
+from pipeline.fields.rules import Choice, Float, Int
 from pipeline.render.limits import (
     CLAMP_RANGE,
     DEFAULT_RR_DEPTH,

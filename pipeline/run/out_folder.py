@@ -21,7 +21,7 @@ from pipeline.dataset.spec import (
     spec_to_dict,
 )
 from pipeline.errors import USER_ERRORS, short_repr
-from pipeline.fields import format_value
+from pipeline.fields.rules import format_value
 from pipeline.render.mitsuba_env import (
     GUARANTEE_BASIS,
     determinism,

@@ -30,7 +30,8 @@ from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import list_imported_maps, plan_dataset, seeded_rng
 from pipeline.dataset.spec import parse_spec
 from pipeline.errors import USER_ERRORS, ShaderballError
-from pipeline.fields import FieldError, format_value
+from pipeline.fields import FieldError
+from pipeline.fields.rules import format_value
 from pipeline.publish.names import DATASET_DIR, INDEX_FILE
 from pipeline.serve.view import (
     MAP_NAMES,

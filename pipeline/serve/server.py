@@ -71,7 +71,8 @@ from importlib import resources
 from urllib.parse import urlsplit
 
 from materials import SVBRDF_FAMILIES
-from pipeline.fields import Bool, Checked, Int, Optional, Path, Text, field
+from pipeline.fields import Checked, field
+from pipeline.fields.rules import Bool, Int, Optional, Path, Text
 from pipeline.serve.materials import (
     DATASET_ALLOWED,
     MAX_UPLOAD_BYTES,

@@ -16,22 +16,8 @@ from typing import ClassVar
 
 from materials import ALBEDO_RANGE, ROUGHNESS_RANGE, SVBRDF_FAMILIES
 from pipeline.errors import ShaderballError
-from pipeline.fields import (
-    MISSING,
-    Bool,
-    Checked,
-    Choice,
-    FieldError,
-    Float,
-    Int,
-    Reject,
-    Rule,
-    Text,
-    Triple,
-    declared,
-    default_of,
-    field,
-)
+from pipeline.fields import Checked, FieldError, declared, default_of, field
+from pipeline.fields.rules import MISSING, Bool, Choice, Float, Int, Reject, Rule, Text, Triple
 from sky import Light
 from sky.lighting import AZIMUTH_TURN, ELEVATION_RANGE, TURBIDITY_RANGE
 

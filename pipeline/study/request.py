@@ -12,8 +12,9 @@ import os
 from dataclasses import asdict, dataclass
 
 from pipeline.dataset.spec import parse_spec, spec_digest, spec_operand
-from pipeline.fields import Bool, Checked, Int, IntList, Optional, Reject, Rule, StrList, field, format_value, same_as
-from pipeline.fields import Path as PathRule
+from pipeline.fields import Checked, field, same_as
+from pipeline.fields.rules import Bool, Int, IntList, Optional, Reject, Rule, StrList, format_value
+from pipeline.fields.rules import Path as PathRule
 from pipeline.render.mitsuba_env import machine_fingerprint
 from pipeline.render.renderer import (
     RenderSettings,

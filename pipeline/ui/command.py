@@ -34,7 +34,8 @@ from collections.abc import Callable
 import click
 
 from pipeline.errors import NEEDS_TORCH, USER_ERRORS, ShaderballError
-from pipeline.fields import FIELD_REF, MISSING, AsTyped, Bool, FieldError, Many, Optional, default_of, flattened, parts
+from pipeline.fields import FIELD_REF, FieldError, default_of, flattened, parts
+from pipeline.fields.rules import MISSING, AsTyped, Bool, Many, Optional
 from pipeline.ui import process
 from pipeline.ui.options import FieldType, option_help
 from pipeline.ui.usage import ExtraOperands, unknown_command, usage_refusal

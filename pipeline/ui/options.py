@@ -14,7 +14,8 @@ import re
 
 import click
 
-from pipeline.fields import AsTyped, Bool, Choice, FieldError, Optional, Path, Reject, Rule
+from pipeline.fields import FieldError
+from pipeline.fields.rules import AsTyped, Bool, Choice, Optional, Path, Reject, Rule
 
 
 class FieldType(click.ParamType):

@@ -17,7 +17,8 @@ import difflib
 import click
 
 from pipeline.errors import ShaderballError
-from pipeline.fields import MISSING, AsTyped, FieldError, Many, declared, format_value
+from pipeline.fields import FieldError, declared
+from pipeline.fields.rules import MISSING, AsTyped, Many, format_value
 
 
 class ExtraOperands(click.UsageError):

@@ -15,19 +15,8 @@ import socket
 from dataclasses import dataclass
 
 from pipeline.errors import ShaderballError
-from pipeline.fields import (
-    Checked,
-    Choice,
-    Int,
-    Optional,
-    Reject,
-    Rule,
-    Text,
-    field,
-    format_value,
-    is_integer,
-    parse_int,
-)
+from pipeline.fields import Checked, field
+from pipeline.fields.rules import Choice, Int, Optional, Reject, Rule, Text, format_value, is_integer, parse_int
 
 KINDS = ("local", "slurm", "pbs")
 JOBQUEUE_KINDS = ("slurm", "pbs")
