@@ -105,7 +105,7 @@ def test_build_bench_renders_the_same_images_as_the_build(tmp_path):
     assert bench.records_render_s > 0 and bench.processes == 1 and "same run, from the records" in text
     # the build's own split, per phase (2 materials x 2 lightings: a scene load, a material
     # moved in, two emitter moves)
-    from pipeline.bench.build_bench import BUILD_PHASES
+    from pipeline.bench.bare_renders import BUILD_PHASES
 
     phases = bench.in_build_phases
     assert list(phases) == list(BUILD_PHASES) and phases["render calls"] == bench.in_build_render_s
@@ -170,10 +170,10 @@ def test_a_scene_moved_to_a_light_renders_the_bytes_of_a_scene_loaded_for_it(mi)
 
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
-    from pipeline.bench.build_bench import KernelCounter
     from pipeline.dataset.plan import plan_dataset
     from pipeline.dataset.spec import parse_spec
     from pipeline.render.emitter import emitter_dicts, loaded_sun_direction
+    from pipeline.render.kernels import KernelCounter
     from pipeline.render.renderer import MaterialScene, RenderSettings, scene_dict
     from sky import Light
 

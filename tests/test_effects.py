@@ -3,7 +3,7 @@
 Small renders (64x64, 32 spp, fixed seeds) of one material with and without the effect:
 bit-identical where the arithmetic is the same, equal to float32 rounding where it differs
 only in rounding, and within noise (a Z-test on the moment integrator's luminance
-variance, pipeline.bench.build_bench.compare_renders) otherwise. The specular lobe of a zero specular
+variance, pipeline.bench.compare.compare_renders) otherwise. The specular lobe of a zero specular
 albedo is the exception the build keeps on purpose: its test shows the image changes.
 Render-time savings are measured by `shaderball bench --effects` (docs/build.md).
 """

@@ -35,7 +35,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 
-from pipeline.bench.build_bench import warm_kernels
+from pipeline.bench.bare_renders import warm_kernels
 from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.check.info import human_bytes
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
