@@ -411,7 +411,7 @@ def check_complete(out: Path, reference: Path, use_validate: bool = True) -> Non
     if len(ids) != len(set(ids)):
         problems.append(f"manifest: duplicate ids {sorted(i for i, n in Counter(ids).items() if n > 1)}")
     from pipeline.dataset.plan import iter_samples, plan_dataset
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
 
     planned = [s.sample_id for s in iter_samples(plan_dataset(parse_spec(out / "spec.toml")))]
     if ids != planned:
@@ -576,7 +576,7 @@ WORK_ENTRY = re.compile(r"reference(\.lock|\.seconds)?|trial\d{3,}|logs")
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Every argument checked before anything is written or removed (``parser.error``: exit 2)."""
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from pipeline.errors import ShaderballError
 
     if not 1 <= args.kills <= 100_000:

@@ -1,5 +1,5 @@
 """Write docs/spec-fields.md: every spec field's meaning, unit, default and what is allowed,
-from the spec's typed fields (``pipeline.dataset.spec.reference_markdown``).
+from the spec's typed fields (``pipeline.dataset.spec_file.reference_markdown``).
 
     .venv/bin/python scripts/spec_reference.py           # print the page
     .venv/bin/python scripts/spec_reference.py --write   # replace docs/spec-fields.md
@@ -19,7 +19,7 @@ WRITE_COMMAND = ".venv/bin/python scripts/spec_reference.py --write"
 
 def render() -> str:
     sys.path.insert(0, str(REPO))
-    from pipeline.dataset.spec import reference_markdown
+    from pipeline.dataset.spec_file import reference_markdown
 
     return (
         "# Spec field reference\n\n"

@@ -111,7 +111,7 @@ def test_in_process_and_two_dask_workers_give_byte_identical_files(builds):
 def test_every_record_carries_the_effect_plan_of_its_material(builds):
     from pipeline.dataset.materialize import make_material
     from pipeline.dataset.plan import plan_dataset
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from pipeline.render.renderer import plan_effects
 
     spec = parse_spec(SMOKE)

@@ -22,7 +22,7 @@ def _cli(*args):
 
 def test_derive_spec_cuts_whole_materials_and_resizes():
     from pipeline.bench.build_bench import derive_spec
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
 
     paper = parse_spec(PAPER)
     cut = derive_spec(paper, renders=12, resolution=200, spp=32)
@@ -171,7 +171,7 @@ def test_a_scene_moved_to_a_light_renders_the_bytes_of_a_scene_loaded_for_it(mi)
     from geometry import build_shaderball, default_camera
     from materials.maps import UniformMaterial
     from pipeline.dataset.plan import plan_dataset
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from pipeline.render.emitter import emitter_dicts, loaded_sun_direction
     from pipeline.render.kernels import KernelCounter
     from pipeline.render.renderer import MaterialScene, RenderSettings, scene_dict

@@ -154,7 +154,7 @@ def test_bad_scheduler_address_is_refused(address):
 
 def test_a_worker_that_cannot_see_the_dataset_refuses_the_shard(tmp_path):
     from pipeline.dataset.plan import plan_dataset
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from pipeline.run.shard import run_shard_in_process
 
     spec = parse_spec(SMOKE)

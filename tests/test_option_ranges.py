@@ -14,14 +14,8 @@ from click.testing import CliRunner
 
 import cli
 from pipeline.bench.command import BenchRequest
-from pipeline.dataset.spec import (
-    MAX_SHARD_RENDERS,
-    DatasetSection,
-    LightingSection,
-    MaterialsSection,
-    StorageSection,
-    parse_spec,
-)
+from pipeline.dataset.spec import MAX_SHARD_RENDERS, DatasetSection, LightingSection, MaterialsSection, StorageSection
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.fields import FieldError, declared
 from pipeline.fields.rules import Float, Int, Optional
 from pipeline.render.settings import RenderSettings

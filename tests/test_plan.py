@@ -26,7 +26,7 @@ from pipeline.dataset.plan import (
     render_seeds,
     seeded_rng,
 )
-from pipeline.dataset.spec import parse_spec, parse_spec_text
+from pipeline.dataset.spec_file import parse_spec, parse_spec_text
 from pipeline.errors import ShaderballError
 from support import PAPER, REPO, SMOKE
 
@@ -105,7 +105,7 @@ def test_same_spec_same_plan():
 def test_plan_is_the_same_in_a_fresh_interpreter():
     """No dependence on hash seeds, import order or process state."""
     code = (
-        "import json, sys; from pipeline.dataset.spec import parse_spec; "
+        "import json, sys; from pipeline.dataset.spec_file import parse_spec; "
         "from pipeline.dataset.plan import plan_dataset, iter_samples; "
         "p = plan_dataset(parse_spec(sys.argv[1])); "
         "print(json.dumps([s.to_dict() for s in iter_samples(p)]))"
@@ -362,7 +362,7 @@ def test_planning_touches_no_files_without_folders(monkeypatch):
 
 def test_plan_module_is_pure():
     code = (
-        "import sys; from pipeline.dataset.spec import parse_spec; "
+        "import sys; from pipeline.dataset.spec_file import parse_spec; "
         "from pipeline.dataset.plan import plan_dataset; plan_dataset(parse_spec(%r)); "
         "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
         "assert not bad, bad" % SMOKE

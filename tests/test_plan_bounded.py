@@ -26,7 +26,7 @@ from pipeline.bench.estimate import (
     timing_plan,
 )
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"

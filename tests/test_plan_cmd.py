@@ -102,7 +102,7 @@ def test_info_spec_prints_the_plan_without_timing():
 def test_disk_estimate_is_the_pixel_data_the_store_writes():
     """An uncompressed EXR of the layers a build writes holds the estimate's pixel bytes plus a
     small header and line table."""
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from pipeline.store.exr import LAYER_CHANNELS, MATERIAL_MAP_LAYERS, encode_exr, pixel_bytes
 
     spec = parse_spec(PAPER)

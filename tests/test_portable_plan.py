@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from pipeline.dataset.plan import STREAM_LIGHTS, index_seeds, plan_dataset, seeded_rng
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.run.out_folder import plan_digest
 from sky.portable import DEG_PER_RAD, RAD_PER_DEG, asin_deg, asin_rad, asin_scalar, sin_deg, sin_rad, sin_scalar
 from sky.sampling import unit_points
@@ -82,7 +82,7 @@ def test_every_planned_elevation_is_the_scalar_paths(spec):
 DIGEST_SCRIPT = """
 import json, sys
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.run.out_folder import plan_digest
 import numpy._core._multiarray_umath as umath
 enabled = [name for name in umath.__cpu_dispatch__ if umath.__cpu_features__.get(name)]

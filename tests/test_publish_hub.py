@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.publish.card import EXR_TWO_LINES, exr_check
 from pipeline.publish.previews import PREVIEW_SIDE, encode_png, maps_preview, render_preview
 from pipeline.publish.refusal import Refused

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.dataset.spec import parse_spec, spec_to_toml
+from pipeline.dataset.spec_file import parse_spec, spec_to_toml
 from pipeline.errors import ShaderballError
 from pipeline.run.build import build, sweep_temp_files
 from pipeline.run.out_folder import check_output_dir

@@ -17,7 +17,7 @@ def _samples():
     uniform with and without a normal map, textured with one)."""
     from pipeline.dataset.materialize import make_material
     from pipeline.dataset.plan import plan_dataset
-    from pipeline.dataset.spec import parse_spec
+    from pipeline.dataset.spec_file import parse_spec
     from sky import Light
 
     spec = parse_spec(SMOKE)

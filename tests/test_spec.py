@@ -15,8 +15,6 @@ import pytest
 from materials.errors import MaterialError
 from pipeline.dataset.spec import (
     FALLBACK_LIGHT_SCHEMES,
-    FALLBACK_SVBRDF_FAMILIES,
-    MAP_LAYERS,
     SUN_FORMS,
     UNIFORM_FIELDS,
     DatasetSection,
@@ -25,6 +23,11 @@ from pipeline.dataset.spec import (
     MaterialsSection,
     RenderSection,
     SpecError,
+    svbrdf_family_names,
+)
+from pipeline.dataset.spec_file import (
+    FALLBACK_SVBRDF_FAMILIES,
+    MAP_LAYERS,
     parse_spec,
     parse_spec_text,
     reference_markdown,
@@ -32,7 +35,6 @@ from pipeline.dataset.spec import (
     spec_digest,
     spec_to_dict,
     spec_to_toml,
-    svbrdf_family_names,
 )
 from pipeline.errors import ShaderballError
 from pipeline.fields import FieldError
@@ -440,7 +442,7 @@ def test_uniform_limits_match_materials(name):
 
 def test_spec_module_is_pure():
     code = (
-        "import sys; from pipeline.dataset.spec import parse_spec; parse_spec(%r); "
+        "import sys; from pipeline.dataset.spec_file import parse_spec; parse_spec(%r); "
         "bad = [m for m in ('mitsuba', 'drjit', 'dask', 'distributed') if m in sys.modules]; "
         "assert not bad, bad" % SMOKE
     )

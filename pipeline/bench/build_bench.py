@@ -46,7 +46,7 @@ from pipeline.bench.bare_renders import (
     warm_kernels,
 )
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import spec_to_toml
+from pipeline.dataset.spec_file import spec_to_toml
 from pipeline.fields import FieldError
 from pipeline.fields.rules import format_value
 from pipeline.render.kernels import KernelCounter

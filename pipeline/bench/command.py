@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from pipeline.bench.build_bench import run_build_bench
 from pipeline.bench.effects import run_effects_bench
 from pipeline.bench.scale import run_scale_bench
-from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, SPEC_FILE, DatasetSection
+from pipeline.dataset.spec import MAX_MATERIALS, MAX_SHARD_RENDERS, MAX_SHARDS, DatasetSection
+from pipeline.dataset.spec_file import SPEC_FILE
 from pipeline.fields import Checked, declared, default_of, field, same_as
 from pipeline.fields.rules import Bool, Int, IntList, Optional, Path
 from pipeline.render.settings import RenderSettings

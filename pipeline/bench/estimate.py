@@ -39,7 +39,7 @@ from pipeline.bench.bare_renders import warm_kernels
 from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.check.info import human_bytes
 from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
-from pipeline.dataset.spec import spec_digest, spec_operand
+from pipeline.dataset.spec_file import spec_digest, spec_operand
 from pipeline.fields import Checked, field, same_as
 from pipeline.fields.rules import Bool, Int
 from pipeline.render.limits import launch_limit_text, launch_spp

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.fields import Checked, field, same_as
 from pipeline.fields.rules import Int
 from pipeline.render.settings import RenderSettings

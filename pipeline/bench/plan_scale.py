@@ -31,7 +31,7 @@ _PLAN = """
 import json, resource, sys, time
 start = time.perf_counter()
 from pipeline.dataset.plan import plan_dataset, plan_summary
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 imported = time.perf_counter()
 plans = plan_dataset(parse_spec(sys.argv[1]))
 summary = plan_summary(plans)

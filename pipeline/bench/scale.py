@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.bench.build_bench import derive_for
-from pipeline.dataset.spec import spec_to_toml
+from pipeline.dataset.spec_file import spec_to_toml
 from pipeline.errors import ShaderballError
 from pipeline.fields.rules import format_value
 from pipeline.image.chart import BLUE, GREEN, GREY, ORANGE, PURPLE, RED, chart, png

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pipeline.check.request import InfoRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import shard_id
-from pipeline.dataset.spec import spec_digest
+from pipeline.dataset.spec_file import spec_digest
 from pipeline.store.bounded_read import read_json_checked, unsafe_entry
 from pipeline.store.folder import (
     disk_usage,

@@ -12,7 +12,7 @@ from pipeline.check.report import Problems
 from pipeline.check.request import dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
-from pipeline.dataset.spec import spec_digest
+from pipeline.dataset.spec_file import spec_digest
 from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.store.bounded_read import list_bound, read_json_checked, structure_problem
 from pipeline.store.folder import read_json_in, read_manifest

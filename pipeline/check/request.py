@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.dataset.spec import SPEC_FILE
+from pipeline.dataset.spec_file import SPEC_FILE
 from pipeline.fields import Checked, field
 from pipeline.fields.rules import Bool, Int, Optional, Path, Text, format_value
 

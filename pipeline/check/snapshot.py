@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import os
 
-from pipeline.dataset.spec import DatasetSpec, parse_spec_bytes
+from pipeline.dataset.spec import DatasetSpec
+from pipeline.dataset.spec_file import parse_spec_bytes
 from pipeline.errors import ShaderballError
 from pipeline.store.folder import read_spec_snapshot
 from pipeline.store.layout import Layout

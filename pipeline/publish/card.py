@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import statistics
 
-from pipeline.dataset.spec import spec_to_toml
+from pipeline.dataset.spec_file import spec_to_toml
 from pipeline.publish.hub import yaml_configs
 from pipeline.publish.names import (
     CROISSANT_FILE,

@@ -9,7 +9,8 @@ from dataclasses import replace
 
 import tomllib
 
-from pipeline.dataset.spec import MAX_SPEC_BYTES, RESOLUTION_RANGE
+from pipeline.dataset.spec import RESOLUTION_RANGE
+from pipeline.dataset.spec_file import MAX_SPEC_BYTES
 from pipeline.publish.refusal import Limits, Refused
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds
 from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds, ExrRefused, check_header

@@ -24,10 +24,8 @@ from dataclasses import asdict, dataclass, field
 
 from pipeline.dataset.materialize import check_imported_files
 from pipeline.dataset.plan import Plan, plan_dataset
-from pipeline.dataset.spec import (
-    DatasetSpec,
-    spec_to_toml,
-)
+from pipeline.dataset.spec import DatasetSpec
+from pipeline.dataset.spec_file import spec_to_toml
 from pipeline.errors import ShaderballError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import (
     determinism,

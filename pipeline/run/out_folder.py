@@ -13,13 +13,8 @@ from collections.abc import Callable
 from pipeline import __version__
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_summary
-from pipeline.dataset.spec import (
-    DatasetSpec,
-    parse_spec_bytes,
-    read_spec_file,
-    spec_digest,
-    spec_to_dict,
-)
+from pipeline.dataset.spec import DatasetSpec
+from pipeline.dataset.spec_file import parse_spec_bytes, read_spec_file, spec_digest, spec_to_dict
 from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.fields.rules import format_value
 from pipeline.render.mitsuba_env import (

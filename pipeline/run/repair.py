@@ -16,7 +16,7 @@ from pipeline.check.loading import State, check_root
 from pipeline.check.report import Progress, RepairAction, Report
 from pipeline.check.request import ValidateRequest
 from pipeline.check.validate import validate
-from pipeline.dataset.spec import parse_spec, spec_digest, spec_to_toml
+from pipeline.dataset.spec_file import parse_spec, spec_digest, spec_to_toml
 from pipeline.errors import SetupError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
 from pipeline.run.build import build, write_manifest

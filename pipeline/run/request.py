@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pipeline.dataset.spec import spec_operand
+from pipeline.dataset.spec_file import spec_operand
 from pipeline.fields import Checked, field, part
 from pipeline.fields.rules import Bool, Path
 from pipeline.run.cluster.options import ClusterOptions

@@ -28,7 +28,7 @@ from materials.errors import MaterialError
 from materials.imagefile import read_image
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import list_imported_maps, plan_dataset, seeded_rng
-from pipeline.dataset.spec import parse_spec
+from pipeline.dataset.spec_file import parse_spec
 from pipeline.errors import USER_ERRORS, ShaderballError
 from pipeline.fields import FieldError
 from pipeline.fields.rules import format_value

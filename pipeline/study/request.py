@@ -11,7 +11,7 @@ import json
 import os
 from dataclasses import asdict, dataclass
 
-from pipeline.dataset.spec import parse_spec, spec_digest, spec_operand
+from pipeline.dataset.spec_file import parse_spec, spec_digest, spec_operand
 from pipeline.fields import Checked, field, same_as
 from pipeline.fields.rules import Bool, Int, IntList, Optional, Reject, Rule, StrList, format_value
 from pipeline.fields.rules import Path as PathRule
