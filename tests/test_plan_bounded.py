@@ -13,13 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.bench.estimate import (
+from pipeline.bench.estimate import Estimate, PlanReport
+from pipeline.bench.first_renders import (
     TIMED_LIGHTS,
     TIMING_RESOLUTIONS,
     TIMING_SPP,
     TIMING_TEXELS,
-    Estimate,
-    PlanReport,
     Timing,
     extrapolate,
     first_materials,

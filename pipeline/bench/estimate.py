@@ -29,43 +29,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import shutil
-import tempfile
-import time
 from dataclasses import asdict, dataclass
 
-from pipeline.bench.bare_renders import warm_kernels
+from pipeline.bench.first_renders import TIMED_LIGHTS, Timing, disk_estimate, time_first_samples, timing_plan
 from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.check.info import human_bytes
-from pipeline.dataset.plan import Plan, ShardPlan, plan_dataset
+from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec_file import spec_digest, spec_operand
 from pipeline.fields import Checked, field, same_as
 from pipeline.fields.rules import Bool, Int
 from pipeline.render.limits import launch_limit_text, launch_spp
-from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.cluster.options import JOBQUEUE_KINDS, ClusterOptions
 from pipeline.run.out_folder import read_spec_text
-from pipeline.run.shard import make_shard_dir, run_shard
-from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
-from pipeline.store.layout import MARKER_FILE, Layout
 
 #: Renders timed (whole materials, so at least this many).
 RENDERS_RANGE = (1, 1000)
 DEFAULT_RENDERS = 4
-#: Lightings timed per material at most (a material may have 1000).
-TIMED_LIGHTS = 5
-#: A spec whose render is at most this work (pixels x spp: the paper's 400x400 px at 150
-#: spp, about 5 s on 2 cores), at most this resolution and texture resolution, is timed at
-#: its own settings; any other at small settings, and extrapolated (:func:`timing_plan`).
-DIRECT_SAMPLES = 400 * 400 * 150
-DIRECT_RESOLUTION = 512
-DIRECT_TEXELS = 1024
-#: The two values each setting too large to time is timed at (resolution in px, spp,
-#: texture resolution in texels).
-TIMING_RESOLUTIONS = (64, 128)
-TIMING_SPP = (16, 64)
-TIMING_TEXELS = (512, 1024)
 
 
 @dataclass(frozen=True)
@@ -124,31 +103,6 @@ class PlanRequest(Checked):
 
     def _refuse(self, name: str, what: str, allowed: str):
         return self.field_error(name, getattr(self, name), allowed, what=what)
-
-
-@dataclass
-class Timing:
-    """The timed renders: the spec's first materials, built as a build builds them."""
-
-    renders: int
-    materials: int
-    uniform: int
-    svbrdf: int
-    variant: str
-    threads: int  # render threads in this process (this machine's cores)
-    setup_s: float  # geometry, G-buffer and kernel compilation, once per worker
-    seconds: float  # the timed build of those materials (wall)
-    seconds_per_render: float
-    cpu_seconds_per_render: float  # CPU time of this process (every thread) per render: less disturbed by other load
-    load_average: float  # the machine's 1-minute load average after the timed renders
-    bytes_per_render: float  # what a dataset holds per render: EXRs, records, markers, manifest line
-    #: "uniform"/"svbrdf" -> materials, renders, seconds, seconds_per_render, cpu_seconds_per_render,
-    #: bytes_per_render of that kind's timed materials; the figures above weigh them by the spec's counts
-    #: (extrapolated: also "timed", each setting's figures, and "fit", the fitted terms)
-    by_kind: dict = dataclasses.field(default_factory=dict)
-    #: None: timed at the spec's settings; else how the figures were extrapolated to them
-    #: (:meth:`TimingPlan.describe`: the settings timed, the model, the spec's settings)
-    extrapolation: dict | None = None
 
 
 @dataclass
@@ -232,35 +186,6 @@ def _hours(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.1f} min"
 
 
-def disk_estimate(spec, uniform: int, svbrdf: int) -> dict:
-    """Pixel bytes of every file a build writes, from the store's layers and float widths."""
-    storage, side = spec.storage, spec.render.resolution
-    half = MATERIAL_MAP_LAYERS if storage.maps_half else ()
-    per_render = pixel_bytes(("render",), side)
-    per_maps = pixel_bytes(storage.layers, side, half)
-    # Uniform materials store 1x1 texture maps; procedural and imported SVBRDFs texture_resolution
-    # square ones (an imported file keeps its own size: this assumes the spec's).
-    tex_uniform = pixel_bytes(MATERIAL_MAP_LAYERS, 1, half) if storage.texture_maps else 0
-    tex_svbrdf = (
-        pixel_bytes(MATERIAL_MAP_LAYERS, spec.materials.texture_resolution, half) if storage.texture_maps else 0
-    )
-    materials = uniform + svbrdf
-    render_bytes = per_render * spec.dataset.n_renders
-    maps_bytes = per_maps * materials
-    texture_bytes = tex_uniform * uniform + tex_svbrdf * svbrdf
-    return {
-        "bytes_per_render": per_render,
-        "bytes_per_material_maps": per_maps,
-        "bytes_per_texture": {"uniform": tex_uniform, "svbrdf": tex_svbrdf},
-        "render_bytes": render_bytes,
-        "maps_bytes": maps_bytes,
-        "texture_bytes": texture_bytes,
-        "total_bytes": render_bytes + maps_bytes + texture_bytes,
-        "basis": "pixel data as the store lays it out (renders float32; maps half where storage.maps_half, "
-        "the mask float32), before EXR's lossless compression; headers and records not counted",
-    }
-
-
 def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
     """Counts and disk of ``req.spec``; with ``req.timing`` also the timed renders and the time
     estimates (``progress(str)`` says when they start). Nothing is written outside a temporary
@@ -326,268 +251,6 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
             f"this process would take about {idle:,.0f} s ({_hours(idle)}) with the cores to itself"
         )
     return report
-
-
-def first_materials(plans: Plan, renders: int, kinds: tuple[str, ...], max_lights: int | None = None) -> list:
-    """The spec's first materials, in plan order, holding at least ``renders`` renders (all
-    of them when the spec has fewer), and the first material of each of ``kinds`` that they
-    lack (the kinds the spec has: an svbrdf material also makes texture maps); each with at
-    most ``max_lights`` of its lightings (its first), when given."""
-    chosen, count = [], 0
-    for shard in plans:
-        for material in shard.materials:
-            if count < renders or (material.kind in kinds and material.kind not in {m.kind for m in chosen}):
-                material = _first_lightings(material, max_lights)
-                chosen.append(material)
-                count += material.n_lights
-            if count >= renders and {m.kind for m in chosen} >= set(kinds):
-                return chosen
-    return chosen
-
-
-def _first_lightings(material, max_lights: int | None):
-    """``material`` with only its first ``max_lights`` lightings (all when None or fewer)."""
-    if max_lights is None or material.n_lights <= max_lights:
-        return material
-    return dataclasses.replace(
-        material,
-        **{
-            key: getattr(material, key)[:max_lights]
-            for key in ("render_seeds", "elevation_deg", "azimuth_deg", "turbidity")
-        },
-    )
-
-
-@dataclass(frozen=True)
-class TimingPlan:
-    """The settings the timed renders use: the spec's own (``extrapolated`` False), or, for
-    each of resolution, spp and texture resolution too large to time, two small values
-    (:data:`TIMING_RESOLUTIONS`, :data:`TIMING_SPP`, :data:`TIMING_TEXELS`), from which a
-    render's time is extrapolated to the spec's (:func:`extrapolate`)."""
-
-    resolutions: tuple[int, ...]
-    spp: tuple[int, ...]
-    texels: tuple[int, ...]
-    spec: tuple[int, int, int]  # the spec's resolution, spp, texture resolution
-    extrapolated: bool
-
-    def points(self, kind: str) -> list[tuple[int, int, int]]:
-        """(resolution, spp, texels) timed for ``kind``: the base (the largest resolution and
-        texture resolution, the smallest spp), then one setting per value varied from it (the
-        texture resolution only for svbrdf materials: a uniform one's textures are 1x1)."""
-        base = (self.resolutions[-1], self.spp[0], self.texels[-1])
-        out = [base]
-        if len(self.resolutions) == 2:
-            out.append((self.resolutions[0], self.spp[0], self.texels[-1]))
-        if len(self.spp) == 2:
-            out.append((self.resolutions[-1], self.spp[-1], self.texels[-1]))
-        if len(self.texels) == 2 and kind == "svbrdf":
-            out.append((self.resolutions[-1], self.spp[0], self.texels[0]))
-        return out
-
-    def terms(self) -> str:
-        terms = (("b x pixels", self.resolutions), ("c x pixels x spp", self.spp))
-        model = " + ".join(["a", *(term for term, values in terms if len(values) == 2)])
-        return model + (" (+ d x texels for svbrdf materials)" if len(self.texels) == 2 else "")
-
-    def describe(self) -> dict:
-        """How the figures were extrapolated (Timing.extrapolation)."""
-        res, spp, texels = self.spec
-        too = [
-            text
-            for text, varied in (
-                (f"{res}x{res} px", len(self.resolutions) == 2),
-                (f"{spp} spp", len(self.spp) == 2),
-                (f"{texels}x{texels} texture maps", len(self.texels) == 2),
-            )
-            if varied
-        ]
-        timed = "; ".join(f"{r} px, {s} spp, {t} texels" for r, s, t in self.points("svbrdf"))
-        return {
-            "timed_at": [list(p) for p in self.points("svbrdf")],
-            "spec": list(self.spec),
-            "model": self.terms(),
-            "text": f"the spec's {', '.join(too)} would take too long to time: renders timed at {timed}; "
-            f"a render's time fitted as {self.terms()} and extrapolated to {res}x{res} px, {spp} spp, "
-            f"{texels} texels",
-        }
-
-
-def timing_plan(spec) -> TimingPlan:
-    """Where the spec's renders are timed (:class:`TimingPlan`): at its own settings when a
-    render is at most :data:`DIRECT_SAMPLES` pixels x spp at most :data:`DIRECT_RESOLUTION`
-    px, with textures at most :data:`DIRECT_TEXELS`; else at small ones."""
-    res, spp, texels = spec.render.resolution, spec.render.spp, spec.materials.texture_resolution
-    own = (res, spp, texels)
-    if res * res * spp <= DIRECT_SAMPLES and res <= DIRECT_RESOLUTION and texels <= DIRECT_TEXELS:
-        return TimingPlan((res,), (spp,), (texels,), own, False)
-    return TimingPlan(
-        TIMING_RESOLUTIONS if res > TIMING_RESOLUTIONS[-1] else (res,),
-        TIMING_SPP if spp > TIMING_SPP[-1] else (spp,),
-        TIMING_TEXELS if texels > TIMING_TEXELS[-1] else (texels,),
-        own,
-        True,
-    )
-
-
-def _spec_at(spec, point: tuple[int, int, int]):
-    """``spec`` rendered at ``point`` (resolution, spp, texture resolution)."""
-    res, spp, texels = point
-    return dataclasses.replace(
-        spec,
-        render=dataclasses.replace(spec.render, resolution=res, spp=spp),
-        materials=dataclasses.replace(spec.materials, texture_resolution=texels),
-    )
-
-
-def extrapolate(plan: TimingPlan, timed: dict, key: str) -> tuple[float, dict]:
-    """``key`` (seconds per render, or CPU seconds) at the spec's settings, from the figures
-    ``timed`` at ``plan.points(kind)`` (point -> figures), and the fitted terms: each slope
-    from the base and the one setting that varies it (a negative slope, timing noise, is
-    taken as 0; for spp, as if the whole render were its samples)."""
-    points = list(timed)
-    base = points[0]
-    value = timed[base][key]
-    pixels, spp, texels = base[0] ** 2, base[1], base[2] ** 2
-    fit = {"a_s": value, "b_s_per_pixel": 0.0, "c_s_per_pixel_spp": 0.0, "d_s_per_texel": 0.0}
-    for point in points[1:]:
-        if point[1] != base[1]:
-            slope = (timed[point][key] - value) / (pixels * (point[1] - spp))
-            fit["c_s_per_pixel_spp"] = slope if slope > 0 else timed[point][key] / (pixels * point[1])
-    for point in points[1:]:
-        if point[0] != base[0]:
-            slope = (value - timed[point][key]) / (pixels - point[0] ** 2) - fit["c_s_per_pixel_spp"] * spp
-            fit["b_s_per_pixel"] = max(0.0, slope)
-        elif point[2] != base[2]:
-            fit["d_s_per_texel"] = max(0.0, (value - timed[point][key]) / (texels - point[2] ** 2))
-    res, spec_spp, spec_texels = plan.spec
-    # the settings not varied are the spec's own: their terms are 0
-    to_pixels = res**2 if len(plan.resolutions) == 2 else pixels
-    to_spp = spec_spp if len(plan.spp) == 2 else spp
-    to_texels = spec_texels**2 if len(plan.texels) == 2 else texels
-    fit["a_s"] = value - fit["b_s_per_pixel"] * pixels - fit["c_s_per_pixel_spp"] * pixels * spp
-    fit["a_s"] -= fit["d_s_per_texel"] * texels
-    result = (
-        value
-        + fit["b_s_per_pixel"] * (to_pixels - pixels)
-        + fit["c_s_per_pixel_spp"] * (to_pixels * to_spp - pixels * spp)
-        + fit["d_s_per_texel"] * (to_texels - texels)
-    )
-    return max(result, max(t[key] for t in timed.values())), fit
-
-
-def _pixel_bytes_per_render(spec, kind: str, lights: int) -> float:
-    """Pixel bytes a render of ``kind`` costs (its render, and its material's maps and
-    textures spread over ``lights`` lightings): what scales bytes timed at one setting to another."""
-    disk = disk_estimate(spec, 1, 0) if kind == "uniform" else disk_estimate(spec, 0, 1)
-    return disk["bytes_per_render"] + (disk["maps_bytes"] + disk["texture_bytes"]) / lights
-
-
-def _time_kind_at(spec, plan: TimingPlan, kind: str, materials: list, variant: str) -> dict:
-    """A kind's materials timed at ``plan``'s settings (:func:`_time_kind`); extrapolated to
-    the spec's when ``plan`` says so."""
-    timed = {point: _time_kind(_spec_at(spec, point), materials, variant) for point in plan.points(kind)}
-    if not plan.extrapolated:
-        return next(iter(timed.values()))
-    base = next(iter(timed))
-    lights = timed[base]["renders"] / timed[base]["materials"]
-    seconds, fit = extrapolate(plan, timed, "seconds_per_render")
-    cpu, _fit = extrapolate(plan, timed, "cpu_seconds_per_render")
-    scale = _pixel_bytes_per_render(spec, kind, lights) / _pixel_bytes_per_render(_spec_at(spec, base), kind, lights)
-    return {
-        **timed[base],
-        "seconds": sum(t["seconds"] for t in timed.values()),
-        "seconds_per_render": seconds,
-        "cpu_seconds_per_render": cpu,
-        "bytes_per_render": timed[base]["bytes_per_render"] * scale,
-        "timed": [{"resolution": r, "spp": s, "texels": t, **timed[(r, s, t)]} for r, s, t in timed],
-        "fit": fit,
-    }
-
-
-def _folder_bytes(root: str) -> tuple[int, int]:
-    """(bytes of every file under ``root``, bytes of its sample records: the manifest repeats them)."""
-    total = records = 0
-    for folder, _dirs, files in os.walk(root):
-        for name in files:
-            size = os.path.getsize(os.path.join(folder, name))
-            total += size
-            records += size if name.endswith(".json") and name != MARKER_FILE else 0
-    return total, records
-
-
-def _time_kind(spec, materials: list, variant: str) -> dict:
-    """Build ``materials`` (of one kind) into a temporary folder with the build's shard code; time it."""
-    first = materials[0]
-    shard = ShardPlan(shard_index=first.shard_index, shard_id=first.shard_id, materials=tuple(materials))
-    root = tempfile.mkdtemp(prefix="shaderball-plan-")
-    try:
-        layout = Layout(root)
-        for shard_id in sorted({m.shard_id for m in materials}):  # the materials may span shards
-            make_shard_dir(layout, shard_id)
-        started, cpu_started = time.perf_counter(), time.process_time()
-        done = run_shard(root, spec, shard, variant)
-        seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
-        written, records = _folder_bytes(root)
-    finally:
-        shutil.rmtree(root, ignore_errors=True)
-    renders = done["rendered"]
-    return {
-        "materials": len(materials),
-        "renders": renders,
-        "seconds": seconds,
-        "seconds_per_render": seconds / renders,
-        "cpu_seconds_per_render": cpu_seconds / renders,
-        "bytes_per_render": (written + records) / renders,
-    }
-
-
-def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int]) -> Timing:
-    """Build the spec's first ``samples`` renders (whole materials, and the first material of
-    each kind the spec has; at most :data:`TIMED_LIGHTS` lightings each) with the build's
-    shard code, kernels compiled first, each kind timed on its own, at the settings of
-    :func:`timing_plan` (extrapolated to the spec's where they are not its own); the figures
-    per render are the kinds' weighted by ``counts`` (materials of each kind in the spec)."""
-    variant = resolve_variant(spec.render.variant)
-    load_mitsuba(variant)
-    import drjit as dr
-
-    threads = os.cpu_count() or 1
-    if dr.thread_count() != threads:
-        dr.set_thread_count(threads)
-    plan = timing_plan(spec)
-    chosen = first_materials(plans, samples, tuple(k for k, n in counts.items() if n), TIMED_LIGHTS)
-    shard = ShardPlan(shard_index=chosen[0].shard_index, shard_id=chosen[0].shard_id, materials=tuple(chosen))
-    for res in plan.resolutions:  # kernels depend on the resolution; the largest one's set-up is kept
-        started = time.perf_counter()
-        warm_kernels(_spec_at(spec, (res, plan.spp[0], plan.texels[-1])), [shard], variant)  # also geometry, G-buffer
-        setup_s = time.perf_counter() - started
-    by_kind = {
-        kind: _time_kind_at(spec, plan, kind, [m for m in chosen if m.kind == kind], variant)
-        for kind in counts
-        if any(m.kind == kind for m in chosen)
-    }
-    weight = {kind: counts[kind] for kind in by_kind}  # every timed kind is one the spec has
-
-    def mix(key: str) -> float:
-        return sum(weight[k] * by_kind[k][key] for k in by_kind) / sum(weight.values())
-
-    return Timing(
-        renders=sum(k["renders"] for k in by_kind.values()),
-        materials=len(chosen),
-        uniform=by_kind.get("uniform", {}).get("materials", 0),
-        svbrdf=by_kind.get("svbrdf", {}).get("materials", 0),
-        variant=variant,
-        threads=threads,
-        setup_s=setup_s,
-        seconds=sum(k["seconds"] for k in by_kind.values()),
-        seconds_per_render=mix("seconds_per_render"),
-        cpu_seconds_per_render=mix("cpu_seconds_per_render"),
-        load_average=os.getloadavg()[0],
-        bytes_per_render=mix("bytes_per_render"),
-        by_kind=by_kind,
-        extrapolation=plan.describe() if plan.extrapolated else None,
-    )
 
 
 def _estimate(report: PlanReport, where: str, workers: int, threads: int, cores: float, cores_here: int) -> Estimate:
