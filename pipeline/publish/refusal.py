@@ -57,3 +57,14 @@ class Limits:
 
 
 DEFAULT_LIMITS = Limits()
+
+
+def refuse_invalid(report, subject: str, outcome: str) -> None:
+    """Refused (``invalid_dataset``) when ``report``, pipeline.check.validate's, has problems:
+    ``subject`` does not pass validate, its first three problems, then ``outcome``."""
+    if not report.ok:
+        first = "; ".join(p.message for p in report.problems[:3])
+        raise Refused(
+            "invalid_dataset",
+            f"{subject} does not pass `shaderball validate` ({len(report.problems)} problem(s): {first}); {outcome}",
+        )

@@ -22,7 +22,7 @@ from pipeline.check.validate import validate
 from pipeline.errors import filesystem_error
 from pipeline.publish.output import FILLED_MEANWHILE, Output, check_out
 from pipeline.publish.reader import open_publication
-from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, Refused
+from pipeline.publish.refusal import DEFAULT_LIMITS, Limits, refuse_invalid
 from pipeline.publish.request import UnpackRequest, out_refused
 from pipeline.publish.verify import verify_publication
 from pipeline.store.folder import only_temp_files
@@ -83,14 +83,7 @@ def _unpack_locked(pub, out, publication, output: Output, validate_after: bool, 
         if validate_after:
             if progress:
                 progress(f"validating {out}")
-            report = validate(out)
-            if not report.ok:
-                first = "; ".join(p.message for p in report.problems[:3])
-                raise Refused(
-                    "invalid_dataset",
-                    f"the unpacked folder does not pass `shaderball validate` "
-                    f"({len(report.problems)} problem(s): {first}); nothing was kept",
-                )
+            refuse_invalid(validate(out), "the unpacked folder", "nothing was kept")
     except BaseException:
         output.discard()
         raise

@@ -57,7 +57,7 @@ from pipeline.publish.names import (
 from pipeline.publish.output import Output
 from pipeline.publish.pub_folder import held_publication
 from pipeline.publish.publication_facts import PublicationFacts, RecordSummary, TarFacts
-from pipeline.publish.refusal import Refused
+from pipeline.publish.refusal import Refused, refuse_invalid
 from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, PublishRequest
 from pipeline.publish.tarsafe import member_bytes, open_writer, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
@@ -110,47 +110,20 @@ class PublishSummary:
         ]
 
 
-def check_options(shard_bytes: int, license_id: str, url: str | None = None) -> None:
-    """The options of a publication, refused by their declarations (PublishRequest)."""
-    PublishRequest(directory=".", out=".", shard_bytes=shard_bytes, license=license_id, url=url)
-
-
 def publish(request: PublishRequest, *, progress: Callable[[str], None] | None = None) -> PublishSummary:
     """Validate the dataset ``request.directory`` fully, then publish it to ``request.out``.
 
     Raises :class:`Refused` (exit code 1) when the dataset is not valid: nothing is written.
     """
-    root, out, shard_bytes, license_id, url = (
-        request.directory,
-        request.out,
-        request.shard_bytes,
-        request.license,
-        request.url,
-    )
+    root = request.directory
     start = time.perf_counter()
     # PUB is held from here, validation included: a second publish into it is refused at once.
-    with held_publication(out, root, progress) as (output, replaced):
+    with held_publication(request.out, root, progress) as (output, replaced):
         if progress:
             progress(f"validating {root} (every file, as `shaderball validate`)")
-        report = validate(root)
-        if not report.ok:
-            first = "; ".join(p.message for p in report.problems[:3])
-            raise Refused(
-                "invalid_dataset",
-                f"the dataset {root!r} does not pass `shaderball validate` "
-                f"({len(report.problems)} problem(s): {first}); nothing was published",
-            )
+        refuse_invalid(validate(root), f"the dataset {root!r}", "nothing was published")
         validation_s = time.perf_counter() - start
-        return _write_into(
-            output,
-            root,
-            shard_bytes=shard_bytes,
-            license_id=license_id,
-            url=url,
-            validation_s=validation_s,
-            progress=progress,
-            replaced=replaced,
-        )
+        return _write_into(output, request, validation_s=validation_s, progress=progress, replaced=replaced)
 
 
 class TarPair:
@@ -301,14 +274,11 @@ def write_publication(
 ) -> PublishSummary:
     """Publish the folder at ``root`` to ``out`` without validating it first (:func:`publish`
     does; tests use this to build hostile publications)."""
-    check_options(shard_bytes, license_id, url)
+    request = PublishRequest(directory=root, out=out, shard_bytes=shard_bytes, license=license_id, url=url)
     with held_publication(out, root, progress) as (output, replaced):
         return _write_into(
             output,
-            root,
-            shard_bytes=shard_bytes,
-            license_id=license_id,
-            url=url,
+            request,
             contact_sheet=contact_sheet,
             validation_s=validation_s,
             progress=progress,
@@ -318,20 +288,17 @@ def write_publication(
 
 def _write_into(
     output: Output,
-    root: str,
+    request: PublishRequest,
     *,
-    shard_bytes: int,
-    license_id: str,
-    url: str | None,
     contact_sheet: bool = True,
     validation_s: float,
     progress: Callable[[str], None] | None,
     replaced: str | None = None,
 ) -> PublishSummary:
-    """The publication of ``root``, written into ``output`` while this process holds it
-    (:func:`pipeline.publish.output.held_output` removes it again on a failure); ``replaced``:
-    what a killed publish had left there (:func:`held_publication`)."""
-    out = output.out
+    """The publication of ``request.directory``, written into ``output`` while this process
+    holds it (:func:`pipeline.publish.output.held_output` removes it again on a failure);
+    ``replaced``: what a killed publish had left there (:func:`held_publication`)."""
+    out, root, shard_bytes = output.out, request.directory, request.shard_bytes
     start = time.perf_counter()
     layout = Layout(root)
     spec: DatasetSpec = read_snapshot(root)
@@ -350,16 +317,7 @@ def _write_into(
         table = None
         if contact_sheet:
             _write_contact_sheet(output, root, progress)
-        facts = _publication_facts(
-            output,
-            layout,
-            spec,
-            packed,
-            license_id=license_id,
-            url=url,
-            shard_bytes=shard_bytes,
-            has_preview=contact_sheet,
-        )
+        facts = _publication_facts(output, layout, spec, packed, request, has_preview=contact_sheet)
         _write_metadata(output, facts)
     except BaseException:
         if table is not None:
@@ -471,10 +429,8 @@ def _publication_facts(
     layout: Layout,
     spec: DatasetSpec,
     packed: _Packed,
+    request: PublishRequest,
     *,
-    license_id: str,
-    url: str | None,
-    shard_bytes: int,
     has_preview: bool,
 ) -> PublicationFacts:
     """What the metadata files say, from the files written so far (the source files' bytes
@@ -487,9 +443,9 @@ def _publication_facts(
         description=description,
         summary=packed.summary,
         tars=packed.tars,
-        license_id=license_id,
-        url=url,
-        shard_bytes=shard_bytes,
+        license_id=request.license,
+        url=request.url,
+        shard_bytes=request.shard_bytes,
         files=dict(output.sums),
         sizes=dict(output.sizes),
         source_bytes=source_bytes,
