@@ -25,6 +25,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: Largest growth of a command's peak memory per extra render.
 BYTES_PER_RENDER = 1024
+#: Measurements of a command at most (the lowest peak of each size is kept).
+MEASUREMENTS = 3
 #: Materials (5 lightings each, 4 materials a shard): 200 and 1,000 renders, 10 and 50 shards.
 SIZES = (40, 200)
 #: Runs the CLI with its arguments under tracemalloc, started after the imports (every command
@@ -168,15 +170,21 @@ def datasets(tmp_path_factory) -> dict[int, tuple[Path, Path]]:
 @pytest.mark.parametrize("command", list(_commands(Path(), Path(), Path())))
 def test_a_command_grows_under_a_kilobyte_per_render(command, datasets, tmp_path):
     """One command at both sizes (a test each: the work of one is a few seconds of CPU, once
-    the datasets are made)."""
-    peaks = {}
-    for materials, (data, publication) in datasets.items():
-        scratch = tmp_path / f"s{materials}"
-        scratch.mkdir()
-        peaks[materials] = _peak_bytes(_commands(data, publication, scratch)[command], scratch)
+    the datasets are made). A command's threads (validate's decoders) can lift one run's peak
+    by ~1 MB when the machine is loaded, never lower it below what its structure holds: a slope
+    over the bound is measured again, up to MEASUREMENTS times, each size's lowest peak kept."""
+    peaks: dict[int, int] = {}
     small, large = SIZES
     extra = (large - small) * 5  # 5 lightings a material
-    slope = (peaks[large] - peaks[small]) / extra
+    for attempt in range(MEASUREMENTS):
+        for materials, (data, publication) in datasets.items():
+            scratch = tmp_path / f"s{materials}-{attempt}"
+            scratch.mkdir()
+            peak = _peak_bytes(_commands(data, publication, scratch)[command], scratch)
+            peaks[materials] = min(peaks.get(materials, peak), peak)
+        slope = (peaks[large] - peaks[small]) / extra
+        if slope < BYTES_PER_RENDER:
+            break
     print(f"{command}: {slope:.0f} bytes per extra render ({peaks[small]} -> {peaks[large]} B)")  # with -s
     assert slope < BYTES_PER_RENDER, (
         f"{command}: {slope:.0f} bytes per extra render ({peaks[small]} -> {peaks[large]} B over {extra} renders)"
