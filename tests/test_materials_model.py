@@ -85,12 +85,13 @@ def test_render_model_option_is_checked_before_anything_is_written(tmp_path):
     assert "--model" in result.output and "floored" in result.output
     assert all(m in result.output for m in MODELS)
     assert not out.exists()
-    # The library names the field by its own name; the command line spells it --model.
+    # The library names the field as its class does (the render settings, a spec's [render]);
+    # the command line spells it --model.
     with pytest.raises(
         ShaderballError,
-        match=r'^model: "floored" is not allowed; one of "shaderball", "deschaintre2018"',
+        match=r'^render.model: "floored" is not allowed; one of "shaderball", "deschaintre2018"',
     ) as info:
-        RenderRequest(model="floored", out=str(out))
+        RenderRequest(settings={"model": "floored"}, out=str(out))
     assert info.value.exit_code == 2 and not out.exists()
 
 

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from pipeline.render.command import RenderRequest, render_settings, render_to_files
+from pipeline.render.command import RenderRequest, render_to_files
 from pipeline.store.exr import read_exr
 from support import VARIANT
 
@@ -16,7 +16,7 @@ KEYS = {"what", "done", "total", "spp_done", "spp", "elapsed_s", "eta_s"}
 
 
 def _request(path, **changes) -> RenderRequest:
-    return RenderRequest(out=str(path), resolution=16, spp=7, variant=VARIANT, **changes)
+    return RenderRequest(out=str(path), settings={"resolution": 16, "spp": 7, "variant": VARIANT}, **changes)
 
 
 def test_render_reports_each_pass_of_its_total_with_an_eta_and_prints_nothing(tmp_path, capfd):
@@ -28,9 +28,11 @@ def test_render_reports_each_pass_of_its_total_with_an_eta_and_prints_nothing(tm
 
     from pipeline.render.renderer import sample_stages  # the passes render_sample renders
 
-    passes = [n for stage in sample_stages(render_settings(request).resolved(VARIANT)) for n in stage]
-    assert sum(passes) == request.spp and len(passes) > 1  # 7 spp: passes of 4, 2 and 1 on llvm
-    assert all(set(e) == KEYS and e["total"] == len(passes) and e["spp"] == request.spp for e in events), events
+    passes = [n for stage in sample_stages(request.settings.resolved(VARIANT)) for n in stage]
+    assert sum(passes) == request.settings.spp and len(passes) > 1  # 7 spp: passes of 4, 2 and 1 on llvm
+    assert all(set(e) == KEYS and e["total"] == len(passes) and e["spp"] == request.settings.spp for e in events), (
+        events
+    )
     assert [e["done"] for e in events] == sorted(e["done"] for e in events)  # in order
     assert {e["done"] for e in events} == set(range(len(passes) + 1))  # every pass said, and the start
     for e in events:

@@ -21,6 +21,7 @@ from pipeline.fields import Checked, FieldError, declared, field, flattened, par
 from pipeline.fields.rules import Int
 from pipeline.render.command import RenderRequest
 from pipeline.render.parts import MaterialPart, SunSkyPart
+from pipeline.render.settings import RenderSettings
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.request import BuildRequest
 from pipeline.ui.command import params_of, request_of
@@ -28,7 +29,7 @@ from pipeline.ui.command import params_of, request_of
 #: Which part each command nests, and which class it is.
 NESTED = {
     "build": {"cluster_options": ClusterOptions},
-    "render": {"material": MaterialPart, "sun_sky": SunSkyPart},
+    "render": {"material": MaterialPart, "sun_sky": SunSkyPart, "settings": RenderSettings},
     "infer": {"material": MaterialPart, "sun_sky": SunSkyPart},
 }
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry import build_shaderball, default_camera
-from pipeline.fields import Checked, field, flattened, part, same_as
+from pipeline.fields import Checked, field, flattened, part
 from pipeline.fields.rules import Int, Optional
 from pipeline.fields.rules import Path as PathRule
 from pipeline.image.tonemap import preview_srgb8
@@ -61,25 +61,8 @@ class RenderRequest(Checked):
 
     material: MaterialPart = part(MaterialPart, doc="The material rendered.")
     sun_sky: SunSkyPart = part(SunSkyPart, doc="The sun and sky it is lit by.")
-    spp: int = same_as(RenderSettings, "spp")
-    resolution: int = same_as(RenderSettings, "resolution")
-    max_depth: int = same_as(RenderSettings, "max_depth")
+    settings: RenderSettings = part(RenderSettings, doc="How it is path traced (a spec's [render] settings).")
     seed: int = field(0, rule=Int(*SEED_RANGE), doc="Render seed.")
-    variant: str = same_as(
-        RenderSettings, "variant", doc="Mitsuba backend: auto picks cuda when a GPU works, else llvm (the CPU)."
-    )
-    sun: str = same_as(
-        RenderSettings,
-        "sun",
-        doc="split: delta sun + sky-only sunsky (measured default, docs/sky.md); sunsky: the sun disk inside sunsky.",
-    )
-    model: str = same_as(
-        RenderSettings,
-        "model",
-        doc="Material model: shaderball (GGX as published, energy-conserving) or deschaintre2018 "
-        "(Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
-        "roughness 0.178; docs/materials.md). A spec's materials.model.",
-    )
     out: str = field(
         rule=PathRule("a file name ending in .exr"),
         doc="Output EXR file: layers render.R/G/B (float32) and the screen-space maps.",
@@ -140,18 +123,6 @@ class RenderSummary:
             f"effects: {', '.join(k for k, v in self.effects.items() if v) or 'none'}",
         ]
         return lines + self.extra
-
-
-def render_settings(req: RenderRequest) -> RenderSettings:
-    """The request's render settings (the variant as requested)."""
-    return RenderSettings(
-        resolution=req.resolution,
-        spp=req.spp,
-        max_depth=req.max_depth,
-        variant=req.variant,
-        sun=req.sun,
-        model=req.model,
-    )
 
 
 class RenderProgress:
@@ -234,12 +205,12 @@ def render_to_files(req: RenderRequest, progress=None) -> RenderSummary:
     was checked when built. ``progress(dict)``: what runs, passes done, ETA (:class:`RenderProgress`)."""
     maps = req.material.maps()  # may raise on a bad SVBRDF file: still nothing written
 
-    variant = resolve_variant(req.variant)  # chosen once, passed to all that follows
-    settings = render_settings(req).resolved(variant)
+    variant = resolve_variant(req.settings.variant)  # chosen once, passed to all that follows
+    settings = req.settings.resolved(variant)
     show = RenderProgress(progress, settings)
     show.say(f"loading the shaderball, its G-buffer and the scene ({variant}; the first pass compiles kernels)")
     ball, camera = build_shaderball(), default_camera()
-    gbuffer = load_gbuffer(ball, camera, req.resolution, variant)
+    gbuffer = load_gbuffer(ball, camera, settings.resolution, variant)
     with show.rendering():
         result = render_sample(
             ball, camera, maps, req.sun_sky.light(), settings, req.seed, mask=gbuffer.mask, on_pass=show.on_pass
@@ -266,7 +237,7 @@ def render_to_files(req: RenderRequest, progress=None) -> RenderSummary:
         result.stats,
         result.lighting,
         result.effects.to_dict(),
-        extra=[f"material model: {req.model}"],
+        extra=[f"material model: {settings.model}"],
     )
 
 

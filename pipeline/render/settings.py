@@ -115,13 +115,16 @@ class RenderSettings(Checked):
     sun: str = field(
         "split",
         rule=Choice(SUN_MODES),
-        doc="How the sun is given to Mitsuba (the spec's lighting.sun).",
+        doc="How the sun is given to Mitsuba: split, a delta sun beside a sky-only sunsky (the measured "
+        "default, docs/sky.md), or sunsky, the sun disk inside sunsky (the spec's lighting.sun).",
         in_file=False,
     )
     model: str = field(
         DEFAULT_MODEL,
         rule=Choice(MODELS),
-        doc="The BRDF every material is rendered with (the spec's materials.model).",
+        doc="The BRDF every material is rendered with: shaderball (GGX as published, energy-conserving) or "
+        "deschaintre2018 (Deschaintre et al.'s code, with its floors on GGX D and Smith G1; darker below "
+        "roughness 0.178; docs/materials.md). The spec's materials.model.",
         in_file=False,
     )
 
