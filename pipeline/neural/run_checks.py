@@ -22,16 +22,6 @@ from pipeline.neural import checkpoint_meta
 from pipeline.neural.checkpoint_meta import shown
 from pipeline.neural.limits import INTEGER_RANGES
 from pipeline.neural.network import NeuralRenderer, parameter_count
-from pipeline.neural.runfolder import (  # noqa: F401 - the run files' names, read here as runfiles.NAME
-    BEST_CHECKPOINT,
-    CHECKPOINT,
-    CONFIG,
-    LOG,
-    LOG_CSV,
-    LOSS_PNG,
-    RUN_FILES,
-    refuse_links,
-)
 from pipeline.store.record_fields import json_type_name, short_json
 
 #: An epoch's numbers that the commands read (a log's line, a checkpoint's history): (field,
@@ -296,16 +286,25 @@ def optimizer_problem(saved, fresh: dict) -> str | None:
     return None
 
 
-def _group_problem(group, wanted: dict) -> str | None:
-    """Why a param group is not one of this run's Adam (``wanted``), as text after its name."""
-    if not isinstance(group, dict):
-        return f" is {shown(group)}, not a param group"
-    missing = next((k for k in ADAM_GROUP_REQUIRED if k not in group), None)
+def _keys_problem(value, what: str, required, allowed, owner: str) -> str | None:
+    """Why ``value`` is not ``what``, a dict with every key of ``required`` and none outside
+    ``allowed`` (keys that ``owner`` has), as text after its name; or None."""
+    if not isinstance(value, dict):
+        return f" is {shown(value)}, not {what}"
+    missing = next((k for k in required if k not in value), None)
     if missing:
         return f" has no {missing!r}"
-    extra = next((k for k in group if k not in wanted), None)
+    extra = next((k for k in value if k not in allowed), None)
     if extra is not None:
-        return f" has a key {shown(extra)}, which this torch's Adam does not have"
+        return f" has a key {shown(extra)}, which {owner} does not have"
+    return None
+
+
+def _group_problem(group, wanted: dict) -> str | None:
+    """Why a param group is not one of this run's Adam (``wanted``), as text after its name."""
+    problem = _keys_problem(group, "a param group", ADAM_GROUP_REQUIRED, wanted, "this torch's Adam")
+    if problem:
+        return problem
     if group["params"] != wanted["params"]:
         return "['params'] is not the network's parameters in order"
     betas = group["betas"]
@@ -329,14 +328,9 @@ def _group_problem(group, wanted: dict) -> str | None:
 def _adam_state_problem(entry, amsgrad: bool) -> str | None:
     """Why one parameter's Adam state cannot be used, as text after its name."""
     keys = ("step", "exp_avg", "exp_avg_sq") + (("max_exp_avg_sq",) if amsgrad else ())
-    if not isinstance(entry, dict):
-        return f" is {shown(entry)}, not a parameter's state"
-    missing = next((k for k in keys if k not in entry), None)
-    if missing:
-        return f" has no {missing!r}"
-    extra = next((k for k in entry if k not in keys), None)
-    if extra is not None:
-        return f" has a key {shown(extra)}, which Adam's state does not have"
+    problem = _keys_problem(entry, "a parameter's state", keys, keys, "Adam's state")
+    if problem:
+        return problem
     for key in keys:
         value = entry[key]
         if not isinstance(value, torch.Tensor) or not value.is_floating_point():
