@@ -7,8 +7,10 @@ import os
 
 import numpy as np
 import torch
+from click.testing import CliRunner
 from torch.utils.data import Dataset
 
+from cli import main
 from pipeline.neural import runfiles
 from pipeline.neural.network import NeuralRenderer
 from pipeline.neural.train import TrainConfig
@@ -109,6 +111,22 @@ def untrained_run(folder, resolution: int, digest: str = "untrained") -> None:
         history=[],
         identity_digest=digest,
     )
+
+
+def assert_checkpoint_refused(run, out, commands: dict, words: str) -> None:
+    """Each command line of ``commands`` (its name: its arguments) is refused (exit code 2)
+    naming ``run``'s checkpoint.pt and saying ``words``, without a traceback; ``run`` is left
+    as it was and ``out``, made empty here, stays empty."""
+    out.mkdir()
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    for command, args in commands.items():
+        result = CliRunner().invoke(main, [str(a) for a in args])
+        assert result.exit_code == 2, (command, result.exit_code, result.output, result.exception)
+        assert f"{run / 'checkpoint.pt'}: " in result.output, (command, result.output)
+        assert words in result.output, (command, result.output)
+        assert "Traceback" not in result.output and len(result.output) < 1500, (command, result.output)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    assert list(out.iterdir()) == []
 
 
 def epoch_threads(monkeypatch) -> list[int]:
