@@ -523,39 +523,35 @@ def denoise_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _loader_setup(result: dict, which: str) -> str:
-    """The line above a loader table: what was loaded, how, and which of the repeats counts."""
-    return (
+def _loader_table(result: dict, which: str, columns: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
+    """A loader benchmark as markdown: what was loaded, how, and which of the repeats counts,
+    then a table of ``columns`` with a line per row."""
+    lines = [
         f"{result['samples']} samples at {result['resolution']} px, batch {result['batch_size']}, "
-        f"{result['workers']} loader workers, {which} of {result['repeats']}"
-    )
+        f"{result['workers']} loader workers, {which} of {result['repeats']}",
+        "",
+        "| " + " | ".join(columns) + " |",
+        "|" + "---|" * len(columns),
+    ]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
 
 
 def loaders_table(result: dict) -> str:
     """:func:`compare_loaders`' result as markdown."""
-    lines = [
-        _loader_setup(result, "best"),
-        "",
-        "| source | samples/s | opening (s) |",
-        "|---|---|---|",
+    rows = [
+        (name, f"{result[name]['samples_per_s']:.1f}", f"{result[name]['open_s']:.2f}")
+        for name in ("folder", "publication")
     ]
-    for name in ("folder", "publication"):
-        row = result[name]
-        lines.append(f"| {name} | {row['samples_per_s']:.1f} | {row['open_s']:.2f} |")
-    return "\n".join(lines) + "\n"
+    return _loader_table(result, "best", ("source", "samples/s", "opening (s)"), rows)
 
 
 def collation_table(result: dict) -> str:
     """:func:`compare_collation`'s result as markdown."""
-    lines = [
-        _loader_setup(result, "median"),
-        "",
-        "| machine | collation | samples/s |",
-        "|---|---|---|",
+    rows = [
+        (f"{row['machine']}", f"{row['collation']}", f"{row['samples_per_s_median']:.1f}") for row in result["rows"]
     ]
-    for row in result["rows"]:
-        lines.append(f"| {row['machine']} | {row['collation']} | {row['samples_per_s_median']:.1f} |")
-    return "\n".join(lines) + "\n"
+    return _loader_table(result, "median", ("machine", "collation", "samples/s"), rows)
 
 
 def training_table(result: dict) -> str:

@@ -10,17 +10,6 @@ from PIL import Image, ImageDraw, ImageFont
 
 from pipeline.study.configs import aa_name
 
-COLOURS = [
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (148, 103, 189),
-    (140, 86, 75),
-    (227, 119, 194),
-    (127, 127, 127),
-    (188, 189, 34),
-    (23, 190, 207),
-]
 FAMILY_COLOURS = {
     "ladder": (31, 119, 180),
     "aa": (120, 120, 120),
