@@ -21,7 +21,7 @@ import pytest
 from test_cli_usage import COMMANDS, SMOKE, invoke, refusal, valid_args
 
 import pipeline
-from pipeline.fields import Checked, FieldError, declared
+from pipeline.fields import Checked, FieldError, declared, flattened
 from pipeline.fields.rules import Choice, Float, Int, Many, Optional, Path
 from pipeline.ui.command import request_of
 
@@ -53,7 +53,7 @@ def _tail(message: str) -> str:
 def _cases():
     for name, command in COMMANDS:
         on_the_line = {p.name for p in command.params}
-        for f in declared(command.request_cls).values():
+        for f, _ in flattened(command.request_cls).values():  # its parts' fields too
             bad = _bad(f.metadata["rule"]) if f.name in on_the_line else None
             if bad is not None:
                 yield pytest.param(name, command, f.name, *bad, id=f"{name}-{f.name}")
@@ -131,6 +131,7 @@ def test_no_class_keeps_a_check_to_call(cls):
 #: What a class with required fields and no command of its own is made with.
 MADE = {
     "DatasetSection": dict(name="x", seed=0, materials=1),
+    "NetworkPart": dict(run="."),
     "ProbeRequest": dict(renders=2),
     "DatasetChoice": dict(sample="m000000_l0"),
     "MaterialKind": dict(kind="uniform"),

@@ -30,7 +30,7 @@ def run(tmp_path_factory):
 
 def test_the_export_gives_the_models_output(run, tmp_path):
     path = tmp_path / "net.pt"
-    meta = export_torchscript(ExportRequest(str(run), str(path), "best"))
+    meta = export_torchscript(ExportRequest(network={"run": str(run), "checkpoint": "best"}, out=str(path)))
     model, _ = load_run_model(str(run), torch.device("cpu"), "best")
     extra = {EXTRA: ""}
     loaded = torch.jit.load(str(path), _extra_files=extra)
@@ -45,7 +45,7 @@ def test_the_export_gives_the_models_output(run, tmp_path):
 
 def test_the_export_loads_in_a_process_without_this_package(run, tmp_path):
     path = tmp_path / "net.pt"
-    export_torchscript(ExportRequest(str(run), str(path)))
+    export_torchscript(ExportRequest(network={"run": str(run)}, out=str(path)))
     code = (
         "import sys, torch; sys.modules['pipeline'] = None; net = torch.jit.load(sys.argv[1]); "
         "print(tuple(net(torch.rand(1, 12, 32, 32), torch.tensor([[0.0, 0.0, 3.0, 3.0]])).shape))"
@@ -57,6 +57,10 @@ def test_the_export_loads_in_a_process_without_this_package(run, tmp_path):
 
 def test_bad_names_are_refused(run, tmp_path):
     with pytest.raises(ShaderballError, match="^out: .*net.onnx.* .pt, .pth or .ts"):
-        ExportRequest(run=str(run), out=str(tmp_path / "net.onnx"))
+        ExportRequest(network={"run": str(run)}, out=str(tmp_path / "net.onnx"))
     with pytest.raises(ShaderballError, match="^checkpoint: .*missing.pt"):
-        export_torchscript(ExportRequest(str(run), str(tmp_path / "net.pt"), str(tmp_path / "missing.pt")))
+        export_torchscript(
+            ExportRequest(
+                network={"run": str(run), "checkpoint": str(tmp_path / "missing.pt")}, out=str(tmp_path / "net.pt")
+            )
+        )

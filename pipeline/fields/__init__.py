@@ -159,14 +159,16 @@ def same_as(cls, name: str, *, unset: str | None = None, **changes):
 
 def part(cls, *, doc: str):
     """A field whose value is a whole :class:`Checked` class: a part that several requests
-    share (a render's material and light, a build's cluster options), declared once in ``cls``
-    and nested, not copied field by field. The part is made from its own defaults when left
-    out, from a dict of its fields, or given as an instance; the command line spells its
-    fields as options of their own (``--workers``, not ``--cluster-options-workers``: the
-    names of a request and its parts never clash, pipeline.ui.command checks it)."""
+    share (a render's material and light, a build's cluster options, a trained network),
+    declared once in ``cls`` and nested, not copied field by field. The part is given as an
+    instance or a dict of its fields; left out, it is made from its defaults (a part with a
+    required field is required). The command line spells its fields as options and operands
+    of their own (``--workers``, not ``--cluster-options-workers``: the names of a request
+    and its parts never clash, :func:`flattened` checks it)."""
+    meta = {"part": cls, "doc": doc}
     if any(default_of(f) is MISSING for f in declared(cls).values()):
-        raise TypeError(f"{cls.__name__}: a part has a default for every field")
-    return dataclasses.field(default_factory=cls, metadata={"part": cls, "doc": doc})
+        return dataclasses.field(metadata=meta)
+    return dataclasses.field(default_factory=cls, metadata=meta)
 
 
 def parts(cls) -> dict[str, type]:

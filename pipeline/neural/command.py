@@ -55,7 +55,7 @@ def export_command(request: ExportRequest) -> Printed:
 
     meta = export_torchscript(request)
     side = meta["resolution"]
-    text = f"wrote {request.out}: TorchScript, {side}x{side}, {request.checkpoint} checkpoint"
+    text = f"wrote {request.out}: TorchScript, {side}x{side}, {request.network.checkpoint} checkpoint"
     return Printed({"out": request.out, **meta}, text)
 
 

@@ -316,8 +316,8 @@ class TrainConfig(Checked):
 
 
 @dataclass(frozen=True)
-class InferRequest(Checked):
-    """`shaderball infer`: the network's picture of one material under one sun."""
+class NetworkPart(Checked):
+    """A trained network: its run folder and which of its checkpoints (infer, evaluate, export)."""
 
     run: str = field(
         rule=Path("a training run folder", exists="folder"),
@@ -325,6 +325,20 @@ class InferRequest(Checked):
         positional=True,
         metavar="RUN",
     )
+    checkpoint: str = field(
+        "last",
+        rule=Path("last, best, or a checkpoint file of the run"),
+        doc="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt; chosen on the test split, so "
+        "optimistic when evaluated there), or a checkpoint file of {run}.",
+        metavar="last|best|FILE",
+    )
+
+
+@dataclass(frozen=True)
+class InferRequest(Checked):
+    """`shaderball infer`: the network's picture of one material under one sun."""
+
+    network: NetworkPart = part(NetworkPart, doc="The trained network.")
     out: str = field(
         rule=FileName(".exr"),
         doc="Output EXR file: render.R/G/B, the network's estimate in linear HDR (inverse tone map), and the maps.",
@@ -335,12 +349,6 @@ class InferRequest(Checked):
     material: MaterialPart = part(MaterialPart, doc="The material the network is shown.")
     sun_sky: SunSkyPart = part(SunSkyPart, doc="The sun and sky it is lit by.")
     device: str = same_as(TrainConfig, "device")
-    checkpoint: str = field(
-        "last",
-        rule=Path("last, best, or a checkpoint file of the run"),
-        doc="The last epoch's weights, the best held-out PSNR's (checkpoint-best.pt), or a checkpoint file of {run}.",
-        metavar="last|best|FILE",
-    )
 
     def check_cross(self) -> None:
         check_output(type(self), "out", self.out, ".exr")  # the files' folders writable, as render's
@@ -352,7 +360,7 @@ class InferRequest(Checked):
 class EvaluateRequest(Checked):
     """`shaderball evaluate`: a run's network against a dataset's path-traced references."""
 
-    run: str = same_as(InferRequest, "run", positional=True)
+    network: NetworkPart = part(NetworkPart, doc="The trained network.")
     dataset: str = same_as(
         TrainConfig, "dataset", rule=Path("a dataset folder or its publication", exists="any"), positional=True
     )
@@ -394,12 +402,6 @@ class EvaluateRequest(Checked):
         metavar="N",
     )
     device: str = same_as(TrainConfig, "device")
-    checkpoint: str = same_as(
-        InferRequest,
-        "checkpoint",
-        doc="The last epoch's weights; best: the best held-out PSNR's (chosen on the test split, so optimistic "
-        "there); or a checkpoint file of {run}.",
-    )
     report: bool = field(
         False,
         rule=Bool(),
@@ -412,16 +414,15 @@ class EvaluateRequest(Checked):
     @property
     def folder(self) -> str:
         """The folder the evaluation writes: ``out``, else the run's ``evaluation-<split>``."""
-        return self.out or os.path.join(self.run, f"evaluation-{self.split}")
+        return self.out or os.path.join(self.network.run, f"evaluation-{self.split}")
 
 
 @dataclass(frozen=True)
 class ExportRequest(Checked):
     """`shaderball export`: a run's network as a TorchScript file."""
 
-    run: str = same_as(InferRequest, "run", positional=True)
+    network: NetworkPart = part(NetworkPart, doc="The trained network.")
     out: str = field(rule=FileName(".pt", ".pth", ".ts"), doc="TorchScript file to write (.pt, .pth or .ts).")
-    checkpoint: str = same_as(InferRequest, "checkpoint")
 
 
 @dataclass(frozen=True)

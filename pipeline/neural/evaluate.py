@@ -143,9 +143,11 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
         },
     )
     if req.json_out:
-        runfiles.write_json(req.json_out, result, inside=req.run)
+        runfiles.write_json(req.json_out, result, inside=req.network.run)
     if req.report:
-        report.write_report(out_dir, result, table, report.class_table(result["by_class"], method_label), req.run)
+        report.write_report(
+            out_dir, result, table, report.class_table(result["by_class"], method_label), req.network.run
+        )
     else:  # --overwrite: an earlier evaluation's report would stand beside these results as theirs
         for name in report.REPORT_FILES:
             with contextlib.suppress(FileNotFoundError):
@@ -163,9 +165,9 @@ def refuse_output_links(req: EvaluateRequest) -> None:
     output folder: nothing is written through a link."""
     names = EVALUATION_FILES + (report.REPORT_FILES if req.report else ())
     files = [os.path.join(req.folder, name) for name in names]
-    runfiles.refuse_links(EvaluateRequest, "out", req.folder, [req.run, req.folder], files)
+    runfiles.refuse_links(EvaluateRequest, "out", req.folder, [req.network.run, req.folder], files)
     if req.json_out:
-        runfiles.refuse_links(EvaluateRequest, "json_out", req.json_out, [req.run], [req.json_out])
+        runfiles.refuse_links(EvaluateRequest, "json_out", req.json_out, [req.network.run], [req.json_out])
 
 
 def refuse_earlier_evaluation(req: EvaluateRequest) -> None:
@@ -253,12 +255,14 @@ class _Evaluation:
     def __init__(self, req: EvaluateRequest):
         self.req = req
         self.device = pick_device(req.device)
-        self.model, self.config = load_run_model(req.run, self.device, req.checkpoint)
+        self.model, self.config = load_run_model(req.network.run, self.device, req.network.checkpoint)
         if req.report:
-            runfiles.read_log(req.run)  # the report's learning curve: checked before anything is written
+            runfiles.read_log(req.network.run)  # the report's learning curve: checked before anything is written
         self.exposure = float(self.config["tonemap"]["exposure"])
         self.source = _open_for_run(req, self.model.resolution, self.exposure)
-        self.same, self.compared = same_dataset(self.config, self.source, os.path.join(req.run, runfiles.CONFIG))
+        self.same, self.compared = same_dataset(
+            self.config, self.source, os.path.join(req.network.run, runfiles.CONFIG)
+        )
         self.dataset = self._split()
         self.indices = list(range(len(self.dataset)))[: req.limit]
         self.records = self.source.records
@@ -346,7 +350,7 @@ class _Evaluation:
         started, cpu_started = time.perf_counter(), time.process_time()
         pred = run_network(self.model, maps_chw, sample.lighting_vector, self.device)
         net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
-        refuse_nonfinite(pred, f"the network of {self.req.run}, sample {sample.id}")
+        refuse_nonfinite(pred, f"the network of {self.req.network.run}, sample {sample.id}")
         row = {
             "id": sample.id,
             "material_id": sample.material_id,
@@ -445,13 +449,13 @@ def _results(req: EvaluateRequest, run: _Evaluation, rows: list[dict], means: di
         "command": command,
         "machine": machine_line(run.device),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "run": os.path.abspath(req.run),
+        "run": os.path.abspath(req.network.run),
         "dataset": os.path.abspath(req.dataset),
         "dataset_compared": run.compared,
         "split": req.split,
         "resolution": run.model.resolution,
         "device": str(run.device),
-        "checkpoint": req.checkpoint,
+        "checkpoint": req.network.checkpoint,
         "reference_spp": run.reference_spp,
         "equal_time": run.equal_time,
         "ci95": "percentile bootstrap over materials (2000 resamples, fixed seed): a material's lightings "
@@ -523,7 +527,7 @@ def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
             f"a dataset whose render resolution is a multiple of {resolution} (e.g. the run's own dataset), or a "
             f"run trained for this dataset (`shaderball train DATASET --out NEWRUN`, with --resolution a multiple "
             f"of 16 dividing {exc.native})",
-            what=f"{quoted(req.dataset)} has {exc.native}x{exc.native} renders; the run {quoted(req.run)} was trained at "
+            what=f"{quoted(req.dataset)} has {exc.native}x{exc.native} renders; the run {quoted(req.network.run)} was trained at "
             f"{resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, so its "
             "network cannot take these renders",
         ) from None

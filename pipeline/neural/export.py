@@ -43,15 +43,15 @@ def example_inputs(resolution: int, batch: int = 1, seed: int = 0) -> tuple[torc
 
 def export_torchscript(req: ExportRequest) -> dict:
     """Write the run's network as TorchScript to ``req.out``; returns what the file's extra holds."""
-    runfiles.refuse_links(ExportRequest, "out", req.out, [req.run], [req.out])  # a file inside RUN: no link
-    model, config = load_run_model(req.run, torch.device("cpu"), req.checkpoint)
+    runfiles.refuse_links(ExportRequest, "out", req.out, [req.network.run], [req.out])  # a file inside RUN: no link
+    model, config = load_run_model(req.network.run, torch.device("cpu"), req.network.checkpoint)
     meta = {
         "format": "shaderball-neural-torchscript",
         "resolution": model.resolution,
         "inputs": "maps (N, 12, R, R) in [0, 1]; light (N, 4) = (3 d_x, 3 d_y, 3 d_z, turbidity)",
         "output": "(N, 3, R, R) in [0, 1], sRGB-encoded Reinhard tone map of linear radiance",
         "tonemap": config.get("tonemap"),
-        "checkpoint": req.checkpoint,
+        "checkpoint": req.network.checkpoint,
         "identity_digest": config.get("identity_digest"),
         "torch": torch.__version__,
     }
@@ -62,5 +62,5 @@ def export_torchscript(req: ExportRequest) -> dict:
         traced = torch.jit.trace(model, example_inputs(model.resolution), check_trace=False)
     buffer = io.BytesIO()
     torch.jit.save(traced, buffer, _extra_files={EXTRA: json.dumps(meta, sort_keys=True)})
-    write_bytes_atomic(req.out, buffer.getvalue(), inside=req.run)
+    write_bytes_atomic(req.out, buffer.getvalue(), inside=req.network.run)
     return meta

@@ -98,7 +98,7 @@ def refuse_run_links(req: InferRequest) -> None:
     for field in ("out", "png"):
         path = getattr(req, field)
         if path:
-            runfiles.refuse_links(InferRequest, field, path, [req.run], [path])
+            runfiles.refuse_links(InferRequest, field, path, [req.network.run], [path])
 
 
 def infer_to_files(req: InferRequest) -> InferSummary:
@@ -108,7 +108,7 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     refuse_run_links(req)
     device = pick_device(req.device)
     started = time.perf_counter()
-    model, config = load_run_model(req.run, device, req.checkpoint)
+    model, config = load_run_model(req.network.run, device, req.network.checkpoint)
     load_s = time.perf_counter() - started
     resolution = model.resolution
     material = req.material.maps()
@@ -129,12 +129,12 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     output = run_network(model, maps_chw, vector, device)
     _synchronize(device)
     network_s = time.perf_counter() - started
-    refuse_nonfinite(output, f"the network of {req.run}")
+    refuse_nonfinite(output, f"the network of {req.network.run}")
 
     exposure = float(config["tonemap"]["exposure"])
     meta = {
         "estimate": "neural renderer (KT et al. 2019)",
-        "run": req.run,
+        "run": req.network.run,
         "lighting_vector": vector,
         "tonemap": config["tonemap"],
         "colorspace": "linear Rec.709 (sRGB primaries, D65)",
@@ -149,5 +149,5 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     if req.png:
         buffer = io.BytesIO()
         Image.fromarray(to_srgb8(output)).save(buffer, format="PNG")
-        write_bytes_atomic(req.png, buffer.getvalue(), inside=req.run)
+        write_bytes_atomic(req.png, buffer.getvalue(), inside=req.network.run)
     return InferSummary(req.out, req.png, resolution, str(device), load_s, maps_s, network_s, vector)
