@@ -13,7 +13,6 @@ import socket
 import struct
 import subprocess
 import sys
-import threading
 import time
 import zlib
 from pathlib import Path
@@ -25,7 +24,7 @@ from PIL import Image
 
 from pipeline.serve.materials import MAX_UPLOAD_BYTES, MAX_UPLOAD_PIXELS
 from pipeline.store.exr import encode_exr
-from support.serving import Client
+from support.serving import Client, in_threads, serve_process
 
 torch.set_num_threads(1)
 pytestmark = pytest.mark.slow  # a smoke build, a tiny training run and real renders
@@ -339,11 +338,7 @@ def test_clients_that_go_away_and_clients_that_crowd_in_do_not_break_it(http):
         except Exception as exc:  # noqa: BLE001 - reported below
             errors.append(exc)
 
-    threads = [threading.Thread(target=one, args=(i,)) for i in range(6)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(300)
+    in_threads(6, one, 300)
     assert errors == [] and len(results) == 6
     status, _, _ = http.request("GET", "/")
     assert status == 200
@@ -386,21 +381,9 @@ def test_bad_serve_options_exit_2_naming_them(args, words):
 
 
 def test_ctrl_c_stops_the_server_with_exit_code_130_and_one_line(tmp_path):
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cli", "serve", "--port", "0"],
-        cwd=REPO,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc, port = serve_process()
     try:
-        line = proc.stderr.readline()
-        assert line.startswith("serving http://127.0.0.1:"), line
-        url = line.split()[1]
-        host, port = url.split("//")[1].rstrip("/").split(":")
-        client = Client(f"http://{host}:{port}/")
+        client = Client(f"http://127.0.0.1:{port}/")
         status, doc = client.view("sigint")
         assert status == 200
         client.wait_frame("sigint", doc["generation"], lambda f: "path" in f)

@@ -10,8 +10,6 @@ import json
 import os
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 import zlib
@@ -29,7 +27,7 @@ from pipeline.serve.view import UniformChoice, View
 from pipeline.serve.workers import ABANDONED_S, IDLE_S, MAX_CLIENTS, Hub
 from pipeline.store.exr import encode_exr
 from sky import Light
-from support.serving import start_app
+from support.serving import in_threads, serve_process, start_app
 
 REPO = Path(__file__).resolve().parents[1]
 VIEW_DOC = {
@@ -183,11 +181,7 @@ def test_a_burst_of_64_connections_is_queued_and_answered_without_a_reset(app):
         except OSError as exc:
             errors.append(exc)
 
-    threads = [threading.Thread(target=connect, args=(i,)) for i in range(64)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
+    in_threads(64, connect, 60)
     serving = threading.Thread(target=srv.serve_forever, daemon=True)
     serving.start()
     try:
@@ -397,23 +391,6 @@ def test_an_abandoned_clients_job_is_parked_and_resumes_when_it_polls_again(http
 # --------------------------------------------------------------------------- as a process
 
 
-def _serve(*args: str) -> tuple[subprocess.Popen, int]:
-    """`shaderball serve --port 0` in its own process group; (process, port) once it serves."""
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cli", "serve", "--port", "0", *args],
-        cwd=REPO,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    line = proc.stderr.readline()
-    assert line.startswith("serving http://127.0.0.1:"), line + proc.stderr.read()
-    return proc, int(line.split()[1].rstrip("/").rsplit(":", 1)[1])
-
-
 def _post(port: int, path: str, body: bytes, kind: str) -> int:
     conn = HTTPConnection("127.0.0.1", port, timeout=300)
     try:
@@ -444,16 +421,6 @@ def _peak_rss_bytes(pid: int) -> int:
     raise AssertionError("no VmHWM")
 
 
-def _parallel(count: int, call) -> list:
-    results = [None] * count
-    threads = [threading.Thread(target=lambda i=i: results.__setitem__(i, call(i))) for i in range(count)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(600)
-    return results
-
-
 #: Peak resident memory allowed to the server under the worst uploads at once.
 PEAK_RSS_BYTES = 1536 * 1024 * 1024
 
@@ -464,11 +431,11 @@ def test_worst_case_uploads_at_once_stay_within_the_memory_bound():
     server's peak resident memory (VmHWM) stays under PEAK_RSS_BYTES and every upload lands."""
     png = png16_4096()
     exr = encode_exr({"diffuse": np.zeros((4096, 4096, 3), np.float32)})
-    proc, port = _serve()
+    proc, port = serve_process()
     try:
         before = _peak_rss_bytes(proc.pid)
-        pngs = _parallel(16, lambda i: _post(port, f"/api/upload?client=m{i}&map=diffuse", png, "image/png"))
-        exrs = _parallel(8, lambda i: _post(port, f"/api/upload?client=e{i}&map=normal", exr, "image/x-exr"))
+        pngs = in_threads(16, lambda i: _post(port, f"/api/upload?client=m{i}&map=diffuse", png, "image/png"))
+        exrs = in_threads(8, lambda i: _post(port, f"/api/upload?client=e{i}&map=normal", exr, "image/x-exr"))
         peak = _peak_rss_bytes(proc.pid)
     finally:
         os.killpg(proc.pid, signal.SIGINT)

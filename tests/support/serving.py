@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import http.client
 import json
+import os
+import subprocess
+import threading
 import time
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -11,6 +14,7 @@ from urllib.parse import urlsplit
 from click.testing import CliRunner
 
 from cli import main
+from support.processes import REPO, cli, started
 
 #: A network small enough to train in seconds on the smoke dataset (its pictures are poor).
 TINY_TRAIN = ["--loss", "l1", "--resolution", "64", "--width", "0.25", "--batch-size", "4", "--epochs", "2"]
@@ -86,6 +90,27 @@ class Client:
             if frame.get("generation") == generation and need(frame):
                 return frame
         raise AssertionError(f"no frame of generation {generation} within {timeout_s} s")
+
+
+def serve_process(*args: str) -> tuple[subprocess.Popen, int]:
+    """`shaderball serve --port 0 ARGS` as a process in a session of its own; (process, port)
+    once it serves (its `serving` line read from its stderr)."""
+    proc = started(cli("serve", "--port", "0", *args), env=dict(os.environ, PYTHONPATH=str(REPO)))
+    line = proc.stderr.readline()
+    assert line.startswith("serving http://127.0.0.1:"), line + proc.stderr.read()
+    return proc, int(line.split()[1].rstrip("/").rsplit(":", 1)[1])
+
+
+def in_threads(count: int, call, timeout_s: float = 600) -> list:
+    """``call(i)`` for each i below ``count``, all at once, a thread each, each waited for at
+    most ``timeout_s``; what each returned (None where one had not)."""
+    results = [None] * count
+    threads = [threading.Thread(target=lambda i=i: results.__setitem__(i, call(i))) for i in range(count)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout_s)
+    return results
 
 
 def direct_render(out: Path, light: dict, material: dict, resolution: int, spp: int, seed: int):
