@@ -415,14 +415,11 @@ def open_dataset(
 
 
 def open_published(
-    root: str,
-    resolution: int | None = None,
-    exposure: float = DEFAULT_EXPOSURE,
-    check_hashes: bool = True,
-    cache_materials: int = DEFAULT_CACHE_MATERIALS,
+    root: str, resolution: int | None, exposure: float, check_hashes: bool, cache_materials: int
 ) -> ShaderballDataset:
-    """A publication as a :class:`ShaderballDataset`: checked whole first (every tar streamed
-    through the reader), then read member by member at the checked offsets."""
+    """A publication as a :class:`ShaderballDataset`, for :func:`open_dataset` (which holds the
+    defaults): checked whole first (every tar streamed through the reader), then read member by
+    member at the checked offsets."""
     try:
         publication = open_publication(root)
         located = publication.locate()
