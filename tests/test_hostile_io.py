@@ -22,7 +22,8 @@ import pytest
 from conftest import crash_module
 
 from pipeline.dataset.plan import KIND_SVBRDF, KIND_UNIFORM, plan_dataset, plan_summary
-from pipeline.dataset.spec_file import MAP_LAYERS, parse_spec, parse_spec_bytes
+from pipeline.dataset.spec import MAP_LAYERS
+from pipeline.dataset.spec_file import parse_spec, parse_spec_bytes
 from pipeline.errors import ShaderballError
 from pipeline.fields.rules import Reject, StrList
 from pipeline.run.out_folder import plan_digest

@@ -15,6 +15,8 @@ import pytest
 from materials.errors import MaterialError
 from pipeline.dataset.spec import (
     FALLBACK_LIGHT_SCHEMES,
+    FALLBACK_SVBRDF_FAMILIES,
+    MAP_LAYERS,
     SUN_FORMS,
     UNIFORM_FIELDS,
     DatasetSection,
@@ -26,8 +28,6 @@ from pipeline.dataset.spec import (
     svbrdf_family_names,
 )
 from pipeline.dataset.spec_file import (
-    FALLBACK_SVBRDF_FAMILIES,
-    MAP_LAYERS,
     parse_spec,
     parse_spec_text,
     reference_markdown,

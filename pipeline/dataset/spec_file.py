@@ -28,19 +28,7 @@ from pipeline.fields.rules import (
     Rule,
     format_value,
 )
-from pipeline.render.limits import DEFAULT_RR_DEPTH, RESOLUTION_RANGE  # noqa: F401 - RESOLUTION_RANGE: the spec's
-
-#: Procedural SVBRDF families, used when ``materials.SVBRDF_FAMILIES`` can't be imported.
-#: Keep in sync with materials/ (a test compares them when materials/ is importable).
-FALLBACK_SVBRDF_FAMILIES: tuple[str, ...] = ("stains", "tiles", "bricks", "brushed_metal", "worn_paint", "stones")
-
-#: File suffixes (lower case) of imported SVBRDF map files, as in Deschaintre et al. 2018's
-#: dataset (one PNG per material with the maps side by side).
-SVBRDF_IMPORT_SUFFIXES: tuple[str, ...] = (".png",)
-
-#: Screen-space map layers the storage stage can write (pipeline.store.exr layer names).
-MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal", "mask")
-
+from pipeline.render.limits import DEFAULT_RR_DEPTH
 
 # --------------------------------------------------------------------------- parsing
 

@@ -12,6 +12,7 @@ import numpy as np
 from geometry import build_shaderball, default_camera
 from materials import MaterialMaps
 from materials.brdf_ref import DEFAULT_MODEL
+from pipeline.check.inspect import TEXTURE_LAYERS
 from pipeline.neural import speed
 from pipeline.neural.data import box_downsample
 from pipeline.neural.infer import run_network
@@ -62,9 +63,6 @@ def pt_cpu_time(probe: dict[int, float], spp: int) -> float:
     if per_spp <= 0 or fixed < 0:
         per_spp, fixed = t1 / s1, 0.0
     return fixed + per_spp * spp
-
-
-TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
 
 
 class PathTracer:

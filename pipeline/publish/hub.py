@@ -15,8 +15,9 @@ Pure data and text: nothing here imports ``datasets`` (tests load the card with 
 
 from __future__ import annotations
 
-from pipeline.publish.names import MATERIALS, RENDERS, SHARDS_DIR
+from pipeline.publish.names import MATERIALS, RENDERS
 from pipeline.publish.table import COLUMN_DOCS, MATERIAL_COLUMNS
+from pipeline.store.layout import SHARDS_DIR
 
 #: Croissant data types -> Hugging Face dtypes.
 DTYPES = {"sc:Text": "string", "sc:Integer": "int64", "sc:Float": "float64", "sc:Boolean": "bool"}

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import re
 
-from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SHARDS_DIR, SPEC_FILE
 
 FORMAT = "shaderball-publish"
 FORMAT_VERSION = 2
@@ -41,7 +41,6 @@ SAMPLES_FILE = "samples.jsonl"
 PREVIEW_FILE = "preview.png"
 SUMS_FILE = "SHA256SUMS"
 DATASET_DIR = "dataset"
-SHARDS_DIR = "shards"
 MARKERS_FILE = "markers.jsonl"
 
 #: The source folder's root files and where they are published.

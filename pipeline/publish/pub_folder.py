@@ -8,10 +8,10 @@ import contextlib
 import os
 from collections.abc import Callable
 
-from pipeline.publish.names import DATASET_DIR, SHARDS_DIR, SUMS_FILE, allowed_file
+from pipeline.publish.names import DATASET_DIR, SUMS_FILE, allowed_file
 from pipeline.publish.output import check_out, held_output
 from pipeline.store.folder import is_temp_file, real_dir
-from pipeline.store.layout import LOCK_FILE
+from pipeline.store.layout import LOCK_FILE, SHARDS_DIR
 from pipeline.store.lock import holder_text, stale_holder
 
 #: How publish's messages name its output folder.

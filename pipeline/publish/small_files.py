@@ -12,8 +12,9 @@ import os
 import stat
 from dataclasses import dataclass
 
-from pipeline.publish.names import CROISSANT_FILE, DATASET_DIR, SHARDS_DIR, SUMS_FILE, allowed_file
+from pipeline.publish.names import CROISSANT_FILE, DATASET_DIR, SUMS_FILE, allowed_file
 from pipeline.publish.refusal import Limits, Refused
+from pipeline.store.layout import SHARDS_DIR
 
 HEX = frozenset("0123456789abcdef")
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.errors import caused_by_interrupt
+from pipeline.image.metrics import RELMSE_EPS  # the adaptive statistic estimates relMSE with it
 from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
@@ -46,9 +47,6 @@ _SEED_STEP = 0x9E3779B9  # golden-ratio step: retry seeds far from the original
 #: Adaptive rendering's first pass (or ``spp`` when smaller): enough samples for a
 #: variance estimate, then the total doubles pass by pass (docs/accuracy.md).
 ADAPTIVE_FIRST_SPP = 16
-#: eps of relMSE = mean (x - ref)^2 / (ref^2 + eps): the accuracy study's (and the neural
-#: stage's) definition, radiance units; the adaptive statistic estimates it.
-RELMSE_EPS = 0.01
 
 
 @dataclass(frozen=True)
