@@ -22,14 +22,14 @@ from pipeline.neural import checkpoint_meta
 from pipeline.neural.checkpoint_meta import shown
 from pipeline.neural.limits import INTEGER_RANGES
 from pipeline.neural.network import NeuralRenderer, parameter_count
-from pipeline.store.record_fields import json_type_name, short_json
+from pipeline.store.record_fields import NUMBER, json_type_name, short_json
 
 #: An epoch's numbers that the commands read (a log's line, a checkpoint's history): (field,
 #: whether it is required, the lowest and highest value allowed, the range in words). A PSNR
 #: is +inf where the images are equal (pipeline.image.metrics.psnr8); nothing else is ever
 #: infinite, and no field is ever NaN: a run whose loss turns NaN stops before it saves.
 _FINITE = sys.float_info.max
-EPOCH_NUMBERS = (
+EPOCHNUMBERS = (
     ("epoch", True, 1, INTEGER_RANGES["epochs"][1], f"an integer from 1 to {INTEGER_RANGES['epochs'][1]}"),
     ("train_loss", True, -_FINITE, _FINITE, "a finite number"),
     ("test_loss", False, -_FINITE, _FINITE, "a finite number"),
@@ -48,14 +48,14 @@ MAX_EPOCH_WARNINGS, MAX_WARNING_CHARS = 16, 2000
 
 def epoch_problem(entry) -> str | None:
     """Why an epoch of a log or a checkpoint's history cannot be used, or None: the fields
-    the commands read, by type and range (:data:`EPOCH_NUMBERS`), and its warnings."""
+    the commands read, by type and range (:data:`EPOCHNUMBERS`), and its warnings."""
     if not isinstance(entry, dict):
         return f"an epoch is {json_type_name(entry)}, not an object"
-    for field, required, lo, hi, allowed in EPOCH_NUMBERS:
+    for field, required, lo, hi, allowed in EPOCHNUMBERS:
         value = entry.get(field)
         if value is None and not required:
             continue
-        kind = int if field in ("epoch", "schedule_epochs") else _NUMBER
+        kind = int if field in ("epoch", "schedule_epochs") else NUMBER
         if isinstance(value, bool) or not isinstance(value, kind):
             return f"{field} is {json_type_name(value)} ({_spelled(value)}), not {allowed}"
         # an int compares with a float exactly in Python, whatever its size; NaN fails both
@@ -80,7 +80,6 @@ def _spelled(value) -> str:
         return shown(value)
 
 
-_NUMBER = (int, float)
 #: What the commands read of config.json, and its type; a path names a field in an object.
 CONFIG_FIELDS = {
     "identity": dict,
@@ -88,17 +87,17 @@ CONFIG_FIELDS = {
     "network": dict,
     "network.resolution": int,
     "tonemap": dict,
-    "tonemap.exposure": _NUMBER,
+    "tonemap.exposure": NUMBER,
 }
 #: Fields that may be absent or null, and their type when present.
 OPTIONAL_CONFIG_FIELDS = {
-    "network.width": _NUMBER,
+    "network.width": NUMBER,
     "network.parameters": int,
     "options": dict,
     "identity.dataset": dict,
     "identity.dataset.variant": str,
     "baseline": dict,
-    "baseline.test_psnr": _NUMBER,
+    "baseline.test_psnr": NUMBER,
     "split": dict,
     "split.train": list,
     "split.test": list,
@@ -116,7 +115,7 @@ def _lookup(config: dict, field: str):
 
 
 def _kind_text(kind) -> str:
-    if kind == _NUMBER:
+    if kind == NUMBER:
         return "a number"
     kinds = kind if isinstance(kind, tuple) else (kind,)
     return " or ".join(
@@ -253,7 +252,7 @@ def checkpoint_content_problem(ckpt: dict) -> str | None:
 #: (a checkpoint of an older torch), and a key this torch's Adam does not have is refused.
 ADAM_GROUP_REQUIRED = ("params", "lr", "betas", "eps", "weight_decay", "amsgrad")
 #: Adam's numbers, the range each must lie in, and that range in words.
-ADAM_GROUP_NUMBERS = {
+ADAM_GROUPNUMBERS = {
     "lr": (0.0, _FINITE, "a finite number >= 0"),
     "eps": (sys.float_info.min, _FINITE, "a finite number > 0"),
     "weight_decay": (0.0, _FINITE, "a finite number >= 0"),
@@ -311,13 +310,13 @@ def _group_problem(group, wanted: dict) -> str | None:
     below_1 = math.nextafter(1.0, 0.0)
     if not (isinstance(betas, (tuple, list)) and len(betas) == 2 and all(_number_in(b, 0.0, below_1) for b in betas)):
         return f"['betas'] is {shown(betas)}, not two numbers from 0 to 1 (1 excluded, as torch's Adam requires)"
-    for key, (lo, hi, allowed) in ADAM_GROUP_NUMBERS.items():
+    for key, (lo, hi, allowed) in ADAM_GROUPNUMBERS.items():
         if not _number_in(group[key], lo, hi):
             return f"[{key!r}] is {shown(group[key])}, not {allowed}"
     for key, value in group.items():
         flag = wanted[key]
         if (
-            key not in ADAM_GROUP_NUMBERS
+            key not in ADAM_GROUPNUMBERS
             and key not in ("params", "betas")
             and (type(value), value) != (type(flag), flag)
         ):

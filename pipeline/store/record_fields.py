@@ -13,7 +13,8 @@ from pipeline.store.layout import SHARDS_DIR
 
 #: JSON type names, as a message says them.
 _JSON_NAMES = {dict: "an object", list: "an array", str: "a string", int: "an integer", float: "a number"}
-_NUMBER = (int, float)
+#: A JSON number's Python types (an int where it has no point).
+NUMBER = (int, float)
 #: The type of every field a record carries (docs/manifest.md), checked wherever a record is
 #: read (manifest, marker, record file, publication) before any field is used: a field may
 #: be absent (what is missing is reported by the checks that need it), never of another type.
@@ -36,9 +37,9 @@ RECORD_FIELDS = {
 #: Fields inside them that readers use as numbers, strings or containers.
 RECORD_SUBFIELDS = {
     "lighting": {
-        "elevation_deg": _NUMBER,
-        "azimuth_deg": _NUMBER,
-        "turbidity": _NUMBER,
+        "elevation_deg": NUMBER,
+        "azimuth_deg": NUMBER,
+        "turbidity": NUMBER,
         "direction": list,
         "policy": dict,
         "requested": dict,
