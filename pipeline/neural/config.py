@@ -364,6 +364,14 @@ class EvaluateRequest(Checked):
     dataset: str = same_as(
         TrainConfig, "dataset", rule=Path("a dataset folder or its publication", exists="any"), positional=True
     )
+    reference: str | None = field(
+        None,
+        rule=Optional(Path("a dataset folder or its publication", exists="any"), "unset ({dataset}'s own renders)"),
+        doc="Score against this build's renders of the same samples instead of {dataset}'s: a build of the same "
+        "spec but for render.spp (e.g. a high-spp rebuild), so a network trained on noisy renders is scored "
+        "against clean ones.",
+        metavar="DIR|PUB",
+    )
     split: str = field(
         "test",
         rule=Choice(SPLITS),

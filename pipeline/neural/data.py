@@ -87,7 +87,7 @@ from pipeline.publish.refusal import Refused
 from pipeline.store.bounded_read import file_digest, iter_lines, list_bound
 from pipeline.store.exr import ROLE_LAYERS, layer_bounds, read_exr
 from pipeline.store.exrheader import ExrBounds, ExrRefused, check_header
-from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE
+from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE
 
 MAP_LAYERS = ("diffuse", "specular", "roughness", "normal", "mask")
 #: Materials whose assembled maps a process keeps (400x400: 7.7 MB each).
@@ -441,7 +441,11 @@ def open_published(
     del keep
     index = index_records(byte_lines(manifest), manifest, files, description, root, where, "`shaderball verify`")
     manifest_sha256 = hashlib.sha256(manifest).hexdigest()
-    return _make(root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials)
+    dataset = _make(
+        root, description, index, manifest_sha256, files, resolution, exposure, check_hashes, cache_materials
+    )
+    dataset.spec_bytes = publication.source_files.get(SPEC_FILE)  # verified with the rest
+    return dataset
 
 
 def _make(
@@ -477,4 +481,6 @@ def _make(
         records=index.records,
     )
     dataset.content = {"spec_digest": description.get("spec_digest"), "samples_sha256": index.samples_sha256}
+    #: A publication's spec.toml (None for a folder: its snapshot is read where it is needed).
+    dataset.spec_bytes = None
     return dataset

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.check.snapshot import published_snapshot, read_snapshot, spec_differences
 from pipeline.errors import ShaderballError, quoted
 from pipeline.fields.rules import format_value
 from pipeline.image import metrics
@@ -260,13 +261,15 @@ class _Evaluation:
             runfiles.read_log(req.network.run)  # the report's learning curve: checked before anything is written
         self.exposure = float(self.config["tonemap"]["exposure"])
         self.source = _open_for_run(req, self.model.resolution, self.exposure)
+        self.references = _reference_for(req, self.source, self.model.resolution, self.exposure)
         self.same, self.compared = same_dataset(
             self.config, self.source, os.path.join(req.network.run, runfiles.CONFIG)
         )
         self.dataset = self._split()
         self.indices = list(range(len(self.dataset)))[: req.limit]
         self.records = self.source.records
-        spps = sorted({int(self.records[self.dataset.samples[i].id]["render"]["spp"]) for i in self.indices})
+        ref_records = (self.references or self.source).records
+        spps = sorted({int(ref_records[self.dataset.samples[i].id]["render"]["spp"]) for i in self.indices})
         self.reference_spp, self.ref_spp = (spps[0] if len(spps) == 1 else spps), min(spps)
         self.notes = self._left_out()
         self.kinds = MaterialKinds(self.records)
@@ -343,7 +346,7 @@ class _Evaluation:
         dataset, exposure = self.dataset, self.exposure
         item, sample = dataset[index], dataset.samples[index]
         show(f"{sample.id}: network")
-        ref_hdr = box_downsample(_read_render(dataset, sample), dataset.factor)
+        ref_hdr = self._reference(sample)
         ref8 = hdr_to_srgb8(ref_hdr, exposure)
         maps_chw = item["maps"].numpy()
         run_network(self.model, maps_chw, sample.lighting_vector, self.device)  # warm-up
@@ -368,6 +371,12 @@ class _Evaluation:
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
         self._path_traced(row, pictures, item, sample, ref_hdr, ref8, show)
         return row, pictures, maps_chw
+
+    def _reference(self, sample) -> np.ndarray:
+        """The sample's path-traced reference: its render in ``--reference``'s build, else its own."""
+        if self.references is None:
+            return box_downsample(_read_render(self.dataset, sample), self.dataset.factor)
+        return box_downsample(_read_render(self.references, self.references.by_id[sample.id]), self.references.factor)
 
     def _path_traced(self, row: dict, pictures: dict, item, sample, ref_hdr, ref8, show) -> None:
         """Path tracing at equal time and at each of ``spp`` (and denoised) into ``row``."""
@@ -451,6 +460,7 @@ def _results(req: EvaluateRequest, run: _Evaluation, rows: list[dict], means: di
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "run": os.path.abspath(req.network.run),
         "dataset": os.path.abspath(req.dataset),
+        "reference": os.path.abspath(req.reference) if req.reference else None,
         "dataset_compared": run.compared,
         "split": req.split,
         "resolution": run.model.resolution,
@@ -515,19 +525,52 @@ def nearest_sample(sample, training_samples, kinds):
     return best
 
 
-def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float):
-    """The dataset at the run's network resolution; a dataset it does not divide is refused with
-    what the user can do (evaluate has no --resolution: the run fixes it)."""
+def _reference_for(req: EvaluateRequest, source, resolution: int, exposure: float):
+    """``--reference``'s build opened at the run's resolution, with ``by_id`` (sample id -> its
+    sample), or None; refused unless it holds DATASET's samples: the same spec but for
+    render.spp (the same ids, materials and lightings), every one of them rendered."""
+    if req.reference is None:
+        return None
+    references = _open_for_run(req, resolution, exposure, "reference")
+    spec_of = {}
+    for name, opened in (("dataset", source), ("reference", references)):
+        data = opened.spec_bytes
+        spec_of[name] = published_snapshot(data, opened.root) if data is not None else read_snapshot(opened.root)
+    differ = [f"{s}.{k}" for s, k, _, _ in spec_differences(spec_of["dataset"], spec_of["reference"])]
+    differ = [name for name in differ if name != "render.spp"]
+    allowed = "a build of {dataset}'s spec with another render.spp (the same samples rendered again)"
+    if differ:
+        raise EvaluateRequest.field_error(
+            "reference",
+            req.reference,
+            allowed,
+            what=f"{quoted(req.reference)} was built from another spec: {', '.join(differ[:4])}"
+            f"{' and more' if len(differ) > 4 else ''} differ from {quoted(req.dataset)}'s",
+        )
+    references.by_id = {sample.id: sample for sample in references.samples}
+    missing = [sample.id for sample in source.samples if sample.id not in references.by_id]
+    if missing:
+        raise EvaluateRequest.field_error(
+            "reference", req.reference, allowed, what=f"{quoted(req.reference)} holds no render of {missing[0]}"
+        )
+    return references
+
+
+def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float, field: str = "dataset"):
+    """The dataset (``field``: or the reference build) at the run's network resolution; a dataset
+    it does not divide is refused with what the user can do (evaluate has no --resolution: the
+    run fixes it)."""
+    root = getattr(req, field)
     try:
-        return open_dataset(req.dataset, resolution=resolution, exposure=exposure, check_hashes=req.hash_check)
+        return open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=req.hash_check)
     except ResolutionMismatch as exc:
         raise EvaluateRequest.field_error(
-            "dataset",
-            req.dataset,
+            field,
+            root,
             f"a dataset whose render resolution is a multiple of {resolution} (e.g. the run's own dataset), or a "
             f"run trained for this dataset (`shaderball train DATASET --out NEWRUN`, with --resolution a multiple "
             f"of 16 dividing {exc.native})",
-            what=f"{quoted(req.dataset)} has {exc.native}x{exc.native} renders; the run {quoted(req.network.run)} was trained at "
+            what=f"{quoted(root)} has {exc.native}x{exc.native} renders; the run {quoted(req.network.run)} was trained at "
             f"{resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, so its "
             "network cannot take these renders",
         ) from None

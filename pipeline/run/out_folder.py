@@ -11,10 +11,10 @@ import os
 from collections.abc import Callable
 
 from pipeline import __version__
-from pipeline.check.snapshot import read_snapshot
+from pipeline.check.snapshot import read_snapshot, spec_differences
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_summary
 from pipeline.dataset.spec import DatasetSpec
-from pipeline.dataset.spec_file import parse_spec_bytes, read_spec_file, spec_digest, spec_to_dict
+from pipeline.dataset.spec_file import parse_spec_bytes, read_spec_file, spec_digest
 from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.fields.rules import format_value
 from pipeline.render.mitsuba_env import (
@@ -45,17 +45,6 @@ def read_spec_text(spec_path: str) -> tuple[DatasetSpec, str]:
     data, base_dir = read_spec_file(spec_path, "SPEC")
     spec = parse_spec_bytes(data, source=spec_path, base_dir=base_dir)
     return spec, data.decode("utf-8-sig")
-
-
-def spec_differences(old: DatasetSpec, new: DatasetSpec) -> list[tuple[str, str, object, object]]:
-    """(section, key, old value, new value) for every field that differs."""
-    a, b = spec_to_dict(old), spec_to_dict(new)
-    return [
-        (section, key, a[section].get(key), b[section].get(key))
-        for section in a
-        for key in a[section]
-        if a[section].get(key) != b[section].get(key)
-    ]
 
 
 def _describe_differences(diffs, limit: int = 4) -> str:
