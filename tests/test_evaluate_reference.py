@@ -80,3 +80,15 @@ def test_a_build_of_another_spec_is_refused_before_anything_is_written(reference
     assert "dataset.seed" in message and "dataset.materials" in message, message
     assert "with another render.spp" in message, message
     assert not out.exists()
+
+
+def test_a_reference_that_is_no_dataset_is_refused_by_its_own_name(reference, tmp_path):
+    run = tmp_path / "run"
+    torch.manual_seed(0)
+    untrained_run(run, 32)
+    out = tmp_path / "eval"
+    not_a_folder = reference / "manifest.jsonl"
+    refused = _evaluate(run, reference, *CHEAP, "--reference", not_a_folder, "--out", out)
+    assert refused.exit_code == 2, refused.output
+    assert refused.output.startswith(f'error: --reference: "{not_a_folder}" is not a folder; '), refused.output
+    assert not out.exists()

@@ -36,6 +36,7 @@ import numpy as np
 
 from pipeline.check.snapshot import published_snapshot, read_snapshot, spec_differences
 from pipeline.errors import ShaderballError, quoted
+from pipeline.fields import FieldError
 from pipeline.fields.rules import format_value
 from pipeline.image import metrics
 from pipeline.image.denoise import denoise
@@ -563,6 +564,10 @@ def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float, field:
     root = getattr(req, field)
     try:
         return open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=req.hash_check)
+    except FieldError as exc:  # the loader names the folder it opens `dataset`: here it may be --reference
+        if exc.name != "dataset" or field == "dataset":
+            raise
+        raise EvaluateRequest.field_error(field, root, exc.allowed, what=exc.what) from None
     except ResolutionMismatch as exc:
         raise EvaluateRequest.field_error(
             field,
