@@ -564,10 +564,6 @@ def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float, field:
     root = getattr(req, field)
     try:
         return open_dataset(root, resolution=resolution, exposure=exposure, check_hashes=req.hash_check)
-    except FieldError as exc:  # the loader names the folder it opens `dataset`: here it may be --reference
-        if exc.name != "dataset" or field == "dataset":
-            raise
-        raise EvaluateRequest.field_error(field, root, exc.allowed, what=exc.what) from None
     except ResolutionMismatch as exc:
         raise EvaluateRequest.field_error(
             field,
@@ -579,6 +575,10 @@ def _open_for_run(req: EvaluateRequest, resolution: int, exposure: float, field:
             f"{resolution}x{resolution} (its config.json), and {resolution} does not divide {exc.native}, so its "
             "network cannot take these renders",
         ) from None
+    except FieldError as exc:  # the loader names the folder it opens `dataset`: here it may be --reference
+        if exc.name != "dataset" or field == "dataset":
+            raise
+        raise EvaluateRequest.field_error(field, root, exc.allowed, what=exc.what) from None
 
 
 def dataset_variant(dataset) -> str:
