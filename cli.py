@@ -27,6 +27,8 @@ from pipeline.bench.estimate import PlanRequest, plan_spec
 from pipeline.bench.info import info
 from pipeline.check.preview import write_preview
 from pipeline.check.request import InfoRequest, PreviewRequest, ValidateRequest
+from pipeline.downstream.command import study_command
+from pipeline.downstream.request import StudyCommandRequest
 from pipeline.neural.command import (
     bench_command,
     evaluate_command,
@@ -58,8 +60,6 @@ from pipeline.run.command import build_command
 from pipeline.run.repair import validate_or_repair
 from pipeline.run.request import BuildRequest
 from pipeline.serve.command import ServeOptions, serve_command
-from pipeline.study.request import StudyRequest
-from pipeline.study.run import run_study
 from pipeline.ui import process
 from pipeline.ui.command import Group, command_line, renamed_option, request_command
 from pipeline.ui.progress import (
@@ -210,21 +210,25 @@ def plan_cmd(request: PlanRequest):
 
 @request_command(
     main,
-    StudyRequest,
+    StudyCommandRequest,
     renamed=(renamed_option("--samples", "--draws"),),
     skip=("scan",),
     json="Print the summary as JSON on stdout (progress stays on stderr).",
+    needs_torch=lambda request: request.downstream,
 )
-def study_cmd(request: StudyRequest):
-    """What accuracy costs in time: error-vs-time of render recipes against references (docs/accuracy.md).
+def study_cmd(request: StudyCommandRequest):
+    """What accuracy costs in time: error-vs-time of render recipes against references, or with
+    --downstream of the network trained on builds at each spp (docs/accuracy.md).
 
     \b
-    Example:
+    Examples:
       shaderball study manifests/smoke.toml --out demo-out/smoke-study --resolution 16 \\
         --configs ladder --ladder 4 --reference-spp 64 --repeats 1 --no-flip
+      shaderball study manifests/smoke.toml --downstream --out demo-out/smoke-downstream \\
+        --ladder 4,16 --repeats 2 --epochs 1 --resolution 32 --reference-spp 256
     """
-    return run_study(
-        request, progress=study_progress, command=command_line("study", request, every=True, skip=("scan",))
+    return study_command(
+        request, progress=study_progress, command=command_line("study", request, every=True, skip=request.unused())
     )
 
 

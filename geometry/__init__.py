@@ -3,7 +3,7 @@
 See docs/geometry.md for the parameters, the material-bearing surfaces, the seams and
 the cache.
 
-Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+Layer 1 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
 """
 

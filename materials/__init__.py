@@ -10,7 +10,7 @@ the details. The ranges of a material's values (``ALBEDO_RANGE``, ``ROUGHNESS_RA
 ``UNIFORM_LIMITS``) are declared here once: the spec's, the commands' and the server's rules
 are built from them.
 
-Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+Layer 1 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
 """
 

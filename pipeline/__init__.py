@@ -7,7 +7,7 @@ accuracy study), ``run`` (build, shards, dask, repair), ``publish`` (publication
 ``neural`` (the network), ``bench`` (measurements), ``figures`` (the docs' figures).
 Importing this package is cheap: nothing here imports Mitsuba or dask at import time.
 
-Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+Layer 1 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
 """
 

@@ -8,7 +8,7 @@ domain error reaches the user as the same clear message and exit code. How a com
 is printed where it is not an error is here too (:class:`Printed`: its text, its --json
 document, its exit code), so every layer of the library can return one.
 
-Layer 2 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 2 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``; nothing else of the project.
 """
 

@@ -6,7 +6,7 @@ emitter's Mitsuba side (:func:`pipeline.render.emitter.emitter_dicts`,
 See docs/sky.md. The sun's and turbidity's ranges are declared here once
 (:mod:`sky.lighting`): every rule of the spec, the commands and the server is built from them.
 
-Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+Layer 1 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
 """
 

@@ -9,7 +9,7 @@ effects a build leaves out would cost), ``compare`` (two renders equal within no
 ``probe_scene`` (the sky's measurements). Nothing in the project imports it except the CLI
 and tests.
 
-Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 8 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.image``, ``pipeline.errors``,
 ``pipeline.fields``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
 ``pipeline.check``, ``pipeline.study``, ``pipeline.run``, ``pipeline.publish``; nothing else

@@ -9,7 +9,7 @@
 Readers of a dataset, never writers: ``validate --repair`` re-renders, so it is a step of the
 build (``pipeline.run.repair``). Never Mitsuba or dask.
 
-Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 6 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``, ``pipeline.fields``, ``pipeline.image``, ``pipeline.store``,
 ``pipeline.dataset``; nothing else of the project.
 """

@@ -24,7 +24,7 @@ validators. The standard library's dataclasses carry the metadata; this module r
 It stands one layer above ``pipeline.errors``, so a refusal is a ``ShaderballError`` like
 every other user error (exit code 2 at the command line).
 
-Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 3 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``; nothing else of the project.
 """
 

@@ -4,7 +4,7 @@
 ``shaderball figures albedo-table``; ``shaderball figures contact-sheet --out PATH``
 (``command``: the request, :class:`~pipeline.figures.command.FiguresRequest`).
 
-Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 8 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.image``, ``pipeline.errors``,
 ``pipeline.fields``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
 ``pipeline.check``, ``pipeline.study``, ``pipeline.run``, ``pipeline.publish``; nothing else

@@ -5,6 +5,6 @@ Intel Open Image Denoise) and the EXR format's choices (``formats``). Functions 
 dataset. Used by render, check, study, publish, neural and figures, so that none of them
 reaches another for pixels.
 
-Layer 1 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
+Layer 1 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): imports
 nothing of the project.
 """

@@ -4,7 +4,7 @@ evaluation over a dataset folder or its publication (docs/neural.md).
 
 Importing this package does not import torch; its modules do.
 
-Layer 8 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 8 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.fields``,
 ``pipeline.image``, ``pipeline.store``, ``pipeline.render``, ``pipeline.check``,
 ``pipeline.publish``; nothing else of the project.

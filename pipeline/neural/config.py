@@ -162,7 +162,8 @@ class TrainConfig(Checked):
     loss: str = field(
         "auto",
         rule=Choice(LOSS_CHOICES),
-        doc="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; "
+        doc="l1+vgg: L1 + VGG16 relu3_3 feature loss (the paper's; refused without VGG16 weights); l1: L1 alone; l2: "
+        "mean squared error alone (each on the tone-mapped sRGB targets); "
         "auto: l1+vgg where the weights are found ({vgg_weights} or torch hub's cache), else l1, and says which.",
     )
     vgg_weights: str | None = field(
@@ -300,7 +301,7 @@ class TrainConfig(Checked):
             raise self.field_error(
                 "dataset", self.dataset, A_DATASET, what=f"{format_value(self.dataset)} does not exist"
             )
-        if self.loss != "l1" and self.vgg_weights is not None and not os.path.isfile(self.vgg_weights):
+        if self.loss not in ("l1", "l2") and self.vgg_weights is not None and not os.path.isfile(self.vgg_weights):
             raise self.field_error(
                 "vgg_weights",
                 self.vgg_weights,

@@ -70,6 +70,7 @@ class PathTracer:
     under ``variant`` (resolved once by the caller)."""
 
     def __init__(self, dataset, variant: str):
+        """``dataset``: opened (pipeline.neural.data), its records and texture maps read."""
         self.dataset, self.factor, self.variant = dataset, dataset.factor, variant
         self.ball, self.camera = build_shaderball(), default_camera()
         self.warm = False
@@ -81,7 +82,9 @@ class PathTracer:
         layers = self.dataset.read_layers(sample.texture, TEXTURE_LAYERS)
         return MaterialMaps(layers["diffuse"], layers["specular"], layers["roughness"][..., 0], layers["normal"])
 
-    def render(self, record: dict, maps, spp: int) -> tuple[np.ndarray, float]:
+    def render(self, record: dict, maps, spp: int, seed: int | None = None) -> tuple[np.ndarray, float]:
+        """(image at the network's resolution, seconds) of the sample at ``spp``; ``seed``: the
+        render's own (default: the record's render seed, offset by PT_SEED_OFFSET and ``spp``)."""
         r = record["render"]
         settings = RenderSettings(
             resolution=r["resolution"],
@@ -93,7 +96,8 @@ class PathTracer:
             model=r.get("model", DEFAULT_MODEL),
         )  # absent: the default model
         light = Light.from_dict(record["lighting"]["requested"])
-        seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2**32
+        if seed is None:
+            seed = (int(record["seeds"]["render"]) + PT_SEED_OFFSET + spp) % 2**32
         if not self.warm:  # the first render compiles kernels: keep that out of the timings
             render_sample(self.ball, self.camera, maps, light, settings, seed)
             self.warm = True

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 #: --loss: auto (the default: the paper's l1+vgg where VGG16's ImageNet weights are found, else l1),
 #: l1+vgg (the paper's L1 + VGG16 relu3_3 feature loss; refused without the weights) or l1.
-LOSS_CHOICES = ("auto", "l1+vgg", "l1")
+LOSS_CHOICES = ("auto", "l1+vgg", "l1", "l2")
 #: --width: the fraction of the paper's channels, (0, 1] (1: the paper's network).
 WIDTH_RANGE = (0.0, 1.0)
 #: --device: where the network runs ("auto": cuda where torch sees a device, else cpu).

@@ -16,7 +16,7 @@ from pipeline.neural.vgg import HUB_FILENAME, VggWeights, find_vgg_weights, hub_
 class LossChoice:
     """The loss a run trains with and why (``--loss auto`` resolved)."""
 
-    name: str  # l1+vgg or l1
+    name: str  # l1+vgg, l1 or l2
     reason: str  # one line for the summary, the log and config.json
     weights: VggWeights | None  # the VGG16 weights (l1+vgg), their SHA-256 checked
 
@@ -25,8 +25,8 @@ def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
     """``config.loss``, with ``auto`` resolved: the run's own loss when it resumes one
     (``run_loss``), the paper's l1+vgg when --vgg-weights is given or the weights are in torch
     hub's cache, else l1. An explicit l1+vgg without usable weights is refused (ShaderballError)."""
-    if config.loss == "l1":
-        return LossChoice("l1", "loss: l1 (--loss l1)", None)
+    if config.loss in ("l1", "l2"):
+        return LossChoice(config.loss, f"loss: {config.loss} (--loss {config.loss})", None)
     if config.loss == "l1+vgg" or config.vgg_weights is not None or run_loss == "l1+vgg":
         weights = find_vgg_weights(config.vgg_weights, config.vgg_sha256)
         why = (
@@ -35,8 +35,8 @@ def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
             else ("the run's own loss" if run_loss == "l1+vgg" else "--loss auto, --vgg-weights given")
         )
         return LossChoice("l1+vgg", f"loss: l1+vgg, the paper's L1 + VGG16 ({why}; weights {weights.path})", weights)
-    if run_loss == "l1":
-        return LossChoice("l1", "loss: l1 (--loss auto: the run's own loss)", None)
+    if run_loss in ("l1", "l2"):
+        return LossChoice(run_loss, f"loss: {run_loss} (--loss auto: the run's own loss)", None)
     try:
         weights = find_vgg_weights(None, config.vgg_sha256)
     except ShaderballError as exc:
@@ -54,6 +54,6 @@ def choose_loss(config: TrainConfig, run_loss: str | None = None) -> LossChoice:
 
 
 def make_loss(choice: LossChoice, vgg_weight: float) -> tuple[RenderLoss, str | None]:
-    if choice.name == "l1":
-        return RenderLoss("l1"), None
+    if choice.name in ("l1", "l2"):
+        return RenderLoss(choice.name), None
     return RenderLoss("l1+vgg", load_vgg16_relu3_3(choice.weights), vgg_weight), choice.weights.sha256

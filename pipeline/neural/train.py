@@ -573,6 +573,7 @@ def train_epoch(
         "samples_per_s": seen / elapsed if elapsed > 0 else None,
         "lr": lr,
     }
-    if "vgg" in sums:
-        entry["train_vgg"] = sums["vgg"] / seen
+    for key in ("vgg", "l2"):
+        if key in sums:
+            entry[f"train_{key}"] = sums[key] / seen
     return entry

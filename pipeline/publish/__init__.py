@@ -6,7 +6,7 @@ checksums), writing it (``writer``: `shaderball publish`), and reading it back
 training stage), with the archive checks that make reading a received copy safe
 (``tarsafe``, ``exrcheck``). Never Mitsuba, dask or torch, nor the build (``pipeline.run``).
 
-Layer 7 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 7 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``, ``pipeline.fields``, ``pipeline.image``, ``pipeline.store``,
 ``pipeline.dataset``, ``pipeline.check``; nothing else of the project.
 """

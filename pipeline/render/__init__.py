@@ -8,7 +8,7 @@ screen-space maps), ``renderer`` (one sample, its effects, its retries), ``limit
 ``scene_command`` (``shaderball scene``). It writes single files through
 ``pipeline.store``; never dask. Pixels (tone maps, statistics) are ``pipeline.image``'s.
 
-Layer 4 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 4 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
 ``pipeline.store``, ``pipeline.fields``; nothing else of the project.
 """

@@ -8,7 +8,7 @@ and writes the manifest; ``repair`` (``validate --repair``) deletes what validat
 bad and resumes the build. It stands
 above ``pipeline.check``: a resumed build reads the spec snapshot, and a repair validates.
 
-Layer 7 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 7 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline``, ``materials``, ``sky``, ``geometry``, ``pipeline.errors``,
 ``pipeline.fields``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``,
 ``pipeline.check``; nothing else of the project.

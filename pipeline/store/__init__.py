@@ -7,6 +7,6 @@ is expected of the file before any pixel is decoded), ``records`` (sample record
 manifest lines), ``atomic`` (temp file, fsync, rename: the one atomic writer), ``links`` (no
 write through a symbolic link inside a run or dataset folder) and ``lock`` (one writer per folder).
 
-Layer 3 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 3 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``, ``pipeline.image``; nothing else of the project.
 """

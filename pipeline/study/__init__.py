@@ -12,7 +12,7 @@ Mitsuba is used only through ``pipeline.render`` (the variant is resolved once, 
 study's edge); its LDR metrics are those of the images the network is trained on
 (``pipeline.image``). Never dask, ``pipeline.run``, ``pipeline.check`` or ``pipeline.neural``.
 
-Layer 6 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 6 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.fields``,
 ``pipeline.image``, ``pipeline.store``, ``pipeline.render``, ``pipeline.dataset``; nothing
 else of the project.

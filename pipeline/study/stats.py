@@ -86,23 +86,39 @@ def paired_ratio(
 ) -> Interval | None:
     """Ratio of mean (over samples) per-sample means (over seeds), candidate over baseline,
     with its two-level bootstrap interval; None without a common sample or a zero baseline."""
+    return _paired(candidate, baseline, samples, resamples, seed, ratio=True)
+
+
+def paired_difference(
+    candidate: dict[str, list[float]],
+    baseline: dict[str, list[float]],
+    samples: list[str] | None = None,
+    resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> Interval | None:
+    """As :func:`paired_ratio`, the difference candidate minus baseline (figures such as PSNR
+    and SSIM, whose ratio means nothing); None without a common sample."""
+    return _paired(candidate, baseline, samples, resamples, seed, ratio=False)
+
+
+def _paired(candidate, baseline, samples, resamples: int, seed: int, ratio: bool) -> Interval | None:
     common = [s for s in (samples or sorted(candidate)) if candidate.get(s) and baseline.get(s)]
     if not common:
         return None
     a, b = _matrix(candidate, common), _matrix(baseline, common)
-    point_b = float(np.mean(np.nanmean(b, axis=1)))
-    if point_b <= 0:
+    point_a, point_b = float(np.mean(np.nanmean(a, axis=1))), float(np.mean(np.nanmean(b, axis=1)))
+    if ratio and point_b <= 0:
         return None
-    point = float(np.mean(np.nanmean(a, axis=1))) / point_b
+    point = point_a / point_b if ratio else point_a - point_b
     rng = np.random.default_rng(seed)
     draw = rng.integers(0, len(common), (resamples, len(common)))
     ra, rb = _resample_means(a, draw, rng), _resample_means(b, draw, rng)
     # A resample whose baseline mean is 0 has no ratio: left out (JSON has no infinity).
-    ratios = (ra / np.where(rb > 0, rb, 1.0))[rb > 0]
-    if not ratios.size:
+    values = (ra / np.where(rb > 0, rb, 1.0))[rb > 0] if ratio else ra - rb
+    if not values.size:
         return None
     alpha = (1 - CONFIDENCE) / 2
-    lo, hi = np.quantile(ratios, [alpha, 1 - alpha])
+    lo, hi = np.quantile(values, [alpha, 1 - alpha])
     return Interval(point, float(lo), float(hi))
 
 

@@ -5,6 +5,6 @@ the dataclass that owns it), and the process around a command: exit codes, --jso
 document, Ctrl-C (:mod:`pipeline.ui.process`). The command (``cli.py``) uses it; library code
 never does, since library code never prints.
 
-Layer 4 of 9 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
+Layer 4 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
 ``pipeline.errors``, ``pipeline.fields``; nothing else of the project.
 """

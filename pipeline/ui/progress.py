@@ -76,8 +76,12 @@ def validate_progress():
 
 
 def study_progress(p: dict) -> None:
-    """One line on stderr per step of a study."""
-    click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {format_seconds(p['elapsed_s'])}", err=True)
+    """One line on stderr per step of a study (a note: its plan, a network's epochs)."""
+    if "note" in p:
+        click.echo(p["note"], err=True)
+        return
+    eta = f"  ETA {format_seconds(p['eta_s'])}" if p.get("eta_s") is not None else ""
+    click.echo(f"[{p['done']}/{p['total']}] {p['what']}  elapsed {format_seconds(p['elapsed_s'])}{eta}", err=True)
 
 
 def training_progress():
