@@ -44,7 +44,7 @@ LAZY_ALLOWED = (
 )
 #: Project modules that need an optional extra (torch): the neural stage's commands
 #: (pipeline.neural.command, which the CLI imports at start) import them when a command runs.
-LAZY_PROJECT_MODULES = ("pipeline.neural",)
+LAZY_PROJECT_MODULES = ("pipeline.neural", "pipeline.downstream.run")  # they load torch
 #: The one module of the neural stage that may import the others inside a function: the
 #: command line imports it at start, so it loads no torch.
 TORCH_FREE_ENTRIES = ("pipeline.neural.command",)

@@ -40,9 +40,11 @@ def test_every_import_is_one_the_contract_allows():
     assert layers.violations(CONTRACT) == []
 
 
-def test_at_most_eight_layers_of_packages_under_the_cli():
+def test_at_most_nine_layers_of_packages_under_the_cli():
+    """Eight stages deep, and one package above them that composes them (pipeline.downstream:
+    builds, the pixel study's statistics and the networks); a tenth needs a reason as good."""
     assert list(CONTRACT[-1]) == ["cli"]
-    assert len(CONTRACT) - 1 <= 8
+    assert len(CONTRACT) - 1 <= 9
 
 
 def test_the_docstrings_and_the_diagram_say_what_the_contract_says():

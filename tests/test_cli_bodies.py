@@ -81,6 +81,7 @@ NEURAL = {
     "neural-bench collate": ["neural-bench", "collate", "DATASET"],
     "neural-bench denoise": ["neural-bench", "denoise", "DATASET"],
     "neural-bench train-options": ["neural-bench", "train-options"],
+    "study": ["study", "manifests/smoke.toml", "--downstream", "--out", "OUT/study"],  # --downstream trains
 }
 
 #: ``import torch`` fails, as where the `train` extra is not installed.
@@ -100,6 +101,15 @@ cli.main()
 def test_the_neural_commands_are_the_ones_that_need_torch():
     needing = {name for name, command in COMMANDS.items() if command.needs_torch}
     assert needing == set(NEURAL)
+
+
+def test_the_pixel_study_needs_no_torch(tmp_path):
+    """study without --downstream runs no network: its own refusal, not torch's."""
+    words = ["study", "manifests/smoke.toml", "--out", str(tmp_path / "s"), "--reference-spp", "3"]
+    done = subprocess.run(
+        [sys.executable, "-c", NO_TORCH, *words], cwd=REPO, capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 2 and "--reference-spp" in done.stderr and "torch" not in done.stderr, done.stderr
 
 
 @pytest.mark.parametrize("name", sorted(NEURAL))

@@ -90,7 +90,7 @@ def test_build_cluster_options_are_the_dataclass_fields():
     [
         (["--epochs", "0"], {"epochs": 0}),
         (["--lr", "0"], {"lr": 0}),  # the same value as typed: a refusal echoes it so
-        (["--loss", "l2"], {"loss": "l2"}),
+        (["--loss", "l3"], {"loss": "l3"}),
         (["--resolution", "50"], {"resolution": 50}),
         (["--loader-workers", "65"], {"loader_workers": 65}),
     ],

@@ -131,7 +131,7 @@ def test_a_folder_with_other_files_is_refused(tmp_path):
         ("epochs", 0),
         ("batch_size", 0),
         ("lr", 0.0),
-        ("loss", "l2"),
+        ("loss", "l3"),
         ("device", "tpu"),
         ("resolution", 50),
         ("test_fraction", 1.0),

@@ -131,4 +131,12 @@ def test_loss_is_l1_plus_weighted_relu3_3_mse(vgg_file):
 
 def test_unknown_loss_is_refused():
     with pytest.raises(ShaderballError, match="^loss: "):
-        RenderLoss("l2")
+        RenderLoss("l3")
+
+
+def test_the_l2_loss_is_the_mean_squared_error_and_logs_l1_beside():
+    torch.manual_seed(0)
+    pred, target = torch.rand(2, 3, 8, 8, requires_grad=True), torch.rand(2, 3, 8, 8)
+    parts = RenderLoss("l2").parts(pred, target)
+    assert float(parts["total"]) == pytest.approx(float(((pred - target) ** 2).mean()))
+    assert float(parts["l1"]) == pytest.approx(float((pred - target).abs().mean())) and not parts["l1"].requires_grad

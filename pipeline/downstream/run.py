@@ -148,37 +148,9 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
     check_resumable(req, record)
     os.makedirs(req.out, exist_ok=True)
     write_text_atomic(os.path.join(req.out, REQUEST_FILE), json.dumps(record, indent=1) + "\n")
-    held_materials = _held_materials(spec, req)
-    held = held_materials * spec.dataset.lights_per_material
     first, others = req.training.losses[0], req.training.losses[1:]
     runs = _first_runs(first, levels, spec.render.spp, req.repeats)
-    renders = spec.dataset.materials * spec.dataset.lights_per_material
-    train_samples = renders - held
-    extra = len(others) * 2 * req.repeats
-    note = progress or (lambda p: None)
-    note(
-        {
-            "note": f"plan: {len(levels)} builds of {renders} renders ({', '.join(map(str, levels))} spp; the spec's "
-            f"{spec.render.spp}) at {resolution} px; references of the {held} held-out samples at {req.reference_spp} spp "
-            f"(two halves); {len(runs)} networks ({first}: {len(levels)} levels x {req.repeats} seeds + {req.repeats} A/A "
-            f"seeds at {spec.render.spp} spp) of {req.training.epochs} epochs on {train_samples} samples"
-            + (
-                f", then up to {extra} more ({', '.join(others)}: the spec's level and the cheapest passing)"
-                if others
-                else ""
-            )
-        }
-    )
-    note({"note": "measuring: each level's kernels compiled (a small build each), render and training rates"})
-    per_render, rate = warm_up(req.out, spec, levels, resolution), training_rate(req, resolution)
-    line, _ = estimate_line(req, levels, renders, held, len(runs) + extra, per_render, rate)
-    note({"note": line})
-    # Weights: each step's estimated seconds; the ETA scales them by what the steps took.
-    weights = {f"build {spp}": renders * render_seconds(per_render, spp) for spp in levels}
-    weights["references"] = held * 2 * render_seconds(per_render, req.reference_spp // 2)
-    per_run = req.training.epochs * train_samples / rate * (1 + SCORING_SHARE)
-    weights.update({f"run {r.name}": per_run for r in runs})
-    clock = Clock(weights, progress)
+    clock, per_run = _plan(req, spec, levels, resolution, runs, progress)
     builds = {spp: _ensure_build(req, spec, spp, resolution, clock) for spp in levels}
     spec_root = builds[spec.render.spp]["root"]
     source = open_dataset(spec_root, resolution=resolution)
@@ -209,22 +181,43 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
                 run = Run(loss, spp, seed)
                 clock.add(f"run {run.name}", per_run)
                 scored[run] = _train_and_score(req, run, builds, resolution, test_ids, references, flip, clock)
-    result = report.results(
-        req,
-        spec,
-        levels,
-        scored,
-        builds,
-        references,
-        baseline,
-        test_ids,
-        train_ids,
-        flip,
-        command,
-        dataset_variant(source),
-    )
+    variant = dataset_variant(source)
+    args = (levels, scored, builds, references, baseline, test_ids, train_ids, flip, command, variant)
+    result = report.results(req, spec, *args)
     report.write(req.out, result)
     return DownstreamSummary(req.out, levels, len(scored), time.perf_counter() - started, result["decision"])
+
+
+def _plan(req: StudyCommandRequest, spec, levels: list[int], resolution: int, runs: list[Run], progress):
+    """Print the plan and its estimate (after the warm-up and the probes); the clock of the
+    steps and the estimated seconds of one network."""
+    held = _held_materials(spec, req) * spec.dataset.lights_per_material
+    first, others = req.training.losses[0], req.training.losses[1:]
+    renders = spec.dataset.materials * spec.dataset.lights_per_material
+    train_samples = renders - held
+    extra = len(others) * 2 * req.repeats
+    note = progress or (lambda p: None)
+    then = (
+        f", then up to {extra} more ({', '.join(others)}: the spec's level and the cheapest passing)" if others else ""
+    )
+    note(
+        {
+            "note": f"plan: {len(levels)} builds of {renders} renders ({', '.join(map(str, levels))} spp; the spec's "
+            f"{spec.render.spp}) at {resolution} px; references of the {held} held-out samples at {req.reference_spp} spp "
+            f"(two halves); {len(runs)} networks ({first}: {len(levels)} levels x {req.repeats} seeds + {req.repeats} A/A "
+            f"seeds at {spec.render.spp} spp) of {req.training.epochs} epochs on {train_samples} samples{then}"
+        }
+    )
+    note({"note": "measuring: each level's kernels compiled (a small build each), render and training rates"})
+    per_render, rate = warm_up(req.out, spec, levels, resolution), training_rate(req, resolution)
+    line, _ = estimate_line(req, levels, renders, held, len(runs) + extra, per_render, rate)
+    note({"note": line})
+    # Weights: each step's estimated seconds; the ETA scales them by what the steps took.
+    weights = {f"build {spp}": renders * render_seconds(per_render, spp) for spp in levels}
+    weights["references"] = held * 2 * render_seconds(per_render, req.reference_spp // 2)
+    per_run = req.training.epochs * train_samples / rate * (1 + SCORING_SHARE)
+    weights.update({f"run {r.name}": per_run for r in runs})
+    return Clock(weights, progress), per_run
 
 
 def _check_spec(req: StudyCommandRequest, spec, resolution: int) -> None:

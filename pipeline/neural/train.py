@@ -573,7 +573,5 @@ def train_epoch(
         "samples_per_s": seen / elapsed if elapsed > 0 else None,
         "lr": lr,
     }
-    for key in ("vgg", "l2"):
-        if key in sums:
-            entry[f"train_{key}"] = sums[key] / seen
+    entry.update({f"train_{key}": sums[key] / seen for key in ("vgg", "l2") if key in sums})
     return entry
