@@ -114,7 +114,11 @@ def _option(f, label) -> click.Option:
         decl = spelled
         if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5", "1,2,4"; () as the rule's word for none
             inner = rule.rule if isinstance(rule, Optional) else rule
-            default = ",".join(v if isinstance(v, str) else f"{v:g}" for v in default) if default else getattr(inner, "none", None) or ""
+            default = (
+                ",".join(v if isinstance(v, str) else f"{v:g}" for v in default)
+                if default
+                else getattr(inner, "none", None) or ""
+            )
         kwargs = dict(type=FieldType(rule), required=required, show_default=not required and default is not None)
         if not required:  # a required one has none: click refuses it missing (pipeline.ui.usage)
             kwargs["default"] = default
