@@ -158,8 +158,9 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
         [s.material_id for s in source.samples], req.training.test_fraction, SPLIT_SEED
     )
     started_refs = time.perf_counter()
+    held = source.subset(test_ids)
     references = ensure_references(
-        os.path.join(req.out, "references"), source.subset(test_ids), req.reference_spp, lambda what: None
+        os.path.join(req.out, "references"), held, req.reference_spp, _every_tenth(clock, len(held))
     )
     clock.step(
         "references", f"{len(references)} references at {req.reference_spp} spp", time.perf_counter() - started_refs
@@ -312,6 +313,18 @@ def _train_and_score(req, run: Run, builds, resolution, test_ids, references, fl
     trained = not summary.nothing_to_do
     clock.step(f"run {run.name}", f"network {run.name}", time.perf_counter() - started if trained else None)
     return {"rows": rows, "train_s": sum(float(e.get("time_s") or 0.0) for e in read_log(run_dir))}
+
+
+def _every_tenth(clock: Clock, total: int):
+    """A note at every tenth of the references (they take minutes)."""
+    count = [0]
+
+    def tick(what: str) -> None:
+        count[0] += 1
+        if count[0] == total or count[0] % max(1, total // 10) == 0:
+            clock.note(f"  references: {count[0]}/{total} ({what})")
+
+    return tick
 
 
 def _epoch_lines(clock: Clock, run: Run):
