@@ -20,7 +20,7 @@ from pipeline.downstream import report
 from pipeline.downstream.request import NetworkTraining, StudyCommandRequest
 from pipeline.downstream.run import Clock, Run
 from pipeline.fields import FieldError
-from pipeline.study.stats import paired_difference
+from pipeline.study.stats import paired_ratio
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
@@ -159,10 +159,10 @@ def test_the_request_refuses_from_python_too():
 def test_paired_difference_interval_covers_a_known_shift():
     base = {f"s{i}": [float(i), float(i)] for i in range(30)}  # seeds alike: only samples are drawn
     shifted = {k: [v + 2.0 for v in vs] for k, vs in base.items()}
-    iv = paired_difference(shifted, base)
+    iv = paired_ratio(shifted, base, ratio=False)
     assert iv.value == pytest.approx(2.0) and iv.lo == pytest.approx(2.0) and iv.hi == pytest.approx(2.0)
     noisy = {k: [v + (1.0 if int(k[1:]) % 2 else -1.0) for v in vs] for k, vs in base.items()}
-    iv = paired_difference(noisy, base)
+    iv = paired_ratio(noisy, base, ratio=False)
     assert iv.lo < 0 < iv.hi
 
 

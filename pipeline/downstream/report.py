@@ -25,7 +25,7 @@ import numpy as np
 from pipeline.image.chart import BLUE, GREY, ORANGE, PURPLE, RED, chart, png
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
 from pipeline.study.request import machine_line
-from pipeline.study.stats import CONFIDENCE, paired_difference, paired_ratio
+from pipeline.study.stats import CONFIDENCE, paired_ratio
 
 #: (figure, row key, compared as): ratios where the figure is an error of linear radiance.
 FIGURES = (
@@ -56,7 +56,7 @@ def compare(scored: dict, candidate: list, baseline: list) -> dict:
     out = {}
     for name, key, how in FIGURES:
         a, b = by_sample(scored, candidate, key), by_sample(scored, baseline, key)
-        iv = (paired_ratio if how == "ratio" else paired_difference)(a, b) if a and b else None
+        iv = paired_ratio(a, b, ratio=how == "ratio") if a and b else None
         out[name] = iv.to_dict() if iv else None
     return out
 

@@ -83,25 +83,12 @@ def paired_ratio(
     samples: list[str] | None = None,
     resamples: int = BOOTSTRAP_RESAMPLES,
     seed: int = BOOTSTRAP_SEED,
+    ratio: bool = True,
 ) -> Interval | None:
     """Ratio of mean (over samples) per-sample means (over seeds), candidate over baseline,
-    with its two-level bootstrap interval; None without a common sample or a zero baseline."""
-    return _paired(candidate, baseline, samples, resamples, seed, ratio=True)
-
-
-def paired_difference(
-    candidate: dict[str, list[float]],
-    baseline: dict[str, list[float]],
-    samples: list[str] | None = None,
-    resamples: int = BOOTSTRAP_RESAMPLES,
-    seed: int = BOOTSTRAP_SEED,
-) -> Interval | None:
-    """As :func:`paired_ratio`, the difference candidate minus baseline (figures such as PSNR
-    and SSIM, whose ratio means nothing); None without a common sample."""
-    return _paired(candidate, baseline, samples, resamples, seed, ratio=False)
-
-
-def _paired(candidate, baseline, samples, resamples: int, seed: int, ratio: bool) -> Interval | None:
+    with its two-level bootstrap interval; None without a common sample or a zero baseline.
+    ``ratio=False``: the difference, candidate minus baseline, instead (figures such as PSNR
+    and SSIM, whose ratio means nothing)."""
     common = [s for s in (samples or sorted(candidate)) if candidate.get(s) and baseline.get(s)]
     if not common:
         return None
