@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -19,6 +20,8 @@ from cli import main
 from pipeline.downstream import report
 from pipeline.downstream.request import NetworkTraining, StudyCommandRequest
 from pipeline.downstream.run import Clock, Run
+from pipeline.downstream.score import image_row
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.fields import FieldError
 from pipeline.study.stats import paired_ratio
 
@@ -72,7 +75,7 @@ def test_levels_carry_build_time_and_intervals(study):
     assert result["held_out"] == {"materials": 2, "samples": 4, "training_materials": 6}
     assert result["reference_spp"] == 256 and 0 < result["reference_floor_ball_mean"] < 0.05
     assert result["decision"]["level"] in (4, 16) and result["decision"]["verdict"]
-    assert "tone-mapped" in result["loss_space"]
+    assert "tone-mapped" in result["loss_space"] and -1 < result["levels"][0]["means"]["bias_ball"] < 1
     # L2 at the spec's level and at the cheapest level L1 passes (or the cheapest where none does)
     l2 = {row["spp"]: row for row in result["losses"][1]["levels"]}
     assert result["losses"][1]["loss"] == "l2" and all(l2[spp]["seeds"] == [0, 1] for spp in (4, 16))
@@ -154,6 +157,18 @@ def test_the_request_refuses_from_python_too():
         StudyCommandRequest(spec=str(SMOKE), out="x", training=NetworkTraining(epochs=2))
     req = StudyCommandRequest(spec=str(SMOKE), out="x", downstream=True, training={"epochs": 2, "losses": ("l2",)})
     assert req.training.losses == ("l2",) and "draws" in req.unused() and "epochs" not in req.unused()
+
+
+def test_a_row_scores_the_picture_against_the_reference_in_linear_radiance():
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.02, 0.3, (16, 16, 3)).astype(np.float32)
+    mask = np.zeros((16, 16), bool)
+    mask[4:12, 4:12] = True
+    exact = image_row("s", tonemap(ref), ref, mask, DEFAULT_EXPOSURE, flip=False)
+    darker = image_row("s", tonemap(ref * 0.5), ref, mask, DEFAULT_EXPOSURE, flip=False)
+    assert exact["relmse_ball"] < 1e-4 and abs(exact["bias_ball"]) < 1e-3
+    assert darker["bias_ball"] == pytest.approx(-0.5, abs=0.01) and darker["relmse_ball"] > 0.1
+    assert darker["psnr"] < exact["psnr"] and darker["flip"] is None
 
 
 def test_paired_difference_interval_covers_a_known_shift():

@@ -34,7 +34,10 @@ FIGURES = (
     ("psnr", "psnr", "difference"),
     ("ssim", "ssim", "difference"),
     ("flip", "flip", "difference"),
+    ("bias_ball", "bias_ball", "difference"),
 )
+#: Figures the report gives but the rule does not read (a level's frame error, its bias).
+NOT_RULED = ("relmse_frame", "bias_ball")
 #: A passing level this cheap (build CPU time over the spec's) is worth shipping as a spec.
 SHIP_RATIO = 1 / 3
 LOSS_COLOURS = (BLUE, RED, ORANGE, PURPLE)
@@ -75,7 +78,7 @@ def misses(cmp: dict) -> list[str]:
     out = []
     for name, _key, how in FIGURES:
         iv = cmp.get(name)
-        if iv is None or name == "relmse_frame":
+        if iv is None or name in NOT_RULED:
             continue
         lower_is_better = name in ("relmse_ball", "flip")
         worse = iv["lo"] > (1.0 if how == "ratio" else 0.0) if lower_is_better else iv["hi"] < 0.0
@@ -215,6 +218,16 @@ def _fmt(value, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def _percent(value) -> str:
+    return "-" if value is None else f"{100 * value:+.1f}"
+
+
+def _percent_iv(iv: dict | None) -> str:
+    if not iv:
+        return "-"
+    return f"{100 * iv['value']:+.1f} [{100 * iv['lo']:+.1f}, {100 * iv['hi']:+.1f}]"
+
+
 def markdown(result: dict) -> str:
     """report.md: the command, the machine, the decision, each loss's levels, the baselines."""
     pct = int(round(100 * result["confidence"]))
@@ -236,20 +249,21 @@ def markdown(result: dict) -> str:
         "",
         f"Intervals are paired {pct}% bootstrap intervals over held-out samples and training seeds, against the "
         "spec's level: ratios for relMSE (below 1 is better), differences for PSNR and SSIM (above 0 is better) "
-        "and HDR-FLIP (below 0 is better). A level passes when no figure is worse beyond its interval.",
+        "and HDR-FLIP (below 0 is better). A level passes when no figure is worse beyond its interval. Bias: the "
+        "ball's mean luminance against the reference's, in percent (reported, not ruled).",
     ]
     for x in result["losses"]:
         lines += ["", f"## Loss {x['loss']}", "", _level_table(x["levels"] + ([x["aa"]] if x["aa"] else []))]
     if result["between_losses"]:
         lines += ["", "## Losses against each other (same level, same seeds)", ""]
         lines += [
-            "| loss | vs | spp | relMSE ratio (ball) | PSNR diff | SSIM diff | FLIP diff |",
-            "|---|---|---|---|---|---|---|",
+            "| loss | vs | spp | relMSE ratio (ball) | PSNR diff | SSIM diff | FLIP diff | bias diff % |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for b in result["between_losses"]:
             lines.append(
                 f"| {b['loss']} | {b['vs']} | {b['spp']} | {_iv_text(b['relmse_ball'])} | {_iv_text(b['psnr'])} | "
-                f"{_iv_text(b['ssim'])} | {_iv_text(b['flip'])} |"
+                f"{_iv_text(b['ssim'])} | {_iv_text(b['flip'])} | {_percent_iv(b.get('bias_ball'))} |"
             )
     mi = result["mean_image"]
     lines += [
@@ -268,8 +282,9 @@ def markdown(result: dict) -> str:
 
 def _level_table(rows: list[dict]) -> str:
     head = (
-        "| level | build CPU s | x spec | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff | passes |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| level | build CPU s | x spec | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff "
+        "| bias % | diff | passes |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     out = [head]
     for row in rows:
@@ -279,6 +294,7 @@ def _level_table(rows: list[dict]) -> str:
             f"{_fmt(row['train_s'], '.1f')} | {_fmt(mean['relmse_ball'], '.4g')} | {_iv_text(cmp.get('relmse_ball'))} | "
             f"{_fmt(mean['psnr'], '.2f')} | {_iv_text(cmp.get('psnr'), '.2f')} | {_fmt(mean['ssim'], '.3f')} | "
             f"{_iv_text(cmp.get('ssim'), '.3f')} | {_fmt(mean['flip'], '.4f')} | {_iv_text(cmp.get('flip'), '.4f')} | "
+            f"{_percent(mean.get('bias_ball'))} | {_percent_iv(cmp.get('bias_ball'))} | "
             + ("-" if not cmp else ("yes" if row["passes"] else "no: " + ", ".join(row["misses"])))
             + " |"
         )

@@ -5,7 +5,7 @@ samples the networks saw) and each network's scores against them.
 Scores of a network on a sample (the figures of `evaluate`, pipeline.neural.scores): relMSE on
 the ball (the study's figure, pipeline.study.measure) and on the frame, of the network's picture
 taken back to linear radiance; PSNR and SSIM of its 8-bit sRGB picture; HDR-FLIP where asked
-and installed. Never against the network's own (noisy) training targets.
+and installed; the ball's mean luminance relative to the reference's (``bias_ball``). Never against the network's own (noisy) training targets.
 """
 
 from __future__ import annotations
@@ -106,6 +106,9 @@ def image_row(
         "psnr": scores["psnr"],
         "ssim": scores["ssim"],
         "flip": scores.get("flip"),
+        # the ball's mean luminance against the reference's: an L1 network on noisy targets learns
+        # their median, darker than their mean where the noise is skewed
+        "bias_ball": m.ball_bias(hdr, ref_hdr, mask, None, np.zeros(mask.shape))[0],
     }
 
 
