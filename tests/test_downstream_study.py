@@ -21,8 +21,8 @@ from pipeline.downstream import report
 from pipeline.downstream.request import NetworkTraining, StudyCommandRequest
 from pipeline.downstream.run import Clock, Run
 from pipeline.downstream.score import image_row
-from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.fields import FieldError
+from pipeline.image.tonemap import DEFAULT_EXPOSURE, tonemap
 from pipeline.study.stats import paired_ratio
 
 REPO = Path(__file__).resolve().parents[1]
