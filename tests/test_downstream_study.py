@@ -64,7 +64,7 @@ def test_levels_carry_build_time_and_intervals(study):
     assert json.loads(done.stdout)["levels"] == [4, 16]
     assert [row["spp"] for row in result["levels"]] == [4, 16]
     for row in result["levels"]:
-        assert row["build_cpu"] > 0 and row["train_s"] > 0
+        assert row["build_cpu"] > 0 and row["train_s"] > 0 and row["build_cost"] == row["build_cpu"]  # on the CPU
         assert row["seeds"] == [0, 1]
     cheap = result["levels"][0]
     for name in ("relmse_ball", "psnr", "ssim", "flip"):
@@ -203,7 +203,7 @@ def _scored(shift: float) -> dict:
 
 @pytest.mark.parametrize("shift, passes", [(1.0, True), (1.5, False)])
 def test_a_level_passes_only_when_no_figure_is_worse_beyond_its_interval(shift, passes):
-    builds = {4: {"build_cpu": 1.0, "build_wall": 1.0}, 16: {"build_cpu": 4.0, "build_wall": 4.0}}
+    builds = {spp: {"build_cpu": cost, "build_wall": cost, "build_cost": cost} for spp, cost in ((4, 1.0), (16, 4.0))}
     first = report.compare_levels(_scored(shift), "l1", [4, 16], 16, 2, builds)
     cheap = first["levels"][0]
     assert cheap["passes"] is passes

@@ -23,6 +23,7 @@ from pipeline.neural.bench import TrainingSteps
 from pipeline.neural.config import TrainConfig
 from pipeline.neural.train import pick_device
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.atomic import write_text_atomic
 
 #: Materials of a warm-up build (uniform and SVBRDF ones among them: their kernels differ).
@@ -58,11 +59,11 @@ def warm_up(out: str, spec, levels: list[int], resolution: int) -> dict[int, flo
         for spp in levels:
             probe = write_spec(folder, f"spp-{spp}.toml", level_spec(spec, spp, resolution, materials))
             root = os.path.join(folder, f"spp-{spp}")
-            build(probe, root, workers=0)
+            build(probe, root, cluster=ClusterOptions(workers=0))
             if spp in (levels[0], levels[-1]):
                 shutil.rmtree(root)
                 started = time.process_time()
-                summary = build(probe, root, workers=0)
+                summary = build(probe, root, cluster=ClusterOptions(workers=0))
                 per_render[spp] = (time.process_time() - started) / max(1, summary.total)
     finally:
         shutil.rmtree(folder, ignore_errors=True)

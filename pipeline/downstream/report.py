@@ -1,5 +1,5 @@
 """The downstream study's figures, decision and pages: ``downstream.json``, ``report.md`` and
-``downstream.png`` (network error against build CPU time).
+``downstream.png`` (network error against build time).
 
 Every figure of a level is paired with the spec's level over the same held-out samples, with
 the pixel study's two-level bootstrap (pipeline.study.stats: samples, then each sample's
@@ -9,8 +9,9 @@ other seeds against it: what "no difference" looks like.
 
 **The rule.** A level passes when its network is not worse beyond its interval in any figure:
 the ball's relMSE ratio's lower bound at most 1, PSNR's and SSIM's upper bounds at least 0,
-FLIP's lower bound at most 0. The decision is the cheapest passing level by build CPU time; a
-level passing at most 1/3 of the spec's build CPU time is worth shipping as a spec. Passing
+FLIP's lower bound at most 0. The decision is the cheapest passing level by build time (CPU
+time; wall time where a GPU renders, :func:`cost_basis`); a level passing at most 1/3 of the
+spec's build time is worth shipping as a spec. Passing
 says "not shown worse", which a study too small to see a difference also says: the report
 gives each interval's far bound (the worst the data allow) beside the verdict.
 """
@@ -38,7 +39,7 @@ FIGURES = (
 )
 #: Figures the report gives but the rule does not read (a level's frame error, its bias).
 NOT_RULED = ("relmse_frame", "bias_ball")
-#: A passing level this cheap (build CPU time over the spec's) is worth shipping as a spec.
+#: A passing level this cheap (build time over the spec's) is worth shipping as a spec.
 SHIP_RATIO = 1 / 3
 LOSS_COLOURS = (BLUE, RED, ORANGE, PURPLE)
 REPORT_FILES = ("downstream.json", "report.md", "downstream.png")
@@ -102,21 +103,22 @@ def compare_levels(scored: dict, loss: str, levels: list[int], spec_spp: int, re
     if aa:
         aa["label"] = "A/A"
     passing = [row for row in rows if row["passes"]]
-    cheapest = min(passing, key=lambda row: (row["build_cpu"] or 0.0, row["spp"])) if passing else rows[0]
+    cheapest = min(passing, key=lambda row: (row["build_cost"] or 0.0, row["spp"])) if passing else rows[0]
     return {"loss": loss, "levels": rows, "aa": aa, "cheapest": cheapest["spp"], "any_passes": bool(passing)}
 
 
 def _level_row(scored, spp, mine, base, builds, spec_spp) -> dict:
     cmp = compare(scored, mine, base) if spp != spec_spp or set(mine) != set(base) else None
     failed = misses(cmp) if cmp else []
-    build_cpu, spec_cpu = builds[spp]["build_cpu"], builds[spec_spp]["build_cpu"]
+    cost, spec_cost = builds[spp]["build_cost"], builds[spec_spp]["build_cost"]
     return {
         "spp": spp,
         "label": f"{spp} spp" + (" (the spec's)" if spp == spec_spp else ""),
         "seeds": sorted(r.seed for r in mine),
-        "build_cpu": build_cpu,
+        "build_cpu": builds[spp]["build_cpu"],
         "build_wall": builds[spp]["build_wall"],
-        "build_cpu_ratio": build_cpu / spec_cpu if build_cpu and spec_cpu else None,
+        "build_cost": cost,
+        "build_cost_ratio": cost / spec_cost if cost and spec_cost else None,
         "train_s": float(np.mean([scored[r]["train_s"] for r in mine])) if mine else None,
         "means": means(scored, mine),
         "vs_spec": cmp,
@@ -130,6 +132,7 @@ def results(
 ) -> dict:
     """downstream.json's content: every loss's levels, the decision, the baselines and how."""
     spec_spp = spec.render.spp
+    basis = cost_basis(variant)
     losses = [compare_levels(scored, loss, levels, spec_spp, req.repeats, builds) for loss in req.training.losses]
     first = losses[0]
     mean_rows = {"mean_image": {"rows": baseline, "train_s": 0.0}}
@@ -150,6 +153,7 @@ def results(
         "machine": machine_line(variant),
         "spec": req.spec,
         "spec_spp": spec_spp,
+        "cost_basis": basis,
         "resolution": req.resolution or spec.render.resolution,
         "renders_per_build": builds[spec_spp]["renders"],
         "held_out": {"materials": len(test_ids), "samples": len(references), "training_materials": len(train_ids)},
@@ -166,37 +170,39 @@ def results(
         "aa": first["aa"],
         "mean_image": {"means": means({**scored, **mean_rows}, ["mean_image"]), "vs_spec": baseline_cmp},
         "between_losses": between,
-        "decision": decision(first, spec_spp),
+        "decision": decision(first, spec_spp, basis),
     }
+
+
+def cost_basis(variant: str) -> str:
+    """The build time a study compares: CPU time, or wall time where the GPU renders."""
+    return "wall" if variant.startswith("cuda") else "CPU"
 
 
 def _with_loss(x: dict) -> dict:
     return {**x, "levels": [{**row, "loss": x["loss"]} for row in x["levels"]]}
 
 
-def decision(first: dict, spec_spp: int) -> dict:
-    """The cheapest level whose network is not worse beyond its interval, and what to do."""
+def decision(first: dict, spec_spp: int, basis: str = "CPU") -> dict:
+    """The cheapest level whose network is not worse beyond its interval, and what to do;
+    ``basis``: the build time compared (CPU; wall on a GPU, whose time CPU time misses)."""
     rows = {row["spp"]: row for row in first["levels"]}
     pick = rows[first["cheapest"]]
     if first["any_passes"] and pick["spp"] != spec_spp:
-        ratio = pick["build_cpu_ratio"]
+        ratio = pick["build_cost_ratio"]
         ship = ratio is not None and ratio <= SHIP_RATIO
         worst = (pick["vs_spec"] or {}).get("relmse_ball") or {}
+        at = f"at {ratio:.2f}x the spec's build {basis} time" if ratio is not None else "(build time not measured)"
         verdict = (
             f"{pick['spp']} spp passes ({first['loss']}): its network is not worse beyond its interval in any figure, "
-            f"at {ratio:.2f}x the spec's build CPU time"
-            if ratio is not None
-            else f"{pick['spp']} spp passes"
+            f"{at}; relMSE ratio {worst.get('value', float('nan')):.2f}, at worst {worst.get('hi', float('nan')):.2f}. "
+            + (
+                f"At most {SHIP_RATIO:.2f}x: worth a spec of its own."
+                if ship
+                else f"Above {SHIP_RATIO:.2f}x: not worth a spec."
+            )
         )
-        verdict += (
-            f"; relMSE ratio {worst.get('value', float('nan')):.2f}, at worst {worst.get('hi', float('nan')):.2f}"
-        )
-        verdict += (
-            f". At most {SHIP_RATIO:.2f}x: worth a spec of its own."
-            if ship
-            else f". Above {SHIP_RATIO:.2f}x: not worth a spec."
-        )
-        return {"level": pick["spp"], "passes": True, "ship": ship, "build_cpu_ratio": ratio, "verdict": verdict}
+        return {"level": pick["spp"], "passes": True, "ship": ship, "build_cost_ratio": ratio, "verdict": verdict}
     missed = [
         f"{row['spp']} spp: " + ", ".join(f"{name} {_iv_text(row['vs_spec'][name])}" for name in row["misses"])
         for row in first["levels"]
@@ -205,7 +211,7 @@ def decision(first: dict, spec_spp: int) -> dict:
     verdict = (
         f"no cheaper level passes ({first['loss']}): " + "; ".join(missed) if missed else "no cheaper level studied"
     )
-    return {"level": spec_spp, "passes": False, "ship": False, "build_cpu_ratio": 1.0, "verdict": verdict}
+    return {"level": spec_spp, "passes": False, "ship": False, "build_cost_ratio": 1.0, "verdict": verdict}
 
 
 def _iv_text(iv: dict | None, spec: str = ".3g") -> str:
@@ -274,7 +280,7 @@ def markdown(result: dict) -> str:
         f"PSNR {_fmt(mi['means']['psnr'], '.2f')} dB, SSIM {_fmt(mi['means']['ssim'], '.3f')}; against the spec's "
         f"networks: relMSE ratio {_iv_text((mi['vs_spec'] or {}).get('relmse_ball'))}.",
         "",
-        "![network error against build CPU time](downstream.png)",
+        "![network error against build time](downstream.png)",
         "",
     ]
     return "\n".join(lines)
@@ -282,15 +288,16 @@ def markdown(result: dict) -> str:
 
 def _level_table(rows: list[dict]) -> str:
     head = (
-        "| level | build CPU s | x spec | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff "
+        "| level | build CPU s | wall s | x spec | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff "
         "| bias % | diff | passes |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     out = [head]
     for row in rows:
         cmp, mean = row["vs_spec"] or {}, row["means"]
         out.append(
-            f"| {row['label']} | {_fmt(row['build_cpu'], '.0f')} | {_fmt(row['build_cpu_ratio'], '.2f')} | "
+            f"| {row['label']} | {_fmt(row['build_cpu'], '.0f')} | {_fmt(row['build_wall'], '.0f')} | "
+            f"{_fmt(row['build_cost_ratio'], '.2f')} | "
             f"{_fmt(row['train_s'], '.1f')} | {_fmt(mean['relmse_ball'], '.4g')} | {_iv_text(cmp.get('relmse_ball'))} | "
             f"{_fmt(mean['psnr'], '.2f')} | {_iv_text(cmp.get('psnr'), '.2f')} | {_fmt(mean['ssim'], '.3f')} | "
             f"{_iv_text(cmp.get('ssim'), '.3f')} | {_fmt(mean['flip'], '.4f')} | {_iv_text(cmp.get('flip'), '.4f')} | "
@@ -308,21 +315,23 @@ def plot_png(result: dict) -> bytes:
     for colour, x in zip(LOSS_COLOURS, result["losses"]):
         points = []
         for row in x["levels"]:
-            if row["build_cpu"] is None or not row["seeds"]:
+            if row["build_cost"] is None or not row["seeds"]:
                 continue
             iv = (row["vs_spec"] or {}).get("relmse_ball")
             points.append(
-                (row["build_cpu"], 1.0, 1.0, 1.0) if iv is None else (row["build_cpu"], iv["value"], iv["lo"], iv["hi"])
+                (row["build_cost"], 1.0, 1.0, 1.0)
+                if iv is None
+                else (row["build_cost"], iv["value"], iv["lo"], iv["hi"])
             )
         series.append((f"{x['loss']}", colour, sorted(points)))
     aa = result["aa"]
-    if aa and aa["vs_spec"] and aa["vs_spec"]["relmse_ball"] and aa["build_cpu"]:
+    if aa and aa["vs_spec"] and aa["vs_spec"]["relmse_ball"] and aa["build_cost"]:
         iv = aa["vs_spec"]["relmse_ball"]
-        series.append(("A/A (spec, other seeds)", GREY, [(aa["build_cpu"], iv["value"], iv["lo"], iv["hi"])]))
+        series.append(("A/A (spec, other seeds)", GREY, [(aa["build_cost"], iv["value"], iv["lo"], iv["hi"])]))
     image = chart(
         series,
         "network relMSE on the ball / the spec's level's, 95% intervals",
-        "build CPU seconds (log)",
+        f"build {result['cost_basis']} seconds (log)",
         log_x=True,
     )
     return png(image)

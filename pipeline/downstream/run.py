@@ -50,6 +50,7 @@ from pipeline.neural.runfiles import read_config, read_log
 from pipeline.neural.splits import split_materials
 from pipeline.neural.train import train
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.atomic import write_text_atomic
 from pipeline.study.request import REQUEST_FILE, check_request, check_resumable, request_record
 
@@ -154,6 +155,9 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
     builds = {spp: _ensure_build(req, spec, spp, resolution, clock) for spp in levels}
     spec_root = builds[spec.render.spp]["root"]
     source = open_dataset(spec_root, resolution=resolution)
+    variant = dataset_variant(source)
+    for b in builds.values():  # what the decision compares: CPU time, or wall time where the GPU renders
+        b["build_cost"] = b["build_cpu" if report.cost_basis(variant) == "CPU" else "build_wall"]
     train_ids, test_ids = split_materials(
         [s.material_id for s in source.samples], req.training.test_fraction, SPLIT_SEED
     )
@@ -182,7 +186,6 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
                 run = Run(loss, spp, seed)
                 clock.add(f"run {run.name}", per_run)
                 scored[run] = _train_and_score(req, run, builds, resolution, test_ids, references, flip, clock)
-    variant = dataset_variant(source)
     args = (levels, scored, builds, references, baseline, test_ids, train_ids, flip, command, variant)
     result = report.results(req, spec, *args)
     report.write(req.out, result)
@@ -265,7 +268,7 @@ def _ensure_build(req: StudyCommandRequest, spec, spp: int, resolution: int, clo
     timing_path = root + ".time.json"
     attempts = _read_json(timing_path, [])
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    summary = build(spec_path, root, workers=0)
+    summary = build(spec_path, root, cluster=ClusterOptions(workers=0))
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     if summary.rendered:
         attempts.append({"cpu_s": cpu, "wall_s": wall, "rendered": summary.rendered})
