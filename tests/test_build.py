@@ -60,11 +60,12 @@ def _diff_paths(a, b, prefix="") -> set[str]:
 def builds(tmp_path_factory):
     """{'a': in-process, 'b': in-process again, 'dask': 2-worker LocalCluster} smoke builds."""
     from pipeline.run.build import build
+    from pipeline.run.cluster.options import ClusterOptions
 
     base = tmp_path_factory.mktemp("builds")
     out = {}
     for name, workers in (("a", 0), ("b", 0), ("dask", 2)):
-        summary = build(str(SMOKE), str(base / name), workers=workers)
+        summary = build(str(SMOKE), str(base / name), cluster=ClusterOptions(workers=workers))
         assert summary.rendered == summary.total == 16
         out[name] = base / name
     return out
@@ -190,10 +191,11 @@ def test_build_is_byte_identical_at_the_papers_150_spp(tmp_path):
     a pixel's samples straddle drjit's work blocks only when spp does not divide the block
     (pipeline.render.renderer.render_in_passes renders power-of-two passes for that reason)."""
     from pipeline.run.build import build
+    from pipeline.run.cluster.options import ClusterOptions
 
     spec = _write(tmp_path / "s150.toml", _smoke_with(materials=2, spp=150))
     for name in ("a", "b"):
-        build(str(spec), str(tmp_path / name), workers=0)
+        build(str(spec), str(tmp_path / name), cluster=ClusterOptions(workers=0))
     renders = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.render.exr"))
     assert len(renders) == 4
     differing = [str(r) for r in renders if (tmp_path / "a" / r).read_bytes() != (tmp_path / "b" / r).read_bytes()]

@@ -141,7 +141,7 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path, monkeypat
     monkeypatch.setattr(socket, "create_connection", counted)
     out, port = tmp_path / "ds", _free_port()
     with pytest.raises(ShaderballError, match=r'scheduler: cannot reach "tcp://127.0.0.1:\d+"'):
-        build(str(SMOKE), str(out), scheduler=f"tcp://127.0.0.1:{port}")
+        build(str(SMOKE), str(out), cluster=ClusterOptions(scheduler=f"tcp://127.0.0.1:{port}"))
     assert [(address, timeout <= 10) for address, timeout in attempts] == [(("127.0.0.1", port), True)], attempts
     assert not out.exists()
 

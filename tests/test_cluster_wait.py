@@ -295,7 +295,9 @@ def test_a_temp_file_a_worker_killed_during_the_build_left_is_swept(tmp_path):
             left.append(next(out.glob("shards/s*")) / f"{TEMP_PREFIX}killed-m000000_l0.json")
             left[0].write_text("{")
 
-    summary = build(str(REPO / "manifests" / "smoke.toml"), str(out), workers=0, progress=progress)
+    summary = build(
+        str(REPO / "manifests" / "smoke.toml"), str(out), cluster=ClusterOptions(workers=0), progress=progress
+    )
     assert left and not left[0].exists()
     assert summary.temp_removed == 1
     assert validate(str(out)).ok

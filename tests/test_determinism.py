@@ -20,6 +20,7 @@ from pipeline.check.validate import validate
 from pipeline.errors import SetupError
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, GUARANTEE_BASIS, WITHIN_NOISE, weakest_guarantee
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.repair import repair
 from support import VARIANT
 
@@ -118,7 +119,7 @@ def test_a_resume_of_a_within_noise_dataset_rewrites_nothing_that_verifies(tmp_p
         (shard / name).unlink()
     (out / "manifest.jsonl").unlink()
     before = _files(out)
-    summary = build(str(SMOKE), str(out), workers=0)
+    summary = build(str(SMOKE), str(out), cluster=ClusterOptions(workers=0))
     assert (summary.rendered, summary.skipped) == (1, 15)
     after = _files(out)
     rewritten = {rel for rel in before if after.get(rel) != before[rel]}

@@ -25,6 +25,7 @@ from pipeline.errors import SetupError
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.mitsuba_env import CUDA_VARIANT, WITHIN_NOISE, cuda_works, load_mitsuba, resolve_variant
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.exr import read_exr
 from support import VARIANT
 from support.material_cases import bsdf_chi2
@@ -67,7 +68,7 @@ def test_auto_picks_cuda(cuda):
 @pytest.mark.parametrize("variant, workers", [("auto", 0), ("cuda", 0), ("auto", 1)])
 def test_smoke_build_on_cuda(cuda, tmp_path, variant, workers):
     out = tmp_path / "ds"
-    summary = build(str(_spec(tmp_path, variant)), str(out), workers=workers)
+    summary = build(str(_spec(tmp_path, variant)), str(out), cluster=ClusterOptions(workers=workers))
     assert summary.rendered == 16 and f"variant {CUDA_VARIANT}" in summary.notes
     description = json.loads((out / "dataset.json").read_text())
     assert description["variant"] == CUDA_VARIANT
@@ -82,8 +83,6 @@ def test_two_workers_on_one_gpu_build_what_one_does(cuda, tmp_path):
     """Two worker processes pinned to the same GPU (--gpus 0, --workers 2) against one: both
     datasets valid, every sample rendered on cuda, and the same renders within the cuda
     variant's noise (byte-equal where Mitsuba's cuda results are bit-stable)."""
-    from pipeline.run.cluster.options import ClusterOptions
-
     outs = {}
     for workers in (1, 2):
         out = tmp_path / f"w{workers}"
@@ -151,7 +150,7 @@ def test_cuda_determinism_measured(cuda, tmp_path, record_property):
     spec = _spec(tmp_path, "cuda")
     roots = [tmp_path / "a", tmp_path / "b"]
     for root in roots:
-        build(str(spec), str(root), workers=0)
+        build(str(spec), str(root), cluster=ClusterOptions(workers=0))
     a, b = (_render_layers(root) for root in roots)
     assert a.keys() == b.keys() and len(a) == 16
     equal_bytes = sum(

@@ -21,6 +21,7 @@ from conftest import crash_module
 
 from cli import main
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from support.hostile import copy_dataset, snapshot, watch_opens
 
 REPO = Path(__file__).resolve().parents[1]
@@ -93,7 +94,7 @@ def test_a_record_naming_a_file_outside_is_never_opened_and_resume_renders_it_ag
         assert code == 1
         messages = [p["message"] for p in problems if p["id"] == "m000007_l1"]
         assert any(f"{rel!r} is not a path inside the dataset" in m for m in messages), messages
-        summary = build(str(SMOKE), str(ds), workers=0)
+        summary = build(str(SMOKE), str(ds), cluster=ClusterOptions(workers=0))
         assert watch.opened() == [], "a command opened a file outside the dataset"
     assert summary.rendered == 1
     assert "outside" not in (ds / "manifest.jsonl").read_text()
@@ -171,7 +172,7 @@ def test_a_malformed_marker_is_reported_and_treated_as_not_done(tmp_path, refere
     assert code == 1 and "left out" in output, output  # the sheet written: validate's "problems found"
     # build's resume: the shard is not done; its record files still verify, so nothing is
     # rendered and the marker is written again, whole.
-    summary = build(str(SMOKE), str(ds), workers=0)
+    summary = build(str(SMOKE), str(ds), cluster=ClusterOptions(workers=0))
     assert summary.rendered == 0
     crash.check_complete(ds, reference)
 
@@ -188,7 +189,7 @@ def test_a_malformed_record_file_is_rendered_again(tmp_path, reference, content)
     (ds / "shards" / "s00000" / "COMPLETE.json").unlink()
     code, output = cli("info", ds)
     assert code == 0 and "shards/s00000/m000000_l0.json" in output, output
-    assert build(str(SMOKE), str(ds), workers=0).rendered == 1
+    assert build(str(SMOKE), str(ds), cluster=ClusterOptions(workers=0)).rendered == 1
     crash.check_complete(ds, reference)
 
 
@@ -227,7 +228,7 @@ def test_a_render_that_is_a_symlink_is_reported_with_its_sample_and_rendered_aga
         found = [p for p in problems if p["kind"] == "unsafe_path"]
         assert [(p["id"], p["path"]) for p in found] == [("m000004_l1", "shards/s00002/m000004_l1.render.exr")]
         (ds / "shards" / "s00002" / "COMPLETE.json").unlink()
-        assert build(str(SMOKE), str(ds), workers=0).rendered == 1
+        assert build(str(SMOKE), str(ds), cluster=ClusterOptions(workers=0)).rendered == 1
         assert watch.opened() == []
     assert not render.is_symlink()
     crash.check_complete(ds, reference)

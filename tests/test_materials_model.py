@@ -20,6 +20,7 @@ from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest
 from pipeline.errors import ShaderballError
 from pipeline.render.command import RenderRequest
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.exr import read_exr
 
 REPO = Path(__file__).resolve().parents[1]
@@ -112,7 +113,7 @@ def tiny_builds(tmp_path_factory):
         folder = tmp_path_factory.mktemp(model)
         spec = folder / "spec.toml"
         spec.write_text(TINY.format(model=f'model = "{model}"'))
-        build(str(spec), str(folder / "data"), workers=0)
+        build(str(spec), str(folder / "data"), cluster=ClusterOptions(workers=0))
         roots[model] = folder / "data"
     return roots
 

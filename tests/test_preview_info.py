@@ -24,6 +24,7 @@ def _cli(*args):
 def dataset(tmp_path_factory) -> Path:
     """A two-render dataset (one uniform, one SVBRDF material; two shards), built in-process."""
     from pipeline.run.build import build
+    from pipeline.run.cluster.options import ClusterOptions
 
     text = SMOKE.read_text()
     for key, value in (("materials", 2), ("lights_per_material", 1), ("shard_size", 1)):
@@ -34,7 +35,7 @@ def dataset(tmp_path_factory) -> Path:
     spec = base / "tiny.toml"
     spec.write_text(text)
     out = base / "dataset"
-    assert build(str(spec), str(out), workers=0).rendered == 2
+    assert build(str(spec), str(out), cluster=ClusterOptions(workers=0)).rendered == 2
     return out
 
 

@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from pipeline.dataset.spec_file import parse_spec, spec_to_toml
 from pipeline.errors import ShaderballError
 from pipeline.run.build import build, sweep_temp_files
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.out_folder import check_output_dir
 from pipeline.store.layout import Layout
 
@@ -91,7 +92,7 @@ def test_allow_spec_change_of_version_keeps_every_sample(tmp_path, reference):
     out = tmp_path / "ds"
     shutil.copytree(reference, out)
     spec_path = _write(tmp_path / "v2.toml", _spec_text(version='"2"'))
-    summary = build(str(spec_path), str(out), workers=0, allow_spec_change=True)
+    summary = build(str(spec_path), str(out), cluster=ClusterOptions(workers=0), allow_spec_change=True)
     assert summary.rendered == 0 and summary.skipped == 16
     assert parse_spec(out / "spec.toml").dataset.version == "2"
     for rel, path in crash.dataset_files(reference).items():
@@ -135,7 +136,7 @@ def test_resume_renders_only_missing_or_unverified_samples_and_trusts_markers(tm
     (s1 / "m000003_l1.json").unlink()  # no record: not committed
     (out / "manifest.jsonl").unlink()
     _flip_byte(s2 / "m000004_l0.render.exr")  # inside a complete shard: trusted
-    summary = build(str(SMOKE), str(out), workers=0)
+    summary = build(str(SMOKE), str(out), cluster=ClusterOptions(workers=0))
     assert (summary.rendered, summary.skipped) == (3, 13)
     for name in os.listdir(reference / "shards" / "s00001"):
         if name.endswith(".exr"):
@@ -240,7 +241,7 @@ def _resume_is_refused(tmp_path, reference, change: dict, match: str) -> None:
     (out / "shards" / "s00003" / "COMPLETE.json").unlink()
     before = _snapshot(out)
     with pytest.raises(ShaderballError, match=match):
-        build(str(SMOKE), str(out), workers=0)
+        build(str(SMOKE), str(out), cluster=ClusterOptions(workers=0))
     assert _snapshot(out) == before
 
 
@@ -300,6 +301,6 @@ def test_a_dataset_started_on_another_cpu_resumes(tmp_path, reference):
     description["machine"] = {"arch": "aarch64", "cpu_model": "Neoverse-V2", "llvm_target_cpu": "neoverse-v2"}
     (out / "dataset.json").write_text(json.dumps(description))
     (out / "shards" / "s00003" / "COMPLETE.json").unlink()
-    build(str(SMOKE), str(out), workers=0)
+    build(str(SMOKE), str(out), cluster=ClusterOptions(workers=0))
     marker = json.loads((out / "shards" / "s00003" / "COMPLETE.json").read_text())
     assert marker["machine"]["arch"] and marker["machine"]["numpy"]

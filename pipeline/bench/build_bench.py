@@ -52,6 +52,7 @@ from pipeline.fields.rules import format_value
 from pipeline.render.kernels import KernelCounter
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.out_folder import read_spec_text
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.folder import folder_names
@@ -471,7 +472,7 @@ def timed_build(spec_path: str, root: str, workers: int | None) -> TimedBuild:
     # the kernel counter's reading of drjit's history is the benchmark's work: it runs
     # after the timer has stopped (the history's recording still runs inside it)
     with build_kernels, in_build:
-        summary = build(spec_path, root, workers=workers, on_start=started)
+        summary = build(spec_path, root, cluster=ClusterOptions(workers=workers), on_start=started)
     build_s = time.perf_counter() - t0
     build_cpu = cpu_with_children() - cpu0
     first_start = min((marks.get("started", t0) - t0), build_s)

@@ -47,6 +47,7 @@ from pipeline.render.mitsuba_env import (
     numpy_dispatch_targets,
 )
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.exr import read_exr
 from pipeline.store.layout import Layout
@@ -109,7 +110,7 @@ def child(spec: str, out: str, llvm_avx2: bool) -> None:
     load_mitsuba(LLVM_VARIANT)
     if llvm_avx2:
         set_llvm_avx2_target()
-    build(spec, out, workers=0)
+    build(spec, out, cluster=ClusterOptions(workers=0))
 
 
 def run_emulation(spec: str, out: str, name: str) -> float:

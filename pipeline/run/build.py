@@ -219,9 +219,7 @@ def build(
     spec_path: str,
     out: str,
     *,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    cluster: ClusterOptions | None = None,
+    cluster: ClusterOptions = ClusterOptions(),
     allow_spec_change: bool = False,
     progress: Callable[[Progress], None] | None = None,
     on_start: Callable[[str, str | None], None] | None = None,
@@ -229,19 +227,16 @@ def build(
 ) -> BuildSummary:
     """Build (or resume) the dataset of ``spec_path`` into ``out``.
 
-    ``workers``: local worker processes (default: one per 2 cores); 0 runs the shards in
-    this process, without dask. ``scheduler``: address of an existing dask scheduler.
-    ``cluster``: every option of where the workers come from (then leave ``workers`` and
-    ``scheduler`` out). ``allow_spec_change``: accept a spec that differs from the
-    directory's snapshot in ``dataset.name`` / ``dataset.version`` only. ``variant``: the
+    ``cluster``: where the workers come from, every option of ``shaderball build``'s
+    ``--cluster``/``--workers``/``--scheduler``/... (default: a local cluster of one worker
+    process per 2 cores); ``ClusterOptions(workers=0)`` runs the shards in this process,
+    without dask; ``ClusterOptions(scheduler=ADDRESS)`` uses an existing dask scheduler, which
+    must answer before anything is written. ``allow_spec_change``: accept a spec that differs
+    from the directory's snapshot in ``dataset.name`` / ``dataset.version`` only. ``variant``: the
     Mitsuba variant instead of the spec's ``render.variant`` resolved anew (validate --repair
     passes the dataset's recorded one).
     """
     spec, _text = read_spec_text(spec_path)
-    if cluster is None:
-        cluster = ClusterOptions(workers=workers, scheduler=scheduler)
-    elif workers is not None or scheduler is not None:
-        raise TypeError("build(): pass workers and scheduler inside cluster=, not beside it")
     if cluster.scheduler:
         check_scheduler_reachable(cluster.scheduler)  # before anything is written
     plans = plan_dataset(spec)

@@ -20,6 +20,7 @@ from pipeline.dataset.spec_file import parse_spec, spec_digest, spec_to_toml
 from pipeline.errors import SetupError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
 from pipeline.run.build import build, write_manifest
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.out_folder import recorded_guarantee
 from pipeline.store.atomic import write_text_atomic
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
@@ -272,7 +273,7 @@ def rebuild(root: str, workers: int, progress, n_shards: int, variant: str | Non
         if progress is not None:
             progress(Progress("repair", p.done, p.total, f"{n_shards} shard(s)", 0, p.elapsed_s))
 
-    build(Layout(root).spec, root, workers=workers, progress=forward, variant=variant)
+    build(Layout(root).spec, root, cluster=ClusterOptions(workers=workers), progress=forward, variant=variant)
 
 
 class Repaired(NamedTuple):

@@ -11,6 +11,7 @@ import tarfile
 from pathlib import Path
 
 from pipeline.run.build import build
+from pipeline.run.cluster.options import ClusterOptions
 from pipeline.store.records import dumps
 
 REPO = Path(__file__).resolve().parents[2]
@@ -26,7 +27,7 @@ def smoke_build(tmp_path_factory) -> Path:
     with open(base / "publish-smoke.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (target / "manifest.jsonl").exists():
-            build(str(SMOKE), str(target), workers=0)
+            build(str(SMOKE), str(target), cluster=ClusterOptions(workers=0))
     return target
 
 
