@@ -71,6 +71,9 @@ def test_levels_carry_build_time_and_intervals(study):
         iv = cheap["vs_spec"][name]
         assert iv["lo"] <= iv["value"] <= iv["hi"], (name, iv)
     assert result["levels"][1]["vs_spec"] is None  # the spec's level is the baseline
+    # the targets' own error against the references falls as 1/spp (4x the samples: about a quarter)
+    noisy, clean = (row["targets_relmse_ball"] for row in result["levels"])
+    assert 2.0 < noisy / clean < 8.0, (noisy, clean)
     assert result["aa"]["seeds"] == [2, 3] and result["aa"]["vs_spec"]["relmse_ball"]["lo"] > 0
     assert result["held_out"] == {"materials": 2, "samples": 4, "training_materials": 6}
     assert result["reference_spp"] == 256 and 0 < result["reference_floor_ball_mean"] < 0.05

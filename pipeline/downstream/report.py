@@ -118,6 +118,8 @@ def _level_row(scored, spp, mine, base, builds, spec_spp) -> dict:
         "build_cpu": builds[spp]["build_cpu"],
         "build_wall": builds[spp]["build_wall"],
         "build_cost": cost,
+        "targets_relmse_ball": builds[spp].get("targets_relmse_ball"),
+        "targets_bias_ball": builds[spp].get("targets_bias_ball"),
         "build_cost_ratio": cost / spec_cost if cost and spec_cost else None,
         "train_s": float(np.mean([scored[r]["train_s"] for r in mine])) if mine else None,
         "means": means(scored, mine),
@@ -256,7 +258,8 @@ def markdown(result: dict) -> str:
         f"Intervals are paired {pct}% bootstrap intervals over held-out samples and training seeds, against the "
         "spec's level: ratios for relMSE (below 1 is better), differences for PSNR and SSIM (above 0 is better) "
         "and HDR-FLIP (below 0 is better). A level passes when no figure is worse beyond its interval. Bias: the "
-        "ball's mean luminance against the reference's, in percent (reported, not ruled).",
+        "ball's mean luminance against the reference's, in percent (reported, not ruled). Targets' relMSE: the "
+        "level's own renders of the held-out samples against the references, the noise its networks learn from.",
     ]
     for x in result["losses"]:
         lines += ["", f"## Loss {x['loss']}", "", _level_table(x["levels"] + ([x["aa"]] if x["aa"] else []))]
@@ -288,16 +291,16 @@ def markdown(result: dict) -> str:
 
 def _level_table(rows: list[dict]) -> str:
     head = (
-        "| level | build CPU s | wall s | x spec | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff "
+        "| level | build CPU s | wall s | x spec | targets' relMSE | train s | relMSE (ball) | ratio | PSNR dB | diff | SSIM | diff | FLIP | diff "
         "| bias % | diff | passes |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     out = [head]
     for row in rows:
         cmp, mean = row["vs_spec"] or {}, row["means"]
         out.append(
             f"| {row['label']} | {_fmt(row['build_cpu'], '.0f')} | {_fmt(row['build_wall'], '.0f')} | "
-            f"{_fmt(row['build_cost_ratio'], '.2f')} | "
+            f"{_fmt(row['build_cost_ratio'], '.2f')} | {_fmt(row['targets_relmse_ball'], '.4g')} | "
             f"{_fmt(row['train_s'], '.1f')} | {_fmt(mean['relmse_ball'], '.4g')} | {_iv_text(cmp.get('relmse_ball'))} | "
             f"{_fmt(mean['psnr'], '.2f')} | {_iv_text(cmp.get('psnr'), '.2f')} | {_fmt(mean['ssim'], '.3f')} | "
             f"{_iv_text(cmp.get('ssim'), '.3f')} | {_fmt(mean['flip'], '.4f')} | {_iv_text(cmp.get('flip'), '.4f')} | "

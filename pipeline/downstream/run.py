@@ -29,6 +29,8 @@ import os
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from pipeline.downstream import report
 from pipeline.downstream.plan import (
     SCORING_SHARE,
@@ -40,7 +42,7 @@ from pipeline.downstream.plan import (
     write_spec,
 )
 from pipeline.downstream.request import StudyCommandRequest
-from pipeline.downstream.score import ensure_references, mean_image_rows, score_run
+from pipeline.downstream.score import ensure_references, mean_image_rows, score_run, target_rows
 from pipeline.fields.rules import Reject
 from pipeline.image import metrics
 from pipeline.neural.config import NetworkResolution, TrainConfig
@@ -171,6 +173,12 @@ def run_downstream(req: StudyCommandRequest, progress=None, command: str = "") -
     )
     flip = req.flip and metrics.flip_available()
     os.makedirs(os.path.join(req.out, "scores"), exist_ok=True)
+    for spp, b in builds.items():  # the noise each level's targets carry, against the same references
+        rows = target_rows(
+            b["root"], test_ids, resolution, references, os.path.join(req.out, "scores", f"targets-spp{spp}.json")
+        )
+        b["targets_relmse_ball"] = float(np.mean([r["relmse_ball"] for r in rows]))
+        b["targets_bias_ball"] = float(np.mean([r["bias_ball"] for r in rows]))
     scored = {}
     for run in runs:
         scored[run] = _train_and_score(req, run, builds, resolution, test_ids, references, flip, clock)

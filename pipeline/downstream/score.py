@@ -17,9 +17,9 @@ import time
 import numpy as np
 
 from pipeline.image.tonemap import hdr_to_srgb8
-from pipeline.neural.data import open_dataset
+from pipeline.neural.data import box_downsample, open_dataset
 from pipeline.neural.equal_time import PathTracer
-from pipeline.neural.evaluate import dataset_variant
+from pipeline.neural.evaluate import dataset_variant, read_render
 from pipeline.neural.infer import load_run_model, run_network
 from pipeline.neural.scores import ldr_scores, network_hdr
 from pipeline.neural.train import mean_image, pick_device
@@ -110,6 +110,23 @@ def image_row(
         # their median, darker than their mean where the noise is skewed
         "bias_ball": m.ball_bias(hdr, ref_hdr, mask, None, np.zeros(mask.shape))[0],
     }
+
+
+def target_rows(root: str, test_materials: list[str], resolution: int, references: dict, path: str) -> list[dict]:
+    """A level's own renders of the held-out samples against the references: the noise its
+    networks' targets carry (relMSE and luminance bias on the ball)."""
+    if os.path.exists(path):
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    dataset = held_out(open_dataset(root, resolution=resolution), test_materials)
+    rows = []
+    for index, sample in enumerate(dataset.samples):
+        hdr = box_downsample(read_render(dataset, sample), dataset.factor)
+        ref, mask = references[sample.id]["image"], mask_of(dataset[index])
+        bias = m.ball_bias(hdr, ref, mask, None, np.zeros(mask.shape))[0]
+        rows.append({"sample_id": sample.id, "relmse_ball": m.relmse(hdr, ref, mask), "bias_ball": bias})
+    write_text_atomic(path, json.dumps(rows, indent=1) + "\n")
+    return rows
 
 
 def mean_image_rows(

@@ -365,7 +365,7 @@ class _Evaluation:
             row["mean_image"] = self.ldr_scores(self.mean_y, ref_hdr, ref8, exposure, 0.0)
             neighbour = nearest_sample(sample, self.training.samples, self.kinds)
             if neighbour is not None:
-                near_hdr = box_downsample(_read_render(self.training, neighbour), self.training.factor)
+                near_hdr = box_downsample(read_render(self.training, neighbour), self.training.factor)
                 row["nearest_sample"] = self.scores(
                     near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
                 )
@@ -376,8 +376,8 @@ class _Evaluation:
     def _reference(self, sample) -> np.ndarray:
         """The sample's path-traced reference: its render in ``--reference``'s build, else its own."""
         if self.references is None:
-            return box_downsample(_read_render(self.dataset, sample), self.dataset.factor)
-        return box_downsample(_read_render(self.references, self.references.by_id[sample.id]), self.references.factor)
+            return box_downsample(read_render(self.dataset, sample), self.dataset.factor)
+        return box_downsample(read_render(self.references, self.references.by_id[sample.id]), self.references.factor)
 
     def _path_traced(self, row: dict, pictures: dict, item, sample, ref_hdr, ref8, show) -> None:
         """Path tracing at equal time and at each of ``spp`` (and denoised) into ``row``."""
@@ -593,5 +593,6 @@ def dataset_variant(dataset) -> str:
     return next(iter(variants))
 
 
-def _read_render(dataset, sample) -> np.ndarray:
+def read_render(dataset, sample) -> np.ndarray:
+    """A sample's stored render (linear HDR, the dataset's resolution)."""
     return dataset._read(sample.render, ("render",))["render"].astype(np.float32)
