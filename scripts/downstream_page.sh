@@ -14,7 +14,7 @@ PAGE=docs/results/downstream-64px
 mkdir -p "$PAGE"
 .venv/bin/shaderball study manifests/serve.toml --downstream --out "$OUT" \
     --ladder 4,8,16,32 --repeats 3 --epochs 12 --width 0.5 --batch-size 8 --schedule cosine \
-    --reference-spp 1024 2>&1 | tee "$OUT.log"
+    --reference-spp 1024 2>&1 | tee -a "$OUT.log"   # -a: a resumed run adds to the log
 cp "$OUT/report.md" "$OUT/downstream.json" "$OUT/downstream.png" "$PAGE/"
 {
     echo "\$ scripts/downstream_page.sh $OUT    # $(nproc) cores ($(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')), load average $(cut -d' ' -f1-3 /proc/loadavg) at the end"

@@ -162,6 +162,18 @@ def test_the_request_refuses_from_python_too():
     assert req.training.losses == ("l2",) and "draws" in req.unused() and "epochs" not in req.unused()
 
 
+def test_seeds_shared_by_every_sample_widen_the_interval():
+    """A network (a seed) better or worse on every sample: drawn once for all samples, the
+    interval holds that spread; drawn per sample, it averages away."""
+    rng = np.random.default_rng(1)
+    base = {f"s{i}": list(rng.uniform(0.9, 1.1, 3)) for i in range(60)}
+    network = (0.8, 1.0, 1.25)  # each seed's network, on every sample
+    cand = {k: [v * f for v, f in zip(vs, network)] for k, vs in base.items()}
+    per_sample, crossed = paired_ratio(cand, base), paired_ratio(cand, base, shared_seeds=True)
+    assert crossed.hi - crossed.lo > 3 * (per_sample.hi - per_sample.lo)
+    assert crossed.lo < 0.9 and crossed.hi > 1.1
+
+
 def test_a_row_scores_the_picture_against_the_reference_in_linear_radiance():
     rng = np.random.default_rng(0)
     ref = rng.uniform(0.02, 0.3, (16, 16, 3)).astype(np.float32)

@@ -2,18 +2,20 @@
 ``downstream.png`` (network error against build time).
 
 Every figure of a level is paired with the spec's level over the same held-out samples, with
-the pixel study's two-level bootstrap (pipeline.study.stats: samples, then each sample's
-training seeds): relMSE on the ball and on the frame as ratios (level over spec), PSNR, SSIM
-and HDR-FLIP as differences (level minus spec). The A/A row is the spec's level trained with
+the pixel study's two-level bootstrap crossed (pipeline.study.stats, ``shared_seeds``: the
+held-out samples drawn, paired, and the training seeds drawn once per resample for all samples,
+since a seed is one network whose error every sample shares): relMSE on the ball and on the
+frame as ratios (level over spec), PSNR, SSIM, HDR-FLIP and the ball's luminance bias as
+differences (level minus spec). The A/A row is the spec's level trained with
 other seeds against it: what "no difference" looks like.
 
 **The rule.** A level passes when its network is not worse beyond its interval in any figure:
 the ball's relMSE ratio's lower bound at most 1, PSNR's and SSIM's upper bounds at least 0,
 FLIP's lower bound at most 0. The decision is the cheapest passing level by build time (CPU
 time; wall time where a GPU renders, :func:`cost_basis`); a level passing at most 1/3 of the
-spec's build time is worth shipping as a spec. Passing
-says "not shown worse", which a study too small to see a difference also says: the report
-gives each interval's far bound (the worst the data allow) beside the verdict.
+spec's build time is worth shipping as a spec. Passing says "not shown worse", which a study
+too small to see a difference also says: the report gives each interval's far bound (the worst
+the data allow) beside the verdict.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def compare(scored: dict, candidate: list, baseline: list) -> dict:
     out = {}
     for name, key, how in FIGURES:
         a, b = by_sample(scored, candidate, key), by_sample(scored, baseline, key)
-        iv = paired_ratio(a, b, ratio=how == "ratio") if a and b else None
+        iv = paired_ratio(a, b, ratio=how == "ratio", shared_seeds=True) if a and b else None
         out[name] = iv.to_dict() if iv else None
     return out
 
@@ -296,7 +298,7 @@ def _level_table(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     out = [head]
-    for row in rows:
+    for row in (row for row in rows if row["seeds"]):  # a level this loss did not train at: no row
         cmp, mean = row["vs_spec"] or {}, row["means"]
         out.append(
             f"| {row['label']} | {_fmt(row['build_cpu'], '.0f')} | {_fmt(row['build_wall'], '.0f')} | "

@@ -66,13 +66,21 @@ def _matrix(values: dict[str, list[float]], samples: list[str]) -> np.ndarray:
     return m
 
 
-def _resample_means(m: np.ndarray, draw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Mean over drawn samples of each drawn sample's mean over its seeds drawn with replacement."""
+def _resample_means(m: np.ndarray, draw: np.ndarray, rng: np.random.Generator, shared: bool = False) -> np.ndarray:
+    """Mean over drawn samples of each drawn sample's mean over its seeds drawn with replacement
+    (``shared``: one draw of seeds for every sample of a resample: column k is one seed's
+    network, whose errors every sample shares; every sample then has every seed)."""
     counts = np.sum(~np.isnan(m), axis=1)  # seeds per sample
     picked_counts = counts[draw]  # (B, n)
     width = m.shape[1]
-    # Seed k of a drawn sample: uniform among its own seeds (floor(u * count)).
-    seeds = np.floor(rng.random((*draw.shape, width)) * picked_counts[..., None]).astype(int)
+    if shared:
+        if counts.min() < width:
+            raise ValueError("shared seeds: every sample needs a value of every seed")
+        seeds = np.broadcast_to(
+            np.floor(rng.random((draw.shape[0], 1, width)) * width).astype(int), (*draw.shape, width)
+        )
+    else:  # seed k of a drawn sample: uniform among its own seeds (floor(u * count))
+        seeds = np.floor(rng.random((*draw.shape, width)) * picked_counts[..., None]).astype(int)
     values = m[draw[..., None], seeds]  # (B, n, width)
     return values.mean(axis=2).mean(axis=1)
 
@@ -84,11 +92,15 @@ def paired_ratio(
     resamples: int = BOOTSTRAP_RESAMPLES,
     seed: int = BOOTSTRAP_SEED,
     ratio: bool = True,
+    shared_seeds: bool = False,
 ) -> Interval | None:
     """Ratio of mean (over samples) per-sample means (over seeds), candidate over baseline,
     with its two-level bootstrap interval; None without a common sample or a zero baseline.
     ``ratio=False``: the difference, candidate minus baseline, instead (figures such as PSNR
-    and SSIM, whose ratio means nothing)."""
+    and SSIM, whose ratio means nothing). ``shared_seeds``: value k of every sample comes from
+    one seed's whole object (a trained network), so seeds are drawn once per resample for all
+    samples (a crossed bootstrap): a network better or worse on every sample widens the
+    interval as it should, where independent draws per sample would average it away."""
     common = [s for s in (samples or sorted(candidate)) if candidate.get(s) and baseline.get(s)]
     if not common:
         return None
@@ -99,7 +111,7 @@ def paired_ratio(
     point = point_a / point_b if ratio else point_a - point_b
     rng = np.random.default_rng(seed)
     draw = rng.integers(0, len(common), (resamples, len(common)))
-    ra, rb = _resample_means(a, draw, rng), _resample_means(b, draw, rng)
+    ra, rb = _resample_means(a, draw, rng, shared_seeds), _resample_means(b, draw, rng, shared_seeds)
     # A resample whose baseline mean is 0 has no ratio: left out (JSON has no infinity).
     values = (ra / np.where(rb > 0, rb, 1.0))[rb > 0] if ratio else ra - rb
     if not values.size:
