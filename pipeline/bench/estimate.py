@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass
 
 from pipeline.bench.first_renders import TIMED_LIGHTS, Timing, disk_estimate, time_first_samples, timing_plan
 from pipeline.bench.gpu_rate import gpu_rate
+from pipeline.bench.training_specs import cheaper_for_training
 from pipeline.check.info import human_bytes
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec_file import spec_digest, spec_operand
@@ -212,6 +213,12 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
         variant=spec.render.variant,
         disk=disk_estimate(spec, summary["uniform"], summary["svbrdf"]),
     )
+    cheaper = cheaper_for_training(report.spec_digest)
+    if cheaper is not None:
+        report.notes.append(
+            f"for training the network, {cheaper.cheaper} builds the same samples for less: {cheaper.verdict} "
+            f"({cheaper.report})"
+        )
     split = launch_spp(spec.render.spp, spec.render.resolution**2)
     if len(split) > 1:
         report.notes.append(
