@@ -77,6 +77,7 @@ def test_levels_carry_build_time_and_intervals(study):
     assert result["aa"]["seeds"] == [2, 3] and result["aa"]["vs_spec"]["relmse_ball"]["lo"] > 0
     assert result["held_out"] == {"materials": 2, "samples": 4, "training_materials": 6}
     assert result["reference_spp"] == 256 and 0 < result["reference_floor_ball_mean"] < 0.05
+    assert result["error_over_floor"] > 10  # the references resolve the networks' error
     assert result["decision"]["level"] in (4, 16) and result["decision"]["verdict"]
     assert "tone-mapped" in result["loss_space"] and -1 < result["levels"][0]["means"]["bias_ball"] < 1
     # L2 at the spec's level and at the cheapest level L1 passes (or the cheapest where none does)

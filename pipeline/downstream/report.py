@@ -27,6 +27,7 @@ import numpy as np
 
 from pipeline.image.chart import BLUE, GREY, ORANGE, PURPLE, RED, chart, png
 from pipeline.store.atomic import write_bytes_atomic, write_text_atomic
+from pipeline.study.measure import FLOOR_FACTOR
 from pipeline.study.request import machine_line
 from pipeline.study.stats import CONFIDENCE, paired_ratio
 
@@ -163,6 +164,8 @@ def results(
         "held_out": {"materials": len(test_ids), "samples": len(references), "training_materials": len(train_ids)},
         "reference_spp": req.reference_spp,
         "reference_floor_ball_mean": float(np.mean(floors)) if floors else None,
+        # the least network error over the references' own: within FLOOR_FACTOR, they cannot tell levels apart
+        "error_over_floor": _error_over_floor(losses, floors),
         "repeats": req.repeats,
         "training": req.training.to_dict(),
         "loss_space": "every loss is taken on the network's images: tone-mapped (Reinhard, the dataset's exposure) "
@@ -176,6 +179,12 @@ def results(
         "between_losses": between,
         "decision": decision(first, spec_spp, basis),
     }
+
+
+def _error_over_floor(losses: list[dict], floors: list[float]) -> float | None:
+    errors = [row["means"]["relmse_ball"] for x in losses for row in x["levels"] if row["means"]["relmse_ball"]]
+    floor = float(np.mean(floors)) if floors else 0.0
+    return min(errors) / floor if errors and floor > 0 else None
 
 
 def cost_basis(variant: str) -> str:
@@ -218,6 +227,14 @@ def decision(first: dict, spec_spp: int, basis: str = "CPU") -> dict:
     return {"level": spec_spp, "passes": False, "ship": False, "build_cost_ratio": 1.0, "verdict": verdict}
 
 
+def _floor_text(ratio: float | None) -> str:
+    if ratio is None:
+        return "the networks' error against it not measured"
+    if ratio < FLOOR_FACTOR:
+        return f"only {ratio:.1f}x below the least network error: too noisy to tell levels apart, raise --reference-spp"
+    return f"{ratio:.0f}x below the least network error"
+
+
 def _iv_text(iv: dict | None, spec: str = ".3g") -> str:
     if not iv:
         return "-"
@@ -250,7 +267,8 @@ def markdown(result: dict) -> str:
         f"{result['resolution']} px, its own {result['spec_spp']} spp); {result['held_out']['samples']} held-out "
         f"samples ({result['held_out']['materials']} materials) scored against references at "
         f"{result['reference_spp']} spp (two halves; their own relMSE on the ball: "
-        f"{_fmt(result['reference_floor_ball_mean'], '.3g')}); {result['repeats']} training seeds a level; "
+        f"{_fmt(result['reference_floor_ball_mean'], '.3g')}, {_floor_text(result['error_over_floor'])}); "
+        f"{result['repeats']} training seeds a level; "
         f"training: {json.dumps(result['training'])}. {result['loss_space']}.",
         "",
         "## Decision",
