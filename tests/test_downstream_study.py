@@ -101,7 +101,7 @@ def test_levels_carry_build_time_and_intervals(study):
 def test_a_killed_study_resumes_with_the_same_figures(study, tmp_path):
     out, _done = study
     copy = tmp_path / "study"
-    shutil.copytree(out, copy)
+    shutil.copytree(out, copy, copy_function=os.link)  # hard links: the runs' checkpoints are ~2 GB
     first = json.loads((out / "downstream.json").read_text())
     # what a kill leaves: a run, a score, a reference and the results missing, a build without its marker
     shutil.rmtree(copy / "runs" / "l1-spp4-seed1")
