@@ -28,6 +28,16 @@ from pipeline.study import measure as m
 from pipeline.study.run import derived_seed, load_reference, save_reference
 
 
+def kept_rows(path: str, compute) -> list[dict]:
+    """The rows kept in ``path`` by an earlier run, or ``compute()``'s, written there first."""
+    if os.path.exists(path):
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    rows = compute()
+    write_text_atomic(path, json.dumps(rows, indent=1) + "\n")
+    return rows
+
+
 def held_out(dataset, test_materials: list[str]):
     """The held-out part of an opened dataset (its samples of ``test_materials``)."""
     return dataset.subset(test_materials)
@@ -53,20 +63,20 @@ def ensure_references(folder: str, dataset, spp: int, tick) -> dict:
         if ref is None:
             record = dataset.records[sample.id]
             maps = tracer.material(sample)
-            started = time.process_time()
+            started, wall = time.process_time(), time.perf_counter()
             halves = [
                 tracer.render(
                     record, maps, spp // 2, seed=derived_seed(int(record["seeds"]["render"]), "reference", h)
                 )[0]
                 for h in (1, 2)
             ]
-            cpu_s = time.process_time() - started
+            cpu_s, wall_s = time.process_time() - started, time.perf_counter() - wall
             image = (halves[0] + halves[1]) / 2.0
             terms = m.relmse_terms(halves[0], halves[1]) / 4.0  # the mean of two halves: a quarter of theirs
             ball = mask_of(dataset[index]).ravel()
             floor = {"floor_ball": float(terms[ball].mean()), "floor_frame": float(terms.mean())}
             ref = {"image": image, "variance": np.zeros(image.shape[:2]), "half1": halves[0], "half2": halves[1]}
-            ref.update(floor=floor, cpu_s=cpu_s, wall_s=cpu_s)
+            ref.update(floor=floor, cpu_s=cpu_s, wall_s=wall_s)
             save_reference(path, ref)
         out[sample.id] = ref
         tick(f"reference {sample.id} ({spp} spp)")
@@ -77,9 +87,10 @@ def score_run(
     run_dir: str, root: str, test_materials: list[str], references: dict, flip: bool, path: str
 ) -> list[dict]:
     """One network's rows (one per held-out sample), read from ``path`` or scored and written there."""
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
+    return kept_rows(path, lambda: _score(run_dir, root, test_materials, references, flip))
+
+
+def _score(run_dir: str, root: str, test_materials: list[str], references: dict, flip: bool) -> list[dict]:
     device = pick_device("auto")
     model, config = load_run_model(run_dir, device)
     exposure = float(config["tonemap"]["exposure"])
@@ -89,7 +100,6 @@ def score_run(
         item = dataset[index]
         pred = run_network(model, item["maps"].numpy(), sample.lighting_vector, device)
         rows.append(image_row(sample.id, pred, references[sample.id]["image"], mask_of(item), exposure, flip))
-    write_text_atomic(path, json.dumps(rows, indent=1) + "\n")
     return rows
 
 
@@ -115,9 +125,10 @@ def image_row(
 def target_rows(root: str, test_materials: list[str], resolution: int, references: dict, path: str) -> list[dict]:
     """A level's own renders of the held-out samples against the references: the noise its
     networks' targets carry (relMSE and luminance bias on the ball)."""
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
+    return kept_rows(path, lambda: _targets(root, test_materials, resolution, references))
+
+
+def _targets(root: str, test_materials: list[str], resolution: int, references: dict) -> list[dict]:
     dataset = held_out(open_dataset(root, resolution=resolution), test_materials)
     rows = []
     for index, sample in enumerate(dataset.samples):
@@ -125,7 +136,6 @@ def target_rows(root: str, test_materials: list[str], resolution: int, reference
         ref, mask = references[sample.id]["image"], mask_of(dataset[index])
         bias = m.ball_bias(hdr, ref, mask, None, np.zeros(mask.shape))[0]
         rows.append({"sample_id": sample.id, "relmse_ball": m.relmse(hdr, ref, mask), "bias_ball": bias})
-    write_text_atomic(path, json.dumps(rows, indent=1) + "\n")
     return rows
 
 
@@ -140,9 +150,10 @@ def mean_image_rows(
 ) -> list[dict]:
     """The trivial baseline's rows: the mean training image of ``root`` (its training split)
     against every reference."""
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
+    return kept_rows(path, lambda: _mean_image(root, train_materials, test_materials, resolution, references, flip))
+
+
+def _mean_image(root, train_materials, test_materials, resolution: int, references: dict, flip: bool) -> list[dict]:
     source = open_dataset(root, resolution=resolution)
     mean_y = mean_image(source.subset(train_materials), workers=0)
     test = held_out(source, test_materials)
@@ -150,5 +161,4 @@ def mean_image_rows(
         image_row(sample.id, mean_y, references[sample.id]["image"], mask_of(test[i]), test.exposure, flip)
         for i, sample in enumerate(test.samples)
     ]
-    write_text_atomic(path, json.dumps(rows, indent=1) + "\n")
     return rows
