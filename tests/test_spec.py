@@ -363,7 +363,7 @@ def test_different_spec_different_digest():
 def test_spec_to_dict_is_plain_data():
     data = spec_to_dict(parse_spec(SMOKE))
     assert json.loads(json.dumps(data)) == data
-    assert set(data) == {"dataset", "materials", "lighting", "render", "storage"}
+    assert set(data) == {"dataset", "materials", "scene", "lighting", "render", "storage"}
 
 
 # --------------------------------------------------------------------------- docs and sync

@@ -31,6 +31,14 @@ the paper spec; this costs milliseconds and makes distinct indices provably dist
   ``order[t mod N]`` of its N sorted map files, ``order`` =
   ``seeded_rng(index f of STREAM_IMPORT).permutation(N)``: every file is used once
   before any is used twice.
+- the object of material m (``[scene] objects``, n of them): scheme ``cycle``: m mod n;
+  ``random``: (index m of STREAM_OBJECT) mod n (the bias of a 63-bit word mod n is below
+  n / 2^63). Drawn per material: a material's maps are projected through its object's
+  G-buffer and stored once for all its lightings.
+- environment lighting (``[lighting] source = "environment"``): the lightings of material m
+  are drawn jointly from ``seeded_rng(index m of STREAM_ENVIRONMENT)``: L map indices
+  (``integers(E)``), then L rotations and L intensities (``random`` mapped linearly onto
+  their ranges: a multiply-add, the same bits on every machine). No sun is drawn.
 
 Use :func:`seeded_rng` to turn any of these seeds into a ``numpy.random.Generator``.
 """
@@ -46,7 +54,8 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.dataset.spec import DatasetSpec, list_map_files
+from pipeline.dataset.spec import DEFAULT_OBJECTS, DatasetSpec, list_map_files
+from pipeline.dataset.spec_file import environment_files
 from pipeline.errors import ShaderballError, quoted
 from sky.portable import asin_deg, sin_deg
 from sky.sampling import unit_points
@@ -62,6 +71,8 @@ STREAM_LIGHTS = 2
 STREAM_RENDER = 3
 STREAM_SVBRDF = 4
 STREAM_IMPORT = 5
+STREAM_OBJECT = 6
+STREAM_ENVIRONMENT = 7
 
 KIND_UNIFORM = "uniform"
 KIND_SVBRDF = "svbrdf"
@@ -149,13 +160,19 @@ class SamplePlan:
     elevation_deg: float
     azimuth_deg: float
     turbidity: float
+    #: The object (a built-in name or a mesh file's absolute path) and, for environment
+    #: lighting, the map's absolute path, its rotation and intensity (None under the sun).
+    object: str = DEFAULT_OBJECTS[0]
+    environment: str | None = None
+    rotation_deg: float | None = None
+    intensity: float | None = None
 
     @property
     def shard_id(self) -> str:
         return shard_id(self.shard_index)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return _without_scene_defaults(asdict(self))
 
 
 @dataclass(frozen=True)
@@ -179,6 +196,11 @@ class MaterialPlan:
     elevation_deg: tuple[float, ...]
     azimuth_deg: tuple[float, ...]
     turbidity: tuple[float, ...]
+    object: str = DEFAULT_OBJECTS[0]
+    #: Environment lighting only (empty under the sun): per lighting.
+    environment: tuple[str, ...] = ()
+    rotation_deg: tuple[float, ...] = ()
+    intensity: tuple[float, ...] = ()
 
     @property
     def shard_id(self) -> str:
@@ -207,15 +229,32 @@ class MaterialPlan:
                 self.elevation_deg[l],
                 self.azimuth_deg[l],
                 self.turbidity[l],
+                self.object,
+                *((self.environment[l], self.rotation_deg[l], self.intensity[l]) if self.environment else ()),
             )
             for l in range(len(self.render_seeds))
         )
 
     def to_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
-        for key in ("render_seeds", "elevation_deg", "azimuth_deg", "turbidity"):
+        for key in ("render_seeds", "elevation_deg", "azimuth_deg", "turbidity", *SCENE_TUPLES):
             out[key] = list(out[key])
-        return out
+        return _without_scene_defaults(out)
+
+
+#: A material's per-lighting tuples of environment lighting.
+SCENE_TUPLES = ("environment", "rotation_deg", "intensity")
+
+
+def _without_scene_defaults(out: dict) -> dict:
+    """A plan entry without its scene's keys at their defaults (the shaderball, the sun): a spec
+    that names neither plans the same entries, and the same plan digest, as before they existed."""
+    if out.get("object") == DEFAULT_OBJECTS[0]:
+        del out["object"]
+    for key in SCENE_TUPLES:
+        if out.get(key) in (None, []):
+            del out[key]
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -427,6 +466,7 @@ class Plan(Sequence):
         r_seeds = render_seeds(ds.seed, m_all[:, None], np.arange(ds.lights_per_material)[None, :]).tolist()
         elevation, azimuth, turbidity = (a.tolist() for a in _light_arrays(self.spec, light_seeds))
         light_seeds = light_seeds.tolist()
+        objects = _object_choices(self.spec, m_all)
         materials = []
         for i, m in enumerate(ms):
             family, file = self.svbrdf_source(m)
@@ -445,9 +485,40 @@ class Plan(Sequence):
                     tuple(elevation[i]),
                     tuple(azimuth[i]),
                     tuple(turbidity[i]),
+                    objects[i],
+                    *self._environment_draw(m),
                 )
             )
         return ShardPlan(index, shard_id(index), tuple(materials))
+
+    @cached_property
+    def environments(self) -> tuple[str, ...]:
+        """The environment maps lightings draw from, in draw order (empty under the sun)."""
+        return environment_files(self.spec) if self.spec.lighting.source == "environment" else ()
+
+    def _environment_draw(self, m: int) -> tuple[tuple, ...]:
+        """(maps, rotations, intensities) of material ``m``'s lightings; () under the sun."""
+        if not self.environments:
+            return ()
+        lighting, n = self.spec.lighting, self.spec.dataset.lights_per_material
+        rng = seeded_rng(int(index_seeds(self.spec.dataset.seed, STREAM_ENVIRONMENT, [m])[0]))
+        which = rng.integers(len(self.environments), size=n).tolist()
+        (r_lo, r_hi), (s_lo, s_hi) = lighting.rotation_deg, lighting.intensity
+        rotation = (r_lo + rng.random(n) * (r_hi - r_lo)).tolist()
+        intensity = np.clip(s_lo + rng.random(n) * (s_hi - s_lo), s_lo, s_hi).tolist()
+        return tuple(self.environments[k] for k in which), tuple(rotation), tuple(intensity)
+
+
+def _object_choices(spec: DatasetSpec, m_all: np.ndarray) -> list[str]:
+    """The object of each material of ``m_all`` (the module docstring's rule)."""
+    objects = spec.scene.objects
+    if len(objects) == 1:
+        return [objects[0]] * len(m_all)
+    if spec.scene.scheme == "cycle":
+        picks = m_all % len(objects)
+    else:
+        picks = index_seeds(spec.dataset.seed, STREAM_OBJECT, m_all) % np.uint64(len(objects))
+    return [objects[int(k)] for k in picks.tolist()]
 
 
 def plan_dataset(spec: DatasetSpec, imported: Mapping[str, Sequence[str]] | None = None) -> Plan:

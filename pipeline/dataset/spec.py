@@ -1,10 +1,12 @@
 """Dataset specs: a TOML file parsed into frozen, checked dataclasses.
 
-A spec has five sections, one dataclass each::
+A spec has six sections, one dataclass each::
 
     [dataset]    DatasetSection    name, version, seed, counts, uniform/SVBRDF split, shard size
     [materials]  MaterialsSection  uniform-material ranges, SVBRDF sources, texture size
-    [lighting]   LightingSection   sun elevation/azimuth and turbidity ranges, scheme, sun form
+    [scene]      SceneSection      the objects the materials are shown on, how one is drawn
+    [lighting]   LightingSection   sun and sky (elevation/azimuth/turbidity ranges, scheme, sun
+                                   form) or HDR environment maps (files, rotation, intensity)
     [render]     RenderSettings    resolution, spp, max depth, integrator, Mitsuba variant, sampler, ...
                                    (the renderer's settings type, pipeline.render.settings)
     [storage]    StorageSection    EXR compression, stored layers, texture-space maps, half maps
@@ -20,7 +22,9 @@ Reading, parsing, the canonical form, the digest and the reference page
 (``docs/spec-fields.md``, generated from the field metadata below) are
 :mod:`pipeline.dataset.spec_file`'s.
 
-This module is pure: it checks that SVBRDF folders exist, nothing else. No Mitsuba, no dask.
+This module is pure: it checks that SVBRDF folders, mesh files and environment maps exist,
+nothing else (their contents are checked when they are loaded, and digested into the spec
+digest by :mod:`pipeline.dataset.spec_file`). No Mitsuba, no dask.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import os
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
+from geometry.objects import BUILTIN_OBJECTS, MESH_SUFFIXES
 from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.fields import Checked, FieldError, field
@@ -49,6 +54,7 @@ from pipeline.image.formats import EXR_COMPRESSIONS
 from pipeline.render.limits import DEFAULT_RR_DEPTH, RESOLUTION_RANGE  # noqa: F401 - RESOLUTION_RANGE: the spec's
 from pipeline.render.settings import RenderSettings
 from sky.emitter import SUN_MODES
+from sky.environment import ENVIRONMENT_SUFFIXES, ROTATION_RANGE, SCALE_RANGE
 from sky.lighting import (
     AZIMUTH_BOUNDS,
     AZIMUTH_TURN,
@@ -110,6 +116,23 @@ class SpecError(FieldError):
         return SpecError(self.section, self.field_name, self.value, self.allowed, source, what=self.what)
 
 
+def list_files_with(folder: str, suffixes: tuple[str, ...]) -> tuple[str, ...]:
+    """Sorted names (not paths) of the files directly in ``folder`` with one of ``suffixes``."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return ()
+    return tuple(
+        sorted(
+            n
+            for n in names
+            if not n.startswith(".")
+            and os.path.splitext(n)[1].lower() in suffixes
+            and os.path.isfile(os.path.join(folder, n))
+        )
+    )
+
+
 class _Folders(StrList):
     def __init__(self):
         super().__init__(
@@ -130,19 +153,7 @@ class _Folders(StrList):
 
 def list_map_files(folder: str) -> tuple[str, ...]:
     """Sorted names (not paths) of the importable SVBRDF map files directly in ``folder``."""
-    try:
-        names = os.listdir(folder)
-    except OSError:
-        return ()
-    return tuple(
-        sorted(
-            n
-            for n in names
-            if not n.startswith(".")
-            and os.path.splitext(n)[1].lower() in SVBRDF_IMPORT_SUFFIXES
-            and os.path.isfile(os.path.join(folder, n))
-        )
-    )
+    return list_files_with(folder, SVBRDF_IMPORT_SUFFIXES)
 
 
 def svbrdf_family_names() -> tuple[str, ...]:
@@ -381,6 +392,71 @@ UNIFORM_FIELDS: tuple[str, ...] = (
 )
 
 
+class _Files(StrList):
+    """A list of existing files with given suffixes, or (``folders``) folders holding some;
+    ``names``: bare words also allowed (built-in objects). Relative paths are the spec
+    folder's (made absolute when the spec is read, :mod:`pipeline.dataset.spec_file`)."""
+
+    def __init__(self, suffixes: tuple[str, ...], what: str, *, names: tuple[str, ...] = (), folders: bool = False):
+        self.suffixes, self.names, self.folders = suffixes, names, folders
+        words = (", ".join(json.dumps(n) for n in names) + " or ") if names else ""
+        kinds = "/".join(suffixes) + " files" + (" or folders holding some" if folders else "")
+        super().__init__(None, what, doc_allowed=f"a list of distinct {words}{kinds}")
+
+    @property
+    def allowed(self) -> str:
+        return self.doc_allowed
+
+    def check(self, value):
+        value = super().check(value)
+        for item in value:
+            if item in self.names:
+                continue
+            if self.folders and os.path.isdir(item):
+                if not list_files_with(item, self.suffixes):
+                    raise Reject(f"({json.dumps(item)} holds no " + "/".join(self.suffixes) + " file)")
+                continue
+            if os.path.splitext(item)[1].lower() not in self.suffixes:
+                raise Reject(f"({json.dumps(item)} is neither a name nor a " + "/".join(self.suffixes) + " file)")
+            if not os.path.isfile(item):
+                raise Reject(f"({json.dumps(item)} is not a file)")
+        return value
+
+
+#: How a material's object is drawn (docs/scenes.md): per material, since a material's
+#: screen-space maps are projected through its object's G-buffer and stored once.
+OBJECT_SCHEMES: tuple[str, ...] = ("random", "cycle")
+#: The one object of a spec without a [scene] section.
+DEFAULT_OBJECTS: tuple[str, ...] = (BUILTIN_OBJECTS[0],)
+
+
+@dataclass(frozen=True)
+class SceneSection(_Section):
+    """[scene]: the objects the materials are shown on."""
+
+    SECTION: ClassVar[str] = "scene"
+
+    objects: tuple[str, ...] = field(
+        DEFAULT_OBJECTS,
+        rule=_Files(MESH_SUFFIXES, "objects", names=BUILTIN_OBJECTS),
+        doc="Objects a material is drawn on: built-in ones (" + ", ".join(f'"{n}"' for n in BUILTIN_OBJECTS)
+        + ") or mesh files (OBJ, PLY, STL, glTF/GLB), each normalised to the shaderball's size and stood on "
+        "the ground, framed by the same camera rule; a mesh's own UVs are kept when usable, else made by "
+        "xatlas. Mesh files are checked and digested when the spec is read: changing one is a different "
+        "dataset. Stored as absolute paths in the canonical form.",
+    )
+    scheme: str = field(
+        OBJECT_SCHEMES[0],
+        rule=Choice(OBJECT_SCHEMES),
+        doc="How each material's object is chosen among objects: random (uniformly, from the material's own "
+        "seeded stream) or cycle (material m takes object m mod len(objects): equal shares).",
+    )
+
+    def check_cross(self):
+        if not self.objects:
+            raise self.field_error("objects", [], "at least one object")
+
+
 #: Sun-direction sampling schemes, as the spec reference words them (a test keeps them equal to sky's).
 FALLBACK_LIGHT_SCHEMES: tuple[str, ...] = ("uniform_hemisphere", "uniform_angles", "stratified", "sobol")
 
@@ -389,6 +465,11 @@ def light_scheme_names() -> tuple[str, ...]:
     """The sun-sampling schemes (sky.lighting.SCHEMES)."""
     return tuple(SCHEMES)
 
+
+#: What lights a scene (docs/scenes.md).
+LIGHT_SOURCES: tuple[str, ...] = ("sun_sky", "environment")
+#: The [lighting] keys of environment lighting (the others are the sun and sky's).
+ENVIRONMENT_KEYS: tuple[str, ...] = ("source", "environments", "rotation_deg", "intensity")
 
 #: How the sun is given to Mitsuba (defined in sky.emitter).
 SUN_FORMS: tuple[str, ...] = SUN_MODES
@@ -448,6 +529,42 @@ class LightingSection(_Section):
         "sunsky emitter, its sun an area light of 0.5358 degrees).",
     )
 
+    source: str = field(
+        LIGHT_SOURCES[0],
+        rule=Choice(LIGHT_SOURCES),
+        doc="What lights the scene: sun_sky (the Hosek-Wilkie sun and sky of the keys above) or environment "
+        "(an HDR environment map of environments, drawn per lighting, rotated about the vertical; no sun "
+        "and no sky: the keys above are then unused).",
+    )
+    environments: tuple[str, ...] = field(
+        (),
+        rule=_Files(ENVIRONMENT_SUFFIXES, "environment maps", folders=True),
+        doc="With source = environment: lat-long HDR maps (OpenEXR or Radiance .hdr), files or folders of "
+        "them, each lighting drawing one uniformly. Checked and digested when the spec is read; stored as "
+        "absolute paths in the canonical form.",
+    )
+    rotation_deg: tuple[float, float] = field(
+        ROTATION_RANGE,
+        rule=Pair(*ROTATION_RANGE),
+        doc="With source = environment: range of the map's rotation about the vertical, counter-clockwise "
+        "seen from above, drawn uniformly per lighting.",
+        unit="degrees",
+    )
+    intensity: tuple[float, float] = field(
+        (1.0, 1.0),
+        rule=Pair(*SCALE_RANGE),
+        doc="With source = environment: range of the radiance multiplier, drawn uniformly per lighting "
+        "(1: the map's own radiance).",
+    )
+
+    def check_cross(self):
+        if self.source == "environment" and not self.environments:
+            raise self.field_error("environments", [], 'at least one file or folder with source = "environment"')
+        if self.source != "environment" and self.environments:
+            raise self.field_error(
+                "environments", list(self.environments), 'none with source = "sun_sky" (set source = "environment")'
+            )
+
     def to_lighting_ranges(self):
         """The ranges as ``sky.LightingRanges``."""
         return LightingRanges(
@@ -488,6 +605,7 @@ class StorageSection(_Section):
 SECTIONS: dict[str, type[Checked]] = {
     "dataset": DatasetSection,
     "materials": MaterialsSection,
+    "scene": SceneSection,
     "lighting": LightingSection,
     "render": RenderSection,
     "storage": StorageSection,
@@ -500,6 +618,7 @@ class DatasetSpec:
 
     dataset: DatasetSection
     materials: MaterialsSection = dataclasses.field(default_factory=MaterialsSection)
+    scene: SceneSection = dataclasses.field(default_factory=SceneSection)
     lighting: LightingSection = dataclasses.field(default_factory=LightingSection)
     #: Its ``sun`` and ``model`` are filled in from ``lighting.sun`` and ``materials.model``.
     render: RenderSettings = dataclasses.field(default_factory=RenderSettings)

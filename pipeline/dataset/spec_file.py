@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import hashlib
 import json
 import math
@@ -19,7 +20,16 @@ from typing import Any
 import tomllib
 
 from materials.brdf_ref import DEFAULT_MODEL
-from pipeline.dataset.spec import SECTIONS, DatasetSpec, SpecError
+from geometry.objects import BUILTIN_OBJECTS
+from pipeline.dataset.spec import (
+    ENVIRONMENT_KEYS,
+    SECTIONS,
+    DatasetSpec,
+    LightingSection,
+    SceneSection,
+    SpecError,
+    list_files_with,
+)
 from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import Checked, FieldError, field
 from pipeline.fields.rules import (
@@ -29,6 +39,7 @@ from pipeline.fields.rules import (
     format_value,
 )
 from pipeline.render.limits import DEFAULT_RR_DEPTH
+from sky.environment import ENVIRONMENT_SUFFIXES
 
 # --------------------------------------------------------------------------- parsing
 
@@ -150,13 +161,26 @@ def _spec_from_table(table: dict[str, Any], base_dir: str) -> DatasetSpec:
     sections = {}
     for name, cls in SECTIONS.items():
         raw = dict(table.get(name, {}))
-        if name == "materials" and isinstance(raw.get("svbrdf_folders"), list):
-            raw["svbrdf_folders"] = [
-                os.path.normpath(os.path.join(base_dir, os.path.expanduser(f))) if isinstance(f, str) and f else f
-                for f in raw["svbrdf_folders"]
-            ]
+        for key in PATH_KEYS.get(name, ()):
+            if isinstance(raw.get(key), list):
+                raw[key] = [_from_spec_folder(base_dir, f, key) for f in raw[key]]
         sections[name] = _section_from_table(cls, raw)
     return DatasetSpec(**sections)
+
+
+#: Keys whose items are paths, taken from the spec file's folder when relative.
+PATH_KEYS: dict[str, tuple[str, ...]] = {
+    "materials": ("svbrdf_folders",),
+    "scene": ("objects",),
+    "lighting": ("environments",),
+}
+
+
+def _from_spec_folder(base_dir: str, item, key: str):
+    """``item`` made absolute from the spec's folder; a built-in object's name stays a name."""
+    if not isinstance(item, str) or not item or (key == "objects" and item in BUILTIN_OBJECTS):
+        return item
+    return os.path.normpath(os.path.join(base_dir, os.path.expanduser(item)))
 
 
 def _section_from_table(cls: type[Checked], raw: dict[str, Any]) -> Checked:
@@ -213,9 +237,12 @@ def _toml_value(value: Any) -> str:
 
 
 def spec_to_toml(spec: DatasetSpec) -> str:
-    """The canonical TOML snapshot: every field explicit; ``parse_spec_text(it) == spec``."""
+    """The canonical TOML snapshot: every field explicit (but the scene's and the environment's,
+    left out at their defaults: :data:`SNAPSHOT_OMITS_AT_DEFAULT`); ``parse_spec_text(it) == spec``."""
     lines = ["# shaderball dataset spec, canonical form: every field explicit.", ""]
-    for name, table in spec_to_dict(spec).items():
+    for name, table in _omitting(spec_to_dict(spec), SNAPSHOT_OMITS_AT_DEFAULT).items():
+        if not table and name in SNAPSHOT_OMITS_AT_DEFAULT:
+            continue
         lines.append(f"[{name}]")
         lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
         lines.append("")
@@ -230,13 +257,72 @@ DIGEST_OMITS_AT_DEFAULT: dict[str, dict[str, Any]] = {
 }
 
 
+#: The scene's and the environment's keys: left out of the snapshot (spec.toml) and the digest
+#: while at their default, so a spec that names neither builds the same files as before they
+#: existed, spec.toml included.
+SNAPSHOT_OMITS_AT_DEFAULT: dict[str, dict[str, Any]] = {
+    "scene": SceneSection().to_dict(),
+    "lighting": {k: v for k, v in LightingSection().to_dict().items() if k in ENVIRONMENT_KEYS},
+}
+
+
+def _omitting(table: dict[str, dict[str, Any]], omits: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    out = dict(table)
+    for section, defaults in omits.items():
+        out[section] = {k: v for k, v in out[section].items() if not (k in defaults and v == defaults[k])}
+    return out
+
+
 def spec_digest(spec: DatasetSpec) -> str:
-    """SHA-256 (hex) of the canonical JSON form: equal specs, equal digests."""
-    table = spec_to_dict(spec)
-    for section, defaults in DIGEST_OMITS_AT_DEFAULT.items():
-        table[section] = {k: v for k, v in table[section].items() if not (k in defaults and v == defaults[k])}
+    """SHA-256 (hex) of the canonical JSON form and of the files it names (mesh files and
+    environment maps: :func:`source_file_digests`): equal specs on equal files, equal digests."""
+    table = _omitting(_omitting(spec_to_dict(spec), DIGEST_OMITS_AT_DEFAULT), SNAPSHOT_OMITS_AT_DEFAULT)
+    table = {name: section for name, section in table.items() if section or name not in SNAPSHOT_OMITS_AT_DEFAULT}
+    files = source_file_digests(spec)
+    if files:
+        table["files"] = files
     canonical = json.dumps(table, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
     return hashlib.sha256(canonical.encode("ascii")).hexdigest()
+
+
+def source_files(spec: DatasetSpec) -> tuple[str, ...]:
+    """The mesh files and environment maps ``spec`` names (folders expanded), sorted."""
+    meshes = [o for o in spec.scene.objects if o not in BUILTIN_OBJECTS]
+    return tuple(sorted(set(meshes) | set(environment_files(spec))))
+
+
+def environment_files(spec: DatasetSpec) -> tuple[str, ...]:
+    """The environment maps of ``spec`` in draw order: its files and folders as listed, each
+    folder's files sorted by name (absolute paths)."""
+    out: list[str] = []
+    for item in spec.lighting.environments:
+        if os.path.isdir(item):
+            out.extend(os.path.join(item, n) for n in list_files_with(item, ENVIRONMENT_SUFFIXES))
+        else:
+            out.append(item)
+    return tuple(dict.fromkeys(out))
+
+
+def source_file_digests(spec: DatasetSpec) -> dict[str, str]:
+    """SHA-256 of each of :func:`source_files` (path -> hex): a changed mesh or map is another
+    dataset. Memoised per (path, size, mtime) so a 200 MB mesh is hashed once per process."""
+    out = {}
+    for path in source_files(spec):
+        try:
+            st = os.stat(path)
+        except OSError as exc:
+            raise ShaderballError(f"{quoted(path)}: named by the spec but unreadable: {exc.strerror}") from None
+        out[path] = _file_sha256(path, st.st_size, st.st_mtime_ns)
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _file_sha256(path: str, size: int, mtime_ns: int) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 # --------------------------------------------------------------------------- reference
