@@ -34,7 +34,8 @@ from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
-from pipeline.render.emitter import emitter_dicts, update_emitter_params
+from pipeline.render.emitter import update_emitter_params
+from pipeline.render.lights import is_environment, light_entries
 from pipeline.render.limits import DEFAULT_RR_DEPTH, launch_spp
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
@@ -96,7 +97,7 @@ def scene_dict(
 ) -> tuple[dict, dict, EffectPlan]:
     """The whole Mitsuba scene dict for one sample; also the lighting record and effects."""
     effects = effects or plan_effects(maps)
-    emitters, lighting_record = emitter_dicts(light, sun=settings.sun, variant=settings.variant)
+    emitters, lighting_record = light_entries(light, settings)
     nested = {"type": settings.integrator, "max_depth": int(settings.max_depth)}
     if settings.rr_depth != DEFAULT_RR_DEPTH:  # only then: default scenes stay as they were
         nested["rr_depth"] = int(settings.rr_depth)
@@ -413,11 +414,16 @@ class MaterialScene:
         self.maps = self.scene = self.params = self.effects = None
         self._ball = self._camera = self._settings = self._shape = None
 
-    def step(self, ball, camera, maps, settings: RenderSettings) -> str:
+    def step(self, ball, camera, maps, settings: RenderSettings, light=None) -> str:
         """What :meth:`lit` does for these: ``"load"``, ``"material"`` (swap the BSDF, move
-        the emitters) or ``"light"`` (move the emitters)."""
+        the emitters) or ``"light"`` (move the emitters). An environment map is not moved: a
+        scene lit by one is loaded for each lighting."""
         same_scene = (
-            self.scene is not None and ball is self._ball and camera is self._camera and settings == self._settings
+            self.scene is not None
+            and ball is self._ball
+            and camera is self._camera
+            and settings == self._settings
+            and not is_environment(light)
         )
         if not same_scene:
             return "load"
@@ -425,7 +431,7 @@ class MaterialScene:
 
     def lit(self, mi, ball, camera, maps, light, settings: RenderSettings):
         """The scene of ``maps`` lit by ``light``; its lighting record and effects."""
-        step = self.step(ball, camera, maps, settings)
+        step = self.step(ball, camera, maps, settings, light)
         if step == "load":
             self.release()
             desc, lighting, effects = scene_dict(ball, camera, maps, light, settings)

@@ -28,11 +28,12 @@ from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
-from geometry import build_shaderball, default_camera
+from geometry.objects import build_object, object_camera
 from pipeline.dataset.materialize import make_material
 from pipeline.dataset.plan import MaterialPlan, SamplePlan, ShardPlan
 from pipeline.dataset.record import model_record
-from pipeline.dataset.spec import DatasetSpec
+from pipeline.dataset.spec import DEFAULT_OBJECTS, DatasetSpec
+from pipeline.dataset.spec_file import source_file_digests
 from pipeline.errors import ShaderballError, quoted
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import load_mitsuba, machine_fingerprint
@@ -45,33 +46,38 @@ from pipeline.store.layout import Layout
 from pipeline.store.record_fields import record_problem
 from pipeline.store.records import SCHEMA_VERSION, dumps, file_entry, file_ok, read_json
 from sky import Light
+from sky.environment import EnvironmentLight
 
 MAP_META_KEYS = ("id", "material")
 
 
 @dataclass
 class WorkerContext:
-    """Per-process state reused across samples: geometry, camera, G-buffer, Mitsuba."""
+    """Per-process state reused across samples: an object, its camera and G-buffer, Mitsuba."""
 
-    ball: object
+    ball: object  # the object the material is shown on (geometry.objects: the shaderball or another)
     camera: object
     gbuffer: object
     settings: object
     variant: str
 
 
-_CONTEXTS: dict[RenderSettings, WorkerContext] = {}
+_CONTEXTS: dict[tuple[RenderSettings, str], WorkerContext] = {}
 
 
-def worker_context(spec: DatasetSpec, variant: str) -> WorkerContext:
-    """This process's context for ``spec``; ``variant`` is the one the build's driver resolved."""
+def worker_context(spec: DatasetSpec, variant: str, object_name: str = DEFAULT_OBJECTS[0]) -> WorkerContext:
+    """This process's context for ``spec`` and one of its objects (a built-in name or a mesh
+    file's path: built, or read from the geometry cache, once per process); ``variant`` is the
+    one the build's driver resolved."""
     settings = spec.render.resolved(variant)  # the spec's [render] with lighting.sun and materials.model
-    if settings not in _CONTEXTS:
+    key = (settings, object_name)
+    if key not in _CONTEXTS:
         load_mitsuba(variant)
-        ball, camera = build_shaderball(), default_camera()
+        ball = build_object(object_name)
+        camera = object_camera(ball)
         gbuffer = load_gbuffer(ball, camera, settings.resolution, variant)
-        _CONTEXTS[settings] = WorkerContext(ball, camera, gbuffer, settings, variant)
-    return _CONTEXTS[settings]
+        _CONTEXTS[key] = WorkerContext(ball, camera, gbuffer, settings, variant)
+    return _CONTEXTS[key]
 
 
 class OrderedWriter:
@@ -149,12 +155,31 @@ def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
             and seeds["material"] == sample.material_seed
             and seeds["light"] == sample.light_seed
             and seeds["render"] == sample.render_seed
-            and requested["elevation_deg"] == sample.elevation_deg
-            and requested["azimuth_deg"] == sample.azimuth_deg
-            and requested["turbidity"] == sample.turbidity
+            and all(requested[key] == value for key, value in requested_lighting(sample).items())
+            and record.get("object", {}).get("name", DEFAULT_OBJECTS[0]) == object_label(sample.object)
         )
-    except (KeyError, TypeError):
+    except (KeyError, TypeError, AttributeError):
         return False
+
+
+def requested_lighting(sample: SamplePlan) -> dict:
+    """The lighting the plan asks of ``sample``, as its record's ``lighting.requested`` says it."""
+    if sample.environment is not None:
+        return {"environment": sample.environment, "rotation_deg": sample.rotation_deg, "intensity": sample.intensity}
+    return {"elevation_deg": sample.elevation_deg, "azimuth_deg": sample.azimuth_deg, "turbidity": sample.turbidity}
+
+
+def object_label(name: str) -> str:
+    """An object as a record names it: a built-in's name, a mesh file's base name."""
+    return os.path.basename(name)
+
+
+def sample_light(spec: DatasetSpec, sample: SamplePlan):
+    """What lights ``sample``: a ``sky.Light`` or an ``EnvironmentLight`` (its map digested)."""
+    if sample.environment is None:
+        return Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+    digest = source_file_digests(spec)[sample.environment]
+    return EnvironmentLight(sample.environment, digest, sample.rotation_deg, sample.intensity)
 
 
 def files_where_the_layout_says(record: dict, sample: SamplePlan) -> bool:
@@ -235,10 +260,10 @@ def run_shard(root: str, spec: DatasetSpec, shard: ShardPlan, variant: str, scen
         contextlib.nullcontext(scene) if scene is not None else MaterialScene() as held,
     ):
         made = [maker.submit(checked_material, material, spec) for _slot, material, _e, _r in work[:1]]
-        ctx = worker_context(spec, variant) if work else None
         for k, (slot, material, existing, render_kept) in enumerate(work):
             if k + 1 < len(work):
                 made.append(maker.submit(checked_material, work[k + 1][1], spec))
+            ctx = worker_context(spec, variant, material.object)
             slots[slot] = queue_material(layout, spec, ctx, material, existing, writer, render_kept, made[k], held)
     new = [r for slot in slots for r in slot]
     rendered = sum(isinstance(r, Future) for r in new)
@@ -429,18 +454,51 @@ def render_and_queue(
 ) -> Future:
     """Render one sample here; queue its EXR and record on ``writer``. ``material_files``: the
     material's file entries, or the future of the job writing them (queued before)."""
-    light = Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+    light = sample_light(spec, sample)
     result = render_sample(
         ctx.ball, ctx.camera, maps, light, ctx.settings, sample.render_seed, mask=ctx.gbuffer.mask, scene=scene
     )
     return writer.submit(write_render_and_record, layout, spec, ctx, sample, description, material_files, result)
 
 
+def object_record(obj) -> dict:
+    """A record's ``object`` (name, kind, canonical mesh SHA-256, UV source, the file's SHA-256):
+    none for the shaderball, whose records are as they were before other objects existed."""
+    if obj.kind == "shaderball":
+        return {}
+    entry = {"name": obj.name, "kind": obj.kind, "sha256": obj.digest, "uv_source": obj.uv_source}
+    if obj.source_sha256:
+        entry["file_sha256"] = obj.source_sha256
+    return {"object": entry}
+
+
+def lighting_record(spec: DatasetSpec, sample: SamplePlan, lighting: dict) -> dict:
+    """A record's ``lighting`` and ``lighting_vector`` from the renderer's lighting record: the
+    sun actually used (after the low-sun policy) or the environment map, rotation and scale."""
+    if sample.environment is not None:
+        light = sample_light(spec, sample)
+        return {
+            "lighting": {**lighting["effective"], "requested": lighting["requested"], "emitter": lighting["emitter"]},
+            "lighting_vector": [float(x) for x in light.lighting_vector()],
+        }
+    effective = Light.from_dict(lighting["effective"])
+    return {
+        "lighting": {
+            "elevation_deg": effective.elevation_deg,
+            "azimuth_deg": effective.azimuth_deg,
+            "turbidity": effective.turbidity,
+            "direction": [float(x) for x in effective.direction],
+            "requested": lighting["requested"],
+            "policy": {k: v for k, v in lighting.items() if k not in ("requested", "effective")},
+        },
+        "lighting_vector": [float(x) for x in effective.lighting_vector()],
+    }
+
+
 def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, material_files, result) -> dict:
     """The writer's half of a sample: its render EXR, then (durable) its record."""
     if isinstance(material_files, Future):
         material_files = material_files.result()  # done: it was queued before this job
-    effective = Light.from_dict(result.lighting["effective"])
     stats = dict(result.stats)
     stored_stats = {k: v for k, v in stats.items() if k != "time_s"}
     meta = {
@@ -462,15 +520,8 @@ def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, 
         "light_index": sample.light_index,
         "shard": sample.shard_id,
         "material": description,
-        "lighting": {
-            "elevation_deg": effective.elevation_deg,
-            "azimuth_deg": effective.azimuth_deg,
-            "turbidity": effective.turbidity,
-            "direction": [float(x) for x in effective.direction],
-            "requested": result.lighting["requested"],
-            "policy": {k: v for k, v in result.lighting.items() if k not in ("requested", "effective")},
-        },
-        "lighting_vector": [float(x) for x in effective.lighting_vector()],
+        **object_record(ctx.ball),
+        **lighting_record(spec, sample, result.lighting),
         "seeds": {
             "material": sample.material_seed,
             "light": sample.light_seed,
