@@ -12,7 +12,7 @@ from pipeline.check.report import Problems
 from pipeline.check.request import dir_refused
 from pipeline.check.snapshot import read_snapshot
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_dataset
-from pipeline.dataset.spec_file import spec_digest
+from pipeline.dataset.spec_file import source_changes, spec_digest
 from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.store.bounded_read import list_bound, read_json_checked, structure_problem
 from pipeline.store.folder import read_json_in, read_manifest
@@ -108,13 +108,18 @@ def load_plan(layout: Layout, problems: Problems, keep: bool = True):
         )
         return None, None, description, False, description_ok
     if description is not None and description.get("spec_digest") != spec_digest(spec):
+        changed = source_changes(description.get("sources"), spec)
         problems.add(
             "spec_snapshot",
             None,
             SPEC_FILE,
             f"{SPEC_FILE}: digest {spec_digest(spec)[:12]} differs from "
             f"{DESCRIPTION_FILE}'s spec_digest {str(description.get('spec_digest'))[:12]}: "
-            "the snapshot (or the description) was edited after the build",
+            + (
+                "a file the spec names is not the one the dataset was built from: " + "; ".join(changed)
+                if changed
+                else "the snapshot (or the description) was edited after the build"
+            ),
         )
         spec_ok = False
     else:

@@ -316,6 +316,22 @@ def source_file_digests(spec: DatasetSpec) -> dict[str, str]:
     return out
 
 
+def source_changes(recorded, spec: DatasetSpec) -> list[str]:
+    """What changed in the mesh files and environment maps since ``recorded`` (dataset.json's
+    ``sources``: path -> SHA-256) was written: one phrase per file, naming it."""
+    if not isinstance(recorded, dict):
+        return []
+    now = source_file_digests(spec)
+    out = []
+    for path, digest in sorted(recorded.items()):
+        if path not in now:
+            out.append(f"{quoted(path)} is no longer named by the spec")
+        elif now[path] != digest:
+            out.append(f"{quoted(path)} changed (SHA-256 {str(digest)[:12]} when built, {now[path][:12]} now)")
+    out.extend(f"{quoted(path)} is new to the spec" for path in sorted(set(now) - set(recorded)))
+    return out
+
+
 @functools.lru_cache(maxsize=256)
 def _file_sha256(path: str, size: int, mtime_ns: int) -> str:
     digest = hashlib.sha256()

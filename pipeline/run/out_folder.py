@@ -14,7 +14,13 @@ from pipeline import __version__
 from pipeline.check.snapshot import read_snapshot, spec_differences
 from pipeline.dataset.plan import PLAN_FORMAT, Plan, plan_summary
 from pipeline.dataset.spec import DatasetSpec
-from pipeline.dataset.spec_file import parse_spec_bytes, read_spec_file, spec_digest
+from pipeline.dataset.spec_file import (
+    parse_spec_bytes,
+    read_spec_file,
+    source_changes,
+    source_file_digests,
+    spec_digest,
+)
 from pipeline.errors import USER_ERRORS, short_repr
 from pipeline.fields.rules import format_value
 from pipeline.render.mitsuba_env import (
@@ -97,6 +103,15 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
         ) from None
     mode = "resume"
     if spec_digest(existing) != spec_digest(spec):
+        built = read_json(layout.description)
+        changed = source_changes(built.get("sources") if isinstance(built, dict) else None, spec)
+        if changed and not spec_differences(existing, spec):
+            raise _out_refused(
+                out,
+                f"holds dataset {format_value(existing.dataset.name)} built from other files: " + "; ".join(changed),
+                "restore the files it was built from, or build into a new directory (a changed mesh or map is "
+                "another dataset)",
+            )
         diffs = spec_differences(existing, spec)
         blocking = [d for d in diffs if (d[0], d[1]) not in SPEC_FIELDS_FREE_TO_CHANGE]
         if blocking or not allow_spec_change:
@@ -227,6 +242,8 @@ def description(
         "determinism": {"guarantee": guarantee, "basis": GUARANTEE_BASIS[guarantee]},
         "counts": plan_summary(plans),
         "colorspace": "linear Rec.709 (sRGB primaries, D65 white)",
+        # the mesh files and environment maps the spec names, by SHA-256 (none: no key)
+        **({"sources": sources} if (sources := source_file_digests(spec)) else {}),
     }
 
 

@@ -33,6 +33,7 @@ RECORD_FIELDS = {
     "seeds": dict,
     "effects": dict,
     "stats": dict,
+    "object": dict,
 }
 #: Fields inside them that readers use as numbers, strings or containers.
 RECORD_SUBFIELDS = {
@@ -43,8 +44,14 @@ RECORD_SUBFIELDS = {
         "direction": list,
         "policy": dict,
         "requested": dict,
+        "source": str,
+        "file": str,
+        "sha256": str,
+        "rotation_deg": NUMBER,
+        "scale": NUMBER,
     },
     "material": {"kind": str, "values": dict},
+    "object": {"name": str, "kind": str, "sha256": str, "uv_source": str, "file_sha256": str},
     "render": {"spp": int, "resolution": int, "max_depth": int, "integrator": str, "variant": str, "sun": str},
     "seeds": {"light": int, "material": int, "render": int, "render_used": int},
 }
@@ -108,6 +115,7 @@ DESCRIPTION_FIELDS = {
     "determinism": dict,
     "libraries": dict,
     "machine": dict,
+    "sources": dict,
 }
 DESCRIPTION_SUBFIELDS = {
     "counts": {
