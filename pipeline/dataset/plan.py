@@ -452,7 +452,19 @@ class Plan(Sequence):
             "uniform": self.spec.dataset.materials - n_svbrdf,
             "svbrdf": n_svbrdf,
             "svbrdf_sources": dict(sorted(sources.items())),
+            **self._scene_counts(),
         }
+
+    def _scene_counts(self) -> dict:
+        """Materials per object, and the environment maps drawn from: only where the spec names
+        other objects or lights (a default spec's counts are as they were)."""
+        out = {}
+        if self.spec.scene.objects != DEFAULT_OBJECTS:
+            drawn = Counter(_object_choices(self.spec, np.arange(self.spec.dataset.materials)))
+            out["objects"] = {os.path.basename(o): drawn[o] for o in self.spec.scene.objects}
+        if self.environments:
+            out["environments"] = [os.path.basename(path) for path in self.environments]
+        return out
 
     # -- one shard
     def shard(self, index: int) -> ShardPlan:

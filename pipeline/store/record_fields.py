@@ -125,6 +125,8 @@ DESCRIPTION_SUBFIELDS = {
         "svbrdf": int,
         "uniform": int,
         "svbrdf_sources": dict,
+        "objects": dict,
+        "environments": list,
     },
 }
 

@@ -1,0 +1,166 @@
+"""Datasets on other objects and under environment maps, built for real: the spec's keys, the
+plan's draws, the records, resume and validate naming a changed mesh or map, and a default
+spec unchanged by any of it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pipeline.dataset.plan import plan_dataset
+from pipeline.dataset.spec import SpecError
+from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest, spec_to_toml
+
+REPO = Path(__file__).resolve().parents[1]
+SMOKE = REPO / "manifests" / "smoke.toml"
+
+BASE = """
+[dataset]
+name = "scenes"
+seed = 7
+materials = 4
+lights_per_material = 2
+svbrdf_fraction = 0.5
+shard_size = 2
+
+[materials]
+texture_resolution = 32
+
+[render]
+resolution = 32
+spp = 4
+"""
+
+
+def _cli(*args):
+    from cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _records(root: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted((root / "shards").rglob("m*.json"))]
+
+
+def _mesh_file(folder: Path, name: str = "wedge.obj") -> Path:
+    """A small closed mesh (an irregular tetrahedron-like wedge) written by trimesh."""
+    import trimesh
+
+    mesh = trimesh.creation.cone(radius=0.4, height=1.0, sections=24)
+    path = folder / name
+    mesh.export(path)
+    return path
+
+
+def test_a_spec_without_scene_keys_keeps_its_digest_and_snapshot():
+    spec = parse_spec(SMOKE)
+    text = SMOKE.read_text() + '\n[scene]\nobjects = ["shaderball"]\nscheme = "random"\n'
+    explicit = parse_spec_text(text, base_dir=str(REPO))
+    assert spec_digest(explicit) == spec_digest(spec)
+    assert spec_to_toml(explicit) == spec_to_toml(spec)
+    assert "[scene]" not in spec_to_toml(spec) and "source" not in spec_to_toml(spec)
+    plan = plan_dataset(spec)
+    assert "object" not in plan[0].materials[0].to_dict()
+    assert "environment" not in plan[0].materials[0].samples[0].to_dict()
+
+
+@pytest.mark.parametrize(
+    "extra, field",
+    [
+        ('[scene]\nobjects = ["teapot"]\n', "scene.objects"),
+        ('[scene]\nobjects = ["missing.obj"]\n', "scene.objects"),
+        ('[scene]\nobjects = []\n', "scene.objects"),
+        ('[scene]\nscheme = "shuffle"\n', "scene.scheme"),
+        ('[lighting]\nsource = "environment"\n', "lighting.environments"),
+        ('[lighting]\nsource = "moon"\n', "lighting.source"),
+        ('[lighting]\nenvironments = ["x.hdr"]\n', "lighting.environments"),
+        ('[lighting]\nrotation_deg = [10.0, 400.0]\n', "lighting.rotation_deg"),
+        ('[lighting]\nintensity = [0.0, 1.0]\n', "lighting.intensity"),
+    ],
+)
+def test_bad_scene_keys_are_refused_naming_the_field(tmp_path, extra, field):
+    with pytest.raises(SpecError) as caught:
+        parse_spec_text(BASE + extra, base_dir=str(tmp_path))
+    assert field in str(caught.value)
+
+
+def test_objects_are_drawn_per_material_by_the_declared_scheme(tmp_path):
+    mesh = _mesh_file(tmp_path)
+    text = BASE + f'[scene]\nobjects = ["sphere", "torus", "{mesh.name}"]\nscheme = "cycle"\n'
+    spec = parse_spec_text(text, base_dir=str(tmp_path))
+    assert spec.scene.objects[2] == str(mesh)  # relative paths are the spec folder's
+    materials = [m for shard in plan_dataset(spec) for m in shard.materials]
+    assert [m.object for m in materials] == ["sphere", "torus", str(mesh), "sphere"]
+    random = parse_spec_text(text.replace('"cycle"', '"random"'), base_dir=str(tmp_path))
+    drawn = [m.object for shard in plan_dataset(random) for m in shard.materials]
+    again = [m.object for shard in plan_dataset(random) for m in shard.materials]
+    assert drawn == again and set(drawn) <= set(spec.scene.objects)
+    # the mesh's bytes are in the digest: another file under the same name is another dataset
+    before = spec_digest(spec)
+    mesh.write_text(mesh.read_text() + "\n# changed\n")
+    assert spec_digest(parse_spec_text(text, base_dir=str(tmp_path))) != before
+
+
+@pytest.fixture(scope="module")
+def object_build(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("objects")
+    mesh = _mesh_file(folder)
+    spec = folder / "spec.toml"
+    spec.write_text(
+        BASE
+        + f'[scene]\nobjects = ["sphere", "torus", "{mesh.name}", "shaderball"]\nscheme = "cycle"\n'
+        + '[storage]\nlayers = ["diffuse", "specular", "roughness", "normal", "mask", "geometry_normal", "depth"]\n'
+    )
+    out = folder / "out"
+    result = _cli("build", spec, "--out", out, "--workers", "0")
+    assert result.exit_code == 0, result.output
+    return spec, out, mesh
+
+
+def test_each_material_is_rendered_on_its_object_and_the_record_names_it(object_build):
+    spec, out, mesh = object_build
+    records = {r["id"]: r for r in _records(out)}
+    assert len(records) == 8
+    names = {r["material_id"]: r.get("object", {}).get("name", "shaderball") for r in records.values()}
+    assert names == {"m000000": "sphere", "m000001": "torus", "m000002": mesh.name, "m000003": "shaderball"}
+    mesh_record = records["m000002_l0"]["object"]
+    assert mesh_record["kind"] == "mesh" and mesh_record["uv_source"] in ("file", "xatlas")
+    assert len(mesh_record["sha256"]) == 64 and len(mesh_record["file_sha256"]) == 64
+    assert "object" not in records["m000003_l0"]  # the shaderball's records are as they were
+    from pipeline.store.exr import read_exr
+
+    masks = {}
+    for material in ("m000000", "m000001", "m000002", "m000003"):
+        shard = "s00000" if material in ("m000000", "m000001") else "s00001"
+        maps = read_exr(str(out / "shards" / shard / f"{material}.maps.exr")).layers
+        masks[material] = maps["mask"][..., 0] > 0.5
+        assert masks[material].any()
+        render = read_exr(str(out / "shards" / shard / f"{material}_l0.render.exr")).layers["render"]
+        assert np.isfinite(render).all() and (render >= 0).all()
+    # four objects, four silhouettes
+    keys = list(masks)
+    assert all((masks[a] != masks[b]).any() for i, a in enumerate(keys) for b in keys[i + 1 :])
+    description = json.loads((out / "dataset.json").read_text())
+    assert description["sources"] == {str(mesh): mesh_record["file_sha256"]}
+
+
+def test_validate_passes_and_names_a_changed_mesh(object_build, tmp_path):
+    spec, out, mesh = object_build
+    result = _cli("validate", out, "--json")
+    assert result.exit_code == 0, result.output
+    # resume: nothing to do
+    again = _cli("build", spec, "--out", out, "--workers", "0", "--json")
+    assert again.exit_code == 0, again.output
+    original = mesh.read_bytes()
+    try:
+        mesh.write_bytes(original + b"\n# edited\n")
+        refused = _cli("build", spec, "--out", out, "--workers", "0")
+        assert refused.exit_code == 2 and mesh.name in refused.output and "changed" in refused.output
+        checked = _cli("validate", out)
+        assert checked.exit_code != 0 and mesh.name in checked.output and "changed" in checked.output
+    finally:
+        mesh.write_bytes(original)
