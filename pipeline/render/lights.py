@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 
 from pipeline.errors import ShaderballError, quoted
 from pipeline.render.emitter import emitter_dicts
@@ -32,7 +33,11 @@ def light_entries(light, settings) -> tuple[dict, dict]:
     entry = environment_emitter_dict(radiance, light.rotation_deg, light.scale, variant=settings.variant)
     height, width = radiance.shape[:2]
     record = {
-        "requested": {"environment": light.file, "rotation_deg": light.rotation_deg, "intensity": light.scale},
+        "requested": {
+            "environment": os.path.basename(light.file),
+            "rotation_deg": light.rotation_deg,
+            "intensity": light.scale,
+        },
         "effective": light.to_dict(),
         "emitter": {"type": "envmap", "width": int(width), "height": int(height), "variant": settings.variant},
     }

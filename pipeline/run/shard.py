@@ -165,7 +165,11 @@ def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
 def requested_lighting(sample: SamplePlan) -> dict:
     """The lighting the plan asks of ``sample``, as its record's ``lighting.requested`` says it."""
     if sample.environment is not None:
-        return {"environment": sample.environment, "rotation_deg": sample.rotation_deg, "intensity": sample.intensity}
+        return {
+            "environment": os.path.basename(sample.environment),
+            "rotation_deg": sample.rotation_deg,
+            "intensity": sample.intensity,
+        }
     return {"elevation_deg": sample.elevation_deg, "azimuth_deg": sample.azimuth_deg, "turbidity": sample.turbidity}
 
 
