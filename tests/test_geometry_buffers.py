@@ -25,7 +25,7 @@ import trimesh
 
 from geometry import default_camera
 from geometry.ply import write_ply
-from pipeline.check.inspect import map_value_issues
+from pipeline.check.inspect import content_issues, map_value_issues, sample_expectations
 from pipeline.dataset.spec import GEOMETRY_LAYERS, MAP_LAYERS
 from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest
 from pipeline.render.gbuffer import (
@@ -227,6 +227,17 @@ def test_validate_checks_the_geometry_values(ball, cache_dir, mi):
     assert map_value_issues(no_mask, screen_space=True) == []
     no_mask["depth"] = -no_mask["depth"]
     assert [kind for kind, _ in map_value_issues(no_mask, screen_space=True)] == ["out_of_range"]
+
+
+def test_the_training_loaders_check_allows_the_geometry_layers(ball, cache_dir, mi):
+    gbuffer = load_gbuffer(ball, default_camera(), 64, cache_dir=cache_dir, variant=VARIANT)
+    screen = project_material(_uniform_maps(), gbuffer, geometry=True)
+    layers = {name: value[..., None] if value.ndim == 2 else value for name, value in screen.items()}
+    expect = sample_expectations(64)["maps"]
+    assert content_issues(layers, expect) == []  # allowed, not needed:
+    maps_only = {name: layers[name] for name in MAP_LAYERS}
+    assert content_issues(maps_only, expect) == []
+    assert [kind for kind, _ in content_issues({**layers, "extra": layers["depth"]}, expect)] == ["bad_layers"]
 
 
 # --------------------------------------------------------------------------- depth
