@@ -306,6 +306,26 @@ def test_maps_on_a_torus_equal_mitsubas_texture_evaluation(torus, tmp_path, mi, 
     assert low <= layers["depth"][mask].min() and layers["depth"][mask].max() <= high
 
 
+@pytest.mark.parametrize("name", ["torus", "sphere", "rounded_cube"])
+def test_maps_on_the_built_in_objects_equal_mitsubas_texture_evaluation(name, cache_dir, tmp_path, mi):
+    from geometry.objects import build_object, object_camera
+
+    obj = build_object(name, cache_dir=cache_dir)
+    assert "neutral" not in obj.mesh_files
+    camera, resolution = object_camera(obj), 64
+    texture = np.random.default_rng(7).random((31, 43, 3)).astype(np.float32)
+    gbuffer = load_gbuffer(obj, camera, resolution, cache_dir=str(tmp_path), variant=VARIANT)
+    assert gbuffer.mask.mean() > 0.05
+    rendered = mitsuba_lookup(mi, obj, camera, resolution, texture)
+    projected = project(texture, gbuffer)
+    facing = facing_mask(gbuffer)
+    assert gbuffer.mask.sum() - facing.sum() <= max(2, 0.01 * gbuffer.mask.sum())
+    assert np.abs(rendered - projected)[facing].max() <= 1e-6
+    assert projected[facing].std() > 0.1
+    low, high = depth_range(camera, obj.material_mesh.vertices)
+    assert low <= gbuffer.depth[gbuffer.mask].min() and gbuffer.depth[gbuffer.mask].max() <= high
+
+
 def _uniform_maps():
     from materials.maps import MaterialMaps
 

@@ -11,7 +11,7 @@ The G-buffer depends only on geometry, camera and resolution; :func:`load_gbuffe
 caches it as an EXR keyed by all three (and the Mitsuba version).
 
 Every function here takes any object with geometry.Shaderball's attributes
-(:class:`pipeline.render.scene.SceneObject`); one without a pedestal gets none in the scene.
+(:class:`pipeline.render.scene.ObjectLike`); one without a pedestal gets none in the scene.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pipeline.render.scene import (
     BALL_SHAPE_ID,
     GROUND_SHAPE_ID,
     NEUTRAL_SHAPE_ID,
-    SceneObject,
+    ObjectLike,
     sensor_dict,
     shape_dicts,
 )
@@ -85,7 +85,7 @@ def check_resolution(resolution) -> int:
         raise FieldError("resolution", resolution, RESOLUTION.allowed, name="resolution") from None
 
 
-def intersection_scene(obj: SceneObject, camera: Camera, resolution: int, variant: str):
+def intersection_scene(obj: ObjectLike, camera: Camera, resolution: int, variant: str):
     """The object, its pedestal (if it has one) and the ground with a 1-spp pixel-centre sensor."""
     mi = load_mitsuba(variant)
     scene = {"type": "scene", **shape_dicts(obj, {"type": "diffuse"})}
@@ -113,7 +113,7 @@ def pixel_centre_rays(scene, resolution: int, variant: str):
     return ray
 
 
-def compute_gbuffer(obj: SceneObject, camera: Camera, resolution: int, variant: str) -> GBuffer:
+def compute_gbuffer(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> GBuffer:
     """Intersect the pixel-centre rays with the scene; keep hits on the material mesh."""
     resolution = check_resolution(resolution)
     mi = load_mitsuba(variant)
@@ -161,7 +161,7 @@ class FirstHits:
     normal: np.ndarray
 
 
-def first_hits(obj: SceneObject, camera: Camera, resolution: int, variant: str) -> FirstHits:
+def first_hits(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> FirstHits:
     """Intersect the pixel-centre rays with the object, its pedestal (if any) and the ground
     (the auxiliary buffers of a denoiser: pipeline.neural.denoise). A surface the scene does
     not hold (the pedestal of an object without one) keeps its code and is never hit."""
@@ -208,7 +208,7 @@ def facing_mask(gbuffer: GBuffer) -> np.ndarray:
     return gbuffer.mask & (cosine > 0)
 
 
-def gbuffer_key_inputs(obj: SceneObject, camera: Camera, resolution: int, variant: str) -> dict:
+def gbuffer_key_inputs(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> dict:
     import mitsuba
 
     return {
@@ -221,18 +221,18 @@ def gbuffer_key_inputs(obj: SceneObject, camera: Camera, resolution: int, varian
     }
 
 
-def gbuffer_key(obj: SceneObject, camera: Camera, resolution: int, variant: str) -> str:
+def gbuffer_key(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> str:
     text = json.dumps(gbuffer_key_inputs(obj, camera, resolution, variant), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def gbuffer_path(obj: SceneObject, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None) -> str:
+def gbuffer_path(obj: ObjectLike, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None) -> str:
     key = gbuffer_key(obj, camera, resolution, variant)
     return os.path.join(cache_dir or default_cache_dir(), "gbuffer", key + ".exr")
 
 
 def load_gbuffer(
-    obj: SceneObject, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None
+    obj: ObjectLike, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None
 ) -> GBuffer:
     """The G-buffer from the cache, or computed, stored (atomically) and returned.
 
@@ -252,7 +252,7 @@ def load_gbuffer(
     return gbuffer
 
 
-def gbuffer_from_exr(path: str, obj: SceneObject, camera: Camera, resolution: int, variant: str) -> GBuffer:
+def gbuffer_from_exr(path: str, obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> GBuffer:
     image = read_exr(path, bounds=layer_bounds(resolution, GBUFFER_LAYERS, exact=True))
     if image.meta != gbuffer_key_inputs(obj, camera, resolution, variant):
         raise ValueError(f"{path} was made for other inputs")
@@ -275,7 +275,7 @@ def gbuffer_from_exr(path: str, obj: SceneObject, camera: Camera, resolution: in
 
 
 def visible_seam_points(
-    gbuffer: GBuffer, obj: SceneObject, *, include_creases: bool = True, spacing_px: float = 0.25
+    gbuffer: GBuffer, obj: ObjectLike, *, include_creases: bool = True, spacing_px: float = 0.25
 ) -> np.ndarray:
     """Pixel coordinates (N, 2) of seam points the camera sees, every ``spacing_px``."""
     mi = load_mitsuba(gbuffer.variant)
@@ -318,7 +318,7 @@ def visible_seam_points(
     return xy[seen]
 
 
-def seam_band(gbuffer: GBuffer, obj: SceneObject, px: float = 2.0, *, include_creases: bool = True) -> np.ndarray:
+def seam_band(gbuffer: GBuffer, obj: ObjectLike, px: float = 2.0, *, include_creases: bool = True) -> np.ndarray:
     """(H, W) bool: mask pixels whose centre is within ``px`` pixels of a visible seam."""
     from scipy.spatial import cKDTree
 
@@ -333,7 +333,7 @@ def seam_band(gbuffer: GBuffer, obj: SceneObject, px: float = 2.0, *, include_cr
     return band
 
 
-def seam_share(gbuffer: GBuffer, obj: SceneObject, px: float = 2.0, *, include_creases: bool = True) -> float:
+def seam_share(gbuffer: GBuffer, obj: ObjectLike, px: float = 2.0, *, include_creases: bool = True) -> float:
     """Share of ball (mask) pixels whose centre is within ``px`` pixels of a visible UV seam.
 
     ``include_creases=False`` counts only seams that do not run along a crease, where a

@@ -40,9 +40,10 @@ GROUND_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.3, 
 SAMPLERS = ("stratified-centres", *RENDER_SAMPLERS)
 
 
-class SceneObject(Protocol):
-    """What the scene, the G-buffer and the raster need of an object: geometry.Shaderball, or
-    any object with the same attributes (a pedestal only where ``mesh_files`` names one).
+class ObjectLike(Protocol):
+    """What the scene, the G-buffer and the raster need of an object: geometry.Shaderball,
+    geometry.objects.SceneObject, or any object with the same attributes (a pedestal only
+    where ``mesh_files`` names one). Structural, so this layer imports no object builder.
 
     ``mesh_files``: PLY paths by name, ``"material"`` and ``"ground"`` always, ``"neutral"``
     (the pedestal) only for the shaderball; ``neutral_mesh`` is None without one.
@@ -64,13 +65,13 @@ def ball_shape_ids() -> tuple[str, ...]:
     return (BALL_SHAPE_ID,)
 
 
-def has_pedestal(obj: SceneObject) -> bool:
+def has_pedestal(obj: ObjectLike) -> bool:
     """Whether the object brings a pedestal (its ``mesh_files`` name a ``"neutral"`` mesh)."""
     return "neutral" in obj.mesh_files
 
 
 def shape_dicts(
-    obj: SceneObject,
+    obj: ObjectLike,
     material_bsdf: dict,
     neutral_bsdf: dict | None = None,
     ground_bsdf: dict | None = None,
