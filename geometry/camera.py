@@ -64,13 +64,20 @@ class Camera:
 def default_camera(params: ShaderballParams | None = None) -> Camera:
     """The camera that frames the shaderball of ``params`` (default sizes if None).
 
-    It looks at the centre of the ball-and-pedestal bounding box from
-    DEFAULT_DISTANCE_M away, DEFAULT_ELEVATION_DEG above the horizontal, on the -y side,
-    with the narrowest field of view that keeps the box DEFAULT_MARGIN inside the frame.
+    The ball-and-pedestal bounding box framed by :func:`frame_box`.
     """
     params = params or ShaderballParams()
-    half_width = max(params.shell_radius_m, params.pedestal_radius_m)
-    top = params.top_z_m
+    return frame_box(max(params.shell_radius_m, params.pedestal_radius_m), params.top_z_m)
+
+
+def frame_box(half_width: float, top: float) -> Camera:
+    """The camera that frames the box |x|, |y| <= ``half_width``, 0 <= z <= ``top``.
+
+    It looks at the centre of the box from DEFAULT_DISTANCE_M away,
+    DEFAULT_ELEVATION_DEG above the horizontal, on the -y side, with the narrowest field
+    of view that keeps the box DEFAULT_MARGIN inside the frame. One rule for every
+    object (the shaderball and the others, :func:`geometry.objects.object_camera`).
+    """
     target = np.array([0.0, 0.0, 0.5 * top])
     elevation = math.radians(DEFAULT_ELEVATION_DEG)
     origin = target + DEFAULT_DISTANCE_M * np.array([0.0, -math.cos(elevation), math.sin(elevation)])

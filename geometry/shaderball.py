@@ -64,6 +64,34 @@ class Shaderball:
     def material_uv(self) -> np.ndarray:
         return np.asarray(self.material_mesh.visual.uv, np.float32)
 
+    # The attributes every scene object has (geometry.objects.SceneObject), as properties
+    # so the shaderball's cache entry and digest stay what they are.
+    @property
+    def name(self) -> str:
+        return "shaderball"
+
+    @property
+    def kind(self) -> str:
+        return "shaderball"
+
+    @property
+    def uv_source(self) -> str:
+        return "built-in"
+
+    @property
+    def source(self) -> None:
+        return None
+
+    @property
+    def source_sha256(self) -> None:
+        return None
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The box the camera frames (ball and pedestal): |x|, |y| <= half width, 0 <= z <= top."""
+        half = float(max(self.params.shell_radius_m, self.params.pedestal_radius_m))
+        return (-half, -half, 0.0), (half, half, float(self.params.top_z_m))
+
     @property
     def material_normals(self) -> np.ndarray:
         return np.asarray(self.material_mesh.vertex_normals, np.float32)

@@ -1,4 +1,5 @@
-"""Sun and sky: directions, the lighting vector, sampling, the hard-case policy, the emitter.
+"""Sun and sky: directions, the lighting vector, sampling, the hard-case policy, the emitter;
+and HDR environment maps as the other light (:mod:`sky.environment`).
 
 A domain package: it imports neither Mitsuba nor anything of ``pipeline``. The
 emitter's Mitsuba side (:func:`pipeline.render.emitter.emitter_dicts`,
@@ -12,6 +13,14 @@ nothing of the project.
 
 from sky.directions import normalize_azimuth, sun_angles, sun_direction
 from sky.emitter import DEFAULT_SUN, SKY_KEY, SUN_KEY, SUN_MODES
+from sky.environment import (
+    ENVIRONMENT_SUFFIXES,
+    ROTATION_RANGE,
+    SCALE_RANGE,
+    EnvironmentLight,
+    list_environment_files,
+    sample_rotations,
+)
 from sky.errors import SkyError
 from sky.lighting import (
     AZIMUTH_BOUNDS,
@@ -40,22 +49,28 @@ __all__ = [
     "DEFAULT_POLICY",
     "DEFAULT_SUN",
     "ELEVATION_RANGE",
+    "ENVIRONMENT_SUFFIXES",
     "MAX_AZIMUTH_SPAN_DEG",
+    "ROTATION_RANGE",
     "SAFE_ELEVATION_DEG",
+    "SCALE_RANGE",
     "SCHEMES",
     "SKY_KEY",
     "SUN_KEY",
     "SUN_MODES",
     "SkyError",
     "TURBIDITY_RANGE",
+    "EnvironmentLight",
     "Light",
     "LightingPolicy",
     "LightingRanges",
     "apply_policy",
     "direction_pdf",
     "elevation_floor_deg",
+    "list_environment_files",
     "normalize_azimuth",
     "sample_lights",
+    "sample_rotations",
     "sun_angles",
     "sun_direction",
 ]

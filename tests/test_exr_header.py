@@ -89,7 +89,7 @@ def test_a_publication_bounds_its_members_by_its_spec():
     spec = (Path(__file__).resolve().parents[1] / "manifests" / "smoke.toml").read_bytes()
     bounds = member_bounds(spec)
     assert bounds["render"].shape == (64, 64) and bounds["render"].channels == 3
-    assert bounds["maps"].channels == 11 and bounds["texture"].shape == (64, 64)
+    assert bounds["maps"].channels == 11 + 4 and bounds["texture"].shape == (64, 64)  # maps + geometry layers
     imported = member_bounds(spec.replace(b"svbrdf_folders = []", b'svbrdf_folders = ["/x"]'))
     assert imported["texture"].shape is None and imported["render"].shape == (64, 64)
     for broken in (b"\xff\xfe", b"[render]\nresolution = 1e9\n", b"[" * 5000):

@@ -53,7 +53,7 @@ def test_gbuffer_holds_the_ball_at_pixel_centres(gbuffer96, ball):
 def test_gbuffer_cache_round_trip_and_key(gbuffer96, ball, camera, cache_dir):
     path = gbuffer_path(ball, camera, 96, VARIANT, cache_dir)
     image = read_exr(path)
-    assert set(image.layers) == {"uv", "normal", "mask"}
+    assert set(image.layers) == {"uv", "normal", "mask", "depth"}
     assert image.meta["geometry"] == ball.digest and image.meta["resolution"] == 96
     again = load_gbuffer(ball, camera, 96, cache_dir=cache_dir, variant=VARIANT)
     np.testing.assert_array_equal(again.uv, gbuffer96.uv)

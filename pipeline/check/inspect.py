@@ -17,7 +17,7 @@ from pipeline.check.report import Progress
 from pipeline.errors import USER_ERRORS
 from pipeline.image.stats import render_stats
 from pipeline.store.bounded_read import UnsafePath, read_bytes, resolve_inside
-from pipeline.store.exr import read_exr
+from pipeline.store.exr import GEOMETRY_LAYERS, read_exr
 from pipeline.store.exrheader import DEFAULT_BOUNDS, ExrBounds
 
 #: Largest |length - 1| of a stored normal: half floats carry 11 significant bits, so a unit
@@ -27,7 +27,9 @@ NORMAL_TOLERANCE = 2e-3
 TEXTURE_LAYERS = ("diffuse", "specular", "roughness", "normal")
 #: Channels of each map layer (pipeline.store.exr naming).
 MAP_CHANNELS = {"diffuse": 3, "specular": 3, "roughness": 1, "normal": 3, "mask": 1}
-#: Layers stored as half floats when ``storage.maps_half`` (the mask is always float32).
+#: Channels of each geometry layer a maps file may also hold (pipeline.store.exr.GEOMETRY_LAYERS).
+GEOMETRY_CHANNELS = {"geometry_normal": 3, "depth": 1}
+#: Layers stored as half floats when ``storage.maps_half`` (the mask and the geometry are always float32).
 HALF_LAYERS = ("diffuse", "specular", "roughness", "normal")
 
 
@@ -69,6 +71,9 @@ class Expect:
     #: name -> (channels, dtype name, or a tuple of the names allowed); None: any
     layers: dict[str, tuple[int, str | tuple[str, ...]]] | None
     shape: tuple[int, int] | None
+    #: Layers the file may hold or not (checked as ``layers`` are when present): the geometry
+    #: layers, to a reader that does not know which ones the spec asked for.
+    optional: dict[str, tuple[int, str | tuple[str, ...]]] = field(default_factory=dict)
 
     @property
     def bounds(self) -> ExrBounds:
@@ -76,7 +81,7 @@ class Expect:
         the expected image; the budget when its size or layers are not known."""
         if self.layers is None or self.shape is None:
             return DEFAULT_BOUNDS
-        return ExrBounds(shape=self.shape, channels=sum(c for c, _ in self.layers.values()))
+        return ExrBounds(shape=self.shape, channels=sum(c for c, _ in (*self.layers.values(), *self.optional.values())))
 
 
 def expectations(spec, material_kind: str | None, family: str | None) -> dict[str, Expect]:
@@ -93,7 +98,8 @@ def expectations(spec, material_kind: str | None, family: str | None) -> dict[st
     def dtype(name):
         return "float16" if storage.maps_half and name in HALF_LAYERS else "float32"
 
-    maps = {name: (MAP_CHANNELS[name], dtype(name)) for name in storage.layers}
+    channels = {**MAP_CHANNELS, **GEOMETRY_CHANNELS}
+    maps = {name: (channels[name], dtype(name)) for name in storage.layers}
     texture = {name: (MAP_CHANNELS[name], dtype(name)) for name in TEXTURE_LAYERS}
     if material_kind == "uniform":
         texture_shape = (1, 1)
@@ -111,13 +117,15 @@ def expectations(spec, material_kind: str | None, family: str | None) -> dict[st
 def sample_expectations(resolution: int) -> dict[str, Expect]:
     """What a render and a screen-space maps file must hold when the spec is not at hand (the
     training loader reads a folder or a publication by its manifest): the layers the network
-    needs at the manifest's ``resolution``; maps as half or float, either as a spec may choose."""
+    needs at the manifest's ``resolution``; maps as half or float, either as a spec may choose;
+    the geometry layers allowed, not needed."""
     either = ("float16", "float32")
     maps = {name: (MAP_CHANNELS[name], either if name in HALF_LAYERS else "float32") for name in MAP_CHANNELS}
+    geometry = {name: (channels, "float32") for name, channels in GEOMETRY_CHANNELS.items()}
     texture = {name: (MAP_CHANNELS[name], either) for name in TEXTURE_LAYERS}
     return {
         "render": Expect("render", {"render": (3, "float32")}, (resolution, resolution)),
-        "maps": Expect("maps", maps, (resolution, resolution)),
+        "maps": Expect("maps", maps, (resolution, resolution), optional=geometry),
         "texture": Expect("texture", texture, None),
     }
 
@@ -153,12 +161,12 @@ def layer_issues(layers: dict[str, np.ndarray], expect: Expect) -> list[tuple[st
     if expect.layers is None:
         return issues
     missing = [n for n in expect.layers if n not in layers]
-    extra = [n for n in layers if n not in expect.layers]
+    extra = [n for n in layers if n not in expect.layers and n not in expect.optional]
     if missing:
         issues.append(("bad_layers", f"layer(s) {', '.join(missing)} missing"))
     if extra:
         issues.append(("bad_layers", f"unexpected layer(s) {', '.join(sorted(extra))}"))
-    for name, (channels, dtype) in expect.layers.items():
+    for name, (channels, dtype) in {**expect.optional, **expect.layers}.items():
         arr = layers.get(name)
         if arr is None:
             continue
@@ -184,12 +192,13 @@ def _range_text(values: np.ndarray) -> str:
 
 def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[tuple[str, str]]:
     """Sanity of material maps: finite, albedos and roughness in [0, 1], mask 0/1, unit
-    normals (inside the mask for screen-space maps), nothing outside the mask."""
+    normals (inside the mask for screen-space maps), nothing outside the mask; and of the
+    geometry layers (:func:`geometry_value_issues`)."""
     issues = []
     inside = None
     if screen_space and "mask" in layers:
         inside = np.asarray(layers["mask"][..., 0], np.float32) > 0.5
-    for name in ("diffuse", "specular", "roughness", "normal", "mask"):
+    for name in ("diffuse", "specular", "roughness", "normal", "mask", *GEOMETRY_LAYERS):
         if name not in layers:
             continue
         values = np.asarray(layers[name], np.float32)
@@ -217,22 +226,9 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
                     )
                 )
         elif name == "normal" and values.shape[-1] == 3 and (inside is not None or not screen_space):
-            x, y, z = (values[..., i].astype(np.float64) for i in range(3))
-            length = np.sqrt(x * x + y * y + z * z)  # the sum over a last axis of 3 is ~5x slower
-            deviation = np.abs(length - 1.0)
-            if inside is not None and inside.shape == deviation.shape:
-                deviation = deviation[inside]
-            bad = deviation > NORMAL_TOLERANCE
-            if bad.any():
-                where = "inside the mask " if inside is not None else ""
-                issues.append(
-                    (
-                        "normal_not_unit",
-                        f"layer normal: {int(bad.sum())} pixel(s) {where}not of unit length "
-                        f"(worst |length - 1| = {float(deviation.max()):.3g}; tolerance "
-                        f"{NORMAL_TOLERANCE:g})",
-                    )
-                )
+            issues += _unit_issues(name, values, inside)
+        elif name in GEOMETRY_LAYERS and screen_space:
+            issues += geometry_value_issues(name, values, inside)
         if inside is not None and name != "mask" and values.shape[:2] == inside.shape:
             outside = np.any(values[~inside] != 0, axis=-1)
             if outside.any():
@@ -240,6 +236,42 @@ def map_value_issues(layers: dict[str, np.ndarray], screen_space: bool) -> list[
                     ("out_of_range", f"layer {name} is non-zero at {int(outside.sum())} pixel(s) outside the mask")
                 )
     return issues
+
+
+def _unit_issues(name: str, values: np.ndarray, inside: np.ndarray | None) -> list[tuple[str, str]]:
+    """normal_not_unit: pixels (inside the mask where it is known) whose 3-vector is not unit."""
+    x, y, z = (values[..., i].astype(np.float64) for i in range(3))
+    length = np.sqrt(x * x + y * y + z * z)  # the sum over a last axis of 3 is ~5x slower
+    deviation = np.abs(length - 1.0)
+    if inside is not None and inside.shape == deviation.shape:
+        deviation = deviation[inside]
+    bad = deviation > NORMAL_TOLERANCE
+    if not bad.any():
+        return []
+    where = "inside the mask " if inside is not None else ""
+    return [
+        (
+            "normal_not_unit",
+            f"layer {name}: {int(bad.sum())} pixel(s) {where}not of unit length "
+            f"(worst |length - 1| = {float(deviation.max()):.3g}; tolerance {NORMAL_TOLERANCE:g})",
+        )
+    ]
+
+
+def geometry_value_issues(name: str, values: np.ndarray, inside: np.ndarray | None) -> list[tuple[str, str]]:
+    """Sanity of a geometry layer (finite values already masked to 0): ``geometry_normal`` unit,
+    ``depth`` > 0, where the object is seen: inside the mask, or, in a file without one, at the
+    layer's non-zero pixels (outside the mask every layer is 0, which the caller checks)."""
+    if inside is None or inside.shape != values.shape[:2]:
+        inside = np.any(values != 0, axis=-1)
+    if name == "geometry_normal" and values.shape[-1] == 3:
+        return _unit_issues(name, values, inside)
+    if name == "depth":
+        bad = values[..., 0][inside] <= 0
+        if bad.any():
+            shown = _range_text(values[..., 0][inside][bad])
+            return [("out_of_range", f"layer depth has {int(bad.sum())} value(s) <= 0 inside the mask ({shown})")]
+    return []
 
 
 def inspect_file(root: str, rel: str, expect: Expect, recorded_bytes, fast: bool) -> FileFacts:

@@ -75,6 +75,10 @@ SVBRDF_IMPORT_SUFFIXES: tuple[str, ...] = (".png",)
 
 #: Screen-space map layers the storage stage can write (pipeline.store.exr layer names).
 MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal", "mask")
+#: Geometry layers a spec may ask for besides the maps (pipeline.store.exr.GEOMETRY_LAYERS): the
+#: object's world-space shading normal and its z-depth in metres, always float32. Not stored
+#: by default, so a spec that names none keeps its digest and its files.
+GEOMETRY_LAYERS: tuple[str, ...] = ("geometry_normal", "depth")
 
 #: Upper bounds that keep ids fixed-width: "m" + 6 digits, "s" + 5 digits (pipeline.store.layout).
 MAX_MATERIALS = 1_000_000
@@ -590,8 +594,10 @@ class StorageSection(_Section):
     )
     layers: tuple[str, ...] = field(
         MAP_LAYERS,
-        rule=StrList(MAP_LAYERS, "map layer names"),
-        doc="Screen-space maps stored per material (renders are always stored). Canonical order: as listed here.",
+        rule=StrList(MAP_LAYERS + GEOMETRY_LAYERS, "map layer names"),
+        doc="Screen-space layers stored per material (renders are always stored): the maps, and on "
+        "request the object's geometry (geometry_normal: world-space shading normal; depth: metres "
+        "from the camera plane; both float32). Canonical order: as listed here.",
     )
     texture_maps: bool = field(True, rule=Bool(), doc="Also store each material's texture-space (UV) maps.")
     maps_half: bool = field(True, rule=Bool(), doc="Store maps as half floats (renders are always float32).")
@@ -599,7 +605,7 @@ class StorageSection(_Section):
     def check_cross(self):
         # One canonical order, so ["normal", "diffuse"] and ["diffuse", "normal"] are the
         # same spec with the same digest.
-        object.__setattr__(self, "layers", tuple(n for n in MAP_LAYERS if n in self.layers))
+        object.__setattr__(self, "layers", tuple(n for n in MAP_LAYERS + GEOMETRY_LAYERS if n in self.layers))
 
 
 SECTIONS: dict[str, type[Checked]] = {

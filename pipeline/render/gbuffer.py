@@ -1,4 +1,5 @@
-"""The per-pixel G-buffer of the shaderball: UV, shading normal and material mask.
+"""The per-pixel G-buffer of the object (the shaderball or another): UV, shading normal,
+depth and material mask.
 
 It is taken by Mitsuba itself at pixel centres: the rays are generated exactly as a
 1-spp render with the ``stratified-centres`` sampler (see
@@ -8,6 +9,9 @@ centres (tests/test_gbuffer_projection.py checks it to 1e-6).
 
 The G-buffer depends only on geometry, camera and resolution; :func:`load_gbuffer`
 caches it as an EXR keyed by all three (and the Mitsuba version).
+
+Every function here takes any object with geometry.Shaderball's attributes
+(:class:`pipeline.render.scene.ObjectLike`); one without a pedestal gets none in the scene.
 """
 
 from __future__ import annotations
@@ -19,18 +23,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geometry import Camera, Shaderball
+from geometry import Camera
 from geometry.shaderball import default_cache_dir
 from pipeline.errors import USER_ERRORS
 from pipeline.fields import FieldError
 from pipeline.fields.rules import Int, Reject
 from pipeline.render.limits import RESOLUTION_RANGE
 from pipeline.render.mitsuba_env import load_mitsuba
-from pipeline.render.scene import BALL_SHAPE_ID, GROUND_SHAPE_ID, NEUTRAL_SHAPE_ID, sensor_dict, shape_dicts
+from pipeline.render.scene import (
+    BALL_SHAPE_ID,
+    GROUND_SHAPE_ID,
+    NEUTRAL_SHAPE_ID,
+    ObjectLike,
+    sensor_dict,
+    shape_dicts,
+)
 from pipeline.store.exr import layer_bounds, read_exr, write_exr
 
-#: Bump when what the G-buffer holds or how it is taken changes.
-GBUFFER_CODE_VERSION = 1
+#: Bump when what the G-buffer holds or how it is taken changes (2: the depth layer).
+GBUFFER_CODE_VERSION = 2
+#: The layers of a cached G-buffer file (pipeline.store.exr naming).
+GBUFFER_LAYERS = ("uv", "normal", "mask", "depth")
 MIN_RESOLUTION, MAX_RESOLUTION = RESOLUTION_RANGE
 
 
@@ -39,8 +52,10 @@ class GBuffer:
     """Screen-space geometry at pixel centres; row 0 is the top of the picture.
 
     ``uv`` (H, W, 2) float32 atlas coordinates, ``normal`` (H, W, 3) float32 world-space
-    shading normal, ``mask`` (H, W) bool: the pixel centre sees a material-bearing
-    surface. Outside the mask uv and normal are 0.
+    shading normal (unit), ``mask`` (H, W) bool: the pixel centre sees a material-bearing
+    surface, ``depth`` (H, W) float32 metres from the camera plane along the view axis
+    (z-depth, not the distance along the ray: what a depth buffer holds). Outside the mask
+    uv, normal and depth are 0.
     """
 
     uv: np.ndarray
@@ -51,10 +66,11 @@ class GBuffer:
     geometry_digest: str
     #: The Mitsuba variant it was taken with (the render's); seam visibility reuses it.
     variant: str
+    depth: np.ndarray
 
     def layers(self) -> dict[str, np.ndarray]:
-        """EXR layers (pipeline.store.exr naming): uv.U/V, normal.X/Y/Z, mask.Y (0 or 1)."""
-        return {"uv": self.uv, "normal": self.normal, "mask": self.mask.astype(np.float32)}
+        """EXR layers (pipeline.store.exr naming): uv.U/V, normal.X/Y/Z, mask.Y (0 or 1), depth.Z."""
+        return {"uv": self.uv, "normal": self.normal, "mask": self.mask.astype(np.float32), "depth": self.depth}
 
 
 #: A G-buffer's resolution: RenderSettings' ``resolution`` rule.
@@ -69,10 +85,10 @@ def check_resolution(resolution) -> int:
         raise FieldError("resolution", resolution, RESOLUTION.allowed, name="resolution") from None
 
 
-def intersection_scene(ball: Shaderball, camera: Camera, resolution: int, variant: str):
-    """The shaderball, pedestal and ground with a 1-spp pixel-centre sensor."""
+def intersection_scene(obj: ObjectLike, camera: Camera, resolution: int, variant: str):
+    """The object, its pedestal (if it has one) and the ground with a 1-spp pixel-centre sensor."""
     mi = load_mitsuba(variant)
-    scene = {"type": "scene", **shape_dicts(ball, {"type": "diffuse"})}
+    scene = {"type": "scene", **shape_dicts(obj, {"type": "diffuse"})}
     scene["sensor"] = sensor_dict(camera, resolution, 1, sampler="stratified-centres", variant=variant)
     return mi.load_dict(scene)
 
@@ -97,11 +113,11 @@ def pixel_centre_rays(scene, resolution: int, variant: str):
     return ray
 
 
-def compute_gbuffer(ball: Shaderball, camera: Camera, resolution: int, variant: str) -> GBuffer:
+def compute_gbuffer(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> GBuffer:
     """Intersect the pixel-centre rays with the scene; keep hits on the material mesh."""
     resolution = check_resolution(resolution)
     mi = load_mitsuba(variant)
-    scene = intersection_scene(ball, camera, resolution, variant)
+    scene = intersection_scene(obj, camera, resolution, variant)
     ray = pixel_centre_rays(scene, resolution, variant)
     si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
     ball_shape = next(s for s in scene.shapes() if s.id() == BALL_SHAPE_ID)
@@ -110,9 +126,21 @@ def compute_gbuffer(ball: Shaderball, camera: Camera, resolution: int, variant: 
     mask = np.array(hit_ball, dtype=bool).reshape(shape)
     uv = np.array(si.uv, dtype=np.float32).T.reshape(shape + (2,))
     normal = np.array(si.sh_frame.n, dtype=np.float32).T.reshape(shape + (3,))
+    depth = z_depth(np.array(si.p, dtype=np.float64).T, camera).reshape(shape)
     uv[~mask] = 0.0
     normal[~mask] = 0.0
-    return GBuffer(uv, normal, mask, resolution, camera, ball.digest, variant)
+    depth[~mask] = 0.0
+    return GBuffer(uv, normal, mask, resolution, camera, obj.digest, variant, depth)
+
+
+def z_depth(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """float32 (N,) distance of world ``points`` (N, 3) from the camera plane along its view axis.
+
+    Measured from ``camera.origin``, not from the ray's origin: Mitsuba starts a primary ray
+    on its near-clip plane (1 cm in front of the origin), so the ray's t misses that much.
+    """
+    _, _, forward = camera.basis()
+    return ((points - np.asarray(camera.origin, np.float64)) @ forward).astype(np.float32)
 
 
 #: The surfaces a first hit may be on, in the order of :attr:`FirstHits.surface`'s codes.
@@ -133,18 +161,22 @@ class FirstHits:
     normal: np.ndarray
 
 
-def first_hits(ball: Shaderball, camera: Camera, resolution: int, variant: str) -> FirstHits:
-    """Intersect the pixel-centre rays with the shaderball, pedestal and ground (the
-    auxiliary buffers of a denoiser: pipeline.neural.denoise)."""
+def first_hits(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> FirstHits:
+    """Intersect the pixel-centre rays with the object, its pedestal (if any) and the ground
+    (the auxiliary buffers of a denoiser: pipeline.neural.denoise). A surface the scene does
+    not hold (the pedestal of an object without one) keeps its code and is never hit."""
     resolution = check_resolution(resolution)
     mi = load_mitsuba(variant)
-    scene = intersection_scene(ball, camera, resolution, variant)
+    scene = intersection_scene(obj, camera, resolution, variant)
     ray = pixel_centre_rays(scene, resolution, variant)
     si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
     shape = (resolution, resolution)
     surface = np.full(shape, -1, np.int8)
+    meshes = {s.id(): s for s in scene.shapes()}
     for code, shape_id in enumerate(SURFACES):
-        mesh = next(s for s in scene.shapes() if s.id() == shape_id)
+        mesh = meshes.get(shape_id)
+        if mesh is None:
+            continue
         surface[np.array(si.is_valid() & (si.shape == mi.ShapePtr(mesh)), dtype=bool).reshape(shape)] = code
     uv = np.array(si.uv, dtype=np.float32).T.reshape(shape + (2,))
     normal = np.array(si.sh_frame.n, dtype=np.float32).T.reshape(shape + (3,))
@@ -176,12 +208,12 @@ def facing_mask(gbuffer: GBuffer) -> np.ndarray:
     return gbuffer.mask & (cosine > 0)
 
 
-def gbuffer_key_inputs(ball: Shaderball, camera: Camera, resolution: int, variant: str) -> dict:
+def gbuffer_key_inputs(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> dict:
     import mitsuba
 
     return {
         "variant": variant,
-        "geometry": ball.digest,
+        "geometry": obj.digest,
         "camera": camera.as_dict(),
         "resolution": int(resolution),
         "code": GBUFFER_CODE_VERSION,
@@ -189,18 +221,18 @@ def gbuffer_key_inputs(ball: Shaderball, camera: Camera, resolution: int, varian
     }
 
 
-def gbuffer_key(ball: Shaderball, camera: Camera, resolution: int, variant: str) -> str:
-    text = json.dumps(gbuffer_key_inputs(ball, camera, resolution, variant), sort_keys=True, separators=(",", ":"))
+def gbuffer_key(obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> str:
+    text = json.dumps(gbuffer_key_inputs(obj, camera, resolution, variant), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def gbuffer_path(ball: Shaderball, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None) -> str:
-    key = gbuffer_key(ball, camera, resolution, variant)
+def gbuffer_path(obj: ObjectLike, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None) -> str:
+    key = gbuffer_key(obj, camera, resolution, variant)
     return os.path.join(cache_dir or default_cache_dir(), "gbuffer", key + ".exr")
 
 
 def load_gbuffer(
-    ball: Shaderball, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None
+    obj: ObjectLike, camera: Camera, resolution: int, variant: str, cache_dir: str | None = None
 ) -> GBuffer:
     """The G-buffer from the cache, or computed, stored (atomically) and returned.
 
@@ -209,20 +241,20 @@ def load_gbuffer(
     """
     resolution = check_resolution(resolution)
     load_mitsuba(variant)  # the key names the Mitsuba version; import it the supported way first
-    path = gbuffer_path(ball, camera, resolution, variant, cache_dir)
+    path = gbuffer_path(obj, camera, resolution, variant, cache_dir)
     if os.path.isfile(path):
         try:
-            return gbuffer_from_exr(path, ball, camera, resolution, variant)
+            return gbuffer_from_exr(path, obj, camera, resolution, variant)
         except (*USER_ERRORS, KeyError, ValueError):
             pass  # damaged or foreign file: recompute and replace it
-    gbuffer = compute_gbuffer(ball, camera, resolution, variant)
-    write_exr(path, gbuffer.layers(), gbuffer_key_inputs(ball, camera, resolution, variant))
+    gbuffer = compute_gbuffer(obj, camera, resolution, variant)
+    write_exr(path, gbuffer.layers(), gbuffer_key_inputs(obj, camera, resolution, variant))
     return gbuffer
 
 
-def gbuffer_from_exr(path: str, ball: Shaderball, camera: Camera, resolution: int, variant: str) -> GBuffer:
-    image = read_exr(path, bounds=layer_bounds(resolution, ("uv", "normal", "mask"), exact=True))
-    if image.meta != gbuffer_key_inputs(ball, camera, resolution, variant):
+def gbuffer_from_exr(path: str, obj: ObjectLike, camera: Camera, resolution: int, variant: str) -> GBuffer:
+    image = read_exr(path, bounds=layer_bounds(resolution, GBUFFER_LAYERS, exact=True))
+    if image.meta != gbuffer_key_inputs(obj, camera, resolution, variant):
         raise ValueError(f"{path} was made for other inputs")
     layers = image.layers
     if layers["uv"].shape != (resolution, resolution, 2):
@@ -233,8 +265,9 @@ def gbuffer_from_exr(path: str, ball: Shaderball, camera: Camera, resolution: in
         mask=layers["mask"][..., 0] > 0.5,
         resolution=resolution,
         camera=camera,
-        geometry_digest=ball.digest,
+        geometry_digest=obj.digest,
         variant=variant,
+        depth=layers["depth"][..., 0].astype(np.float32),
     )
 
 
@@ -242,14 +275,14 @@ def gbuffer_from_exr(path: str, ball: Shaderball, camera: Camera, resolution: in
 
 
 def visible_seam_points(
-    gbuffer: GBuffer, ball: Shaderball, *, include_creases: bool = True, spacing_px: float = 0.25
+    gbuffer: GBuffer, obj: ObjectLike, *, include_creases: bool = True, spacing_px: float = 0.25
 ) -> np.ndarray:
     """Pixel coordinates (N, 2) of seam points the camera sees, every ``spacing_px``."""
     mi = load_mitsuba(gbuffer.variant)
     camera, res = gbuffer.camera, gbuffer.resolution
-    segments = ball.seam_edges.astype(np.float64)
+    segments = np.asarray(obj.seam_edges, np.float64).reshape(-1, 2, 3)
     if not include_creases:
-        segments = segments[~ball.seam_on_crease]
+        segments = segments[~np.asarray(obj.seam_on_crease, bool)]
     if len(segments) == 0:
         return np.zeros((0, 2))
     ends, depth = camera.project(segments.reshape(-1, 3), res)
@@ -268,7 +301,7 @@ def visible_seam_points(
     if len(points) == 0:
         return np.zeros((0, 2))
 
-    scene = intersection_scene(ball, camera, res, gbuffer.variant)
+    scene = intersection_scene(obj, camera, res, gbuffer.variant)
     origin = np.asarray(camera.origin, np.float64)
     offset = points - origin
     distance = np.linalg.norm(offset, axis=1)
@@ -285,12 +318,12 @@ def visible_seam_points(
     return xy[seen]
 
 
-def seam_band(gbuffer: GBuffer, ball: Shaderball, px: float = 2.0, *, include_creases: bool = True) -> np.ndarray:
+def seam_band(gbuffer: GBuffer, obj: ObjectLike, px: float = 2.0, *, include_creases: bool = True) -> np.ndarray:
     """(H, W) bool: mask pixels whose centre is within ``px`` pixels of a visible seam."""
     from scipy.spatial import cKDTree
 
     band = np.zeros_like(gbuffer.mask)
-    points = visible_seam_points(gbuffer, ball, include_creases=include_creases, spacing_px=min(0.25, px / 4))
+    points = visible_seam_points(gbuffer, obj, include_creases=include_creases, spacing_px=min(0.25, px / 4))
     if len(points) == 0 or not gbuffer.mask.any():
         return band
     rows, cols = np.nonzero(gbuffer.mask)
@@ -300,7 +333,7 @@ def seam_band(gbuffer: GBuffer, ball: Shaderball, px: float = 2.0, *, include_cr
     return band
 
 
-def seam_share(gbuffer: GBuffer, ball: Shaderball, px: float = 2.0, *, include_creases: bool = True) -> float:
+def seam_share(gbuffer: GBuffer, obj: ObjectLike, px: float = 2.0, *, include_creases: bool = True) -> float:
     """Share of ball (mask) pixels whose centre is within ``px`` pixels of a visible UV seam.
 
     ``include_creases=False`` counts only seams that do not run along a crease, where a
@@ -309,4 +342,4 @@ def seam_share(gbuffer: GBuffer, ball: Shaderball, px: float = 2.0, *, include_c
     count = int(gbuffer.mask.sum())
     if count == 0:
         return 0.0
-    return float(seam_band(gbuffer, ball, px, include_creases=include_creases).sum()) / count
+    return float(seam_band(gbuffer, obj, px, include_creases=include_creases).sum()) / count

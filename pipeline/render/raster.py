@@ -91,7 +91,7 @@ def decode_normal(encoded: np.ndarray) -> np.ndarray:
     return unit.astype(F32)
 
 
-def project_material(maps, gbuffer: GBuffer) -> dict[str, np.ndarray]:
+def project_material(maps, gbuffer: GBuffer, *, geometry: bool = False) -> dict[str, np.ndarray]:
     """Screen-space maps of a ``materials.MaterialMaps`` as the renderer sees them.
 
     Returns float32 arrays: ``diffuse`` (H, W, 3), ``specular`` (H, W, 3), ``roughness``
@@ -99,14 +99,32 @@ def project_material(maps, gbuffer: GBuffer) -> dict[str, np.ndarray]:
     (H, W) in {0, 1}. The normal is looked up bilinearly in its encoded form
     (:func:`encode_normal_texture`), then decoded and renormalised as Mitsuba's
     ``normalmap`` does; the tangent frame is (dp/du, n x dp/du, n).
+
+    ``geometry``: also the geometry the maps were projected through (:func:`geometry_layers`),
+    so a dataset's maps file holds whichever of the lot its spec's ``storage.layers`` names;
+    off, only the maps (what the network reads, what ``shaderball render`` writes).
     """
     mask = gbuffer.mask
     normal = project(encode_normal_texture(maps.normal), gbuffer)
     normal[mask] = decode_normal(normal[mask])
-    return {
+    screen = {
         "diffuse": project(maps.diffuse, gbuffer),
         "specular": project(maps.specular, gbuffer),
         "roughness": project(maps.roughness, gbuffer)[..., 0],
         "normal": normal,
         "mask": mask.astype(F32),
+    }
+    return {**screen, **geometry_layers(gbuffer)} if geometry else screen
+
+
+def geometry_layers(gbuffer: GBuffer) -> dict[str, np.ndarray]:
+    """The G-buffer's geometry as screen-space layers, 0 outside the mask (as the G-buffer is).
+
+    ``geometry_normal`` (H, W, 3): the object's world-space shading normal (interpolated
+    vertex normals, before any normal map), unit inside the mask; ``depth`` (H, W): metres
+    from the camera plane along the view axis. Copies: a caller may change them.
+    """
+    return {
+        "geometry_normal": np.array(gbuffer.normal, dtype=F32),
+        "depth": np.array(gbuffer.depth, dtype=F32),
     }

@@ -1,8 +1,9 @@
-"""Mitsuba scene-dict entries for the shaderball, its camera and its textures.
+"""Mitsuba scene-dict entries for the object (the shaderball or another), its camera and its textures.
 
-The shaderball's meshes are loaded from the PLY files of the geometry cache entry
+The object's meshes are loaded from the PLY files of its geometry cache entry
 (``ply`` plugin, vertex normals kept: ``face_normals = False``; UVs as stored, Mitsuba
-does not flip v). The shape ids are fixed: :data:`BALL_SHAPE_ID` bears the material.
+does not flip v). The shape ids are fixed: :data:`BALL_SHAPE_ID` bears the material,
+whatever the object; only the shaderball has a pedestal (:data:`NEUTRAL_SHAPE_ID`).
 
 Mitsuba is loaded (through :mod:`pipeline.render.mitsuba_env`) only where a dict needs a
 Mitsuba object: the sensor's transform and a bitmap's tensor.
@@ -11,18 +12,21 @@ Mitsuba object: the sensor's transform and a bitmap's tensor.
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numpy as np
 
-from geometry import Camera, Shaderball
+from geometry import Camera
 from pipeline.fields import FieldError
 from pipeline.fields.rules import Choice
 from pipeline.render.limits import SAMPLERS as RENDER_SAMPLERS
 from pipeline.render.mitsuba_env import load_mitsuba
 
-#: Shape id of the material-bearing surfaces (outer shell, rims, inner surface, core).
+#: Shape id of the material-bearing surfaces (the shaderball's outer shell, rims, inner
+#: surface and core; another object's whole mesh). Kept "shaderball" for every object, so
+#: scenes, G-buffers and their readers name the material mesh one way.
 BALL_SHAPE_ID = "shaderball"
-#: Shape id of the pedestal and neck.
+#: Shape id of the pedestal and neck (the shaderball's alone).
 NEUTRAL_SHAPE_ID = "pedestal"
 #: Shape id of the ground plane.
 GROUND_SHAPE_ID = "ground"
@@ -36,27 +40,53 @@ GROUND_BSDF = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.3, 
 SAMPLERS = ("stratified-centres", *RENDER_SAMPLERS)
 
 
+class ObjectLike(Protocol):
+    """What the scene, the G-buffer and the raster need of an object: geometry.Shaderball,
+    geometry.objects.SceneObject, or any object with the same attributes (a pedestal only
+    where ``mesh_files`` names one). Structural, so this layer imports no object builder.
+
+    ``mesh_files``: PLY paths by name, ``"material"`` and ``"ground"`` always, ``"neutral"``
+    (the pedestal) only for the shaderball; ``neutral_mesh`` is None without one.
+    ``seam_edges`` (E, 2, 3) world-space segments where the texture is discontinuous,
+    ``seam_on_crease`` (E,) bool. ``digest`` keys every cache made from the object.
+    """
+
+    digest: str
+    material_mesh: object
+    neutral_mesh: object | None
+    ground_mesh: object
+    mesh_files: dict[str, str]
+    seam_edges: np.ndarray
+    seam_on_crease: np.ndarray
+
+
 def ball_shape_ids() -> tuple[str, ...]:
     """Ids of the shapes that bear the material (one: the whole material mesh)."""
     return (BALL_SHAPE_ID,)
 
 
+def has_pedestal(obj: ObjectLike) -> bool:
+    """Whether the object brings a pedestal (its ``mesh_files`` name a ``"neutral"`` mesh)."""
+    return "neutral" in obj.mesh_files
+
+
 def shape_dicts(
-    ball: Shaderball,
+    obj: ObjectLike,
     material_bsdf: dict,
     neutral_bsdf: dict | None = None,
     ground_bsdf: dict | None = None,
 ) -> dict[str, dict]:
-    """Scene-dict entries (id -> dict) for the material mesh, the pedestal and the ground."""
+    """Scene-dict entries (id -> dict) for the material mesh, the pedestal (where the object
+    has one) and the ground, in that order: the shaderball's are today's, entry for entry."""
 
     def ply(name: str, bsdf: dict) -> dict:
-        return {"type": "ply", "filename": ball.mesh_files[name], "face_normals": False, "bsdf": bsdf}
+        return {"type": "ply", "filename": obj.mesh_files[name], "face_normals": False, "bsdf": bsdf}
 
-    return {
-        BALL_SHAPE_ID: ply("material", material_bsdf),
-        NEUTRAL_SHAPE_ID: ply("neutral", neutral_bsdf or NEUTRAL_BSDF),
-        GROUND_SHAPE_ID: ply("ground", ground_bsdf or GROUND_BSDF),
-    }
+    shapes = {BALL_SHAPE_ID: ply("material", material_bsdf)}
+    if has_pedestal(obj):
+        shapes[NEUTRAL_SHAPE_ID] = ply("neutral", neutral_bsdf or NEUTRAL_BSDF)
+    shapes[GROUND_SHAPE_ID] = ply("ground", ground_bsdf or GROUND_BSDF)
+    return shapes
 
 
 def sensor_dict(

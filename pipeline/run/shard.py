@@ -415,7 +415,7 @@ def write_material_files(layout, spec, ctx, material, maps, description, intact=
     if "maps" in intact:
         files = [intact["maps"]]
     else:
-        screen = project_material(maps, ctx.gbuffer)
+        screen = project_material(maps, ctx.gbuffer, geometry=True)
         layers = {name: screen[name] for name in storage.layers}
         files = [
             file_entry(

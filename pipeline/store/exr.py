@@ -34,11 +34,20 @@ LAYER_CHANNELS: dict[str, tuple[str, ...]] = {
     "mask": ("Y",),
     "normal": ("X", "Y", "Z"),
     "uv": ("U", "V"),
+    "geometry_normal": ("X", "Y", "Z"),
+    "depth": ("Z",),
 }
 
 #: A material's four maps: the layers of its texture-space file, and the layers stored as half
 #: floats when ``storage.maps_half`` is on (the mask and the renders stay float32).
 MATERIAL_MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal")
+#: The object's geometry under the maps (world-space shading normal, z-depth in metres): layers
+#: a maps file may hold besides the maps (the spec's ``storage.layers`` names them the same way:
+#: pipeline.dataset.spec.GEOMETRY_LAYERS; a test holds the two equal). Always float32, even with
+#: ``storage.maps_half``: half floats keep 11 significant bits, so a depth is rounded to steps of
+#: 2 mm between 2 and 4 m, 4 mm between 4 and 8 m: too coarse for what a depth buffer is used
+#: for (edges, normals recomputed from it).
+GEOMETRY_LAYERS: tuple[str, ...] = ("geometry_normal", "depth")
 #: Bytes per channel value of a layer stored as float32 and as half.
 FLOAT_BYTES, HALF_BYTES = 4, 2
 
@@ -53,7 +62,7 @@ def pixel_bytes(layers, side: int, half: tuple[str, ...] = ()) -> int:
 #: The layers each role's file may hold (a maps file holds those storage.layers names).
 ROLE_LAYERS: dict[str, tuple[str, ...]] = {
     "render": ("render",),
-    "maps": (*MATERIAL_MAP_LAYERS, "mask"),
+    "maps": (*MATERIAL_MAP_LAYERS, "mask", *GEOMETRY_LAYERS),
     "texture": MATERIAL_MAP_LAYERS,
 }
 
