@@ -36,7 +36,8 @@ import os
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
-from geometry.objects import BUILTIN_OBJECTS, MESH_SUFFIXES
+from geometry.meshfile import MESH_SUFFIXES
+from geometry.objects import BUILTIN_OBJECTS
 from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
 from pipeline.fields import Checked, FieldError, field

@@ -102,16 +102,16 @@ def check_output_dir(out: str, spec: DatasetSpec, allow_spec_change: bool = Fals
             "run `shaderball validate --repair` or choose another directory",
         ) from None
     mode = "resume"
+    built = read_json(layout.description)
+    changed = source_changes(built.get("sources") if isinstance(built, dict) else None, spec)
+    if changed and not spec_differences(existing, spec):
+        raise _out_refused(
+            out,
+            f"holds dataset {format_value(existing.dataset.name)} built from other files: " + "; ".join(changed),
+            "restore the files it was built from, or build into a new directory (a changed mesh or map is "
+            "another dataset)",
+        )
     if spec_digest(existing) != spec_digest(spec):
-        built = read_json(layout.description)
-        changed = source_changes(built.get("sources") if isinstance(built, dict) else None, spec)
-        if changed and not spec_differences(existing, spec):
-            raise _out_refused(
-                out,
-                f"holds dataset {format_value(existing.dataset.name)} built from other files: " + "; ".join(changed),
-                "restore the files it was built from, or build into a new directory (a changed mesh or map is "
-                "another dataset)",
-            )
         diffs = spec_differences(existing, spec)
         blocking = [d for d in diffs if (d[0], d[1]) not in SPEC_FIELDS_FREE_TO_CHANGE]
         if blocking or not allow_spec_change:
