@@ -69,8 +69,10 @@ def map_direction(u, v, rotation_deg: float = 0.0) -> np.ndarray:
 
 
 def _check_file(path) -> str:
-    allowed = f"an absolute path of a file ending in {' or '.join(ENVIRONMENT_SUFFIXES)}"
-    if not isinstance(path, str) or not os.path.isabs(path):
+    allowed = (
+        f"an absolute path, or a base name as a record gives it, of a file ending in {' or '.join(ENVIRONMENT_SUFFIXES)}"
+    )
+    if not isinstance(path, str) or not (os.path.isabs(path) or (path and os.path.basename(path) == path)):
         raise refusal("environment.file", path, allowed)
     if not path.lower().endswith(ENVIRONMENT_SUFFIXES):
         raise refusal("environment.file", path, allowed)
@@ -79,7 +81,8 @@ def _check_file(path) -> str:
 
 @dataclass(frozen=True)
 class EnvironmentLight:
-    """One environment lighting of a sample: which map (``file`` as given, absolute, and the
+    """One environment lighting of a sample: which map (``file`` as given, absolute, or its base
+    name as a sample's record gives it, and the
     SHA-256 ``digest`` of its bytes: the file is checked against it when rendered), turned by
     ``rotation_deg`` in :data:`ROTATION_RANGE` and multiplied by ``scale`` in
     :data:`SCALE_RANGE`. Checked on construction (:class:`sky.errors.SkyError`)."""

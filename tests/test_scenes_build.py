@@ -164,3 +164,87 @@ def test_validate_passes_and_names_a_changed_mesh(object_build, tmp_path):
         assert checked.exit_code != 0 and mesh.name in checked.output and "changed" in checked.output
     finally:
         mesh.write_bytes(original)
+
+
+def _environment_map(path: Path, sun_row: int = 6, sun_col: int = 40) -> Path:
+    """A small sunny lat-long map: a blue-to-white gradient and a bright 2x2 'sun'."""
+    from pipeline.store.exr import write_exr
+
+    h, w = 32, 64
+    v = (np.arange(h, dtype=np.float32)[:, None, None] + 0.5) / h
+    sky = np.broadcast_to(np.array([0.3, 0.5, 1.0], np.float32) * (1.2 - v), (h, w, 3)).copy()
+    sky[sun_row : sun_row + 2, sun_col : sun_col + 2] = 500.0
+    write_exr(str(path), {"render": sky})
+    return path
+
+
+@pytest.fixture(scope="module")
+def environment_build(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("environment")
+    maps = folder / "maps"
+    maps.mkdir()
+    _environment_map(maps / "sunny.exr")
+    _environment_map(maps / "low.exr", sun_row=14, sun_col=10)
+    spec = folder / "spec.toml"
+    spec.write_text(
+        BASE
+        + '[scene]\nobjects = ["sphere"]\n'
+        + '[lighting]\nsource = "environment"\nenvironments = ["maps"]\nrotation_deg = [0.0, 180.0]\n'
+        + "intensity = [0.5, 2.0]\n"
+    )
+    out = folder / "out"
+    result = _cli("build", spec, "--out", out, "--workers", "0")
+    assert result.exit_code == 0, result.output
+    return spec, out, maps
+
+
+def test_environment_lit_samples_record_their_map_rotation_and_intensity(environment_build):
+    spec, out, maps = environment_build
+    records = _records(out)
+    assert len(records) == 8
+    digests = {p.name: __import__("hashlib").sha256(p.read_bytes()).hexdigest() for p in maps.iterdir()}
+    plan = {s.sample_id: s for shard in plan_dataset(parse_spec(spec)) for m in shard.materials for s in m.samples}
+    for record in records:
+        lighting, sample = record["lighting"], plan[record["id"]]
+        assert lighting["source"] == "environment" and "elevation_deg" not in lighting
+        assert lighting["file"] == Path(sample.environment).name
+        assert lighting["sha256"] == digests[lighting["file"]]
+        assert lighting["rotation_deg"] == sample.rotation_deg and 0.0 <= sample.rotation_deg <= 180.0
+        assert lighting["scale"] == sample.intensity and 0.5 <= sample.intensity <= 2.0
+        assert len(record["lighting_vector"]) == 4
+        assert record["lighting_vector"][3] == pytest.approx(np.log2(sample.intensity), abs=1e-6)
+    assert {r["lighting"]["file"] for r in records} == {"sunny.exr", "low.exr"}
+    description = json.loads((out / "dataset.json").read_text())
+    assert sorted(Path(p).name for p in description["sources"]) == ["low.exr", "sunny.exr"]
+    assert description["counts"]["environments"] == ["low.exr", "sunny.exr"]
+    assert _cli("validate", out).exit_code == 0
+
+
+def test_an_environment_lit_scene_holds_the_map_and_no_sun_or_sky(environment_build):
+    from pipeline.dataset.materialize import make_material
+    from pipeline.render.renderer import scene_dict
+    from pipeline.run.shard import sample_light, worker_context
+
+    spec_path, _out, _maps = environment_build
+    spec = parse_spec(spec_path)
+    material = plan_dataset(spec)[0].materials[0]
+    ctx = worker_context(spec, "llvm_ad_rgb", material.object)
+    maps, _ = make_material(material, spec)
+    scene, lighting, _ = scene_dict(ctx.ball, ctx.camera, maps, sample_light(spec, material.samples[0]), ctx.settings)
+    emitters = [k for k, v in scene.items() if isinstance(v, dict) and v.get("type") in ("envmap", "sunsky", "directional")]
+    assert emitters == ["environment"] and scene["environment"]["type"] == "envmap"
+    assert lighting["effective"]["source"] == "environment"
+
+
+def test_a_changed_map_is_named_by_resume_and_validate(environment_build):
+    spec, out, maps = environment_build
+    target = maps / "low.exr"
+    original = target.read_bytes()
+    try:
+        _environment_map(target, sun_row=20, sun_col=3)
+        refused = _cli("build", spec, "--out", out, "--workers", "0")
+        assert refused.exit_code == 2 and "low.exr" in refused.output and "changed" in refused.output
+        checked = _cli("validate", out)
+        assert checked.exit_code != 0 and "low.exr" in checked.output
+    finally:
+        target.write_bytes(original)

@@ -9,6 +9,7 @@ import math
 from pipeline.check.inspect import FileFacts, render_value_issues
 from pipeline.check.loading import State
 from pipeline.dataset.record import lighting_discrepancies, model_record
+from pipeline.dataset.spec import DEFAULT_OBJECTS
 from pipeline.errors import short_repr
 from pipeline.image.stats import is_bad
 from pipeline.store.layout import Layout
@@ -62,10 +63,10 @@ def plan_discrepancies(record: dict, sample, state: State) -> list[str]:
         ("seeds.material", sample.material_seed),
         ("seeds.light", sample.light_seed),
         ("seeds.render", sample.render_seed),
-        ("lighting.requested.elevation_deg", sample.elevation_deg),
-        ("lighting.requested.azimuth_deg", sample.azimuth_deg),
-        ("lighting.requested.turbidity", sample.turbidity),
+        *((f"lighting.requested.{key}", value) for key, value in sample.requested_lighting().items()),
         ("material.kind", sample.kind),
+        # absent for the shaderball (pipeline.run.shard.object_record)
+        ("object.name", None if sample.object == DEFAULT_OBJECTS[0] else sample.object_name),
     ]
     if sample.svbrdf_family is not None:
         wanted.append(("material.family", sample.svbrdf_family))
@@ -119,7 +120,7 @@ def header_discrepancies(record: dict, render: FileFacts | None, maps: FileFacts
         ]
         checks += [
             ("render", f"lighting.{key}", lighting.get(key), effective.get(key))
-            for key in ("elevation_deg", "azimuth_deg", "turbidity")
+            for key in ("elevation_deg", "azimuth_deg", "turbidity", "source", "sha256", "rotation_deg", "scale")
         ]
     maps_meta = maps.meta if maps is not None else None
     if maps_meta is not None:

@@ -174,6 +174,22 @@ class SamplePlan:
     def to_dict(self) -> dict:
         return _without_scene_defaults(asdict(self))
 
+    def requested_lighting(self) -> dict:
+        """The lighting this sample asks for, as its record's ``lighting.requested`` says it: the
+        sun's angles and turbidity, or the map's base name, its rotation and intensity."""
+        if self.environment is not None:
+            return {
+                "environment": os.path.basename(self.environment),
+                "rotation_deg": self.rotation_deg,
+                "intensity": self.intensity,
+            }
+        return {"elevation_deg": self.elevation_deg, "azimuth_deg": self.azimuth_deg, "turbidity": self.turbidity}
+
+    @property
+    def object_name(self) -> str:
+        """The object as a record names it: a built-in's name, a mesh file's base name."""
+        return os.path.basename(self.object)
+
 
 @dataclass(frozen=True)
 class MaterialPlan:

@@ -7,6 +7,7 @@ import numpy as np
 
 from materials.brdf_ref import DEFAULT_MODEL
 from sky import Light
+from sky.environment import EnvironmentLight
 
 
 def model_record(model: str) -> dict:
@@ -18,19 +19,29 @@ def model_record(model: str) -> dict:
     return {} if model == DEFAULT_MODEL else {"model": model}
 
 
+def light_from_record(lighting: dict):
+    """The effective light a record's ``lighting`` describes: a ``sky.Light``, or an
+    ``EnvironmentLight`` where ``source`` says so (the map named by its base name and digest)."""
+    if lighting.get("source") == "environment":
+        return EnvironmentLight(lighting["file"], lighting["sha256"], lighting["rotation_deg"], lighting["scale"])
+    return Light.from_dict(lighting)
+
+
 def lighting_discrepancies(record: dict) -> list[str]:
     """What a record says about its effective lighting that does not follow from its angles
     (direction, lighting vector) or from its render (the seed used); [] when consistent."""
 
     lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
     try:
-        light = Light.from_dict(lighting)
+        light = light_from_record(lighting)
     except Exception as exc:  # missing keys, out-of-range values: the message says which
         return [f"lighting is not a valid light ({exc})"]
     out = []
     direction = lighting.get("direction")
     try:
-        if not np.allclose(np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9):
+        if isinstance(light, Light) and not np.allclose(
+            np.asarray(direction, np.float64), light.direction, rtol=0, atol=1e-9
+        ):
             out.append(
                 f"lighting.direction {direction!r} does not follow from elevation_deg "
                 f"{light.elevation_deg!r} and azimuth_deg {light.azimuth_deg!r}"
@@ -42,7 +53,11 @@ def lighting_discrepancies(record: dict) -> list[str]:
         if not np.allclose(np.asarray(vector, np.float64), light.lighting_vector(), rtol=0, atol=1e-6):
             out.append(
                 f"lighting_vector {vector!r} does not follow from the effective lighting "
-                f"(direction and turbidity {light.turbidity!r})"
+                + (
+                    f"(direction and turbidity {light.turbidity!r})"
+                    if isinstance(light, Light)
+                    else f"(rotation {light.rotation_deg!r} and scale {light.scale!r})"
+                )
             )
     except (TypeError, ValueError):
         out.append(f"lighting_vector is {vector!r}, not a 4-vector")

@@ -155,27 +155,11 @@ def record_matches_plan(record: dict, sample: SamplePlan) -> bool:
             and seeds["material"] == sample.material_seed
             and seeds["light"] == sample.light_seed
             and seeds["render"] == sample.render_seed
-            and all(requested[key] == value for key, value in requested_lighting(sample).items())
-            and record.get("object", {}).get("name", DEFAULT_OBJECTS[0]) == object_label(sample.object)
+            and all(requested[key] == value for key, value in sample.requested_lighting().items())
+            and record.get("object", {}).get("name", DEFAULT_OBJECTS[0]) == sample.object_name
         )
     except (KeyError, TypeError, AttributeError):
         return False
-
-
-def requested_lighting(sample: SamplePlan) -> dict:
-    """The lighting the plan asks of ``sample``, as its record's ``lighting.requested`` says it."""
-    if sample.environment is not None:
-        return {
-            "environment": os.path.basename(sample.environment),
-            "rotation_deg": sample.rotation_deg,
-            "intensity": sample.intensity,
-        }
-    return {"elevation_deg": sample.elevation_deg, "azimuth_deg": sample.azimuth_deg, "turbidity": sample.turbidity}
-
-
-def object_label(name: str) -> str:
-    """An object as a record names it: a built-in's name, a mesh file's base name."""
-    return os.path.basename(name)
 
 
 def sample_light(spec: DatasetSpec, sample: SamplePlan):
@@ -478,24 +462,27 @@ def object_record(obj) -> dict:
 
 def lighting_record(spec: DatasetSpec, sample: SamplePlan, lighting: dict) -> dict:
     """A record's ``lighting`` and ``lighting_vector`` from the renderer's lighting record: the
-    sun actually used (after the low-sun policy) or the environment map, rotation and scale."""
+    sun actually used (after the low-sun policy) or the environment map, rotation and scale;
+    ``policy``: what the renderer did to it and the emitter it became."""
     if sample.environment is not None:
-        light = sample_light(spec, sample)
-        return {
-            "lighting": {**lighting["effective"], "requested": lighting["requested"], "emitter": lighting["emitter"]},
-            "lighting_vector": [float(x) for x in light.lighting_vector()],
-        }
-    effective = Light.from_dict(lighting["effective"])
-    return {
-        "lighting": {
+        fields = dict(lighting["effective"])
+        vector = sample_light(spec, sample).lighting_vector()
+    else:
+        effective = Light.from_dict(lighting["effective"])
+        fields = {
             "elevation_deg": effective.elevation_deg,
             "azimuth_deg": effective.azimuth_deg,
             "turbidity": effective.turbidity,
             "direction": [float(x) for x in effective.direction],
+        }
+        vector = effective.lighting_vector()
+    return {
+        "lighting": {
+            **fields,
             "requested": lighting["requested"],
             "policy": {k: v for k, v in lighting.items() if k not in ("requested", "effective")},
         },
-        "lighting_vector": [float(x) for x in effective.lighting_vector()],
+        "lighting_vector": [float(x) for x in vector],
     }
 
 
