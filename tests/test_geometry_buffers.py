@@ -16,6 +16,7 @@ that take any object, the shaderball's unchanged.
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 from dataclasses import dataclass
 
@@ -33,6 +34,7 @@ from pipeline.render.gbuffer import (
     compute_gbuffer,
     facing_mask,
     first_hits,
+    gbuffer_path,
     intersection_scene,
     load_gbuffer,
     pixel_centre_rays,
@@ -261,9 +263,12 @@ def test_depth_equals_mitsubas_hit_point_on_the_view_axis(ball, cache_dir, mi):
     assert np.all(gbuffer.depth[~mask] == 0)
     low, high = depth_range(camera, ball.material_mesh.vertices)
     assert low <= gbuffer.depth[mask].min() and gbuffer.depth[mask].max() <= high
-    # The cache gives back what was computed.
+    # The cache file (written by the first load) gives back what is computed.
+    assert os.path.isfile(gbuffer_path(ball, camera, resolution, VARIANT, cache_dir))
+    cached = load_gbuffer(ball, camera, resolution, cache_dir=cache_dir, variant=VARIANT)
     fresh = compute_gbuffer(ball, camera, resolution, variant=VARIANT)
-    np.testing.assert_array_equal(fresh.depth, gbuffer.depth)
+    np.testing.assert_array_equal(cached.depth, fresh.depth)
+    assert cached.depth.dtype == np.float32 and cached.depth.shape == (resolution, resolution)
 
 
 # --------------------------------------------------------------------------- another object
