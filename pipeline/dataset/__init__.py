@@ -8,7 +8,7 @@ the render *limits and choices* (``pipeline.render.limits``, ``pipeline.render.m
 constants); never Mitsuba, dask or the on-disk layout.
 
 Layer 5 of 10 in the layer contract (pyproject.toml, [tool.shaderball.layers]): may import
-``materials``, ``sky``, ``pipeline.errors``, ``pipeline.image``, ``pipeline.fields``,
-``pipeline.render.limits``, ``pipeline.render.mitsuba_env``, ``pipeline.render.settings``;
-nothing else of the project.
+``materials``, ``sky``, ``geometry``, ``pipeline.errors``, ``pipeline.image``,
+``pipeline.fields``, ``pipeline.render.limits``, ``pipeline.render.mitsuba_env``,
+``pipeline.render.settings``; nothing else of the project.
 """
