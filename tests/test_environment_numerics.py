@@ -27,7 +27,7 @@ from sky import SkyError
 from sky.directions import sun_angles, sun_direction
 from sky.environment import EnvironmentLight, map_direction
 from support import VARIANT
-from support.exrcraft import required, zeros_exr
+from support.exrcraft import exr, required, zeros_exr
 
 LIMITS = {"max_pixels": 1 << 20, "max_side": 2048}
 
@@ -246,6 +246,13 @@ def test_maps_that_are_not_two_to_one_are_refused_before_decoding(tmp_path, suff
     with pytest.raises(EnvironmentMapError, match=r"48 x 32 pixels is not a lat-long .* twice its height") as info:
         read_environment(path)
     assert str(path) in str(info.value)
+    # a header alone, no pixels: refused for its shape, so the shape is checked before decoding
+    if suffix == ".exr":
+        path.write_bytes(exr(required(4000, 3000, ("B", "G", "R")), chunks=3000 // 16 + 1))
+    else:
+        path.write_bytes(HEAD + b"-Y 3000 +X 4000\n")
+    with pytest.raises(EnvironmentMapError, match=r"4000 x 3000 pixels is not a lat-long"):
+        read_environment(path)
 
 
 def test_a_4k_map_passes_and_a_map_over_the_limits_is_refused_from_its_header(tmp_path):
