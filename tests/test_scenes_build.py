@@ -248,3 +248,26 @@ def test_a_changed_map_is_named_by_resume_and_validate(environment_build):
         assert checked.exit_code != 0 and "low.exr" in checked.output
     finally:
         target.write_bytes(original)
+
+
+@pytest.mark.parametrize("bad", ["mesh", "map"])
+def test_a_bad_mesh_or_map_stops_the_build_before_anything_is_written(tmp_path, bad):
+    from pipeline.store.exr import write_exr
+
+    if bad == "mesh":
+        (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 nan 1\nf 1 2 3\n")
+        extra = '[scene]\nobjects = ["broken.obj"]\n'
+        name = "broken.obj"
+    else:
+        radiance = np.ones((8, 16, 3), np.float32)
+        radiance[3, 5, 1] = -2.0
+        write_exr(str(tmp_path / "negative.exr"), {"render": radiance})
+        extra = '[lighting]\nsource = "environment"\nenvironments = ["negative.exr"]\n'
+        name = "negative.exr"
+    spec = tmp_path / "spec.toml"
+    spec.write_text(BASE + extra)
+    out = tmp_path / "out"
+    result = _cli("build", spec, "--out", out, "--workers", "0")
+    assert result.exit_code == 2, result.output
+    assert name in result.output
+    assert not out.exists()

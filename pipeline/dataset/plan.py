@@ -37,8 +37,9 @@ the paper spec; this costs milliseconds and makes distinct indices provably dist
   G-buffer and stored once for all its lightings.
 - environment lighting (``[lighting] source = "environment"``): the lightings of material m
   are drawn jointly from ``seeded_rng(index m of STREAM_ENVIRONMENT)``: L map indices
-  (``integers(E)``), then L rotations and L intensities (``random`` mapped linearly onto
-  their ranges: a multiply-add, the same bits on every machine). No sun is drawn.
+  (``integers(E)``, into the E maps sorted by path), then L rotations and L intensities (``random`` mapped linearly onto
+  their ranges: a multiply-add, the same bits on every machine). The sun's angles are planned
+  as for a sun-lit spec (the same draws) but not used.
 
 Use :func:`seeded_rng` to turn any of these seeds into a ``numpy.random.Generator``.
 """

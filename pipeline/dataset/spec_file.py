@@ -28,7 +28,6 @@ from pipeline.dataset.spec import (
     LightingSection,
     SceneSection,
     SpecError,
-    list_files_with,
 )
 from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import Checked, FieldError, field
@@ -39,7 +38,7 @@ from pipeline.fields.rules import (
     format_value,
 )
 from pipeline.render.limits import DEFAULT_RR_DEPTH
-from sky.environment import ENVIRONMENT_SUFFIXES
+from sky.environment import list_environment_files
 
 # --------------------------------------------------------------------------- parsing
 
@@ -292,15 +291,9 @@ def source_files(spec: DatasetSpec) -> tuple[str, ...]:
 
 
 def environment_files(spec: DatasetSpec) -> tuple[str, ...]:
-    """The environment maps of ``spec`` in draw order: its files and folders as listed, each
-    folder's files sorted by name (absolute paths)."""
-    out: list[str] = []
-    for item in spec.lighting.environments:
-        if os.path.isdir(item):
-            out.extend(os.path.join(item, n) for n in list_files_with(item, ENVIRONMENT_SUFFIXES))
-        else:
-            out.append(item)
-    return tuple(dict.fromkeys(out))
+    """The environment maps of ``spec``, its files and its folders' files, sorted (absolute paths):
+    the list a lighting draws its map from by index."""
+    return list_environment_files(spec.lighting.environments) if spec.lighting.environments else ()
 
 
 def source_file_digests(spec: DatasetSpec) -> dict[str, str]:

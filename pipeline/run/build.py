@@ -22,16 +22,18 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
+from geometry.objects import BUILTIN_OBJECTS, build_object
 from pipeline.dataset.materialize import check_imported_files
 from pipeline.dataset.plan import Plan, plan_dataset
 from pipeline.dataset.spec import DatasetSpec
-from pipeline.dataset.spec_file import spec_to_toml
+from pipeline.dataset.spec_file import environment_files, spec_to_toml
 from pipeline.errors import ShaderballError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import (
     determinism,
     resolve_variant,
     weakest_guarantee,
 )
+from pipeline.render.envmap import load_environment
 from pipeline.render.renderer import MaterialScene
 from pipeline.run.cluster.connection import run_shards_on_dask
 from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
@@ -133,6 +135,18 @@ def prepare(
         write_text_atomic(layout.spec, spec_to_toml(spec))
     write_text_atomic(layout.description, dumps(description(spec, plans, variant, digest, guarantee)) + "\n")
     return variant
+
+
+def check_scene_sources(spec: DatasetSpec) -> None:
+    """Every mesh file and environment map the spec names through its gate, before anything is
+    written: a mesh is bounded, checked and built into the geometry cache (where the workers load
+    it), a map read, bounded and checked (finite, non-negative radiance). A refused file stops
+    the build here with the file and the reason (exit 2), not in a worker halfway through."""
+    for name in spec.scene.objects:
+        if name not in BUILTIN_OBJECTS:
+            build_object(name)
+    for path in environment_files(spec):
+        load_environment(path)
 
 
 def count_done(out: str, plans: Plan) -> int:
@@ -242,6 +256,7 @@ def build(
     plans = plan_dataset(spec)
     check_imported_files(plans)
     check_output_dir(out, spec, allow_spec_change)  # refused here, nothing is created
+    check_scene_sources(spec)  # so is a bad mesh or map
     try:
         os.makedirs(out, exist_ok=True)
         with writer_lock(out, "build"):
