@@ -26,7 +26,6 @@ from pipeline.store.exr import read_exr, write_exr
 from pipeline.store.folder import read_manifest
 from pipeline.store.layout import Layout
 from pipeline.store.records import read_json
-from sky import Light
 
 # --------------------------------------------------------------------------- build benchmark
 
@@ -57,20 +56,20 @@ def warm_kernels(spec, plans, variant: str) -> float:
     in-process build renders them.
     """
 
-    ctx = worker_context(spec, variant)
-
     mi = load_mitsuba(variant)
     start = time.perf_counter()
     for material in _materials_of(plans):
+        ctx = worker_context(spec, variant, material.object)
         maps, _ = make_material(material, spec)
-        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(material.samples[0]), ctx.settings)
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(spec, material.samples[0]), ctx.settings)
         np.asarray(mi.render(mi.load_dict(desc), spp=1, seed=0))
         del desc
     with MaterialScene() as held:
         for material in _materials_of(plans):
+            ctx = worker_context(spec, variant, material.object)
             maps, _ = make_material(material, spec)
             for s in material.samples[:2]:
-                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(spec, s), ctx.settings)
                 np.asarray(mi.render(scene, spp=1, seed=0))
                 del scene
     return time.perf_counter() - start
@@ -87,24 +86,24 @@ def _render_seed(layout, sample) -> int:
     return int(record.get("seeds", {}).get("render_used", sample.render_seed))
 
 
-def _light(sample):
-
-    return Light(sample.elevation_deg, sample.azimuth_deg, sample.turbidity)
+def _light(spec, sample):
+    """What lights ``sample`` (the sun and sky, or its environment map), as the build lights it."""
+    return shard.sample_light(spec, sample)
 
 
 def measure_bare(spec, plans, root: str, kernels: KernelCounter, variant: str) -> list[SampleTiming]:
     """Time scene_dict, load_dict and the bare render of every sample; compare with the build."""
 
-    ctx = worker_context(spec, variant)
     mi = load_mitsuba(variant)
     layout = Layout(root)
     timings = []
     for material in _materials_of(plans):
+        ctx = worker_context(spec, variant, material.object)
         maps, _ = make_material(material, spec)
         for s in material.samples:
             seed = _render_seed(layout, s)
             t0 = time.perf_counter()
-            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+            desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(spec, s), ctx.settings)
             t1 = time.perf_counter()
             scene = mi.load_dict(desc)
             t2, cpu = time.perf_counter(), time.process_time()
@@ -131,7 +130,6 @@ def measure_bare(spec, plans, root: str, kernels: KernelCounter, variant: str) -
 def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]:
     """(per material: raster + maps files, per render: EXR + hash + atomic write), in seconds."""
 
-    ctx = worker_context(spec, variant)
     layout = Layout(root)
     scratch = tempfile.mkdtemp(prefix="shaderball-bench-io-")
     try:
@@ -139,6 +137,7 @@ def measure_storage(spec, plans, root: str, variant: str) -> tuple[float, float]
         start = time.perf_counter()
         for material in materials:
             maps, description = make_material(material, spec)
+            ctx = worker_context(spec, variant, material.object)
             write_material_files(Layout(scratch), spec, ctx, material, maps, description)
         per_material = (time.perf_counter() - start) / len(materials)
         images = [_stored_render(layout, s) for m in materials for s in m.samples][:8]
@@ -161,18 +160,18 @@ def measure_reuse(spec, plans, root: str, kernels: KernelCounter, variant: str) 
     (pipeline.render.renderer.MaterialScene), timed against dict + load + render per sample.
     """
 
-    ctx = worker_context(spec, variant)
     mi = load_mitsuba(variant)
     layout = Layout(root)
     seconds = 0.0
     identical = 0
     for material in _materials_of(plans):
+        ctx = worker_context(spec, variant, material.object)
         maps, _ = make_material(material, spec)
         with MaterialScene() as held:
             for s in material.samples:
                 seed = _render_seed(layout, s)
                 t0 = time.perf_counter()
-                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+                scene, _, _ = held.lit(mi, ctx.ball, ctx.camera, maps, _light(spec, s), ctx.settings)
                 with kernels:
                     out = render_in_passes(
                         mi, scene, ctx.settings.spp, seed, pass_plan(ctx.settings.spp, variant)
@@ -190,14 +189,14 @@ def measure_moment(spec, plans, variant: str, count: int = 3) -> dict:
     timed at full spp; one scene alive at a time.
     """
 
-    ctx = worker_context(spec, variant)
     mi = load_mitsuba(variant)
     totals = {"moment": 0.0, "path": 0.0}
     identical = True
     samples = [(m, s) for m in _materials_of(plans) for s in m.samples][:count]
     for material, s in samples:
+        ctx = worker_context(spec, variant, material.object)
         maps, _ = make_material(material, spec)
-        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(s), ctx.settings)
+        desc, _, _ = scene_dict(ctx.ball, ctx.camera, maps, _light(spec, s), ctx.settings)
         images = {}
         for name, d in (("path", dict(desc, integrator=desc["integrator"]["nested"])), ("moment", desc)):
             scene = mi.load_dict(d)
@@ -235,8 +234,8 @@ _LIT_PHASES = {"load": "scene loads", "material": "material moves", "light": "em
 
 def _lit_phase(args) -> str:
     """The phase of ``MaterialScene.lit(self, mi, ball, camera, maps, light, settings)``."""
-    held, _mi, ball, camera, maps, _light, settings = args
-    return _LIT_PHASES[held.step(ball, camera, maps, settings)]
+    held, _mi, ball, camera, maps, light, settings = args
+    return _LIT_PHASES[held.step(ball, camera, maps, settings, light)]
 
 
 class RenderCallTimer:

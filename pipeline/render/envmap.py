@@ -208,12 +208,33 @@ class _Cache:
 _CACHE = _Cache(ENVIRONMENT_CACHE_ENTRIES)
 
 
+#: (path, size, mtime_ns, inode) -> the SHA-256 of the bytes read there: a file whose status
+#: is unchanged is not read and hashed again (a 4k EXR is ~0.2 s of reading and hashing, per
+#: render without this); any write to it changes its mtime, and so its key.
+_STAT_DIGESTS: dict[tuple, str] = {}
+
+
+def _stat_key(path) -> tuple | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (os.fspath(path), st.st_size, st.st_mtime_ns, st.st_ino)
+
+
 def load_environment(path) -> LoadedEnvironment:
-    """The map at ``path`` and its digest, read once: the file's bytes are read and hashed
-    each call (so an edited file is never served stale), decoded only when its digest is
-    not among the cached ones."""
+    """The map at ``path`` and its digest, read once: the file is read and hashed again only
+    when its status (size, modification time, inode) changed since it was last read, and
+    decoded only when its digest is not among the cached ones."""
+    key = _stat_key(path)
+    known = _STAT_DIGESTS.get(key) if key is not None else None
+    cached = _CACHE.get(known) if known is not None else None
+    if cached is not None:
+        return cached
     label, data = _read_file(path)
     digest = hashlib.sha256(data).hexdigest()
+    if key is not None and key == _stat_key(path):  # not rewritten while it was read
+        _STAT_DIGESTS[key] = digest
     cached = _CACHE.get(digest)
     if cached is not None:
         return cached
@@ -226,6 +247,7 @@ def load_environment(path) -> LoadedEnvironment:
 def clear_environment_cache() -> None:
     """Forget every cached map (tests; a worker that lit its last sample with maps)."""
     _CACHE.clear()
+    _STAT_DIGESTS.clear()
 
 
 def environment_to_world(rotation_deg: float, variant: str):

@@ -34,8 +34,7 @@ from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
-from pipeline.render.emitter import update_emitter_params
-from pipeline.render.lights import is_environment, light_entries
+from pipeline.render.lights import light_entries, move_light, movable
 from pipeline.render.limits import DEFAULT_RR_DEPTH, launch_spp
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts
@@ -412,18 +411,19 @@ class MaterialScene:
 
     def __init__(self):
         self.maps = self.scene = self.params = self.effects = None
-        self._ball = self._camera = self._settings = self._shape = None
+        self._ball = self._camera = self._settings = self._shape = self._light = None
 
     def step(self, ball, camera, maps, settings: RenderSettings, light=None) -> str:
         """What :meth:`lit` does for these: ``"load"``, ``"material"`` (swap the BSDF, move
-        the emitters) or ``"light"`` (move the emitters). An environment map is not moved: a
-        scene lit by one is loaded for each lighting."""
+        the emitters) or ``"light"`` (move the emitters). A scene lit by an environment map
+        moves to another rotation or scale of the same map; another map is loaded afresh
+        (:func:`pipeline.render.lights.movable`)."""
         same_scene = (
             self.scene is not None
             and ball is self._ball
             and camera is self._camera
             and settings == self._settings
-            and not is_environment(light)
+            and movable(self._light, light)
         )
         if not same_scene:
             return "load"
@@ -439,7 +439,7 @@ class MaterialScene:
                 self.scene = mi.load_dict(desc)
             del desc
             self._shape = next(s for s in self.scene.shapes() if s.id() == BALL_SHAPE_ID)
-            self._ball, self._camera, self._settings = ball, camera, settings
+            self._ball, self._camera, self._settings, self._light = ball, camera, settings, light
             self.maps, self.effects = maps, effects
             return self.scene, lighting, effects
         if step == "material":
@@ -451,12 +451,13 @@ class MaterialScene:
             self.maps, self.effects = maps, effects
         if self.params is None:
             self.params = mi.traverse(self.scene)
-        lighting = update_emitter_params(self.params, light, sun=settings.sun, variant=settings.variant)
+        lighting = move_light(self.params, light, settings)
+        self._light = light
         return self.scene, lighting, self.effects
 
     def release(self) -> None:
         self.maps = self.scene = self.params = self.effects = None
-        self._ball = self._camera = self._settings = self._shape = None
+        self._ball = self._camera = self._settings = self._shape = self._light = None
 
     def __enter__(self) -> MaterialScene:
         return self
