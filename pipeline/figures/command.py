@@ -2,8 +2,9 @@
 the docs made again.
 
 ``sun-positions`` (the README's figure, :mod:`pipeline.figures.sun_positions`),
-``contact-sheet`` (docs/materials.md, :mod:`pipeline.figures.contact_sheet`) and
-``albedo-table`` (docs/materials.md, :mod:`pipeline.figures.albedo_table`). Each figure
+``contact-sheet`` (docs/materials.md, :mod:`pipeline.figures.contact_sheet`),
+``albedo-table`` (docs/materials.md, :mod:`pipeline.figures.albedo_table`) and ``scenes`` (the
+README's objects under the shipped environment maps, :mod:`pipeline.figures.scenes`). Each figure
 takes its own fields; another figure's is refused, naming it.
 """
 
@@ -15,6 +16,7 @@ from pipeline.fields import Checked, declared, default_of, field
 from pipeline.fields.rules import Bool, Choice, Int, Optional, Path
 from pipeline.figures.albedo_table import markdown, models_markdown
 from pipeline.figures.contact_sheet import EXAMPLES_RANGE, RESOLUTION_RANGE, SHEET_SEED, write_contact_sheet
+from pipeline.figures.scenes import DEFAULT_SPP, DEFAULT_TILE, SPP_RANGE, TILE_RANGE, write_scenes
 from pipeline.figures.sun_positions import sun_positions
 from pipeline.store.atomic import write_text_atomic
 
@@ -23,9 +25,10 @@ FIGURES = {
     "sun-positions": (),
     "contact-sheet": ("examples", "resolution", "seed"),
     "albedo-table": ("models", "no_samplers"),
+    "scenes": ("tile", "spp"),
 }
 #: Figures written as PNG files (``out`` required); the others print their text without one.
-PNG_FIGURES = ("sun-positions", "contact-sheet")
+PNG_FIGURES = ("sun-positions", "contact-sheet", "scenes")
 
 
 @dataclass(frozen=True)
@@ -36,7 +39,7 @@ class FiguresRequest(Checked):
     out: str | None = field(
         None,
         rule=Optional(Path("a file"), "unset (print the tables)"),
-        doc="sun-positions, contact-sheet: the PNG file to write (they need one); albedo-table: a "
+        doc="sun-positions, contact-sheet, scenes: the PNG file to write (they need one); albedo-table: a "
         "markdown file [default: print the tables].",
         metavar="FILE",
     )
@@ -47,6 +50,8 @@ class FiguresRequest(Checked):
     seed: int = field(SHEET_SEED, rule=Int(0, 2**63 - 1), doc="contact-sheet: the sheet's seed.")
     models: bool = field(False, rule=Bool(), doc="albedo-table: only the two material models side by side.")
     no_samplers: bool = field(False, rule=Bool(), doc="albedo-table: leave out the sampler statistics.")
+    tile: int = field(DEFAULT_TILE, rule=Int(*TILE_RANGE), doc="scenes: width and height of each tile.", unit="pixels")
+    spp: int = field(DEFAULT_SPP, rule=Int(*SPP_RANGE), doc="scenes: samples per pixel of each tile.", unit="samples")
 
     def check_cross(self) -> None:
         takes = FIGURES[self.name]
@@ -96,6 +101,8 @@ def make_figure(request: FiguresRequest, progress=None) -> Figure:
         return Figure(request.name, request.out, markdown=text)
     if request.name == "sun-positions":
         width, height = sun_positions(request.out, progress=progress)
+    elif request.name == "scenes":
+        width, height = write_scenes(request.out, tile=request.tile, spp=request.spp, progress=progress)
     else:
         width, height = write_contact_sheet(
             request.out,
