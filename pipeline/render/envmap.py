@@ -256,7 +256,13 @@ def environment_to_world(rotation_deg: float, variant: str):
     mi = load_mitsuba(variant)
     T = mi.ScalarTransform4f
     upright = T().look_at(origin=[0.0, 0.0, 0.0], target=[0.0, 1.0, 0.0], up=[0.0, 0.0, 1.0])
-    return T().rotate(axis=[0.0, 0.0, 1.0], angle=float(rotation_deg)) @ upright
+    composed = T().rotate(axis=[0.0, 0.0, 1.0], angle=float(rotation_deg)) @ upright
+    # Its inverse as Mitsuba recomputes it where a loaded envmap's to_world is set (vectorised
+    # float32, from the matrix), not as the composition gives it (an ulp apart at some angles,
+    # measured): a scene moved to this rotation in place and one loaded for it hold the same
+    # bits (pipeline.render.lights.move_light).
+    inverse = np.array(mi.AffineTransform4f(composed.matrix).inverse_transpose, dtype=np.float32).reshape(4, 4)
+    return T(mi.ScalarMatrix4f(np.array(composed.matrix, dtype=np.float32)), mi.ScalarMatrix4f(inverse))
 
 
 def environment_emitter_dict(radiance: np.ndarray, rotation_deg: float, scale: float, *, variant: str) -> dict:

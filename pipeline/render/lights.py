@@ -48,9 +48,8 @@ def move_light(params, light, settings) -> dict:
         return update_emitter_params(params, light, sun=settings.sun, variant=settings.variant)
     mi = load_mitsuba(settings.variant)
     params[f"{ENVIRONMENT_KEY}.scale"] = mi.Float(check_scale(light.scale))
-    params[f"{ENVIRONMENT_KEY}.to_world"] = mi.AffineTransform4f(
-        environment_to_world(check_rotation(light.rotation_deg), settings.variant)
-    )
+    to_world = environment_to_world(check_rotation(light.rotation_deg), settings.variant)
+    params[f"{ENVIRONMENT_KEY}.to_world"] = mi.AffineTransform4f(to_world)
     params.update()
     return _environment_record(light, settings)
 
