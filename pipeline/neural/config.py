@@ -30,6 +30,7 @@ from pipeline.fields.rules import (
     IntList,
     Many,
     Optional,
+    Pair,
     Path,
     Reject,
     Rule,
@@ -42,6 +43,7 @@ from pipeline.neural.limits import (
     BUSY_RANGE,
     DEVICES,
     DRAWS_RANGE,
+    ENVIRONMENT_CODE_RANGE,
     INTEGER_RANGES,
     LIMIT_RANGE,
     LOSS_CHOICES,
@@ -116,6 +118,22 @@ class FileName(Path):
         if os.path.isdir(value):
             raise Reject(what=f"{format_value(value)} is a folder")
         return value
+
+
+class RotationRange(Pair):
+    """A range of environment-map rotations in degrees, ``LO,HI`` on a command line."""
+
+    metavar = "LO,HI"
+
+    def __init__(self):
+        super().__init__(0.0, 360.0)
+
+    def parse(self, text: str):
+        return tuple(float(word) for word in text.split(","))
+
+    @property
+    def brief(self) -> str:
+        return "LO,HI degrees, 0 <= LO <= HI <= 360"
 
 
 def _int(name: str) -> Int:
@@ -221,6 +239,35 @@ class TrainConfig(Checked):
         doc="Train on this many of the training split's materials (nested: a smaller count takes a subset of a "
         "larger one; the held-out set stays) [default: all].",
         unit="materials",
+    )
+    held_out_objects: tuple[str, ...] | None = field(
+        None,
+        rule=Optional(StrList(None, "object names"), "unset (none)"),
+        doc="Hold these objects out of training, every material on them under every light (their materials "
+        "join the test split; the other objects' materials split by {test_fraction}); an object the dataset "
+        "lacks, or all of them, is refused [default: none].",
+        metavar="NAME,NAME,...",
+    )
+    held_out_rotations: tuple[float, float] | None = field(
+        None,
+        rule=Optional(RotationRange(), "unset (none)"),
+        doc="Hold out the environment-lit samples whose map rotation lies in [LO, HI] degrees: the training "
+        "materials' samples there join the test split, evaluate reports them apart [default: none].",
+        unit="degrees",
+    )
+    geometry: bool = field(
+        False,
+        rule=Bool(),
+        doc="Give the network the geometry buffers as 4 more input channels (geometry_normal as (n+1)/2, depth "
+        "standardised per image over the object; pipeline.neural.scene_inputs); refused on a dataset whose "
+        "storage.layers lacks geometry_normal or depth. evaluate and infer feed a run what it trained with.",
+    )
+    environment_code: int = field(
+        0,
+        rule=Int(*ENVIRONMENT_CODE_RANGE),
+        doc="A learned code of this many numbers per environment map (by its SHA-256) beside the lighting "
+        "vector; sun-lit samples and maps the run never saw get a shared code; 0: none.",
+        unit="numbers",
     )
     width: float = field(
         1.0,

@@ -33,6 +33,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from pipeline.check.snapshot import published_snapshot, read_snapshot, spec_differences
 from pipeline.errors import ShaderballError, quoted
@@ -48,14 +49,18 @@ from pipeline.neural.denoise import AuxBuffers
 from pipeline.neural.equal_time import EQUAL_TIME_PROBE_SPP, PathTracer, measure_equal_time
 from pipeline.neural.file_sources import dataset_refused
 from pipeline.neural.infer import load_run_model, refuse_nonfinite, run_network
+from pipeline.neural.nearest import MaterialKinds, nearest_sample
+from pipeline.neural.scene_groups import SCENE_KEYS, scene_fields, scene_results, scene_table
+from pipeline.neural.scene_inputs import InputPlan, NetworkInputs, SampleScene
 from pipeline.neural.scores import NETWORK_Y_CAP, image_scores, ldr_scores, markdown_table, method_label, method_means
+from pipeline.neural.splits import split_samples
 from pipeline.neural.train import mean_image, pick_device
 from pipeline.neural.train_summary import SATURATED_FRACTION
 from pipeline.render.mitsuba_env import machine_fingerprint, resolve_variant
 from pipeline.store.atomic import atomic_file
 from pipeline.store.record_fields import json_type_name, short_json
 
-__all__ = ["EvaluateRequest", "EvaluateSummary", "evaluate", "same_dataset"]
+__all__ = ["EvaluateRequest", "EvaluateSummary", "MaterialKinds", "evaluate", "nearest_sample", "same_dataset"]
 GRID_SPP = 2
 #: A compared path-tracing row with more than this fraction of the references' spp shares
 #: much of their noise: its scores are optimistic, and a note says so.
@@ -129,10 +134,11 @@ def evaluate(req: EvaluateRequest, progress=None, command: str | None = None) ->
             grid_rows.append((title, report.grid_pictures(maps_chw, pictures)))
         show.done = n
         show(f"{row['id']}: done")
-    means = method_means(rows)
+    means = method_means([{k: v for k, v in row.items() if k not in SCENE_KEYS} for row in rows])
     run.notes += _result_notes(means, run)
     result = _results(req, run, rows, means, command)
     table = markdown_table(means, len(rows), run.model.resolution, run.ref_spp, run.equal_time)
+    table += scene_table(result, run.split_record.get("held_out_objects"))
     out_dir = req.folder
     refuse_output_links(req)  # again: the evaluation took a while
     os.makedirs(out_dir, exist_ok=True)
@@ -258,6 +264,7 @@ class _Evaluation:
         self.req = req
         self.device = pick_device(req.device)
         self.model, self.config = load_run_model(req.network.run, self.device, req.network.checkpoint)
+        self.inputs, self.split_record = InputPlan.of_network(self.config["network"]), self.config.get("split") or {}
         if req.report:
             runfiles.read_log(req.network.run)  # the report's learning curve: checked before anything is written
         self.exposure = float(self.config["tonemap"]["exposure"])
@@ -294,7 +301,7 @@ class _Evaluation:
                 what=f"{quoted(req.dataset)} is not the dataset the run was trained on: {self.compared}, so the run's "
                 f"{req.split} split does not apply",
             )
-        dataset = source.subset((self.config.get("split") or {}).get(req.split) or [])
+        dataset = split_samples(source, self.split_record, req.split)
         if len(dataset) == 0:
             raise EvaluateRequest.field_error(
                 "split",
@@ -325,7 +332,7 @@ class _Evaluation:
         the dataset is the run's."""
         self.mean_y, self.training = None, None
         if self.same and (self.config.get("split") or {}).get("train"):
-            self.training = self.source.subset(self.config["split"]["train"])
+            self.training = split_samples(self.source, self.split_record, "train")
             self.mean_y = mean_image(self.training, workers=0)
         else:
             self.notes.append(
@@ -349,16 +356,18 @@ class _Evaluation:
         show(f"{sample.id}: network")
         ref_hdr = self._reference(sample)
         ref8 = hdr_to_srgb8(ref_hdr, exposure)
-        maps_chw = item["maps"].numpy()
-        run_network(self.model, maps_chw, sample.lighting_vector, self.device)  # warm-up
+        maps_chw, record = item["maps"].numpy(), self.records[sample.id]
+        net_maps, environment = self._network_inputs(sample, maps_chw, record)
+        run_network(self.model, net_maps, sample.lighting_vector, self.device, environment)  # warm-up
         started, cpu_started = time.perf_counter(), time.process_time()
-        pred = run_network(self.model, maps_chw, sample.lighting_vector, self.device)
+        pred = run_network(self.model, net_maps, sample.lighting_vector, self.device, environment)
         net_s, net_cpu_s = time.perf_counter() - started, time.process_time() - cpu_started
         refuse_nonfinite(pred, f"the network of {self.req.network.run}, sample {sample.id}")
         row = {
             "id": sample.id,
             "material_id": sample.material_id,
-            "class": report.material_class(self.records[sample.id]),
+            "class": report.material_class(record),
+            **scene_fields(record, self.split_record),
             "network": self.ldr_scores(pred, ref_hdr, ref8, exposure, net_s, cpu_s=net_cpu_s),
         }
         if self.mean_y is not None:
@@ -370,8 +379,19 @@ class _Evaluation:
                     near_hdr, hdr_to_srgb8(near_hdr, exposure), ref_hdr, ref8, 0.0, neighbour=neighbour.id
                 )
         pictures = {"reference": ref8, "network": to_srgb8(pred)}
-        self._path_traced(row, pictures, item, sample, ref_hdr, ref8, show)
+        self._path_traced(row, pictures, dict(item, maps=torch.from_numpy(net_maps)), sample, ref_hdr, ref8, show)
         return row, pictures, maps_chw
+
+    def _network_inputs(self, sample, maps_chw, record) -> tuple[np.ndarray, int | None]:
+        """The sample's input as the run's network takes it: the maps with the geometry channels
+        of a run trained with them, and its map's code row (None: a network without codes)."""
+        if self.inputs.geometry:
+            if getattr(self, "geometry_view", None) is None:
+                self.geometry_view = NetworkInputs(self.dataset, self.inputs)
+            maps_chw = np.concatenate([maps_chw, self.geometry_view.geometry(sample).numpy()])
+        if not self.inputs.code_size:
+            return maps_chw, None
+        return maps_chw, self.inputs.environment_index(SampleScene.of(record))
 
     def _reference(self, sample) -> np.ndarray:
         """The sample's path-traced reference: its render in ``--reference``'s build, else its own."""
@@ -477,7 +497,9 @@ def _results(req: EvaluateRequest, run: _Evaluation, rows: list[dict], means: di
         "(squared chord of the sun directions + (turbidity difference / 9)^2), its path-traced render as the answer",
         "samples": rows,
         "mean": means,
-        "by_class": report.class_means(rows, [k for k in rows[0] if k not in ("id", "material_id", "class")]),
+        "by_class": report.class_means(rows, [k for k in rows[0] if isinstance(rows[0][k], dict)]),
+        **scene_results(rows),
+        "inputs": {"geometry": run.inputs.geometry, "environment_code": run.inputs.code_size},
         "train_renders": len(run.training) if run.training is not None else None,
         "classes": f"uniform metal: a uniform material whose largest specular (F0) value is above {report.METAL_F0}; "
         "uniform dielectric: the other uniform ones; svbrdf: the spatially varying ones",
@@ -486,44 +508,6 @@ def _results(req: EvaluateRequest, run: _Evaluation, rows: list[dict], means: di
         "denoiser": DENOISER if run.want_denoise else None,
         "metrics": "PSNR/SSIM on 8-bit sRGB (SSIM Gaussian 11x11, sigma 1.5); relMSE and HDR-FLIP on linear HDR",
     }
-
-
-def _material_kind(records, sample_id: str):
-    """The sample's material class (report.material_class: uniform dielectric, uniform metal, svbrdf)."""
-    return report.material_class(records[sample_id])
-
-
-class MaterialKinds(dict):
-    """sample id -> material class, each found once (a dataset's records are parsed when asked
-    for: the nearest-sample search would parse every training record per evaluated sample)."""
-
-    def __init__(self, records):
-        super().__init__()
-        self.records = records
-
-    def __missing__(self, sample_id: str):
-        kind = self[sample_id] = _material_kind(self.records, sample_id)
-        return kind
-
-
-def nearest_sample(sample, training_samples, kinds):
-    """The training sample of another material of the same class (uniform dielectric, uniform metal,
-    svbrdf) whose lighting
-    vector is nearest (with --split train or all, never the sample's own material): squared chord between the sun directions plus ((turbidity difference) / 9)^2
-    (turbidity spans 1 to 10); None when the training split holds no material of that kind.
-    ``kinds``: sample id -> material class (:class:`MaterialKinds`)."""
-    kind = kinds[sample.id]
-    d, t = np.asarray(sample.lighting_vector[:3]), sample.lighting_vector[3]
-    best, best_distance = None, np.inf
-    for other in training_samples:
-        if other.material_id == sample.material_id or kinds[other.id] != kind:
-            continue
-        distance = float(
-            np.sum((np.asarray(other.lighting_vector[:3]) - d) ** 2) + ((other.lighting_vector[3] - t) / 9.0) ** 2
-        )
-        if distance < best_distance:
-            best, best_distance = other, distance
-    return best
 
 
 def _reference_for(req: EvaluateRequest, source, resolution: int, exposure: float):

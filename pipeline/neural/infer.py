@@ -23,7 +23,7 @@ from pipeline.image.tonemap import inverse_tonemap, to_srgb8
 from pipeline.neural import runfiles
 from pipeline.neural.config import InferRequest
 from pipeline.neural.data import assemble_maps
-from pipeline.neural.network import NeuralRenderer, light_input
+from pipeline.neural.network import NeuralRenderer, light_input, network_from_config
 from pipeline.neural.train import pick_device
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
@@ -58,7 +58,7 @@ def load_run_model(run_dir: str, device: torch.device, checkpoint: str = "last")
     ``last`` (the last epoch's), ``best`` (the best held-out PSNR's) or a checkpoint file of
     this run's configuration. The config and the checkpoint are untrusted input (runfiles)."""
     config = runfiles.read_config(run_dir)
-    model = NeuralRenderer(config["network"]["resolution"], float(config["network"].get("width", 1.0)))
+    model = network_from_config(config["network"], where=f"{os.path.join(run_dir, runfiles.CONFIG)}: network")
     ckpt = runfiles.load_checkpoint(run_dir, config["identity_digest"], checkpoint, network=model)
     try:
         model.load_state_dict(ckpt["model"])
@@ -86,11 +86,16 @@ def _synchronize(device: torch.device) -> None:
 
 
 @torch.no_grad()
-def run_network(model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, device: torch.device) -> np.ndarray:
-    """One (12, R, R) input and a lighting vector -> (R, R, 3) network output in [0, 1]."""
+def run_network(
+    model: NeuralRenderer, maps_chw: np.ndarray, lighting_vector, device: torch.device, environment: int | None = None
+) -> np.ndarray:
+    """One (C, R, R) input (the 12 maps, and the geometry channels of a run trained with them) and
+    a lighting vector -> (R, R, 3) network output in [0, 1]; ``environment``: the row of the map's
+    code, for a network that has codes (None: row 0)."""
     maps = torch.from_numpy(np.ascontiguousarray(maps_chw, dtype=np.float32))[None].to(device)
     light = light_input(torch.tensor([list(lighting_vector)], dtype=torch.float32, device=device))
-    return model(maps, light)[0].permute(1, 2, 0).float().cpu().numpy()
+    extra = () if environment is None else (torch.tensor([environment], dtype=torch.long, device=device),)
+    return model(maps, light, *extra)[0].permute(1, 2, 0).float().cpu().numpy()
 
 
 def refuse_run_links(req: InferRequest) -> None:

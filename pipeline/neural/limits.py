@@ -49,3 +49,7 @@ REPEATS_RANGE = (1, 1000)
 STEPS_RANGE = (1, 10_000)
 BUSY_RANGE = (0, 64)
 DRAWS_RANGE = (1, 100_000)
+#: train --environment-code: numbers in each environment map's learned code (0: none), and the
+#: most maps a run gives a code of their own (pipeline.neural.network checks a run's config by them).
+ENVIRONMENT_CODE_RANGE = (0, 64)
+MAX_ENVIRONMENT_CODES = 4096

@@ -16,16 +16,26 @@ covers the bottleneck one value per pixel, so the parameter count depends on R (
 ``width`` scales every convolution's channels and the light map's copies (the paper's
 network: 1.0): a narrower network for CPU-scale runs (at 0.5 about a quarter of
 the convolutions' work). The light branch's MLP is the paper's at every width.
+
+Two additions, both off by default (the paper's network, its weights' names and shapes, as
+before): ``extra_channels`` input channels after the 12 maps (``train --geometry``: the
+geometry normal and depth, :mod:`pipeline.neural.scene_inputs`), and a learned code per
+environment map (``environment_codes`` maps, ``code_size`` numbers each, an embedding whose row 0
+stands for "no map the run knows": sun-lit samples and unseen maps) concatenated to the light
+input before the light branch. :func:`network_from_config` builds the one a run's config.json
+describes, so train, evaluate, infer and the checkpoint check agree.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
 from pipeline.fields import FieldError
-from pipeline.neural.limits import WIDTH_RANGE
+from pipeline.neural.limits import ENVIRONMENT_CODE_RANGE, MAX_ENVIRONMENT_CODES, WIDTH_RANGE
 
 #: Input channels in order: diffuse RGB, specular RGB, normal-map colour RGB, roughness x3.
 INPUT_CHANNELS = 12
@@ -37,6 +47,9 @@ ENCODER_CHANNELS = (64, 128, 256, 512)
 #: Length of the sun direction in the network's light input (the released demo's 3).
 SUN_DIRECTION_SCALE = 3.0
 PAPER_RESOLUTION = 400
+#: Extra input channels a run may have: none, or the geometry buffers (normal 3 + depth 1).
+EXTRA_CHANNEL_CHOICES = (0, 4)
+MAX_CODE_SIZE = ENVIRONMENT_CODE_RANGE[1]
 PAPER_PARAMETERS = 11_752_404
 
 
@@ -103,15 +116,26 @@ class DecoderBlock(nn.Module):
 class NeuralRenderer(nn.Module):
     """12-channel maps (N, 12, R, R) in [0, 1] and light input (N, 4) -> RGB (N, 3, R, R) in [0, 1]."""
 
-    def __init__(self, resolution: int = PAPER_RESOLUTION, width: float = 1.0):
+    def __init__(
+        self,
+        resolution: int = PAPER_RESOLUTION,
+        width: float = 1.0,
+        extra_channels: int = 0,
+        environment_codes: int = 0,
+        code_size: int = 0,
+    ):
         super().__init__()
         self.resolution = check_network_resolution(resolution)
         self.width = check_width(width, "width")
+        self.input_channels = INPUT_CHANNELS + int(extra_channels)
+        self.code_size = int(code_size) if environment_codes else 0
+        # row 0: no known map (a sun-lit sample, a map the run never saw)
+        self.environment = nn.Embedding(int(environment_codes) + 1, self.code_size) if self.code_size else None
         self.bottleneck_size = resolution // 16
         e1, e2, e3, e4 = (scaled_channels(c, self.width) for c in ENCODER_CHANNELS)
         self.light_channels = scaled_channels(LIGHT_MAP_CHANNELS, self.width)
         self.light = nn.Sequential(
-            nn.Linear(LIGHT_CHANNELS, 32),
+            nn.Linear(LIGHT_CHANNELS + self.code_size, 32),
             nn.Tanh(),
             nn.Linear(32, 128),
             nn.Tanh(),
@@ -122,7 +146,7 @@ class NeuralRenderer(nn.Module):
         )
         self.encoder = nn.ModuleList(
             [
-                _conv_bn_relu(INPUT_CHANNELS, e1, stride=2),
+                _conv_bn_relu(self.input_channels, e1, stride=2),
                 _conv_bn_relu(e1, e2, stride=2),
                 _conv_bn_relu(e2, e3, stride=2),
                 _conv_bn_relu(e3, e4, stride=2),
@@ -148,6 +172,8 @@ class NeuralRenderer(nn.Module):
                 nn.init.zeros_(module.bias)
             elif isinstance(module, nn.BatchNorm2d):
                 module.reset_parameters()
+            elif isinstance(module, nn.Embedding):
+                nn.init.normal_(module.weight, std=0.1)  # small: the light vector stays the main input
 
     def light_map(self, light: torch.Tensor) -> torch.Tensor:
         """(N, 4) network light input -> (N, C, R/16, R/16), C identical channels (128 at width 1)."""
@@ -155,12 +181,18 @@ class NeuralRenderer(nn.Module):
         plane = self.light(light).view(-1, 1, b, b)
         return plane.expand(-1, self.light_channels, b, b)
 
-    def forward(self, maps: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
-        r = self.resolution
-        if maps.dim() != 4 or maps.shape[1:] != (INPUT_CHANNELS, r, r):
-            raise FieldError("network input", tuple(maps.shape), f"(N, {INPUT_CHANNELS}, {r}, {r})")
+    def forward(self, maps: torch.Tensor, light: torch.Tensor, environment: torch.Tensor | None = None) -> torch.Tensor:
+        """``environment``: (N,) indices into the environment codes (None: row 0 for all), used
+        only by a network that has codes."""
+        r, c = self.resolution, self.input_channels
+        if maps.dim() != 4 or maps.shape[1:] != (c, r, r):
+            raise FieldError("network input", tuple(maps.shape), f"(N, {c}, {r}, {r})")
         if light.shape != (maps.shape[0], LIGHT_CHANNELS):
             raise FieldError("network light input", tuple(light.shape), f"({maps.shape[0]}, {LIGHT_CHANNELS})")
+        if self.environment is not None:
+            if environment is None:
+                environment = torch.zeros(maps.shape[0], dtype=torch.long, device=maps.device)
+            light = torch.cat([light, self.environment(environment).to(light.dtype)], dim=1)
         skips = []
         x = maps
         for block in self.encoder:
@@ -170,6 +202,31 @@ class NeuralRenderer(nn.Module):
         for block, skip in zip(self.decoder, reversed(skips)):
             x = block(x, skip)
         return torch.sigmoid(self.output(x))
+
+
+def network_from_config(network: dict, device=None, where: str = "network") -> NeuralRenderer:
+    """The network a run's config.json ``network`` section describes (on ``device``: "meta"
+    allocates nothing); a run made before the additions has none of their keys. The section is
+    untrusted: an addition's value outside what train writes is refused naming it (``where``)."""
+    extra = network.get("extra_channels", 0)
+    if extra not in EXTRA_CHANNEL_CHOICES or isinstance(extra, bool):
+        raise FieldError(f"{where}.extra_channels", extra, " or ".join(map(str, EXTRA_CHANNEL_CHOICES)))
+    code = network.get("environment_code", 0)
+    if isinstance(code, bool) or not isinstance(code, int) or not 0 <= code <= MAX_CODE_SIZE:
+        raise FieldError(f"{where}.environment_code", code, f"an integer from 0 to {MAX_CODE_SIZE}")
+    environments = network.get("environments") or []
+    if not isinstance(environments, list) or len(environments) > MAX_ENVIRONMENT_CODES:
+        raise FieldError(
+            f"{where}.environments", environments, f"a list of at most {MAX_ENVIRONMENT_CODES} map digests"
+        )
+    with torch.device(device) if device is not None else contextlib.nullcontext():
+        return NeuralRenderer(
+            network["resolution"],
+            float(network.get("width", 1.0)),
+            extra_channels=extra,
+            environment_codes=len(environments),
+            code_size=code,
+        )
 
 
 def parameter_count(model: nn.Module) -> int:

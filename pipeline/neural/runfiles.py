@@ -33,7 +33,13 @@ from pipeline.errors import ShaderballError, quoted
 from pipeline.neural import checkpoint_meta
 from pipeline.neural.checkpoint_meta import shown
 from pipeline.neural.config import InferRequest
-from pipeline.neural.network import NeuralRenderer, check_network_resolution, check_width, parameter_count
+from pipeline.neural.network import (
+    NeuralRenderer,
+    check_network_resolution,
+    check_width,
+    network_from_config,
+    parameter_count,
+)
 from pipeline.neural.run_checks import (
     archive_problem,
     checkpoint_content_problem,
@@ -274,8 +280,7 @@ def _missing(path: str, checkpoint: str):
 def _config_network(run_dir: str) -> NeuralRenderer:
     """The network the run's config.json describes, on the meta device (nothing allocated)."""
     config = read_config(run_dir)
-    with torch.device("meta"):
-        return NeuralRenderer(config["network"]["resolution"], float(config["network"].get("width", 1.0)))
+    return network_from_config(config["network"], "meta")
 
 
 def _check_header(ckpt, path: str, run_dir: str, identity_digest: str | None) -> None:

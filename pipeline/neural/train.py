@@ -36,10 +36,17 @@ from pipeline.neural.data import batches, open_dataset
 from pipeline.neural.distributed import train_distributed
 from pipeline.neural.loss import RenderLoss
 from pipeline.neural.loss_choice import LossChoice, choose_loss, make_loss
-from pipeline.neural.network import NeuralRenderer, light_input, parameter_count
+from pipeline.neural.network import NeuralRenderer, light_input, network_from_config, parameter_count
 from pipeline.neural.plot import loss_curve_png
 from pipeline.neural.run_clock import RunClock, RunLength, StepClock
-from pipeline.neural.splits import split_materials
+from pipeline.neural.scene_inputs import InputPlan, with_inputs
+from pipeline.neural.splits import (
+    SUBSET_STREAM,
+    RunSplit,
+    run_split,
+    select_training_materials,  # noqa: F401 (its callers import it from here)
+    split_samples,
+)
 from pipeline.neural.train_summary import TrainSummary, diverged, epoch_warnings
 from pipeline.store.atomic import write_bytes_atomic
 
@@ -54,9 +61,11 @@ OPTIONAL_IDENTITY = {
     "train_materials": None,
     "schedule": "constant",
     "warmup_epochs": 0.0,
+    "held_out_objects": None,
+    "held_out_rotations": None,
+    "geometry": False,
+    "environment_code": 0,
 }
-#: Key of the stream that orders the training materials for --train-materials (nested subsets).
-SUBSET_STREAM = 0x5B5E
 #: At most this many training samples are scored after every epoch (the training curve).
 TRAIN_EVAL_SAMPLES = 256
 #: Key of the per-epoch order stream beside the seed.
@@ -103,6 +112,11 @@ def batch_to(
     return maps, light, target
 
 
+def batch_extra(batch: dict, device: torch.device) -> tuple:
+    """The network's inputs beyond maps and light: the environment codes' rows, where it has them."""
+    return (batch["environment"].to(device, non_blocking=True),) if "environment" in batch else ()
+
+
 def mean_image(dataset, workers: int, batch_size: int = 16) -> np.ndarray:
     """The training set's mean target in [0, 1], (H, W, 3): the trivial baseline."""
     total, count = None, 0
@@ -134,7 +148,7 @@ def evaluate_split(model, loss_fn, dataset, device, batch_size: int, workers: in
     saturated, values = 0, 0
     for batch in batches(dataset, batch_size, workers):
         maps, light, target = batch_to(batch, device)
-        pred = model(maps, light)
+        pred = model(maps, light, *batch_extra(batch, device))
         losses += float(loss_fn(pred, target)) * maps.shape[0]
         n += maps.shape[0]
         for p, t in zip(pred.cpu(), target.cpu()):
@@ -156,19 +170,6 @@ def run_identity(config: TrainConfig, source_identity, resolution, vgg_sha256) -
     if config.schedule != "constant":
         identity["epochs"] = config.epochs
     return identity
-
-
-def select_training_materials(train_ids: list[str], count: int | None, seed: int) -> list[str]:
-    """The first ``count`` training materials in an order drawn from ``seed`` (sorted):
-    nested subsets, so a run on 64 materials sees a subset of one on 128."""
-    if count is None:
-        return train_ids
-    if count > len(train_ids):
-        raise TrainConfig.field_error(
-            "train_materials", count, f"at most {len(train_ids)}, the training split's materials"
-        )
-    order = np.random.default_rng(np.random.SeedSequence([int(seed), SUBSET_STREAM])).permutation(len(train_ids))
-    return sorted(train_ids[i] for i in order[:count])
 
 
 def learning_rate(config: TrainConfig, step: int, steps_per_epoch: int, held_epochs: int = 0) -> float:
@@ -241,8 +242,8 @@ class _Setup:
 
     config: TrainConfig  # with the loss chosen (``auto`` resolved)
     source: object  # the opened dataset
-    train_ids: list
-    test_ids: list
+    split: RunSplit
+    inputs: InputPlan  # what the network takes beyond the maps and the lighting vector
     choice: LossChoice
     loss_fn: RenderLoss
     model: NeuralRenderer
@@ -274,8 +275,9 @@ def _train(config: TrainConfig, progress, source, device, ranks=None, started=No
         start_epoch, history = ckpt["epoch"], list(ckpt["history"])
     if ranks is not None:
         forward = ranks.wrap(model, config.compile)
-    train_set = run.source.subset(run.train_ids)
-    test_set = run.source.subset(run.test_ids) if run.test_ids else None
+    record = run.split.record()
+    train_set = with_inputs(split_samples(run.source, record, "train"), run.inputs)
+    test_set = with_inputs(split_samples(run.source, record, "test"), run.inputs) if run.split.test else None
     train_probe = training_probe(train_set, config.splitting_seed)
     if ranks is None or ranks.main:
         _write_run_config(run, train_set, test_set)
@@ -340,18 +342,20 @@ def _set_up(config: TrainConfig, progress, source) -> _Setup:
         source = open_dataset(
             config.dataset, resolution=config.resolution, exposure=config.exposure, check_hashes=config.hash_check
         )
-    pool, test_ids = split_materials(source.material_ids, config.test_fraction, config.splitting_seed)
-    train_ids = select_training_materials(pool, config.train_materials, config.splitting_seed)
+    split = run_split(config, source)
+    inputs = InputPlan.for_run(config, source, split.train)
     requested = config.loss
     config = dataclasses.replace(config, loss=choice.name)
     loss_fn, vgg_sha = make_loss(choice, config.vgg_weight)
     torch.manual_seed(config.seed)
-    model = NeuralRenderer(source.resolution, config.width)
-    fresh = run_config(config, source, train_ids, test_ids, source.resolution, vgg_sha, parameter_count(model))
+    network = {"resolution": source.resolution, "width": config.width, **inputs.network_record()}
+    model = network_from_config(network)
+    fresh = run_config(config, source, split.train, split.test, source.resolution, vgg_sha, parameter_count(model))
+    fresh["split"], fresh["network"] = split.record(), {**fresh["network"], **inputs.network_record()}
     fresh["loss"] = {"requested": requested, "used": choice.name, "reason": choice.reason}
     if progress is not None:
         progress({"note": choice.reason})
-    return _Setup(config, source, train_ids, test_ids, choice, loss_fn, model, fresh, old)
+    return _Setup(config, source, split, inputs, choice, loss_fn, model, fresh, old)
 
 
 def _resume_point(run: _Setup) -> dict | None:
@@ -531,7 +535,7 @@ def train_epoch(
             group["lr"] = lr
         optimizer.zero_grad(set_to_none=True)
         with speed.autocast(device, config.precision):
-            parts = loss_fn.parts(forward(maps, light), target)
+            parts = loss_fn.parts(forward(maps, light, *batch_extra(batch, device)), target)
         scaler.scale(parts["total"]).backward()
         scaler.step(optimizer)
         scaler.update()
