@@ -399,7 +399,8 @@ def sweep_cmd(request: SweepRequest):
 @request_command(main, FiguresRequest, json="Print what was written (or the tables) as JSON on stdout.")
 def figures_cmd(request: FiguresRequest):
     """A figure or table of the docs, reproduced: sun-positions (README, about 20 s at its size),
-    contact-sheet (docs/materials.md), albedo-table (docs/materials.md, about 10 s).
+    contact-sheet (docs/materials.md), albedo-table (docs/materials.md, about 10 s), scenes (README:
+    one material on the four built-in objects under the shipped environment maps, about 10 s).
 
     \b
     Example:

@@ -8,6 +8,8 @@
 #                                 (120 renders at 64x64; a half-width network, 30 epochs)
 #   docs/img/accuracy_time.png    error against CPU time: `shaderball study`'s pareto.png, a small
 #                                 study of manifests/smoke.toml (the spp ladder and denoising)
+#   docs/img/scenes.png           one material on the four built-in objects under the two shipped
+#                                 environment maps: `shaderball figures scenes` (8 renders)
 #
 #   scripts/readme_pictures.sh [WORK]   (default WORK: out/readme-pictures; its folders are
 #                                        rebuilt, so the pictures come from fresh runs)
@@ -54,4 +56,7 @@ step "the accuracy/time plot"
   --ladder 1,2,4,8,16,32,64 --no-flip
 cp "$WORK/study/pareto.png" docs/img/accuracy_time.png
 
-step "done: docs/img/smoke_preview.png, docs/img/network_vs_pt.png, docs/img/accuracy_time.png"
+step "the objects under the environment maps"
+"$SB" figures scenes --out docs/img/scenes.png
+
+step "done: docs/img/smoke_preview.png, docs/img/network_vs_pt.png, docs/img/accuracy_time.png, docs/img/scenes.png"
