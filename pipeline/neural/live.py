@@ -46,6 +46,8 @@ class LiveNetwork:
 
     @staticmethod
     def lighting_vector(light: Light) -> list[float]:
+        if not isinstance(light, Light):  # an environment map: its record's 4 numbers, as a build stores them
+            return [float(v) for v in light.lighting_vector()]
         effective, _ = apply_policy(light)
         return [float(v) for v in effective.lighting_vector()]
 

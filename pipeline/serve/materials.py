@@ -260,6 +260,8 @@ class DatasetSamples:
                 )
             lines = read_manifest(layout, renders).split(b"\n")
             self.samples = dict(_picker_row(json.loads(line), self.spec) for line in lines if line.strip())
+            #: The spec's mesh files and maps by SHA-256, as the build recorded them (path -> hex).
+            self.sources = description.get("sources") if isinstance(description.get("sources"), dict) else {}
         except (OSError, ValueError, KeyError, TypeError, *USER_ERRORS) as exc:
             raise NotADataset(
                 f"{format_value(root)} cannot be read ({exc}); check it with `shaderball validate` or `shaderball verify`"
@@ -292,6 +294,9 @@ def _picker_row(record: dict, spec) -> tuple[str, tuple[int, dict]]:
     material = record.get("material") or {}
     requested = (record.get("lighting") or {}).get("requested") or {}
     row = {key: requested.get(key) for key in ("elevation_deg", "azimuth_deg", "turbidity")}
+    if "environment" in requested:  # an environment-lit sample: its map (base name), turn and scale
+        row = {key: requested.get(key) for key in ("environment", "rotation_deg", "intensity")}
+    row["object"] = os.path.basename(str((record.get("object") or {}).get("name") or "shaderball"))
     return sample_id, (index, {"kind": material.get("kind"), "family": material.get("family"), **row})
 
 

@@ -72,7 +72,7 @@ from urllib.parse import urlsplit
 
 from materials import SVBRDF_FAMILIES
 from pipeline.fields import Checked, field
-from pipeline.fields.rules import Bool, Int, Optional, Path, Text
+from pipeline.fields.rules import Bool, Int, Many, Optional, Path, Text
 from pipeline.serve.materials import (
     DATASET_ALLOWED,
     MAX_UPLOAD_BYTES,
@@ -82,6 +82,9 @@ from pipeline.serve.materials import (
     decode_upload,
     material_maps,
 )
+from pipeline.serve.pictures import png_data_url, texture_srgb8
+from pipeline.serve.scenes import ENVIRONMENT_ALLOWED, OBJECT_ALLOWED, SceneFileRefused, open_scenes
+from pipeline.serve.scope import training_scope
 from pipeline.serve.transport import MAX_JSON_BYTES, PAGE_ROUTES, HostPolicy, JsonHandler, json_body
 from pipeline.serve.view import (
     ALBEDO_PNG,
@@ -92,6 +95,7 @@ from pipeline.serve.view import (
     UploadRequest,
     api_defaults,
     api_ranges,
+    environment_ranges,
     is_fresh,
     parse_view,
 )
@@ -101,8 +105,6 @@ from pipeline.serve.workers import (
     Hub,
     NetworkRunner,
     PathTracer,
-    png_data_url,
-    texture_srgb8,
 )
 from pipeline.ui.interrupt import Stopped
 
@@ -154,6 +156,13 @@ class QuietServer(ThreadingHTTPServer):
         log.debug("connection from %s ended by an error", client_address, exc_info=True)
 
 
+class Repeated(Many):
+    """An option given any number of times (``--object A --object B``), none included."""
+
+    def check(self, value):
+        return () if isinstance(value, (list, tuple)) and not value else super().check(value)
+
+
 class StopServing(Exception):
     """Raised by the server loop of :func:`serve` once Ctrl-C asked it to stop."""
 
@@ -180,6 +189,18 @@ class ServeOptions(Checked):
         rule=Optional(Path(DATASET_ALLOWED, exists="folder")),
         doc="A dataset folder or its publication, whose samples the page offers by id.",
         metavar="DIR|PUB",
+    )
+    object: tuple[str, ...] = field(
+        (),
+        rule=Repeated(Path(OBJECT_ALLOWED, exists="file")),
+        doc="A mesh file the page offers beside the built-in objects (repeat for more); checked at start.",
+        metavar="PATH",
+    )
+    environment: tuple[str, ...] = field(
+        (),
+        rule=Repeated(Path(ENVIRONMENT_ALLOWED, exists="any")),
+        doc="An HDR environment map (or a folder of them) the page may light with (repeat for more); checked at start.",
+        metavar="PATH",
     )
     host: str = field(
         "127.0.0.1",
@@ -210,6 +231,16 @@ def open_dataset(options: ServeOptions) -> DatasetSamples | None:
         raise ServeOptions.field_error("dataset", options.dataset, DATASET_ALLOWED, what=exc.what) from None
 
 
+def open_offer(options: ServeOptions, dataset: DatasetSamples | None):
+    """The objects and maps the page may pick (pipeline.serve.scenes); a file a gate refuses
+    is refused naming its option (``object`` or ``environment``), the file and the reason."""
+    try:
+        return open_scenes(options.object, options.environment, dataset)
+    except SceneFileRefused as exc:
+        allowed = OBJECT_ALLOWED if exc.option == "object" else ENVIRONMENT_ALLOWED
+        raise ServeOptions.field_error(exc.option, exc.path, allowed, what=exc.reason) from None
+
+
 class App:
     """The server's state: the hub, the workers, the dataset picker and the network."""
 
@@ -220,6 +251,9 @@ class App:
         self.options = options
         self.network, self.stored = network, stored
         self.dataset = open_dataset(options)
+        self.scenes = open_offer(options, self.dataset)
+        config = getattr(network, "config", None)
+        self.scope = training_scope(config, options.dataset) if network is not None else None
         net_res = network.resolution if network is not None else None
         path_res = PATH_RESOLUTION if net_res is None else net_res * max(1, round(PATH_RESOLUTION / net_res))
         self.hub = Hub(path_res, net_res)
@@ -241,7 +275,7 @@ class App:
         if self.tracer.failure is not None:
             raise self.tracer.failure
         if self.network is not None:
-            self.runner = NetworkRunner(self.hub, self.network, lambda: self.tracer.network_gbuffer)
+            self.runner = NetworkRunner(self.hub, self.network, self.scope)
             self.runner.start()
         try:
             self.httpd = QuietServer((self.options.host, self.options.port), handler_for(self))
@@ -285,6 +319,8 @@ class App:
     def info(self) -> dict:
         return {
             "network": self.network.describe() if self.network is not None else None,
+            # What the network learned from (objects, light source): the page warns outside it.
+            "trained_on": self.scope.to_dict() if self.scope is not None else None,
             "train_hint": None if self.network is not None else TRAIN_HINT,
             "path_resolution": self.hub.path_resolution,
             "passes_spp": list(PASS_TOTALS),
@@ -300,10 +336,12 @@ class App:
             "texture_texels": TEXTURE_TEXELS,
             "albedo_png": ALBEDO_PNG,
             "samples": self.dataset.listing() if self.dataset is not None else [],
+            **self.scenes.listing(),  # objects, environments, default_object
+            "environment": environment_ranges(),  # a map's rotation and intensity: ranges, defaults
         }
 
     def view(self, doc) -> dict:
-        client, view = parse_view(doc)
+        client, view = parse_view(doc, self.scenes)
         known = self.hub.knows(client)  # False: a tab whose state was forgotten sends it again
         if is_fresh(doc):
             self.hub.start_afresh(client)  # a reloaded page: it holds none of what the server held
@@ -315,7 +353,14 @@ class App:
         generation = self.hub.submit(
             client, view, lambda: material_maps(view.material, self.dataset, uploads), reference
         )
-        return {"ok": True, "generation": generation, "known": known, "uploads": sorted(uploads)}
+        outside = self.scope.warning(view.object, view.light) if self.scope is not None else None
+        return {
+            "ok": True,
+            "generation": generation,
+            "known": known,
+            "uploads": sorted(uploads),
+            "network_outside": outside,
+        }
 
     def upload(self, query: dict, body: bytes) -> dict:
         request = UploadRequest.from_doc(query)

@@ -1,11 +1,13 @@
-"""What the page asks for: one view (a material, a sun and sky, an exposure), checked.
+"""What the page asks for: one view (a material, an object, a light, an exposure), checked.
 
 Every value arrives as JSON from the page. Each part of the document is a checked request
 (:class:`pipeline.fields.Checked`) whose fields are named as the JSON names them, with the
 rules built from the domain's ranges (``sky.lighting``, ``materials``), declared there once.
 A bad value is refused with a :class:`pipeline.fields.FieldError` naming the field by its
 own name; :func:`api_error` words it as the document spells it (``light.azimuth_deg``), and
-the server answers it as a 4xx JSON error that the page shows. Nothing here reads a file.
+the server answers it as a 4xx JSON error that the page shows. Nothing here reads a file:
+an object or an environment map is named by an id the server offers
+(:class:`pipeline.serve.scenes.Scenes`, opened at start), never by a path.
 """
 
 from __future__ import annotations
@@ -18,7 +20,9 @@ from materials import ALBEDO_RANGE, ROUGHNESS_RANGE, SVBRDF_FAMILIES
 from pipeline.errors import ShaderballError
 from pipeline.fields import Checked, FieldError, declared, default_of, field
 from pipeline.fields.rules import MISSING, Bool, Choice, Float, Int, Reject, Rule, Text, Triple
+from pipeline.serve.scenes import DEFAULT_OBJECT, ObjectChoice, Scenes
 from sky import Light
+from sky.environment import ROTATION_RANGE, SCALE_RANGE
 from sky.lighting import AZIMUTH_TURN, ELEVATION_RANGE, TURBIDITY_RANGE
 
 #: A multiplier on linear radiance before the tone map (pipeline.image.tonemap).
@@ -29,6 +33,10 @@ SEED_RANGE = (0, 2**31 - 1)
 #: The paper's "cloudiness" 0..3 and the turbidity each stands for.
 CLOUDINESS_TURBIDITY = (2.0, 3.0, 6.0, 10.0)
 MATERIAL_KINDS = ("uniform", "svbrdf", "dataset", "maps")
+#: What lights a view: the paper's sun and sky, or an HDR environment map the server offers.
+LIGHT_SOURCES = ("sun_sky", "environment")
+#: An object's or a map's id as /api/info lists it (a built-in name, a file's base name).
+SCENE_ID = r"[^\x00-\x1f/\\]{1,255}"
 #: What an 8-bit albedo PNG upload (diffuse, specular) means: "linear" (value / 255 is the
 #: albedo, as docs/serve.md says) or "srgb". The page paints in sRGB and converts its
 #: canvases to this before uploading, so the painted colour is the colour rendered.
@@ -128,9 +136,41 @@ class LightChoice(Part):
         270.0, rule=_Number(*AZIMUTH_TURN), doc="Sun azimuth, counter-clockwise from +x.", unit="degrees"
     )
     turbidity: float = field(3.0, rule=_Number(*TURBIDITY_RANGE), doc="Atmospheric turbidity.")
+    source: str = field("sun_sky", rule=Choice(LIGHT_SOURCES), doc="The sun and sky, or an environment map.")
+    environment: str = field(
+        "",
+        rule=Text(f"|{SCENE_ID}", "an environment map's id as /api/info lists it"),
+        doc="The map (source environment).",
+    )
 
-    def light(self) -> Light:
-        return Light(self.elevation_deg, self.azimuth_deg, self.turbidity)
+    def light(self, scenes: Scenes | None = None):
+        """A ``sky.Light``, or the chosen map's ``EnvironmentLight`` (``scenes``: what the
+        server offers; the map's rotation and intensity are an :class:`EnvironmentChoiceDoc`)."""
+        if self.source == "sun_sky":
+            return Light(self.elevation_deg, self.azimuth_deg, self.turbidity)
+        offered = scenes.environments if scenes is not None else {}
+        if not offered:
+            raise type(self).field_error(
+                "source", self.source, "sun_sky (start `shaderball serve --environment PATH` to offer maps)"
+            )
+        choice = offered.get(self.environment)
+        if choice is None:
+            raise with_status(
+                type(self).field_error("environment", self.environment, "one of " + ", ".join(offered)), 404
+            )
+        return choice
+
+
+@dataclass(frozen=True)
+class EnvironmentChoiceDoc(Part):
+    """``light``'s turn and brightness of an environment map (ranges: sky.environment)."""
+
+    SPELLED: ClassVar[str] = "light."
+
+    rotation_deg: float = field(
+        0.0, rule=_Number(*ROTATION_RANGE), doc="The map's turn about +z, counter-clockwise from above.", unit="degrees"
+    )
+    intensity: float = field(1.0, rule=_Number(*SCALE_RANGE), doc="Multiplier on the map's radiance.")
 
 
 @dataclass(frozen=True)
@@ -198,6 +238,7 @@ class ViewRequest(Part):
         rule=_Object("an object with elevation_deg, azimuth_deg, turbidity"), doc="The sun and sky (its own part)."
     )
     exposure: float = field(4.0, rule=_Number(*EXPOSURE_RANGE), doc="Multiplier on radiance before the tone map.")
+    object: str = field(DEFAULT_OBJECT, rule=Text(SCENE_ID, "an object's id as /api/info lists it"), doc="The object.")
     fresh: bool = field(
         False, rule=Bool(), doc="The page's first view since it loaded: what the server held for the client is dropped."
     )
@@ -227,11 +268,16 @@ class UploadRequest(Part):
 # --------------------------------------------------------------------------- the view
 
 
+#: The object of a view parsed without the server's offer (the page's default): the shaderball.
+DEFAULT_CHOICE = ObjectChoice(DEFAULT_OBJECT, DEFAULT_OBJECT, "built-in")
+
+
 @dataclass(frozen=True)
 class View:
     material: UniformChoice | SvbrdfChoice | DatasetChoice | MapsChoice
-    light: Light
+    light: object  # sky.Light or sky.environment.EnvironmentLight
     exposure: float
+    object: ObjectChoice = DEFAULT_CHOICE
 
     def material_key(self) -> tuple:
         return (type(self.material).__name__, *self.material.__dict__.values())
@@ -243,14 +289,21 @@ def parse_material(doc: dict) -> UniformChoice | SvbrdfChoice | DatasetChoice | 
     return MATERIAL_PARTS[kind].from_doc(doc)
 
 
-def parse_view(doc) -> tuple[str, View]:
-    """(client id, view) of the JSON document the page posts to /api/view."""
+def parse_view(doc, scenes: Scenes | None = None) -> tuple[str, View]:
+    """(client id, view) of the JSON document the page posts to /api/view; ``scenes``: the
+    objects and maps the server offers (None: the shaderball under the sun and sky only)."""
     if not isinstance(doc, dict):
         raise FieldError("body", doc, "a JSON object with client, material, light, exposure", name="")
     request = ViewRequest.from_doc(doc)
     material = parse_material(request.material)
-    light = LightChoice.from_doc(request.light).light()
-    return request.client, View(material, light, request.exposure)
+    chosen = LightChoice.from_doc(request.light).light(scenes)
+    if not isinstance(chosen, Light):  # an EnvironmentChoice: its turn and brightness
+        turn = EnvironmentChoiceDoc.from_doc(request.light)
+        chosen = chosen.light(turn.rotation_deg, turn.intensity)
+    objects = scenes.objects if scenes is not None else {DEFAULT_OBJECT: DEFAULT_CHOICE}
+    if request.object not in objects:
+        raise with_status(ViewRequest.field_error("object", request.object, "one of " + ", ".join(objects)), 404)
+    return request.client, View(material, chosen, request.exposure, objects[request.object])
 
 
 def is_fresh(doc: dict) -> bool:
@@ -279,6 +332,16 @@ def api_ranges() -> dict[str, list]:
             if isinstance(rule, (Float, Int)):
                 ranges[name] = [rule.lo, rule.hi]
     return ranges
+
+
+def environment_ranges() -> dict[str, dict]:
+    """The environment map's numbers, as :func:`api_ranges` and :func:`api_defaults` give the
+    others: {"ranges": {name: [lo, hi]}, "defaults": {name: value}}."""
+    fields = declared(EnvironmentChoiceDoc).items()
+    return {
+        "ranges": {name: [f.metadata["rule"].lo, f.metadata["rule"].hi] for name, f in fields},
+        "defaults": {name: default_of(f) for name, f in fields},
+    }
 
 
 def api_defaults() -> dict[str, object]:

@@ -28,14 +28,17 @@ before the request (a frame poll then answers at once), and /api/view's answer l
 ``uploads`` it holds. The page, on ``known: false``, uploads again every map it had uploaded
 and posts its view again. The uploads of all clients together are bounded by
 :data:`MAX_STORED_UPLOAD_BYTES` (4 maps of each of MAX_CLIENTS clients).
+
+Objects. A view names the object it shows (pipeline.serve.scenes). The path tracer builds an
+object and its G-buffers (:class:`Stage`) the first time a view shows it, in its own thread
+(the G-buffers are Mitsuba's), and keeps it; the hub holds every stage made, so the maps
+strip and the network (which waits for the stage its view needs) use the object's G-buffers.
+The shaderball's stage is made at start.
 """
 
 from __future__ import annotations
 
-import base64
-import io
 import itertools
-import math
 import threading
 import time
 from collections import OrderedDict
@@ -43,23 +46,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from geometry import build_shaderball, default_camera
+from geometry.objects import build_object, object_camera
 from pipeline.errors import USER_ERRORS
-from pipeline.image.metrics import psnr8
-from pipeline.image.tonemap import hdr_to_srgb8, map_srgb8, tonemap
+from pipeline.image.tonemap import hdr_to_srgb8
 from pipeline.render.gbuffer import load_gbuffer
+from pipeline.render.lights import is_environment
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
-from pipeline.render.raster import encode_normal_texture, project_material
-from pipeline.render.renderer import (
-    MaterialScene,
-    PassSum,
-    RenderSettings,
-    luminance_variance,
-    pass_seed,
-    relative_error,
-)
+from pipeline.render.raster import project_material
+from pipeline.render.renderer import MaterialScene, PassSum, RenderSettings, pass_seed, relative_error
 from pipeline.serve.materials import TEXTURE_TEXELS
-from pipeline.serve.view import MAP_NAMES, RequestError, View
+from pipeline.serve.pictures import (  # noqa: F401 - texture_srgb8, noise_psnr_db: imported from here too
+    difference,
+    maps_strip,
+    noise_psnr_db,
+    png_data_url,
+    texture_srgb8,
+    unbiased_variance,
+)
+from pipeline.serve.view import DEFAULT_CHOICE, MAP_NAMES, RequestError, View
 
 #: Total spp after each progressive pass; the pass sizes are the differences.
 PASS_TOTALS = (1, 4, 16, 64)
@@ -76,42 +80,6 @@ ABANDONED_S = 30.0
 MAX_STORED_UPLOAD_BYTES = MAX_CLIENTS * len(MAP_NAMES) * TEXTURE_TEXELS * TEXTURE_TEXELS * 3 * 4
 #: Path-traced frames are this many pixels a side unless the network's resolution asks for more.
 PATH_RESOLUTION = 128
-#: The difference image is scaled by this before display (errors are small).
-DIFF_GAIN = 4.0
-
-
-def png_data_url(pixels: np.ndarray) -> str:
-    from PIL import Image
-
-    buffer = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(pixels)).save(buffer, format="PNG", compress_level=1)
-    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
-def box_down(image: np.ndarray, factor: int) -> np.ndarray:
-    if factor == 1:
-        return image
-    h, w = image.shape[:2]
-    return image.reshape(h // factor, factor, w // factor, factor, -1).mean(axis=(1, 3)).astype(np.float32)
-
-
-def maps_strip(screen: dict[str, np.ndarray]) -> np.ndarray:
-    """The four screen-space maps side by side as one 8-bit picture (albedos sRGB-encoded)."""
-    rough = np.repeat(screen["roughness"][..., None], 3, axis=2)
-    normal = encode_normal_texture(screen["normal"]) * screen["mask"][..., None]
-    tiles = [map_srgb8(screen["diffuse"]), map_srgb8(screen["specular"]), map_srgb8(rough, False)]
-    return np.concatenate(tiles + [map_srgb8(normal, False)], axis=1)
-
-
-def texture_srgb8(name: str, texels: np.ndarray) -> np.ndarray:
-    """A decoded upload (texture space, as :func:`pipeline.serve.materials.decode_upload` gives
-    it) as the page's paint canvas shows it: albedos sRGB-encoded, roughness grey, normals in
-    the (n + 1) / 2 encoding."""
-    if name == "normal":
-        return map_srgb8(encode_normal_texture(texels), False)
-    if name == "roughness":
-        return map_srgb8(np.repeat(texels[..., :1], 3, axis=2), False)
-    return map_srgb8(texels[..., :3])
 
 
 @dataclass
@@ -171,6 +139,7 @@ class Client:
     path_hdr: np.ndarray | None = None
     path_variance: np.ndarray | None = None
     reference_hdr: np.ndarray | None = None  # a dataset sample's stored render, shown as a reference
+    maps_object: str | None = None  # the object the frame's maps strip was projected on
     seen: float = 0.0  # the hub's clock at the client's last request
 
 
@@ -184,7 +153,8 @@ class Hub:
         self.clock = clock  # seconds, monotonic (a test's own clock moves a client's idle time)
         self.path_slots, self.network_slots = LatestSlots(), LatestSlots()
         self.path_resolution, self.network_resolution = path_resolution, network_resolution
-        self.screen_gbuffer = None  # the path tracer's G-buffer, set once it is loaded
+        self.screen_gbuffer = None  # the shaderball's G-buffer at the path tracer's resolution, once loaded
+        self.stages: dict[str, Stage | BaseException] = {}  # by object name: made, or why not
         self.generations = itertools.count(1)
         self.stopped = False  # set once the server stops: nothing is published from then on
 
@@ -300,8 +270,9 @@ class Hub:
             client.network_hdr = client.path_hdr = client.path_variance = None
             for part in ("network", "path", "diff", "error"):
                 client.frame.pop(part, None)
-            if self.screen_gbuffer is not None and "maps" not in client.frame:
-                client.frame["maps"] = png_data_url(maps_strip(project_material(client.maps, self.screen_gbuffer)))
+            if client.maps_object != view.object.name:
+                client.frame.pop("maps", None)
+            self._show_maps(client, view.object.name)
             self._show(client)
             self._changed(client)
             job = Job(client_id, client.generation, view, client.maps)
@@ -309,6 +280,36 @@ class Hub:
         if self.network_resolution is not None:
             self.network_slots.put(Job(client_id, job.generation, view, job.maps))
         return job.generation
+
+    def _show_maps(self, client: Client, name: str) -> bool:
+        """The client's maps strip on object ``name`` where its stage is made and the frame has
+        none; whether it was added. Caller holds the lock."""
+        stage = self.stages.get(name)
+        if not isinstance(stage, Stage) or "maps" in client.frame or client.maps is None:
+            return False
+        client.frame["maps"] = png_data_url(maps_strip(project_material(client.maps, stage.screen)))
+        client.maps_object = name
+        return True
+
+    def add_stage(self, name: str, stage) -> None:
+        """Object ``name``'s :class:`Stage` made (or the exception that stopped it): the
+        network waiting for it goes on, and every client showing it gets its maps strip."""
+        with self.lock:
+            self.stages[name] = stage
+            for client in self.clients.values():
+                if client.view is not None and client.view.object.name == name and self._show_maps(client, name):
+                    self._changed(client)
+            self.lock.notify_all()
+
+    def wait_stage(self, name: str, job: Job):
+        """Object ``name``'s stage (or why it could not be made) once the path tracer made it;
+        None if ``job`` went stale or the server stopped meanwhile."""
+        with self.lock:
+            while (stage := self.stages.get(name)) is None:
+                if self.stopped or self.network_slots.closed or not self.current(job):
+                    return None
+                self.lock.wait(1.0)
+            return stage
 
     def current(self, job: Job) -> bool:
         with self.lock:
@@ -392,50 +393,20 @@ def _same_scene(client: Client, view: View, key: tuple) -> bool:
         and client.maps is not None
         and client.material_key == key
         and held.light == view.light
+        and held.object == view.object
         and held.exposure != view.exposure
     )
 
 
-def unbiased_variance(out: np.ndarray, spp: int) -> np.ndarray | None:
-    """The variance of each pixel's luminance estimate from ``spp`` samples, or None when it
-    cannot be measured. The moment integrator gives the samples' second moment; m2 - m1^2 is
-    their variance with 1/spp weights (biased low by (spp - 1)/spp), and with one sample per
-    pixel (a box filter) it is 0 whatever the noise: the first pass's noise is unknown."""
-    if spp < 2:
-        return None
-    return (luminance_variance(out, spp) * (spp / (spp - 1))).astype(np.float32)
+@dataclass(frozen=True)
+class Stage:
+    """An object as the server shows it: built, framed by its camera, and its G-buffers at the
+    path tracer's resolution (``screen``) and the network's (``network``, None without one)."""
 
-
-def noise_psnr_db(path_hdr: np.ndarray, variance: np.ndarray | None, factor: int, exposure: float) -> float | None:
-    """The path-traced frame's own noise as a PSNR against its converged limit, in the displayed
-    8-bit space at the network's resolution: each pixel moved by one standard deviation of its
-    estimate (the luminance variance of :func:`unbiased_variance`, over ``factor``^2 pixels
-    averaged), through the tone map (first order). None where the variance is not known (one
-    sample per pixel): a noisy frame is never reported as noiseless."""
-    if variance is None:
-        return None
-    mean = box_down(path_hdr, factor)
-    sigma = np.sqrt(box_down(variance[..., None], factor) / (factor * factor))
-    delta = (tonemap(mean + sigma, exposure) - tonemap(mean, exposure)) * 255.0
-    mse = float(np.mean(delta.astype(np.float64) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
-
-
-def difference(network_hdr: np.ndarray, path_hdr: np.ndarray, variance: np.ndarray | None, exposure: float) -> dict:
-    """|network - path| of the displayed 8-bit pictures (at the network's resolution, the path
-    frame box-averaged to it), the PSNR between them, and the path frame's own noise as a PSNR
-    (None while it is unknown)."""
-    factor = path_hdr.shape[0] // network_hdr.shape[0]
-    reference = hdr_to_srgb8(box_down(path_hdr, factor), exposure)
-    test = hdr_to_srgb8(network_hdr, exposure)
-    delta = np.abs(test.astype(np.int16) - reference.astype(np.int16)).astype(np.float32) * DIFF_GAIN
-    noise = noise_psnr_db(path_hdr, variance, factor, exposure)
-    return {
-        "png": png_data_url(np.clip(delta, 0, 255).astype(np.uint8)),
-        "psnr_db": round(psnr8(test, reference), 2),
-        "noise_psnr_db": None if noise is None else round(noise, 2),
-        "gain": DIFF_GAIN,
-    }
+    ball: object
+    camera: object
+    screen: object
+    network: object | None
 
 
 class PathTracer(threading.Thread):
@@ -448,7 +419,8 @@ class PathTracer(threading.Thread):
         self.on_fatal = on_fatal or (lambda exc: None)
         self.network_gbuffer = None
         self.scene = MaterialScene()
-        self.scene_light = None
+        self.scene_light = self.scene_stage = None
+        self.stages: dict[str, Stage] = {}
 
     def run(self) -> None:
         try:
@@ -457,10 +429,9 @@ class PathTracer(threading.Thread):
             # Errors only: Mitsuba's warnings (a render wound down by Ctrl-C, a sampler's rounding)
             # would print on the terminal the server owns; a failed render reaches the page instead.
             self.mi.logger().set_log_level(self.mi.LogLevel.Error)
-            self.ball, self.camera = build_shaderball(), default_camera()
-            self.hub.screen_gbuffer = load_gbuffer(self.ball, self.camera, self.hub.path_resolution, self.variant)
-            if self.hub.network_resolution is not None:
-                self.network_gbuffer = load_gbuffer(self.ball, self.camera, self.hub.network_resolution, self.variant)
+            default = self.stage_of(DEFAULT_CHOICE)
+            self.ball, self.camera = default.ball, default.camera
+            self.hub.screen_gbuffer, self.network_gbuffer = default.screen, default.network
             self.settings = RenderSettings(
                 resolution=self.hub.path_resolution, spp=PASS_TOTALS[-1], variant=self.variant
             )
@@ -482,20 +453,48 @@ class PathTracer(threading.Thread):
             except Exception as exc:  # noqa: BLE001 - shown in the page; the server goes on
                 self.hub.publish(job, "error", {"message": f"path tracing failed: {type(exc).__name__}: {exc}"})
 
-    def loaded_scene(self, job: Job):
-        if self.scene.maps is not job.maps:
+    def stage_of(self, choice) -> Stage:
+        """The stage of ``choice`` (a :class:`pipeline.serve.scenes.ObjectChoice`), made the
+        first time (mesh files passed their gate at start) and handed to the hub."""
+        stage = self.stages.get(choice.name)
+        if stage is not None:
+            return stage
+        try:
+            ball = build_object(choice.name)
+            camera = object_camera(ball)
+            screen = load_gbuffer(ball, camera, self.hub.path_resolution, self.variant)
+            net_res = self.hub.network_resolution
+            network = load_gbuffer(ball, camera, net_res, self.variant) if net_res is not None else None
+        except Exception as exc:
+            self.hub.add_stage(choice.name, exc)  # the network waiting for it shows why
+            raise
+        stage = self.stages[choice.name] = Stage(ball, camera, screen, network)
+        self.hub.add_stage(choice.name, stage)
+        return stage
+
+    def loaded_scene(self, job: Job, stage: Stage):
+        """The held scene moved to the job's maps, object and light. A change of material,
+        object or kind of light loads the scene afresh (a sun-lit scene has no map to turn,
+        a map-lit one no sun to move)."""
+        light = job.view.light
+        if (
+            self.scene.maps is not job.maps
+            or self.scene_stage is not stage
+            or is_environment(light) != is_environment(self.scene_light)
+        ):
             self.scene.release()
             self.scene_light = None
-        if self.scene_light != job.view.light:
-            self.scene.lit(self.mi, self.ball, self.camera, job.maps, job.view.light, self.settings)
-            self.scene_light = job.view.light
+        if self.scene_light != light:
+            self.scene.lit(self.mi, stage.ball, stage.camera, job.maps, light, self.settings)
+            self.scene_light, self.scene_stage = light, stage
         return self.scene.scene
 
     def render_pass(self, job: Job) -> None:
         """One chunk of the job's current pass; the pass's picture once the chunk completes it."""
         if job.pass_started is None:
             job.pass_started = time.perf_counter()
-        scene = self.loaded_scene(job)
+        stage = self.stage_of(job.view.object)
+        scene = self.loaded_scene(job, stage)
         total = PASS_TOTALS[job.index]
         spp = min(CHUNK_SPP, total - job.acc.spp)
         image = self.mi.render(scene, spp=spp, seed=pass_seed(0, job.chunk))
@@ -510,7 +509,7 @@ class PathTracer(threading.Thread):
         out = job.acc.mean()
         hdr = np.ascontiguousarray(out[..., 0:3], dtype=np.float32)
         variance = unbiased_variance(out, job.acc.spp)
-        noise = None if variance is None else relative_error(out, job.acc.spp, self.hub.screen_gbuffer.mask, variance)
+        noise = None if variance is None else relative_error(out, job.acc.spp, stage.screen.mask, variance)
         # No "png": the hub tone-maps ``hdr`` at the client's exposure of the moment it publishes.
         doc = {
             "spp": job.acc.spp,
@@ -528,9 +527,11 @@ class PathTracer(threading.Thread):
 class NetworkRunner(threading.Thread):
     """The thread that runs the network (torch) on each client's latest view."""
 
-    def __init__(self, hub: Hub, network, gbuffer_of):
+    def __init__(self, hub: Hub, network, scope=None):
+        """``scope``: what the network learned from (pipeline.serve.scope.TrainingScope): a
+        view outside it gets its picture with ``outside``, the sentence that says so."""
         super().__init__(name="shaderball-network", daemon=True)
-        self.hub, self.network, self.gbuffer_of = hub, network, gbuffer_of
+        self.hub, self.network, self.scope = hub, network, scope
 
     def run(self) -> None:
         while (job := self.hub.network_slots.take()) is not None:
@@ -538,13 +539,19 @@ class NetworkRunner(threading.Thread):
                 continue
             try:
                 started = time.perf_counter()
-                screen = project_material(job.maps, self.gbuffer_of())
+                stage = self.hub.wait_stage(job.view.object.name, job)
+                if stage is None:
+                    continue  # stale meanwhile
+                if isinstance(stage, BaseException):
+                    raise stage
+                screen = project_material(job.maps, stage.network)
                 hdr, network_s = self.network(screen, job.view.light)
                 doc = {  # the hub adds the picture, tone-mapped at the client's exposure
                     "network_ms": round(network_s * 1000, 2),
                     "frame_ms": round((time.perf_counter() - started) * 1000, 2),
                     "latency_ms": round((time.perf_counter() - job.started) * 1000, 2),
                     "resolution": int(hdr.shape[0]),
+                    "outside": self.scope.warning(job.view.object, job.view.light) if self.scope else None,
                 }
                 self.hub.publish(job, "network", doc, hdr)
             except Exception as exc:  # noqa: BLE001 - shown in the page; the server goes on

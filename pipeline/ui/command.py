@@ -110,6 +110,11 @@ def _option(f, label) -> click.Option:
     if isinstance(rule, Bool):
         decl = f"{spelled}/--no-{f.name.replace('_', '-')}" if default else spelled
         kwargs = dict(is_flag=True, default=bool(default), show_default=bool(default))
+    elif isinstance(rule, Many):  # an option given again for each value: --object A --object B
+        decl = spelled
+        kwargs = dict(type=FieldType(rule.item), multiple=True, default=default, show_default=False)
+        if f.metadata.get("metavar"):
+            kwargs["metavar"] = f.metadata["metavar"]
     else:
         decl = spelled
         if isinstance(default, tuple):  # as it is typed: "0.5,0.5,0.5", "1,2,4"; () as the rule's word for none
