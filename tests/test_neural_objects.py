@@ -97,6 +97,11 @@ def test_geometry_and_a_held_out_object_train_and_evaluate_by_group(with_geometr
         assert lo <= network["psnr"] <= hi
     assert "mean_image" in groups["held-out"]  # the baseline beside it
     assert "Seen and held-out objects" in (out / "results.md").read_text()
+    # infer feeds the run the geometry channels of its own G-buffer
+    picture = tmp_path / "ball.exr"
+    result = _cli("infer", run, "--out", picture, "--elevation", "30", "--roughness", "0.3")
+    assert result.exit_code == 0, result.output
+    assert picture.stat().st_size > 0
 
 
 def test_geometry_on_a_dataset_without_its_layers_is_refused_and_nothing_written(without_geometry, tmp_path):
@@ -169,3 +174,28 @@ def test_environment_codes_give_each_known_map_its_row_and_change_the_output():
     with torch.no_grad():
         one, two = (network(maps, light, torch.tensor([i])) for i in (1, 2))
     assert not torch.allclose(one, two)
+
+
+def test_held_out_rotations_move_a_training_materials_lightings_to_test():
+    from pipeline.neural.data import ShaderballDataset
+    from pipeline.neural.manifest_index import SampleFiles
+    from pipeline.neural.splits import split_samples
+
+    ref = ("k", "0" * 64, 1)
+    samples, records = [], {}
+    for m in range(3):
+        for light, rotation in enumerate((10.0, 200.0, 330.0)):
+            sid = f"m{m}_l{light}"
+            samples.append(SampleFiles(sid, f"m{m}", ref, ref, (0.0, 0.0, 1.0, 0.0)))
+            records[sid] = {"lighting": {"source": "environment", "sha256": "a" * 64, "rotation_deg": rotation}}
+    source = ShaderballDataset("/nowhere", samples, 16, 1, records=records)
+    split = {"train": ["m0", "m1"], "test": ["m2"], "held_out_rotations": [300.0, 360.0]}
+    train = [s.id for s in split_samples(source, split, "train").samples]
+    test = [s.id for s in split_samples(source, split, "test").samples]
+    assert train == ["m0_l0", "m0_l1", "m1_l0", "m1_l1"]
+    assert test == ["m0_l2", "m1_l2", "m2_l0", "m2_l1", "m2_l2"]
+    assert [s.id for s in split_samples(source, {"train": ["m0"], "test": []}, "train").samples] == [
+        "m0_l0",
+        "m0_l1",
+        "m0_l2",
+    ]

@@ -24,6 +24,7 @@ from pipeline.neural import runfiles
 from pipeline.neural.config import InferRequest
 from pipeline.neural.data import assemble_maps
 from pipeline.neural.network import NeuralRenderer, light_input, network_from_config
+from pipeline.neural.scene_inputs import InputPlan, geometry_channels
 from pipeline.neural.train import pick_device
 from pipeline.render.gbuffer import load_gbuffer
 from pipeline.render.mitsuba_env import resolve_variant
@@ -123,9 +124,12 @@ def infer_to_files(req: InferRequest) -> InferSummary:
     started = time.perf_counter()
     variant = resolve_variant((config["identity"].get("dataset") or {}).get("variant") or "auto")
     gbuffer = load_gbuffer(build_shaderball(), default_camera(), resolution, variant)
-    screen = project_material(material, gbuffer)
+    inputs = InputPlan.of_network(config["network"])
+    screen = project_material(material, gbuffer, geometry=inputs.geometry)  # the run's input channels
     layers = {k: (v[..., None] if v.ndim == 2 else v) for k, v in screen.items()}
     maps_chw, _ = assemble_maps(layers)
+    if inputs.geometry:
+        maps_chw = np.concatenate([maps_chw, geometry_channels(layers)])
     maps_s = time.perf_counter() - started
 
     run_network(model, maps_chw, vector, device)  # warm-up: first calls allocate
