@@ -23,6 +23,11 @@ process, on a local cluster of worker processes sharing the cores, or on ``--clu
 slurm|pbs`` jobs of ``--cores`` each, a shard at a time per worker (per-worker arithmetic:
 rounds of shards x a shard's renders x seconds per render x this machine's cores / the
 worker's cores; a remote core is taken to be as fast as one here).
+
+A spec that names objects or environment maps also gets its materials per object, the maps
+and their ranges; timed, every object and map is rendered at least once and given its seconds
+per render, and the spec's figure is weighed to its shares of them
+(:func:`pipeline.bench.first_renders.scene_costs`). A spec that names neither reports as before.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from dataclasses import asdict, dataclass
 from pipeline.bench.first_renders import TIMED_LIGHTS, Timing, disk_estimate, time_first_samples, timing_plan
 from pipeline.bench.gpu_rate import gpu_rate
 from pipeline.bench.training_specs import cheaper_for_training
-from pipeline.check.info import human_bytes
+from pipeline.check.info import counted_names, human_bytes, lighting_summary, listed_names
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec_file import spec_digest, spec_operand
 from pipeline.fields import Checked, field, same_as
@@ -137,9 +142,54 @@ class PlanReport:
     timing: Timing | None = None
     estimates: list[Estimate] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
+    #: The plan summary's materials per object and environment maps (base names), where the
+    #: spec names them; ``lighting``: the environment maps' ranges (empty under the sun)
+    objects: dict = dataclasses.field(default_factory=dict)
+    environments: list = dataclasses.field(default_factory=list)
+    lighting: str = ""
+    scheme: str = ""  # how objects are drawn (with objects)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        # a spec naming no object or map: the document as it was before either existed
+        for key in ("objects", "environments", "lighting", "scheme"):
+            if not out[key]:
+                del out[key]
+        if out["timing"] is not None:
+            for key in ("by_object", "by_environment"):
+                if not out["timing"][key]:
+                    del out["timing"][key]
+            if not (self.objects or self.environments):
+                del out["timing"]["scene_weight"]
+        return out
+
+    def scene_lines(self) -> list[str]:
+        """The objects and maps the spec names (none where it names neither)."""
+        out = []
+        if self.objects:
+            out.append(f"objects (materials planned, {self.scheme}): {counted_names(self.objects)}")
+        if self.environments:
+            out.append(f"lighting: {self.lighting}; {len(self.environments)} map(s): {listed_names(self.environments)}")
+        return out
+
+    def scene_timing_lines(self) -> list[str]:
+        """Seconds per render of each object and map timed (none where the spec names neither)."""
+        t, out = self.timing, []
+        for what, groups in (("object", t.by_object), ("environment map", t.by_environment)):
+            if groups:
+                out.append(
+                    f"time per {what} (its render calls against the others'): "
+                    + listed_names(
+                        f"{name} {g['seconds_per_render']:.3f} s a render ({g['renders']} timed)"
+                        for name, g in groups.items()
+                    )
+                )
+        if t.scene_weight != 1.0:
+            out.append(
+                f"the spec's mix (objects by their materials, maps in equal shares) costs x{t.scene_weight:.3f} "
+                "the timed renders' mix: in the figures above"
+            )
+        return out
 
     def lines(self) -> list[str]:
         d = self.disk
@@ -149,6 +199,7 @@ class PlanReport:
             f"{self.svbrdf:,} svbrdf) x {self.lights_per_material} lightings; {self.resolution}x{self.resolution} px, "
             f"{self.spp} spp, variant {self.variant}",
             f"shards: {self.shards:,} of {self.shard_size} materials ({self.renders_per_shard} renders)",
+            *self.scene_lines(),
             f"disk (pixel data before EXR compression): {human_bytes(d['total_bytes'])} = renders "
             f"{human_bytes(d['render_bytes'])} ({human_bytes(d['bytes_per_render'])} each) + screen-space maps "
             f"{human_bytes(d['maps_bytes'])} ({human_bytes(d['bytes_per_material_maps'])} a material) + texture maps "
@@ -170,6 +221,7 @@ class PlanReport:
             )
             if x:
                 out.append(f"extrapolated: {x['text']}")
+            out.extend(self.scene_timing_lines())
             out.append(
                 f"disk as written (EXR compressed, records, markers, manifest): {human_bytes(t.bytes_per_render)} a "
                 f"render, {human_bytes(t.bytes_per_render * self.renders)} in all"
@@ -212,6 +264,10 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
         spp=spec.render.spp,
         variant=spec.render.variant,
         disk=disk_estimate(spec, summary["uniform"], summary["svbrdf"]),
+        objects=dict(summary.get("objects", {})),
+        environments=list(summary.get("environments", [])),
+        lighting=lighting_summary(spec.lighting) if summary.get("environments") else "",
+        scheme=spec.scene.scheme if summary.get("objects") else "",
     )
     cheaper = cheaper_for_training(report.spec_digest)
     if cheaper is not None:
@@ -233,7 +289,10 @@ def plan_spec(req: PlanRequest, progress=None) -> PlanReport:
             f"timing the first {req.renders}+ renders of {req.spec} {where} (kernels compiled first; "
             "nothing is kept) ..."
         )
-    report.timing = time_first_samples(spec, plans, req.renders, {"uniform": report.uniform, "svbrdf": report.svbrdf})
+    scene = {"objects": report.objects, "environments": report.environments}
+    report.timing = time_first_samples(
+        spec, plans, req.renders, {"uniform": report.uniform, "svbrdf": report.svbrdf}, scene
+    )
     report.estimates = estimates(report, req)
     if spec.render.target_error > 0:
         report.notes.append(

@@ -1,6 +1,12 @@
 """The spec's first renders, built and timed at the spec's settings (and at a few smaller
 ones, to extrapolate what a render at the paper's size costs), and the disk they take:
 what :mod:`pipeline.bench.estimate` turns into a plan's time per worker.
+
+Where the spec names objects or environment maps, every one of them is rendered at least
+once (:func:`covering_materials`: one lighting of the first material showing it), and each
+render's own time (its record's ``stats.time_s``) gives an object's, or a map's, cost relative
+to the others': :func:`scene_costs` turns those into seconds per render of each, and weighs the
+spec's figure by the materials each object has and the maps' equal shares.
 """
 
 from __future__ import annotations
@@ -8,19 +14,24 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+import statistics
 import tempfile
 import time
 from dataclasses import dataclass
 
 from pipeline.bench.bare_renders import warm_kernels
-from pipeline.dataset.plan import Plan, ShardPlan
+from pipeline.dataset.plan import SCENE_TUPLES, Plan, ShardPlan
 from pipeline.render.mitsuba_env import load_mitsuba, resolve_variant
 from pipeline.run.shard import make_shard_dir, run_shard
 from pipeline.store.exr import MATERIAL_MAP_LAYERS, pixel_bytes
 from pipeline.store.layout import MARKER_FILE, Layout
+from pipeline.store.records import read_json
 
 #: Lightings timed per material at most (a material may have 1000).
 TIMED_LIGHTS = 5
+#: Lightings rendered of a material added only so that an object or an environment map the
+#: first materials lack is timed (:func:`covering_materials`): one keeps `plan` cheap.
+COVER_LIGHTS = 1
 #: A spec whose render is at most this work (pixels x spp: the paper's 400x400 px at 150
 #: spp, about 5 s on 2 cores), at most this resolution and texture resolution, is timed at
 #: its own settings; any other at small settings, and extrapolated (:func:`timing_plan`).
@@ -57,6 +68,14 @@ class Timing:
     #: None: timed at the spec's settings; else how the figures were extrapolated to them
     #: (:meth:`TimingPlan.describe`: the settings timed, the model, the spec's settings)
     extrapolation: dict | None = None
+    #: Where the spec names objects (environment maps): base name -> renders timed, render_s (the
+    #: mean render call, at the timed settings) and seconds_per_render (:func:`scene_costs`);
+    #: empty where it names neither, and then left out of to_dict()
+    by_object: dict = dataclasses.field(default_factory=dict)
+    by_environment: dict = dataclasses.field(default_factory=dict)
+    #: The factor the timed renders' mix was weighed by to the spec's shares of objects and maps
+    #: (1.0 where it names neither)
+    scene_weight: float = 1.0
 
 
 def disk_estimate(spec, uniform: int, svbrdf: int) -> dict:
@@ -109,13 +128,48 @@ def _first_lightings(material, max_lights: int | None):
     """``material`` with only its first ``max_lights`` lightings (all when None or fewer)."""
     if max_lights is None or material.n_lights <= max_lights:
         return material
-    return dataclasses.replace(
-        material,
-        **{
-            key: getattr(material, key)[:max_lights]
-            for key in ("render_seeds", "elevation_deg", "azimuth_deg", "turbidity")
-        },
+    return _lightings(material, range(max_lights))
+
+
+def _lightings(material, indices):
+    """``material`` with only its lightings ``indices``, in that order (its environment maps,
+    rotations and intensities with them, where it has them)."""
+    keys = (
+        "render_seeds",
+        "elevation_deg",
+        "azimuth_deg",
+        "turbidity",
+        *(k for k in SCENE_TUPLES if getattr(material, k)),
     )
+    return dataclasses.replace(material, **{key: tuple(getattr(material, key)[i] for i in indices) for key in keys})
+
+
+def covering_materials(plans: Plan, chosen: list, objects, environments) -> list:
+    """Materials to time beside ``chosen`` so that each of ``objects`` and ``environments`` (as
+    the plan names them: built-in names or paths) is rendered at least once: for each one the
+    chosen (with the lightings they keep) lack, the first material in plan order showing it,
+    or one of whose lightings draws it, with :data:`COVER_LIGHTS` lighting (that one). An
+    object or a map no material of the plan draws is not timed (the dataset holds none)."""
+    want_objects = [o for o in objects if o not in {m.object for m in chosen}]
+    want_maps = [e for e in environments if e not in {e for m in chosen for e in m.environment}]
+    extra = []
+    for shard in plans:
+        if not want_objects and not want_maps:
+            break
+        for material in shard.materials:
+            picks = []
+            if material.object in want_objects:
+                want_objects.remove(material.object)
+                picks.append(next((l for l, e in enumerate(material.environment) if e in want_maps), 0))
+            for l, e in enumerate(material.environment):
+                if e not in want_maps or (l not in picks and len(picks) >= COVER_LIGHTS):
+                    continue
+                want_maps.remove(e)
+                if l not in picks:
+                    picks.append(l)
+            if picks:
+                extra.append(_lightings(material, sorted(picks)))
+    return extra
 
 
 @dataclass(frozen=True)
@@ -243,10 +297,15 @@ def _pixel_bytes_per_render(spec, kind: str, lights: int) -> float:
     return disk["bytes_per_render"] + (disk["maps_bytes"] + disk["texture_bytes"]) / lights
 
 
-def _time_kind_at(spec, plan: TimingPlan, kind: str, materials: list, variant: str) -> dict:
+def _time_kind_at(spec, plan: TimingPlan, kind: str, materials: list, variant: str, render_times: list) -> dict:
     """A kind's materials timed at ``plan``'s settings (:func:`_time_kind`); extrapolated to
-    the spec's when ``plan`` says so."""
-    timed = {point: _time_kind(_spec_at(spec, point), materials, variant) for point in plan.points(kind)}
+    the spec's when ``plan`` says so. ``render_times`` gets the renders timed at the first
+    (base) setting, as :func:`_time_kind` gives them."""
+    points = plan.points(kind)
+    timed = {
+        point: _time_kind(_spec_at(spec, point), materials, variant, render_times if point == points[0] else None)
+        for point in points
+    }
     if not plan.extrapolated:
         return next(iter(timed.values()))
     base = next(iter(timed))
@@ -276,8 +335,10 @@ def _folder_bytes(root: str) -> tuple[int, int]:
     return total, records
 
 
-def _time_kind(spec, materials: list, variant: str) -> dict:
-    """Build ``materials`` (of one kind) into a temporary folder with the build's shard code; time it."""
+def _time_kind(spec, materials: list, variant: str, render_times: list | None = None) -> dict:
+    """Build ``materials`` (of one kind) into a temporary folder with the build's shard code; time it.
+    ``render_times``, when given, gets (object's base name, map's base name or None, the render
+    call's seconds from the record) of every render."""
     first = materials[0]
     shard = ShardPlan(shard_index=first.shard_index, shard_id=first.shard_id, materials=tuple(materials))
     root = tempfile.mkdtemp(prefix="shaderball-plan-")
@@ -289,6 +350,8 @@ def _time_kind(spec, materials: list, variant: str) -> dict:
         done = run_shard(root, spec, shard, variant)
         seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
         written, records = _folder_bytes(root)
+        if render_times is not None:
+            render_times += _render_times(layout, shard)
     finally:
         shutil.rmtree(root, ignore_errors=True)
     renders = done["rendered"]
@@ -302,12 +365,73 @@ def _time_kind(spec, materials: list, variant: str) -> dict:
     }
 
 
-def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int]) -> Timing:
+def _render_times(layout: Layout, shard: ShardPlan) -> list[tuple[str, str | None, float]]:
+    """(object, map, seconds) of each render of ``shard`` built under ``layout``: the render
+    call's own time, from its record (the materials' maps and the writes are not in it)."""
+    out = []
+    for sample in shard.samples:
+        record = read_json(layout.path(layout.record_rel(sample.shard_id, sample.sample_id)))
+        seconds = (record or {}).get("stats", {}).get("time_s")
+        if isinstance(seconds, (int, float)) and seconds > 0:
+            environment = os.path.basename(sample.environment) if sample.environment else None
+            out.append((sample.object_name, environment, float(seconds)))
+    return out
+
+
+def scene_costs(
+    render_times: list, base: int, object_shares: dict[str, float], map_shares: dict[str, float]
+) -> tuple[dict, dict, float]:
+    """Each object's and each map's cost, from ``render_times`` (:func:`_render_times`: the
+    first ``base`` are the renders the spec's figure was timed on, the rest those added to cover
+    an object or a map): (by object, by map, weight). An object's relative cost is the mean
+    render call of its renders over the mean of all; its seconds per render, that relative to
+    the base renders' mix of objects, times the spec's figure; ``weight``: the spec's figure
+    weighed to ``object_shares`` and ``map_shares`` (shares of the spec's renders; the groups
+    named in neither are not weighed) instead of the base renders' mix."""
+    mean_all = statistics.fmean(t for _o, _e, t in render_times)
+    groups = {}
+    weight = 1.0
+    for position, shares in ((0, object_shares), (1, map_shares)):
+        if not shares:
+            groups[position] = {}
+            continue
+        times: dict[str, list[float]] = {}
+        for entry in render_times:
+            times.setdefault(entry[position], []).append(entry[2])
+        relative = {name: statistics.fmean(t) / mean_all for name, t in times.items()}
+        base_counts: dict[str, int] = {}
+        for entry in render_times[:base]:
+            base_counts[entry[position]] = base_counts.get(entry[position], 0) + 1
+        base_mix = (
+            sum(n * relative[name] for name, n in base_counts.items()) / sum(base_counts.values())
+            if base_counts
+            else 1.0
+        )
+        timed = [name for name in shares if name in relative]  # in the spec's order
+        spec_mix = sum(shares[name] * relative[name] for name in timed) / sum(shares[name] for name in timed)
+        weight *= spec_mix / base_mix
+        groups[position] = {
+            name: {
+                "renders": len(times[name]),
+                "render_s": statistics.fmean(times[name]),
+                "relative": relative[name] / base_mix,
+            }
+            for name in timed
+        }
+    return groups[0], groups[1], weight
+
+
+def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int], scene: dict | None = None) -> Timing:
     """Build the spec's first ``samples`` renders (whole materials, and the first material of
     each kind the spec has; at most :data:`TIMED_LIGHTS` lightings each) with the build's
     shard code, kernels compiled first, each kind timed on its own, at the settings of
     :func:`timing_plan` (extrapolated to the spec's where they are not its own); the figures
-    per render are the kinds' weighted by ``counts`` (materials of each kind in the spec)."""
+    per render are the kinds' weighted by ``counts`` (materials of each kind in the spec).
+
+    ``scene``: the plan summary's ``objects`` (materials per object) and ``environments`` (map
+    base names), where the spec names them: each is then timed (:func:`covering_materials`) and
+    given its seconds per render, and the figures are weighed to the spec's shares of them
+    (:func:`scene_costs`)."""
     variant = resolve_variant(spec.render.variant)
     load_mitsuba(variant)
     import drjit as dr
@@ -316,21 +440,46 @@ def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int]) 
     if dr.thread_count() != threads:
         dr.set_thread_count(threads)
     plan = timing_plan(spec)
+    scene = scene or {}
     chosen = first_materials(plans, samples, tuple(k for k, n in counts.items() if n), TIMED_LIGHTS)
-    shard = ShardPlan(shard_index=chosen[0].shard_index, shard_id=chosen[0].shard_id, materials=tuple(chosen))
+    # only the objects and maps the spec names beside the default (the plan summary has them)
+    extra = covering_materials(
+        plans,
+        chosen,
+        spec.scene.objects if scene.get("objects") else (),
+        plans.environments if scene.get("environments") else (),
+    )
+    shard = ShardPlan(shard_index=chosen[0].shard_index, shard_id=chosen[0].shard_id, materials=tuple(chosen + extra))
     for res in plan.resolutions:  # kernels depend on the resolution; the largest one's set-up is kept
         started = time.perf_counter()
         warm_kernels(_spec_at(spec, (res, plan.spp[0], plan.texels[-1])), [shard], variant)  # also geometry, G-buffer
         setup_s = time.perf_counter() - started
+    render_times: list = []
     by_kind = {
-        kind: _time_kind_at(spec, plan, kind, [m for m in chosen if m.kind == kind], variant)
+        kind: _time_kind_at(spec, plan, kind, [m for m in chosen if m.kind == kind], variant, render_times)
         for kind in counts
         if any(m.kind == kind for m in chosen)
     }
+    base = len(render_times)
+    if extra:  # their renders' own times only: the spec's figure is the first materials'
+        base_point = plan.points("svbrdf")[0]
+        _time_kind(_spec_at(spec, base_point), extra, variant, render_times)
     weight = {kind: counts[kind] for kind in by_kind}  # every timed kind is one the spec has
 
     def mix(key: str) -> float:
         return sum(weight[k] * by_kind[k][key] for k in by_kind) / sum(weight.values())
+
+    by_object, by_environment, scene_weight = {}, {}, 1.0
+    if scene and render_times:
+        materials = sum(scene.get("objects", {}).values())
+        by_object, by_environment, scene_weight = scene_costs(
+            render_times,
+            base,
+            {name: n / materials for name, n in scene.get("objects", {}).items()},
+            {name: 1.0 / len(scene.get("environments", ())) for name in scene.get("environments", ())},
+        )
+        for group in (*by_object.values(), *by_environment.values()):
+            group["seconds_per_render"] = mix("seconds_per_render") * group.pop("relative")
 
     return Timing(
         renders=sum(k["renders"] for k in by_kind.values()),
@@ -341,10 +490,13 @@ def time_first_samples(spec, plans: Plan, samples: int, counts: dict[str, int]) 
         threads=threads,
         setup_s=setup_s,
         seconds=sum(k["seconds"] for k in by_kind.values()),
-        seconds_per_render=mix("seconds_per_render"),
-        cpu_seconds_per_render=mix("cpu_seconds_per_render"),
+        seconds_per_render=mix("seconds_per_render") * scene_weight,
+        cpu_seconds_per_render=mix("cpu_seconds_per_render") * scene_weight,
         load_average=os.getloadavg()[0],
         bytes_per_render=mix("bytes_per_render"),
         by_kind=by_kind,
         extrapolation=plan.describe() if plan.extrapolated else None,
+        by_object=by_object,
+        by_environment=by_environment,
+        scene_weight=scene_weight,
     )

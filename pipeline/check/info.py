@@ -4,7 +4,9 @@ Reads only the folder's own files: the spec snapshot, the description, the shard
 and, in unfinished shards, the per-sample records (through pipeline.store.folder). Nothing is
 rendered, hashed or written; `shaderball validate` is the command that checks files.
 Counts come from the spec (materials x lightings, shards), so a build that was stopped
-half-way reports how far it got.
+half-way reports how far it got. Where the spec names other objects or environment maps, the
+plan's counts say how many materials each object shows and which maps lightings draw from
+(:meth:`pipeline.dataset.plan.Plan.summary`); a spec that names neither reports as before.
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ from dataclasses import dataclass, field
 
 from pipeline.check.request import InfoRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
-from pipeline.dataset.plan import shard_id
+from pipeline.dataset.plan import plan_dataset, shard_id
 from pipeline.dataset.spec_file import spec_digest
+from pipeline.errors import ShaderballError
 from pipeline.store.bounded_read import read_json_checked, unsafe_entry
 from pipeline.store.folder import (
     disk_usage,
@@ -91,6 +94,10 @@ class DatasetInfo:
     flagged: int = 0
     rerendered: int = 0
     noise_relative_median: float | None = None
+    #: materials planned on each object (a mesh file by its base name) and the environment maps
+    #: lightings draw from (base names), where the spec names them (Plan.summary()); empty else
+    objects: dict = field(default_factory=dict)
+    environments: list = field(default_factory=list)
     #: what was left out and why: malformed markers or records, paths leaving the folder,
     #: symbolic links or FIFOs in it (``shaderball validate`` checks everything).
     problems: list = field(default_factory=list)
@@ -152,22 +159,69 @@ class DatasetInfo:
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
-        return {**asdict(self), "complete": self.complete}
+        out = {**asdict(self), "complete": self.complete}
+        for key in ("objects", "environments"):  # a spec naming neither: the document as it was
+            if not out[key]:
+                del out[key]
+        return out
 
 
-def spec_summary(spec) -> list[str]:
+def spec_summary(spec, scene: dict | None = None) -> list[str]:
+    """The spec's lines of the report; ``scene``: the plan summary's ``objects`` and
+    ``environments`` (:meth:`pipeline.dataset.plan.Plan.summary`), each where it has them."""
     ds, r, lt, st = spec.dataset, spec.render, spec.lighting, spec.storage
+    scene = scene or {}
     n_svbrdf = ds.n_svbrdf
-    return [
+    out = [
         f"spec: {ds.materials} materials ({ds.materials - n_svbrdf} uniform, {n_svbrdf} SVBRDF) x "
         f"{ds.lights_per_material} lightings = {ds.n_renders} renders in {ds.n_shards} shards of "
         f"{ds.shard_size} materials; seed {ds.seed}",
         f"render: {r.resolution}x{r.resolution}, {r.spp} spp, max depth {r.max_depth}, {r.integrator}, "
-        f"variant {r.variant}; lighting: elevation {list(lt.elevation_deg)} deg, azimuth "
-        f"{list(lt.azimuth_deg)} deg, turbidity {list(lt.turbidity)}, {lt.scheme}, sun {lt.sun}",
+        f"variant {r.variant}; lighting: {lighting_summary(lt)}",
         f"storage: {st.compression}, maps {'half' if st.maps_half else 'float32'} "
         f"({', '.join(st.layers)}), texture-space maps {'on' if st.texture_maps else 'off'}",
     ]
+    if scene.get("objects"):
+        out.append(f"objects (materials planned, {spec.scene.scheme}): " + counted_names(scene["objects"]))
+    if scene.get("environments"):
+        out.append(f"environment maps ({len(scene['environments'])}): " + listed_names(scene["environments"]))
+    return out
+
+
+def lighting_summary(lighting) -> str:
+    """The lighting's ranges as the report words them: the sun's, or the environment maps'
+    (the sun's keys are then unused, so they are not shown)."""
+    lt = lighting
+    if lt.source == "environment":
+        return (
+            f"environment maps, one drawn per lighting, rotation {list(lt.rotation_deg)} deg, "
+            f"intensity {list(lt.intensity)} (uniform)"
+        )
+    return (
+        f"elevation {list(lt.elevation_deg)} deg, azimuth {list(lt.azimuth_deg)} deg, "
+        f"turbidity {list(lt.turbidity)}, {lt.scheme}, sun {lt.sun}"
+    )
+
+
+#: Names a report line lists at most (a folder may hold hundreds of maps).
+LISTED_NAMES = 8
+
+
+def listed_names(names) -> str:
+    names = list(names)
+    more = f", ... ({len(names) - LISTED_NAMES} more)" if len(names) > LISTED_NAMES else ""
+    return ", ".join(names[:LISTED_NAMES]) + more
+
+
+def counted_names(counts: dict) -> str:
+    return listed_names(f"{name} {n}" for name, n in counts.items())
+
+
+def scene_summary(spec) -> dict:
+    """The plan summary's ``objects`` and ``environments`` of ``spec`` (either only where the
+    spec names it)."""
+    summary = plan_dataset(spec).summary()
+    return {key: summary[key] for key in ("objects", "environments") if key in summary}
 
 
 def _dict(value) -> dict:
@@ -192,16 +246,25 @@ def dataset_info(root: str) -> DatasetInfo:
     spec = read_snapshot(root)
     counts = shard_render_counts(spec)
     description, why = read_json_checked(layout.description)
+    scene, scene_problem = {}, None
+    try:
+        scene = scene_summary(spec)
+    except (ShaderballError, OSError) as exc:  # e.g. an imported SVBRDF folder gone since the build
+        scene_problem = f"plan: {exc}"
     info = DatasetInfo(
         root=root,
         name=spec.dataset.name,
         version=spec.dataset.version,
         spec_digest=spec_digest(spec),
         description=description if isinstance(description, dict) else None,
-        spec_lines=spec_summary(spec),
+        spec_lines=spec_summary(spec, scene),
         total_renders=sum(counts.values()),
         total_shards=len(counts),
+        objects=dict(scene.get("objects", {})),
+        environments=list(scene.get("environments", [])),
     )
+    if scene_problem is not None:
+        info.problems.append(scene_problem)
     if (why is not None and why != "missing") or (why is None and not isinstance(description, dict)):
         info.problems.append(f"{DESCRIPTION_FILE}: {why or 'not a JSON object'}")
     files: dict[str, dict] = {}  # role -> {"count", "bytes"}

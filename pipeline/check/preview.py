@@ -1,7 +1,8 @@
 """`shaderball preview DIR --out FILE.png`: a contact sheet of a dataset, for people.
 
-One row per chosen sample: its label (id, material, sun elevation / azimuth, turbidity),
-its render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, Reinhard,
+One row per chosen sample: its label (id, material, sun elevation / azimuth, turbidity; under
+an environment map its base name, rotation and scale; where the dataset shows materials on
+objects other than the shaderball, the sample's object), its render tone-mapped (pipeline.image.tonemap.preview_srgb8: exposure from the ball's pixels, Reinhard,
 sRGB), then its four screen-space maps as the network sees them: diffuse and specular
 albedo (sRGB-encoded for display), roughness (grey, raw) and the tangent-space normal
 ((n + 1) / 2, raw). Samples are spread evenly over the renders recorded so far, so it
@@ -19,6 +20,7 @@ import numpy as np
 from pipeline.check.info import problems_line, shard_render_counts
 from pipeline.check.request import DATASET_FOLDER, PreviewRequest, dir_refused
 from pipeline.check.snapshot import read_snapshot
+from pipeline.dataset.spec import DEFAULT_OBJECTS
 from pipeline.errors import ShaderballError
 from pipeline.image.tonemap import map_srgb8, preview_srgb8
 from pipeline.store.atomic import write_bytes_atomic
@@ -29,6 +31,12 @@ from pipeline.store.layout import Layout
 
 COLUMNS = ("render", "diffuse", "specular", "roughness", "normal")
 LABEL_WIDTH = 190
+#: A label's line height (px), and the most lines drawn at it: a sun-lit sample on the shaderball
+#: has at most this many, so its label is drawn as it always was; a longer one is packed into its row.
+LINE_STEP = 17
+FULL_STEP_LINES = 7
+#: Characters of an object's name shown (a mesh file's name may be long).
+NAME_CHARS = 24
 HEADER_HEIGHT = 22
 GAP = 4
 BACKGROUND = (24, 24, 24)
@@ -122,17 +130,44 @@ def _num(value) -> float:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
 
 
-def label_text(record: dict) -> list[str]:
+def label_text(record: dict, show_object: bool = False) -> list[str]:
+    """The lines of a sample's label. ``show_object``: also the object it is shown on (the
+    record's ``object.name``; a record without one is on the shaderball)."""
     material = _dict(record.get("material"))
     kind = str(material.get("kind", "?"))
     if kind == "svbrdf":
         file = material.get("file")
         source = material.get("family") or (os.path.basename(file) if isinstance(file, str) else "") or "?"
         kind = f"SVBRDF {source}"
-    lighting = _dict(record.get("lighting"))
+    lines = [str(record["id"]), kind]
+    if show_object:
+        lines.append(f"on {object_label(record)}")
+    lines += light_label(_dict(record.get("lighting")))
+    if _dict(record.get("stats")).get("flagged"):
+        lines.append("FLAGGED: bad pixels")
+    return lines
+
+
+def object_label(record: dict) -> str:
+    """The object a record names (``object.name``), shortened to :data:`NAME_CHARS`."""
+    name = _dict(record.get("object")).get("name", DEFAULT_OBJECTS[0])
+    name = name if isinstance(name, str) else "?"
+    return name if len(name) <= NAME_CHARS else name[: NAME_CHARS - 3] + "..."
+
+
+def light_label(lighting: dict) -> list[str]:
+    """A record's lighting as a label says it: the environment map's base name, rotation and
+    scale, or the sun's elevation, azimuth and turbidity (and the elevation asked for, where the
+    low-sun policy raised it)."""
+    if lighting.get("source") == "environment":
+        file = lighting.get("file")
+        name = file if isinstance(file, str) else "?"
+        return [
+            f"map {name if len(name) <= NAME_CHARS else name[: NAME_CHARS - 3] + '...'}",
+            f"rotation {_num(lighting.get('rotation_deg')):.1f} deg",
+            f"scale {_num(lighting.get('scale')):.2f}",
+        ]
     lines = [
-        str(record["id"]),
-        kind,
         f"sun elevation {_num(lighting.get('elevation_deg')):.1f} deg",
         f"sun azimuth {_num(lighting.get('azimuth_deg')):.1f} deg",
         f"turbidity {_num(lighting.get('turbidity')):.2f}",
@@ -140,9 +175,15 @@ def label_text(record: dict) -> list[str]:
     requested = _dict(lighting.get("requested"))
     if requested and abs(_num(requested.get("elevation_deg")) - _num(lighting.get("elevation_deg"))) > 1e-9:
         lines.append(f"(raised from {_num(requested.get('elevation_deg')):.1f} deg)")
-    if _dict(record.get("stats")).get("flagged"):
-        lines.append("FLAGGED: bad pixels")
     return lines
+
+
+def line_step(lines: int, tile: int) -> int:
+    """Pixels between a label's lines: :data:`LINE_STEP`, or less for a label longer than
+    :data:`FULL_STEP_LINES` lines, so that it stays in its row."""
+    if lines <= FULL_STEP_LINES:
+        return LINE_STEP
+    return max(11, min(LINE_STEP, (tile + GAP - 8) // lines))
 
 
 def _read_layers(root: str, entry: dict, layer: str | None, resolution: int) -> dict:
@@ -203,11 +244,16 @@ def _unreadable(draw, x: int, y: int, tile: int, text: str, font) -> None:
 
 
 def contact_sheet(
-    root: str, records: list[dict], tile: int, resolution: int, problems: list[str] | None = None
+    root: str,
+    records: list[dict],
+    tile: int,
+    resolution: int,
+    problems: list[str] | None = None,
+    show_objects: bool = False,
 ) -> np.ndarray:
     """The sheet as uint8 (H, W, 3): a header, then one row per record. A file that cannot
     be read or decoded, or is not ``resolution`` pixels a side, gets an "unreadable" tile,
-    and why goes to ``problems``."""
+    and why goes to ``problems``. ``show_objects``: every label names its sample's object."""
     problems = [] if problems is None else problems
     from PIL import Image, ImageDraw
 
@@ -239,9 +285,11 @@ def contact_sheet(
                 _unreadable(draw, x, y, tile, "unreadable" if broken else "not stored", small)
             else:
                 sheet.paste(_fit(pictures[name], tile), (x, y))
-        for i, line in enumerate(label_text(record)):
+        label = label_text(record, show_objects)
+        step = line_step(len(label), tile)
+        for i, line in enumerate(label):
             draw.text(
-                (8, y + 4 + 17 * i),
+                (8, y + 4 + step * i),
                 line,
                 fill=(235, 235, 235) if i == 0 else (190, 190, 190),
                 font=font if i == 0 else small,
@@ -280,6 +328,7 @@ def write_preview(request: PreviewRequest) -> PreviewSummary:
     # One shard's records at a time; of each usable one, its id and where it was found (a
     # compact index), then the chosen few are read again.
     ids, where, problems, complete = [], array("l"), [], 0
+    show_objects = False  # any record names its object: then every label does
     for index, (shard, renders) in enumerate(counts.items()):
         found, shard_complete, _started, left_out = shard_records(layout, shard, renders)
         complete += shard_complete
@@ -291,6 +340,7 @@ def write_preview(request: PreviewRequest) -> PreviewSummary:
             else:
                 ids.append(record["id"])
                 where.append(index << 32 | position)
+                show_objects = show_objects or "object" in record
     if not ids:
         raise dir_refused(
             root,
@@ -302,7 +352,7 @@ def write_preview(request: PreviewRequest) -> PreviewSummary:
     resolution = spec.render.resolution
     if tile is None:
         tile = resolution * max(1, -(-128 // resolution)) if resolution < 128 else min(resolution, 256)
-    picture = contact_sheet(root, chosen, tile, resolution, problems)
+    picture = contact_sheet(root, chosen, tile, resolution, problems, show_objects)
     import io
 
     buffer = io.BytesIO()

@@ -317,8 +317,9 @@ def source_changes(recorded, spec: DatasetSpec) -> list[str]:
     now = source_file_digests(spec)
     out = []
     for path, digest in sorted(recorded.items()):
-        if path not in now:
-            out.append(f"{quoted(path)} is no longer named by the spec")
+        if path not in now:  # gone from a listed folder, or from the spec's list
+            gone = "is missing" if not os.path.lexists(path) else "is no longer named by the spec"
+            out.append(f"{quoted(path)} {gone}")
         elif now[path] != digest:
             out.append(f"{quoted(path)} changed (SHA-256 {str(digest)[:12]} when built, {now[path][:12]} now)")
     out.extend(f"{quoted(path)} is new to the spec" for path in sorted(set(now) - set(recorded)))

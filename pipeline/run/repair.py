@@ -1,6 +1,10 @@
 """`shaderball validate --repair`: :func:`repair` fixes what :func:`pipeline.check.validate.validate`
 finds. Its steps: settle which record each sample keeps, delete what is bad, and resume the
-build for the shards this touches. A writer, so it lives with the build, above the checks."""
+build for the shards this touches. A writer, so it lives with the build, above the checks.
+
+A dataset whose mesh files or environment maps (dataset.json's ``sources``) are missing or
+changed is refused before anything is written (:func:`changed_sources`): its samples would be
+re-rendered from other files, a dataset of two scenes."""
 
 from __future__ import annotations
 
@@ -9,20 +13,24 @@ import shutil
 from collections.abc import Callable
 from typing import NamedTuple
 
+import tomllib
+
 from pipeline.check.crosscheck import marker_record
 from pipeline.check.discrepancies import expected_files, record_ok
 from pipeline.check.inspect import expectations, inspect_file
 from pipeline.check.loading import State, check_root
 from pipeline.check.report import Progress, RepairAction, Report
 from pipeline.check.request import ValidateRequest
+from pipeline.check.snapshot import read_snapshot
 from pipeline.check.validate import validate
-from pipeline.dataset.spec_file import parse_spec, spec_digest, spec_to_toml
-from pipeline.errors import SetupError, filesystem_error, quoted
+from pipeline.dataset.spec_file import parse_spec, source_files, spec_digest, spec_to_toml
+from pipeline.errors import USER_ERRORS, SetupError, ShaderballError, filesystem_error, quoted
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, resolve_variant
 from pipeline.run.build import build, write_manifest
 from pipeline.run.cluster.options import ClusterOptions
 from pipeline.run.out_folder import recorded_guarantee
-from pipeline.store.atomic import write_text_atomic
+from pipeline.store.atomic import sha256_file, write_text_atomic
+from pipeline.store.folder import read_spec_snapshot
 from pipeline.store.layout import DESCRIPTION_FILE, MANIFEST_FILE, SPEC_FILE, Layout
 from pipeline.store.lock import writer_lock
 from pipeline.store.records import dumps, read_json
@@ -56,6 +64,85 @@ def restore_spec(state: State, spec_path: str) -> RepairAction:
         SPEC_FILE,
         f"{SPEC_FILE}: restored from {spec_path} (digest {recorded[:12]} matches {DESCRIPTION_FILE})",
     )
+
+
+#: The spec keys that name files, as a refusal names them.
+SOURCE_KEYS = (("scene", "objects"), ("lighting", "environments"))
+
+
+def changed_sources(layout: Layout) -> list[str]:
+    """The mesh files and environment maps the dataset was built from (dataset.json's
+    ``sources``: path -> SHA-256) that are missing or changed now, and those the spec names
+    that it was not built from: one phrase each, naming the file and the spec key naming it.
+    Empty where the snapshot's digest is dataset.json's (its files are digested in it), where
+    dataset.json records no file, or cannot be read (validate reports that)."""
+    description = read_json(layout.description)
+    recorded = description.get("sources") if isinstance(description, dict) else None
+    if not isinstance(recorded, dict) or not recorded:
+        return []
+    try:
+        spec = read_snapshot(layout.root)
+        if spec_digest(spec) == description.get("spec_digest"):
+            return []
+    except (*USER_ERRORS, OSError):  # a named file gone makes the snapshot unreadable
+        spec = None
+    keys = _source_keys(layout)
+    out = []
+    for path, digest in sorted(recorded.items()):
+        if not isinstance(path, str) or not isinstance(digest, str):
+            continue  # validate names a malformed dataset.json
+        where = f"{quoted(path)} ({_naming_key(keys, path)})"
+        if not os.path.isfile(path):
+            out.append(f"{where} is missing (SHA-256 {digest[:12]} when built)")
+            continue
+        try:
+            now = sha256_file(path)
+        except OSError as exc:
+            out.append(f"{where} cannot be read ({exc.strerror})")
+            continue
+        if now != digest:
+            out.append(f"{where} changed (SHA-256 {digest[:12]} when built, {now[:12]} now)")
+    if spec is not None:
+        new = sorted(set(source_files(spec)) - set(recorded))
+        out += [f"{quoted(path)} ({_naming_key(keys, path)}) is new: the dataset was not built with it" for path in new]
+    return out
+
+
+def _source_keys(layout: Layout) -> dict[str, list]:
+    """``section.key`` -> the paths the snapshot lists under it (read as TOML only: a snapshot
+    naming a missing file does not parse as a spec); empty where it cannot be read."""
+    try:
+        table = tomllib.loads(read_spec_snapshot(layout).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return {}
+    out = {}
+    for section, key in SOURCE_KEYS:
+        items = table.get(section, {}).get(key, []) if isinstance(table.get(section), dict) else []
+        out[f"{section}.{key}"] = (
+            [os.path.normpath(i) for i in items if isinstance(i, str)] if isinstance(items, list) else []
+        )
+    return out
+
+
+def _naming_key(keys: dict[str, list], path: str) -> str:
+    """The spec key naming ``path``: listing it, or the folder it lies in."""
+    for key, items in keys.items():
+        if path in items or os.path.dirname(path) in items:
+            return key
+    return "named by the spec"
+
+
+def refuse_changed_sources(layout: Layout) -> None:
+    """ShaderballError (exit code 2) naming each mesh file or map that is missing or changed
+    since the build (:func:`changed_sources`); nothing is written."""
+    changed = changed_sources(layout)
+    if changed:
+        raise ShaderballError(
+            f"{quoted(layout.root)}: not repaired: the files the spec names are not those the dataset was built "
+            "from: " + "; ".join(changed) + ". Repairing would render its samples from other files and mix two "
+            f"scenes in one dataset; nothing was written. Put each file back as it was ({DESCRIPTION_FILE}'s "
+            "sources give its SHA-256), or build the spec into a new folder"
+        )
 
 
 def remove_file(path: str) -> bool:
@@ -338,6 +425,7 @@ def _repair_locked(
     without ``spec_path`` it is not repaired (which side is right is unknown): the actions
     say so and nothing is changed.
     """
+    refuse_changed_sources(Layout(root))
     before = validate(root, progress=progress, keep_state=True)
     if before.ok:
         return Repaired(before, before, [])
