@@ -11,6 +11,7 @@ from __future__ import annotations
 import statistics
 
 from pipeline.dataset.spec_file import spec_to_toml
+from pipeline.publish import scene_card
 from pipeline.publish.hub import yaml_configs
 from pipeline.publish.names import (
     CROISSANT_FILE,
@@ -303,7 +304,7 @@ def yaml_header(facts: PublicationFacts) -> list[str]:
                 "mitsuba",
             )
         ),
-        *yaml_configs(facts.spec.storage.texture_maps),
+        *yaml_configs(facts.spec.storage.texture_maps, scene_card.has_scene(facts)),
         "---",
     ]
 
@@ -327,10 +328,11 @@ def sample_section(facts: PublicationFacts) -> list[str]:
         "## What a sample is",
         "",
         "One sample pairs a material's four screen-space maps and a lighting vector with a path-traced render "
-        "of the shaderball (the paper's input and target). Its files are members of uncompressed tars, named "
-        "`KEY.FIELD` (the WebDataset convention; a key never holds a dot), in pairs: `shards/materials-N.tar` "
-        "holds whole materials, `shards/renders-N.tar` (the same N) their lightings. Every key of a tar has "
-        "the same fields, so the Hub's WebDataset loader reads each kind as a config (`renders`, the default, "
+        f"of {scene_card.subject(facts)} (the paper's input and target). Its files are members of uncompressed "
+        "tars, named `KEY.FIELD` (the WebDataset convention; a key never holds a dot), in pairs: "
+        "`shards/materials-N.tar` holds whole materials, `shards/renders-N.tar` (the same N) their lightings. "
+        "Every key of a tar has the same fields, so the Hub's WebDataset loader reads each kind as a config "
+        "(`renders`, the default, "
         "and `materials`; join a render to its maps by `material_id` = the material's `__key__`):",
         "",
         "| tar | member | what |",
@@ -345,7 +347,7 @@ def sample_section(facts: PublicationFacts) -> list[str]:
         "| materials | `m000012.json` | the material's row: the material columns of the table below |",
         f"| materials | `m000012.maps.exr` | the material's screen-space maps, what the renderer saw: "
         f"`diffuse.R/G/B`, `specular.R/G/B`, `roughness.Y`, `normal.X/Y/Z` (tangent space) in {maps_type}, "
-        f"`mask.Y` (1 where a pixel sees the material) in float32; {res}x{res} |",
+        f"`mask.Y` (1 where a pixel sees the material) in float32{scene_card.geometry_text(spec)}; {res}x{res} |",
     ]
     if texture:
         lines.append(
@@ -363,9 +365,9 @@ def sample_section(facts: PublicationFacts) -> list[str]:
         "| column | type | meaning |",
         "|---|---|---|",
         *(f"| `{c}` | {t.split(':')[1]} | {d} |" for c, t, d in COLUMN_DOCS),
+        *scene_card.column_lines(facts),
         "",
-        "The network's lighting input is the record's `lighting_vector`: the unit sun direction (3) and the "
-        "turbidity, as float32.",
+        scene_card.lighting_vector_text(facts),
         "",
     ]
     return lines
@@ -401,12 +403,16 @@ def made_section(facts: PublicationFacts) -> list[str]:
         f"`{spec.lighting.sun}`; mean relative noise (standard error / mean over the ball) "
         + (f"{statistics.fmean(noise):.3f}" if noise else "unknown")
         + ".",
-        f"- **Lighting**: sun scheme `{spec.lighting.scheme}`, elevation {spec.lighting.elevation_deg[0]:g} to "
-        f"{spec.lighting.elevation_deg[1]:g} deg, azimuth {spec.lighting.azimuth_deg[0]:g} to "
-        f"{spec.lighting.azimuth_deg[1]:g} deg, turbidity {spec.lighting.turbidity[0]:g} to "
-        f"{spec.lighting.turbidity[1]:g} (one per {spec.lighting.turbidity_per}). Rendered: elevation "
-        f"{_range(summary.elevation)} deg, turbidity "
-        f"{_range(summary.turbidity)}; the low-sun policy raised {changed} sun(s).",
+        *scene_card.made_lines(facts),
+        *scene_card.sun_lines(
+            facts,
+            f"- **Lighting**: sun scheme `{spec.lighting.scheme}`, elevation {spec.lighting.elevation_deg[0]:g} to "
+            f"{spec.lighting.elevation_deg[1]:g} deg, azimuth {spec.lighting.azimuth_deg[0]:g} to "
+            f"{spec.lighting.azimuth_deg[1]:g} deg, turbidity {spec.lighting.turbidity[0]:g} to "
+            f"{spec.lighting.turbidity[1]:g} (one per {spec.lighting.turbidity_per}). Rendered: elevation "
+            f"{_range(summary.elevation)} deg, turbidity "
+            f"{_range(summary.turbidity)}; the low-sun policy raised {changed} sun(s).",
+        ),
         f"- **Materials**: Cook-Torrance (GGX) as in Deschaintre et al. 2018; uniform materials drawn from "
         f"roughness {spec.materials.roughness[0]:g} to {spec.materials.roughness[1]:g}, metal probability "
         f"{spec.materials.metal_probability:g}, flat-normal probability {spec.materials.flat_normal_probability:g} "
@@ -536,10 +542,13 @@ def load_section(spec) -> list[str]:
 def dataset_card(facts: PublicationFacts) -> str:
     spec = facts.spec
     counts = facts.description.get("counts") or {}
+    materials = counts.get("materials", facts.materials)
     intro = [
         f"# shaderball dataset `{facts.name}` (version {facts.description.get('version', '?')})",
         "",
-        f"{facts.summary.samples} path-traced renders of a shaderball, {counts.get('materials', facts.materials)} "
+        scene_card.intro_text(facts, materials)
+        if scene_card.has_scene(facts)
+        else f"{facts.summary.samples} path-traced renders of a shaderball, {materials} "
         f"materials under {spec.dataset.lights_per_material} sun-and-sky lightings each, with the material "
         "maps and lighting vector each render was made from: the data of *A Flexible Neural Renderer for "
         "Material Visualization* (KT, Sakurikar, Saini, Narayanan; SIGGRAPH Asia 2019 Technical Briefs), "
@@ -556,6 +565,7 @@ def dataset_card(facts: PublicationFacts) -> str:
         yaml_header(facts)
         + intro
         + sample_section(facts)
+        + scene_card.scene_section(facts)
         + made_section(facts)
         + files_section(facts)
         + load_section(spec)

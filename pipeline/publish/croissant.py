@@ -20,7 +20,10 @@ from pipeline.publish.names import (
     SOURCE_FILES,
 )
 from pipeline.publish.publication_facts import CITATION, LICENSES, PublicationFacts
+from pipeline.publish.scene_card import GEOMETRY_DOCS, geometry_layers, has_scene
+from pipeline.publish.scene_fields import SCENE_COLUMN_DOCS
 from pipeline.publish.table import COLUMN_DOCS
+from pipeline.store.exr import LAYER_CHANNELS
 
 CONFORMS_TO = "http://mlcommons.org/croissant/1.1"
 RECORD_SET = "samples"
@@ -146,7 +149,10 @@ def _field(column: str, data_type: str, description: str, field_id: str) -> dict
     }
 
 
-def record_set_fields() -> list[dict]:
+def record_set_fields(scene: bool = False, geometry: tuple[str, ...] = ()) -> list[dict]:
+    """The record set's fields: a column each (vectors as one field with sub-fields); ``scene``:
+    and the scene columns (pipeline.publish.scene_fields); ``geometry``: and a field per geometry
+    layer the maps member holds (:func:`geometry_fields`)."""
     docs = {c: (t, d) for c, t, d in COLUMN_DOCS}
     in_vector = {column: name for name, parts in VECTORS.items() for column, _ in parts}
     fields, done = [], set()
@@ -168,7 +174,25 @@ def record_set_fields() -> list[dict]:
                     ],
                 }
             )
-    return fields
+    if scene:
+        fields += [_field(c, t, d, f"{RECORD_SET}/{c}") for c, t, d in SCENE_COLUMN_DOCS]
+    return fields + geometry_fields(geometry)
+
+
+def geometry_fields(layers: tuple[str, ...]) -> list[dict]:
+    """A field per geometry layer the maps members hold, read from the ``maps`` column: the
+    member that holds the layer (Croissant cannot decode EXR, so the field names where the
+    layer is, its channels and meaning; the record set never opens a tar)."""
+    return [
+        _field(
+            "maps",
+            "sc:Text",
+            f"tar member holding layer {layer} (EXR channels {', '.join(f'{layer}.{c}' for c in LAYER_CHANNELS[layer])}"
+            f", float32, 0 outside the mask): {GEOMETRY_DOCS[layer]}",
+            f"{RECORD_SET}/{layer}",
+        )
+        for layer in layers
+    ]
 
 
 def croissant_metadata(facts: PublicationFacts) -> dict:
@@ -200,6 +224,8 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
     for set_id, kind, pattern, encoding, what in MEMBER_SETS:
         if set_id == "texture-exr" and not facts.summary.has_texture:
             continue
+        if set_id == "maps-exr" and geometry_layers(facts.spec):
+            what += ", and the object's geometry: " + ", ".join(geometry_layers(facts.spec)) + " (float32)"
         distribution.append(
             {
                 "@type": "cr:FileSet",
@@ -215,7 +241,9 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
         "@context": CONTEXT,
         "@type": "sc:Dataset",
         "name": facts.name,
-        "description": (
+        "description": _scene_description(facts)
+        if has_scene(facts)
+        else (
             f"{facts.summary.samples} path-traced renders ({resolution}x{resolution}, {facts.spec.render.spp} spp, "
             f"Mitsuba 3) of a shaderball with {counts.get('materials', facts.materials)} materials "
             f"({counts.get('uniform', '?')} uniform, {counts.get('svbrdf', '?')} spatially varying) under a "
@@ -237,13 +265,32 @@ def croissant_metadata(facts: PublicationFacts) -> dict:
                 "description": "one record per sample (render); its EXR files are the tar members it "
                 "names, in the tar it names",
                 "key": {"@id": f"{RECORD_SET}/id"},
-                "field": record_set_fields(),
+                "field": record_set_fields(has_scene(facts), geometry_layers(facts.spec)),
             }
         ],
     }
     if facts.url:
         metadata["url"] = facts.url
     return metadata
+
+
+def _scene_description(facts: PublicationFacts) -> str:
+    """The dataset's description where its samples are on other objects or under environment maps."""
+    counts = facts.description.get("counts") or {}
+    resolution = facts.spec.render.resolution
+    objects = ", ".join(facts.summary.scene.objects)
+    light = (
+        "HDR environment maps (named and digested per sample; not included)"
+        if facts.summary.scene.environments
+        else "a Hosek-Wilkie sun and sky"
+    )
+    return (
+        f"{facts.summary.samples} path-traced renders ({resolution}x{resolution}, {facts.spec.render.spp} spp, "
+        f"Mitsuba 3) of {counts.get('materials', facts.materials)} materials on objects ({objects}) under {light}, "
+        "each with its material's screen-space maps, the object's geometry layers where stored and its lighting "
+        "vector; made with shaderball after 'A Flexible Neural Renderer for Material Visualization' (SIGGRAPH "
+        "Asia 2019). Meshes and maps travel by SHA-256 (columns object_sha256, environment_sha256), not as files."
+    )
 
 
 def _semver(version) -> str:

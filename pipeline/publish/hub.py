@@ -8,7 +8,9 @@ sample's ``material_id``). ``samples.jsonl`` is no config: ``datasets`` picks on
 all configs of a folder (here WebDataset, which would read the table as a tar). The WebDataset loader
 names a tar's columns by their member fields (``json``, ``render.exr``, ...) and drops fields
 the features leave out; the record is the sample's record file, of which ``RECORD_FEATURES``
-declares the fields a trainer needs (the whole record is in ``dataset/manifest.jsonl``).
+declares the fields a trainer needs (the whole record is in ``dataset/manifest.jsonl``); a
+publication with the scene columns (pipeline.publish.scene_fields) also declares the record's
+``object`` and its environment light's fields, and the material's object columns.
 
 Pure data and text: nothing here imports ``datasets`` (tests load the card with it).
 """
@@ -16,6 +18,7 @@ Pure data and text: nothing here imports ``datasets`` (tests load the card with 
 from __future__ import annotations
 
 from pipeline.publish.names import MATERIALS, RENDERS
+from pipeline.publish.scene_fields import OBJECT_COLUMNS, SCENE_COLUMN_DOCS
 from pipeline.publish.table import COLUMN_DOCS, MATERIAL_COLUMNS
 from pipeline.store.layout import SHARDS_DIR
 
@@ -66,23 +69,41 @@ RECORD_FEATURES = {
     },
 }
 
-COLUMN_TYPES = {column: DTYPES[data_type] for column, data_type, _ in COLUMN_DOCS}
+#: The scene fields of a record (an object's; an environment light's) a publication with the
+#: scene columns declares (pipeline.publish.scene_fields): null where a record has none (the
+#: shaderball's has no ``object``, a sun's lighting no ``source``).
+SCENE_RECORD_FEATURES = {
+    "object": {"name": TEXT, "kind": TEXT, "sha256": TEXT, "uv_source": TEXT, "file_sha256": TEXT},
+    "lighting": {"source": TEXT, "file": TEXT, "sha256": TEXT, "rotation_deg": F64, "scale": F64},
+}
+
+COLUMN_TYPES = {column: DTYPES[data_type] for column, data_type, _ in COLUMN_DOCS + SCENE_COLUMN_DOCS}
 
 
-def config_features(texture: bool) -> dict[str, dict]:
+def record_features(scene: bool = False) -> dict:
+    """The record's features: :data:`RECORD_FEATURES`, with :data:`SCENE_RECORD_FEATURES` where ``scene``."""
+    if not scene:
+        return RECORD_FEATURES
+    features = {**RECORD_FEATURES, "lighting": {**RECORD_FEATURES["lighting"], **SCENE_RECORD_FEATURES["lighting"]}}
+    features["object"] = SCENE_RECORD_FEATURES["object"]
+    return features
+
+
+def config_features(texture: bool, scene: bool = False) -> dict[str, dict]:
     """config name -> its features (name -> dtype, ``{"list": dtype}``, a dict of sub-fields,
-    or ``"image"``), in the order the loader gives the columns."""
+    or ``"image"``), in the order the loader gives the columns; ``scene``: with the scene
+    fields (the record's object and environment light, the material's object columns)."""
     materials = {"__key__": TEXT, "maps.png": "image", "maps.exr": "binary"}
     if texture:
         materials["texture.exr"] = "binary"
-    materials["json"] = {c: COLUMN_TYPES[c] for c in MATERIAL_COLUMNS}
+    materials["json"] = {c: COLUMN_TYPES[c] for c in MATERIAL_COLUMNS + (OBJECT_COLUMNS if scene else ())}
     materials["__url__"] = TEXT
     return {
         RENDERS: {
             "__key__": TEXT,
             "render.png": "image",
             "render.exr": "binary",
-            "json": RECORD_FEATURES,
+            "json": record_features(scene),
             "__url__": TEXT,
         },
         MATERIALS: materials,
@@ -109,8 +130,8 @@ def _feature_lines(name: str, feature, indent: int) -> list[str]:
     return lines
 
 
-def yaml_configs(texture: bool) -> list[str]:
-    """The card's ``configs`` and ``dataset_info`` (YAML lines)."""
+def yaml_configs(texture: bool, scene: bool = False) -> list[str]:
+    """The card's ``configs`` and ``dataset_info`` (YAML lines); ``scene``: :func:`config_features`'."""
     lines = ["configs:"]
     for number, (name, path) in enumerate(config_files().items()):
         lines += [f"- config_name: {name}"]
@@ -118,7 +139,7 @@ def yaml_configs(texture: bool) -> list[str]:
             lines.append("  default: true")
         lines += ["  data_files:", "  - split: train", f"    path: {path}"]
     lines.append("dataset_info:")
-    for name, features in config_features(texture).items():
+    for name, features in config_features(texture, scene).items():
         lines += [f"- config_name: {name}", "  features:"]
         for field, feature in features.items():
             lines += _feature_lines(field, feature, 2)

@@ -51,13 +51,18 @@ class MaterialGroup:
     maps_preview: PackedMember | None = None
     render_previews: list[PackedMember] = field(default_factory=list)
     record_sums: list[tuple[str, int]] = field(default_factory=list)
+    scene: bool = False  # the rows have the scene columns (pipeline.publish.scene_fields)
 
     def rows(self, index: int) -> list[dict]:
         """The samples table's rows of the material's lightings, in the tar pair ``index``."""
         maps = (self.maps_preview.sha256, self.maps_preview.size)
         return [
             sample_row(
-                record, tar_rel(index, RENDERS), *sums, {"render_preview": (p.sha256, p.size), "maps_preview": maps}
+                record,
+                tar_rel(index, RENDERS),
+                *sums,
+                {"render_preview": (p.sha256, p.size), "maps_preview": maps},
+                self.scene,
             )
             for record, sums, p in zip(self.records, self.record_sums, self.render_previews)
         ]
@@ -91,16 +96,17 @@ def manifest_records(layout: Layout):
             yield number, json.loads(line)
 
 
-def material_groups(layout: Layout, records) -> Iterator[MaterialGroup]:
+def material_groups(layout: Layout, records, scene: bool = False) -> Iterator[MaterialGroup]:
     """Members of each material in plan order (the manifest's), one material at a time;
-    ``records``: (line number, record) in manifest order; previews not yet drawn."""
+    ``records``: (line number, record) in manifest order; previews not yet drawn; ``scene``:
+    rows with the scene columns (pipeline.publish.scene_fields.has_scene_columns)."""
     group = None
     for number, record in records:
         refs = file_refs(record, f"manifest.jsonl line {number}")
         if group is None or group.material_id != record["material_id"]:
             if group is not None:
                 yield group
-            group = MaterialGroup(record["material_id"])
+            group = MaterialGroup(record["material_id"], scene=scene)
             for role in ("maps", "texture"):
                 if role in refs:
                     ref = refs[role]

@@ -7,6 +7,7 @@ from array import array
 from dataclasses import asdict, dataclass, field
 
 from pipeline.dataset.spec import DatasetSpec
+from pipeline.publish.scene_fields import SceneSummary
 
 #: Hugging Face license identifiers accepted by --license, and their Croissant URLs.
 LICENSES = {
@@ -64,6 +65,7 @@ class RecordSummary:
     turbidity: tuple | None = None
     effects_off: dict = field(default_factory=dict)  # effect -> renders without it
     has_texture: bool = False  # a row lists a texture-space maps file
+    scene: SceneSummary = field(default_factory=SceneSummary)  # objects and maps (the card lists them)
 
     def add(self, record: dict, row: dict, effects) -> None:
         self.samples += 1
@@ -79,6 +81,7 @@ class RecordSummary:
         for key in effects:
             self.effects_off[key] = self.effects_off.get(key, 0) + ((record.get("effects") or {}).get(key) is False)
         self.has_texture = self.has_texture or bool(row.get("texture"))
+        self.scene.add(record)
 
 
 def _widen(span: tuple | None, value) -> tuple | None:

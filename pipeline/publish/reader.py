@@ -61,6 +61,7 @@ from pipeline.publish.rows import (
     material_members,
     tar_entries,
 )
+from pipeline.publish.scene_fields import has_scene_columns
 from pipeline.publish.small_files import (
     Shape,
     check_croissant,
@@ -132,6 +133,7 @@ class Publication:
     sections: dict[int, Section]  # tar pair number -> its rows
     shards: list[str]  # the source shards, in the manifest's (and markers.jsonl's) order
     marker_bytes: int  # the longest line of markers.jsonl
+    scene: bool = False  # samples.jsonl has the scene columns (pipeline.publish.scene_fields)
 
     def __post_init__(self):
         self.source_files = SourceFiles(self, self.small_files)
@@ -281,9 +283,10 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
     lines, newline = counts[MARKERS_REL]
     if not newline or lines != shards:
         raise Refused("bad_marker", f"{MARKERS_REL}: expected one line per source shard ({shards}); refused")
-    checked = check_rows(root, sums, tars, limits)
     small = {name: texts[rel] for name, rel in SOURCE_FILES.items() if rel in texts}
-    parse_json(small[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata)
+    # the rows' columns follow the description (the scene columns: where its counts name objects or maps)
+    scene = has_scene_columns(parse_json(small[DESCRIPTION_FILE], SOURCE_FILES[DESCRIPTION_FILE], metadata))
+    checked = check_rows(root, sums, tars, limits, scene)
     return Publication(
         root=root,
         limits=limits,
@@ -293,6 +296,7 @@ def open_publication(root: str, limits: Limits = DEFAULT_LIMITS) -> Publication:
         tars=tars,
         index=index,
         samples=samples,
+        scene=scene,
         **checked,
     )
 
@@ -319,7 +323,7 @@ def _section_members(publication: Publication, kind: str, at: Section) -> Iterat
             if line is None or row_line is None:
                 break
             digest.update(line + b"\n" + row_line + b"\n")
-            row = checked_row(number, line, row_line, by_rel, publication.limits)
+            row = checked_row(number, line, row_line, by_rel, publication.limits, publication.scene)
             if kind == RENDERS:
                 yield from lighting_members(row)
             elif row.record["material_id"] != material:

@@ -31,6 +31,7 @@ from pipeline.publish.names import (
     tar_rel,
 )
 from pipeline.publish.refusal import Limits, Refused
+from pipeline.publish.scene_fields import OBJECT_COLUMNS, scene_problem
 from pipeline.publish.small_files import (
     HEX,
     Shape,
@@ -100,10 +101,10 @@ class Section:
 
 def _checked_record(line: bytes, where: str, shape: Shape) -> dict:
     """A manifest line's record: its shape before it is parsed, then the layout of its ids and
-    paths and the types of its fields."""
+    paths, the types of its fields and its scene's (an object's and a map's digests)."""
     record = parse_json(line, where, shape)
     file_refs(record, where)
-    why = field_type_problem(record)
+    why = field_type_problem(record) or scene_problem(record)
     if why:
         raise Refused("bad_record", f"{where}: {why}; refused")
     return record
@@ -207,9 +208,11 @@ class Row:
     previews: dict[str, tuple[str, int]]
 
 
-def checked_row(number: int, line: bytes, row_line: bytes, by_rel: dict[str, TarEntry], limits: Limits) -> Row:
+def checked_row(
+    number: int, line: bytes, row_line: bytes, by_rel: dict[str, TarEntry], limits: Limits, scene: bool = False
+) -> Row:
     """The manifest's line ``number`` and the table's row of that number, which must be the
-    row that line gives; any disagreement is refused."""
+    row that line gives (``scene``: with the scene columns); any disagreement is refused."""
     manifest = MANIFEST_REL
     record = _checked_record(line, f"{manifest} line {number}", record_shape(limits))
     row = parse_json(row_line, f"{SAMPLES_FILE} line {number}", record_shape(limits))
@@ -229,7 +232,7 @@ def checked_row(number: int, line: bytes, row_line: bytes, by_rel: dict[str, Tar
         )
     sha, size = sums["record"]
     previews = {role: sums[role] for role in PREVIEW_ROLES}
-    expected_row = sample_row(record, tar_rel, sha, size, previews)
+    expected_row = sample_row(record, tar_rel, sha, size, previews, scene)
     if dumps(expected_row).encode("utf-8") != row_line:
         raise Refused(
             "bad_table",
@@ -241,9 +244,10 @@ def checked_row(number: int, line: bytes, row_line: bytes, by_rel: dict[str, Tar
 
 def _shared_of(row: Row) -> dict:
     """What every lighting of a material must agree on: its maps' (and texture's) SHA-256 and
-    size, and its maps preview's."""
+    size, its maps preview's, and its object (where the rows name one)."""
     shared = {r: (row.refs[r].sha256, row.refs[r].bytes) for r in ("maps", "texture") if r in row.refs}
     shared["maps_preview"] = row.previews["maps_preview"]
+    shared.update({c: row.material_row[c] for c in OBJECT_COLUMNS if c in row.material_row})
     return shared
 
 
@@ -282,9 +286,10 @@ def lighting_members(row: Row) -> list[Expected]:
     ]
 
 
-def check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: Limits) -> dict:
+def check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: Limits, scene: bool = False) -> dict:
     """The manifest, the samples table and the markers read together, a line of each at a
-    time: each table row must be the one its record gives, each tar pair's rows adjacent and
+    time: each table row must be the one its record gives (``scene``: with the scene columns,
+    pipeline.publish.scene_fields), each tar pair's rows adjacent and
     in the tars' order, each material's lightings adjacent in one pair and agreeing on its
     maps, each marker the one of its shard. Counts each tar's members and notes where each
     pair's rows lie (:class:`Section`); keeps no more than a shard's records and the ids of
@@ -309,7 +314,7 @@ def check_rows(root: str, sums: dict[str, str], tars: list[TarEntry], limits: Li
             row_line = table.next(shape.bytes, lambda n: f"{SAMPLES_FILE} line {n}")
             if row_line is None:
                 same_as_checked(SAMPLES_FILE, "", sums[SAMPLES_FILE])
-            rows.add(checked_row(number, line, row_line, rows.by_rel, limits), row_line, m_offset, t_offset)
+            rows.add(checked_row(number, line, row_line, rows.by_rel, limits, scene), row_line, m_offset, t_offset)
         rows.finish()
     for rel, reader in ((MANIFEST_REL, manifest), (SAMPLES_FILE, table), (MARKERS_REL, markers)):
         same_as_checked(rel, reader.digest.hexdigest(), sums[rel])
@@ -399,8 +404,8 @@ class _RowsCheck:
         elif self.current != (material, shared):
             raise Refused(
                 "bad_record",
-                f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps differ "
-                "from its other lightings', or its lightings are not adjacent; refused",
+                f"{MANIFEST_REL} line {number} ({row.record['id']}): its material's maps (or object) "
+                "differ from its other lightings', or its lightings are not adjacent; refused",
             )
 
     def _check_shard(self) -> None:

@@ -24,6 +24,7 @@ from pipeline.publish.names import (
     paired_tar,
 )
 from pipeline.publish.refusal import Refused
+from pipeline.publish.scene_fields import OBJECT_COLUMNS, SCENE_COLUMNS, scene_values
 from pipeline.store.layout import Layout
 
 #: The row's columns, in the order the card and Croissant describe them: (column, Croissant
@@ -180,10 +181,16 @@ def preview_member(record: dict, role: str) -> str:
 
 
 def sample_row(
-    record: dict, tar: str, record_sha256: str, record_bytes: int, previews: dict[str, tuple[str, int]]
+    record: dict,
+    tar: str,
+    record_sha256: str,
+    record_bytes: int,
+    previews: dict[str, tuple[str, int]],
+    scene: bool = False,
 ) -> dict:
     """The ``samples.jsonl`` row of a (checked) manifest record in the renders tar ``tar``;
-    ``previews``: role (render_preview, maps_preview) -> (SHA-256, size) of its PNG member."""
+    ``previews``: role (render_preview, maps_preview) -> (SHA-256, size) of its PNG member;
+    ``scene``: with the scene columns (pipeline.publish.scene_fields.has_scene_columns)."""
     refs = file_refs(record, "manifest")
     lighting = _object(record.get("lighting"))
     direction = lighting.get("direction")
@@ -235,7 +242,9 @@ def sample_row(
     for role in PREVIEW_ROLES:
         sha, size = previews[role]
         row[role], row[f"{role}_sha256"], row[f"{role}_bytes"] = preview_member(record, role), sha, size
-    assert set(row) == set(COLUMNS)
+    if scene:
+        row.update(scene_values(record))
+    assert set(row) == set(COLUMNS) | (set(SCENE_COLUMNS) if scene else set())
     return row
 
 
@@ -244,5 +253,5 @@ def material_row(row: dict) -> dict:
     of any of its lightings' ``samples.jsonl`` rows, but for nulls (a column absent is null:
     the card's features type it; a loader that guesses types from the first rows, such as
     ``load_dataset("webdataset")`` without features, then never sees a null-typed column
-    meet a value)."""
-    return {column: row[column] for column in MATERIAL_COLUMNS if row[column] is not None}
+    meet a value). A publication with the scene columns adds the material's object's."""
+    return {column: row[column] for column in MATERIAL_COLUMNS + OBJECT_COLUMNS if row.get(column) is not None}

@@ -59,6 +59,7 @@ from pipeline.publish.pub_folder import held_publication
 from pipeline.publish.publication_facts import PublicationFacts, RecordSummary, TarFacts
 from pipeline.publish.refusal import Refused, refuse_invalid
 from pipeline.publish.request import DEFAULT_LICENSE, DEFAULT_SHARD_BYTES, PublishRequest
+from pipeline.publish.scene_fields import has_scene_columns
 from pipeline.publish.tarsafe import member_bytes, open_writer, tar_size, write_member
 from pipeline.store.atomic import atomic_file, sha256_file
 from pipeline.store.bounded_read import MAX_JSON_BYTES, list_bound, read_bytes, read_chunks, resolve_inside
@@ -302,6 +303,7 @@ def _write_into(
     start = time.perf_counter()
     layout = Layout(root)
     spec: DatasetSpec = read_snapshot(root)
+    scene = has_scene_columns(json.loads(read_bytes(layout.description, MAX_JSON_BYTES)))
     records = manifest_records(layout)
     first = next(records, None)
     if first is None:
@@ -311,7 +313,9 @@ def _write_into(
     table: StreamedFile | None = None
     try:
         table = StreamedFile(output, SAMPLES_FILE)
-        packed = _pack_materials(output, layout, spec, itertools.chain([first], records), table, shard_bytes, progress)
+        packed = _pack_materials(
+            output, layout, spec, itertools.chain([first], records), table, shard_bytes, progress, scene
+        )
         _copy_sources(output, layout, packed)
         table.close()
         table = None
@@ -362,13 +366,15 @@ def _pack_materials(
     table: StreamedFile,
     shard_bytes: int,
     progress: Callable[[str], None] | None,
+    scene: bool = False,
 ) -> _Packed:
     """Every material of ``records`` (manifest order) with its previews into tar pairs, a new
-    pair when a material would take one over ``shard_bytes``; its rows into ``table``."""
+    pair when a material would take one over ``shard_bytes``; its rows into ``table`` (with
+    the scene columns where ``scene``)."""
     packed = _Packed()
     pair: TarPair | None = None
     try:
-        for number, group in enumerate(material_groups(layout, records), start=1):
+        for number, group in enumerate(material_groups(layout, records, scene), start=1):
             if progress:
                 progress(f"previews of {group.material_id} ({number}/{spec.dataset.materials})")
             draw_previews(layout, group, spec.render.resolution)
