@@ -49,6 +49,14 @@ the file and what is wrong, and training writes nothing for an epoch it did not 
 
 Where a sample's files are read is pipeline.neural.file_sources; what opening a dataset
 keeps of its manifest, pipeline.neural.manifest_index.
+
+**Scene fields** (opt in: :func:`with_scene`, so a sample of :func:`open_dataset` keeps the keys
+above and training its batches): ``object`` (the object's name: ``shaderball``, ``sphere``, a
+mesh file's base name, ...; ``shaderball`` where the record names none), ``light_source``
+(``sun_sky`` or ``environment``), ``environment`` (the map's base name, ``""`` under the sun),
+and, only where the sample's maps file stores them (``storage.layers``; never invented), the
+object's geometry as tensors: ``geometry_normal`` (3, R, R), world-space unit normals, and
+``depth`` (1, R, R), metres from the camera plane; 0 off the object, box-averaged like the maps.
 """
 
 from __future__ import annotations
@@ -331,6 +339,80 @@ class ShaderballDataset(Dataset):
             "id": sample.id,
             "material_id": sample.material_id,
         }
+
+
+#: The scene fields of a sample of :func:`with_scene` (strings), and its geometry layers (key ->
+#: channels), present only where the dataset stores them.
+SCENE_KEYS = ("object", "light_source", "environment")
+GEOMETRY_KEYS = {"geometry_normal": 3, "depth": 1}
+
+
+def scene_fields(record: dict) -> dict[str, str]:
+    """A record's ``object``, ``light_source`` and ``environment`` (see the module's docstring):
+    the shaderball's and the sun's records name neither, and are as they were before objects."""
+    obj = record.get("object") if isinstance(record.get("object"), dict) else {}
+    lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
+    environment = lighting.get("source") == "environment"
+    return {
+        "object": str(obj.get("name") or "shaderball"),
+        "light_source": "environment" if environment else "sun_sky",
+        "environment": str(lighting.get("file") or "") if environment else "",
+    }
+
+
+def geometry_tensors(layers: dict[str, np.ndarray], factor: int = 1) -> dict[str, torch.Tensor]:
+    """The geometry layers a maps file holds (of :data:`GEOMETRY_KEYS`), each (C, R, R) float32,
+    box-averaged over ``factor`` x ``factor`` pixels; a layer the file lacks is left out."""
+    out = {}
+    for name, channels in GEOMETRY_KEYS.items():
+        if name in layers:
+            image = layers[name].reshape(*layers[name].shape[:2], channels).astype(np.float32)
+            out[name] = torch.from_numpy(np.ascontiguousarray(box_downsample(image, factor).transpose(2, 0, 1)))
+    return out
+
+
+class SceneSamples(Dataset):
+    """A dataset's samples with their scene fields and stored geometry layers (the module's
+    docstring); build with :func:`with_scene`. ``subset`` and the dataset's attributes pass
+    through; a material's geometry is decoded once and kept (a bounded cache per process)."""
+
+    def __init__(self, base: ShaderballDataset):
+        self.base = base
+        self._geometry: OrderedDict[str, dict[str, torch.Tensor]] = OrderedDict()
+
+    def __getattr__(self, name):
+        if name.startswith("__") or name in ("base", "_geometry"):
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def subset(self, material_ids) -> SceneSamples:
+        return SceneSamples(self.base.subset(material_ids))
+
+    def geometry(self, sample: SampleFiles) -> dict[str, torch.Tensor]:
+        """The stored geometry layers of the sample's maps file (none where it holds none)."""
+        cached = self._geometry.get(sample.material_id)
+        if cached is None:
+            layers = self.base.read_layers(sample.maps, ("mask",), screen=True)
+            cached = self._geometry[sample.material_id] = geometry_tensors(layers, self.base.factor)
+            while len(self._geometry) > self.base.cache_materials:
+                self._geometry.popitem(last=False)
+        else:
+            self._geometry.move_to_end(sample.material_id)
+        return cached
+
+    def __getitem__(self, index: int) -> dict:
+        item = self.base[index]
+        sample = self.base.samples[index]
+        return {**item, **scene_fields(self.base.records[sample.id]), **self.geometry(sample)}
+
+
+def with_scene(dataset: ShaderballDataset) -> SceneSamples:
+    """``dataset``'s samples with ``object``, ``light_source``, ``environment`` and the stored
+    geometry layers (see the module's docstring)."""
+    return SceneSamples(dataset)
 
 
 def one_resolution(sizes: set, root: str) -> int:
