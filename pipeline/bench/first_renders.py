@@ -384,10 +384,11 @@ def scene_costs(
     """Each object's and each map's cost, from ``render_times`` (:func:`_render_times`: the
     first ``base`` are the renders the spec's figure was timed on, the rest those added to cover
     an object or a map): (by object, by map, weight). An object's relative cost is the mean
-    render call of its renders over the mean of all; its seconds per render, that relative to
-    the base renders' mix of objects, times the spec's figure; ``weight``: the spec's figure
-    weighed to ``object_shares`` and ``map_shares`` (shares of the spec's renders; the groups
-    named in neither are not weighed) instead of the base renders' mix."""
+    render call of its renders over the mean of all; ``relative``, that over the base renders'
+    mix of objects (the caller multiplies the base renders' seconds per render by it);
+    ``weight``: what the base renders' figure is multiplied by to weigh objects and maps by
+    ``object_shares`` and ``map_shares`` (shares of the spec's renders) instead of the base
+    renders' mix of them."""
     mean_all = statistics.fmean(t for _o, _e, t in render_times)
     groups = {}
     weight = 1.0
