@@ -199,3 +199,43 @@ def test_held_out_rotations_move_a_training_materials_lightings_to_test():
         "m0_l1",
         "m0_l2",
     ]
+
+
+ENVIRONMENT_SPEC = (
+    SPEC.replace('objects = ["sphere", "torus"]', 'objects = ["sphere"]').replace("lights_per_material = 2", "lights_per_material = 4")
+    + '[lighting]\nsource = "environment"\nenvironments = ["maps"]\n'
+)
+
+
+@pytest.fixture(scope="module")
+def environment_lit(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("environment")
+    (folder / "maps").mkdir()
+    from pipeline.figures.environments import write_environments
+
+    write_environments(folder / "maps", height=16)
+    return _build(folder, ENVIRONMENT_SPEC)
+
+
+def test_environment_codes_and_held_out_rotations_train_and_evaluate_by_group(environment_lit, tmp_path):
+    run = tmp_path / "run"
+    result = _cli(
+        "train", environment_lit, "--out", run, "--environment-code", "2", "--held-out-rotations", "180,360", *TRAIN
+    )
+    assert result.exit_code == 0, result.output
+    config = json.loads((run / "config.json").read_text())
+    records = [json.loads(line) for line in (environment_lit / "manifest.jsonl").read_text().splitlines()]
+    digests = sorted({r["lighting"]["sha256"] for r in records})
+    assert config["network"]["environment_code"] == 2 and len(digests) == 2
+    assert set(config["network"]["environments"]) <= set(digests)
+    out = tmp_path / "evaluation"
+    result = _cli("evaluate", run, environment_lit, "--out", out, *EVALUATE)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["inputs"]["environment_code"] == 2
+    rotation = {r["id"]: r["lighting"]["rotation_deg"] for r in records}
+    for row in data["samples"]:
+        held = 180.0 <= rotation[row["id"]] <= 360.0
+        assert row["rotation_group"] == ("held-out" if held else "seen")
+    assert set(data["by_rotation_group"]) == {"seen", "held-out"}
+    assert "Seen and held-out map rotations" in (out / "results.md").read_text()

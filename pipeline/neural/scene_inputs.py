@@ -214,7 +214,7 @@ class NetworkInputs(Dataset):
             item["maps"] = torch.cat([item["maps"], self.geometry(sample)])
         if self.plan.code_size:
             scene = SampleScene.of(self.base.records[sample.id])
-            item["environment"] = torch.tensor(self.plan.environment_index(scene), dtype=torch.long)
+            item["environment_code"] = torch.tensor(self.plan.environment_index(scene), dtype=torch.long)
         return item
 
 

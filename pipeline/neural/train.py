@@ -114,7 +114,7 @@ def batch_to(
 
 def batch_extra(batch: dict, device: torch.device) -> tuple:
     """The network's inputs beyond maps and light: the environment codes' rows, where it has them."""
-    return (batch["environment"].to(device, non_blocking=True),) if "environment" in batch else ()
+    return (batch["environment_code"].to(device, non_blocking=True),) if "environment_code" in batch else ()
 
 
 def mean_image(dataset, workers: int, batch_size: int = 16) -> np.ndarray:
