@@ -51,7 +51,7 @@ from geometry.meshfile import (
 from geometry.meshops import canonical_digest, crease_normals, fit_in_box, uv_seams, uv_usable, weld
 from geometry.params import ShaderballParams
 from geometry.patches import ground_patch
-from geometry.ply import read_ply, write_ply
+from geometry.ply import as_trimesh, read_ply, write_ply
 from geometry.primitives import PRIMITIVES
 from geometry.shaderball import Shaderball, build_shaderball, default_cache_dir
 from geometry.unwrap import UnwrapError, unwrap
@@ -322,27 +322,13 @@ def _load(folder: str, facts: dict) -> SceneObject:
     return SceneObject(
         digest=digest,
         uv_source=meta["uv_source"],
-        material_mesh=_as_trimesh(material),
+        material_mesh=as_trimesh(material),
         neutral_mesh=None,
-        ground_mesh=_as_trimesh(arrays["ground"]),
+        ground_mesh=as_trimesh(arrays["ground"]),
         mesh_files=files,
         seam_edges=seams,
         seam_on_crease=on_crease,
         bounds=(tuple(float(v) for v in lo), tuple(float(v) for v in hi)),
         timings={"load": time.perf_counter() - t0},
         **facts,
-    )
-
-
-def _as_trimesh(arrays: dict[str, np.ndarray]):
-    import trimesh
-
-    visual = trimesh.visual.TextureVisuals(uv=arrays["uv"]) if "uv" in arrays else None
-    return trimesh.Trimesh(
-        vertices=arrays["positions"],
-        faces=arrays["faces"],
-        vertex_normals=arrays.get("normals"),
-        visual=visual,
-        process=False,
-        validate=False,
     )

@@ -69,3 +69,19 @@ def read_ply(path: str) -> dict[str, np.ndarray]:
     if "u" in names:
         out["uv"] = np.stack([vertices["u"], vertices["v"]], 1)
     return out
+
+
+def as_trimesh(arrays: dict[str, np.ndarray]):
+    """A trimesh of :func:`read_ply`'s arrays as stored (``process=False``: no vertex merged or
+    reordered), with its UVs and vertex normals where the file has them."""
+    import trimesh
+
+    visual = trimesh.visual.TextureVisuals(uv=arrays["uv"]) if "uv" in arrays else None
+    return trimesh.Trimesh(
+        vertices=arrays["positions"],
+        faces=arrays["faces"],
+        vertex_normals=arrays.get("normals"),
+        visual=visual,
+        process=False,
+        validate=False,
+    )

@@ -22,7 +22,7 @@ from geometry.atlas import pack_charts, seam_edges
 from geometry.cachefile import write_cache_file
 from geometry.params import ShaderballParams
 from geometry.patches import Patch, ground_patch, material_patches, neutral_patches
-from geometry.ply import read_ply, write_ply
+from geometry.ply import as_trimesh, read_ply, write_ply
 
 log = logging.getLogger(__name__)
 
@@ -165,25 +165,10 @@ def _merge(patches: list[Patch]):
     return positions, faces, normals
 
 
-def _trimesh(arrays: dict[str, np.ndarray]):
-    import trimesh
-
-    visual = trimesh.visual.TextureVisuals(uv=arrays["uv"]) if "uv" in arrays else None
-    mesh = trimesh.Trimesh(
-        vertices=arrays["positions"],
-        faces=arrays["faces"],
-        vertex_normals=arrays.get("normals"),
-        visual=visual,
-        process=False,
-        validate=False,
-    )
-    return mesh
-
-
 def _load(params: ShaderballParams, folder: str) -> Shaderball:
     t0 = time.perf_counter()
     files = {name: os.path.join(folder, f"{name}.ply") for name in MESH_NAMES}
-    meshes = {name: _trimesh(read_ply(path)) for name, path in files.items()}
+    meshes = {name: as_trimesh(read_ply(path)) for name, path in files.items()}
     with np.load(os.path.join(folder, INDEX_FILE), allow_pickle=False) as index:
         meta = json.loads(str(index["meta"]))
         if meta["digest"] != params.digest():

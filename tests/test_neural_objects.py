@@ -202,7 +202,9 @@ def test_held_out_rotations_move_a_training_materials_lightings_to_test():
 
 
 ENVIRONMENT_SPEC = (
-    SPEC.replace('objects = ["sphere", "torus"]', 'objects = ["sphere"]').replace("lights_per_material = 2", "lights_per_material = 4")
+    SPEC.replace('objects = ["sphere", "torus"]', 'objects = ["sphere"]').replace(
+        "lights_per_material = 2", "lights_per_material = 4"
+    )
     + '[lighting]\nsource = "environment"\nenvironments = ["maps"]\n'
 )
 

@@ -73,13 +73,13 @@ def test_a_spec_without_scene_keys_keeps_its_digest_and_snapshot():
     [
         ('[scene]\nobjects = ["teapot"]\n', "scene.objects"),
         ('[scene]\nobjects = ["missing.obj"]\n', "scene.objects"),
-        ('[scene]\nobjects = []\n', "scene.objects"),
+        ("[scene]\nobjects = []\n", "scene.objects"),
         ('[scene]\nscheme = "shuffle"\n', "scene.scheme"),
         ('[lighting]\nsource = "environment"\n', "lighting.environments"),
         ('[lighting]\nsource = "moon"\n', "lighting.source"),
         ('[lighting]\nenvironments = ["x.hdr"]\n', "lighting.environments"),
-        ('[lighting]\nrotation_deg = [10.0, 400.0]\n', "lighting.rotation_deg"),
-        ('[lighting]\nintensity = [0.0, 1.0]\n', "lighting.intensity"),
+        ("[lighting]\nrotation_deg = [10.0, 400.0]\n", "lighting.rotation_deg"),
+        ("[lighting]\nintensity = [0.0, 1.0]\n", "lighting.intensity"),
     ],
 )
 def test_bad_scene_keys_are_refused_naming_the_field(tmp_path, extra, field):
@@ -231,7 +231,9 @@ def test_an_environment_lit_scene_holds_the_map_and_no_sun_or_sky(environment_bu
     ctx = worker_context(spec, "llvm_ad_rgb", material.object)
     maps, _ = make_material(material, spec)
     scene, lighting, _ = scene_dict(ctx.ball, ctx.camera, maps, sample_light(spec, material.samples[0]), ctx.settings)
-    emitters = [k for k, v in scene.items() if isinstance(v, dict) and v.get("type") in ("envmap", "sunsky", "directional")]
+    emitters = [
+        k for k, v in scene.items() if isinstance(v, dict) and v.get("type") in ("envmap", "sunsky", "directional")
+    ]
     assert emitters == ["environment"] and scene["environment"]["type"] == "envmap"
     assert lighting["effective"]["source"] == "environment"
 

@@ -444,7 +444,8 @@ class SceneSection(_Section):
     objects: tuple[str, ...] = field(
         DEFAULT_OBJECTS,
         rule=_Files(MESH_SUFFIXES, "objects", names=BUILTIN_OBJECTS),
-        doc="Objects a material is drawn on: built-in ones (" + ", ".join(f'"{n}"' for n in BUILTIN_OBJECTS)
+        doc="Objects a material is drawn on: built-in ones ("
+        + ", ".join(f'"{n}"' for n in BUILTIN_OBJECTS)
         + ") or mesh files (OBJ, PLY, STL, glTF/GLB), each normalised to the shaderball's size and stood on "
         "the ground, framed by the same camera rule; a mesh's own UVs are kept when usable, else made by "
         "xatlas. Mesh files are checked and digested when the spec is read: changing one is a different "

@@ -19,8 +19,8 @@ from typing import Any
 
 import tomllib
 
-from materials.brdf_ref import DEFAULT_MODEL
 from geometry.objects import BUILTIN_OBJECTS
+from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.dataset.spec import (
     ENVIRONMENT_KEYS,
     SECTIONS,

@@ -34,7 +34,7 @@ from pipeline.image.stats import is_bad, render_stats
 from pipeline.render import bsdf as mitsuba_bsdf
 from pipeline.render.bsdf import needed_lobes
 from pipeline.render.clamp import register_clamp, wrap_in_clamp
-from pipeline.render.lights import light_entries, move_light, movable
+from pipeline.render.lights import light_entries, movable, move_light
 from pipeline.render.limits import DEFAULT_RR_DEPTH, launch_spp
 from pipeline.render.mitsuba_env import BYTE_IDENTICAL, determinism, load_mitsuba
 from pipeline.render.scene import BALL_SHAPE_ID, sensor_dict, shape_dicts

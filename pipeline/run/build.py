@@ -28,12 +28,12 @@ from pipeline.dataset.plan import Plan, plan_dataset
 from pipeline.dataset.spec import DatasetSpec
 from pipeline.dataset.spec_file import environment_files, spec_to_toml
 from pipeline.errors import ShaderballError, filesystem_error, quoted
+from pipeline.render.envmap import load_environment
 from pipeline.render.mitsuba_env import (
     determinism,
     resolve_variant,
     weakest_guarantee,
 )
-from pipeline.render.envmap import load_environment
 from pipeline.render.renderer import MaterialScene
 from pipeline.run.cluster.connection import run_shards_on_dask
 from pipeline.run.cluster.options import ClusterOptions, check_scheduler_reachable
