@@ -69,9 +69,7 @@ def map_direction(u, v, rotation_deg: float = 0.0) -> np.ndarray:
 
 
 def _check_file(path) -> str:
-    allowed = (
-        f"an absolute path, or a base name as a record gives it, of a file ending in {' or '.join(ENVIRONMENT_SUFFIXES)}"
-    )
+    allowed = f"an absolute path, or a base name as a record gives it, of a file ending in {' or '.join(ENVIRONMENT_SUFFIXES)}"
     if not isinstance(path, str) or not (os.path.isabs(path) or (path and os.path.basename(path) == path)):
         raise refusal("environment.file", path, allowed)
     if not path.lower().endswith(ENVIRONMENT_SUFFIXES):
