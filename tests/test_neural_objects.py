@@ -10,47 +10,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from click.testing import CliRunner
 
 from pipeline.neural.network import NeuralRenderer, network_from_config, parameter_count
 from pipeline.neural.scene_inputs import GEOMETRY_CHANNELS, InputPlan, SampleScene, geometry_channels
+from support.scenes import GEOMETRY_LAYERS, cli, small_spec
 
-SPEC = """
-[dataset]
-name = "objects"
-seed = 11
-materials = 8
-lights_per_material = 2
-svbrdf_fraction = 0.5
-shard_size = 4
-
-[materials]
-texture_resolution = 32
-
-[render]
-resolution = 32
-spp = 4
-
-[scene]
-objects = ["sphere", "torus"]
-scheme = "cycle"
-"""
-GEOMETRY = '[storage]\nlayers = ["diffuse", "specular", "roughness", "normal", "mask", "geometry_normal", "depth"]\n'
+SPEC = small_spec("objects", materials=8, shard_size=4) + '\n[scene]\nobjects = ["sphere", "torus"]\nscheme = "cycle"\n'
+GEOMETRY = GEOMETRY_LAYERS
 TRAIN = ("--epochs", "1", "--width", "0.125", "--batch-size", "4", "--loss", "l1", "--precision", "fp32")
 EVALUATE = ("--spp", "none", "--no-flip")
-
-
-def _cli(*args):
-    from cli import main
-
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def _build(folder: Path, text: str) -> Path:
     spec = folder / "spec.toml"
     spec.write_text(text)
     out = folder / "dataset"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 0, result.output
     return out
 
@@ -67,7 +42,7 @@ def without_geometry(tmp_path_factory):
 
 def test_geometry_and_a_held_out_object_train_and_evaluate_by_group(with_geometry, tmp_path):
     run = tmp_path / "run"
-    result = _cli("train", with_geometry, "--out", run, "--geometry", "--held-out-objects", "torus", *TRAIN)
+    result = cli("train", with_geometry, "--out", run, "--geometry", "--held-out-objects", "torus", *TRAIN)
     assert result.exit_code == 0, result.output
     config = json.loads((run / "config.json").read_text())
     assert config["network"]["extra_channels"] == GEOMETRY_CHANNELS and "depth" in config["network"]["geometry"]
@@ -80,7 +55,7 @@ def test_geometry_and_a_held_out_object_train_and_evaluate_by_group(with_geometr
     assert set(config["split"]["train"]) and set(config["split"]["test"]) - torus  # seen objects in test too
 
     out = tmp_path / "evaluation"
-    result = _cli("evaluate", run, with_geometry, "--out", out, "--json-out", tmp_path / "r.json", *EVALUATE)
+    result = cli("evaluate", run, with_geometry, "--out", out, "--json-out", tmp_path / "r.json", *EVALUATE)
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     assert data["inputs"]["geometry"] is True
@@ -99,14 +74,14 @@ def test_geometry_and_a_held_out_object_train_and_evaluate_by_group(with_geometr
     assert "Seen and held-out objects" in (out / "results.md").read_text()
     # infer feeds the run the geometry channels of its own G-buffer
     picture = tmp_path / "ball.exr"
-    result = _cli("infer", run, "--out", picture, "--elevation", "30", "--roughness", "0.3")
+    result = cli("infer", run, "--out", picture, "--elevation", "30", "--roughness", "0.3")
     assert result.exit_code == 0, result.output
     assert picture.stat().st_size > 0
 
 
 def test_geometry_on_a_dataset_without_its_layers_is_refused_and_nothing_written(without_geometry, tmp_path):
     run = tmp_path / "run"
-    result = _cli("train", without_geometry, "--out", run, "--geometry", *TRAIN)
+    result = cli("train", without_geometry, "--out", run, "--geometry", *TRAIN)
     assert result.exit_code == 2, result.output
     assert "--geometry" in result.output and "storage.layers" in result.output
     assert "geometry_normal" in result.output and "depth" in result.output
@@ -119,7 +94,7 @@ def test_geometry_on_a_dataset_without_its_layers_is_refused_and_nothing_written
 )
 def test_a_bad_held_out_object_is_refused(without_geometry, tmp_path, objects, says):
     run = tmp_path / "run"
-    result = _cli("train", without_geometry, "--out", run, "--held-out-objects", objects, *TRAIN)
+    result = cli("train", without_geometry, "--out", run, "--held-out-objects", objects, *TRAIN)
     assert result.exit_code == 2, result.output
     assert "--held-out-objects" in result.output and says in result.output
     assert not run.exists()
@@ -127,14 +102,14 @@ def test_a_bad_held_out_object_is_refused(without_geometry, tmp_path, objects, s
 
 def test_a_run_without_geometry_keeps_the_papers_network_and_evaluates(without_geometry, tmp_path):
     run = tmp_path / "run"
-    result = _cli("train", without_geometry, "--out", run, *TRAIN)
+    result = cli("train", without_geometry, "--out", run, *TRAIN)
     assert result.exit_code == 0, result.output
     config = json.loads((run / "config.json").read_text())
     assert "extra_channels" not in config["network"] and "held_out_objects" not in config["split"]
     assert not {"geometry", "held_out_objects", "environment_code"} & set(config["identity"])
     plain = NeuralRenderer(config["network"]["resolution"], config["network"]["width"])
     assert parameter_count(network_from_config(config["network"])) == parameter_count(plain)
-    result = _cli("evaluate", run, without_geometry, "--out", tmp_path / "e", *EVALUATE)
+    result = cli("evaluate", run, without_geometry, "--out", tmp_path / "e", *EVALUATE)
     assert result.exit_code == 0, result.output
     data = json.loads((tmp_path / "e" / "results.json").read_text())
     assert data["inputs"] == {"geometry": False, "environment_code": 0}
@@ -221,7 +196,7 @@ def environment_lit(tmp_path_factory):
 
 def test_environment_codes_and_held_out_rotations_train_and_evaluate_by_group(environment_lit, tmp_path):
     run = tmp_path / "run"
-    result = _cli(
+    result = cli(
         "train", environment_lit, "--out", run, "--environment-code", "2", "--held-out-rotations", "180,360", *TRAIN
     )
     assert result.exit_code == 0, result.output
@@ -231,7 +206,7 @@ def test_environment_codes_and_held_out_rotations_train_and_evaluate_by_group(en
     assert config["network"]["environment_code"] == 2 and len(digests) == 2
     assert set(config["network"]["environments"]) <= set(digests)
     out = tmp_path / "evaluation"
-    result = _cli("evaluate", run, environment_lit, "--out", out, *EVALUATE)
+    result = cli("evaluate", run, environment_lit, "--out", out, *EVALUATE)
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     assert data["inputs"]["environment_code"] == 2

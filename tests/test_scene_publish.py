@@ -17,7 +17,6 @@ import mlcroissant as mlc
 import numpy as np
 import pytest
 import torch
-from click.testing import CliRunner
 
 from pipeline.publish.refusal import Refused
 from pipeline.publish.request import VerifyRequest
@@ -28,25 +27,13 @@ from pipeline.publish.writer import write_publication
 from pipeline.store.exr import read_exr
 from pipeline.store.records import dumps
 from support.publishing import files_of, hf_env
+from support.scenes import cli, environment_map, small_spec
 
 pytestmark = pytest.mark.slow  # a real build, publishes, the Hugging Face client in a process
 
-SPEC = """
-[dataset]
-name = "scene-publish"
-seed = 11
-materials = 3
-lights_per_material = 2
-svbrdf_fraction = 0.5
-shard_size = 2
-
-[materials]
-texture_resolution = 32
-
-[render]
-resolution = 32
-spp = 4
-
+SPEC = (
+    small_spec("scene-publish", materials=3)
+    + """
 [scene]
 objects = ["sphere", "{mesh}", "shaderball"]
 scheme = "cycle"
@@ -60,27 +47,11 @@ intensity = [0.5, 2.0]
 [storage]
 layers = ["diffuse", "specular", "roughness", "normal", "mask", "geometry_normal", "depth"]
 """
-
-
-def _cli(*args):
-    from cli import main
-
-    return CliRunner().invoke(main, [str(a) for a in args])
+)
 
 
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _environment_map(path: Path, sun_row: int, sun_col: int) -> None:
-    """A small lat-long map: a blue-to-white gradient and a bright 2x2 'sun'."""
-    from pipeline.store.exr import write_exr
-
-    h, w = 32, 64
-    v = (np.arange(h, dtype=np.float32)[:, None, None] + 0.5) / h
-    sky = np.broadcast_to(np.array([0.3, 0.5, 1.0], np.float32) * (1.2 - v), (h, w, 3)).copy()
-    sky[sun_row : sun_row + 2, sun_col : sun_col + 2] = 500.0
-    write_exr(str(path), {"render": sky})
 
 
 @pytest.fixture(scope="module")
@@ -92,14 +63,14 @@ def scene(tmp_path_factory):
     folder = tmp_path_factory.mktemp("scene-publish")
     trimesh.creation.cone(radius=0.4, height=1.0, sections=24).export(folder / "wedge.obj")
     (folder / "maps").mkdir()
-    _environment_map(folder / "maps" / "sunny.exr", 6, 40)
-    _environment_map(folder / "maps" / "low.exr", 14, 10)
+    environment_map(folder / "maps" / "sunny.exr", 6, 40)
+    environment_map(folder / "maps" / "low.exr", 14, 10)
     spec = folder / "spec.toml"
     spec.write_text(SPEC.replace("{mesh}", "wedge.obj"))
     out, pub = folder / "out", folder / "pub"
-    built = _cli("build", spec, "--out", out, "--workers", "0")
+    built = cli("build", spec, "--out", out, "--workers", "0")
     assert built.exit_code == 0, built.output
-    published = _cli("publish", out, "--out", pub)
+    published = cli("publish", out, "--out", pub)
     assert published.exit_code == 0, published.output
     return folder, out, pub
 
@@ -114,10 +85,10 @@ def _manifest(root: Path) -> list[dict]:
 
 def test_it_verifies_and_unpacks_to_the_dataset_byte_for_byte(scene, tmp_path):
     _folder, out, pub = scene
-    verified = _cli("verify", pub, "--json")
+    verified = cli("verify", pub, "--json")
     assert verified.exit_code == 0, verified.output
     unpacked = tmp_path / "unpacked"
-    result = _cli("unpack", pub, "--out", unpacked)
+    result = cli("unpack", pub, "--out", unpacked)
     assert result.exit_code == 0, result.output
     assert files_of(unpacked) == files_of(out)  # validated by unpack too
     # the maps members hold the geometry layers, as the folder's files do

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from pipeline.bench.first_renders import (
     COVER_LIGHTS,
@@ -34,68 +33,25 @@ from pipeline.check.preview import (
 )
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec_file import parse_spec, parse_spec_text
+from support.scenes import cli, environment_map, mesh_file, small_spec
+from support.scenes import records as dataset_records
 
-BASE = """
-[dataset]
-name = "stages"
-seed = 11
-materials = 4
-lights_per_material = 2
-svbrdf_fraction = 0.5
-shard_size = 2
-
-[materials]
-texture_resolution = 32
-
-[render]
-resolution = 32
-spp = 4
-"""
+BASE = small_spec("stages")
 ENVIRONMENT = (
     '[lighting]\nsource = "environment"\nenvironments = ["maps"]\nrotation_deg = [0.0, 180.0]\nintensity = [0.5, 2.0]\n'
 )
-
-
-def _cli(*args):
-    from cli import main
-
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def _json(result) -> dict:
     return json.loads(result.output[result.output.index("{") :])
 
 
-def _records(root: Path) -> list[dict]:
-    return [json.loads(p.read_text()) for p in sorted((root / "shards").rglob("m*.json"))]
-
-
-def _mesh_file(folder: Path, name: str = "wedge.obj") -> Path:
-    import trimesh
-
-    path = folder / name
-    trimesh.creation.cone(radius=0.4, height=1.0, sections=24).export(path)
-    return path
-
-
-def _environment_map(path: Path, sun_row: int = 6, sun_col: int = 40) -> Path:
-    """A small lat-long map: a blue-to-white gradient and a bright 2x2 'sun'."""
-    from pipeline.store.exr import write_exr
-
-    h, w = 32, 64
-    v = (np.arange(h, dtype=np.float32)[:, None, None] + 0.5) / h
-    sky = np.broadcast_to(np.array([0.3, 0.5, 1.0], np.float32) * (1.2 - v), (h, w, 3)).copy()
-    sky[sun_row : sun_row + 2, sun_col : sun_col + 2] = 500.0
-    write_exr(str(path), {"render": sky})
-    return path
-
-
 def _scene_folder(folder: Path, objects: str = '["sphere", "wedge.obj"]', materials: int = 4, lights: int = 2) -> Path:
     """A spec (in ``folder``, with its mesh file and two maps) on ``objects`` under the maps."""
-    _mesh_file(folder)
+    mesh_file(folder)
     (folder / "maps").mkdir()
-    _environment_map(folder / "maps" / "sunny.exr")
-    _environment_map(folder / "maps" / "low.exr", sun_row=14, sun_col=10)
+    environment_map(folder / "maps" / "sunny.exr")
+    environment_map(folder / "maps" / "low.exr", sun_row=14, sun_col=10)
     spec = folder / "spec.toml"
     counts = BASE.replace("materials = 4", f"materials = {materials}").replace(
         "lights_per_material = 2", f"lights_per_material = {lights}"
@@ -109,7 +65,7 @@ def scene_build(tmp_path_factory):
     folder = tmp_path_factory.mktemp("scene-stages")
     spec = _scene_folder(folder)
     out = folder / "out"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 0, result.output
     return spec, out
 
@@ -121,7 +77,7 @@ def default_build(tmp_path_factory):
     spec = folder / "spec.toml"
     spec.write_text(BASE)
     out = folder / "out"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 0, result.output
     return spec, out
 
@@ -131,7 +87,7 @@ def default_build(tmp_path_factory):
 
 def test_info_shows_materials_per_object_and_the_maps_instead_of_the_sun(scene_build):
     spec, out = scene_build
-    text = _cli("info", out)
+    text = cli("info", out)
     assert text.exit_code == 0, text.output
     lines = text.output.splitlines()
     assert "objects (materials planned, cycle): sphere 2, wedge.obj 2" in lines
@@ -139,28 +95,32 @@ def test_info_shows_materials_per_object_and_the_maps_instead_of_the_sun(scene_b
     render = next(line for line in lines if line.startswith("render:"))
     assert "lighting: environment maps" in render and "rotation [0.0, 180.0] deg" in render
     assert "intensity [0.5, 2.0]" in render and "elevation" not in render and "turbidity" not in render
-    doc = _json(_cli("info", out, "--json"))
+    doc = _json(cli("info", out, "--json"))
     # the plan's counts are the records': materials per object as built
-    built = Counter(r.get("object", {}).get("name", "shaderball") for r in _records(out) if r["light_index"] == 0)
+    built = Counter(
+        r.get("object", {}).get("name", "shaderball") for r in dataset_records(out) if r["light_index"] == 0
+    )
     assert doc["objects"] == dict(built) == {"sphere": 2, "wedge.obj": 2}
-    assert doc["environments"] == sorted({r["lighting"]["file"] for r in _records(out)}) == ["low.exr", "sunny.exr"]
+    assert (
+        doc["environments"] == sorted({r["lighting"]["file"] for r in dataset_records(out)}) == ["low.exr", "sunny.exr"]
+    )
     # `info SPEC` (the plan without timing) says the same
-    planned = _cli("info", spec)
+    planned = cli("info", spec)
     assert planned.exit_code == 0, planned.output
     assert "objects (materials planned, cycle): sphere 2, wedge.obj 2" in planned.output
     assert "2 map(s): low.exr, sunny.exr" in planned.output and "rotation [0.0, 180.0] deg" in planned.output
-    doc = _json(_cli("plan", spec, "--no-timing", "--json"))
+    doc = _json(cli("plan", spec, "--no-timing", "--json"))
     assert doc["objects"] == {"sphere": 2, "wedge.obj": 2} and doc["environments"] == ["low.exr", "sunny.exr"]
     assert doc["scheme"] == "cycle" and "environment maps" in doc["lighting"]
 
 
 def test_info_of_a_spec_naming_neither_has_no_scene_keys(default_build):
     spec, out = default_build
-    doc = _json(_cli("info", out, "--json"))
+    doc = _json(cli("info", out, "--json"))
     assert "objects" not in doc and "environments" not in doc
     assert "elevation [5.0, 90.0] deg" in doc["spec_lines"][1]
     assert not any(line.startswith(("objects", "environment maps")) for line in doc["spec_lines"])
-    planned = _json(_cli("plan", spec, "--no-timing", "--json"))
+    planned = _json(cli("plan", spec, "--no-timing", "--json"))
     assert not {"objects", "environments", "lighting", "scheme"} & set(planned)
 
 
@@ -172,10 +132,10 @@ def test_preview_labels_name_the_object_and_the_map(scene_build, tmp_path):
 
     _spec, out = scene_build
     png = tmp_path / "sheet.png"
-    result = _cli("preview", out, "--out", png, "--json")
+    result = cli("preview", out, "--out", png, "--json")
     assert result.exit_code == 0, result.output
     samples = _json(result)["samples"]
-    records = {r["id"]: r for r in _records(out)}
+    records = {r["id"]: r for r in dataset_records(out)}
     chosen = [records[s] for s in samples]
     for record in chosen:
         lines = label_text(record, show_object=True)
@@ -223,9 +183,9 @@ def test_labels_of_sun_lit_samples_on_objects_and_on_the_shaderball():
 
 def test_preview_of_a_spec_naming_neither_draws_no_object(default_build, tmp_path):
     _spec, out = default_build
-    result = _cli("preview", out, "--out", tmp_path / "sheet.png", "--json")
+    result = cli("preview", out, "--out", tmp_path / "sheet.png", "--json")
     assert result.exit_code == 0, result.output
-    records = {r["id"]: r for r in _records(out)}
+    records = {r["id"]: r for r in dataset_records(out)}
     assert all("object" not in records[s] for s in _json(result)["samples"])
 
 
@@ -234,7 +194,7 @@ def test_preview_of_a_spec_naming_neither_draws_no_object(default_build, tmp_pat
 
 def test_plan_times_every_object_and_map(tmp_path):
     spec_path = _scene_folder(tmp_path, objects='["sphere", "torus", "wedge.obj"]', materials=6)
-    result = _cli("plan", spec_path, "--renders", "1", "--workers", "0", "--json")
+    result = cli("plan", spec_path, "--renders", "1", "--workers", "0", "--json")
     assert result.exit_code == 0, result.output
     doc = _json(result)
     timing = doc["timing"]
@@ -248,7 +208,7 @@ def test_plan_times_every_object_and_map(tmp_path):
     assert math.isfinite(timing["scene_weight"]) and timing["scene_weight"] > 0
     # the first material and one of each kind: the objects and maps they lack were added
     assert timing["renders"] < sum(g["renders"] for g in timing["by_object"].values())
-    text = _cli("plan", spec_path, "--renders", "1", "--workers", "0")
+    text = cli("plan", spec_path, "--renders", "1", "--workers", "0")
     assert text.exit_code == 0, text.output
     per_object = next(line for line in text.output.splitlines() if line.startswith("time per object"))
     assert all(name in per_object for name in ("sphere", "torus", "wedge.obj"))
@@ -257,11 +217,11 @@ def test_plan_times_every_object_and_map(tmp_path):
 
 def test_plan_of_a_spec_naming_neither_has_no_scene_timing(default_build):
     spec, _out = default_build
-    result = _cli("plan", spec, "--renders", "1", "--workers", "0", "--json")
+    result = cli("plan", spec, "--renders", "1", "--workers", "0", "--json")
     assert result.exit_code == 0, result.output
     timing = _json(result)["timing"]
     assert not {"by_object", "by_environment", "scene_weight"} & set(timing)
-    text = _cli("plan", spec, "--renders", "1", "--workers", "0").output
+    text = cli("plan", spec, "--renders", "1", "--workers", "0").output
     assert "time per object" not in text and "time per environment map" not in text
 
 
@@ -341,22 +301,22 @@ def test_repair_refuses_a_dataset_whose_mesh_or_map_is_missing_or_changed(scene_
         elif path.suffix == ".obj":
             path.write_bytes(original + b"\n# edited\n")
         else:
-            _environment_map(path, sun_row=20, sun_col=3)
+            environment_map(path, sun_row=20, sun_col=3)
         before = _tree(copy)
         for extra in ((), ("--spec", spec)):
-            refused = _cli("validate", copy, "--repair", *extra)
+            refused = cli("validate", copy, "--repair", *extra)
             assert refused.exit_code == 2, refused.output
             assert f'"{path}" ({key}) {"is missing" if how == "missing" else "changed"}' in refused.output
             assert "nothing was written" in refused.output
             assert _tree(copy) == before
         # validate names the file too (a missing mesh leaves the snapshot unreadable: by its key)
-        checked = _cli("validate", copy)
+        checked = cli("validate", copy)
         assert checked.exit_code != 0 and str(path) in checked.output
         if how == "missing":
             assert ("scene.objects" if path.suffix == ".obj" else f'"{path}" is missing') in checked.output
     finally:
         path.write_bytes(original)
     # the same files back: the repair goes ahead and the dataset validates
-    repaired = _cli("validate", copy, "--repair")
+    repaired = cli("validate", copy, "--repair")
     assert repaired.exit_code == 0, repaired.output
     assert (copy / "shards" / "s00000" / "m000000_l0.render.exr").is_file()

@@ -9,51 +9,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from pipeline.dataset.plan import plan_dataset
 from pipeline.dataset.spec import SpecError
 from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest, spec_to_toml
+from support.scenes import cli, environment_map, mesh_file, small_spec
+from support.scenes import records as dataset_records
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "manifests" / "smoke.toml"
 
-BASE = """
-[dataset]
-name = "scenes"
-seed = 7
-materials = 4
-lights_per_material = 2
-svbrdf_fraction = 0.5
-shard_size = 2
-
-[materials]
-texture_resolution = 32
-
-[render]
-resolution = 32
-spp = 4
-"""
-
-
-def _cli(*args):
-    from cli import main
-
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def _records(root: Path) -> list[dict]:
-    return [json.loads(p.read_text()) for p in sorted((root / "shards").rglob("m*.json"))]
-
-
-def _mesh_file(folder: Path, name: str = "wedge.obj") -> Path:
-    """A small closed mesh (an irregular tetrahedron-like wedge) written by trimesh."""
-    import trimesh
-
-    mesh = trimesh.creation.cone(radius=0.4, height=1.0, sections=24)
-    path = folder / name
-    mesh.export(path)
-    return path
+BASE = small_spec("scenes", seed=7)
 
 
 def test_a_spec_without_scene_keys_keeps_its_digest_and_snapshot():
@@ -89,7 +55,7 @@ def test_bad_scene_keys_are_refused_naming_the_field(tmp_path, extra, field):
 
 
 def test_objects_are_drawn_per_material_by_the_declared_scheme(tmp_path):
-    mesh = _mesh_file(tmp_path)
+    mesh = mesh_file(tmp_path)
     text = BASE + f'[scene]\nobjects = ["sphere", "torus", "{mesh.name}"]\nscheme = "cycle"\n'
     spec = parse_spec_text(text, base_dir=str(tmp_path))
     assert spec.scene.objects[2] == str(mesh)  # relative paths are the spec folder's
@@ -108,7 +74,7 @@ def test_objects_are_drawn_per_material_by_the_declared_scheme(tmp_path):
 @pytest.fixture(scope="module")
 def object_build(tmp_path_factory):
     folder = tmp_path_factory.mktemp("objects")
-    mesh = _mesh_file(folder)
+    mesh = mesh_file(folder)
     spec = folder / "spec.toml"
     spec.write_text(
         BASE
@@ -116,14 +82,14 @@ def object_build(tmp_path_factory):
         + '[storage]\nlayers = ["diffuse", "specular", "roughness", "normal", "mask", "geometry_normal", "depth"]\n'
     )
     out = folder / "out"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 0, result.output
     return spec, out, mesh
 
 
 def test_each_material_is_rendered_on_its_object_and_the_record_names_it(object_build):
     spec, out, mesh = object_build
-    records = {r["id"]: r for r in _records(out)}
+    records = {r["id"]: r for r in dataset_records(out)}
     assert len(records) == 8
     names = {r["material_id"]: r.get("object", {}).get("name", "shaderball") for r in records.values()}
     assert names == {"m000000": "sphere", "m000001": "torus", "m000002": mesh.name, "m000003": "shaderball"}
@@ -150,32 +116,20 @@ def test_each_material_is_rendered_on_its_object_and_the_record_names_it(object_
 
 def test_validate_passes_and_names_a_changed_mesh(object_build, tmp_path):
     spec, out, mesh = object_build
-    result = _cli("validate", out, "--json")
+    result = cli("validate", out, "--json")
     assert result.exit_code == 0, result.output
     # resume: nothing to do
-    again = _cli("build", spec, "--out", out, "--workers", "0", "--json")
+    again = cli("build", spec, "--out", out, "--workers", "0", "--json")
     assert again.exit_code == 0, again.output
     original = mesh.read_bytes()
     try:
         mesh.write_bytes(original + b"\n# edited\n")
-        refused = _cli("build", spec, "--out", out, "--workers", "0")
+        refused = cli("build", spec, "--out", out, "--workers", "0")
         assert refused.exit_code == 2 and mesh.name in refused.output and "changed" in refused.output
-        checked = _cli("validate", out)
+        checked = cli("validate", out)
         assert checked.exit_code != 0 and mesh.name in checked.output and "changed" in checked.output
     finally:
         mesh.write_bytes(original)
-
-
-def _environment_map(path: Path, sun_row: int = 6, sun_col: int = 40) -> Path:
-    """A small sunny lat-long map: a blue-to-white gradient and a bright 2x2 'sun'."""
-    from pipeline.store.exr import write_exr
-
-    h, w = 32, 64
-    v = (np.arange(h, dtype=np.float32)[:, None, None] + 0.5) / h
-    sky = np.broadcast_to(np.array([0.3, 0.5, 1.0], np.float32) * (1.2 - v), (h, w, 3)).copy()
-    sky[sun_row : sun_row + 2, sun_col : sun_col + 2] = 500.0
-    write_exr(str(path), {"render": sky})
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -183,8 +137,8 @@ def environment_build(tmp_path_factory):
     folder = tmp_path_factory.mktemp("environment")
     maps = folder / "maps"
     maps.mkdir()
-    _environment_map(maps / "sunny.exr")
-    _environment_map(maps / "low.exr", sun_row=14, sun_col=10)
+    environment_map(maps / "sunny.exr")
+    environment_map(maps / "low.exr", sun_row=14, sun_col=10)
     spec = folder / "spec.toml"
     spec.write_text(
         BASE
@@ -193,14 +147,14 @@ def environment_build(tmp_path_factory):
         + "intensity = [0.5, 2.0]\n"
     )
     out = folder / "out"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 0, result.output
     return spec, out, maps
 
 
 def test_environment_lit_samples_record_their_map_rotation_and_intensity(environment_build):
     spec, out, maps = environment_build
-    records = _records(out)
+    records = dataset_records(out)
     assert len(records) == 8
     digests = {p.name: __import__("hashlib").sha256(p.read_bytes()).hexdigest() for p in maps.iterdir()}
     plan = {s.sample_id: s for shard in plan_dataset(parse_spec(spec)) for m in shard.materials for s in m.samples}
@@ -217,7 +171,7 @@ def test_environment_lit_samples_record_their_map_rotation_and_intensity(environ
     description = json.loads((out / "dataset.json").read_text())
     assert sorted(Path(p).name for p in description["sources"]) == ["low.exr", "sunny.exr"]
     assert description["counts"]["environments"] == ["low.exr", "sunny.exr"]
-    assert _cli("validate", out).exit_code == 0
+    assert cli("validate", out).exit_code == 0
 
 
 def test_an_environment_lit_scene_holds_the_map_and_no_sun_or_sky(environment_build):
@@ -243,10 +197,10 @@ def test_a_changed_map_is_named_by_resume_and_validate(environment_build):
     target = maps / "low.exr"
     original = target.read_bytes()
     try:
-        _environment_map(target, sun_row=20, sun_col=3)
-        refused = _cli("build", spec, "--out", out, "--workers", "0")
+        environment_map(target, sun_row=20, sun_col=3)
+        refused = cli("build", spec, "--out", out, "--workers", "0")
         assert refused.exit_code == 2 and "low.exr" in refused.output and "changed" in refused.output
-        checked = _cli("validate", out)
+        checked = cli("validate", out)
         assert checked.exit_code != 0 and "low.exr" in checked.output
     finally:
         target.write_bytes(original)
@@ -269,7 +223,7 @@ def test_a_bad_mesh_or_map_stops_the_build_before_anything_is_written(tmp_path, 
     spec = tmp_path / "spec.toml"
     spec.write_text(BASE + extra)
     out = tmp_path / "out"
-    result = _cli("build", spec, "--out", out, "--workers", "0")
+    result = cli("build", spec, "--out", out, "--workers", "0")
     assert result.exit_code == 2, result.output
     assert name in result.output
     assert not out.exists()
