@@ -37,7 +37,7 @@ def test_scene_command_writes_mesh_gbuffer_and_preview(cache_env, tmp_path, mi):
     import OpenEXR
 
     channels = set(OpenEXR.File(str(out / "gbuffer.exr"), separate_channels=True).channels())
-    assert channels == {"uv.U", "uv.V", "normal.X", "normal.Y", "normal.Z", "mask.Y"}
+    assert channels == {"uv.U", "uv.V", "normal.X", "normal.Y", "normal.Z", "mask.Y", "depth.Z"}
     layers = read_exr(str(out / "gbuffer.exr")).layers
     mask = layers["mask"][..., 0]
     assert set(np.unique(mask)) == {0.0, 1.0}
