@@ -15,8 +15,8 @@ from click.testing import CliRunner
 from cli import main
 from materials.brdf_ref import MODELS
 from pipeline.check.validate import validate
-from pipeline.dataset.spec import SpecError
 from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest
+from pipeline.dataset.spec_rules import SpecError
 from pipeline.errors import ShaderballError
 from pipeline.render.command import RenderRequest
 from pipeline.run.build import build

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pipeline.dataset.plan import plan_dataset
-from pipeline.dataset.spec import SpecError
 from pipeline.dataset.spec_file import parse_spec, parse_spec_text, spec_digest, spec_to_toml
+from pipeline.dataset.spec_rules import SpecError
 from support.scenes import cli, environment_map, mesh_file, small_spec
 from support.scenes import records as dataset_records
 

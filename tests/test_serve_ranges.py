@@ -12,8 +12,8 @@ from importlib import resources
 import pytest
 
 from materials import ALBEDO_RANGE, ROUGHNESS_RANGE
-from pipeline.dataset.spec import SpecError
 from pipeline.dataset.spec_file import parse_spec_text
+from pipeline.dataset.spec_rules import SpecError
 from pipeline.fields import FieldError
 from pipeline.fields.rules import Float, Pair
 from pipeline.render.command import RenderRequest

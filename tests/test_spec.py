@@ -24,7 +24,6 @@ from pipeline.dataset.spec import (
     LightingSection,
     MaterialsSection,
     RenderSection,
-    SpecError,
     svbrdf_family_names,
 )
 from pipeline.dataset.spec_file import (
@@ -36,6 +35,7 @@ from pipeline.dataset.spec_file import (
     spec_to_dict,
     spec_to_toml,
 )
+from pipeline.dataset.spec_rules import SpecError
 from pipeline.errors import ShaderballError
 from pipeline.fields import FieldError
 from support import PAPER, REPO, SMOKE

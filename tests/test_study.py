@@ -22,8 +22,8 @@ from click.testing import CliRunner
 import cli
 from geometry import build_shaderball, default_camera
 from materials.maps import MaterialMaps
-from pipeline.dataset.spec import SpecError
 from pipeline.dataset.spec_file import parse_spec_text, spec_digest
+from pipeline.dataset.spec_rules import SpecError
 from pipeline.errors import ShaderballError
 from pipeline.image.metrics import RELMSE_EPS as NEURAL_EPS
 from pipeline.render.gbuffer import load_gbuffer

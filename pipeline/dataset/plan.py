@@ -55,8 +55,9 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.dataset.spec import DEFAULT_OBJECTS, DatasetSpec, list_map_files
+from pipeline.dataset.spec import DEFAULT_OBJECTS, DatasetSpec
 from pipeline.dataset.spec_file import environment_files
+from pipeline.dataset.spec_rules import list_map_files
 from pipeline.errors import ShaderballError, quoted
 from sky.portable import asin_deg, sin_deg
 from sky.sampling import unit_points

@@ -30,24 +30,27 @@ digest by :mod:`pipeline.dataset.spec_file`). No Mitsuba, no dask.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import os
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from geometry.meshfile import MESH_SUFFIXES
 from geometry.objects import BUILTIN_OBJECTS
 from materials import SVBRDF_FAMILIES, UNIFORM_LIMITS, UniformRanges
 from materials.brdf_ref import DEFAULT_MODEL, MODELS
-from pipeline.fields import Checked, FieldError, field
+from pipeline.dataset.spec_rules import (
+    Files,
+    Folders,
+    Section,
+    SpecError,
+)
+from pipeline.fields import Checked, field
 from pipeline.fields.rules import (
     Bool,
     Choice,
     Float,
     Int,
     Pair,
-    Reject,
     StrList,
     Text,
 )
@@ -70,9 +73,6 @@ from sky.lighting import (
 #: Keep in sync with materials/ (a test compares them when materials/ is importable).
 FALLBACK_SVBRDF_FAMILIES: tuple[str, ...] = ("stains", "tiles", "bricks", "brushed_metal", "worn_paint", "stones")
 
-#: File suffixes (lower case) of imported SVBRDF map files, as in Deschaintre et al. 2018's
-#: dataset (one PNG per material with the maps side by side).
-SVBRDF_IMPORT_SUFFIXES: tuple[str, ...] = (".png",)
 
 #: Screen-space map layers the storage stage can write (pipeline.store.exr layer names).
 MAP_LAYERS: tuple[str, ...] = ("diffuse", "specular", "roughness", "normal", "mask")
@@ -93,74 +93,6 @@ MAX_SHARD_RENDERS = 100_000
 SEED_MAX = 2**63 - 1
 
 
-# --------------------------------------------------------------------------- errors
-
-
-class SpecError(FieldError):
-    """A bad spec field: names the file, the field, the value and what is allowed."""
-
-    def __init__(
-        self,
-        section: str,
-        field_name: str,
-        value: Any,
-        allowed: str,
-        source: str | None = None,
-        *,
-        what: str | None = None,
-    ):
-        self.section = section
-        self.field_name = field_name
-        self.source = source
-        where = f"{section}.{field_name}" if field_name else f"[{section}]"
-        prefix = f"{source}: " if source else ""
-        super().__init__(prefix + where, value, allowed, what=what, name=field_name)
-        self.what = what
-
-    def with_source(self, source: str) -> SpecError:
-        return SpecError(self.section, self.field_name, self.value, self.allowed, source, what=self.what)
-
-
-def list_files_with(folder: str, suffixes: tuple[str, ...]) -> tuple[str, ...]:
-    """Sorted names (not paths) of the files directly in ``folder`` with one of ``suffixes``."""
-    try:
-        names = os.listdir(folder)
-    except OSError:
-        return ()
-    return tuple(
-        sorted(
-            n
-            for n in names
-            if not n.startswith(".")
-            and os.path.splitext(n)[1].lower() in suffixes
-            and os.path.isfile(os.path.join(folder, n))
-        )
-    )
-
-
-class _Folders(StrList):
-    def __init__(self):
-        super().__init__(
-            None,
-            "existing folders (relative paths are taken from the spec "
-            "file's folder), each holding at least one " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " map file",
-        )
-
-    def check(self, value):
-        value = super().check(value)
-        for folder in value:
-            if not folder or not os.path.isdir(folder):
-                raise Reject(f"({json.dumps(folder)} is not a folder)")
-            if not list_map_files(folder):
-                raise Reject(f"({json.dumps(folder)} holds no " + "/".join(SVBRDF_IMPORT_SUFFIXES) + " file)")
-        return value
-
-
-def list_map_files(folder: str) -> tuple[str, ...]:
-    """Sorted names (not paths) of the importable SVBRDF map files directly in ``folder``."""
-    return list_files_with(folder, SVBRDF_IMPORT_SUFFIXES)
-
-
 def svbrdf_family_names() -> tuple[str, ...]:
     """The procedural SVBRDF families (materials.SVBRDF_FAMILIES)."""
     return tuple(SVBRDF_FAMILIES)
@@ -169,18 +101,8 @@ def svbrdf_family_names() -> tuple[str, ...]:
 # --------------------------------------------------------------------------- sections
 
 
-class _Section(Checked):
-    """Mixin: a spec section, checked when built; a refusal names ``section.field``."""
-
-    SECTION: ClassVar[str]
-
-    @classmethod
-    def field_error(cls, name: str, value: Any, allowed: str, *, what: str | None = None) -> SpecError:
-        return SpecError(cls.SECTION, name, value, allowed, what=what)
-
-
 @dataclass(frozen=True)
-class DatasetSection(_Section):
+class DatasetSection(Section):
     """[dataset]: what is built, how much of it, from which seed."""
 
     SECTION: ClassVar[str] = "dataset"
@@ -277,7 +199,7 @@ def _uniform(name: str, *, doc: str, unit: str = ""):
 
 
 @dataclass(frozen=True)
-class MaterialsSection(_Section):
+class MaterialsSection(Section):
     """[materials]: ranges of uniform materials, sources of spatially varying ones."""
 
     SECTION: ClassVar[str] = "materials"
@@ -354,7 +276,7 @@ class MaterialsSection(_Section):
     )
     svbrdf_folders: tuple[str, ...] = field(
         (),
-        rule=_Folders(),
+        rule=Folders(),
         doc="Folders of imported SVBRDF maps in Deschaintre et al. 2018's layout "
         "(one .png per material), checked when the spec is read. Stored as "
         "absolute paths in the canonical form.",
@@ -397,37 +319,6 @@ UNIFORM_FIELDS: tuple[str, ...] = (
 )
 
 
-class _Files(StrList):
-    """A list of existing files with given suffixes, or (``folders``) folders holding some;
-    ``names``: bare words also allowed (built-in objects). Relative paths are the spec
-    folder's (made absolute when the spec is read, :mod:`pipeline.dataset.spec_file`)."""
-
-    def __init__(self, suffixes: tuple[str, ...], what: str, *, names: tuple[str, ...] = (), folders: bool = False):
-        self.suffixes, self.names, self.folders = suffixes, names, folders
-        words = (", ".join(json.dumps(n) for n in names) + " or ") if names else ""
-        kinds = "/".join(suffixes) + " files" + (" or folders holding some" if folders else "")
-        super().__init__(None, what, doc_allowed=f"a list of distinct {words}{kinds}")
-
-    @property
-    def allowed(self) -> str:
-        return self.doc_allowed
-
-    def check(self, value):
-        value = super().check(value)
-        for item in value:
-            if item in self.names:
-                continue
-            if self.folders and os.path.isdir(item):
-                if not list_files_with(item, self.suffixes):
-                    raise Reject(f"({json.dumps(item)} holds no " + "/".join(self.suffixes) + " file)")
-                continue
-            if os.path.splitext(item)[1].lower() not in self.suffixes:
-                raise Reject(f"({json.dumps(item)} is neither a name nor a " + "/".join(self.suffixes) + " file)")
-            if not os.path.isfile(item):
-                raise Reject(f"({json.dumps(item)} is not a file)")
-        return value
-
-
 #: How a material's object is drawn (docs/scenes.md): per material, since a material's
 #: screen-space maps are projected through its object's G-buffer and stored once.
 OBJECT_SCHEMES: tuple[str, ...] = ("random", "cycle")
@@ -436,14 +327,14 @@ DEFAULT_OBJECTS: tuple[str, ...] = (BUILTIN_OBJECTS[0],)
 
 
 @dataclass(frozen=True)
-class SceneSection(_Section):
+class SceneSection(Section):
     """[scene]: the objects the materials are shown on."""
 
     SECTION: ClassVar[str] = "scene"
 
     objects: tuple[str, ...] = field(
         DEFAULT_OBJECTS,
-        rule=_Files(MESH_SUFFIXES, "objects", names=BUILTIN_OBJECTS),
+        rule=Files(MESH_SUFFIXES, "objects", names=BUILTIN_OBJECTS),
         doc="Objects a material is drawn on: built-in ones ("
         + ", ".join(f'"{n}"' for n in BUILTIN_OBJECTS)
         + ") or mesh files (OBJ, PLY, STL, glTF/GLB), each normalised to the shaderball's size and stood on "
@@ -482,7 +373,7 @@ SUN_FORMS: tuple[str, ...] = SUN_MODES
 
 
 @dataclass(frozen=True)
-class LightingSection(_Section):
+class LightingSection(Section):
     """[lighting]: the Hosek-Wilkie sun and sky each render is lit by."""
 
     SECTION: ClassVar[str] = "lighting"
@@ -544,7 +435,7 @@ class LightingSection(_Section):
     )
     environments: tuple[str, ...] = field(
         (),
-        rule=_Files(ENVIRONMENT_SUFFIXES, "environment maps", folders=True),
+        rule=Files(ENVIRONMENT_SUFFIXES, "environment maps", folders=True),
         doc="With source = environment: lat-long HDR maps (OpenEXR or Radiance .hdr), files or folders of "
         "them, each lighting drawing one uniformly. Checked and digested when the spec is read; stored as "
         "absolute paths in the canonical form.",
@@ -586,7 +477,7 @@ RenderSection = RenderSettings
 
 
 @dataclass(frozen=True)
-class StorageSection(_Section):
+class StorageSection(Section):
     """[storage]: what is written and how."""
 
     SECTION: ClassVar[str] = "storage"

@@ -21,14 +21,8 @@ import tomllib
 
 from geometry.objects import BUILTIN_OBJECTS
 from materials.brdf_ref import DEFAULT_MODEL
-from pipeline.dataset.spec import (
-    ENVIRONMENT_KEYS,
-    SECTIONS,
-    DatasetSpec,
-    LightingSection,
-    SceneSection,
-    SpecError,
-)
+from pipeline.dataset.spec import ENVIRONMENT_KEYS, SECTIONS, DatasetSpec, LightingSection, SceneSection
+from pipeline.dataset.spec_rules import SpecError
 from pipeline.errors import ShaderballError, quoted
 from pipeline.fields import Checked, FieldError, field
 from pipeline.fields.rules import (
