@@ -91,12 +91,18 @@ def test_each_material_is_rendered_on_its_object_and_the_record_names_it(object_
     spec, out, mesh = object_build
     records = {r["id"]: r for r in dataset_records(out)}
     assert len(records) == 8
-    names = {r["material_id"]: r.get("object", {}).get("name", "shaderball") for r in records.values()}
+    names = {r["material_id"]: r["object"]["name"] for r in records.values()}
     assert names == {"m000000": "sphere", "m000001": "torus", "m000002": mesh.name, "m000003": "shaderball"}
     mesh_record = records["m000002_l0"]["object"]
     assert mesh_record["kind"] == "mesh" and mesh_record["uv_source"] in ("file", "xatlas")
     assert len(mesh_record["sha256"]) == 64 and len(mesh_record["file_sha256"]) == 64
-    assert "object" not in records["m000003_l0"]  # the shaderball's records are as they were
+    # among other objects the shaderball is named too (a spec of the shaderball alone names none)
+    assert records["m000003_l0"]["object"] == {
+        "name": "shaderball",
+        "kind": "shaderball",
+        "sha256": records["m000003_l0"]["object"]["sha256"],
+        "uv_source": "built-in",
+    }
     from pipeline.store.exr import read_exr
 
     masks = {}

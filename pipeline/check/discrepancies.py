@@ -65,9 +65,9 @@ def plan_discrepancies(record: dict, sample, state: State) -> list[str]:
         ("seeds.render", sample.render_seed),
         *((f"lighting.requested.{key}", value) for key, value in sample.requested_lighting().items()),
         ("material.kind", sample.kind),
-        # absent for the shaderball (pipeline.run.shard.object_record)
-        ("object.name", None if sample.object == DEFAULT_OBJECTS[0] else sample.object_name),
     ]
+    if spec is not None:  # absent where the spec names the shaderball alone (pipeline.run.shard.object_record)
+        wanted.append(("object.name", None if spec.scene.objects == DEFAULT_OBJECTS else sample.object_name))
     if sample.svbrdf_family is not None:
         wanted.append(("material.family", sample.svbrdf_family))
     if sample.svbrdf_file is not None:

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 from pipeline.dataset.spec import LIGHT_SOURCES
 from pipeline.store.record_fields import json_type_name, short_json
 
-#: The shaderball's name where a record names no object (its records are as they were).
+#: The shaderball's name where a record names no object (a spec naming the shaderball alone:
+#: its records are as they were before other objects existed).
 SHADERBALL = "shaderball"
 #: The light of a record whose lighting names no source: the sun and sky.
 SUN_SKY, ENVIRONMENT = LIGHT_SOURCES
@@ -35,8 +36,12 @@ SCENE_COLUMN_DOCS = (
         "sc:Text",
         "the object the material was rendered on: shaderball, sphere, rounded_cube, torus, or a mesh file's base name",
     ),
-    ("object_kind", "sc:Text", "primitive (built in) or mesh (a user's file); null for the shaderball"),
-    ("object_sha256", "sc:Text", "SHA-256 of the object's canonical mesh (as rendered); null for the shaderball"),
+    ("object_kind", "sc:Text", "shaderball, primitive (built in) or mesh (a user's file)"),
+    (
+        "object_sha256",
+        "sc:Text",
+        "SHA-256 of the object's canonical mesh (the shaderball's: its parameters' digest); null where no record names it",
+    ),
     ("object_file_sha256", "sc:Text", "SHA-256 of the mesh file's bytes (mesh objects only): check a copy against it"),
     ("object_uv_source", "sc:Text", "where the object's UVs come from: built-in, file (the mesh's own) or xatlas"),
     (

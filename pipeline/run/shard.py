@@ -449,10 +449,11 @@ def render_and_queue(
     return writer.submit(write_render_and_record, layout, spec, ctx, sample, description, material_files, result)
 
 
-def object_record(obj) -> dict:
-    """A record's ``object`` (name, kind, canonical mesh SHA-256, UV source, the file's SHA-256):
-    none for the shaderball, whose records are as they were before other objects existed."""
-    if obj.kind == "shaderball":
+def object_record(obj, spec: DatasetSpec) -> dict:
+    """A record's ``object`` (name, kind, canonical mesh SHA-256, UV source, the file's SHA-256),
+    the shaderball's too where the spec names other objects; none where it names only the
+    shaderball, whose records are then as they were before other objects existed."""
+    if spec.scene.objects == DEFAULT_OBJECTS:
         return {}
     entry = {"name": obj.name, "kind": obj.kind, "sha256": obj.digest, "uv_source": obj.uv_source}
     if obj.source_sha256:
@@ -511,7 +512,7 @@ def write_render_and_record(layout, spec, ctx, sample: SamplePlan, description, 
         "light_index": sample.light_index,
         "shard": sample.shard_id,
         "material": description,
-        **object_record(ctx.ball),
+        **object_record(ctx.ball, spec),
         **lighting_record(spec, sample, result.lighting),
         "seeds": {
             "material": sample.material_seed,
