@@ -170,3 +170,11 @@ def test_hub_contact_sheet_checks_its_arguments_before_it_draws(tmp_path):
     done = _run([sys.executable, SCRIPTS / "hub_contact_sheet.py", tmp_path / "no-pub", tmp_path / "x.png"], REPO)
     _refused(done, "no-pub")
     assert not (tmp_path / "x.png").exists()
+
+
+def test_scene_bench_refuses_extra_arguments_before_writing(tmp_path):
+    repo = _scratch_repo(tmp_path, "scene_bench.sh")
+    work = tmp_path / "work"
+    done = _run(["sh", repo / "scripts" / "scene_bench.sh", work, "extra"], repo)
+    _refused(done, "at most one argument")
+    assert not work.exists()
