@@ -122,12 +122,13 @@ def _is_map(name: str) -> bool:
 
 
 def _files_of(path: str) -> list[str]:
-    """The maps ``path`` names: itself (a file), or its direct children that are (a folder)."""
+    """The maps ``path`` names: itself (a file), or its direct children that are (a folder),
+    hidden files left out as the spec's folder rule leaves them out (macOS's ``._name.exr``)."""
     if os.path.isdir(path):
         return [
             os.path.join(path, name)
             for name in os.listdir(path)
-            if _is_map(name) and os.path.isfile(os.path.join(path, name))
+            if not name.startswith(".") and _is_map(name) and os.path.isfile(os.path.join(path, name))
         ]
     if not os.path.isfile(path):
         raise refusal("environment.files", path, "an existing file or folder of environment maps")

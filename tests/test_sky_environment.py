@@ -150,3 +150,11 @@ def test_rotation_ranges_outside_one_turn_are_refused(bad):
 def test_rotations_need_a_generator():
     with pytest.raises(TypeError, match="Generator"):
         sample_rotations(np.random.RandomState(0), 3, ROTATION_RANGE)
+
+
+def test_a_folders_hidden_files_are_not_maps(tmp_path):
+    from sky.environment import list_environment_files
+
+    (tmp_path / "sky.exr").write_bytes(b"x")
+    (tmp_path / "._sky.exr").write_bytes(b"x")  # macOS's resource fork beside a copied map
+    assert list_environment_files([str(tmp_path)]) == (str(tmp_path / "sky.exr"),)

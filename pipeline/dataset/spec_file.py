@@ -19,6 +19,7 @@ from typing import Any
 
 import tomllib
 
+from geometry.meshfile import file_sha256
 from geometry.objects import BUILTIN_OBJECTS
 from materials.brdf_ref import DEFAULT_MODEL
 from pipeline.dataset.spec import ENVIRONMENT_KEYS, SECTIONS, DatasetSpec, LightingSection, SceneSection
@@ -322,11 +323,7 @@ def source_changes(recorded, spec: DatasetSpec) -> list[str]:
 
 @functools.lru_cache(maxsize=256)
 def _file_sha256(path: str, size: int, mtime_ns: int) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    return file_sha256(path)  # keyed by size and mtime too: a rewritten file is hashed again
 
 
 # --------------------------------------------------------------------------- reference
