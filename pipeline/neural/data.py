@@ -89,6 +89,7 @@ from pipeline.neural.manifest_index import (
     index_records,
 )
 from pipeline.neural.network import check_network_resolution
+from pipeline.neural.scene_inputs import SampleScene
 from pipeline.publish.names import INDEX_FILE, SUMS_FILE
 from pipeline.publish.reader import open_publication
 from pipeline.publish.refusal import Refused
@@ -348,16 +349,11 @@ GEOMETRY_KEYS = {"geometry_normal": 3, "depth": 1}
 
 
 def scene_fields(record: dict) -> dict[str, str]:
-    """A record's ``object``, ``light_source`` and ``environment`` (see the module's docstring):
-    the shaderball's and the sun's records name neither, and are as they were before objects."""
-    obj = record.get("object") if isinstance(record.get("object"), dict) else {}
-    lighting = record.get("lighting") if isinstance(record.get("lighting"), dict) else {}
-    environment = lighting.get("source") == "environment"
-    return {
-        "object": str(obj.get("name") or "shaderball"),
-        "light_source": "environment" if environment else "sun_sky",
-        "environment": str(lighting.get("file") or "") if environment else "",
-    }
+    """A record's ``object``, ``light_source`` and ``environment`` (see the module's docstring), as
+    :class:`pipeline.neural.scene_inputs.SampleScene` reads them: the shaderball's and the sun's
+    records name neither, and are as they were before objects."""
+    scene = SampleScene.of(record)
+    return {"object": scene.object, "light_source": scene.light_source, "environment": scene.environment_file or ""}
 
 
 def geometry_tensors(layers: dict[str, np.ndarray], factor: int = 1) -> dict[str, torch.Tensor]:
