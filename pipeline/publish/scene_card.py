@@ -148,7 +148,7 @@ def scene_section(facts: PublicationFacts) -> list[str]:
         "**Meshes and environment maps are not in this publication: they travel by digest.** Each record carries "
         "the SHA-256 of its object's canonical mesh (`object.sha256`, and the mesh file's, `object.file_sha256`) "
         "and of its environment map's file (`lighting.sha256`). Third-party meshes and HDRIs carry their own "
-        "licences, which may not let a dataset's publisher pass them on; maps are large (a 4k HDRI is 50-100 MB); "
+        "licences, which may not let a dataset's publisher pass them on; maps are large (a float 4096 x 2048 map is about 100 MB); "
         f"and the renders and the maps file's layers (`mask`{_geometry_names(facts.spec)}) already hold what "
         "training needs. Whoever has the files checks them against the digests (`sha256sum FILE` prints the "
         "file's); `dataset/dataset.json` lists, under `sources`, each file the spec named (by its path on the "

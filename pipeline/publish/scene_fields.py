@@ -10,7 +10,7 @@ every row has every one (null where it does not apply), so a table reader sees o
 Meshes and maps travel **by digest**, never in the publication: a record carries the canonical
 mesh's SHA-256 (and the mesh file's) and the map file's SHA-256. Third-party meshes and HDRIs
 carry their own licences (a dataset's publisher may not be allowed to redistribute them), a map
-is large (a 4k HDRI is 50-100 MB), and the renders and geometry layers (``geometry_normal``,
+is large (a float 4096 x 2048 map is about 100 MB), and the renders and geometry layers (``geometry_normal``,
 ``depth``, ``mask``) already hold what training needs; a user who has the files checks them
 against the digests (the card says how: pipeline.publish.scene_card).
 """
